@@ -1,0 +1,40 @@
+# SPEED+ builder. Quick start on a fresh machine: `make dataset`, `make test`.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+PROFILE ?= default
+WORKSPACE ?= data/$(PROFILE)
+
+.PHONY: setup dataset test bench lint clean
+
+setup: $(STAMP)
+
+# Mitsuba's fast llvm variant needs libLLVM >= 16; Debian 12 ships 14/15 by default.
+$(STAMP): pyproject.toml
+	@if [ "$$(id -u)" = "0" ] && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
+		echo "installing Debian libllvm19 for Mitsuba's llvm variant"; \
+		(apt-get install -y libllvm19 >/dev/null 2>&1 || \
+		 (apt-get update >/dev/null && apt-get install -y libllvm19 >/dev/null)) || \
+		echo "warning: libllvm19 not installed; rendering falls back to the slow scalar variant"; \
+	fi
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+dataset: setup
+	$(BIN)/speedplus run --profile $(PROFILE) --workspace $(WORKSPACE)
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	$(BIN)/python -m bench
+
+lint: setup
+	$(BIN)/ruff check pipeline stages manifests tests bench
+
+clean:
+	rm -rf $(VENV) data

@@ -1,0 +1,313 @@
+"""Atomic part writer, validating reader and completion markers of manifests.
+
+A manifest is a directory of Parquet parts. Each part is written under a temporary name
+(``.part-NNNNN.parquet.tmp``, hidden from Parquet dataset readers), fsynced, renamed, and
+the directory fsynced: a crash leaves either a whole part or an ignorable temporary file.
+Every part records the fingerprint of the stage run that wrote it, so a resumed run can
+refuse to mix results made under another configuration.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from manifests.schema import MANIFESTS, SCHEMA_VERSION, Column, ManifestSpec
+from manifests.workspace import PART_TEMPLATE, SUCCESS_FILE, PathEscapeError, Workspace, check_relative
+
+QUATERNION_TOLERANCE = 1e-6
+_PART_RE = re.compile(r"^part-(\d{5})\.parquet$")
+# Test hook: SIGKILL this process while writing its Nth part (after the temporary file is
+# complete, before the rename), to prove that interrupted stages resume cleanly.
+_FAULT_ENV = "SPEEDPLUS_FAULT_KILL_AT_PART"
+_parts_written_in_process = 0
+
+
+class ManifestError(Exception):
+    """Invalid manifest content; the message names the file, row and column."""
+
+    def __init__(self, source: str, message: str, *, row: int | None = None, column: str | None = None,
+                 sample_id: str | None = None) -> None:
+        where = [source]
+        if row is not None:
+            where.append(f"row {row}" + (f" (sample_id {sample_id})" if sample_id else ""))
+        if column is not None:
+            where.append(f"column {column!r}")
+        super().__init__(", ".join(where) + ": " + message)
+        self.source, self.row, self.column = source, row, column
+
+
+def spec_for(name_or_spec: str | ManifestSpec) -> ManifestSpec:
+    if isinstance(name_or_spec, ManifestSpec):
+        return name_or_spec
+    try:
+        return MANIFESTS[name_or_spec]
+    except KeyError:
+        raise KeyError(f"unknown manifest {name_or_spec!r}; known: {', '.join(MANIFESTS)}") from None
+
+
+# ------------------------------------------------------------------------------ validation
+def _row_fail(table: pa.Table, source: str, row: int, column: str, message: str) -> ManifestError:
+    sample_id = None
+    if "sample_id" in table.column_names and table.column("sample_id").type == pa.string():
+        sample_id = table.column("sample_id")[row].as_py()
+    return ManifestError(source, message, row=row, column=column, sample_id=sample_id)
+
+
+def _list_values(array: pa.Array, rows: np.ndarray) -> tuple[np.ndarray, pa.Array]:
+    """Child values of the given rows of a (nested) list column, as (len(rows), -1) floats."""
+    subset = array.take(pa.array(rows, type=pa.int64()))
+    flat = subset
+    while pa.types.is_list(flat.type) or pa.types.is_fixed_size_list(flat.type) or pa.types.is_large_list(flat.type):
+        flat = flat.flatten()
+    return flat, subset
+
+
+def _check_floats(table: pa.Table, source: str, column: Column, rows: np.ndarray, values: np.ndarray) -> None:
+    bad = ~np.isfinite(values).reshape(len(rows), -1).all(axis=1)
+    if bad.any():
+        row = int(rows[np.argmax(bad)])
+        raise _row_fail(table, source, row, column.name, "value is not finite (NaN or infinity)")
+
+
+def _validate_column(table: pa.Table, source: str, column: Column) -> None:
+    array = table.column(column.name).combine_chunks()
+    if array.type != column.type:
+        raise ManifestError(source, f"type is {array.type}, expected {column.type}", column=column.name)
+    nulls = np.asarray(array.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+    if not column.nullable and nulls.any():
+        raise _row_fail(table, source, int(np.argmax(nulls)), column.name, "null in a column that may not be null")
+    rows = np.flatnonzero(~nulls)
+    if len(rows) == 0:
+        return
+    dtype = array.type
+    if pa.types.is_floating(dtype):
+        _check_floats(table, source, column, rows, np.asarray(array.to_numpy(zero_copy_only=False), float)[rows])
+    elif pa.types.is_fixed_size_list(dtype) or pa.types.is_list(dtype):
+        flat, _ = _list_values(array, rows)
+        if flat.null_count:
+            inner_null = np.asarray(flat.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+            if len(inner_null) % len(rows) == 0:
+                first = int(np.argmax(inner_null.reshape(len(rows), -1).any(axis=1)))
+            else:  # variable-length lists: locate the row by its offsets
+                lengths = np.asarray(pc.list_value_length(array.take(pa.array(rows))).to_numpy(), dtype=int)
+                first = int(np.searchsorted(np.cumsum(lengths), int(np.argmax(inner_null)), side="right"))
+            raise _row_fail(table, source, int(rows[first]), column.name, "null value (or a null element in the list)")
+        if pa.types.is_floating(flat.type):
+            values = np.asarray(flat.to_numpy(zero_copy_only=False), dtype=float).reshape(len(rows), -1)
+            _check_floats(table, source, column, rows, values)
+            if column.kind == "quaternion":
+                norm = np.linalg.norm(values, axis=1)
+                bad = np.abs(norm - 1.0) > QUATERNION_TOLERANCE
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    raise _row_fail(table, source, int(rows[i]), column.name,
+                                    f"quaternion norm {norm[i]:.9f} is not 1 (tolerance {QUATERNION_TOLERANCE:g})")
+                negative = values[:, 0] < 0
+                if negative.any():
+                    i = int(np.argmax(negative))
+                    raise _row_fail(table, source, int(rows[i]), column.name,
+                                    "quaternion has w < 0; store the canonical sign (w >= 0)")
+    if column.kind == "enum":
+        values = array.to_pylist()
+        for row in rows:
+            if values[row] not in column.allowed:
+                raise _row_fail(table, source, int(row), column.name,
+                                f"value {values[row]!r} is not one of {', '.join(column.allowed)}")
+    if column.kind == "path":
+        values = array.to_pylist()
+        for row in rows:
+            try:
+                check_relative(values[row])
+            except PathEscapeError as error:
+                raise _row_fail(table, source, int(row), column.name, str(error)) from None
+
+
+def validate_table(table: pa.Table, spec: ManifestSpec, source: str) -> None:
+    """Raise ``ManifestError`` unless ``table`` satisfies ``spec`` (columns, types, nulls,
+    finite values, unit canonical quaternions, enumerations, workspace paths, unique keys)."""
+    expected = [c.name for c in spec.columns]
+    missing = [name for name in expected if name not in table.column_names]
+    if missing:
+        raise ManifestError(source, f"missing column(s) {', '.join(missing)}")
+    unexpected = [name for name in table.column_names if name not in expected]
+    if unexpected:
+        raise ManifestError(source, f"unexpected column(s) {', '.join(unexpected)}")
+    for column in spec.columns:
+        _validate_column(table, source, column)
+    seen: dict[str, int] = {}
+    for row, key in enumerate(table.column(spec.key).to_pylist()):
+        if not key:
+            raise _row_fail(table, source, row, spec.key, "empty key")
+        if key in seen:
+            raise _row_fail(table, source, row, spec.key, f"duplicate key {key!r} (first at row {seen[key]})")
+        seen[key] = row
+
+
+# ----------------------------------------------------------------------------------- write
+def _python(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def to_table(rows: Iterable[Mapping[str, Any]], spec: ManifestSpec) -> pa.Table:
+    """Rows (dicts of column -> value; numpy arrays allowed) as a table of ``spec``'s schema."""
+    rows = list(rows)
+    schema = spec.schema()
+    columns = {}
+    for field in schema:
+        try:
+            columns[field.name] = pa.array([_python(row[field.name]) for row in rows], type=field.type)
+        except KeyError:
+            raise ManifestError(f"manifest {spec.name}", "row lacks this column", column=field.name) from None
+        except (pa.ArrowInvalid, pa.ArrowTypeError) as error:
+            raise ManifestError(f"manifest {spec.name}", f"cannot convert to {field.type}: {error}",
+                                column=field.name) from None
+    return pa.Table.from_pydict(columns, schema=schema)
+
+
+def list_parts(workspace: Workspace, name: str) -> list[Path]:
+    directory = workspace.manifest_dir(name)
+    if not directory.is_dir():
+        return []
+    return sorted(p for p in directory.iterdir() if _PART_RE.match(p.name))
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | Iterable[Mapping[str, Any]],
+               fingerprint: str) -> Path | None:
+    """Validate and atomically write one part; returns its path (None for no rows)."""
+    global _parts_written_in_process
+    spec = spec_for(spec)
+    table = rows if isinstance(rows, pa.Table) else to_table(rows, spec)
+    if table.num_rows == 0:
+        return None
+    validate_table(table, spec, f"new part of manifest {spec.name}")
+    table = table.replace_schema_metadata({**spec.schema().metadata, b"speedplus.fingerprint": fingerprint.encode()})
+    directory = workspace.manifest_dir(spec.name)
+    directory.mkdir(parents=True, exist_ok=True)
+    existing = [int(_PART_RE.match(p.name).group(1)) for p in list_parts(workspace, spec.name)]
+    final = directory / PART_TEMPLATE.format(index=max(existing, default=-1) + 1)
+    temporary = directory / f".{final.name}.tmp"
+    with open(temporary, "wb") as handle:
+        pq.write_table(table, handle, compression="zstd")
+        handle.flush()
+        os.fsync(handle.fileno())
+    _parts_written_in_process += 1
+    if os.environ.get(_FAULT_ENV) == str(_parts_written_in_process):
+        os.kill(os.getpid(), signal.SIGKILL)
+    os.replace(temporary, final)
+    _fsync_dir(directory)
+    return final
+
+
+def clear(workspace: Workspace, name: str) -> None:
+    """Remove a manifest entirely (used by ``--force``)."""
+    shutil.rmtree(workspace.manifest_dir(name), ignore_errors=True)
+
+
+def remove_temporaries(workspace: Workspace, name: str) -> int:
+    """Delete temporary files left by an interrupted writer; returns how many."""
+    directory = workspace.manifest_dir(name)
+    if not directory.is_dir():
+        return 0
+    stale = [p for p in directory.iterdir() if p.name.startswith(".part-") and p.name.endswith(".tmp")]
+    for path in stale:
+        path.unlink()
+    return len(stale)
+
+
+# ------------------------------------------------------------------------------------ read
+def _read_part(path: Path, spec: ManifestSpec, source: str) -> pa.Table:
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as error:
+        raise ManifestError(source, f"not a readable Parquet file ({error})") from None
+    metadata = table.schema.metadata or {}
+    version = metadata.get(b"speedplus.schema_version", b"").decode()
+    if version != SCHEMA_VERSION:
+        raise ManifestError(source, f"schema version {version or 'missing'}, this program reads {SCHEMA_VERSION}; "
+                                    "rerun the stage with --force")
+    manifest = metadata.get(b"speedplus.manifest", b"").decode()
+    if manifest != spec.name:
+        raise ManifestError(source, f"part of manifest {manifest or 'unknown'!r}, expected {spec.name!r}")
+    return table
+
+
+def part_fingerprints(workspace: Workspace, name: str) -> set[str]:
+    """Fingerprints recorded in the parts of a manifest (reads footers only)."""
+    found = set()
+    for path in list_parts(workspace, name):
+        metadata = pq.read_schema(path).metadata or {}
+        found.add(metadata.get(b"speedplus.fingerprint", b"").decode())
+    return found
+
+
+def read_manifest(workspace: Workspace, name: str | ManifestSpec, *, validate: bool = True) -> pa.Table:
+    """All parts of a manifest as one table (schema metadata stripped of per-part fields).
+
+    With ``validate`` every part is checked (see ``validate_table``) and keys must be unique
+    across parts; errors name the part file, the row within it and the column.
+    """
+    spec = spec_for(name)
+    parts = list_parts(workspace, spec.name)
+    tables = []
+    seen: dict[str, str] = {}
+    for path in parts:
+        source = workspace.display(path)
+        table = _read_part(path, spec, source)
+        if validate:
+            validate_table(table, spec, source)
+            for row, key in enumerate(table.column(spec.key).to_pylist()):
+                if key in seen:
+                    raise ManifestError(source, f"key {key!r} also in {seen[key]}", row=row, column=spec.key)
+                seen[key] = source
+        tables.append(table.replace_schema_metadata(spec.schema().metadata))
+    if not tables:
+        return spec.schema().empty_table()
+    return pa.concat_tables(tables)
+
+
+def read_keys(workspace: Workspace, name: str | ManifestSpec) -> set[str]:
+    """Keys (sample_ids) present in a manifest's parts, after validating them."""
+    spec = spec_for(name)
+    return set(read_manifest(workspace, spec).column(spec.key).to_pylist())
+
+
+# ------------------------------------------------------------------------- success marker
+def write_success(workspace: Workspace, name: str, payload: Mapping[str, Any]) -> None:
+    path = workspace.success_path(name)
+    temporary = path.with_name(f".{SUCCESS_FILE}.tmp")
+    temporary.write_text(json.dumps(dict(payload), indent=2, sort_keys=True) + "\n")
+    os.replace(temporary, path)
+
+
+def read_success(workspace: Workspace, name: str) -> dict[str, Any] | None:
+    path = workspace.success_path(name)
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ManifestError(workspace.display(path), f"not valid JSON ({error})") from None

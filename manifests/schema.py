@@ -1,0 +1,203 @@
+"""The manifests of DESIGN section 4, defined as code.
+
+Each manifest is a ``ManifestSpec``: ordered columns with their Arrow type, unit,
+convention and validation rule (quaternion, workspace path, enumeration). The Arrow
+schema built from it carries units and conventions in field metadata, and the manifest
+name and ``SCHEMA_VERSION`` in schema metadata, so a Parquet part describes itself.
+
+Change a column's meaning or type and ``SCHEMA_VERSION`` must change: readers refuse
+parts written under another version, and stage fingerprints include it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pyarrow as pa
+
+SCHEMA_VERSION = "1.0"
+
+QUAT = pa.list_(pa.float64(), 4)
+VEC3 = pa.list_(pa.float64(), 3)
+JOINTS = pa.list_(pa.float64(), 6)
+KEYPOINTS = pa.list_(pa.list_(pa.float64(), 2), 11)
+BBOX = pa.list_(pa.float64(), 4)
+
+
+@dataclass(frozen=True)
+class Column:
+    """One manifest column and the rule its values obey."""
+
+    name: str
+    type: pa.DataType
+    unit: str
+    description: str
+    nullable: bool = False
+    kind: str = "value"  # "value" | "quaternion" | "path" | "enum"
+    allowed: tuple[str, ...] = ()
+
+    def field(self) -> pa.Field:
+        metadata = {"unit": self.unit, "description": self.description, "kind": self.kind}
+        if self.allowed:
+            metadata["allowed"] = ",".join(self.allowed)
+        return pa.field(self.name, self.type, nullable=self.nullable, metadata=metadata)
+
+
+@dataclass(frozen=True)
+class ManifestSpec:
+    """A manifest: its name (directory under ``W/manifests``) and its columns."""
+
+    name: str
+    description: str
+    columns: tuple[Column, ...]
+    key: str = "sample_id"
+
+    def schema(self) -> pa.Schema:
+        return pa.schema(
+            [c.field() for c in self.columns],
+            metadata={"speedplus.manifest": self.name, "speedplus.schema_version": SCHEMA_VERSION},
+        )
+
+    def column(self, name: str) -> Column:
+        for column in self.columns:
+            if column.name == name:
+                return column
+        raise KeyError(f"manifest {self.name!r} has no column {name!r}")
+
+
+def pose(prefix: str, frame_note: str, *, nullable: bool = False) -> tuple[Column, Column]:
+    """The ``<a>_from_<b>_q`` / ``_t`` pair of a rigid transform ``a_from_b``."""
+    return (
+        Column(f"{prefix}_q", QUAT, "1", f"rotation of {prefix}, Hamilton (w, x, y, z), unit, w >= 0; {frame_note}",
+               nullable=nullable, kind="quaternion"),
+        Column(f"{prefix}_t", VEC3, "m", f"translation of {prefix} (origin of b in a); {frame_note}",
+               nullable=nullable),
+    )
+
+
+def _sample_id() -> Column:
+    return Column("sample_id", pa.string(), "", "unique sample identifier, e.g. cal000003 or img000012")
+
+
+SESSIONS = ("calibration", "dataset")
+VIEWS = ("solar_panel", "rear_panel")
+LIGHTS = ("lightbox", "sunlamp", "ambient")
+MOUNTS = ("minus_x", "plus_x")
+DOMAINS = ("lightbox", "sunlamp")
+
+PLAN = ManifestSpec(
+    "plan",
+    "relative poses to capture and the robot/rail commands that realise them",
+    (
+        _sample_id(),
+        Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
+        *pose("cam_from_target", "mock-up scale, OpenCV camera frame C, Tango body frame T"),
+        Column("view", pa.string(), "", "solar_panel when the camera sees the +z face of T", kind="enum", allowed=VIEWS),
+        Column("light", pa.string(), "", "light set-up", kind="enum", allowed=LIGHTS),
+        Column("light_boxes", pa.list_(pa.int8()), "index", "active Earth-albedo light boxes (0-9); empty unless lightbox"),
+        Column("mount", pa.string(), "", "model fixture used: the face of T the target flange holds, "
+               "always the side away from the camera", kind="enum", allowed=MOUNTS),
+        Column("rail_m", pa.float64(), "m", "commanded rail position of the camera robot"),
+        Column("camera_joints_rad", JOINTS, "rad", "commanded A1..A6 of the camera robot, KUKA joint convention"),
+        Column("target_joints_rad", JOINTS, "rad", "commanded A1..A6 of the target robot, KUKA joint convention"),
+        *pose("world_from_camee", "nominal, robot world frame K, camera flange C_K"),
+        *pose("world_from_targetee", "nominal, robot world frame K, target flange T_K"),
+        Column("reachable", pa.bool_(), "", "both robots reach the commands within joint limits"),
+        Column("redraws", pa.int32(), "count", "relative poses drawn and discarded as unreachable before this one"),
+    ),
+)
+
+CAPTURES = ManifestSpec(
+    "captures",
+    "raw measurements of every capture: robot telemetry, motion capture, image",
+    (
+        _sample_id(),
+        Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
+        Column("image_path", pa.string(), "", "PNG relative to the workspace", kind="path"),
+        *pose("kuka_world_from_camee", "robot telemetry, frame K"),
+        *pose("kuka_world_from_targetee", "robot telemetry, frame K"),
+        *pose("vicon_world_from_camrb", "motion capture, frame V; null when not tracked", nullable=True),
+        *pose("vicon_world_from_targetrb", "motion capture, frame V; null when not tracked", nullable=True),
+        Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body"),
+        Column("vicon_targetrb_markers", pa.int8(), "count", "markers used for the target rigid body"),
+        Column("status", pa.string(), "", "capture outcome", kind="enum", allowed=("ok", "failed")),
+    ),
+)
+
+TRUTH = ManifestSpec(
+    "truth",
+    "hidden ground truth of the virtual testbed; read only by tests, benchmarks and report",
+    (_sample_id(), *pose("cam_from_target", "true pose, mock-up scale")),
+)
+
+POSES = ManifestSpec(
+    "poses",
+    "per-source and fused camera-from-target poses of the dataset captures",
+    (
+        _sample_id(),
+        *pose("kuka_cam_from_target", "from robot telemetry, mock-up scale"),
+        *pose("vicon_cam_from_target", "from motion capture, mock-up scale; null when missing", nullable=True),
+        Column("vicon_accepted", pa.bool_(), "", "motion capture passed the rejection test and was fused"),
+        Column("reject_reason", pa.string(), "", "why motion capture was rejected; null when accepted", nullable=True),
+        *pose("cam_from_target", "fused estimate, mock-up scale"),
+        Column("sigma_t_m", VEC3, "m", "1-sigma of the fused translation per camera axis"),
+        Column("sigma_r_rad", pa.float64(), "rad", "1-sigma of the fused rotation angle"),
+    ),
+)
+
+LABELS = ManifestSpec(
+    "labels",
+    "SPEED+ pose labels of the testbed images, full scale",
+    (
+        _sample_id(),
+        Column("filename", pa.string(), "", "image file name in the export"),
+        Column("domain", pa.string(), "", "testbed domain", kind="enum", allowed=DOMAINS),
+        Column("view", pa.string(), "", "visible face", kind="enum", allowed=VIEWS),
+        Column("q_vbs2tango_true", QUAT, "1", "rotation of cam_from_target (Tango body into camera), "
+               "Hamilton (w, x, y, z)", kind="quaternion"),
+        Column("r_Vo2To_vbs_true", VEC3, "m", "translation of cam_from_target, full scale"),
+        Column("label_source", pa.string(), "", "which estimate made the label", kind="enum",
+               allowed=("fused", "kuka_only")),
+        Column("sigma_t_m", VEC3, "m", "1-sigma of the translation per camera axis, full scale"),
+        Column("sigma_r_rad", pa.float64(), "rad", "1-sigma of the rotation angle"),
+        Column("keypoints_px", KEYPOINTS, "px", "the 11 Tango keypoints, distorted image coordinates"),
+        Column("bbox_px", BBOX, "px", "x_min, y_min, x_max, y_max of the projected model"),
+    ),
+)
+
+RENDERS = ManifestSpec(
+    "renders",
+    "synthetic images: twins of labelled captures and the training set",
+    (
+        _sample_id(),
+        Column("set", pa.string(), "", "twin of a label or training image", kind="enum", allowed=("twin", "train")),
+        Column("image_path", pa.string(), "", "PNG relative to the workspace", kind="path"),
+        Column("mask_path", pa.string(), "", "mask PNG relative to the workspace", kind="path"),
+        Column("q_vbs2tango_true", QUAT, "1", "rotation of cam_from_target, Hamilton (w, x, y, z)", kind="quaternion"),
+        Column("r_Vo2To_vbs_true", VEC3, "m", "translation of cam_from_target, full scale"),
+        Column("light_dir_cam", VEC3, "1", "unit direction towards the light, camera frame"),
+        Column("spp", pa.int32(), "count", "samples per pixel"),
+        Column("seconds", pa.float64(), "s", "render wall time"),
+    ),
+)
+
+PREDICTIONS = ManifestSpec(
+    "predictions",
+    "model predictions and SPEED / SPEED+ scores",
+    (
+        _sample_id(),
+        Column("domain", pa.string(), "", "image domain", kind="enum", allowed=("synthetic", "lightbox", "sunlamp")),
+        Column("view", pa.string(), "", "visible face", kind="enum", allowed=VIEWS),
+        Column("light", pa.string(), "", "light set-up of the sample", kind="enum", allowed=LIGHTS),
+        Column("q_pred", QUAT, "1", "predicted rotation of cam_from_target", kind="quaternion"),
+        Column("t_pred", VEC3, "m", "predicted translation of cam_from_target, full scale"),
+        Column("err_q_rad", pa.float64(), "rad", "2 arccos |<q_pred, q_true>|"),
+        Column("err_t_norm", pa.float64(), "1", "|t_true - t_pred| / |t_true|"),
+        Column("score_speed", pa.float64(), "1", "SPEED (2019) score, err_q_rad + err_t_norm"),
+        Column("score_speedplus", pa.float64(), "1", "SPEED+ (2021) score, terms zeroed under thresholds"),
+    ),
+)
+
+MANIFESTS: dict[str, ManifestSpec] = {
+    spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, POSES, LABELS, RENDERS, PREDICTIONS)
+}

@@ -1,0 +1,70 @@
+"""The on-disk layout of a run (DESIGN section 4), as path templates.
+
+```
+W/config.toml                                  resolved configuration
+W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest
+W/manifests/<name>/_SUCCESS.json               completion marker (fingerprint, rows, timings)
+W/images/{calibration,dataset}/<sample_id>.png testbed captures
+W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/ beside them)
+W/calibration.json  W/truth.json  W/report/index.html  W/export/
+```
+Paths stored in manifests are relative to ``W`` and may never leave it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path, PurePosixPath
+
+CONFIG_FILE = "config.toml"
+MANIFESTS_DIR = "manifests"
+PART_TEMPLATE = "part-{index:05d}.parquet"
+SUCCESS_FILE = "_SUCCESS.json"
+IMAGE_TEMPLATE = "images/{session}/{sample_id}.png"
+RENDER_TEMPLATE = "renders/{set}/{sample_id}.png"
+MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
+
+
+class PathEscapeError(ValueError):
+    """A manifest path that is absolute or climbs out of the workspace."""
+
+
+def check_relative(path: str) -> PurePosixPath:
+    """The path as a workspace-relative POSIX path; raises if it could leave the workspace."""
+    pure = PurePosixPath(path)
+    if not path or pure.is_absolute() or "\\" in path or ".." in pure.parts:
+        raise PathEscapeError(f"path {path!r} must be relative to the workspace and stay inside it")
+    return pure
+
+
+class Workspace:
+    """A run directory ``W``; every stage reads and writes through these paths."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root).resolve()
+
+    def __repr__(self) -> str:
+        return f"Workspace({str(self.root)!r})"
+
+    @property
+    def config_path(self) -> Path:
+        return self.root / CONFIG_FILE
+
+    def manifest_dir(self, name: str) -> Path:
+        return self.root / MANIFESTS_DIR / name
+
+    def success_path(self, name: str) -> Path:
+        return self.manifest_dir(name) / SUCCESS_FILE
+
+    def image_relpath(self, session: str, sample_id: str) -> str:
+        return IMAGE_TEMPLATE.format(session=session, sample_id=sample_id)
+
+    def resolve(self, relpath: str) -> Path:
+        """Absolute path of a manifest path, after checking it stays inside ``W``."""
+        return self.root / check_relative(relpath)
+
+    def display(self, path: Path) -> str:
+        """A path as users should read it in messages: relative to the workspace's parent."""
+        try:
+            return str(path.relative_to(self.root.parent))
+        except ValueError:
+            return str(path)

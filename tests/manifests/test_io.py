@@ -1,0 +1,134 @@
+"""Manifest writer and validating reader: round trips and errors that name the culprit."""
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from manifests import ManifestError, Workspace, read_manifest, read_success, write_part, write_success
+from manifests.io import list_parts, part_fingerprints, remove_temporaries, to_table
+from manifests.schema import MANIFESTS, TRUTH
+
+
+def truth_rows(n, start=0):
+    rng = np.random.default_rng(start)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 0] < 0] *= -1
+    return [{"sample_id": f"img{start + i:06d}", "cam_from_target_q": q[i], "cam_from_target_t": [0.1, 0.0, 4.0 + i]}
+            for i in range(n)]
+
+
+def test_round_trip_through_parts_and_pandas(tmp_path):
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(3), "fp")
+    write_part(ws, "truth", truth_rows(2, start=3), "fp")
+    write_success(ws, "truth", {"fingerprint": "fp", "rows": 5})
+    table = read_manifest(ws, "truth")
+    assert table.num_rows == 5
+    assert [p.name for p in list_parts(ws, "truth")] == ["part-00000.parquet", "part-00001.parquet"]
+    # what an ML team does: pandas on the directory (the marker is ignored)
+    frame = pd.read_parquet(ws.manifest_dir("truth"))
+    assert sorted(frame.sample_id) == [f"img{i:06d}" for i in range(5)]
+    assert part_fingerprints(ws, "truth") == {"fp"}
+    assert read_success(ws, "truth")["rows"] == 5
+
+
+def test_schema_carries_units_and_version():
+    field = TRUTH.schema().field("cam_from_target_t")
+    assert field.metadata[b"unit"] == b"m"
+    assert TRUTH.schema().metadata[b"speedplus.schema_version"]
+    for spec in MANIFESTS.values():
+        for column in spec.columns:
+            assert column.unit is not None and column.description, (spec.name, column.name)
+
+
+def corrupt(ws, name, column, row, value):
+    path = list_parts(ws, name)[0]
+    table = pq.read_table(path)
+    values = table.column(column).to_pylist()
+    values[row] = value
+    index = table.column_names.index(column)
+    table = table.set_column(index, table.schema.field(index), pa.array(values, type=table.schema.field(index).type))
+    pq.write_table(table, path)
+    return path
+
+
+@pytest.mark.parametrize(
+    "column, value, message",
+    [
+        ("cam_from_target_q", [0.9, 0.1, 0.0, 0.0], "quaternion norm"),
+        ("cam_from_target_q", [-1.0, 0.0, 0.0, 0.0], "w < 0"),
+        ("cam_from_target_t", [0.0, float("nan"), 1.0], "not finite"),
+        ("cam_from_target_t", None, "null"),
+        ("sample_id", "img000000", "duplicate key"),
+    ],
+)
+def test_reader_names_file_row_and_column(tmp_path, column, value, message):
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(4), "fp")
+    path = corrupt(ws, "truth", column, 2, value)
+    with pytest.raises(ManifestError) as error:
+        read_manifest(ws, "truth")
+    text = str(error.value)
+    assert path.name in text and "row 2" in text and column in text and message in text
+
+
+def test_reader_rejects_paths_outside_the_workspace(tmp_path):
+    ws = Workspace(tmp_path)
+    spec = MANIFESTS["captures"]
+    row = {c.name: None for c in spec.columns}
+    row.update(sample_id="cal000000", session="calibration", image_path="images/calibration/cal000000.png",
+               kuka_world_from_camee_q=[1, 0, 0, 0], kuka_world_from_camee_t=[0, 0, 0],
+               kuka_world_from_targetee_q=[1, 0, 0, 0], kuka_world_from_targetee_t=[0, 0, 0],
+               vicon_camrb_markers=5, vicon_targetrb_markers=0, status="ok")
+    write_part(ws, "captures", [row], "fp")  # nullable motion capture is fine
+    for bad in ("../secrets.png", "/etc/passwd"):
+        corrupt(ws, "captures", "image_path", 0, bad)
+        with pytest.raises(ManifestError, match="image_path.*inside"):
+            read_manifest(ws, "captures")
+
+
+def test_enum_and_unknown_columns_are_errors(tmp_path):
+    ws = Workspace(tmp_path)
+    rows = truth_rows(1)
+    table = to_table(rows, TRUTH).append_column("extra", pa.array([1]))
+    with pytest.raises(ManifestError, match="unexpected column"):
+        write_part(ws, "truth", table, "fp")
+    with pytest.raises(ManifestError, match="column 'cam_from_target_t'.*lacks"):
+        write_part(ws, "truth", [{"sample_id": "a", "cam_from_target_q": [1, 0, 0, 0]}], "fp")
+
+
+def test_writer_validates_before_anything_is_written(tmp_path):
+    ws = Workspace(tmp_path)
+    rows = truth_rows(2)
+    rows[1]["cam_from_target_t"] = [0.0, 0.0, float("inf")]
+    with pytest.raises(ManifestError, match="row 1"):
+        write_part(ws, "truth", rows, "fp")
+    assert list_parts(ws, "truth") == []
+
+
+def test_keys_must_be_unique_across_parts(tmp_path):
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(2), "fp")
+    write_part(ws, "truth", truth_rows(1), "fp")
+    with pytest.raises(ManifestError, match="part-00001.parquet, row 0.*also in"):
+        read_manifest(ws, "truth")
+
+
+def test_temporary_files_are_invisible_and_removable(tmp_path):
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(2), "fp")
+    (ws.manifest_dir("truth") / ".part-00001.parquet.tmp").write_bytes(b"half a file")
+    assert read_manifest(ws, "truth").num_rows == 2
+    assert pd.read_parquet(ws.manifest_dir("truth")).shape[0] == 2
+    assert remove_temporaries(ws, "truth") == 1
+
+
+def test_a_truncated_part_is_reported_by_name(tmp_path):
+    ws = Workspace(tmp_path)
+    path = write_part(ws, "truth", truth_rows(2), "fp")
+    path.write_bytes(path.read_bytes()[:50])
+    with pytest.raises(ManifestError, match="part-00000.parquet: not a readable Parquet"):
+        read_manifest(ws, "truth")
