@@ -1,0 +1,355 @@
+"""Typed configuration: one frozen dataclass per section, every field documented with its unit.
+
+Resolution order: dataclass defaults, then the profile shipped in ``pipeline/profiles``
+(``smoke``, ``default``, ``paper``), then ``--config FILE``, then ``--set section.key=value``.
+The resolved configuration is written to ``W/config.toml``. Units follow DESIGN section 3:
+metres and radians (field names end in ``_m``, ``_rad``, ``_px``; quaternions ``_q`` are
+Hamilton ``(w, x, y, z)``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import tomli_w
+
+PROFILES = ("smoke", "default", "paper")
+
+
+class ConfigError(ValueError):
+    """Bad configuration; the message names the key (and the file) at fault."""
+
+
+def param(default: Any, help: str, unit: str = "") -> Any:  # noqa: A002 - "help" reads best at call sites
+    """A documented field: ``help`` becomes CLI/TOML documentation, ``unit`` is shown with it."""
+    return field(default=default, metadata={"help": help, "unit": unit})
+
+
+# --------------------------------------------------------------------------------- sections
+@dataclass(frozen=True)
+class RunConfig:
+    """How stages execute (not part of any stage fingerprint: it never changes results)."""
+
+    part_rows: int = param(16, "rows per Parquet part; a crash loses at most one part of work", "rows")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The testbed camera. Defaults: the SPEED+ camera (DESIGN section 5), scaled to the
+    profile resolution so that the field of view is unchanged."""
+
+    reference_width_px: int = param(1920, "width at which fx, fy, cx, cy are given", "px")
+    reference_height_px: int = param(1200, "height at which fx, fy, cx, cy are given", "px")
+    fx_px: float = param(2988.5795, "focal length x at the reference resolution (SPEED+ camera.json)", "px")
+    fy_px: float = param(2988.3401, "focal length y at the reference resolution (SPEED+ camera.json)", "px")
+    cx_px: float = param(960.0, "principal point x at the reference resolution", "px")
+    cy_px: float = param(600.0, "principal point y at the reference resolution", "px")
+    dist: tuple[float, float, float, float, float] = param(
+        (-0.22383017, 0.51409797, -0.00066500, -0.00021405, -0.13124227),
+        "OpenCV distortion (k1, k2, p1, p2, k3) of the SPEED+ camera; scale-free", "1")
+    width_px: int = param(960, "image width of this run", "px")
+    height_px: int = param(600, "image height of this run", "px")
+
+    @property
+    def scale(self) -> float:
+        return self.width_px / self.reference_width_px
+
+    def camera_matrix(self) -> np.ndarray:
+        """K (3, 3) at ``width_px x height_px``. With pixel centres at integer coordinates a
+        resize by s maps x to (x + 0.5) s - 0.5, which is what the principal point gets."""
+        s = self.scale
+        return np.array([
+            [self.fx_px * s, 0.0, (self.cx_px + 0.5) * s - 0.5],
+            [0.0, self.fy_px * s, (self.cy_px + 0.5) * s - 0.5],
+            [0.0, 0.0, 1.0],
+        ])
+
+    def dist_coeffs(self) -> np.ndarray:
+        return np.asarray(self.dist, dtype=float)
+
+
+@dataclass(frozen=True)
+class TestbedConfig:
+    """Geometry of the TRON-like room (frame K: x along the rail, y across, z up, origin on
+    the floor in a corner). Nominal values: what the lab believes; the virtual testbed's
+    true values differ from them."""
+
+    __test__ = False  # not a pytest test class despite the name
+
+    room_m: tuple[float, float, float] = param((8.0, 3.0, 3.0), "room size x, y, z (TRON: 8 x 3 x 3 m)", "m")
+    robot_model: str = param("KR16-2", "KUKA arm model of both robots (see stages/kinematics.py)")
+    target_base_m: tuple[float, float, float] = param(
+        (0.6, 1.5, 0.0), "position of the floor-mounted target robot's base in K", "m")
+    target_base_yaw_rad: float = param(0.0, "rotation of the target robot's base about K's z", "rad")
+    rail_origin_m: tuple[float, float, float] = param(
+        (1.7, 1.5, 3.0), "camera robot base position in K at rail position 0 (hanging, A1 axis down)", "m")
+    rail_length_m: float = param(5.9, "usable rail travel along K's x (TRON: about 6 m)", "m")
+    mockup_scale: float = param(0.5, "mock-up size / real Tango size (TRON: half scale)", "1")
+    camee_from_cam_q: tuple[float, float, float, float] = param(
+        (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
+    camee_from_cam_t_m: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.12), "nominal camera position in the flange frame (lens 12 cm out along flange z)", "m")
+    mount_target_from_targetee_q: tuple[float, float, float, float] = param(
+        (0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)),
+        "nominal rotation of the target flange in T for the minus_x mount (flange z along +x of T); "
+        "the plus_x mount is this rotated 180 deg about T's z", "1")
+    mount_target_from_targetee_t_m: tuple[float, float, float] = param(
+        (-0.305, 0.0, 0.08), "nominal flange position in T for the minus_x mount: 12 cm stand-off "
+        "from the -x face of the half-scale model", "m")
+    board_squares: tuple[int, int] = param((11, 11), "ChArUco board squares x, y (TRON: 11 x 11)", "count")
+    board_square_m: float = param(0.030, "ChArUco square side (TRON: 30 mm)", "m")
+    board_marker_m: float = param(0.022, "ArUco marker side inside a square", "m")
+    board_dictionary: str = param("DICT_5X5_100", "cv2.aruco predefined dictionary of the board")
+    target_from_board_q: tuple[float, float, float, float] = param(
+        (0.0, 1.0, 0.0, 0.0), "board frame (OpenCV ChArUco: origin at a corner, z into the board) in T: "
+        "board z along -z of T, i.e. lying on the solar panel facing out", "1")
+    target_from_board_t_m: tuple[float, float, float] = param(
+        (-0.165, 0.165, 0.16375), "board origin in T: board centred on the half-scale solar panel "
+        "(z = 0.3215 * 0.5 m) on a 3 mm plate", "m")
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """The plan stage: which relative poses to capture and how the robots realise them."""
+
+    seed: int = param(2021, "random seed of the plan; same seed, same plan", "")
+    n_calibration: int = param(64, "calibration-session captures (TRON: 64)", "count")
+    n_dataset: int = param(48, "dataset-session captures, balanced over view x light", "count")
+    calibration_distance_m: tuple[float, float] = param(
+        (0.70, 0.80), "camera-to-board-centre distance range (TRON: about 0.75 m)", "m")
+    calibration_max_tilt_rad: float = param(
+        math.radians(45.0), "largest angle between the boresight and the board normal (TRON: 45 deg)", "rad")
+    calibration_aim_jitter_m: float = param(
+        0.04, "the camera aims at a point this far (at most) from the board centre, in the board plane", "m")
+    calibration_min_corner_fraction: float = param(
+        0.5, "share of the board's inner corners that must project inside the image", "1")
+    calibration_mounts: tuple[str, ...] = param(
+        ("minus_x", "plus_x"), "model fixtures calibrated, alternated over calibration captures "
+        "(each dataset capture uses the one away from the camera)", "")
+    dataset_range_m: tuple[float, float] = param(
+        (6.5, 9.5), "camera-to-target distance range, FULL scale (paper: at least 6.5 m)", "m")
+    image_margin_px: float = param(
+        10.0, "the target's bounding sphere stays this far inside the image edges", "px")
+    lights: tuple[str, ...] = param(("lightbox", "sunlamp"), "light set-ups of the dataset session", "")
+    n_light_boxes: int = param(10, "Earth-albedo light boxes in the room (TRON: 10)", "count")
+    light_boxes_per_sample: tuple[int, int] = param((1, 3), "active light boxes per lightbox capture", "count")
+    max_redraws: int = param(200, "unreachable relative poses redrawn per sample before giving up", "count")
+    camera_roll_candidates: int = param(
+        12, "camera rolls about the line of sight tried when searching robot configurations", "count")
+    joint_limit_margin_rad: float = param(
+        math.radians(3.0), "commanded joints keep this distance from the data-sheet limits", "rad")
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole configuration of a run."""
+
+    profile: str = "default"
+    run: RunConfig = field(default_factory=RunConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    testbed: TestbedConfig = field(default_factory=TestbedConfig)
+    plan: PlanConfig = field(default_factory=PlanConfig)
+
+    def section(self, name: str) -> Any:
+        return getattr(self, name)
+
+
+SECTIONS: dict[str, type] = {f.name: f.type for f in fields(Config) if f.name != "profile"}
+SECTION_TYPES: dict[str, type] = {
+    "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
+}
+
+
+# ---------------------------------------------------------------------------- validation
+def _coerce(value: Any, annotation: Any, key: str) -> Any:
+    """``value`` (from TOML or --set) as ``annotation``; ConfigError naming ``key`` if not."""
+    origin = typing.get_origin(annotation)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    if origin is Literal:
+        if value not in typing.get_args(annotation):
+            raise ConfigError(f"{key}: expected one of {typing.get_args(annotation)}, got {value!r}")
+        return value
+    if origin is tuple:
+        args = typing.get_args(annotation)
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], key) for v in value)
+        if len(value) != len(args):
+            raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)}")
+        return tuple(_coerce(v, a, key) for v, a in zip(value, args, strict=True))
+    if origin in (types.UnionType, typing.Union):
+        raise ConfigError(f"{key}: union types are not supported in configuration")
+    raise ConfigError(f"{key}: unsupported type {annotation!r}")
+
+
+def _unknown(key: str, known: list[str]) -> ConfigError:
+    close = difflib.get_close_matches(key, known, n=1)
+    hint = f" (did you mean {close[0]}?)" if close else ""
+    return ConfigError(f"unknown configuration key {key!r}{hint}")
+
+
+def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
+    known_keys = [f"{s}.{f.name}" for s, t in SECTION_TYPES.items() for f in fields(t)]
+    changes: dict[str, Any] = {}
+    for section_name, values in updates.items():
+        if section_name == "profile":
+            continue
+        if section_name not in SECTION_TYPES:
+            raise ConfigError(f"{source}: " + str(_unknown(section_name, list(SECTION_TYPES))))
+        if not isinstance(values, dict):
+            raise ConfigError(f"{source}: {section_name!r} must be a table of keys")
+        section_type = SECTION_TYPES[section_name]
+        hints = typing.get_type_hints(section_type)
+        field_names = {f.name for f in fields(section_type)}
+        coerced = {}
+        for name, value in values.items():
+            key = f"{section_name}.{name}"
+            if name not in field_names:
+                raise ConfigError(f"{source}: " + str(_unknown(key, known_keys)))
+            try:
+                coerced[name] = _coerce(value, hints[name], key)
+            except ConfigError as error:
+                raise ConfigError(f"{source}: {error}") from None
+        changes[section_name] = replace(getattr(config, section_name), **coerced)
+    return replace(config, **changes)
+
+
+def _check(config: Config) -> Config:
+    """Cross-field rules that types cannot express."""
+    c, p = config.camera, config.plan
+    if c.width_px <= 0 or c.height_px <= 0:
+        raise ConfigError("camera.width_px/height_px: must be positive")
+    if abs(c.width_px / c.reference_width_px - c.height_px / c.reference_height_px) > 1e-9:
+        raise ConfigError(
+            f"camera.width_px/height_px: {c.width_px}x{c.height_px} does not have the aspect of the reference "
+            f"{c.reference_width_px}x{c.reference_height_px}; intrinsics can only be scaled uniformly")
+    for key, low, high in (("plan.calibration_distance_m", *p.calibration_distance_m),
+                           ("plan.dataset_range_m", *p.dataset_range_m)):
+        if not 0 < low <= high:
+            raise ConfigError(f"{key}: expected 0 < min <= max, got ({low}, {high})")
+    if p.n_calibration < 0 or p.n_dataset < 0:
+        raise ConfigError("plan.n_calibration/n_dataset: must not be negative")
+    if not set(p.lights) <= {"lightbox", "sunlamp"} or not p.lights:
+        raise ConfigError(f"plan.lights: expected a non-empty subset of lightbox, sunlamp, got {p.lights}")
+    if not set(p.calibration_mounts) <= {"minus_x", "plus_x"} or not p.calibration_mounts:
+        raise ConfigError(f"plan.calibration_mounts: expected minus_x and/or plus_x, got {p.calibration_mounts}")
+    low, high = p.light_boxes_per_sample
+    if not 1 <= low <= high <= p.n_light_boxes:
+        raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
+    if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
+        raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
+    if config.run.part_rows < 1:
+        raise ConfigError("run.part_rows: must be at least 1")
+    for key in ("camee_from_cam_q", "mount_target_from_targetee_q", "target_from_board_q"):
+        q = np.asarray(getattr(config.testbed, key))
+        if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+            raise ConfigError(f"testbed.{key}: quaternion norm {np.linalg.norm(q):.6f} is not 1")
+    return config
+
+
+# -------------------------------------------------------------------------------- loading
+def _read_toml(path: Path, label: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{label}: file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{label}: not valid TOML ({error})") from None
+
+
+def profile_path(profile: str) -> Path:
+    if profile not in PROFILES:
+        raise ConfigError(f"unknown profile {profile!r}; choose one of {', '.join(PROFILES)}")
+    return Path(str(resources.files("pipeline") / "profiles" / f"{profile}.toml"))
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``section.key=value`` (value in TOML syntax; bare words are strings)."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ConfigError(f"--set {text!r}: expected section.key=value")
+    dotted, raw = text.split("=", 1)
+    section, key = dotted.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return section, key, value
+
+
+def load_config(profile: str | None = None, config_file: str | Path | None = None,
+                overrides: list[str] | tuple[str, ...] = ()) -> Config:
+    """Resolve a configuration (see the module docstring for the order).
+
+    Without ``profile``, the ``profile`` key of ``config_file`` (e.g. a workspace's
+    ``config.toml``) picks the base profile; otherwise ``default``.
+    """
+    data = _read_toml(Path(config_file), str(config_file)) if config_file is not None else {}
+    if profile is None:
+        profile = data.get("profile", "default")
+        if not isinstance(profile, str):
+            raise ConfigError(f"{config_file}: profile must be a string, got {profile!r}")
+    config = _apply(Config(profile=profile), _read_toml(profile_path(profile), f"profile {profile}"),
+                    f"profile {profile}")
+    if data:
+        config = _apply(config, data, str(config_file))
+    for text in overrides:
+        section, key, value = parse_override(text)
+        config = _apply(config, {section: {key: value}}, f"--set {text}")
+    return _check(config)
+
+
+def to_dict(config: Config) -> dict[str, Any]:
+    """Plain TOML-able dictionary (tuples become lists)."""
+    def plain(value: Any) -> Any:
+        if isinstance(value, tuple):
+            return [plain(v) for v in value]
+        return value
+
+    out: dict[str, Any] = {"profile": config.profile}
+    for name in SECTION_TYPES:
+        section = getattr(config, name)
+        out[name] = {f.name: plain(getattr(section, f.name)) for f in fields(section)}
+    return out
+
+
+def write_config(config: Config, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text("# resolved SPEED+ builder configuration (written by speedplus)\n"
+                         + tomli_w.dumps(to_dict(config)))
+    temporary.replace(path)
+
+
+def describe(section_name: str) -> list[tuple[str, str, str, str]]:
+    """(key, default, unit, help) of every field of a section, for documentation."""
+    rows = []
+    for f in fields(SECTION_TYPES[section_name]):
+        default = f.default if f.default is not MISSING else "-"
+        rows.append((f"{section_name}.{f.name}", repr(default), f.metadata.get("unit", ""),
+                     f.metadata.get("help", "")))
+    return rows
