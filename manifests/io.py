@@ -238,6 +238,47 @@ def remove_temporaries(workspace: Workspace, name: str) -> int:
     return len(stale)
 
 
+class PartSink:
+    """Buffers rows and writes them as parts of ``part_rows`` rows (the last one shorter).
+
+    Used as a context manager; on exit, even through an exception or Ctrl-C, the complete
+    rows already buffered are written, so finished work is never lost.
+    """
+
+    def __init__(self, workspace: Workspace, spec: ManifestSpec | str, fingerprint: str, part_rows: int) -> None:
+        self.workspace, self.spec, self.fingerprint = workspace, spec_for(spec), fingerprint
+        self.part_rows = part_rows
+        self.rows: list[Mapping[str, Any]] = []
+        self.written = 0
+
+    def add(self, row: Mapping[str, Any]) -> None:
+        self.rows.append(row)
+        if len(self.rows) >= self.part_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.rows:
+            rows, self.rows = self.rows, []
+            write_part(self.workspace, self.spec, rows, self.fingerprint)
+            self.written += len(rows)
+
+    def __enter__(self) -> PartSink:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.flush()
+
+
+def open_sink(workspace: Workspace, name: str, part_rows: int) -> PartSink:
+    """A ``PartSink`` for the manifest the running stage writes (fingerprint from the runner)."""
+    try:
+        fingerprint = workspace.active_fingerprints[name]
+    except KeyError:
+        raise RuntimeError(f"manifest {name!r} is not being written by a stage run; "
+                           "run stages through pipeline.runner.run_stage") from None
+    return PartSink(workspace, name, fingerprint, part_rows)
+
+
 # ------------------------------------------------------------------------------------ read
 def _read_part(path: Path, spec: ManifestSpec, source: str) -> pa.Table:
     try:

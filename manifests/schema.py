@@ -68,10 +68,11 @@ class ManifestSpec:
 def pose(prefix: str, frame_note: str, *, nullable: bool = False) -> tuple[Column, Column]:
     """The ``<a>_from_<b>_q`` / ``_t`` pair of a rigid transform ``a_from_b``."""
     return (
-        Column(f"{prefix}_q", QUAT, "1", f"rotation of {prefix}, Hamilton (w, x, y, z), unit, w >= 0; {frame_note}",
+        Column(f"{prefix}_q", QUAT, "1",
+               f"rotation of {prefix}, Hamilton (w, x, y, z), unit, w >= 0; {frame_note}",
                nullable=nullable, kind="quaternion"),
-        Column(f"{prefix}_t", VEC3, "m", f"translation of {prefix} (origin of b in a); {frame_note}",
-               nullable=nullable),
+        Column(f"{prefix}_t", VEC3, "m",
+               f"translation of {prefix} (origin of b in a); {frame_note}", nullable=nullable),
     )
 
 
@@ -92,9 +93,11 @@ PLAN = ManifestSpec(
         _sample_id(),
         Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
         *pose("cam_from_target", "mock-up scale, OpenCV camera frame C, Tango body frame T"),
-        Column("view", pa.string(), "", "solar_panel when the camera sees the +z face of T", kind="enum", allowed=VIEWS),
+        Column("view", pa.string(), "", "solar_panel when the camera sees the +z face of T",
+               kind="enum", allowed=VIEWS),
         Column("light", pa.string(), "", "light set-up", kind="enum", allowed=LIGHTS),
-        Column("light_boxes", pa.list_(pa.int8()), "index", "active Earth-albedo light boxes (0-9); empty unless lightbox"),
+        Column("light_boxes", pa.list_(pa.int8()), "index",
+               "active Earth-albedo light boxes (0-9); empty unless lightbox"),
         Column("mount", pa.string(), "", "model fixture used: the face of T the target flange holds, "
                "always the side away from the camera", kind="enum", allowed=MOUNTS),
         Column("rail_m", pa.float64(), "m", "commanded rail position of the camera robot"),

@@ -41,6 +41,8 @@ class Workspace:
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root).resolve()
+        #: manifest name -> fingerprint of the stage run now writing it (set by the runner)
+        self.active_fingerprints: dict[str, str] = {}
 
     def __repr__(self) -> str:
         return f"Workspace({str(self.root)!r})"

@@ -22,10 +22,12 @@ from typing import Any, Literal
 import numpy as np
 import tomli_w
 
+from pipeline.errors import InputError
+
 PROFILES = ("smoke", "default", "paper")
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """Bad configuration; the message names the key (and the file) at fault."""
 
 
@@ -93,6 +95,9 @@ class TestbedConfig:
     rail_origin_m: tuple[float, float, float] = param(
         (1.7, 1.5, 3.0), "camera robot base position in K at rail position 0 (hanging, A1 axis down)", "m")
     rail_length_m: float = param(5.9, "usable rail travel along K's x (TRON: about 6 m)", "m")
+    target_presentation_m: tuple[tuple[float, float, float], ...] = param(
+        ((1.55, 1.5, 1.25), (1.35, 1.5, 1.0)),
+        "candidate positions in K where the target robot presents the model's origin", "m")
     mockup_scale: float = param(0.5, "mock-up size / real Tango size (TRON: half scale)", "1")
     camee_from_cam_q: tuple[float, float, float, float] = param(
         (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
@@ -143,6 +148,16 @@ class PlanConfig:
     n_light_boxes: int = param(10, "Earth-albedo light boxes in the room (TRON: 10)", "count")
     light_boxes_per_sample: tuple[int, int] = param((1, 3), "active light boxes per lightbox capture", "count")
     max_redraws: int = param(200, "unreachable relative poses redrawn per sample before giving up", "count")
+    sight_elevations_rad: tuple[float, ...] = param(
+        tuple(math.radians(a) for a in (5.0, 15.0, 25.0, 40.0, 55.0)),
+        "candidate elevations of the camera above the model (line-of-sight angle below horizontal)", "rad")
+    sight_azimuths_rad: tuple[float, ...] = param(
+        tuple(math.radians(a) for a in (0.0, -25.0, 25.0)),
+        "candidate azimuths of the camera about the rail axis (0: camera further along +x)", "rad")
+    rail_offsets_m: tuple[float, ...] = param(
+        (-0.9, -0.5, 0.5, 0.9), "candidate x offsets of the camera robot base from its flange", "m")
+    wall_clearance_m: float = param(
+        0.3, "the camera and both flanges stay this far from the walls, floor and ceiling", "m")
     camera_roll_candidates: int = param(
         12, "camera rolls about the line of sight tried when searching robot configurations", "count")
     joint_limit_margin_rad: float = param(

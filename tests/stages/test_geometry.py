@@ -59,7 +59,8 @@ def test_rotvec_round_trip_and_scipy_agreement(seed):
 def test_rotvec_is_accurate_at_tiny_angles():
     rotvec = np.array([[1e-12, 0, 0], [0, 3e-9, 0], [1e-7, -2e-7, 5e-8], [0, 0, 0]])
     np.testing.assert_allclose(g.matrix_to_rotvec(g.rotvec_to_matrix(rotvec)), rotvec, atol=1e-15)
-    np.testing.assert_allclose(g.rotation_angle(g.rotvec_to_matrix(rotvec)), np.linalg.norm(rotvec, axis=1), rtol=1e-6, atol=1e-15)
+    angle = g.rotation_angle(g.rotvec_to_matrix(rotvec))
+    np.testing.assert_allclose(angle, np.linalg.norm(rotvec, axis=1), rtol=1e-6, atol=1e-15)
 
 
 @pytest.mark.parametrize("seed", SEEDS)

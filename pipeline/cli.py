@@ -1,0 +1,150 @@
+"""The ``speedplus`` command: builds a configuration and calls the runner, nothing more.
+
+Exit codes: 0 success; 1 bad input or configuration (the message names the file, row,
+field or key); 2 usage error; 3 a stage that is not built yet.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from manifests import ManifestError, Workspace
+from pipeline import runner
+from pipeline.config import load_config, write_config
+from pipeline.errors import InputError
+
+app = typer.Typer(
+    name="speedplus",
+    help="SPEED+ builder: spacecraft pose datasets from a robotic testbed and their synthetic twins.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+out = Console()
+err = Console(stderr=True)
+
+WorkspaceOption = Annotated[
+    Path | None, typer.Option("--workspace", "-w", help="run directory W (default: data/<profile>)")]
+ProfileOption = Annotated[
+    str | None, typer.Option("--profile", "-p", help="smoke | default | paper (default: W/config.toml, else default)")]
+ConfigOption = Annotated[
+    Path | None, typer.Option("--config", "-c", help="TOML file overriding the profile", exists=False)]
+SetOption = Annotated[
+    list[str] | None, typer.Option("--set", "-s", help="override one key: section.key=value (repeatable)")]
+ForceOption = Annotated[bool, typer.Option("--force", help="discard this stage's existing results and redo them")]
+
+
+def _context(workspace: Path | None, profile: str | None, config: Path | None,
+             overrides: list[str] | None) -> tuple[runner.Config, Workspace]:
+    """Resolve the configuration: explicit options win; else the workspace's config.toml."""
+    overrides = overrides or []
+    if workspace is not None and profile is None and config is None:
+        existing = Workspace(workspace).config_path
+        if existing.exists():
+            config = existing
+    resolved = load_config(profile, config, overrides)
+    return resolved, Workspace(workspace or Path("data") / resolved.profile)
+
+
+def _run(stages: list[str], workspace: Path | None, profile: str | None, config: Path | None,
+         overrides: list[str] | None, force: bool) -> None:
+    resolved, ws = _context(workspace, profile, config, overrides)
+    ws.root.mkdir(parents=True, exist_ok=True)
+    write_config(resolved, ws.config_path)
+    last_done = None
+    for name in stages:
+        stage = runner.stage_spec(name)
+        if stage.module is None:
+            after = f" after {last_done!r}" if last_done else ""
+            raise runner.NotBuiltError(
+                f"stage {name!r} is not built yet; the pipeline stopped{after}. Results so far are in {ws.root}")
+        outcome = runner.run_stage(stage, resolved, ws, force=force)
+        rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
+        if outcome.action == "skipped":
+            out.print(f"[green]{name}[/]: up to date ({rows})")
+        else:
+            out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+        last_done = name
+
+
+def _stage_command(name: str) -> None:
+    stage = runner.stage_spec(name)
+
+    def command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+                set_: SetOption = None, force: ForceOption = False) -> None:
+        _run([name], workspace, profile, config, set_, force)
+
+    command.__doc__ = f"Run the {name} stage: {stage.summary}."
+    # typer reads the parameter name for --set from the annotation's option name
+    app.command(name)(command)
+
+
+for _name in runner.STAGE_NAMES:
+    _stage_command(_name)
+
+
+@app.command("run")
+def run_command(
+    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+    set_: SetOption = None, force: ForceOption = False,
+    until: Annotated[str | None, typer.Option("--until", help="last stage to run")] = None,
+) -> None:
+    """Run the stages in order, skipping those already up to date."""
+    names = list(runner.STAGE_NAMES)
+    if until is not None:
+        if until not in names:
+            raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
+        names = names[: names.index(until) + 1]
+    _run(names, workspace, profile, config, set_, force)
+
+
+@app.command("status")
+def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+                   set_: SetOption = None) -> None:
+    """List every stage as done / partial / stale / missing, with row counts."""
+    resolved, ws = _context(workspace, profile, config, set_)
+    table = Table(title=f"{ws.root} (profile {resolved.profile})")
+    for column in ("stage", "state", "rows", "detail"):
+        table.add_column(column)
+    colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim", "not built": "dim"}
+    for stage in runner.STAGES:
+        state = runner.status(stage, resolved, ws)
+        rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
+        table.add_row(stage.name, f"[{colours[state.state]}]{state.state}[/]", rows, state.detail)
+    out.print(table)
+
+
+@app.command("export")
+def export_command(
+    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+    set_: SetOption = None,
+    format_: Annotated[str, typer.Option("--format", help="speedplus | bop")] = "speedplus",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="export directory (default W/export)")] = None,
+) -> None:
+    """Export the labels as a SPEED+ (or BOP) dataset."""
+    raise runner.NotBuiltError("export is not built yet: it needs the label stage")
+
+
+def main() -> None:
+    """Console-script entry point: maps errors to exit codes with one clear message."""
+    try:
+        app()
+    except (InputError, ManifestError) as error:
+        err.print(f"[bold red]error:[/] {error}", highlight=False)
+        sys.exit(1)
+    except runner.NotBuiltError as error:
+        err.print(f"[bold yellow]stopped:[/] {error}", highlight=False)
+        sys.exit(3)
+    except KeyboardInterrupt:
+        err.print("[yellow]interrupted[/]: finished parts are kept; rerun the same command to resume")
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,99 @@
+"""The plan stage: relative poses to capture and the testbed commands that realise them.
+
+Every sample is drawn from its own random stream ``(seed, session, index)``, so the plan
+is identical for a seed whatever order (or how many runs) it is produced in: a resumed
+run regenerates exactly the missing rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+
+from manifests import Workspace, open_sink, read_keys, read_manifest
+from pipeline.config import Config
+from pipeline.progress import track
+from stages import geometry as g
+from stages.plan.poses import (
+    PlanningError,
+    calibration_pose,
+    dataset_configuration,
+    dataset_pose,
+    light_boxes,
+    mount_away_from,
+)
+from stages.plan.reconfigure import Reconfiguration, reconfigure
+
+SESSION_CODES = {"calibration": 0, "dataset": 1}
+ID_PREFIX = {"calibration": "cal", "dataset": "img"}
+
+__all__ = ["PlanningError", "plan_sample", "run", "sample_ids"]
+
+
+def sample_ids(config: Config) -> list[tuple[str, int, str]]:
+    """(session, index, sample_id) of every planned sample, in capture order."""
+    ids = [("calibration", i, f"cal{i:06d}") for i in range(config.plan.n_calibration)]
+    ids += [("dataset", i, f"img{i:06d}") for i in range(config.plan.n_dataset)]
+    return ids
+
+
+def _pose_columns(prefix: str, a_from_b: np.ndarray) -> dict[str, np.ndarray]:
+    q, t = g.transform_to_qt(a_from_b)
+    return {f"{prefix}_q": q, f"{prefix}_t": t}
+
+
+def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dict:
+    """One row of the plan manifest. Unreachable relative poses are redrawn and counted."""
+    plan, testbed, camera = config.plan, config.testbed, config.camera
+    rng = np.random.default_rng([plan.seed, SESSION_CODES[session], index])
+    if session == "calibration":
+        view, light = "solar_panel", "ambient"
+    else:
+        view, light = dataset_configuration(index, plan)
+    boxes = light_boxes(rng, plan, light)
+
+    def draw() -> tuple[np.ndarray, str, Reconfiguration | None]:
+        if session == "calibration":
+            cam_from_target = calibration_pose(rng, plan, testbed, camera)
+            mount = plan.calibration_mounts[index % len(plan.calibration_mounts)]
+        else:
+            cam_from_target = dataset_pose(rng, plan, testbed, camera, view)
+            mount = mount_away_from(cam_from_target)
+        return cam_from_target, mount, reconfigure(cam_from_target, mount, plan, testbed,
+                                                   require_far_side=session == "dataset")
+
+    redraws = 0
+    cam_from_target, mount, commands = draw()
+    while commands is None:
+        if redraws == plan.max_redraws:
+            raise PlanningError(
+                f"sample {sample_id}: no reachable robot configuration in {redraws + 1} draws; check "
+                "testbed.target_presentation_m, testbed.rail_* and plan.sight_* (or raise plan.max_redraws)")
+        redraws += 1
+        cam_from_target, mount, commands = draw()
+    return {
+        "sample_id": sample_id,
+        "session": session,
+        **_pose_columns("cam_from_target", cam_from_target),
+        "view": view,
+        "light": light,
+        "light_boxes": boxes,
+        "mount": mount,
+        "rail_m": commands.rail_m,
+        "camera_joints_rad": commands.camera_joints_rad,
+        "target_joints_rad": commands.target_joints_rad,
+        **_pose_columns("world_from_camee", commands.world_from_camee),
+        **_pose_columns("world_from_targetee", commands.world_from_targetee),
+        "reachable": True,
+        "redraws": redraws,
+    }
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    """Plan every sample missing from ``W/manifests/plan``; returns the whole plan."""
+    done = read_keys(workspace, "plan")
+    todo = [item for item in sample_ids(config) if item[2] not in done]
+    with open_sink(workspace, "plan", config.run.part_rows) as sink:
+        for session, index, sample_id in track(todo, len(todo), "plan"):
+            sink.add(plan_sample(config, session, index, sample_id))
+    return read_manifest(workspace, "plan")

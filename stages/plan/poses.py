@@ -1,0 +1,125 @@
+"""Relative poses to capture: the calibration session (camera looking at the ChArUco
+board) and the dataset session (SO(3)-uniform orientations, SPEED+-like distances).
+
+All poses are ``cam_from_target`` (4, 4) at mock-up scale, metres, OpenCV camera frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
+from pipeline.errors import InputError
+from stages import geometry as g
+from stages import layout, tango
+
+#: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
+_MAX_VISIBILITY_DRAWS = 1000
+
+
+class PlanningError(InputError):
+    """The configuration asks for poses that cannot be produced."""
+
+
+def _inside(pixels: np.ndarray, camera: CameraConfig, margin_px: float) -> np.ndarray:
+    return ((pixels[..., 0] >= margin_px) & (pixels[..., 0] <= camera.width_px - 1 - margin_px)
+            & (pixels[..., 1] >= margin_px) & (pixels[..., 1] <= camera.height_px - 1 - margin_px))
+
+
+def calibration_pose(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedConfig,
+                     camera: CameraConfig) -> np.ndarray:
+    """A camera pose looking at the board: distance in ``calibration_distance_m``, boresight
+    tilted from the board normal by an angle uniform in [0, max tilt], free roll.
+
+    Redrawn until ``calibration_min_corner_fraction`` of the inner corners are in the image.
+    """
+    target_from_board = layout.target_from_board(testbed)
+    corners_target = g.apply(target_from_board, layout.board_inner_corners(testbed))
+    centre_board = layout.board_centre(testbed)
+    for _ in range(_MAX_VISIBILITY_DRAWS):
+        tilt = rng.uniform(0.0, plan.calibration_max_tilt_rad)
+        azimuth = rng.uniform(0.0, 2 * np.pi)
+        distance = rng.uniform(*plan.calibration_distance_m)
+        jitter_radius = plan.calibration_aim_jitter_m * np.sqrt(rng.uniform())
+        jitter_angle = rng.uniform(0.0, 2 * np.pi)
+        roll = rng.uniform(0.0, 2 * np.pi)
+        aim_board = centre_board + jitter_radius * np.array([np.cos(jitter_angle), np.sin(jitter_angle), 0.0])
+        # board z points into the board, so the camera sits on the -z side, looking along +z
+        outward = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), -np.cos(tilt)])
+        position_board = aim_board + distance * outward
+        board_from_cam_rotation = g.look_at_rotation(-outward, [0.0, 1.0, 0.0] if tilt < 1.5 else [1.0, 0, 0])
+        board_from_cam_rotation = board_from_cam_rotation @ g.axis_angle_matrix("z", roll)
+        target_from_cam = target_from_board @ g.make_transform(board_from_cam_rotation, position_board)
+        cam_from_target = g.invert(target_from_cam)
+        pixels = g.project(cam_from_target, corners_target, camera.camera_matrix(), camera.dist_coeffs())
+        in_front = g.apply(cam_from_target, corners_target)[:, 2] > 0
+        if np.mean(_inside(pixels, camera, 0.0) & in_front) >= plan.calibration_min_corner_fraction:
+            return cam_from_target
+    raise PlanningError(
+        f"plan.calibration_min_corner_fraction={plan.calibration_min_corner_fraction}: no pose in "
+        f"{_MAX_VISIBILITY_DRAWS} draws shows that much of the board; lower it, or the distance/tilt")
+
+
+def dataset_position(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedConfig,
+                     camera: CameraConfig) -> np.ndarray:
+    """Target position in the camera frame (3,), mock-up scale: the full-scale range uniform
+    in ``dataset_range_m`` and the body's bounding sphere inside the image (with margin)."""
+    k = camera.camera_matrix()
+    radius = tango.BOUNDING_RADIUS_M
+    for _ in range(_MAX_VISIBILITY_DRAWS):
+        distance = rng.uniform(*plan.dataset_range_m)
+        # pinhole radius of the sphere, plus 5% for the lens distortion at the edges
+        radius_px = 1.05 * k[0, 0] * np.tan(np.arcsin(min(radius / distance, 1.0)))
+        low_u, high_u = plan.image_margin_px + radius_px, camera.width_px - 1 - plan.image_margin_px - radius_px
+        low_v, high_v = plan.image_margin_px + radius_px, camera.height_px - 1 - plan.image_margin_px - radius_px
+        if low_u > high_u or low_v > high_v:
+            continue
+        pixel = np.array([rng.uniform(low_u, high_u), rng.uniform(low_v, high_v), 1.0])
+        ray = np.linalg.solve(k, pixel)
+        centre_cam = distance * ray / np.linalg.norm(ray)
+        return centre_cam * testbed.mockup_scale
+    raise PlanningError(
+        f"plan.dataset_range_m={plan.dataset_range_m}: the target does not fit in a "
+        f"{camera.width_px}x{camera.height_px} image at that range; increase the range")
+
+
+def dataset_pose(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedConfig, camera: CameraConfig,
+                 view: str) -> np.ndarray:
+    """``cam_from_target`` (4, 4), mock-up scale: orientation uniform on SO(3) given that
+    the camera sees ``view``; the body centre placed by ``dataset_position``."""
+    centre_cam = dataset_position(rng, plan, testbed, camera)
+    centre_target = tango.BODY_CENTRE_M * testbed.mockup_scale
+    keypoints = tango.KEYPOINTS_M * testbed.mockup_scale
+    for _ in range(_MAX_VISIBILITY_DRAWS):
+        rotation = g.quat_to_matrix(g.random_quats(rng, 1)[0])
+        cam_from_target = g.make_transform(rotation, centre_cam - rotation @ centre_target)
+        camera_in_target = g.invert(cam_from_target)[:3, 3]
+        if tango.view_of(camera_in_target, testbed.mockup_scale) != view:
+            continue  # conditioning on the side keeps SO(3)-uniformity within each half
+        pixels = g.project(cam_from_target, keypoints, camera.camera_matrix(), camera.dist_coeffs())
+        if np.all(_inside(pixels, camera, plan.image_margin_px)):
+            return cam_from_target
+    raise PlanningError(f"no {view} pose with the model inside the image; check plan.image_margin_px")
+
+
+def dataset_configuration(index: int, plan: PlanConfig) -> tuple[str, str]:
+    """(view, light) of the index-th dataset sample: cycling through view x light keeps the
+    configurations balanced (counts differ by at most one) for any session length."""
+    configurations = [(view, light) for view in ("solar_panel", "rear_panel") for light in plan.lights]
+    return configurations[index % len(configurations)]
+
+
+def light_boxes(rng: np.random.Generator, plan: PlanConfig, light: str) -> list[int]:
+    """Active light boxes: a uniform subset of the configured size for ``lightbox``, else none."""
+    if light != "lightbox":
+        return []
+    low, high = plan.light_boxes_per_sample
+    count = int(rng.integers(low, high + 1))
+    return sorted(int(i) for i in rng.choice(plan.n_light_boxes, size=count, replace=False))
+
+
+def mount_away_from(cam_from_target: np.ndarray) -> str:
+    """The fixture on the side of the model away from the camera (so the target robot is
+    never between camera and model)."""
+    camera_in_target = g.invert(cam_from_target)[:3, 3]
+    return "minus_x" if camera_in_target[0] > 0 else "plus_x"

@@ -1,0 +1,121 @@
+"""Testbed reconfiguration: world poses of both flanges and the rail position that realise
+a relative pose ``cam_from_target``, reachable by both arms.
+
+Free choices (the relative pose fixes only 6 of the 13 degrees of freedom): where the
+target robot presents the model, the direction of the line of sight in the room, the
+camera's roll about that line, and where the rail puts the camera robot. A grid of these
+is evaluated at once with closed-form inverse kinematics; the candidate whose joints stay
+farthest from their limits wins. Rules that every returned candidate obeys:
+
+- both arms reach their flange poses within joint limits (with a margin);
+- the rail position lies on the rail;
+- the camera and both flanges keep a clearance from the walls, floor and ceiling;
+- the target robot's base and the model's fixture are on the far side of the model as
+  seen from the camera (dataset session), so the arm never stands in the line of sight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.config import PlanConfig, TestbedConfig
+from stages import geometry as g
+from stages import layout
+from stages.kinematics import arm_model, limit_margin, solve
+
+
+@dataclass(frozen=True)
+class Reconfiguration:
+    """Commands for one sample (metres, radians, frame K)."""
+
+    rail_m: float
+    camera_joints_rad: np.ndarray  # (6,)
+    target_joints_rad: np.ndarray  # (6,)
+    world_from_camee: np.ndarray  # (4, 4)
+    world_from_targetee: np.ndarray  # (4, 4)
+    margin_rad: float
+
+
+def _frame_from_direction(direction: np.ndarray) -> np.ndarray:
+    """Orthonormal columns (..., 3, 3) whose first column is ``direction`` (..., 3)."""
+    first = direction / np.linalg.norm(direction, axis=-1, keepdims=True)
+    helper = np.where(np.abs(first[..., 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    second = np.cross(first, helper)
+    second /= np.linalg.norm(second, axis=-1, keepdims=True)
+    return np.stack([first, second, np.cross(first, second)], axis=-1)
+
+
+def _sight_directions(plan: PlanConfig) -> np.ndarray:
+    """Unit vectors (S, 3) in K from the camera towards the model: the camera is further
+    along +x (down the rail) and above the model."""
+    elevation, azimuth = np.meshgrid(plan.sight_elevations_rad, plan.sight_azimuths_rad, indexing="ij")
+    elevation, azimuth = elevation.ravel(), azimuth.ravel()
+    return np.stack([-np.cos(elevation) * np.cos(azimuth), -np.cos(elevation) * np.sin(azimuth),
+                     -np.sin(elevation)], axis=-1)
+
+
+def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testbed: TestbedConfig,
+                require_far_side: bool) -> Reconfiguration | None:
+    """The best robot/rail commands realising ``cam_from_target`` (4, 4, mock-up scale), or
+    None when no candidate is reachable."""
+    arm = arm_model(testbed.robot_model)
+    distance = np.linalg.norm(cam_from_target[:3, 3])
+    sight_cam = cam_from_target[:3, 3] / distance  # model direction in the camera frame
+
+    presentation = np.asarray(testbed.target_presentation_m, dtype=float)  # (P, 3)
+    sights = _sight_directions(plan)  # (S, 3)
+    rolls = np.linspace(0.0, 2 * np.pi, plan.camera_roll_candidates, endpoint=False)  # (R,)
+
+    # world_from_cam rotation maps sight_cam onto the sight direction, rolled about it
+    frame_cam = _frame_from_direction(sight_cam)  # (3, 3)
+    frame_world = _frame_from_direction(sights)  # (S, 3, 3)
+    roll_rotation = g.axis_angle_matrix("x", rolls)  # (R, 3, 3)
+    world_from_cam_rotation = frame_world[:, None] @ roll_rotation[None] @ frame_cam.T  # (S, R, 3, 3)
+
+    origin = presentation[:, None, None, :]  # (P, 1, 1, 3): the model's origin in K
+    camera_position = origin - distance * sights[None, :, None, :]  # (P, S, 1, 3)
+    world_from_cam = g.make_transform(world_from_cam_rotation[None], camera_position)  # (P, S, R, 4, 4)
+    world_from_target = world_from_cam @ cam_from_target
+    world_from_targetee = world_from_target @ layout.target_from_targetee(testbed, mount)
+    world_from_camee = world_from_cam @ g.invert(layout.camee_from_cam(testbed))
+
+    base_target = layout.world_from_target_base(testbed)
+    target_joints, target_ok = solve(arm, g.invert(base_target) @ world_from_targetee, plan.joint_limit_margin_rad)
+
+    offsets = np.asarray(plan.rail_offsets_m)  # (O,)
+    rail = world_from_camee[..., None, 0, 3] + offsets - testbed.rail_origin_m[0]  # (P, S, R, O)
+    on_rail = (rail >= 0.0) & (rail <= testbed.rail_length_m)
+    base_camera = layout.world_from_camera_base(testbed, np.clip(rail, 0.0, testbed.rail_length_m))
+    camera_joints, camera_ok = solve(arm, g.invert(base_camera) @ world_from_camee[..., None, :, :],
+                                     plan.joint_limit_margin_rad)
+
+    room = np.asarray(testbed.room_m)
+    clearance = plan.wall_clearance_m
+
+    def in_room(points: np.ndarray) -> np.ndarray:
+        return np.all((points >= clearance) & (points <= room - clearance), axis=-1)
+
+    in_room_ok = (in_room(world_from_cam[..., :3, 3]) & in_room(world_from_camee[..., :3, 3])
+                  & in_room(world_from_targetee[..., :3, 3]))
+    ok = camera_ok & on_rail & (target_ok & in_room_ok)[..., None]
+    if require_far_side:
+        sight = sights[None, :, None, :]
+        base_behind = np.einsum("...i,...i->...", base_target[:3, 3] - origin, sight) > 0  # (P, S, 1)
+        fixture_behind = np.einsum("...i,...i->...", world_from_targetee[..., :3, 3] - origin, sight) > 0
+        ok &= (base_behind & fixture_behind)[..., None]
+    if not ok.any():
+        return None
+    margin = np.minimum(limit_margin(arm, np.nan_to_num(camera_joints)),
+                        limit_margin(arm, np.nan_to_num(target_joints))[..., None])
+    best = np.unravel_index(np.argmax(np.where(ok, margin, -np.inf)), ok.shape)
+    p, s, r, o = (int(i) for i in best)
+    return Reconfiguration(
+        rail_m=float(rail[p, s, r, o]),
+        camera_joints_rad=camera_joints[p, s, r, o],
+        target_joints_rad=target_joints[p, s, r],
+        world_from_camee=world_from_camee[p, s, r],
+        world_from_targetee=world_from_targetee[p, s, r],
+        margin_rad=float(margin[p, s, r, o]),
+    )

@@ -1,0 +1,44 @@
+"""The Tango spacecraft (PRISMA mission) as SPEED+ describes it: body frame and keypoints.
+
+Body frame T: origin on the centre of the rear (-z) face, +z through the solar-panel
+face. Coordinates are full scale, metres (DESIGN section 7); multiply by the mock-up
+scale for the testbed model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The 11 public SPEED+ keypoints (11, 3), full scale, metres. 0-3: solar-panel face
+#: (z = 0.3215); 4-7: the opposite face (z = 0); 8-10: antenna tips.
+KEYPOINTS_M = np.array([
+    [-0.37, -0.385, 0.3215],
+    [-0.37, 0.385, 0.3215],
+    [0.37, 0.385, 0.3215],
+    [0.37, -0.385, 0.3215],
+    [-0.37, -0.264, 0.0],
+    [-0.37, 0.304, 0.0],
+    [0.37, 0.304, 0.0],
+    [0.37, -0.264, 0.0],
+    [-0.5427, 0.4877, 0.2535],
+    [0.5427, 0.4877, 0.2591],
+    [0.305, -0.579, 0.2515],
+])
+KEYPOINTS_M.setflags(write=False)
+
+#: z of the solar-panel face, full scale (m).
+SOLAR_PANEL_Z_M = 0.3215
+#: Centre of the body's bounding box, full scale (m).
+BODY_CENTRE_M = np.array([0.0, 0.0, SOLAR_PANEL_Z_M / 2])
+#: Radius of a sphere about BODY_CENTRE_M enclosing every keypoint, full scale (m).
+BOUNDING_RADIUS_M = float(np.max(np.linalg.norm(KEYPOINTS_M - BODY_CENTRE_M, axis=1)))
+
+
+def view_of(camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Visible side for camera positions (..., 3) in T, metres at the given model scale.
+
+    ``"solar_panel"`` when the camera is on the +z side of the body's mid-plane (it sees
+    the +z face), else ``"rear_panel"``.
+    """
+    camera_in_target_m = np.asarray(camera_in_target_m, dtype=float)
+    return np.where(camera_in_target_m[..., 2] > scale * BODY_CENTRE_M[2], "solar_panel", "rear_panel")
