@@ -157,12 +157,10 @@ def fit_limits(arm: ArmModel, joints: ArrayLike, margin: float = 0.0) -> tuple[A
     lower = np.asarray(arm.lower) + margin
     upper = np.asarray(arm.upper) - margin
     middle = (lower + upper) / 2
-    candidates = joints[..., None] + 2 * np.pi * np.array([-2.0, -1.0, 0.0, 1.0, 2.0])
-    inside = (candidates >= lower[:, None]) & (candidates <= upper[:, None])
-    distance = np.where(inside, np.abs(candidates - middle[:, None]), np.inf)
-    best = np.argmin(distance, axis=-1)
-    wrapped = np.take_along_axis(candidates, best[..., None], axis=-1)[..., 0]
-    fits = np.all(np.take_along_axis(inside, best[..., None], axis=-1)[..., 0], axis=-1)
+    # the equivalent angle nearest the middle is inside the (symmetric) range if any is
+    wrapped = middle + (joints - middle + np.pi) % (2 * np.pi) - np.pi
+    with np.errstate(invalid="ignore"):
+        fits = np.all((wrapped >= lower) & (wrapped <= upper), axis=-1)
     return wrapped, fits & np.all(np.isfinite(joints), axis=-1)
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from pipeline.config import PlanConfig, TestbedConfig
 from stages import geometry as g
-from stages import layout
+from stages import layout, tango
 from stages.kinematics import arm_model, limit_margin, solve
 
 
@@ -102,8 +102,9 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     ok = camera_ok & on_rail & (target_ok & in_room_ok)[..., None]
     if require_far_side:
         sight = sights[None, :, None, :]
-        base_behind = np.einsum("...i,...i->...", base_target[:3, 3] - origin, sight) > 0  # (P, S, 1)
-        fixture_behind = np.einsum("...i,...i->...", world_from_targetee[..., :3, 3] - origin, sight) > 0
+        centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[..., 0, :]
+        base_behind = np.einsum("...i,...i->...", base_target[:3, 3] - centre, sight) > 0
+        fixture_behind = np.einsum("...i,...i->...", world_from_targetee[..., :3, 3] - centre, sight) > 0
         ok &= (base_behind & fixture_behind)[..., None]
     if not ok.any():
         return None

@@ -1,0 +1,166 @@
+"""The plan stage: the poses asked for, and robot commands that really realise them."""
+
+import collections
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from pipeline.config import load_config
+from stages import geometry as g
+from stages import layout, tango
+from stages.kinematics import KR16_2, forward, limit_margin
+from stages.plan import PlanningError, plan_sample, sample_ids
+
+
+@pytest.fixture(scope="module")
+def default_config():
+    return load_config("default")
+
+
+@pytest.fixture(scope="module")
+def default_plan(default_config):
+    return [plan_sample(default_config, *item) for item in sample_ids(default_config)]
+
+
+def pose(row, prefix):
+    return g.transform_from_qt(row[f"{prefix}_q"], row[f"{prefix}_t"])
+
+
+def dataset(rows):
+    return [r for r in rows if r["session"] == "dataset"]
+
+
+def test_sizes_and_ids(default_plan):
+    sessions = collections.Counter(r["session"] for r in default_plan)
+    assert sessions == {"calibration": 64, "dataset": 48}
+    assert len({r["sample_id"] for r in default_plan}) == 112
+
+
+def test_same_seed_same_plan_other_seed_other_plan(default_config, default_plan):
+    items = sample_ids(default_config)
+    again = [plan_sample(default_config, *item) for item in items[:5] + items[64:69]]
+    expected = default_plan[:5] + default_plan[64:69]
+    for a, b in zip(again, expected, strict=True):
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key])
+    other = replace(default_config, plan=replace(default_config.plan, seed=7))
+    assert not np.allclose(plan_sample(other, "dataset", 0, "img000000")["cam_from_target_q"],
+                           default_plan[64]["cam_from_target_q"])
+
+
+def test_dataset_configurations_are_balanced(default_plan):
+    counts = collections.Counter((r["view"], r["light"]) for r in dataset(default_plan))
+    assert counts == {(v, light): 12 for v in ("solar_panel", "rear_panel") for light in ("lightbox", "sunlamp")}
+
+
+def test_dataset_orientations_are_uniform_on_so3(default_plan):
+    rotation = np.stack([pose(r, "cam_from_target")[:3, :3] for r in dataset(default_plan)])
+    angle = g.rotation_angle(rotation)
+    assert stats.kstest(angle, lambda x: (x - np.sin(x)) / np.pi).pvalue > 0.01
+    for column in range(3):  # each body axis seen from the camera points anywhere
+        assert stats.kstest(rotation[:, 2, column], "uniform", args=(-1, 2)).pvalue > 0.01
+
+
+def test_view_is_what_the_camera_sees(default_config, default_plan):
+    scale = default_config.testbed.mockup_scale
+    for row in default_plan:
+        camera_in_target = g.invert(pose(row, "cam_from_target"))[:3, 3]
+        above = camera_in_target[2] > scale * tango.BODY_CENTRE_M[2]
+        assert (row["view"] == "solar_panel") == above
+
+
+def test_dataset_range_and_model_in_frame(default_config, default_plan):
+    camera = default_config.camera
+    scale = default_config.testbed.mockup_scale
+    for row in dataset(default_plan):
+        cam_from_target = pose(row, "cam_from_target")
+        centre = g.apply(cam_from_target, (tango.BODY_CENTRE_M * scale)[None])[0]
+        assert 6.5 <= np.linalg.norm(centre) / scale <= 9.5
+        pixels = g.project(cam_from_target, tango.KEYPOINTS_M * scale, camera.camera_matrix(), camera.dist_coeffs())
+        assert np.all((pixels >= 0) & (pixels <= [camera.width_px - 1, camera.height_px - 1]))
+
+
+def test_calibration_poses_look_at_the_board(default_config, default_plan):
+    testbed, plan, camera = default_config.testbed, default_config.plan, default_config.camera
+    target_from_board = layout.target_from_board(testbed)
+    corners = g.apply(target_from_board, layout.board_inner_corners(testbed))
+    tilts = []
+    for row in default_plan[:64]:
+        cam_from_board = pose(row, "cam_from_target") @ target_from_board
+        centre = g.apply(cam_from_board, layout.board_centre(testbed)[None])[0]
+        assert 0.68 <= np.linalg.norm(centre) <= 0.82  # about 0.75 m
+        tilts.append(np.arccos(cam_from_board[2, 2]))  # boresight vs board normal (board z)
+        pixels = g.project(pose(row, "cam_from_target"), corners, camera.camera_matrix(), camera.dist_coeffs())
+        inside = np.all((pixels >= 0) & (pixels <= [camera.width_px - 1, camera.height_px - 1]), axis=1)
+        assert inside.mean() >= plan.calibration_min_corner_fraction
+        assert row["light"] == "ambient" and row["view"] == "solar_panel"
+    assert max(tilts) <= plan.calibration_max_tilt_rad + 1e-9
+    assert max(tilts) > np.radians(30)  # the tilt range is really used
+    assert collections.Counter(r["mount"] for r in default_plan[:64]) == {"minus_x": 32, "plus_x": 32}
+
+
+def test_commands_realise_the_relative_pose(default_config, default_plan):
+    testbed = default_config.testbed
+    for row in default_plan:
+        world_from_camee = pose(row, "world_from_camee")
+        world_from_targetee = pose(row, "world_from_targetee")
+        # forward kinematics of the commanded joints reaches the flange poses
+        np.testing.assert_allclose(
+            layout.world_from_camera_base(testbed, row["rail_m"]) @ forward(KR16_2, row["camera_joints_rad"]),
+            world_from_camee, atol=1e-9)
+        np.testing.assert_allclose(
+            layout.world_from_target_base(testbed) @ forward(KR16_2, row["target_joints_rad"]),
+            world_from_targetee, atol=1e-9)
+        # and the flanges, through the nominal fixtures, give cam_from_target
+        cam_from_target = (g.invert(world_from_camee @ layout.camee_from_cam(testbed)) @ world_from_targetee
+                           @ g.invert(layout.target_from_targetee(testbed, row["mount"])))
+        np.testing.assert_allclose(cam_from_target, pose(row, "cam_from_target"), atol=1e-9)
+        assert limit_margin(KR16_2, row["camera_joints_rad"]) >= default_config.plan.joint_limit_margin_rad - 1e-9
+        assert limit_margin(KR16_2, row["target_joints_rad"]) >= default_config.plan.joint_limit_margin_rad - 1e-9
+        assert 0.0 <= row["rail_m"] <= testbed.rail_length_m
+        assert row["reachable"]
+
+
+def test_target_robot_is_never_between_camera_and_model(default_config, default_plan):
+    testbed = default_config.testbed
+    for row in dataset(default_plan):
+        world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
+        world_from_target = pose(row, "world_from_targetee") @ g.invert(
+            layout.target_from_targetee(testbed, row["mount"]))
+        centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[0]
+        sight = centre - world_from_cam[:3, 3]
+        for point in (pose(row, "world_from_targetee")[:3, 3], np.asarray(testbed.target_base_m)):
+            assert np.dot(point - centre, sight) > 0
+        # the fixture is on the far face: the camera is on the other side of the model in x
+        camera_in_target = g.invert(pose(row, "cam_from_target"))[:3, 3]
+        assert (row["mount"] == "minus_x") == (camera_in_target[0] > 0)
+
+
+def test_light_boxes(default_plan):
+    for row in dataset(default_plan):
+        if row["light"] == "lightbox":
+            assert 1 <= len(row["light_boxes"]) <= 3 and len(set(row["light_boxes"])) == len(row["light_boxes"])
+            assert all(0 <= b < 10 for b in row["light_boxes"])
+        else:
+            assert row["light_boxes"] == []
+
+
+def test_unreachable_poses_are_redrawn_and_counted(default_config):
+    # one presentation point, one line of sight, one roll and wide joint margins: some
+    # relative poses become unreachable
+    testbed = replace(default_config.testbed, target_presentation_m=((1.55, 1.5, 1.25),))
+    plan = replace(default_config.plan, sight_elevations_rad=(np.radians(15),), sight_azimuths_rad=(0.0,),
+                   camera_roll_candidates=1, joint_limit_margin_rad=0.3)
+    config = replace(default_config, testbed=testbed, plan=plan)
+    rows = [plan_sample(config, "dataset", i, f"img{i:06d}") for i in range(12)]
+    assert sum(r["redraws"] for r in rows) > 0
+    assert all(r["reachable"] for r in rows)
+
+
+def test_impossible_configuration_names_the_sample(default_config):
+    testbed = replace(default_config.testbed, rail_length_m=0.0, rail_origin_m=(7.7, 1.5, 3.0))
+    config = replace(default_config, testbed=testbed, plan=replace(default_config.plan, max_redraws=2))
+    with pytest.raises(PlanningError, match="sample img000003: no reachable robot configuration in 3 draws"):
+        plan_sample(config, "dataset", 3, "img000003")
