@@ -1,0 +1,93 @@
+"""The speedplus command end to end, in subprocesses, as a user runs it."""
+
+import os
+import subprocess
+import sys
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from manifests import Workspace, list_parts, read_manifest
+
+
+def speedplus(*args, env=None, cwd=None):
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
+                          env={**os.environ, "COLUMNS": "200", **(env or {})}, cwd=cwd, timeout=300)
+
+
+def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
+    ws = tmp_path / "w"
+    first = speedplus("plan", "--profile", "smoke", "--workspace", str(ws))
+    assert first.returncode == 0, first.stderr
+    assert "plan: ran" in first.stdout
+    assert read_manifest(Workspace(ws), "plan").num_rows == 20
+    assert (ws / "config.toml").exists() and 'profile = "smoke"' in (ws / "config.toml").read_text()
+    second = speedplus("plan", "--workspace", str(ws))  # the workspace's config.toml is used
+    assert second.returncode == 0 and "up to date" in second.stdout
+    status = speedplus("status", "--workspace", str(ws))
+    assert status.returncode == 0
+    line = next(line for line in status.stdout.splitlines() if "plan" in line and "plan 20" in line)
+    assert "done" in line
+
+
+def test_run_stops_at_the_first_stage_not_built(tmp_path):
+    result = speedplus("run", "--profile", "smoke", "--workspace", str(tmp_path / "w"))
+    assert result.returncode == 3
+    assert "stage 'acquire' is not built yet" in result.stderr and "after 'plan'" in result.stderr
+    until = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "plan")
+    assert until.returncode == 0 and "up to date" in until.stdout
+
+
+def test_bad_configuration_exits_1_naming_the_key(tmp_path):
+    result = speedplus("plan", "--profile", "smoke", "--workspace", str(tmp_path), "--set", "plan.n_calib=3")
+    assert result.returncode == 1
+    assert "plan.n_calib" in result.stderr and "plan.n_calibration" in result.stderr
+    assert not list((tmp_path).glob("manifests/*"))
+
+
+def test_usage_errors_exit_2(tmp_path):
+    assert speedplus("plan", "--no-such-option").returncode == 2
+    assert speedplus("run", "--until", "nowhere", "--workspace", str(tmp_path)).returncode == 2
+    assert speedplus("frobnicate").returncode == 2
+
+
+def test_killed_plan_resumes_to_the_uninterrupted_result(tmp_path):
+    reference = tmp_path / "reference"
+    assert speedplus("plan", "--profile", "smoke", "--workspace", str(reference)).returncode == 0
+    ws = tmp_path / "killed"
+    # SIGKILL while the third part is being written (temporary complete, not yet renamed)
+    killed = speedplus("plan", "--profile", "smoke", "--workspace", str(ws),
+                       env={"SPEEDPLUS_FAULT_KILL_AT_PART": "3"})
+    assert killed.returncode == -9
+    assert len(list_parts(Workspace(ws), "plan")) == 2
+    assert list((ws / "manifests" / "plan").glob(".part-*.tmp"))
+    status = speedplus("status", "--workspace", str(ws))
+    assert "partial" in status.stdout
+    resumed = speedplus("plan", "--workspace", str(ws))
+    assert resumed.returncode == 0 and "resumed" in resumed.stdout
+    assert not list((ws / "manifests" / "plan").glob(".part-*.tmp"))
+    got = read_manifest(Workspace(ws), "plan").sort_by("sample_id")
+    expected = read_manifest(Workspace(reference), "plan").sort_by("sample_id")
+    assert got.equals(expected)
+
+
+def test_corrupted_manifest_exits_1_naming_file_row_and_column(tmp_path):
+    ws = tmp_path / "w"
+    speedplus("plan", "--profile", "smoke", "--workspace", str(ws), env={"SPEEDPLUS_FAULT_KILL_AT_PART": "3"})
+    part = list_parts(Workspace(ws), "plan")[1]
+    table = pq.read_table(part)
+    rails = table.column("rail_m").to_pylist()
+    rails[2] = float("nan")
+    index = table.column_names.index("rail_m")
+    pq.write_table(table.set_column(index, table.schema.field(index), pa.array(rails)), part)
+    result = speedplus("plan", "--workspace", str(ws))
+    assert result.returncode == 1
+    message = " ".join(result.stderr.split())
+    assert "part-00001.parquet, row 2" in message and "'rail_m'" in message and "not finite" in message
+
+
+@pytest.mark.parametrize("command", ["acquire", "calibrate", "fuse", "label", "render", "evaluate", "report"])
+def test_every_stage_has_a_command(command):
+    result = speedplus(command, "--help")
+    assert result.returncode == 0 and "--workspace" in result.stdout and "--force" in result.stdout

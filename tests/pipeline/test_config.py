@@ -1,0 +1,96 @@
+"""Configuration: profiles, overrides, documentation, and errors that name the key."""
+
+import dataclasses
+import typing
+
+import numpy as np
+import pytest
+
+from pipeline.config import PROFILES, SECTION_TYPES, ConfigError, load_config, write_config
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_profiles_load(profile):
+    config = load_config(profile)
+    assert config.profile == profile
+
+
+def test_profile_sizes():
+    smoke, default, paper = (load_config(p) for p in PROFILES)
+    assert (smoke.plan.n_calibration, smoke.plan.n_dataset) == (12, 8)
+    assert (smoke.camera.width_px, smoke.camera.height_px) == (320, 200)
+    assert (default.plan.n_calibration, default.plan.n_dataset) == (64, 48)
+    assert (default.camera.width_px, default.camera.height_px) == (960, 600)
+    assert (paper.plan.n_calibration, paper.plan.n_dataset) == (64, 495)
+    assert (paper.camera.width_px, paper.camera.height_px) == (1920, 1200)
+
+
+def test_every_field_is_typed_and_documented_with_a_unit():
+    for name, section in SECTION_TYPES.items():
+        assert dataclasses.is_dataclass(section) and section.__dataclass_params__.frozen, name
+        hints = typing.get_type_hints(section)
+        for field in dataclasses.fields(section):
+            assert field.name in hints
+            assert field.metadata.get("help"), f"{name}.{field.name} has no documentation"
+            assert "unit" in field.metadata, f"{name}.{field.name} has no unit"
+
+
+def test_intrinsics_scale_with_resolution():
+    full, half = load_config("paper").camera, load_config("default").camera
+    np.testing.assert_allclose(full.camera_matrix()[0, 0], 2988.5795)
+    np.testing.assert_allclose(half.camera_matrix()[0, 0] * 2, full.camera_matrix()[0, 0])
+    # pixel centres at integer coordinates: the image centre maps to the image centre
+    centre_full = (full.camera_matrix()[0, 2] + 0.5) / full.width_px
+    centre_half = (half.camera_matrix()[0, 2] + 0.5) / half.width_px
+    assert centre_full == pytest.approx(centre_half)
+
+
+def test_overrides_are_typed():
+    config = load_config("smoke", overrides=["plan.n_dataset=20", "plan.dataset_range_m=[7, 9]",
+                                             "testbed.robot_model=KR16-2", "plan.lights=['sunlamp']"])
+    assert config.plan.n_dataset == 20
+    assert config.plan.dataset_range_m == (7.0, 9.0)
+    assert config.plan.lights == ("sunlamp",)
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("plan.n_calib=3", "unknown configuration key 'plan.n_calib' (did you mean plan.n_calibration?)"),
+        ("plann.seed=3", "unknown configuration key 'plann'"),
+        ("plan.n_dataset=many", "plan.n_dataset: expected an integer, got 'many'"),
+        ("plan.n_dataset=2.5", "plan.n_dataset: expected an integer"),
+        ("plan.dataset_range_m=[1, 2, 3]", "plan.dataset_range_m: expected 2 values"),
+        ("plan.dataset_range_m=[9, 7]", "plan.dataset_range_m: expected 0 < min <= max"),
+        ("camera.width_px=1000", "does not have the aspect"),
+        ("plan.lights=['moon']", "plan.lights"),
+        ("plan", "expected section.key=value"),
+    ],
+)
+def test_bad_overrides_name_the_key(override, message):
+    with pytest.raises(ConfigError) as error:
+        load_config("smoke", overrides=[override])
+    assert message in str(error.value)
+
+
+def test_unknown_profile():
+    with pytest.raises(ConfigError, match="unknown profile 'fast'"):
+        load_config("fast")
+
+
+def test_config_file_errors_name_the_file(tmp_path):
+    bad = tmp_path / "mine.toml"
+    bad.write_text("[plan]\nn_dataset = 'x'\n")
+    with pytest.raises(ConfigError, match=r"mine.toml: plan.n_dataset: expected an integer"):
+        load_config(config_file=bad)
+    bad.write_text("[plan\n")
+    with pytest.raises(ConfigError, match="mine.toml: not valid TOML"):
+        load_config(config_file=bad)
+    with pytest.raises(ConfigError, match="missing.toml: file not found"):
+        load_config(config_file=tmp_path / "missing.toml")
+
+
+def test_resolved_config_round_trips_through_toml(tmp_path):
+    config = load_config("smoke", overrides=["plan.seed=99"])
+    write_config(config, tmp_path / "config.toml")
+    assert load_config(config_file=tmp_path / "config.toml") == config

@@ -1,0 +1,92 @@
+"""Runner: fingerprints, skip when up to date, resume, refusal to mix results."""
+
+from dataclasses import replace
+
+import pyarrow.compute as pc
+import pytest
+
+from manifests import Workspace, read_manifest, read_success, write_part
+from pipeline import runner
+from pipeline.config import load_config
+from stages.plan import plan_sample, sample_ids
+
+PLAN = runner.stage_spec("plan")
+
+
+@pytest.fixture()
+def smoke():
+    return load_config("smoke")
+
+
+def sorted_table(table):
+    return table.sort_by("sample_id")
+
+
+def test_fingerprint_tracks_results_not_execution(smoke, tmp_path):
+    ws = Workspace(tmp_path)
+    base = runner.fingerprint(PLAN, smoke, ws)
+    assert runner.fingerprint(PLAN, smoke, ws) == base
+    assert runner.fingerprint(PLAN, replace(smoke, run=replace(smoke.run, part_rows=1)), ws) == base
+    assert runner.fingerprint(PLAN, replace(smoke, plan=replace(smoke.plan, seed=1)), ws) != base
+    assert runner.fingerprint(PLAN, replace(smoke, camera=replace(smoke.camera, fx_px=3000.0)), ws) != base
+
+
+def test_run_then_skip_then_status(smoke, tmp_path):
+    ws = Workspace(tmp_path)
+    assert runner.status(PLAN, smoke, ws).state == "missing"
+    outcome = runner.run_stage(PLAN, smoke, ws)
+    assert outcome.action == "ran" and outcome.rows == {"plan": 20}
+    marker = read_success(ws, "plan")
+    assert marker["rows"] == 20 and marker["fingerprint"] == runner.fingerprint(PLAN, smoke, ws)
+    before = sorted(p.stat().st_mtime_ns for p in ws.manifest_dir("plan").iterdir())
+    assert runner.run_stage(PLAN, smoke, ws).action == "skipped"
+    assert sorted(p.stat().st_mtime_ns for p in ws.manifest_dir("plan").iterdir()) == before
+    assert runner.status(PLAN, smoke, ws).state == "done"
+
+
+def test_changed_configuration_is_stale_and_needs_force(smoke, tmp_path):
+    ws = Workspace(tmp_path)
+    runner.run_stage(PLAN, smoke, ws)
+    changed = replace(smoke, plan=replace(smoke.plan, seed=5))
+    assert runner.status(PLAN, changed, ws).state == "stale"
+    with pytest.raises(runner.StageError, match="another configuration.*--force"):
+        runner.run_stage(PLAN, changed, ws)
+    outcome = runner.run_stage(PLAN, changed, ws, force=True)
+    assert outcome.action == "ran"
+    assert runner.status(PLAN, changed, ws).state == "done"
+    assert runner.status(PLAN, smoke, ws).state == "stale"
+
+
+def test_partial_results_resume_to_the_uninterrupted_plan(smoke, tmp_path):
+    fresh = Workspace(tmp_path / "fresh")
+    runner.run_stage(PLAN, smoke, fresh)
+    ws = Workspace(tmp_path / "resumed")
+    fingerprint = runner.fingerprint(PLAN, smoke, ws)
+    done = [plan_sample(smoke, *item) for item in sample_ids(smoke)[3:9]]  # not even a prefix
+    write_part(ws, "plan", done, fingerprint)
+    assert runner.status(PLAN, smoke, ws).state == "partial"
+    outcome = runner.run_stage(PLAN, smoke, ws)
+    assert outcome.action == "resumed" and outcome.rows == {"plan": 20}
+    assert sorted_table(read_manifest(ws, "plan")).equals(sorted_table(read_manifest(fresh, "plan")))
+
+
+def test_partial_results_of_another_configuration_are_not_mixed(smoke, tmp_path):
+    ws = Workspace(tmp_path)
+    write_part(ws, "plan", [plan_sample(smoke, *sample_ids(smoke)[0])], "some-other-fingerprint")
+    assert runner.status(PLAN, smoke, ws).state == "stale"
+    with pytest.raises(runner.StageError, match="--force"):
+        runner.run_stage(PLAN, smoke, ws)
+    runner.run_stage(PLAN, smoke, ws, force=True)
+    table = read_manifest(ws, "plan")
+    assert table.num_rows == 20 and pc.count_distinct(table.column("sample_id")).as_py() == 20
+
+
+def test_missing_input_names_the_manifest(smoke, tmp_path):
+    needs_captures = runner.StageSpec("fuse-like", "stages.plan", ("captures",), ("poses",), ("plan",), "")
+    with pytest.raises(runner.StageError, match="needs the complete manifest.s. captures"):
+        runner.run_stage(needs_captures, smoke, Workspace(tmp_path))
+
+
+def test_unbuilt_stage_says_so(smoke, tmp_path):
+    with pytest.raises(runner.NotBuiltError, match="acquire"):
+        runner.run_stage(runner.stage_spec("acquire"), smoke, Workspace(tmp_path))
