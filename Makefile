@@ -28,6 +28,7 @@ dataset: setup
 	$(BIN)/speedplus run --profile $(PROFILE) --workspace $(WORKSPACE)
 
 test: setup
+	$(BIN)/ruff check pipeline stages manifests tests bench
 	$(BIN)/python -m pytest -q
 
 bench: setup

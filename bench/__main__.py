@@ -1,0 +1,14 @@
+"""Run benchmarks: ``python -m bench`` (all) or ``python -m bench NAME [ARGS]``."""
+
+import importlib
+import sys
+
+BENCHMARKS = ("plan",)
+
+if __name__ == "__main__":
+    names = sys.argv[1:2] or list(BENCHMARKS)
+    for name in names:
+        if name not in BENCHMARKS:
+            sys.exit(f"unknown benchmark {name!r}; available: {', '.join(BENCHMARKS)}")
+        module = importlib.import_module(f"bench.{name}")
+        module.main(*(int(a) for a in sys.argv[2:]))
