@@ -189,3 +189,22 @@ def solve(arm: ArmModel, base_from_flange: ArrayLike, margin: float = 0.0,
     joints = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
     reachable = np.take_along_axis(fits, best[..., None], axis=-1)[..., 0]
     return np.where(reachable[..., None], joints, np.nan), reachable
+
+
+def link_points(arm: ArmModel, joints: ArrayLike) -> Array:
+    """Points along the arm (..., 5, 3) in the base frame: base, shoulder (A2 axis), elbow
+    (A3 axis), wrist centre and flange. Consecutive points bound the links, which is what
+    line-of-sight tests (motion capture occlusion) need."""
+    theta = _to_theta(arm, np.asarray(joints, dtype=np.float64))
+    t1, t2, t3 = theta[..., 0], theta[..., 1], theta[..., 2]
+    zero = np.zeros_like(t1)
+
+    def planar(x: Array, z: Array) -> Array:  # point in the arm plane, rotated about A1
+        return np.stack([x * np.cos(t1) - arm.b * np.sin(t1), x * np.sin(t1) + arm.b * np.cos(t1), z], axis=-1)
+
+    base = np.stack([zero, zero, zero], axis=-1)
+    shoulder = planar(zero + arm.a1, zero + arm.c1)
+    elbow = planar(arm.a1 + arm.c2 * np.sin(t2), arm.c1 + arm.c2 * np.cos(t2))
+    flange = forward(arm, joints)
+    wrist = flange[..., :3, 3] - arm.c4 * flange[..., :3, 2]
+    return np.stack([base, shoulder, elbow, wrist, flange[..., :3, 3]], axis=-2)

@@ -74,3 +74,21 @@ def test_solve_respects_limits_and_rejects_unreachable_poses():
     far = g.make_transform(np.eye(3), [3.0, 0.0, 0.5])  # beyond the 1.6 m reach
     joints, reachable = solve(KR16_2, far[None])
     assert not reachable[0] and np.isnan(joints).all()
+
+
+def test_link_points_follow_the_urdf_chain():
+    from stages.kinematics import link_points
+
+    rng = np.random.default_rng(4)
+    for joints in random_joints(rng, 20):
+        points = link_points(KR16_2, joints)
+        pose = np.eye(4)
+        chain = []
+        for (origin, axis), q in zip(URDF_JOINTS, joints, strict=True):
+            pose = pose @ g.make_transform(np.eye(3), origin) @ g.make_transform(
+                g.rotvec_to_matrix(np.array(axis) * q), np.zeros(3))
+            chain.append(pose[:3, 3])
+        np.testing.assert_allclose(points[1], chain[1], atol=1e-12)  # A2 axis
+        np.testing.assert_allclose(points[2], chain[2], atol=1e-12)  # A3 axis
+        np.testing.assert_allclose(points[3], chain[4], atol=1e-12)  # wrist centre (A5)
+        np.testing.assert_allclose(points[4], urdf_forward(joints)[:3, 3], atol=1e-12)
