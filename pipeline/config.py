@@ -110,6 +110,16 @@ class TestbedConfig:
     mount_target_from_targetee_t_m: tuple[float, float, float] = param(
         (-0.305, 0.0, 0.08), "nominal flange position in T for the minus_x mount: 12 cm stand-off "
         "from the -x face of the half-scale model", "m")
+    light_box_centres_m: tuple[tuple[float, float, float], ...] = param(
+        ((0.5, 0.02, 1.3), (1.3, 0.02, 1.3), (2.1, 0.02, 1.3), (2.9, 0.02, 1.3),
+         (0.5, 2.98, 1.3), (1.3, 2.98, 1.3), (2.1, 2.98, 1.3), (2.9, 2.98, 1.3),
+         (0.02, 0.9, 1.3), (0.02, 2.1, 1.3)),
+        "centres of the 10 Earth-albedo light boxes on the walls around the model (TRON: 10 boxes)", "m")
+    light_box_size_m: tuple[float, float] = param((0.6, 0.6), "light box diffuser width, height", "m")
+    light_box_aim_m: tuple[float, float, float] = param(
+        (1.5, 1.5, 1.15), "point every light box faces (the model's working volume)", "m")
+    sun_lamp_position_m: tuple[float, float, float] = param(
+        (3.2, 0.25, 1.9), "sun lamp (metal-halide arc lamp) position in K", "m")
     board_squares: tuple[int, int] = param((11, 11), "ChArUco board squares x, y (TRON: 11 x 11)", "count")
     board_square_m: float = param(0.030, "ChArUco square side (TRON: 30 mm)", "m")
     board_marker_m: float = param(0.022, "ArUco marker side inside a square", "m")
@@ -165,6 +175,78 @@ class PlanConfig:
 
 
 @dataclass(frozen=True)
+class AcquireConfig:
+    """The acquire stage: which testbed backend produces the captures."""
+
+    backend: str = param("virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
+    format: str = param("session", "replay format: session (see README) or tabb (robot-world/hand-eye data)", "")
+    source: str = param("", "replay: the recorded session directory", "")
+    workers: int = param(2, "worker processes (spawned; each loads the scene once)", "count")
+    worker_max_captures: int = param(
+        60, "captures a worker renders before it is replaced (bounds the renderer's memory growth)", "count")
+
+
+@dataclass(frozen=True)
+class VirtualConfig:
+    """Error sources of the virtual testbed; each default's source is in its help text.
+    The hidden truth drawn from them is written to W/truth.json."""
+
+    seed: int = param(11, "random seed of the hidden truth and of all measurement noise", "")
+    link_length_sigma_m: float = param(
+        0.0003, "1-sigma error of each true arm dimension vs the data sheet (uncalibrated KUKA arms: "
+        "absolute accuracy of a few mm with 0.05 mm repeatability)", "m")
+    joint_offset_sigma_rad: float = param(
+        0.0004, "1-sigma true zero offset of each joint encoder (0.02 deg: about 0.6 mm at full reach)", "rad")
+    base_position_sigma_m: float = param(0.0005, "1-sigma error of each robot base position in K", "m")
+    base_rotation_sigma_rad: float = param(0.0002, "1-sigma error of each robot base orientation in K", "rad")
+    repeatability_rad: float = param(
+        1.5e-5, "1-sigma joint positioning noise (KR 16-2 data sheet: pose repeatability +-0.05 mm)", "rad")
+    rail_scale_sigma: float = param(1e-4, "1-sigma scale error of the rail position encoder", "1")
+    rail_noise_m: float = param(5e-5, "1-sigma rail positioning noise", "m")
+    camera_fixture_sigma_m: float = param(0.003, "1-sigma true camera offset from its nominal fixture", "m")
+    camera_fixture_sigma_rad: float = param(0.01, "1-sigma true camera rotation from its nominal fixture", "rad")
+    model_fixture_sigma_m: float = param(0.003, "1-sigma true model offset from each nominal mount", "m")
+    model_fixture_sigma_rad: float = param(0.01, "1-sigma true model rotation from each nominal mount", "rad")
+    model_mass_kg: float = param(4.0, "mass of the half-scale mock-up (gravity moment on its fixture)", "kg")
+    model_compliance_rad_per_nm: float = param(
+        4e-4, "fixture tilt per unit gravity moment; the paper reports tilts of tenths of a degree", "rad/(N m)")
+    vicon_camera_height_m: float = param(2.8, "height of the 12 motion-capture cameras on the walls", "m")
+    vicon_fov_rad: float = param(1.35, "full field of view of a motion-capture camera (Vicon Vero: 77 deg)", "rad")
+    vicon_max_range_m: float = param(9.0, "farthest marker a motion-capture camera resolves", "m")
+    vicon_marker_sigma_m: float = param(
+        0.0003, "1-sigma marker position noise seen by two cameras; scales with sqrt(2 / cameras)", "m")
+    vicon_ghost_rate: float = param(
+        0.04, "probability that a tracked rigid body includes one ghost or mislabelled marker", "1")
+    vicon_ghost_offset_m: tuple[float, float] = param((0.005, 0.03), "range of a ghost marker's displacement", "m")
+    vicon_link_radius_m: float = param(0.09, "radius of the robot links as seen by motion capture", "m")
+    vicon_world_from_world_q: tuple[float, float, float, float] = param(
+        (0.7071067811865476, 0.0, 0.0, 0.7071067811865476),
+        "motion-capture world V in K (set by the Vicon wand calibration; unrelated to K)", "1")
+    vicon_world_from_world_t_m: tuple[float, float, float] = param(
+        (1.2, -3.4, 0.05), "origin of K in V", "m")
+    camera_markers_m: tuple[tuple[float, float, float], ...] = param(
+        ((0.06, 0.05, 0.02), (-0.07, 0.05, 0.03), (0.05, -0.06, 0.08), (-0.06, -0.05, 0.1), (0.0, 0.08, 0.14)),
+        "camera rigid-body markers in the camera flange frame (5 markers on the camera housing)", "m")
+    target_markers_rel: tuple[tuple[float, float, float], ...] = param(
+        ((0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5), (-1.03, -0.3, 0.3),
+         (0.2, 1.03, 0.2)),
+        "model markers as fractions of the half extents of the body box about its centre (6 markers)", "1")
+    spp: int = param(24, "Mitsuba samples per pixel of a capture", "count")
+    full_well_e: float = param(32513.0, "sensor full-well capacity (Sony IMX174 of the Grasshopper3 GS3-U3-23S6M)",
+                               "e-")
+    read_noise_e: float = param(6.8, "sensor read noise (IMX174, EMVA 1288 data)", "e-")
+    exposure_lightbox: float = param(1.0, "exposure scale (radiance to full well) under light boxes", "1")
+    exposure_sunlamp: float = param(1.0, "exposure scale under the sun lamp", "1")
+    exposure_ambient: float = param(1.0, "exposure scale under the room's ambient light (calibration)", "1")
+    light_box_radiance: float = param(6.0, "radiance of an active light box (relative units)", "1")
+    sun_lamp_radiance: float = param(4.0e4, "radiance of the sun lamp's arc (relative units)", "1")
+    sun_lamp_radius_m: float = param(0.04, "radius of the sun lamp's emitting sphere", "m")
+    ambient_radiance: float = param(2.5, "radiance of the ceiling panels used for calibration", "1")
+    glare_strength: float = param(0.6, "veiling glare of the sun lamp relative to full scale at its image point",
+                                  "1")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole configuration of a run."""
 
@@ -173,6 +255,8 @@ class Config:
     camera: CameraConfig = field(default_factory=CameraConfig)
     testbed: TestbedConfig = field(default_factory=TestbedConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
+    acquire: AcquireConfig = field(default_factory=AcquireConfig)
+    virtual: VirtualConfig = field(default_factory=VirtualConfig)
 
     def section(self, name: str) -> Any:
         return getattr(self, name)
@@ -181,6 +265,7 @@ class Config:
 SECTIONS: dict[str, type] = {f.name: f.type for f in fields(Config) if f.name != "profile"}
 SECTION_TYPES: dict[str, type] = {
     "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
+    "acquire": AcquireConfig, "virtual": VirtualConfig,
 }
 
 
@@ -278,12 +363,23 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
     if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
         raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
+    if config.acquire.backend not in ("virtual", "replay"):
+        raise ConfigError(f"acquire.backend: expected virtual or replay, got {config.acquire.backend!r}")
+    if config.acquire.format not in ("session", "tabb"):
+        raise ConfigError(f"acquire.format: expected session or tabb, got {config.acquire.format!r}")
+    if config.acquire.backend == "replay" and not config.acquire.source:
+        raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
+    if config.acquire.workers < 1 or config.acquire.worker_max_captures < 1:
+        raise ConfigError("acquire.workers/worker_max_captures: must be at least 1")
+    if not 0 <= config.virtual.vicon_ghost_rate <= 1:
+        raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
     if config.run.part_rows < 1:
         raise ConfigError("run.part_rows: must be at least 1")
-    for key in ("camee_from_cam_q", "mount_target_from_targetee_q", "target_from_board_q"):
-        q = np.asarray(getattr(config.testbed, key))
+    for section, key in (("testbed", "camee_from_cam_q"), ("testbed", "mount_target_from_targetee_q"),
+                         ("testbed", "target_from_board_q"), ("virtual", "vicon_world_from_world_q")):
+        q = np.asarray(getattr(config.section(section), key))
         if abs(np.linalg.norm(q) - 1.0) > 1e-6:
-            raise ConfigError(f"testbed.{key}: quaternion norm {np.linalg.norm(q):.6f} is not 1")
+            raise ConfigError(f"{section}.{key}: quaternion norm {np.linalg.norm(q):.6f} is not 1")
     return config
 
 

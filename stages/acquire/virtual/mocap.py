@@ -1,0 +1,147 @@
+"""A Vicon-like motion-capture system: 12 wall cameras, markers, occlusion, noise, ghosts.
+
+A marker counts when at least two cameras see it: inside the camera's field of view and
+range, and with the line of sight clear of the robot links (capsules) and of the model
+(its body box). Each counted marker is triangulated with noise growing as fewer cameras
+see it. With a configured probability a rigid body's observation includes one ghost or
+mislabelled marker. The pose of a rigid body is the least-squares fit (Kabsch) of its
+marker model to the observed markers; with fewer than 3 markers it is not tracked.
+All positions here are in the robot world K; reported poses are in the motion-capture
+world V.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.config import Config
+from stages import geometry as g
+from stages import tango
+
+MIN_CAMERAS = 2
+MIN_MARKERS = 3
+
+
+@dataclass(frozen=True)
+class RigidBodyObservation:
+    """``vicon_world_from_rb`` (4, 4) or None when untracked; markers used; ghost injected."""
+
+    vicon_world_from_rb: np.ndarray | None
+    markers: int
+    ghost: bool
+
+
+def camera_positions(config: Config) -> np.ndarray:
+    """(12, 3) motion-capture cameras on the walls near the ceiling: 4 on each long wall,
+    2 on each end wall."""
+    length, width, _ = config.testbed.room_m
+    height = config.virtual.vicon_camera_height_m
+    xs = np.linspace(0.15 * length, 0.85 * length, 4)
+    cams = [(x, 0.05, height) for x in xs] + [(x, width - 0.05, height) for x in xs]
+    cams += [(0.05, y, height) for y in (0.3 * width, 0.7 * width)]
+    cams += [(length - 0.05, y, height) for y in (0.3 * width, 0.7 * width)]
+    return np.array(cams)
+
+
+def camera_aim(config: Config) -> np.ndarray:
+    """(3,) point the cameras look at: the middle of the working volume."""
+    length, width, _ = config.testbed.room_m
+    return np.array([0.45 * length, width / 2, 1.2])
+
+
+def _segments_hit_capsules(start: np.ndarray, end: np.ndarray, a: np.ndarray, b: np.ndarray,
+                           radius: float) -> np.ndarray:
+    """Whether segments start->end (N, 3) come within ``radius`` of capsule axes a->b (L, 3).
+
+    Returns (N,). Closest points between segments by clamped parameters (sampled finely
+    enough for these lengths: 64 samples along the sight line)."""
+    samples = np.linspace(0.0, 0.97, 64)  # stop short of the marker: its own mount is not an obstacle
+    points = start[:, None, :] + samples[None, :, None] * (end - start)[:, None, :]  # (N, S, 3)
+    axis = b - a  # (L, 3)
+    length_sq = np.maximum(np.einsum("li,li->l", axis, axis), 1e-12)
+    t = np.einsum("nsli,li->nsl", points[:, :, None, :] - a[None, None], axis) / length_sq
+    t = np.clip(t, 0.0, 1.0)
+    closest = a[None, None] + t[..., None] * axis[None, None]
+    distance = np.linalg.norm(points[:, :, None, :] - closest, axis=-1)
+    return np.any(distance < radius, axis=(1, 2))
+
+
+def _segments_hit_box(start_box: np.ndarray, end_box: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Slab test: does segment start->end (N, 3), in the box frame, cross the box (N,)?"""
+    direction = end_box - start_box
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (low - start_box) / direction
+        t2 = (high - start_box) / direction
+    t_near = np.nanmax(np.minimum(t1, t2), axis=1)
+    t_far = np.nanmin(np.maximum(t1, t2), axis=1)
+    return (t_near <= t_far) & (t_far > 0.0) & (t_near < 1.0)
+
+
+def body_box(scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds (low, high) of the model's body in T, metres at ``scale``."""
+    body = tango.KEYPOINTS_M[:8] * scale
+    return body.min(axis=0), body.max(axis=0)
+
+
+def target_markers(config: Config) -> np.ndarray:
+    """(M, 3) model marker positions in T (metres, mock-up scale), 1 cm off the surface."""
+    low, high = body_box(config.testbed.mockup_scale)
+    centre, half = (low + high) / 2, (high - low) / 2
+    markers = centre + np.asarray(config.virtual.target_markers_rel) * half
+    return markers
+
+
+def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndarray,
+               world_from_target: np.ndarray) -> np.ndarray:
+    """(cameras, markers) boolean: which camera sees which marker."""
+    v = config.virtual
+    cams = camera_positions(config)
+    aim = camera_aim(config)
+    boresight = (aim - cams) / np.linalg.norm(aim - cams, axis=1, keepdims=True)
+    to_marker = markers_world[None, :, :] - cams[:, None, :]
+    distance = np.linalg.norm(to_marker, axis=-1)
+    cos_angle = np.einsum("cmi,ci->cm", to_marker, boresight) / distance
+    seen = (cos_angle > np.cos(v.vicon_fov_rad / 2)) & (distance < v.vicon_max_range_m)
+    starts = np.repeat(cams, len(markers_world), axis=0)
+    ends = np.tile(markers_world, (len(cams), 1))
+    blocked = _segments_hit_capsules(starts, ends, link_segments[:, 0], link_segments[:, 1], v.vicon_link_radius_m)
+    target_from_world = g.invert(world_from_target)
+    low, high = body_box(config.testbed.mockup_scale)
+    ends_box = g.apply(target_from_world, ends)
+    starts_box = g.apply(target_from_world, starts)
+    # shrink the sight line slightly so a marker on the surface is not hidden by its own face
+    ends_box = starts_box + 0.995 * (ends_box - starts_box)
+    blocked |= _segments_hit_box(starts_box, ends_box, low, high)
+    return seen & ~blocked.reshape(len(cams), len(markers_world))
+
+
+def kabsch(model: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """``observed_from_model`` (4, 4) minimising sum |observed - T model|^2 (points (N, 3))."""
+    model_centre, observed_centre = model.mean(axis=0), observed.mean(axis=0)
+    covariance = (observed - observed_centre).T @ (model - model_centre)
+    rotation = g.project_to_so3(covariance)
+    return g.make_transform(rotation, observed_centre - rotation @ model_centre)
+
+
+def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, world_from_rb: np.ndarray,
+            vicon_world_from_world: np.ndarray, link_segments: np.ndarray,
+            world_from_target: np.ndarray) -> RigidBodyObservation:
+    """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``."""
+    v = config.virtual
+    markers_world = g.apply(world_from_rb, markers_rb)
+    cameras_seeing = visibility(config, markers_world, link_segments, world_from_target).sum(axis=0)
+    counted = cameras_seeing >= MIN_CAMERAS
+    sigma = v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))
+    noisy = markers_world + rng.normal(size=markers_world.shape) * sigma[:, None]
+    ghost = bool(rng.uniform() < v.vicon_ghost_rate)
+    visible = np.flatnonzero(counted)
+    if len(visible) < MIN_MARKERS:
+        return RigidBodyObservation(None, int(len(visible)), False)
+    if ghost:
+        victim = rng.choice(visible)
+        direction = rng.normal(size=3)
+        noisy[victim] += rng.uniform(*v.vicon_ghost_offset_m) * direction / np.linalg.norm(direction)
+    world_from_rb_measured = kabsch(markers_rb[visible], noisy[visible])
+    return RigidBodyObservation(vicon_world_from_world @ world_from_rb_measured, int(len(visible)), ghost)

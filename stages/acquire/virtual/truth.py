@@ -1,0 +1,107 @@
+"""The hidden truth of the virtual testbed: what the real facility would never tell us.
+
+Drawn once from ``virtual.seed`` (so every worker process agrees on it) and written to
+``W/truth.json``: the true arm dimensions and joint zero offsets, the true robot bases,
+the rail scale, the true camera and model fixtures, the motion-capture rigid bodies and
+the motion-capture world frame.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.config import Config
+from stages import geometry as g
+from stages import layout
+from stages.kinematics import ArmModel, arm_model
+
+_LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
+
+
+@dataclass(frozen=True)
+class Truth:
+    """True parameters; transforms (4, 4) in metres, named as everywhere else."""
+
+    camera_arm: ArmModel
+    target_arm: ArmModel
+    camera_joint_offsets_rad: np.ndarray  # (6,) true angle = encoder reading + offset
+    target_joint_offsets_rad: np.ndarray
+    camera_base_error: np.ndarray  # true base frame = nominal base frame @ error
+    target_base_error: np.ndarray
+    rail_scale: float  # true rail position = reported position * rail_scale
+    camee_from_cam: np.ndarray
+    target_from_targetee: dict[str, np.ndarray]  # per mount, before the fixture's sag
+    camee_from_camrb: np.ndarray  # camera rigid body (markers) in the camera flange frame
+    target_from_targetrb: np.ndarray  # model rigid body in T
+    vicon_world_from_world: np.ndarray
+
+    def to_json(self) -> dict[str, Any]:
+        def pose(a_from_b: np.ndarray) -> dict[str, list[float]]:
+            q, t = g.transform_to_qt(a_from_b)
+            return {"q": q.tolist(), "t": t.tolist()}
+
+        return {
+            "camera_arm": asdict(self.camera_arm),
+            "target_arm": asdict(self.target_arm),
+            "camera_joint_offsets_rad": self.camera_joint_offsets_rad.tolist(),
+            "target_joint_offsets_rad": self.target_joint_offsets_rad.tolist(),
+            "camera_base_error": pose(self.camera_base_error),
+            "target_base_error": pose(self.target_base_error),
+            "rail_scale": self.rail_scale,
+            "camee_from_cam": pose(self.camee_from_cam),
+            "cam_from_camee": pose(g.invert(self.camee_from_cam)),
+            "target_from_targetee": {m: pose(t) for m, t in self.target_from_targetee.items()},
+            "camee_from_camrb": pose(self.camee_from_camrb),
+            "cam_from_camrb": pose(g.invert(self.camee_from_cam) @ self.camee_from_camrb),
+            "target_from_targetrb": pose(self.target_from_targetrb),
+            "vicon_world_from_world": pose(self.vicon_world_from_world),
+        }
+
+
+def _small_transform(rng: np.random.Generator, sigma_m: float, sigma_rad: float) -> np.ndarray:
+    return g.make_transform(g.rotvec_to_matrix(rng.normal(0.0, sigma_rad, 3)), rng.normal(0.0, sigma_m, 3))
+
+
+def _perturbed_arm(rng: np.random.Generator, arm: ArmModel, sigma_m: float) -> ArmModel:
+    changes = {name: getattr(arm, name) + rng.normal(0.0, sigma_m) for name in _LENGTHS}
+    return replace(arm, name=f"{arm.name} (true)", **changes)
+
+
+def draw_truth(config: Config) -> Truth:
+    """The truth of this virtual facility; identical for the same ``virtual.seed``."""
+    v, testbed = config.virtual, config.testbed
+    rng = np.random.default_rng([v.seed, 0xFAC7])
+    arm = arm_model(testbed.robot_model)
+    mounts = {m: layout.target_from_targetee(testbed, m) @ _small_transform(
+        rng, v.model_fixture_sigma_m, v.model_fixture_sigma_rad) for m in layout.MOUNT_NAMES}
+    # the model's markers sit on its body; the rigid body's frame is where the motion-capture
+    # software put it when the object was defined: at the markers' centroid, axes rotated
+    target_from_targetrb = g.make_transform(g.rotvec_to_matrix(rng.normal(0, 0.6, 3)),
+                                            rng.normal(0, 0.02, 3) + [0, 0, 0.08])
+    camee_from_camrb = g.make_transform(g.rotvec_to_matrix(rng.normal(0, 0.6, 3)), rng.normal(0, 0.02, 3))
+    return Truth(
+        camera_arm=_perturbed_arm(rng, arm, v.link_length_sigma_m),
+        target_arm=_perturbed_arm(rng, arm, v.link_length_sigma_m),
+        camera_joint_offsets_rad=rng.normal(0.0, v.joint_offset_sigma_rad, 6),
+        target_joint_offsets_rad=rng.normal(0.0, v.joint_offset_sigma_rad, 6),
+        camera_base_error=_small_transform(rng, v.base_position_sigma_m, v.base_rotation_sigma_rad),
+        target_base_error=_small_transform(rng, v.base_position_sigma_m, v.base_rotation_sigma_rad),
+        rail_scale=1.0 + rng.normal(0.0, v.rail_scale_sigma),
+        camee_from_cam=layout.camee_from_cam(testbed) @ _small_transform(
+            rng, v.camera_fixture_sigma_m, v.camera_fixture_sigma_rad),
+        target_from_targetee=mounts,
+        camee_from_camrb=camee_from_camrb,
+        target_from_targetrb=target_from_targetrb,
+        vicon_world_from_world=g.transform_from_qt(v.vicon_world_from_world_q, v.vicon_world_from_world_t_m),
+    )
+
+
+def write_truth_json(truth: Truth, path: Path) -> None:
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text(json.dumps(truth.to_json(), indent=2) + "\n")
+    temporary.replace(path)
