@@ -196,7 +196,7 @@ def link_points(arm: ArmModel, joints: ArrayLike) -> Array:
     (A3 axis), wrist centre and flange. Consecutive points bound the links, which is what
     line-of-sight tests (motion capture occlusion) need."""
     theta = _to_theta(arm, np.asarray(joints, dtype=np.float64))
-    t1, t2, t3 = theta[..., 0], theta[..., 1], theta[..., 2]
+    t1, t2 = theta[..., 0], theta[..., 1]
     zero = np.zeros_like(t1)
 
     def planar(x: Array, z: Array) -> Array:  # point in the arm plane, rotated about A1

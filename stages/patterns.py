@@ -32,8 +32,8 @@ class PatternSpec:
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> PatternSpec:
-        return cls(**{**data, "size": tuple(data["size"]), "target_from_pattern_q": tuple(data["target_from_pattern_q"]),
-                      "target_from_pattern_t": tuple(data["target_from_pattern_t"])})
+        tuples = {key: tuple(data[key]) for key in ("size", "target_from_pattern_q", "target_from_pattern_t")}
+        return cls(**{**data, **tuples})
 
     def object_points(self) -> np.ndarray:
         """(M, 3) corners in the pattern frame, metres, in OpenCV's id order."""
