@@ -130,7 +130,15 @@ CAPTURES = ManifestSpec(
 TRUTH = ManifestSpec(
     "truth",
     "hidden ground truth of the virtual testbed; read only by tests, benchmarks and report",
-    (_sample_id(), *pose("cam_from_target", "true pose, mock-up scale")),
+    (
+        _sample_id(),
+        *pose("cam_from_target", "true pose, mock-up scale"),
+        *pose("world_from_camee", "true camera flange pose in K"),
+        *pose("world_from_targetee", "true target flange pose in K"),
+        Column("fixture_sag_rad", pa.float64(), "rad", "tilt of the model fixture under the model's weight"),
+        Column("vicon_camrb_ghost", pa.bool_(), "", "a ghost or mislabelled marker entered the camera body fit"),
+        Column("vicon_targetrb_ghost", pa.bool_(), "", "a ghost or mislabelled marker entered the model body fit"),
+    ),
 )
 
 POSES = ManifestSpec(

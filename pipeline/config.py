@@ -235,9 +235,10 @@ class VirtualConfig:
     full_well_e: float = param(32513.0, "sensor full-well capacity (Sony IMX174 of the Grasshopper3 GS3-U3-23S6M)",
                                "e-")
     read_noise_e: float = param(6.8, "sensor read noise (IMX174, EMVA 1288 data)", "e-")
-    exposure_lightbox: float = param(1.0, "exposure scale (radiance to full well) under light boxes", "1")
-    exposure_sunlamp: float = param(1.0, "exposure scale under the sun lamp", "1")
-    exposure_ambient: float = param(1.0, "exposure scale under the room's ambient light (calibration)", "1")
+    gamma: float = param(1.0, "output gamma: 1 is linear, as machine-vision cameras deliver by default", "1")
+    exposure_lightbox: float = param(5.0, "exposure scale (radiance to full well) under light boxes", "1")
+    exposure_sunlamp: float = param(0.12, "exposure scale under the sun lamp", "1")
+    exposure_ambient: float = param(2.5, "exposure scale under the room's ambient light (calibration)", "1")
     light_box_radiance: float = param(6.0, "radiance of an active light box (relative units)", "1")
     sun_lamp_radiance: float = param(4.0e4, "radiance of the sun lamp's arc (relative units)", "1")
     sun_lamp_radius_m: float = param(0.04, "radius of the sun lamp's emitting sphere", "m")

@@ -1,0 +1,221 @@
+"""The TRON room in Mitsuba 3: black curtains, 10 Earth-albedo light boxes, the sun lamp,
+ceiling panels for calibration, the mock-up (with its own look) and the ChArUco board.
+
+The scene is built once per worker process; each capture moves the camera, the model and
+the board, and switches lights, through ``mi.traverse``. Coordinates: robot world K.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from typing import Any
+
+import numpy as np
+
+from pipeline.config import Config
+from stages import geometry as g
+from stages import layout
+from stages.acquire.virtual import textures
+from stages.acquire.virtual.sensor import RenderGeometry
+from stages.patterns import board_image, board_pattern
+from stages.tango_mesh import tango_parts
+
+BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
+_HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)
+#: Mitsuba's camera looks along +z with x to the left and y up; OpenCV's has x right, y down.
+MITSUBA_FROM_OPENCV = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def load_mitsuba() -> Any:
+    """Mitsuba with the fast LLVM variant, or ``scalar_rgb`` (about 25x slower) with a warning."""
+    import mitsuba as mi
+
+    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        for candidate in ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"):
+            if os.path.exists(candidate):
+                os.environ["DRJIT_LIBLLVM_PATH"] = candidate
+                break
+    try:
+        mi.set_variant("llvm_ad_rgb")
+    except Exception as error:  # noqa: BLE001 - any failure of the LLVM backend means: fall back
+        warnings.warn(f"Mitsuba llvm_ad_rgb unavailable ({error}); rendering with the slow scalar_rgb variant. "
+                      "Install Debian libllvm19 (make setup does, as root).", RuntimeWarning, stacklevel=2)
+        mi.set_variant("scalar_rgb")
+    return mi
+
+
+def _transform(mi: Any, matrix: np.ndarray) -> Any:
+    return mi.ScalarTransform4f(np.asarray(matrix, dtype=float).tolist())
+
+
+def _facing(centre: np.ndarray, normal: np.ndarray, half_size: tuple[float, float]) -> np.ndarray:
+    """to_world (4, 4) of Mitsuba's rectangle ([-1, 1]^2, normal +z) centred at ``centre``
+    and facing ``normal``."""
+    z = normal / np.linalg.norm(normal)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return g.make_transform(np.stack([x, y, z], axis=1) @ np.diag([half_size[0], half_size[1], 1.0]), centre)
+
+
+class TestbedScene:
+    """A loaded room; ``render`` returns linear luminance (H, W) of the pinhole geometry."""
+
+    __test__ = False
+
+    def __init__(self, config: Config, geometry: RenderGeometry) -> None:
+        self.mi = mi = load_mitsuba()
+        self.config, self.geometry = config, geometry
+        testbed, virtual = config.testbed, config.virtual
+        rng = np.random.default_rng([virtual.seed, 0x7E57])
+        self.scale = testbed.mockup_scale
+        self.light_box_count = len(testbed.light_box_centres_m)
+
+        objects: dict[str, Any] = {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 5},
+            "sensor": {
+                "type": "perspective",
+                "fov_axis": "x",
+                "fov": float(np.degrees(geometry.fov_x_rad)),
+                "near_clip": 0.05,
+                "far_clip": 30.0,
+                "to_world": _transform(mi, np.eye(4)),
+                "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height,
+                         "rfilter": {"type": "gaussian", "stddev": 0.4}, "pixel_format": "rgb"},
+                "sampler": {"type": "independent"},
+            },
+        }
+        objects.update(self._room(mi))
+        objects.update(self._lights(mi))
+        self._parts = {}
+        for name, part in tango_parts().items():
+            objects[f"model_{name}"] = self._mesh(mi, f"model_{name}", part.vertices * self.scale, part.faces,
+                                                  part.uv, self._mockup_bsdf(mi, name, rng))
+            self._parts[f"model_{name}"] = part.vertices * self.scale
+        self._board_vertices = self._board(mi, objects)
+        self.scene = mi.load_dict(objects)
+        self.params = mi.traverse(self.scene)
+
+    # ----------------------------------------------------------------------- construction
+    def _room(self, mi: Any) -> dict[str, Any]:
+        length, width, height = self.config.testbed.room_m
+        curtain = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.008, 0.008, 0.008]}}
+        floor = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.05, 0.05, 0.05]}}
+        walls = {
+            "floor": ([length / 2, width / 2, 0.0], [0, 0, 1], (length / 2, width / 2), floor),
+            "ceiling": ([length / 2, width / 2, height], [0, 0, -1], (length / 2, width / 2), curtain),
+            "wall_y0": ([length / 2, 0.0, height / 2], [0, 1, 0], (length / 2, height / 2), curtain),
+            "wall_y1": ([length / 2, width, height / 2], [0, -1, 0], (length / 2, height / 2), curtain),
+            "wall_x0": ([0.0, width / 2, height / 2], [1, 0, 0], (width / 2, height / 2), curtain),
+            "wall_x1": ([length, width / 2, height / 2], [-1, 0, 0], (width / 2, height / 2), curtain),
+        }
+        return {name: {"type": "rectangle", "to_world": _transform(mi, _facing(np.array(c, float), np.array(n, float),
+                                                                                half)), "bsdf": bsdf}
+                for name, (c, n, half, bsdf) in walls.items()}
+
+    def _lights(self, mi: Any) -> dict[str, Any]:
+        testbed, virtual = self.config.testbed, self.config.virtual
+        lights: dict[str, Any] = {}
+        # switched-off boxes are covered with the black curtain (as in TRON)
+        covered = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.008, 0.008, 0.008]}}
+        half = (testbed.light_box_size_m[0] / 2, testbed.light_box_size_m[1] / 2)
+        aim = np.asarray(testbed.light_box_aim_m)
+        for index, centre in enumerate(np.asarray(testbed.light_box_centres_m)):
+            lights[f"light_box_{index}"] = {
+                "type": "rectangle", "to_world": _transform(mi, _facing(centre, aim - centre, half)),
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+                "bsdf": covered,
+            }
+        lights["sun_lamp"] = {
+            "type": "sphere", "center": list(testbed.sun_lamp_position_m), "radius": virtual.sun_lamp_radius_m,
+            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+        }
+        length, width, height = testbed.room_m
+        for index, x in enumerate((0.25 * length, 0.5 * length)):
+            lights[f"ambient_{index}"] = {
+                "type": "rectangle",
+                "to_world": _transform(mi, _facing(np.array([x, width / 2, height - 0.02]), np.array([0, 0, -1.0]),
+                                                   (0.6, 0.6))),
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+                "bsdf": covered,
+            }
+        return lights
+
+    def _mockup_bsdf(self, mi: Any, part: str, rng: np.random.Generator) -> Any:
+        if part == "sides":
+            # crumpled MLI: a rough gold mirror with a diffuse share from the creases
+            inner = {"type": "blendbsdf", "weight": 0.35,
+                     "bsdf_0": {"type": "roughconductor", "material": "Au", "alpha": 0.25},
+                     "bsdf_1": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.75, 0.6, 0.3]}}}
+            return mi.load_dict({"type": "normalmap", "bsdf": inner,
+                                 "normalmap": {"type": "bitmap", "raw": True,
+                                               "bitmap": mi.Bitmap(textures.foil_normal_map(rng))}})
+        if part == "solar_panel":
+            return mi.load_dict({"type": "roughplastic", "alpha": 0.04, "int_ior": 1.5,
+                                 "diffuse_reflectance": {"type": "bitmap",
+                                                         "bitmap": mi.Bitmap(textures.solar_cells(rng))}})
+        if part == "rear_panel":
+            return mi.load_dict({"type": "roughconductor", "material": "Al", "alpha": 0.09,
+                                 "specular_reflectance": {"type": "bitmap",
+                                                          "bitmap": mi.Bitmap(textures.rear_panel(rng))}})
+        return mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.55, 0.55]}})
+
+    @staticmethod
+    def _mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, bsdf: Any) -> Any:
+        props = mi.Properties()
+        props["bsdf"] = bsdf
+        mesh = mi.Mesh(name, len(vertices), len(faces), props=props, has_vertex_normals=False,
+                       has_vertex_texcoords=True)
+        params = mi.traverse(mesh)
+        params["vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
+        params["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
+        params["vertex_texcoords"] = mi.Float(np.asarray(uv, np.float32).ravel())
+        params.update()
+        return mesh
+
+    def _board(self, mi: Any, objects: dict[str, Any]) -> np.ndarray:
+        """The printed ChArUco plate as a textured quad; returns its corners in T."""
+        spec = board_pattern(self.config.testbed)
+        image = board_image(spec, px_per_m=4000.0, margin_m=BOARD_MARGIN_M)
+        reflectance = (0.03 + 0.82 * (image.astype(np.float32) / 255.0))[..., None].repeat(3, axis=-1)
+        m = BOARD_MARGIN_M
+        w, h = spec.size[0] * spec.square_m, spec.size[1] * spec.square_m
+        corners_board = np.array([[-m, -m, 0.0], [w + m, -m, 0.0], [w + m, h + m, 0.0], [-m, h + m, 0.0]])
+        uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+        faces = np.array([[0, 2, 1], [0, 3, 2]])  # front faces -z of the board frame, towards the camera
+        corners_target = g.apply(layout.target_from_board(self.config.testbed), corners_board)
+        bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(reflectance)}})
+        objects["board"] = self._mesh(mi, "board", corners_target + _HIDDEN_OFFSET, faces, uv, bsdf)
+        return corners_target
+
+    # --------------------------------------------------------------------------- per capture
+    def _set_emitter(self, name: str, radiance: float, key: str = "emitter.radiance.value") -> None:
+        self.params[f"{name}.{key}"] = self.mi.Color3f(radiance, radiance, radiance)
+        self.params[f"{name}.emitter.sampling_weight"] = 1.0 if radiance > 0 else 0.0
+
+    def set_lights(self, light: str, boxes: list[int]) -> None:
+        virtual = self.config.virtual
+        for index in range(self.light_box_count):
+            on = light == "lightbox" and index in boxes
+            self._set_emitter(f"light_box_{index}", virtual.light_box_radiance if on else 0.0)
+        self._set_emitter("sun_lamp", virtual.sun_lamp_radiance if light == "sunlamp" else 0.0)
+        for index in range(2):
+            self._set_emitter(f"ambient_{index}", virtual.ambient_radiance if light == "ambient" else 0.0)
+
+    def render(self, world_from_cam: np.ndarray, world_from_target: np.ndarray, light: str, boxes: list[int],
+               show_board: bool, seed: int) -> np.ndarray:
+        """Linear luminance (H_render, W_render) of the pinhole render at these true poses."""
+        mi = self.mi
+        self.params["sensor.to_world"] = _transform(mi, world_from_cam @ MITSUBA_FROM_OPENCV)
+        for name, vertices in self._parts.items():
+            self.params[f"{name}.vertex_positions"] = mi.Float(
+                g.apply(world_from_target, vertices).astype(np.float32).ravel())
+        board = g.apply(world_from_target, self._board_vertices) if show_board else self._board_vertices + _HIDDEN_OFFSET
+        self.params["board.vertex_positions"] = mi.Float(board.astype(np.float32).ravel())
+        self.set_lights(light, boxes)
+        self.params.update()
+        image = np.array(mi.render(self.scene, spp=self.config.virtual.spp, seed=seed))
+        return image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
