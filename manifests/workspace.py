@@ -6,7 +6,7 @@ W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest
 W/manifests/<name>/_SUCCESS.json               completion marker (fingerprint, rows, timings)
 W/images/{calibration,dataset}/<sample_id>.png testbed captures
 W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/ beside them)
-W/calibration.json  W/truth.json  W/report/index.html  W/export/
+W/session.json  W/calibration.json  W/truth.json  W/report/index.html  W/export/
 ```
 Paths stored in manifests are relative to ``W`` and may never leave it.
 """
@@ -16,6 +16,8 @@ from __future__ import annotations
 from pathlib import Path, PurePosixPath
 
 CONFIG_FILE = "config.toml"
+SESSION_FILE = "session.json"
+TRUTH_FILE = "truth.json"
 MANIFESTS_DIR = "manifests"
 PART_TEMPLATE = "part-{index:05d}.parquet"
 SUCCESS_FILE = "_SUCCESS.json"
@@ -50,6 +52,16 @@ class Workspace:
     @property
     def config_path(self) -> Path:
         return self.root / CONFIG_FILE
+
+    @property
+    def session_path(self) -> Path:
+        """Description of the capture session (pattern, camera, sources), written by acquire."""
+        return self.root / SESSION_FILE
+
+    @property
+    def truth_path(self) -> Path:
+        """Hidden truth of the virtual testbed; read only by tests, benchmarks and report."""
+        return self.root / TRUTH_FILE
 
     def manifest_dir(self, name: str) -> Path:
         return self.root / MANIFESTS_DIR / name

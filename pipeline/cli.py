@@ -86,7 +86,27 @@ def _stage_command(name: str) -> None:
 
 
 for _name in runner.STAGE_NAMES:
-    _stage_command(_name)
+    if _name != "acquire":
+        _stage_command(_name)
+
+
+@app.command("acquire")
+def acquire_command(
+    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+    set_: SetOption = None, force: ForceOption = False,
+    backend: Annotated[str | None, typer.Option("--backend", help="virtual | replay (acquire.backend)")] = None,
+    format_: Annotated[str | None, typer.Option("--format", help="replay format: session | tabb")] = None,
+    source: Annotated[Path | None, typer.Option("--source", help="replay: recorded session directory")] = None,
+) -> None:
+    """Run the acquire stage: drive the testbed (virtual) or ingest a recorded session (replay)."""
+    overrides = list(set_ or [])
+    if backend is not None:
+        overrides.append(f"acquire.backend={backend}")
+    if format_ is not None:
+        overrides.append(f"acquire.format={format_}")
+    if source is not None:
+        overrides.append(f"acquire.source={str(source.resolve())!r}")
+    _run(["acquire"], workspace, profile, config, overrides, force)
 
 
 @app.command("run")

@@ -42,6 +42,9 @@ class RunConfig:
     """How stages execute (not part of any stage fingerprint: it never changes results)."""
 
     part_rows: int = param(16, "rows per Parquet part; a crash loses at most one part of work", "rows")
+    workers: int = param(2, "worker processes of the local engine (spawned; each loads its renderer once)", "count")
+    worker_max_tasks: int = param(
+        60, "samples a worker processes before it is replaced (bounds the renderer's memory growth)", "count")
 
 
 @dataclass(frozen=True)
@@ -181,9 +184,6 @@ class AcquireConfig:
     backend: str = param("virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
     format: str = param("session", "replay format: session (see README) or tabb (robot-world/hand-eye data)", "")
     source: str = param("", "replay: the recorded session directory", "")
-    workers: int = param(2, "worker processes (spawned; each loads the scene once)", "count")
-    worker_max_captures: int = param(
-        60, "captures a worker renders before it is replaced (bounds the renderer's memory growth)", "count")
 
 
 @dataclass(frozen=True)
@@ -370,8 +370,8 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"acquire.format: expected session or tabb, got {config.acquire.format!r}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
-    if config.acquire.workers < 1 or config.acquire.worker_max_captures < 1:
-        raise ConfigError("acquire.workers/worker_max_captures: must be at least 1")
+    if config.run.workers < 1 or config.run.worker_max_tasks < 1:
+        raise ConfigError("run.workers/worker_max_tasks: must be at least 1")
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
         raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
     if config.run.part_rows < 1:

@@ -44,6 +44,10 @@ class NotBuiltError(Exception):
 
 @dataclass(frozen=True)
 class StageSpec:
+    """A stage. Its module provides ``run(config, workspace)``; it may also provide
+    ``dependencies(config) -> (inputs, sections, extra)`` and ``outputs(config)`` when
+    they depend on the configuration (e.g. acquire's backend)."""
+
     name: str
     module: str | None  # importable module with run(config, workspace); None: not built yet
     inputs: tuple[str, ...]
@@ -51,12 +55,23 @@ class StageSpec:
     sections: tuple[str, ...]
     summary: str
 
+    def resolve(self, config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+        """(inputs, config sections, extra fingerprint content, outputs) for this configuration."""
+        inputs, sections, extra, outputs = self.inputs, self.sections, {}, self.outputs
+        if self.module is not None:
+            module = importlib.import_module(self.module)
+            if hasattr(module, "dependencies"):
+                inputs, sections, extra = module.dependencies(config)
+            if hasattr(module, "outputs"):
+                outputs = module.outputs(config)
+        return inputs, sections, extra, outputs
+
 
 STAGES: tuple[StageSpec, ...] = (
     StageSpec("plan", "stages.plan", (), ("plan",), ("plan", "camera", "testbed"),
               "relative poses, view, light and robot/rail commands"),
-    StageSpec("acquire", None, ("plan",), ("captures", "truth"), ("camera", "testbed"),
-              "drive the testbed: telemetry, motion capture and images"),
+    StageSpec("acquire", "stages.acquire", ("plan",), ("captures", "truth"),
+              ("acquire", "virtual", "camera", "testbed"), "drive the testbed: telemetry, motion capture and images"),
     StageSpec("calibrate", None, ("captures",), (), (), "RWHE calibration per source and Table 1"),
     StageSpec("fuse", None, ("captures",), ("poses",), (), "per-source poses, rejection, Bayesian fusion"),
     StageSpec("label", None, ("poses",), ("labels",), (), "SPEED+ labels, keypoints, boxes"),
@@ -81,8 +96,9 @@ def _section_dict(config: Config, name: str) -> dict[str, Any]:
 
 def fingerprint(stage: StageSpec, config: Config, workspace: Workspace) -> str | None:
     """Hex digest of the stage's inputs, or None while an input manifest is incomplete."""
+    input_names, sections, extra, _ = stage.resolve(config)
     inputs = {}
-    for name in stage.inputs:
+    for name in input_names:
         marker = read_success(workspace, name)
         if marker is None:
             return None
@@ -90,8 +106,9 @@ def fingerprint(stage: StageSpec, config: Config, workspace: Workspace) -> str |
     payload = {
         "stage": stage.name,
         "schema_version": SCHEMA_VERSION,
-        "config": {name: _section_dict(config, name) for name in stage.sections},
+        "config": {name: _section_dict(config, name) for name in sections},
         "inputs": inputs,
+        "extra": extra,
     }
     text = json.dumps(payload, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -111,15 +128,16 @@ class StageStatus:
 
 
 def status(stage: StageSpec, config: Config, workspace: Workspace) -> StageStatus:
-    rows = {name: row_count(workspace, name) for name in stage.outputs}
+    inputs, _, _, outputs = stage.resolve(config)
+    rows = {name: row_count(workspace, name) for name in outputs}
     current = fingerprint(stage, config, workspace)
-    markers = [read_success(workspace, name) for name in stage.outputs]
-    recorded = set().union(*(part_fingerprints(workspace, name) for name in stage.outputs)) if stage.outputs else set()
+    markers = [read_success(workspace, name) for name in outputs]
+    recorded = set().union(*(part_fingerprints(workspace, name) for name in outputs)) if outputs else set()
     recorded |= {m["fingerprint"] for m in markers if m}
     if stage.module is None and not recorded:
         return StageStatus(stage.name, "not built", rows, "not implemented yet")
     if not recorded:
-        detail = "waiting for " + ", ".join(stage.inputs) if current is None else "not run"
+        detail = "waiting for " + ", ".join(inputs) if current is None else "not run"
         return StageStatus(stage.name, "missing", rows, detail)
     if current is None or recorded != {current}:
         return StageStatus(stage.name, "stale", rows, "made with another configuration or inputs")
@@ -140,9 +158,10 @@ def run_stage(stage: StageSpec, config: Config, workspace: Workspace, *, force: 
     """Run (or resume, or skip) one stage; see the module docstring."""
     if stage.module is None:
         raise NotBuiltError(f"stage {stage.name!r} is not built yet")
+    inputs, _, _, outputs = stage.resolve(config)
     current = fingerprint(stage, config, workspace)
     if current is None:
-        missing = [name for name in stage.inputs if read_success(workspace, name) is None]
+        missing = [name for name in inputs if read_success(workspace, name) is None]
         raise StageError(f"stage {stage.name!r} needs the complete manifest(s) {', '.join(missing)} in "
                          f"{workspace.root}; run the stage(s) before it first (or `speedplus run`)")
     state = status(stage, config, workspace)
@@ -150,24 +169,24 @@ def run_stage(stage: StageSpec, config: Config, workspace: Workspace, *, force: 
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
     if state.state == "stale" and not force:
         raise StageError(
-            f"{workspace.display(workspace.manifest_dir(stage.outputs[0]))} holds results of stage {stage.name!r} "
+            f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
             "made with another configuration or other inputs; rerun with --force to discard them")
     if force:
-        for name in stage.outputs:
+        for name in outputs:
             clear_manifest(workspace, name)
     resumed = not force and any(state.rows.values())
-    for name in stage.outputs:
+    for name in outputs:
         remove_temporaries(workspace, name)
     module = importlib.import_module(stage.module)
-    workspace.active_fingerprints = {name: current for name in stage.outputs}
+    workspace.active_fingerprints = {name: current for name in outputs}
     started = time.perf_counter()
     try:
         module.run(config, workspace)
     finally:
         workspace.active_fingerprints = {}
     seconds = time.perf_counter() - started
-    rows = {name: row_count(workspace, name) for name in stage.outputs}
-    for name in stage.outputs:
+    rows = {name: row_count(workspace, name) for name in outputs}
+    for name in outputs:
         write_success(workspace, name, {
             "stage": stage.name,
             "fingerprint": current,

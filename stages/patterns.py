@@ -65,3 +65,18 @@ def board_image(spec: PatternSpec, px_per_m: float, margin_m: float) -> np.ndarr
 
 
 
+
+
+def detect(image: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Pattern corners in a grey image: pixels (N, 2) and their ids (N,) into
+    ``spec.object_points()``; empty arrays when nothing is found."""
+    if spec.kind == "charuco":
+        detector = cv2.aruco.CharucoDetector(charuco_board(spec))
+        corners, ids, _, _ = detector.detectBoard(image)
+        if ids is None or len(ids) == 0:
+            return np.zeros((0, 2)), np.zeros(0, dtype=int)
+        return corners.reshape(-1, 2).astype(float), ids.ravel().astype(int)
+    found, corners = cv2.findChessboardCornersSB(image, spec.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
+    if not found:
+        return np.zeros((0, 2)), np.zeros(0, dtype=int)
+    return corners.reshape(-1, 2).astype(float), np.arange(spec.size[0] * spec.size[1])

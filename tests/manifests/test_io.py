@@ -16,7 +16,10 @@ def truth_rows(n, start=0):
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 0] < 0] *= -1
-    return [{"sample_id": f"img{start + i:06d}", "cam_from_target_q": q[i], "cam_from_target_t": [0.1, 0.0, 4.0 + i]}
+    return [{"sample_id": f"img{start + i:06d}", "cam_from_target_q": q[i], "cam_from_target_t": [0.1, 0.0, 4.0 + i],
+             "world_from_camee_q": [1.0, 0, 0, 0], "world_from_camee_t": [5.0, 1.5, 2.0],
+             "world_from_targetee_q": q[i], "world_from_targetee_t": [1.0, 1.5, 1.0], "fixture_sag_rad": 0.003,
+             "vicon_camrb_ghost": False, "vicon_targetrb_ghost": i == 1}
             for i in range(n)]
 
 
@@ -96,8 +99,10 @@ def test_enum_and_unknown_columns_are_errors(tmp_path):
     table = to_table(rows, TRUTH).append_column("extra", pa.array([1]))
     with pytest.raises(ManifestError, match="unexpected column"):
         write_part(ws, "truth", table, "fp")
+    incomplete = dict(rows[0])
+    del incomplete["cam_from_target_t"]
     with pytest.raises(ManifestError, match="column 'cam_from_target_t'.*lacks"):
-        write_part(ws, "truth", [{"sample_id": "a", "cam_from_target_q": [1, 0, 0, 0]}], "fp")
+        write_part(ws, "truth", [incomplete], "fp")
 
 
 def test_writer_validates_before_anything_is_written(tmp_path):

@@ -72,7 +72,8 @@ class VirtualTestbed:
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
         state = robots.move(config, truth, sample, rng)
         segments = self._link_segments(state)
-        camera_body = mocap.observe(config, rng, self.camera_markers_rb, state.world_from_camee @ truth.camee_from_camrb,
+        camera_body = mocap.observe(config, rng, self.camera_markers_rb,
+                                    state.world_from_camee @ truth.camee_from_camrb,
                                     truth.vicon_world_from_world, segments, state.world_from_target)
         target_body = mocap.observe(config, rng, self.target_markers_rb,
                                     state.world_from_target @ truth.target_from_targetrb,

@@ -213,7 +213,8 @@ class TestbedScene:
         for name, vertices in self._parts.items():
             self.params[f"{name}.vertex_positions"] = mi.Float(
                 g.apply(world_from_target, vertices).astype(np.float32).ravel())
-        board = g.apply(world_from_target, self._board_vertices) if show_board else self._board_vertices + _HIDDEN_OFFSET
+        board = (g.apply(world_from_target, self._board_vertices) if show_board
+                 else self._board_vertices + _HIDDEN_OFFSET)
         self.params["board.vertex_positions"] = mi.Float(board.astype(np.float32).ravel())
         self.set_lights(light, boxes)
         self.params.update()

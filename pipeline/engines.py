@@ -1,0 +1,54 @@
+"""Execution engines: map a per-sample function over samples, in this process or in a
+pool of spawned worker processes that each build their (expensive) context once.
+
+Workers are started with ``spawn`` (never ``fork``: a renderer that has run cannot be
+forked safely) and replaced after ``max_tasks`` samples, which bounds their memory.
+Results come back as they complete; order is not preserved.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from typing import Any
+
+_context: Any = None
+
+
+def _initialise(factory: Callable[..., Any], args: tuple[Any, ...]) -> None:
+    global _context
+    _context = factory(*args)
+
+
+def _call(method: str, item: Any) -> Any:
+    return getattr(_context, method)(item)
+
+
+def map_local(factory: Callable[..., Any], args: tuple[Any, ...], method: str, items: list[Any], *,
+              workers: int, max_tasks: int) -> Iterator[Any]:
+    """Yield ``factory(*args).<method>(item)`` for every item, as results complete.
+
+    With one worker everything runs in this process (easier to debug, no start-up cost).
+    At most ``2 * workers`` items are in flight, so an interruption loses little work.
+    """
+    if workers <= 1 or len(items) <= 1:
+        context = factory(*args)
+        for item in items:
+            yield getattr(context, method)(item)
+        return
+    executor = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_initialise, initargs=(factory, args), max_tasks_per_child=max_tasks)
+    pending: set[Future] = set()
+    queue = list(reversed(items))
+    try:
+        while queue or pending:
+            while queue and len(pending) < 2 * workers:
+                pending.add(executor.submit(_call, method, queue.pop()))
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield future.result()
+    finally:
+        for future in pending:
+            future.cancel()
+        executor.shutdown(wait=True, cancel_futures=True)

@@ -1,0 +1,102 @@
+"""The acquire stage: drive a testbed backend through its samples and record what it
+measures (``captures``), the images, and, for the virtual testbed, the hidden ``truth``.
+
+Backends (``acquire.backend``): ``virtual`` (the embedded digital twin; captures the
+plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session`` or
+``tabb``). Interrupted runs resume with the samples missing from the manifests.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from manifests import Workspace, open_sink, read_keys, read_manifest
+from pipeline.config import Config
+from pipeline.engines import map_local
+from pipeline.progress import track
+from stages.acquire.backend import Testbed
+
+
+def open_testbed(config: Config, root: str) -> Testbed:
+    """The configured backend for the workspace at ``root`` (a picklable factory)."""
+    workspace = Workspace(root)
+    if config.acquire.backend == "virtual":
+        from stages.acquire.virtual import VirtualTestbed
+
+        return VirtualTestbed(config, workspace)
+    if config.acquire.format == "tabb":
+        from stages.acquire.tabb import TabbReplay
+
+        return TabbReplay(Path(config.acquire.source), workspace)
+    from stages.acquire.replay import SessionReplay
+
+    return SessionReplay(Path(config.acquire.source), workspace)
+
+
+def source_digest(source: Path) -> str:
+    """Identity of a recorded session: names and sizes of its files, contents of its text files."""
+    digest = hashlib.sha256()
+    if not source.is_dir():
+        return "missing"
+    for path in sorted(p for p in source.rglob("*") if p.is_file()):
+        digest.update(str(path.relative_to(source)).encode())
+        digest.update(str(path.stat().st_size).encode())
+        if path.suffix.lower() in (".txt", ".csv", ".toml", ".json"):
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
+    """(input manifests, configuration sections, extra fingerprint content) of this stage."""
+    if config.acquire.backend == "virtual":
+        return ("plan",), ("acquire", "virtual", "camera", "testbed"), {}
+    source = Path(config.acquire.source).resolve()
+    return (), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}
+
+
+def outputs(config: Config) -> tuple[str, ...]:
+    return ("captures", "truth") if config.acquire.backend == "virtual" else ("captures",)
+
+
+def _write_json(path: Path, payload: dict[str, Any]) -> None:
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text(json.dumps(payload, indent=2) + "\n")
+    os.replace(temporary, path)
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    """Capture every sample missing from the manifests; returns the ``captures`` table."""
+    testbed = open_testbed(config, str(workspace.root))
+    samples = testbed.samples()
+    _write_json(workspace.session_path, testbed.session())
+    with_truth = config.acquire.backend == "virtual"
+    if with_truth:
+        from stages.acquire.virtual.truth import write_truth_json
+
+        write_truth_json(testbed.truth, workspace.truth_path)
+    have_captures = read_keys(workspace, "captures")
+    have_truth = read_keys(workspace, "truth") if with_truth else set()
+    todo = [s for s in samples
+            if s["sample_id"] not in have_captures or (with_truth and s["sample_id"] not in have_truth)]
+    part_rows = config.run.part_rows
+    workers = config.run.workers if with_truth else 1
+    records = map_local(open_testbed, (config, str(workspace.root)), "capture", todo, workers=workers,
+                        max_tasks=config.run.worker_max_tasks)
+    with open_sink(workspace, "captures", part_rows) as captures:
+        truth = open_sink(workspace, "truth", part_rows) if with_truth else None
+        try:
+            for record in track(records, len(todo), f"acquire ({config.acquire.backend})"):
+                if record.captures["sample_id"] not in have_captures:
+                    captures.add(record.captures)
+                if truth is not None and record.truth["sample_id"] not in have_truth:
+                    truth.add(record.truth)
+        finally:
+            if truth is not None:
+                truth.flush()
+    return read_manifest(workspace, "captures")
