@@ -34,8 +34,8 @@ def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
 def test_run_stops_at_the_first_stage_not_built(tmp_path):
     result = speedplus("run", "--profile", "smoke", "--workspace", str(tmp_path / "w"))
     assert result.returncode == 3
-    assert "stage 'acquire' is not built yet" in result.stderr and "after 'plan'" in result.stderr
-    until = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "plan")
+    assert "stage 'calibrate' is not built yet" in result.stderr and "after 'acquire'" in result.stderr
+    until = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "acquire")
     assert until.returncode == 0 and "up to date" in until.stdout
 
 

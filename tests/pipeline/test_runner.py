@@ -88,5 +88,5 @@ def test_missing_input_names_the_manifest(smoke, tmp_path):
 
 
 def test_unbuilt_stage_says_so(smoke, tmp_path):
-    with pytest.raises(runner.NotBuiltError, match="acquire"):
-        runner.run_stage(runner.stage_spec("acquire"), smoke, Workspace(tmp_path))
+    with pytest.raises(runner.NotBuiltError, match="calibrate"):
+        runner.run_stage(runner.stage_spec("calibrate"), smoke, Workspace(tmp_path))
