@@ -57,6 +57,8 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
     resolved, ws = _context(workspace, profile, config, overrides)
     ws.root.mkdir(parents=True, exist_ok=True)
     write_config(resolved, ws.config_path)
+    if resolved.acquire.backend == "replay" and len(stages) > 1:
+        stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
     last_done = None
     for name in stages:
         stage = runner.stage_spec(name)

@@ -178,6 +178,7 @@ def run_stage(stage: StageSpec, config: Config, workspace: Workspace, *, force: 
     for name in outputs:
         remove_temporaries(workspace, name)
     module = importlib.import_module(stage.module)
+    workspace.root.mkdir(parents=True, exist_ok=True)
     workspace.active_fingerprints = {name: current for name in outputs}
     started = time.perf_counter()
     try:

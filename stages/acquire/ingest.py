@@ -1,0 +1,79 @@
+"""Validation shared by the replay readers: every error names the file and the row."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+
+#: Plausible distances of a flange or rigid body from its world origin, per unit: an
+#: industrial cell is metres across, so values outside these ranges mean a wrong unit.
+PLAUSIBLE_RANGE = {"mm": (5.0, 30_000.0), "m": (0.005, 30.0)}
+ORTHONORMAL_TOLERANCE = 1e-3
+
+
+class IngestError(InputError):
+    """Bad recorded data; the message starts with the file (and row)."""
+
+    def __init__(self, path: Path | str, message: str) -> None:
+        super().__init__(f"{path}: {message}")
+
+
+def read_text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except FileNotFoundError:
+        raise IngestError(path, "file not found") from None
+    except UnicodeDecodeError:
+        raise IngestError(path, "not a text file") from None
+
+
+def read_csv(path: Path, required: list[str]) -> list[tuple[int, dict[str, str]]]:
+    """(line number, row) pairs of a CSV with a header; the header must hold ``required``."""
+    lines = read_text(path).splitlines()
+    reader = csv.DictReader(lines)
+    missing = [c for c in required if c not in (reader.fieldnames or [])]
+    if missing:
+        raise IngestError(path, f"header lacks column(s) {', '.join(missing)}")
+    return [(number, row) for number, row in enumerate(reader, start=2)]
+
+
+def number(path: Path, line: int, row: dict[str, str], column: str) -> float:
+    """A finite float from a CSV cell (``nan`` allowed only where the caller says so)."""
+    text = (row.get(column) or "").strip()
+    try:
+        return float(text)
+    except ValueError:
+        raise IngestError(path, f"line {line}, column {column}: expected a number, got {text!r}") from None
+
+
+def check_finite(path: Path, where: str, values: np.ndarray) -> None:
+    if not np.all(np.isfinite(values)):
+        raise IngestError(path, f"{where}: non-finite value")
+
+
+def check_rotation(path: Path, where: str, rotation: np.ndarray) -> None:
+    """A proper rotation matrix (3, 3) within ``ORTHONORMAL_TOLERANCE``."""
+    error = np.abs(rotation.T @ rotation - np.eye(3)).max()
+    if error > ORTHONORMAL_TOLERANCE or np.linalg.det(rotation) <= 0:
+        raise IngestError(path, f"{where}: rotation is not orthonormal (|R^T R - I| = {error:.2g}, "
+                                f"det = {np.linalg.det(rotation):.4f})")
+
+
+def check_translation(path: Path, label: str, translations: np.ndarray, unit: str, rows: list[str]) -> None:
+    """Distances (N,) of positions (N, 3) must be plausible for ``unit``."""
+    low, high = PLAUSIBLE_RANGE[unit]
+    norms = np.linalg.norm(translations, axis=-1)
+    for norm, row in zip(norms, rows, strict=True):
+        if not low <= norm <= high:
+            other = "m" if unit == "mm" else "mm"
+            raise IngestError(path, f"{row}: {label} {norm:.6g} {unit} from the origin is implausible for "
+                                    f"{unit} (expected {low:g} to {high:g}); is the file in {other}?")
+
+
+def check_translation_mm(path: Path, label: str, translations: np.ndarray) -> None:
+    check_translation(path, label + " translation", translations, "mm",
+                      [f"matrix {i}" for i in range(len(translations))])

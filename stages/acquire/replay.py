@@ -1,0 +1,163 @@
+"""Replay of a recorded testbed session (the format a real lab writes; see the README).
+
+```
+session.toml   format_version = 1, length_unit = "mm" | "m", angle_unit = "deg" | "rad",
+               euler = "ZYX" (KUKA A B C), sources = ["kuka", "vicon"],
+               [camera] width, height, K (optional), dist (optional),
+               [pattern] kind, size, square_m, marker_m, dictionary, target_from_pattern_q/_t (optional)
+robot.csv      sample_id, session, rail, camee_x, camee_y, camee_z, camee_a, camee_b, camee_c,
+               targetee_x, ..., targetee_c       (flange poses in the robot world, KUKA X Y Z A B C)
+mocap.csv      sample_id, body (camrb | targetrb), x, y, z, qw, qx, qy, qz, markers
+               (optional; all zeros or NaN: not tracked)
+images/<sample_id>.png
+```
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from manifests import Workspace
+from manifests.schema import SESSIONS
+from stages import geometry as g
+from stages.acquire.backend import CaptureRecord, pose_columns
+from stages.acquire.ingest import IngestError, check_finite, check_translation, number, read_csv, read_text
+from stages.patterns import PatternSpec
+
+ROBOT_COLUMNS = ["sample_id", "session", "rail"] + [f"{body}_{axis}" for body in ("camee", "targetee")
+                                                    for axis in ("x", "y", "z", "a", "b", "c")]
+MOCAP_COLUMNS = ["sample_id", "body", "x", "y", "z", "qw", "qx", "qy", "qz", "markers"]
+BODIES = ("camrb", "targetrb")
+
+
+def read_session_toml(path: Path) -> dict[str, Any]:
+    try:
+        meta = tomllib.loads(read_text(path))
+    except tomllib.TOMLDecodeError as error:
+        raise IngestError(path, f"not valid TOML ({error})") from None
+    expected = {"length_unit": ("mm", "m"), "angle_unit": ("deg", "rad"), "euler": ("ZYX",)}
+    for key, allowed in expected.items():
+        if meta.get(key) not in allowed:
+            raise IngestError(path, f"{key} must be one of {', '.join(allowed)}, got {meta.get(key)!r}")
+    sources = meta.get("sources", ["kuka"])
+    if not isinstance(sources, list) or "kuka" not in sources or not set(sources) <= {"kuka", "vicon"}:
+        raise IngestError(path, f"sources must list kuka and optionally vicon, got {sources!r}")
+    camera = meta.get("camera", {})
+    if not isinstance(camera.get("width"), int) or not isinstance(camera.get("height"), int):
+        raise IngestError(path, "[camera] needs integer width and height")
+    return meta
+
+
+def _to_metres(value: float, unit: str) -> float:
+    return value / 1000.0 if unit == "mm" else value
+
+
+class SessionReplay:
+    """Implements ``stages.acquire.backend.Testbed`` for a recorded session directory."""
+
+    def __init__(self, source: Path, workspace: Workspace) -> None:
+        self.source, self.workspace = source, workspace
+        if not source.is_dir():
+            raise IngestError(source, "not a directory")
+        self.meta = read_session_toml(source / "session.toml")
+        self.robot = self._read_robot(source / "robot.csv")
+        self.mocap = self._read_mocap(source / "mocap.csv") if "vicon" in self.meta.get("sources", []) else {}
+        for sample_id in self.robot:
+            if not (source / "images" / f"{sample_id}.png").is_file():
+                raise IngestError(source / "robot.csv", f"sample {sample_id}: image images/{sample_id}.png is missing")
+
+    def _read_robot(self, path: Path) -> dict[str, dict[str, Any]]:
+        length, angle = self.meta["length_unit"], self.meta["angle_unit"]
+        robot: dict[str, dict[str, Any]] = {}
+        for line, row in read_csv(path, ROBOT_COLUMNS):
+            sample_id = (row["sample_id"] or "").strip()
+            where = f"line {line} (sample_id {sample_id})"
+            if not sample_id:
+                raise IngestError(path, f"line {line}: empty sample_id")
+            if sample_id in robot:
+                raise IngestError(path, f"{where}: duplicate sample_id (first at line {robot[sample_id]['line']})")
+            if row["session"] not in SESSIONS:
+                raise IngestError(path, f"{where}, column session: expected one of {', '.join(SESSIONS)}, "
+                                        f"got {row['session']!r}")
+            poses = {}
+            for body in ("camee", "targetee"):
+                values = np.array([number(path, line, row, f"{body}_{axis}") for axis in ("x", "y", "z", "a", "b", "c")])
+                check_finite(path, f"{where}, {body}", values)
+                check_translation(path, f"{body} position", values[None, :3], length, [where])
+                xyz_mm = values[:3] * (1.0 if length == "mm" else 1000.0)
+                abc_deg = values[3:] if angle == "deg" else np.degrees(values[3:])
+                poses[body] = g.kuka_to_transform(np.concatenate([xyz_mm, abc_deg]))
+            rail = number(path, line, row, "rail")
+            check_finite(path, f"{where}, rail", np.array([rail]))
+            robot[sample_id] = {"line": line, "session": row["session"], "rail_m": _to_metres(rail, length), **poses}
+        if not robot:
+            raise IngestError(path, "no samples")
+        return robot
+
+    def _read_mocap(self, path: Path) -> dict[tuple[str, str], dict[str, Any]]:
+        length = self.meta["length_unit"]
+        mocap: dict[tuple[str, str], dict[str, Any]] = {}
+        for line, row in read_csv(path, MOCAP_COLUMNS):
+            sample_id, body = (row["sample_id"] or "").strip(), (row["body"] or "").strip()
+            where = f"line {line} (sample_id {sample_id}, body {body})"
+            if sample_id not in self.robot:
+                raise IngestError(path, f"{where}: sample_id not in robot.csv")
+            if body not in BODIES:
+                raise IngestError(path, f"{where}, column body: expected camrb or targetrb")
+            if (sample_id, body) in mocap:
+                raise IngestError(path, f"{where}: duplicate row")
+            values = np.array([number(path, line, row, c) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")])
+            markers = number(path, line, row, "markers")
+            # a motion-capture system reports an untracked body as zeros or NaN: missing, not an error
+            untracked = (not np.all(np.isfinite(values))) or np.allclose(values, 0.0)
+            pose = None
+            if not untracked:
+                norm = np.linalg.norm(values[3:])
+                if abs(norm - 1.0) > 1e-3:
+                    raise IngestError(path, f"{where}: quaternion norm {norm:.6f} is not 1")
+                check_translation(path, f"{body} position", values[None, :3], length, [where])
+                pose = g.transform_from_qt(values[3:], [_to_metres(v, length) for v in values[:3]])
+            count = 0 if not math.isfinite(markers) else int(markers)
+            mocap[(sample_id, body)] = {"pose": pose, "markers": count}
+        return mocap
+
+    def samples(self) -> list[dict[str, Any]]:
+        return [{"sample_id": sample_id, "session": row["session"]} for sample_id, row in self.robot.items()]
+
+    def session(self) -> dict[str, Any]:
+        camera = self.meta["camera"]
+        pattern = self.meta.get("pattern")
+        return {"backend": "replay", "format": "session", "source": str(self.source),
+                "sources": list(self.meta.get("sources", ["kuka"])),
+                "pattern": PatternSpec.from_json(pattern).to_json() if pattern else None,
+                "camera": {"K": camera.get("K"), "dist": camera.get("dist"), "width": camera["width"],
+                           "height": camera["height"]}}
+
+    def capture(self, sample: dict[str, Any]) -> CaptureRecord:
+        sample_id = sample["sample_id"]
+        robot = self.robot[sample_id]
+        image_path = self.workspace.image_relpath(robot["session"], sample_id)
+        destination = self.workspace.resolve(image_path)
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        temporary = destination.with_name(f".{destination.name}.tmp")
+        shutil.copyfile(self.source / "images" / f"{sample_id}.png", temporary)
+        temporary.replace(destination)
+        empty = {"pose": None, "markers": 0}
+        camera_body = self.mocap.get((sample_id, "camrb"), empty)
+        target_body = self.mocap.get((sample_id, "targetrb"), empty)
+        captures = {
+            "sample_id": sample_id, "session": robot["session"], "image_path": image_path,
+            **pose_columns("kuka_world_from_camee", robot["camee"]),
+            **pose_columns("kuka_world_from_targetee", robot["targetee"]),
+            **pose_columns("vicon_world_from_camrb", camera_body["pose"]),
+            **pose_columns("vicon_world_from_targetrb", target_body["pose"]),
+            "vicon_camrb_markers": camera_body["markers"], "vicon_targetrb_markers": target_body["markers"],
+            "status": "ok",
+        }
+        return CaptureRecord(captures, None)

@@ -1,0 +1,204 @@
+"""Replay backends: a recorded session (written by a fixture) and Tabb's dataset."""
+
+import csv
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from manifests import Workspace, read_manifest
+from pipeline import runner
+from pipeline.config import load_config
+from stages import geometry as g
+from stages.acquire.ingest import IngestError
+from stages.acquire.tabb import TabbReplay
+
+TABB = Path(__file__).resolve().parents[4] / "shared" / "external" / "tabb_ds1"
+
+
+def fake_png(path):
+    import cv2
+
+    cv2.imwrite(str(path), np.full((20, 32), 7, np.uint8))
+
+
+def recorded_rows(n=6, seed=0):
+    """What a lab would have recorded: flange poses in K, motion capture in V (some untracked)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n):
+        camee = g.transform_from_qt(g.random_quats(rng, 1)[0], [4.0 + i * 0.1, 1.5, 2.0])
+        targetee = g.transform_from_qt(g.random_quats(rng, 1)[0], [1.2, 1.5, 1.0])
+        camrb = None if i == 2 else g.transform_from_qt(g.random_quats(rng, 1)[0], [2.0, -1.0 + i * 0.01, 2.2])
+        targetrb = g.transform_from_qt(g.random_quats(rng, 1)[0], [0.5, -2.0, 1.1])
+        rows.append({"sample_id": f"cal{i:06d}" if i < 4 else f"img{i:06d}",
+                     "session": "calibration" if i < 4 else "dataset", "rail": 2.5 + i,
+                     "camee": camee, "targetee": targetee, "camrb": camrb, "targetrb": targetrb})
+    return rows
+
+
+def write_session(directory: Path, rows, length_unit="mm", untracked_as="zeros"):
+    """The session format of the README, as a lab's logger writes it."""
+    directory.mkdir(parents=True)
+    (directory / "images").mkdir()
+    (directory / "session.toml").write_text(
+        f'format_version = 1\nlength_unit = "{length_unit}"\nangle_unit = "deg"\neuler = "ZYX"\n'
+        'sources = ["kuka", "vicon"]\n[camera]\nwidth = 32\nheight = 20\n')
+    scale = 1000.0 if length_unit == "mm" else 1.0
+    with open(directory / "robot.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["sample_id", "session", "rail"] + [f"{b}_{a}" for b in ("camee", "targetee")
+                                                             for a in "xyzabc"])
+        for row in rows:
+            values = []
+            for body in ("camee", "targetee"):
+                xyzabc = g.transform_to_kuka(row[body])
+                values += list(xyzabc[:3] / 1000.0 * scale) + list(xyzabc[3:])
+            writer.writerow([row["sample_id"], row["session"], row["rail"] * scale] + [repr(float(v)) for v in values])
+    with open(directory / "mocap.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["sample_id", "body", "x", "y", "z", "qw", "qx", "qy", "qz", "markers"])
+        for row in rows:
+            for body in ("camrb", "targetrb"):
+                if row[body] is None:
+                    blank = [0.0] * 7 if untracked_as == "zeros" else [float("nan")] * 7
+                    writer.writerow([row["sample_id"], body, *blank, 2])
+                else:
+                    q, t = g.transform_to_qt(row[body])
+                    writer.writerow([row["sample_id"], body, *(repr(float(v)) for v in t * scale),
+                                     *(repr(float(v)) for v in q), 5])
+    for row in rows:
+        fake_png(directory / "images" / f"{row['sample_id']}.png")
+    return directory
+
+
+def acquire(source, tmp_path, fmt="session", name="w"):
+    config = load_config("smoke", overrides=["acquire.backend=replay", f"acquire.format={fmt}",
+                                             f"acquire.source='{source}'"])
+    ws = Workspace(tmp_path / name)
+    runner.run_stage(runner.stage_spec("acquire"), config, ws)
+    return ws
+
+
+@pytest.mark.parametrize("length_unit, untracked_as", [("mm", "zeros"), ("m", "nan")])
+def test_recorded_session_replays_to_the_expected_captures(tmp_path, length_unit, untracked_as):
+    rows = recorded_rows()
+    source = write_session(tmp_path / "session", rows, length_unit, untracked_as)
+    ws = acquire(source, tmp_path)
+    captures = {r["sample_id"]: r for r in read_manifest(ws, "captures").to_pylist()}
+    assert set(captures) == {r["sample_id"] for r in rows}
+    for row in rows:
+        got = captures[row["sample_id"]]
+        assert got["session"] == row["session"] and got["status"] == "ok"
+        for column, body in (("kuka_world_from_camee", "camee"), ("kuka_world_from_targetee", "targetee"),
+                             ("vicon_world_from_camrb", "camrb"), ("vicon_world_from_targetrb", "targetrb")):
+            if row[body] is None:
+                assert got[f"{column}_q"] is None and got[f"{column}_t"] is None
+            else:
+                np.testing.assert_allclose(g.transform_from_qt(got[f"{column}_q"], got[f"{column}_t"]),
+                                           row[body], atol=1e-9)
+        assert (ws.root / got["image_path"]).is_file()
+    assert not (ws.root / "truth.json").exists()
+
+
+def test_session_without_images_or_with_bad_rows_is_refused(tmp_path):
+    rows = recorded_rows()
+    source = write_session(tmp_path / "s1", rows)
+    (source / "images" / "cal000001.png").unlink()
+    with pytest.raises(IngestError, match=r"robot.csv: sample cal000001: image images/cal000001.png is missing"):
+        acquire(source, tmp_path)
+
+    def edit(name, line, old, new, directory):
+        path = directory / name
+        lines = path.read_text().splitlines()
+        assert old in lines[line - 1]
+        lines[line - 1] = lines[line - 1].replace(old, new, 1)
+        path.write_text("\n".join(lines) + "\n")
+
+    cases = [
+        ("robot.csv", 3, "cal000001", "cal000000", r"robot.csv: line 3 \(sample_id cal000000\): duplicate"),
+        ("robot.csv", 4, ",4500.0,", ",nan,", r"robot.csv: line 4 \(sample_id cal000002\), rail: non-finite"),
+        ("mocap.csv", 2, ",5", ",x", r"mocap.csv: line 2, column markers: expected a number"),
+    ]
+    for index, (name, line, old, new, message) in enumerate(cases):
+        directory = write_session(tmp_path / f"case{index}", rows)
+        edit(name, line, old, new, directory)
+        with pytest.raises(IngestError, match=message):
+            acquire(directory, tmp_path, name=f"w{index}")
+
+
+def test_wrong_units_and_rotations_are_refused(tmp_path):
+    rows = recorded_rows()
+    metres_declared_mm = write_session(tmp_path / "units", rows, "m")
+    toml = metres_declared_mm / "session.toml"
+    toml.write_text(toml.read_text().replace('length_unit = "m"', 'length_unit = "mm"'))
+    with pytest.raises(IngestError, match=r"robot.csv: line 2 \(sample_id cal000000\): camee position .* "
+                                          r"implausible for mm.*in m\?"):
+        acquire(metres_declared_mm, tmp_path)
+    quaternion = write_session(tmp_path / "quat", rows)
+    text = (quaternion / "mocap.csv").read_text().splitlines()
+    parts = text[1].split(",")
+    parts[5] = repr(float(parts[5]) * 1.5)
+    text[1] = ",".join(parts)
+    (quaternion / "mocap.csv").write_text("\n".join(text) + "\n")
+    with pytest.raises(IngestError, match=r"mocap.csv: line 2 .*quaternion norm"):
+        acquire(quaternion, tmp_path, name="w2")
+
+
+@pytest.fixture()
+def tabb_copy(tmp_path):
+    copy = tmp_path / "tabb"
+    shutil.copytree(TABB, copy)
+    return copy
+
+
+def test_tabb_dataset_ingests_as_88_captures_in_metres(tmp_path):
+    ws = acquire(TABB, tmp_path, fmt="tabb")
+    table = read_manifest(ws, "captures")
+    assert table.num_rows == 88
+    translations = np.array(table.column("kuka_world_from_camee_t").to_pylist())
+    assert np.all(np.linalg.norm(translations, axis=1) < 3.0)  # metres, not millimetres
+    assert np.all(np.linalg.norm(translations, axis=1) > 0.3)
+    assert table.column("vicon_world_from_camrb_q").null_count == 88
+    session = (ws.root / "session.json").read_text()
+    assert '"chessboard"' in session and "0.0285" in session
+
+
+def test_tabb_hand_poses_invert_the_recorded_matrices():
+    replay = TabbReplay(TABB, Workspace("/nonexistent"))
+    first = replay.hand_from_base_mm[0]
+    base_from_hand = g.invert(np.concatenate([first[:3], [[0, 0, 0, 1]]]))
+    assert np.allclose(base_from_hand[:3, :3].T, first[:3, :3])
+
+
+def test_tabb_bad_inputs_name_the_file(tabb_copy, tmp_path):
+    (tabb_copy / "images" / "image40.png").unlink()
+    with pytest.raises(IngestError, match="image.s. missing, first images/image40.png"):
+        TabbReplay(tabb_copy, Workspace(tmp_path))
+    fake_png(tabb_copy / "images" / "image40.png")
+    robot = tabb_copy / "robot_cali.txt"
+    original = robot.read_text()
+    robot.write_text(original.replace("-0.178668", "-0.5", 1))
+    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(robot stop 0\): rotation is not orthonormal"):
+        TabbReplay(tabb_copy, Workspace(tmp_path))
+    robot.write_text(original.replace("-525.397105", "nan", 1))
+    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(robot stop 0\): non-finite"):
+        TabbReplay(tabb_copy, Workspace(tmp_path))
+    robot.write_text(original.replace("88", "89", 1))
+    with pytest.raises(IngestError, match="announces 89 matrices but holds 88"):
+        TabbReplay(tabb_copy, Workspace(tmp_path))
+    lines = original.splitlines()
+    scaled = [lines[0]]
+    for line in lines[1:]:  # the same poses written in metres: implausible for Tabb's millimetres
+        values = line.split()
+        if len(values) == 4 and values[3] not in ("1.000000",):
+            values[3] = repr(float(values[3]) / 1000.0)
+        scaled.append(" ".join(values))
+    robot.write_text("\n".join(scaled))
+    with pytest.raises(IngestError, match="implausible for mm"):
+        TabbReplay(tabb_copy, Workspace(tmp_path))
+    robot.write_text(original)
+    (tabb_copy / "calibration_object.txt").write_text("chess_width 8\nchess_height 6\n")
+    with pytest.raises(IngestError, match="calibration_object.txt: missing chess_mm_width"):
+        TabbReplay(tabb_copy, Workspace(tmp_path))
