@@ -3,7 +3,7 @@
 import importlib
 import sys
 
-BENCHMARKS = ("plan",)
+BENCHMARKS = ("plan", "acquire")
 
 if __name__ == "__main__":
     names = sys.argv[1:2] or list(BENCHMARKS)
@@ -11,4 +11,4 @@ if __name__ == "__main__":
         if name not in BENCHMARKS:
             sys.exit(f"unknown benchmark {name!r}; available: {', '.join(BENCHMARKS)}")
         module = importlib.import_module(f"bench.{name}")
-        module.main(*(int(a) for a in sys.argv[2:]))
+        module.main(*sys.argv[2:])

@@ -19,7 +19,8 @@ from stages import geometry as g
 from stages.plan import plan_sample
 
 
-def main(n_dataset: int = 1000) -> None:
+def main(n_dataset: int | str = 1000) -> None:
+    n_dataset = int(n_dataset)
     config = load_config("default")
     config = replace(config, plan=replace(config.plan, n_dataset=n_dataset))
     rows, timing = {}, []

@@ -231,7 +231,8 @@ class VirtualConfig:
         ((0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5), (-1.03, -0.3, 0.3),
          (0.2, 1.03, 0.2)),
         "model markers as fractions of the half extents of the body box about its centre (6 markers)", "1")
-    spp: int = param(24, "Mitsuba samples per pixel of a capture", "count")
+    spp: int = param(16, "Mitsuba samples per pixel of a capture", "count")
+    max_depth: int = param(4, "Mitsuba path length (4: direct light and two interreflections)", "count")
     full_well_e: float = param(32513.0, "sensor full-well capacity (Sony IMX174 of the Grasshopper3 GS3-U3-23S6M)",
                                "e-")
     read_noise_e: float = param(6.8, "sensor read noise (IMX174, EMVA 1288 data)", "e-")

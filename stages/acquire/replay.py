@@ -87,7 +87,7 @@ class SessionReplay:
                                         f"got {row['session']!r}")
             poses = {}
             for body in ("camee", "targetee"):
-                values = np.array([number(path, line, row, f"{body}_{axis}") for axis in ("x", "y", "z", "a", "b", "c")])
+                values = np.array([number(path, line, row, f"{body}_{axis}") for axis in "xyzabc"])
                 check_finite(path, f"{where}, {body}", values)
                 check_translation(path, f"{body} position", values[None, :3], length, [where])
                 xyz_mm = values[:3] * (1.0 if length == "mm" else 1000.0)

@@ -67,6 +67,10 @@ class TestbedScene:
 
     def __init__(self, config: Config, geometry: RenderGeometry) -> None:
         self.mi = mi = load_mitsuba()
+        import drjit as dr
+
+        # the local engine runs run.workers renderers side by side: share the cores between them
+        dr.set_thread_count(max(1, (os.cpu_count() or 1) // config.run.workers))
         self.config, self.geometry = config, geometry
         testbed, virtual = config.testbed, config.virtual
         rng = np.random.default_rng([virtual.seed, 0x7E57])
@@ -75,7 +79,7 @@ class TestbedScene:
 
         objects: dict[str, Any] = {
             "type": "scene",
-            "integrator": {"type": "path", "max_depth": 5},
+            "integrator": {"type": "path", "max_depth": self.config.virtual.max_depth},
             "sensor": {
                 "type": "perspective",
                 "fov_axis": "x",

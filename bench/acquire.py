@@ -1,0 +1,90 @@
+"""Acquire (virtual testbed): seconds per capture for each session type, a worker's peak
+memory, and, on a complete default-profile workspace, ChArUco detection and the pixel
+agreement of detected corners with the hidden truth.
+
+    python -m bench acquire [CAPTURES_PER_SESSION]      (default 6)
+    python -m bench acquire-detection WORKSPACE          (e.g. data/default after acquire)
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.common import report
+from manifests import Workspace, read_manifest
+from pipeline.config import load_config
+from stages import geometry as g
+from stages.patterns import PatternSpec, detect
+from stages.plan import plan_sample, sample_ids
+
+
+def timing(per_session: int = 6) -> None:
+    from stages.acquire.virtual import VirtualTestbed
+
+    config = load_config("default", overrides=["run.workers=1"])
+    rows = []
+    with tempfile.TemporaryDirectory() as directory:
+        testbed = VirtualTestbed(config, Workspace(directory))
+        items = sample_ids(config)
+        started = time.perf_counter()
+        testbed.capture(plan_sample(config, *items[0]))  # scene load and kernel compilation
+        rows.append({"what": "first capture (scene load, JIT)", "captures": 1,
+                     "seconds_per_capture": time.perf_counter() - started})
+        for session, chosen in (("calibration", items[1:1 + per_session]),
+                                ("dataset", [i for i in items if i[0] == "dataset"][:per_session])):
+            plans = [plan_sample(config, *item) for item in chosen]
+            started = time.perf_counter()
+            for plan in plans:
+                testbed.capture(plan)
+            rows.append({"what": f"{session} capture (default profile, {config.camera.width_px}x"
+                                 f"{config.camera.height_px}, {config.virtual.spp} spp)",
+                         "captures": len(plans), "seconds_per_capture": (time.perf_counter() - started) / len(plans)})
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rows.append({"what": "peak resident memory of the worker (MB)", "captures": "-", "seconds_per_capture": peak_mb})
+    report("acquire_timing", "acquire: one worker using all cores", rows)
+
+
+def detection(root: str) -> None:
+    ws = Workspace(root)
+    session = json.loads(ws.session_path.read_text())
+    spec = PatternSpec.from_json(session["pattern"])
+    camera_matrix, dist = np.array(session["camera"]["K"]), np.array(session["camera"]["dist"])
+    target_from_board = g.transform_from_qt(spec.target_from_pattern_q, spec.target_from_pattern_t)
+    truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}
+    calibration = [c for c in read_manifest(ws, "captures").to_pylist() if c["session"] == "calibration"]
+    counts, errors = [], []
+    for row in calibration:
+        corners, ids = detect(cv2.imread(str(ws.resolve(row["image_path"])), cv2.IMREAD_GRAYSCALE), spec)
+        counts.append(len(ids))
+        if len(ids):
+            cam_from_target = g.transform_from_qt(truth[row["sample_id"]]["cam_from_target_q"],
+                                                  truth[row["sample_id"]]["cam_from_target_t"])
+            expected = g.project(cam_from_target @ target_from_board, spec.object_points()[ids], camera_matrix, dist)
+            errors.append(np.linalg.norm(expected - corners, axis=1))
+    counts = np.array(counts)
+    errors = np.concatenate(errors)
+    rows = [{"metric": "calibration captures", "value": len(counts)},
+            {"metric": "with >= 6 ChArUco corners (fraction)", "value": float(np.mean(counts >= 6))},
+            {"metric": "corners per capture (median)", "value": float(np.median(counts))},
+            {"metric": "detected vs true corner, median (px)", "value": float(np.median(errors))},
+            {"metric": "detected vs true corner, 95th percentile (px)", "value": float(np.percentile(errors, 95))}]
+    report("acquire_detection", f"acquire: ChArUco detection in {Path(root).name}", rows)
+
+
+def main(*args: str) -> None:
+    if args and not args[0].isdigit():
+        detection(args[0])
+    else:
+        timing(int(args[0]) if args else 6)
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:])
