@@ -3,7 +3,7 @@ memory, and, on a complete default-profile workspace, ChArUco detection and the 
 agreement of detected corners with the hidden truth.
 
     python -m bench acquire [CAPTURES_PER_SESSION]      (default 6)
-    python -m bench acquire-detection WORKSPACE          (e.g. data/default after acquire)
+    python -m bench acquire WORKSPACE                    (e.g. data/default after acquire)
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -116,6 +116,8 @@ CAPTURES = ManifestSpec(
     (
         _sample_id(),
         Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
+        Column("fixture", pa.string(), "", "model fixture (mount) in use: the plan's mount, or 'fixed' for "
+               "sessions with one fixture; each fixture has its own flange-to-model offset"),
         Column("image_path", pa.string(), "", "PNG relative to the workspace", kind="path"),
         *pose("kuka_world_from_camee", "robot telemetry, frame K"),
         *pose("kuka_world_from_targetee", "robot telemetry, frame K"),

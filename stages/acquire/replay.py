@@ -7,6 +7,7 @@ session.toml   format_version = 1, length_unit = "mm" | "m", angle_unit = "deg" 
                [pattern] kind, size, square_m, marker_m, dictionary, target_from_pattern_q/_t (optional)
 robot.csv      sample_id, session, rail, camee_x, camee_y, camee_z, camee_a, camee_b, camee_c,
                targetee_x, ..., targetee_c       (flange poses in the robot world, KUKA X Y Z A B C)
+               optional column fixture: which model fixture (mount) was used (default "fixed")
 mocap.csv      sample_id, body (camrb | targetrb), x, y, z, qw, qx, qy, qz, markers
                (optional; all zeros or NaN: not tracked)
 images/<sample_id>.png
@@ -95,7 +96,9 @@ class SessionReplay:
                 poses[body] = g.kuka_to_transform(np.concatenate([xyz_mm, abc_deg]))
             rail = number(path, line, row, "rail")
             check_finite(path, f"{where}, rail", np.array([rail]))
-            robot[sample_id] = {"line": line, "session": row["session"], "rail_m": _to_metres(rail, length), **poses}
+            fixture = (row.get("fixture") or "fixed").strip()
+            robot[sample_id] = {"line": line, "session": row["session"], "fixture": fixture,
+                                "rail_m": _to_metres(rail, length), **poses}
         if not robot:
             raise IngestError(path, "no samples")
         return robot
@@ -152,7 +155,8 @@ class SessionReplay:
         camera_body = self.mocap.get((sample_id, "camrb"), empty)
         target_body = self.mocap.get((sample_id, "targetrb"), empty)
         captures = {
-            "sample_id": sample_id, "session": robot["session"], "image_path": image_path,
+            "sample_id": sample_id, "session": robot["session"], "fixture": robot["fixture"],
+            "image_path": image_path,
             **pose_columns("kuka_world_from_camee", robot["camee"]),
             **pose_columns("kuka_world_from_targetee", robot["targetee"]),
             **pose_columns("vicon_world_from_camrb", camera_body["pose"]),

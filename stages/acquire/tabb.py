@@ -109,7 +109,7 @@ class TabbReplay:
         shutil.copyfile(self.source / "images" / f"image{index}.png", temporary)
         temporary.replace(destination)
         captures = {
-            "sample_id": sample["sample_id"], "session": "calibration", "image_path": image_path,
+            "sample_id": sample["sample_id"], "session": "calibration", "fixture": "fixed", "image_path": image_path,
             **pose_columns("kuka_world_from_camee", g.invert(hand_from_base)),
             **pose_columns("kuka_world_from_targetee", np.eye(4)),
             **pose_columns("vicon_world_from_camrb", None), **pose_columns("vicon_world_from_targetrb", None),

@@ -84,7 +84,7 @@ class VirtualTestbed:
         write_png_atomic(self.workspace.resolve(image_path), image)
         cam_from_target = g.invert(state.world_from_cam) @ state.world_from_target
         captures = {
-            "sample_id": sample_id, "session": session, "image_path": image_path,
+            "sample_id": sample_id, "session": session, "fixture": sample["mount"], "image_path": image_path,
             **pose_columns("kuka_world_from_camee", state.kuka_world_from_camee),
             **pose_columns("kuka_world_from_targetee", state.kuka_world_from_targetee),
             **pose_columns("vicon_world_from_camrb", camera_body.vicon_world_from_rb),
