@@ -143,6 +143,22 @@ TRUTH = ManifestSpec(
     ),
 )
 
+CALIBRATION_SAMPLES = ManifestSpec(
+    "calibration_samples",
+    "every calibration capture: detection, PnP pose, and each source's calibrated estimate",
+    (
+        _sample_id(),
+        Column("fixture", pa.string(), "", "model fixture of the capture"),
+        Column("corners", pa.int32(), "count", "pattern corners detected"),
+        Column("used", pa.bool_(), "", "the capture entered the calibration"),
+        Column("reason", pa.string(), "", "why it did not; null when used", nullable=True),
+        Column("pnp_rms_px", pa.float64(), "px", "RMS reprojection error of the PnP pose", nullable=True),
+        *pose("cam_from_target_cal", "PnP pose of the pattern, mock-up scale", nullable=True),
+        *pose("kuka_cam_from_target", "robots' estimate with the calibrated offsets", nullable=True),
+        *pose("vicon_cam_from_target", "motion capture's estimate with the calibrated offsets", nullable=True),
+    ),
+)
+
 POSES = ManifestSpec(
     "poses",
     "per-source and fused camera-from-target poses of the dataset captures",
@@ -212,5 +228,5 @@ PREDICTIONS = ManifestSpec(
 )
 
 MANIFESTS: dict[str, ManifestSpec] = {
-    spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, POSES, LABELS, RENDERS, PREDICTIONS)
+    spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, PREDICTIONS)
 }

@@ -249,6 +249,22 @@ class VirtualConfig:
 
 
 @dataclass(frozen=True)
+class CalibrateConfig:
+    """The calibrate stage: pattern detection, intrinsics, PnP and RWHE per source."""
+
+    intrinsics: str = param("auto", "fixed (the session's camera), estimate (cv2.calibrateCamera), or auto: "
+                                     "fixed when the session knows the camera", "")
+    min_corners: int = param(6, "pattern corners an image needs to be used", "count")
+    solver: str = param("reprojection", "shah (closed form), frobenius (the paper's LM), or reprojection "
+                                        "(Shah, then the paper's LM, then the pattern's reprojection error)", "")
+    folds: int = param(5, "k of the k-fold cross-validation", "count")
+    seed: int = param(0, "random assignment of samples to folds", "")
+    min_samples: int = param(8, "usable calibration samples a source needs", "count")
+    min_rotation_spread_rad: float = param(
+        math.radians(2.0), "least spread of the measured rotations about a second axis", "rad")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole configuration of a run."""
 
@@ -259,6 +275,7 @@ class Config:
     plan: PlanConfig = field(default_factory=PlanConfig)
     acquire: AcquireConfig = field(default_factory=AcquireConfig)
     virtual: VirtualConfig = field(default_factory=VirtualConfig)
+    calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
 
     def section(self, name: str) -> Any:
         return getattr(self, name)
@@ -267,7 +284,7 @@ class Config:
 SECTIONS: dict[str, type] = {f.name: f.type for f in fields(Config) if f.name != "profile"}
 SECTION_TYPES: dict[str, type] = {
     "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
-    "acquire": AcquireConfig, "virtual": VirtualConfig,
+    "acquire": AcquireConfig, "virtual": VirtualConfig, "calibrate": CalibrateConfig,
 }
 
 
@@ -375,6 +392,12 @@ def _check(config: Config) -> Config:
         raise ConfigError("run.workers/worker_max_tasks: must be at least 1")
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
         raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
+    if config.calibrate.intrinsics not in ("auto", "fixed", "estimate"):
+        raise ConfigError(f"calibrate.intrinsics: expected auto, fixed or estimate, got {config.calibrate.intrinsics!r}")
+    if config.calibrate.solver not in ("shah", "frobenius", "reprojection"):
+        raise ConfigError(f"calibrate.solver: expected shah, frobenius or reprojection, got {config.calibrate.solver!r}")
+    if config.calibrate.folds < 2:
+        raise ConfigError("calibrate.folds: at least 2")
     if config.run.part_rows < 1:
         raise ConfigError("run.part_rows: must be at least 1")
     for section, key in (("testbed", "camee_from_cam_q"), ("testbed", "mount_target_from_targetee_q"),

@@ -1,0 +1,223 @@
+"""The calibrate stage: offsets of every measurement source, their uncertainty, the
+rejection thresholds of motion capture, and the paper's Table 1 (in-sample, k-fold
+cross-validated, and against the hidden truth when there is one).
+
+Writes ``W/calibration.json`` and the ``calibration_samples`` manifest.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from pipeline.config import Config
+from pipeline.errors import InputError
+from stages import geometry as g
+from stages.calibrate import observations as obs
+from stages.calibrate import rwhe
+from stages.calibrate.table import print_table
+from stages.fusion import Sigma, fuse, sigma_between
+from stages.patterns import PatternSpec
+
+SOURCES = ("kuka", "vicon")
+#: names of each source's offsets in calibration.json: (camera side Z, target side X)
+OFFSET_NAMES = {"kuka": ("cam_from_camee", "target_from_targetee"),
+                "vicon": ("cam_from_camrb", "target_from_targetrb")}
+
+
+def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
+    return ("captures",), ("calibrate",), {}
+
+
+def outputs(config: Config) -> tuple[str, ...]:
+    return ("calibration_samples",)
+
+
+def pose_json(a_from_b: np.ndarray) -> dict[str, list[float]]:
+    q, t = g.transform_to_qt(a_from_b)
+    return {"q": q.tolist(), "t": t.tolist()}
+
+
+def measurement(row: dict[str, Any], source: str) -> np.ndarray | None:
+    """``B_i`` of a capture for a source (4, 4), or None when the source did not measure it."""
+    if source == "kuka":
+        world_from_camee = g.transform_from_qt(row["kuka_world_from_camee_q"], row["kuka_world_from_camee_t"])
+        world_from_targetee = g.transform_from_qt(row["kuka_world_from_targetee_q"],
+                                                  row["kuka_world_from_targetee_t"])
+        return g.invert(world_from_camee) @ world_from_targetee
+    if row["vicon_world_from_camrb_q"] is None or row["vicon_world_from_targetrb_q"] is None:
+        return None
+    world_from_camrb = g.transform_from_qt(row["vicon_world_from_camrb_q"], row["vicon_world_from_camrb_t"])
+    world_from_targetrb = g.transform_from_qt(row["vicon_world_from_targetrb_q"], row["vicon_world_from_targetrb_t"])
+    return g.invert(world_from_camrb) @ world_from_targetrb
+
+
+def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],
+            intrinsics: obs.Intrinsics, reference_pixels: list[np.ndarray] | None = None) -> dict[str, list[float]]:
+    """E_T, E_R, E_p (paper eqs.) as [mean, std]. E_p is the RMS distance of the corners
+    projected with ``predicted`` from the detected corners (or from ``reference_pixels``)."""
+    e_t = np.linalg.norm(predicted[:, :3, 3] - reference[:, :3, 3], axis=1)
+    e_r = g.angular_distance(predicted[:, :3, :3], reference[:, :3, :3])
+    e_p = []
+    for k, (pose, o) in enumerate(zip(predicted, observations, strict=True)):
+        projected = g.project(pose, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
+        target = o.pixels if reference_pixels is None else reference_pixels[k]
+        e_p.append(np.sqrt(np.mean(np.sum((projected - target) ** 2, axis=1))))
+    return {name: [float(np.mean(v)), float(np.std(v))] for name, v in
+            (("E_T_m", e_t), ("E_R_rad", e_r), ("E_p_px", np.array(e_p)))}
+
+
+def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
+          intrinsics: obs.Intrinsics, method: str | None = None) -> rwhe.Solution:
+    method = method or config.calibrate.solver
+    solution = rwhe.shah(a, b, fixtures)
+    if method in ("frobenius", "reprojection"):
+        solution = rwhe.frobenius(a, b, fixtures, solution)
+    if method == "reprojection":
+        solution = rwhe.reprojection(b, fixtures, solution, [o.object_points for o in used],
+                                     [o.pixels for o in used], intrinsics.camera_matrix, intrinsics.dist)
+    return solution
+
+
+def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
+                   used: list[obs.Observation], intrinsics: obs.Intrinsics) -> np.ndarray:
+    """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets fitted without it."""
+    folds = np.random.default_rng(config.calibrate.seed).permutation(len(a)) % config.calibrate.folds
+    predicted = np.zeros_like(a)
+    for fold in range(config.calibrate.folds):
+        test, train = folds == fold, folds != fold
+        train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
+        solution = solve(config, a[train], b[train], train_fixtures,
+                         [o for o, keep in zip(used, train, strict=True) if keep], intrinsics)
+        test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]
+        missing = set(test_fixtures) - set(solution.x)
+        if missing:
+            raise rwhe.DegenerateError(f"cross-validation: fold {fold} leaves fixture(s) {missing} without "
+                                       "training samples; capture more calibration poses")
+        predicted[test] = solution.predict(b[test], test_fixtures)
+    return predicted
+
+
+def load_truth(workspace: Workspace) -> dict[str, np.ndarray] | None:
+    """True ``cam_from_target`` per sample, when the backend knows it (virtual testbed)."""
+    if read_success(workspace, "truth") is None:
+        return None
+    return {r["sample_id"]: g.transform_from_qt(r["cam_from_target_q"], r["cam_from_target_t"])
+            for r in read_manifest(workspace, "truth").to_pylist()}
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    if not workspace.session_path.exists():
+        raise InputError(f"{workspace.session_path}: missing; run acquire first")
+    session = json.loads(workspace.session_path.read_text())
+    if not session.get("pattern"):
+        raise InputError(f"{workspace.session_path}: the capture session defines no calibration pattern")
+    spec = PatternSpec.from_json(session["pattern"])
+    captures = [r for r in read_manifest(workspace, "captures").to_pylist()
+                if r["session"] == "calibration" and r["status"] == "ok"]
+    if read_success(workspace, "plan") is not None and session.get("backend") == "virtual":
+        unknown = sorted({r["sample_id"] for r in captures} - read_keys(workspace, "plan"))
+        if unknown:
+            raise InputError(f"captures: sample(s) {', '.join(unknown[:5])} are not in the plan")
+    observations = obs.detect_all(workspace, captures, spec, config.calibrate.min_corners)
+    for o in observations:
+        o.extra["pattern_points"] = spec.object_points()[o.ids]
+    camera = session.get("camera") or {}
+    fixed = config.calibrate.intrinsics == "fixed" or (config.calibrate.intrinsics == "auto" and camera.get("K"))
+    if fixed:
+        if not camera.get("K"):
+            raise InputError(f"{workspace.session_path}: calibrate.intrinsics=fixed but the session has no camera K")
+        intrinsics = obs.Intrinsics(np.array(camera["K"], float), np.array(camera["dist"], float),
+                                    camera["width"], camera["height"], 0.0, False)
+    else:
+        intrinsics = obs.estimate_intrinsics(observations, camera["width"], camera["height"])
+    obs.solve_pnp(observations, intrinsics)
+    by_id = {r["sample_id"]: r for r in captures}
+    truth = load_truth(workspace)
+
+    results: dict[str, Any] = {}
+    predictions: dict[str, dict[str, np.ndarray]] = {}
+    for source in SOURCES:
+        if source not in session.get("sources", ["kuka"]):
+            results[source] = None
+            continue
+        used = [o for o in observations if o.cam_from_target is not None
+                and measurement(by_id[o.sample_id], source) is not None]
+        a = np.stack([o.cam_from_target for o in used]) if used else np.zeros((0, 4, 4))
+        b = np.stack([measurement(by_id[o.sample_id], source) for o in used]) if used else np.zeros((0, 4, 4))
+        fixtures = [by_id[o.sample_id]["fixture"] for o in used]
+        rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
+                             f"{source} calibration")
+        solution = solve(config, a, b, fixtures, used, intrinsics)
+        predicted = solution.predict(b, fixtures)
+        cross = cross_validate(config, a, b, fixtures, used, intrinsics)
+        entry = results[source] = {
+            **{name: pose_json(offset) for name, offset in
+               zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
+            f"{OFFSET_NAMES[source][1]}_by_fixture": {f: pose_json(x) for f, x in solution.x.items()},
+            **sigma_between(predicted, a).to_json(),
+            "samples": len(used),
+            "metrics": {"in_sample": metrics(predicted, a, used, intrinsics),
+                        "cross_validated": metrics(cross, a, used, intrinsics), "truth": None},
+        }
+        if truth is not None:
+            true = np.stack([truth[o.sample_id] for o in used])
+            true_pixels = [g.project(t, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
+                           for t, o in zip(true, used, strict=True)]
+            entry["metrics"]["truth"] = metrics(predicted, true, used, intrinsics, true_pixels)
+        predictions[source] = {o.sample_id: p for o, p in zip(used, predicted, strict=True)}
+        predictions[f"{source}_cv"] = {o.sample_id: p for o, p in zip(used, cross, strict=True)}
+
+    results["rejection"] = None
+    results["fused"] = None
+    if results.get("vicon") is not None:
+        both = [o for o in observations if o.sample_id in predictions["kuka"] and o.sample_id in predictions["vicon"]]
+        kuka = np.stack([predictions["kuka"][o.sample_id] for o in both])
+        vicon = np.stack([predictions["vicon"][o.sample_id] for o in both])
+        results["rejection"] = sigma_between(vicon, kuka).to_json()
+        sigma = {s: Sigma(np.array(results[s]["sigma_t_m"]), results[s]["sigma_r_rad"]) for s in ("kuka", "vicon")}
+        fused = {}
+        for label, suffix in (("in_sample", ""), ("cross_validated", "_cv")):
+            fused[label] = np.stack([fuse(predictions[f"kuka{suffix}"][o.sample_id], sigma["kuka"],
+                                          predictions[f"vicon{suffix}"][o.sample_id], sigma["vicon"])[0]
+                                     for o in both])
+        a = np.stack([o.cam_from_target for o in both])
+        results["fused"] = {"samples": len(both), "metrics": {
+            "in_sample": metrics(fused["in_sample"], a, both, intrinsics),
+            "cross_validated": metrics(fused["cross_validated"], a, both, intrinsics), "truth": None}}
+        if truth is not None:
+            true = np.stack([truth[o.sample_id] for o in both])
+            true_pixels = [g.project(t, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
+                           for t, o in zip(true, both, strict=True)]
+            results["fused"]["metrics"]["truth"] = metrics(fused["in_sample"], true, both, intrinsics, true_pixels)
+
+    calibration = {"intrinsics": intrinsics.to_json(), **{s: results[s] for s in SOURCES},
+                   "fused": results["fused"], "rejection": results["rejection"],
+                   "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
+                              "pattern": spec.to_json(),
+                              "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
+                   "session": {"backend": session.get("backend"), "sources": session.get("sources")}}
+    temporary = workspace.root / ".calibration.json.tmp"
+    temporary.write_text(json.dumps(calibration, indent=2) + "\n")
+    os.replace(temporary, workspace.root / "calibration.json")
+
+    with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:
+        done = read_keys(workspace, "calibration_samples")
+        for o in observations:
+            if o.sample_id in done:
+                continue
+            row = {"sample_id": o.sample_id, "fixture": by_id[o.sample_id]["fixture"], "corners": len(o.ids),
+                   "used": o.cam_from_target is not None, "reason": o.reason, "pnp_rms_px": o.rms_px}
+            for prefix, pose in (("cam_from_target_cal", o.cam_from_target),
+                                 ("kuka_cam_from_target", predictions.get("kuka", {}).get(o.sample_id)),
+                                 ("vicon_cam_from_target", predictions.get("vicon", {}).get(o.sample_id))):
+                q, t = g.transform_to_qt(pose) if pose is not None else (None, None)
+                row[f"{prefix}_q"], row[f"{prefix}_t"] = q, t
+            sink.add(row)
+    print_table(calibration)
+    return read_manifest(workspace, "calibration_samples")

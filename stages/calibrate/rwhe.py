@@ -1,0 +1,132 @@
+"""Robot-world/hand-eye calibration: ``A_i X_f = Z B_i`` for each source.
+
+``A_i = cam_from_target`` (PnP), ``B_i`` = the source's measurement (``camee_from_targetee``
+for the robots, ``camrb_from_targetrb`` for motion capture), ``Z`` = the camera-side
+offset (``cam_from_camee``), ``X_f`` = the target-side offset of fixture f
+(``target_from_targetee``). Several fixtures share one ``Z``.
+
+Solvers: Shah's closed form (Kronecker null space, then linear translations), the
+paper's Levenberg-Marquardt on ``sum |A_i - Z B_i X^-1|_F^2`` over rotation vectors, and
+a refinement on the pattern's reprojection error (maximum likelihood for pixel noise).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from pipeline.errors import InputError
+from stages import geometry as g
+
+
+class DegenerateError(InputError):
+    """The calibration data cannot determine the offsets; the message says what to add."""
+
+
+@dataclass(frozen=True)
+class Solution:
+    """``cam_from_camee`` (Z) and ``target_from_targetee`` (X) per fixture, (4, 4) each."""
+
+    z: np.ndarray
+    x: dict[str, np.ndarray]
+
+    def predict(self, b: np.ndarray, fixtures: list[str]) -> np.ndarray:
+        """``cam_from_target`` (N, 4, 4) = Z B_i X_f^-1."""
+        x_inv = np.stack([g.invert(self.x[f]) for f in fixtures])
+        return self.z @ b @ x_inv
+
+
+def check_diversity(b: np.ndarray, fixtures: list[str], min_samples: int, min_spread_rad: float,
+                    label: str) -> None:
+    """Refuse data that cannot determine the offsets: too few samples, or rotations that
+    do not span at least two independent axes."""
+    if len(b) < min_samples:
+        raise DegenerateError(f"{label}: {len(b)} usable calibration samples, at least {min_samples} needed; "
+                              "capture more calibration poses")
+    for fixture in sorted(set(fixtures)):
+        chosen = b[[i for i, f in enumerate(fixtures) if f == fixture]]
+        if len(chosen) < 3:
+            raise DegenerateError(f"{label}: fixture {fixture!r} has {len(chosen)} samples, at least 3 needed")
+        relative = g.matrix_to_rotvec(np.swapaxes(chosen[0, :3, :3], -1, -2) @ chosen[:, :3, :3])
+        spread = np.linalg.svd(relative - relative.mean(axis=0), compute_uv=False) / np.sqrt(len(chosen))
+        if spread[1] < min_spread_rad:
+            raise DegenerateError(
+                f"{label}: the rotations of fixture {fixture!r} vary about one axis only (second principal spread "
+                f"{np.degrees(spread[1]):.2f} deg < {np.degrees(min_spread_rad):.2f} deg); add captures with the "
+                "target tilted about other axes")
+
+
+def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
+    """Closed form (Shah 2013, extended to several fixtures sharing Z)."""
+    names = sorted(set(fixtures))
+    n_unknown = 9 * (1 + len(names))
+    rows = []
+    eye = np.eye(3)
+    for a_i, b_i, fixture in zip(a, b, fixtures, strict=True):
+        block = np.zeros((9, n_unknown))
+        block[:, :9] = -np.kron(b_i[:3, :3].T, eye)  # vec(R_Z R_B) = (R_B^T kron I) vec(R_Z)
+        k = 9 * (1 + names.index(fixture))
+        block[:, k:k + 9] = np.kron(eye, a_i[:3, :3])  # vec(R_A R_X) = (I kron R_A) vec(R_X)
+        rows.append(block)
+    _, _, vt = np.linalg.svd(np.concatenate(rows))
+    null = vt[-1]
+    rz = null[:9].reshape(3, 3, order="F")
+    scale = np.sign(np.linalg.det(rz)) / abs(np.linalg.det(rz)) ** (1 / 3)
+    rotations = [g.project_to_so3(scale * null[9 * j:9 * j + 9].reshape(3, 3, order="F"))
+                 for j in range(1 + len(names))]
+    # translations: R_A t_X + t_A = R_Z t_B + t_Z  ->  R_A t_X - t_Z = R_Z t_B - t_A
+    design = np.zeros((3 * len(a), 3 * (1 + len(names))))
+    target = np.zeros(3 * len(a))
+    for i, (a_i, b_i, fixture) in enumerate(zip(a, b, fixtures, strict=True)):
+        k = 3 * (1 + names.index(fixture))
+        design[3 * i:3 * i + 3, :3] = -eye
+        design[3 * i:3 * i + 3, k:k + 3] = a_i[:3, :3]
+        target[3 * i:3 * i + 3] = rotations[0] @ b_i[:3, 3] - a_i[:3, 3]
+    t = np.linalg.lstsq(design, target, rcond=None)[0]
+    z = g.make_transform(rotations[0], t[:3])
+    x = {name: g.make_transform(rotations[1 + j], t[3 + 3 * j:6 + 3 * j]) for j, name in enumerate(names)}
+    return Solution(z, x)
+
+
+def _pack(solution: Solution, names: list[str]) -> np.ndarray:
+    parts = [g.matrix_to_rotvec(solution.z[:3, :3]), solution.z[:3, 3]]
+    for name in names:
+        parts += [g.matrix_to_rotvec(solution.x[name][:3, :3]), solution.x[name][:3, 3]]
+    return np.concatenate(parts)
+
+
+def _unpack(params: np.ndarray, names: list[str]) -> Solution:
+    def pose(k: int) -> np.ndarray:
+        return g.make_transform(g.rotvec_to_matrix(params[6 * k:6 * k + 3]), params[6 * k + 3:6 * k + 6])
+
+    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)})
+
+
+def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution) -> Solution:
+    """The paper's cost, Levenberg-Marquardt over rotation vectors and translations."""
+    names = sorted(start.x)
+
+    def residuals(params: np.ndarray) -> np.ndarray:
+        return (a - _unpack(params, names).predict(b, fixtures))[:, :3, :].ravel()
+
+    result = least_squares(residuals, _pack(start, names), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return _unpack(result.x, names)
+
+
+def reprojection(b: np.ndarray, fixtures: list[str], start: Solution, object_points: list[np.ndarray],
+                 pixels: list[np.ndarray], camera_matrix: np.ndarray, dist: np.ndarray) -> Solution:
+    """Refine on the pattern's reprojection error: the detected corners are what was
+    measured, with (nearly) independent pixel noise. object_points[i] (M_i, 3) in T."""
+    names = sorted(start.x)
+    observed = np.concatenate(pixels)
+
+    def residuals(params: np.ndarray) -> np.ndarray:
+        poses = _unpack(params, names).predict(b, fixtures)
+        projected = [g.project(pose, points, camera_matrix, dist) for pose, points in zip(poses, object_points,
+                                                                                          strict=True)]
+        return (np.concatenate(projected) - observed).ravel()
+
+    result = least_squares(residuals, _pack(start, names), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
+    return _unpack(result.x, names)

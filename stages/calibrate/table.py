@@ -1,0 +1,49 @@
+"""The paper's Table 1 for this run: E_T [mm], E_R [deg], E_p [px] per source and fused."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+#: TRON's Table 1 (in-sample, mean +- std), for comparison.
+PAPER = {"kuka": ((2.429, 0.866), (0.637, 0.120), (5.176, 2.397)),
+         "vicon": ((1.208, 0.678), (0.172, 0.083), (4.175, 2.718)),
+         "fused": ((0.815, 0.494), (0.169, 0.077), (2.758, 1.716))}
+COLUMNS = (("kuka", "KUKA-only"), ("vicon", "Vicon-only"), ("fused", "Data fusion"))
+
+
+def _cell(metric: dict[str, list[float]] | None, key: str, scale: float) -> str:
+    if metric is None:
+        return "-"
+    mean, std = metric[key]
+    return f"{mean * scale:.3f} ± {std * scale:.3f}"
+
+
+def rows(calibration: dict[str, Any]) -> list[tuple[str, list[str]]]:
+    out = []
+    for kind, label in (("in_sample", "in-sample"), ("cross_validated", "cross-validated"), ("truth", "vs truth")):
+        for key, unit, scale in (("E_T_m", "E_T [mm]", 1000.0), ("E_R_rad", "E_R [deg]", float(np.degrees(1.0))),
+                                 ("E_p_px", "E_p [px]", 1.0)):
+            cells = []
+            for source, _ in COLUMNS:
+                entry = calibration.get(source)
+                cells.append(_cell(entry["metrics"][kind] if entry else None, key, scale))
+            out.append((f"{unit} {label}", cells))
+    for index, unit in enumerate(("E_T [mm]", "E_R [deg]", "E_p [px]")):
+        out.append((f"{unit} paper (TRON)", [f"{PAPER[s][index][0]:.3f} ± {PAPER[s][index][1]:.3f}"
+                                             for s, _ in COLUMNS]))
+    return out
+
+
+def print_table(calibration: dict[str, Any]) -> None:
+    table = Table(title="Table 1: calibration accuracy (mean ± std over calibration samples)")
+    table.add_column("metric")
+    for _, label in COLUMNS:
+        table.add_column(label, justify="right")
+    for label, cells in rows(calibration):
+        table.add_row(escape(label), *cells)
+    Console().print(table)
