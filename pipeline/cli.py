@@ -150,7 +150,22 @@ def export_command(
     out_dir: Annotated[Path | None, typer.Option("--out", help="export directory (default W/export)")] = None,
 ) -> None:
     """Export the labels as a SPEED+ (or BOP) dataset."""
-    raise runner.NotBuiltError("export is not built yet: it needs the label stage")
+    from manifests import exports, read_success
+    from stages.label import camera_of
+
+    resolved, ws = _context(workspace, profile, config, set_)
+    if read_success(ws, "labels") is None:
+        raise runner.StageError(f"{ws.root}: no complete labels to export; run `speedplus run --until label` first")
+    if format_ not in ("speedplus", "bop"):
+        raise typer.BadParameter(f"unknown format {format_!r}; expected speedplus or bop", param_hint="--format")
+    camera_matrix, dist, width, height = camera_of(ws)
+    target = out_dir or ws.root / "export"
+    if format_ == "speedplus":
+        pitch = resolved.camera.pixel_pitch_m * resolved.camera.reference_width_px / width
+        counts = exports.export_speedplus(ws, target, exports.camera_json(camera_matrix, dist, width, height, pitch))
+    else:
+        counts = exports.export_bop(ws, target, camera_matrix)
+    out.print(f"exported {', '.join(f'{v} {k}' for k, v in counts.items())} labels ({format_}) to {target}")
 
 
 def main() -> None:

@@ -27,6 +27,16 @@ class Sigma:
         return {"sigma_t_m": [float(v) for v in self.t_m], "sigma_r_rad": float(self.r_rad)}
 
 
+def at_distance(sigma: Sigma, distance_m: float, calibration_distance_m: float) -> Sigma:
+    """Sigma of a pose whose target is ``distance_m`` away, from a sigma measured at
+    ``calibration_distance_m``: an angular error moves the target sideways (camera x and y)
+    in proportion to its distance, so those axes grow as
+    ``s_xy^2 + s_r^2 (d^2 - d_cal^2)``; depth (z) and angle do not change."""
+    grow = sigma.r_rad**2 * max(distance_m**2 - calibration_distance_m**2, 0.0)
+    t = np.array([np.sqrt(sigma.t_m[0] ** 2 + grow), np.sqrt(sigma.t_m[1] ** 2 + grow), sigma.t_m[2]])
+    return Sigma(t, sigma.r_rad)
+
+
 def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:
     """The paper's variances of ``estimates`` about ``references`` (N, 4, 4): per camera axis
     ``sum (t - t_ref)^2 / (N - 1)``, and the same of the rotation angle."""
@@ -49,20 +59,21 @@ def fuse(pose_a: np.ndarray, sigma_a: Sigma, pose_b: np.ndarray, sigma_b: Sigma)
     return g.make_transform(rotation, t), fused
 
 
-def rejection_reason(pose_kuka: np.ndarray, pose_vicon: np.ndarray | None, sigma: Sigma) -> str | None:
+def rejection_reason(pose_kuka: np.ndarray, pose_vicon: np.ndarray | None, sigma: Sigma,
+                     k: float = REJECTION_K) -> str | None:
     """Why motion capture is rejected against the robots' estimate, or None to accept:
-    missing, or beyond ``REJECTION_K`` sigma in any position component or in angle."""
+    missing, or beyond ``k`` sigma (strictly) in any position component or in angle."""
     if pose_vicon is None:
         return "not tracked"
     if not np.all(np.isfinite(pose_vicon)):
         return "non-finite pose"
     difference = np.abs(pose_vicon[:3, 3] - pose_kuka[:3, 3])
     for axis, name in enumerate("xyz"):
-        if difference[axis] > REJECTION_K * sigma.t_m[axis]:
-            return (f"{name} differs by {difference[axis] * 1000:.2f} mm > {REJECTION_K} sigma "
-                    f"({REJECTION_K * sigma.t_m[axis] * 1000:.2f} mm)")
+        if difference[axis] > k * sigma.t_m[axis]:
+            return (f"{name} differs by {difference[axis] * 1000:.2f} mm > {k} sigma "
+                    f"({k * sigma.t_m[axis] * 1000:.2f} mm)")
     angle = float(g.angular_distance(pose_vicon[:3, :3], pose_kuka[:3, :3]))
-    if angle > REJECTION_K * sigma.r_rad:
-        return (f"rotation differs by {np.degrees(angle):.3f} deg > {REJECTION_K} sigma "
-                f"({np.degrees(REJECTION_K * sigma.r_rad):.3f} deg)")
+    if angle > k * sigma.r_rad:
+        return (f"rotation differs by {np.degrees(angle):.3f} deg > {k} sigma "
+                f"({np.degrees(k * sigma.r_rad):.3f} deg)")
     return None

@@ -30,14 +30,6 @@ OFFSET_NAMES = {"kuka": ("cam_from_camee", "target_from_targetee"),
                 "vicon": ("cam_from_camrb", "target_from_targetrb")}
 
 
-def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
-    return ("captures",), ("calibrate",), {}
-
-
-def outputs(config: Config) -> tuple[str, ...]:
-    return ("calibration_samples",)
-
-
 def pose_json(a_from_b: np.ndarray) -> dict[str, list[float]]:
     q, t = g.transform_to_qt(a_from_b)
     return {"q": q.tolist(), "t": t.tolist()}
@@ -82,6 +74,30 @@ def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], use
         solution = rwhe.reprojection(b, fixtures, solution, [o.object_points for o in used],
                                      [o.pixels for o in used], intrinsics.camera_matrix, intrinsics.dist)
     return solution
+
+
+def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
+                 intrinsics: obs.Intrinsics) -> tuple[rwhe.Solution, np.ndarray]:
+    """Solve, then drop samples whose residual against PnP is an outlier (a ghost marker, a
+    bad detection) and solve again, until nothing changes. Returns the solution and the
+    inlier mask. Outlier: position or angle residual beyond median + k * 1.4826 * MAD."""
+    keep = np.ones(len(a), dtype=bool)
+    for _ in range(5):
+        chosen = [f for f, k in zip(fixtures, keep, strict=True) if k]
+        solution = solve(config, a[keep], b[keep], chosen, [o for o, k in zip(used, keep, strict=True) if k],
+                         intrinsics)
+        predicted = solution.predict(b, fixtures)
+        residual_t = np.linalg.norm(predicted[:, :3, 3] - a[:, :3, 3], axis=1)
+        residual_r = g.angular_distance(predicted[:, :3, :3], a[:, :3, :3])
+        new_keep = np.ones(len(a), dtype=bool)
+        for residual in (residual_t, residual_r):
+            median = np.median(residual[keep])
+            mad = 1.4826 * np.median(np.abs(residual[keep] - median))
+            new_keep &= residual <= median + config.calibrate.outlier_k * max(mad, 1e-12)
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    return solution, keep
 
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
@@ -153,7 +169,14 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         fixtures = [by_id[o.sample_id]["fixture"] for o in used]
         rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
                              f"{source} calibration")
-        solution = solve(config, a, b, fixtures, used, intrinsics)
+        solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics)
+        for o, inlier in zip(used, inliers, strict=True):
+            if not inlier:
+                o.extra[f"{source}_outlier"] = True
+        outliers = [o.sample_id for o, inlier in zip(used, inliers, strict=True) if not inlier]
+        used = [o for o, inlier in zip(used, inliers, strict=True) if inlier]
+        a, b = a[inliers], b[inliers]
+        fixtures = [f for f, inlier in zip(fixtures, inliers, strict=True) if inlier]
         predicted = solution.predict(b, fixtures)
         cross = cross_validate(config, a, b, fixtures, used, intrinsics)
         entry = results[source] = {
@@ -162,6 +185,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             f"{OFFSET_NAMES[source][1]}_by_fixture": {f: pose_json(x) for f, x in solution.x.items()},
             **sigma_between(predicted, a).to_json(),
             "samples": len(used),
+            "outliers": outliers,
             "metrics": {"in_sample": metrics(predicted, a, used, intrinsics),
                         "cross_validated": metrics(cross, a, used, intrinsics), "truth": None},
         }
@@ -196,7 +220,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                            for t, o in zip(true, both, strict=True)]
             results["fused"]["metrics"]["truth"] = metrics(fused["in_sample"], true, both, intrinsics, true_pixels)
 
+    pnp_distances = [np.linalg.norm(o.cam_from_target[:3, 3]) for o in observations if o.cam_from_target is not None]
     calibration = {"intrinsics": intrinsics.to_json(), **{s: results[s] for s in SOURCES},
+                   "calibration_distance_m": float(np.mean(pnp_distances)),
                    "fused": results["fused"], "rejection": results["rejection"],
                    "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
                               "pattern": spec.to_json(),
@@ -211,8 +237,12 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         for o in observations:
             if o.sample_id in done:
                 continue
+            reason = o.reason
+            flagged = [s for s in SOURCES if o.extra.get(f"{s}_outlier")]
+            if reason is None and flagged:
+                reason = "outlier of " + " and ".join(flagged) + " (excluded from that source's calibration)"
             row = {"sample_id": o.sample_id, "fixture": by_id[o.sample_id]["fixture"], "corners": len(o.ids),
-                   "used": o.cam_from_target is not None, "reason": o.reason, "pnp_rms_px": o.rms_px}
+                   "used": o.cam_from_target is not None, "reason": reason, "pnp_rms_px": o.rms_px}
             for prefix, pose in (("cam_from_target_cal", o.cam_from_target),
                                  ("kuka_cam_from_target", predictions.get("kuka", {}).get(o.sample_id)),
                                  ("vicon_cam_from_target", predictions.get("vicon", {}).get(o.sample_id))):

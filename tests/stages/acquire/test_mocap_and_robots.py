@@ -46,13 +46,13 @@ def test_telemetry_errors_have_the_configured_magnitude(default_config, plan_row
     assert 0.3 < np.median(flange_errors) < 3.0 and flange_errors.max() < 5.0  # mm, "about 1-3 mm"
     assert flange_errors.std() > 0.05  # pose-dependent, not a constant offset
     assert 0.3 < np.median(relative_errors) * 1000 < 5.0
-    assert np.radians(0.02) < np.median(angles) < np.radians(0.6)
+    assert np.radians(0.02) < np.median(angles) < np.radians(1.0)
 
 
 def test_fixture_sag_is_tenths_of_a_degree(default_config, plan_rows):
     truth = draw_truth(default_config)
     sags = [robots.move(default_config, truth, row, np.random.default_rng(0)).sag_rad for row in plan_rows]
-    assert np.radians(0.05) < np.max(sags) < np.radians(0.6)
+    assert np.radians(0.1) < np.max(sags) < np.radians(0.9)
     assert np.std(sags) > 0  # depends on the orientation of the model
 
 

@@ -1,0 +1,77 @@
+"""The label stage: SPEED+ labels of the dataset captures (DESIGN section 4).
+
+Full-scale translation (mock-up translation / scale), the quaternion of
+``cam_from_target``, the 11 keypoints projected through the calibrated camera (with lens
+distortion), their bounding box, and the label's 1-sigma uncertainty. Reads ``poses``,
+the session and the calibration; never the truth.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from pipeline.config import Config
+from pipeline.errors import InputError
+from pipeline.progress import track
+from stages import geometry as g
+from stages import tango
+
+
+def camera_of(workspace: Workspace) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """The calibrated camera: K (3, 3), dist (5,), width, height."""
+    path = workspace.root / "calibration.json"
+    if not path.exists():
+        raise InputError(f"{path}: missing; run calibrate first")
+    intrinsics = json.loads(path.read_text())["intrinsics"]
+    return np.array(intrinsics["K"]), np.array(intrinsics["dist"]), intrinsics["width"], intrinsics["height"]
+
+
+def mockup_scale(config: Config, workspace: Workspace) -> float:
+    if workspace.session_path.exists():
+        scale = json.loads(workspace.session_path.read_text()).get("mockup_scale")
+        if scale:
+            return float(scale)
+    return config.testbed.mockup_scale
+
+
+def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: np.ndarray, dist: np.ndarray,
+              scale: float, filename: str) -> dict[str, Any]:
+    cam_from_target = g.transform_from_qt(pose["cam_from_target_q"], pose["cam_from_target_t"])
+    keypoints = g.project(cam_from_target, tango.KEYPOINTS_M * scale, camera_matrix, dist)
+    camera_in_target = g.invert(cam_from_target)[:3, 3]
+    light = plan["light"] if plan is not None else "lightbox"
+    if light not in ("lightbox", "sunlamp"):
+        raise InputError(f"plan: dataset sample {pose['sample_id']} has light {light!r}; labels need lightbox or sunlamp")
+    q, t = g.transform_to_qt(cam_from_target)
+    return {
+        "sample_id": pose["sample_id"],
+        "filename": filename,
+        "domain": light,
+        "view": str(tango.view_of(camera_in_target, scale)),
+        "q_vbs2tango_true": q,
+        "r_Vo2To_vbs_true": t / scale,
+        "label_source": "fused" if pose["vicon_accepted"] else "kuka_only",
+        "sigma_t_m": np.asarray(pose["sigma_t_m"]) / scale,
+        "sigma_r_rad": pose["sigma_r_rad"],
+        "keypoints_px": keypoints,
+        "bbox_px": np.concatenate([keypoints.min(axis=0), keypoints.max(axis=0)]),
+    }
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    camera_matrix, dist, _, _ = camera_of(workspace)
+    scale = mockup_scale(config, workspace)
+    plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
+            if read_success(workspace, "plan") is not None else {})
+    done = read_keys(workspace, "labels")
+    poses = [p for p in read_manifest(workspace, "poses").to_pylist() if p["sample_id"] not in done]
+    with open_sink(workspace, "labels", config.run.part_rows) as sink:
+        for pose in track(poses, len(poses), "label"):
+            filename = config.label.filename_template.format(sample_id=pose["sample_id"])
+            sink.add(label_row(pose, plan.get(pose["sample_id"]), camera_matrix, dist, scale, filename))
+    return read_manifest(workspace, "labels")
