@@ -414,9 +414,11 @@ def _check(config: Config) -> Config:
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
         raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
     if config.calibrate.intrinsics not in ("auto", "fixed", "estimate"):
-        raise ConfigError(f"calibrate.intrinsics: expected auto, fixed or estimate, got {config.calibrate.intrinsics!r}")
+        raise ConfigError(f"calibrate.intrinsics: expected auto, fixed or estimate, "
+                          f"got {config.calibrate.intrinsics!r}")
     if config.calibrate.solver not in ("shah", "frobenius", "reprojection"):
-        raise ConfigError(f"calibrate.solver: expected shah, frobenius or reprojection, got {config.calibrate.solver!r}")
+        raise ConfigError(f"calibrate.solver: expected shah, frobenius or reprojection, "
+                          f"got {config.calibrate.solver!r}")
     if config.calibrate.folds < 2:
         raise ConfigError("calibrate.folds: at least 2")
     if config.run.part_rows < 1:

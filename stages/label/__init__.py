@@ -46,7 +46,8 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
     camera_in_target = g.invert(cam_from_target)[:3, 3]
     light = plan["light"] if plan is not None else "lightbox"
     if light not in ("lightbox", "sunlamp"):
-        raise InputError(f"plan: dataset sample {pose['sample_id']} has light {light!r}; labels need lightbox or sunlamp")
+        raise InputError(f"plan: dataset sample {pose['sample_id']} has light {light!r}; "
+                         "labels need lightbox or sunlamp")
     q, t = g.transform_to_qt(cam_from_target)
     return {
         "sample_id": pose["sample_id"],

@@ -82,7 +82,8 @@ def test_reader_rejects_paths_outside_the_workspace(tmp_path):
     ws = Workspace(tmp_path)
     spec = MANIFESTS["captures"]
     row = {c.name: None for c in spec.columns}
-    row.update(sample_id="cal000000", session="calibration", fixture="fixed", image_path="images/calibration/cal000000.png",
+    row.update(sample_id="cal000000", session="calibration", fixture="fixed",
+               image_path="images/calibration/cal000000.png",
                kuka_world_from_camee_q=[1, 0, 0, 0], kuka_world_from_camee_t=[0, 0, 0],
                kuka_world_from_targetee_q=[1, 0, 0, 0], kuka_world_from_targetee_t=[0, 0, 0],
                vicon_camrb_markers=5, vicon_targetrb_markers=0, status="ok")
