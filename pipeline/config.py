@@ -227,8 +227,9 @@ class VirtualConfig:
     vicon_world_from_world_t_m: tuple[float, float, float] = param(
         (1.2, -3.4, 0.05), "origin of K in V", "m")
     camera_markers_m: tuple[tuple[float, float, float], ...] = param(
-        ((0.06, 0.05, 0.02), (-0.07, 0.05, 0.03), (0.05, -0.06, 0.08), (-0.06, -0.05, 0.1), (0.0, 0.08, 0.14)),
-        "camera rigid-body markers in the camera flange frame (5 markers on the camera housing)", "m")
+        ((0.12, 0.08, 0.02), (-0.12, 0.09, 0.04), (0.10, -0.11, 0.10), (-0.11, -0.10, 0.13), (0.0, 0.13, 0.18)),
+        "camera rigid-body markers in the camera flange frame (5 markers on a plate around the camera, "
+        "spread about 25 cm so that the camera's pointing is tracked to about 0.05 deg)", "m")
     target_markers_rel: tuple[tuple[float, float, float], ...] = param(
         ((0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5), (-1.03, -0.3, 0.3),
          (0.2, 1.03, 0.2)),

@@ -9,6 +9,9 @@ Results come back as they complete; order is not preserved.
 from __future__ import annotations
 
 import multiprocessing
+import os
+import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
@@ -16,8 +19,16 @@ from typing import Any
 _context: Any = None
 
 
-def _initialise(factory: Callable[..., Any], args: tuple[Any, ...]) -> None:
+def _exit_with_parent(parent: int) -> None:
+    """A worker whose parent died (killed, crashed) must not linger holding its pipes."""
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(1)
+
+
+def _initialise(factory: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
     global _context
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     _context = factory(*args)
 
 
@@ -38,7 +49,8 @@ def map_local(factory: Callable[..., Any], args: tuple[Any, ...], method: str, i
             yield getattr(context, method)(item)
         return
     executor = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_initialise, initargs=(factory, args), max_tasks_per_child=max_tasks)
+                                   initializer=_initialise, initargs=(factory, args, os.getpid()),
+                                   max_tasks_per_child=max_tasks)
     pending: set[Future] = set()
     queue = list(reversed(items))
     try:

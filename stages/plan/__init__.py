@@ -14,11 +14,13 @@ from manifests import Workspace, open_sink, read_keys, read_manifest
 from pipeline.config import Config
 from pipeline.progress import track
 from stages import geometry as g
+from stages import layout, tango
 from stages.plan.poses import (
     PlanningError,
     calibration_pose,
     dataset_configuration,
     dataset_pose,
+    facing_boxes,
     light_boxes,
     mount_away_from,
 )
@@ -50,7 +52,6 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dic
         view, light = "solar_panel", "ambient"
     else:
         view, light = dataset_configuration(index, plan)
-    boxes = light_boxes(rng, plan, light)
 
     def draw() -> tuple[np.ndarray, str, Reconfiguration | None]:
         if session == "calibration":
@@ -71,6 +72,10 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dic
                 "testbed.target_presentation_m, testbed.rail_* and plan.sight_* (or raise plan.max_redraws)")
         redraws += 1
         cam_from_target, mount, commands = draw()
+    world_from_cam = commands.world_from_camee @ layout.camee_from_cam(testbed)
+    world_from_target = world_from_cam @ cam_from_target
+    centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[0]
+    boxes = light_boxes(rng, plan, light, facing_boxes(testbed, centre, world_from_cam[:3, 3]))
     return {
         "sample_id": sample_id,
         "session": session,

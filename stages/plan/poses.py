@@ -109,13 +109,22 @@ def dataset_configuration(index: int, plan: PlanConfig) -> tuple[str, str]:
     return configurations[index % len(configurations)]
 
 
-def light_boxes(rng: np.random.Generator, plan: PlanConfig, light: str) -> list[int]:
-    """Active light boxes: a uniform subset of the configured size for ``lightbox``, else none."""
+def facing_boxes(testbed: TestbedConfig, model_position: np.ndarray, camera_position: np.ndarray) -> list[int]:
+    """Light boxes on the camera's side of the model (in K): those that light what the camera sees."""
+    centres = np.asarray(testbed.light_box_centres_m)
+    towards_camera = camera_position - model_position
+    return [i for i, c in enumerate(centres) if np.dot(c - model_position, towards_camera) > 0]
+
+
+def light_boxes(rng: np.random.Generator, plan: PlanConfig, light: str, candidates: list[int]) -> list[int]:
+    """Active light boxes for ``lightbox``: a uniform subset of the configured size of the
+    candidates (of all boxes when fewer face the camera's side); none otherwise."""
     if light != "lightbox":
         return []
     low, high = plan.light_boxes_per_sample
     count = int(rng.integers(low, high + 1))
-    return sorted(int(i) for i in rng.choice(plan.n_light_boxes, size=count, replace=False))
+    pool = candidates if len(candidates) >= count else list(range(plan.n_light_boxes))
+    return sorted(int(i) for i in rng.choice(pool, size=count, replace=False))
 
 
 def mount_away_from(cam_from_target: np.ndarray) -> str:

@@ -138,9 +138,19 @@ def test_target_robot_is_never_between_camera_and_model(default_config, default_
         assert (row["mount"] == "minus_x") == (camera_in_target[0] > 0)
 
 
-def test_light_boxes(default_plan):
+def test_light_boxes(default_config, default_plan):
+    testbed = default_config.testbed
+    centres = np.asarray(testbed.light_box_centres_m)
     for row in dataset(default_plan):
         if row["light"] == "lightbox":
+            # the active boxes are on the camera's side of the model: they light what it sees
+            world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
+            world_from_target = pose(row, "world_from_targetee") @ g.invert(
+                layout.target_from_targetee(testbed, row["mount"]))
+            centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[0]
+            facing = np.einsum("bi,i->b", centres - centre, world_from_cam[:3, 3] - centre) > 0
+            if facing.sum() >= len(row["light_boxes"]):
+                assert all(facing[b] for b in row["light_boxes"])
             assert 1 <= len(row["light_boxes"]) <= 3 and len(set(row["light_boxes"])) == len(row["light_boxes"])
             assert all(0 <= b < 10 for b in row["light_boxes"])
         else:
