@@ -194,6 +194,15 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             true_pixels = [g.project(t, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
                            for t, o in zip(true, used, strict=True)]
             entry["metrics"]["truth"] = metrics(predicted, true, used, intrinsics, true_pixels)
+        if len(solution.x) == 1:  # OpenCV's Shah on the same detections and intrinsics, for comparison
+            import cv2
+
+            r_x, t_x, r_z, t_z = cv2.calibrateRobotWorldHandEye(
+                [m[:3, :3] for m in a], [m[:3, 3] for m in a], [m[:3, :3] for m in b], [m[:3, 3] for m in b],
+                method=cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH)
+            baseline = rwhe.Solution(g.make_transform(r_z, t_z.ravel()),
+                                     {fixtures[0]: g.make_transform(r_x, t_x.ravel())})
+            entry["opencv_shah_in_sample"] = metrics(baseline.predict(b, fixtures), a, used, intrinsics)
         predictions[source] = {o.sample_id: p for o, p in zip(used, predicted, strict=True)}
         predictions[f"{source}_cv"] = {o.sample_id: p for o, p in zip(used, cross, strict=True)}
 

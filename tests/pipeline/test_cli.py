@@ -21,21 +21,21 @@ def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
     first = speedplus("plan", "--profile", "smoke", "--workspace", str(ws))
     assert first.returncode == 0, first.stderr
     assert "plan: ran" in first.stdout
-    assert read_manifest(Workspace(ws), "plan").num_rows == 20
+    assert read_manifest(Workspace(ws), "plan").num_rows == 24
     assert (ws / "config.toml").exists() and 'profile = "smoke"' in (ws / "config.toml").read_text()
     second = speedplus("plan", "--workspace", str(ws))  # the workspace's config.toml is used
     assert second.returncode == 0 and "up to date" in second.stdout
     status = speedplus("status", "--workspace", str(ws))
     assert status.returncode == 0
-    line = next(line for line in status.stdout.splitlines() if "plan" in line and "plan 20" in line)
+    line = next(line for line in status.stdout.splitlines() if "plan" in line and "plan 24" in line)
     assert "done" in line
 
 
 def test_run_stops_at_the_first_stage_not_built(tmp_path):
     result = speedplus("run", "--profile", "smoke", "--workspace", str(tmp_path / "w"))
     assert result.returncode == 3
-    assert "stage 'calibrate' is not built yet" in result.stderr and "after 'acquire'" in result.stderr
-    until = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "acquire")
+    assert "stage 'render' is not built yet" in result.stderr and "after 'label'" in result.stderr
+    until = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "label")
     assert until.returncode == 0 and "up to date" in until.stdout
 
 

@@ -17,7 +17,7 @@ def test_profiles_load(profile):
 
 def test_profile_sizes():
     smoke, default, paper = (load_config(p) for p in PROFILES)
-    assert (smoke.plan.n_calibration, smoke.plan.n_dataset) == (12, 8)
+    assert (smoke.plan.n_calibration, smoke.plan.n_dataset) == (16, 8)
     assert (smoke.camera.width_px, smoke.camera.height_px) == (320, 200)
     assert (default.plan.n_calibration, default.plan.n_dataset) == (64, 48)
     assert (default.camera.width_px, default.camera.height_px) == (960, 600)

@@ -35,9 +35,9 @@ def test_run_then_skip_then_status(smoke, tmp_path):
     ws = Workspace(tmp_path)
     assert runner.status(PLAN, smoke, ws).state == "missing"
     outcome = runner.run_stage(PLAN, smoke, ws)
-    assert outcome.action == "ran" and outcome.rows == {"plan": 20}
+    assert outcome.action == "ran" and outcome.rows == {"plan": 24}
     marker = read_success(ws, "plan")
-    assert marker["rows"] == 20 and marker["fingerprint"] == runner.fingerprint(PLAN, smoke, ws)
+    assert marker["rows"] == 24 and marker["fingerprint"] == runner.fingerprint(PLAN, smoke, ws)
     before = sorted(p.stat().st_mtime_ns for p in ws.manifest_dir("plan").iterdir())
     assert runner.run_stage(PLAN, smoke, ws).action == "skipped"
     assert sorted(p.stat().st_mtime_ns for p in ws.manifest_dir("plan").iterdir()) == before
@@ -66,7 +66,7 @@ def test_partial_results_resume_to_the_uninterrupted_plan(smoke, tmp_path):
     write_part(ws, "plan", done, fingerprint)
     assert runner.status(PLAN, smoke, ws).state == "partial"
     outcome = runner.run_stage(PLAN, smoke, ws)
-    assert outcome.action == "resumed" and outcome.rows == {"plan": 20}
+    assert outcome.action == "resumed" and outcome.rows == {"plan": 24}
     assert sorted_table(read_manifest(ws, "plan")).equals(sorted_table(read_manifest(fresh, "plan")))
 
 
@@ -78,7 +78,7 @@ def test_partial_results_of_another_configuration_are_not_mixed(smoke, tmp_path)
         runner.run_stage(PLAN, smoke, ws)
     runner.run_stage(PLAN, smoke, ws, force=True)
     table = read_manifest(ws, "plan")
-    assert table.num_rows == 20 and pc.count_distinct(table.column("sample_id")).as_py() == 20
+    assert table.num_rows == 24 and pc.count_distinct(table.column("sample_id")).as_py() == 24
 
 
 def test_missing_input_names_the_manifest(smoke, tmp_path):
@@ -88,5 +88,5 @@ def test_missing_input_names_the_manifest(smoke, tmp_path):
 
 
 def test_unbuilt_stage_says_so(smoke, tmp_path):
-    with pytest.raises(runner.NotBuiltError, match="calibrate"):
-        runner.run_stage(runner.stage_spec("calibrate"), smoke, Workspace(tmp_path))
+    with pytest.raises(runner.NotBuiltError, match="render"):
+        runner.run_stage(runner.stage_spec("render"), smoke, Workspace(tmp_path))

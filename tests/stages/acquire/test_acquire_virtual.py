@@ -32,7 +32,7 @@ def test_captures_truth_and_images(smoke_workspace):
     ws = smoke_workspace
     captures = read_manifest(ws, "captures").to_pylist()
     truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}
-    assert len(captures) == 20 and set(truth) == {c["sample_id"] for c in captures}
+    assert len(captures) == 24 and set(truth) == {c["sample_id"] for c in captures}
     for row in captures:
         image = cv2.imread(str(ws.resolve(row["image_path"])), cv2.IMREAD_UNCHANGED)
         assert image.shape == (200, 320) and image.dtype == np.uint8

@@ -1,0 +1,101 @@
+"""RWHE solvers against known offsets, OpenCV's Shah, noise, and degenerate data."""
+
+import cv2
+import numpy as np
+import pytest
+
+from stages import geometry as g
+from stages.calibrate import rwhe
+
+
+def random_pose(rng, scale=0.3):
+    return g.transform_from_qt(g.random_quats(rng, 1)[0], rng.normal(scale=scale, size=3))
+
+
+def nudge(rng, size):
+    """A small rigid motion: about ``size`` radians and metres."""
+    return g.make_transform(g.rotvec_to_matrix(rng.normal(scale=size, size=3)), rng.normal(scale=size, size=3))
+
+
+def synthetic(rng, n, fixtures=("minus_x", "plus_x"), rotation_noise=0.0, translation_noise=0.0):
+    z = random_pose(rng)
+    x = {f: random_pose(rng) for f in fixtures}
+    b = np.stack([random_pose(rng, 1.0) for _ in range(n)])
+    names = [fixtures[i % len(fixtures)] for i in range(n)]
+    a = np.stack([z @ b_i @ g.invert(x[f]) for b_i, f in zip(b, names, strict=True)])
+    if rotation_noise or translation_noise:
+        noise = g.make_transform(g.rotvec_to_matrix(rng.normal(scale=rotation_noise, size=(n, 3))),
+                                 rng.normal(scale=translation_noise, size=(n, 3)))
+        a = noise @ a
+    return a, b, names, z, x
+
+
+def assert_recovers(solution, z, x, atol):
+    np.testing.assert_allclose(solution.z, z, atol=atol)
+    for name, x_f in x.items():
+        np.testing.assert_allclose(solution.x[name], x_f, atol=atol)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_noise_free_offsets_are_recovered(seed):
+    rng = np.random.default_rng(seed)
+    a, b, names, z, x = synthetic(rng, 12)
+    closed = rwhe.shah(a, b, names)
+    assert_recovers(closed, z, x, 1e-9)
+    start = rwhe.Solution(closed.z @ nudge(rng, 0.05), {f: x_f @ nudge(rng, 0.05) for f, x_f in closed.x.items()})
+    assert_recovers(rwhe.frobenius(a, b, names, start), z, x, 1e-9)
+
+
+def test_reprojection_refinement_recovers_exact_offsets():
+    rng = np.random.default_rng(3)
+    z, x = random_pose(rng), {"minus_x": random_pose(rng), "plus_x": random_pose(rng)}
+    names = ["minus_x", "plus_x"] * 5
+    # patterns in front of the camera, then the measurements B that go with them
+    a = np.stack([g.make_transform(g.rotvec_to_matrix(rng.uniform(-0.6, 0.6, 3)),
+                                   [*rng.uniform(-0.2, 0.2, 2), rng.uniform(1.2, 2.0)]) for _ in names])
+    b = np.stack([g.invert(z) @ a_i @ x[f] for a_i, f in zip(a, names, strict=True)])
+    camera_matrix = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    dist = np.array([-0.1, 0.05, 0, 0, 0])
+    points = np.stack(np.meshgrid(np.linspace(-0.1, 0.1, 5), np.linspace(-0.1, 0.1, 4), [0.0]), -1).reshape(-1, 3)
+    pixels = [g.project(a_i, points, camera_matrix, dist) for a_i in a]
+    start = rwhe.Solution(z @ nudge(rng, 0.01), {f: x_f @ nudge(rng, 0.01) for f, x_f in x.items()})
+    refined = rwhe.reprojection(b, names, start, [points] * len(a), pixels, camera_matrix, dist)
+    assert_recovers(refined, z, x, 1e-7)
+
+
+def test_shah_agrees_with_opencv_on_one_fixture():
+    rng = np.random.default_rng(4)
+    a, b, names, z, x = synthetic(rng, 10, fixtures=("fixed",))
+    ours = rwhe.shah(a, b, names)
+    r_base2world, t_base2world, r_gripper2cam, t_gripper2cam = cv2.calibrateRobotWorldHandEye(
+        [a_i[:3, :3] for a_i in a], [a_i[:3, 3] for a_i in a], [b_i[:3, :3] for b_i in b],
+        [b_i[:3, 3] for b_i in b], method=cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH)
+    np.testing.assert_allclose(ours.x["fixed"], g.make_transform(r_base2world, t_base2world.ravel()), atol=1e-8)
+    np.testing.assert_allclose(ours.z, g.make_transform(r_gripper2cam, t_gripper2cam.ravel()), atol=1e-8)
+
+
+def test_noise_averages_out_like_one_over_sqrt_n():
+    """Statistical consistency: unbiased, and the error shrinks as 1/sqrt(N)."""
+    errors = {}
+    for n in (16, 64):
+        trials = []
+        for seed in range(20):
+            rng = np.random.default_rng(100 + seed)
+            a, b, names, z, x = synthetic(rng, n, rotation_noise=1e-3, translation_noise=1e-3)
+            solution = rwhe.frobenius(a, b, names, rwhe.shah(a, b, names))
+            trials.append(np.linalg.norm(solution.z[:3, 3] - z[:3, 3]))
+        errors[n] = np.sqrt(np.mean(np.square(trials)))
+    assert 1.4 < errors[16] / errors[64] < 3.0
+    assert errors[64] < 1e-3  # better than one sample's noise
+
+
+def test_degenerate_data_is_refused_with_advice():
+    rng = np.random.default_rng(5)
+    _, b, names, _, _ = synthetic(rng, 12, fixtures=("fixed",))
+    with pytest.raises(rwhe.DegenerateError, match="12 usable calibration samples, at least 20 needed"):
+        rwhe.check_diversity(b, names, 20, 0.01, "kuka calibration")
+    about_z = np.stack([g.make_transform(g.axis_angle_matrix("z", angle), rng.normal(size=3))
+                        for angle in np.linspace(0, 2, 12)])
+    with pytest.raises(rwhe.DegenerateError, match="about one axis only.*tilted about other axes"):
+        rwhe.check_diversity(about_z, ["fixed"] * 12, 6, np.radians(2), "kuka calibration")
+    rwhe.check_diversity(b, names, 6, np.radians(2), "kuka calibration")  # diverse data passes

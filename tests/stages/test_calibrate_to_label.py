@@ -1,0 +1,183 @@
+"""calibrate -> fuse -> label -> export on the smoke profile, and their bad inputs."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from manifests import Workspace, list_parts, read_manifest
+from stages.tango import KEYPOINTS_M
+
+
+def speedplus(*args):
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
+                          env={**os.environ, "COLUMNS": "200"}, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def labelled(tmp_path_factory):
+    root = tmp_path_factory.mktemp("label") / "w"
+    result = speedplus("run", "--profile", "smoke", "--workspace", str(root), "--until", "label")
+    assert result.returncode == 0, result.stderr
+    assert "Table 1" in result.stdout and "KUKA-only" in result.stdout
+    return Workspace(root)
+
+
+def copy_of(ws, tmp_path, name):
+    shutil.copytree(ws.root, tmp_path / name)
+    return Workspace(tmp_path / name)
+
+
+def test_calibration_json_has_the_designed_layout(labelled):
+    calibration = json.loads((labelled.root / "calibration.json").read_text())
+    assert set(calibration["intrinsics"]) >= {"K", "dist", "width", "height", "rms_px"}
+    for source, z, x in (("kuka", "cam_from_camee", "target_from_targetee"),
+                         ("vicon", "cam_from_camrb", "target_from_targetrb")):
+        entry = calibration[source]
+        assert set(entry[z]) == {"q", "t"} and set(entry[x]) == {"q", "t"}
+        assert len(entry["sigma_t_m"]) == 3 and entry["sigma_r_rad"] > 0
+        for kind in ("in_sample", "cross_validated", "truth"):
+            assert set(entry["metrics"][kind]) == {"E_T_m", "E_R_rad", "E_p_px"}
+    assert set(calibration["kuka"]["target_from_targetee_by_fixture"]) == {"minus_x", "plus_x"}
+    assert len(calibration["rejection"]["sigma_t_m"]) == 3
+    assert calibration["fused"]["metrics"]["in_sample"]["E_T_m"][0] > 0
+
+
+def test_calibrated_offsets_are_close_to_the_hidden_truth(labelled):
+    calibration = json.loads((labelled.root / "calibration.json").read_text())
+    truth = json.loads(labelled.truth_path.read_text())
+    estimated, true = np.array(calibration["kuka"]["cam_from_camee"]["t"]), np.array(truth["cam_from_camee"]["t"])
+    assert np.linalg.norm(estimated - true) < 0.01  # a few mm from 16 tiny images
+    assert calibration["kuka"]["metrics"]["truth"]["E_T_m"][0] < 0.01
+
+
+def test_labels(labelled):
+    labels = read_manifest(labelled, "labels").to_pylist()
+    poses = {p["sample_id"]: p for p in read_manifest(labelled, "poses").to_pylist()}
+    assert len(labels) == 8 and set(poses) == {r["sample_id"] for r in labels}
+    for row in labels:
+        pose = poses[row["sample_id"]]
+        assert row["label_source"] == ("fused" if pose["vicon_accepted"] else "kuka_only")
+        assert pose["vicon_accepted"] == (pose["reject_reason"] is None)
+        keypoints = np.array(row["keypoints_px"])
+        assert keypoints.shape == (11, 2) and np.all((keypoints > 0) & (keypoints < [320, 200]))
+        np.testing.assert_allclose(row["bbox_px"], [*keypoints.min(axis=0), *keypoints.max(axis=0)])
+        assert 6.0 < np.linalg.norm(row["r_Vo2To_vbs_true"]) < 10.0  # full scale
+
+
+def quat2dcm(q):
+    """The public SPEED+ devkit's quat2dcm (scalar first)."""
+    q = np.asarray(q) / np.linalg.norm(q)
+    q0, q1, q2, q3 = q
+    dcm = np.zeros((3, 3))
+    dcm[0, 0] = 2 * q0**2 - 1 + 2 * q1**2
+    dcm[1, 1] = 2 * q0**2 - 1 + 2 * q2**2
+    dcm[2, 2] = 2 * q0**2 - 1 + 2 * q3**2
+    dcm[0, 1] = 2 * q1 * q2 + 2 * q0 * q3
+    dcm[0, 2] = 2 * q1 * q3 - 2 * q0 * q2
+    dcm[1, 0] = 2 * q1 * q2 - 2 * q0 * q3
+    dcm[1, 2] = 2 * q2 * q3 + 2 * q0 * q1
+    dcm[2, 0] = 2 * q1 * q3 + 2 * q0 * q2
+    dcm[2, 1] = 2 * q2 * q3 - 2 * q0 * q1
+    return dcm
+
+
+def devkit_project(q, r, camera, points):
+    """The devkit's projection: [quat2dcm(q).T | r], pinhole, OpenCV distortion."""
+    camera_points = quat2dcm(q).T @ points.T + np.asarray(r).reshape(3, 1)
+    x, y = camera_points[0] / camera_points[2], camera_points[1] / camera_points[2]
+    k1, k2, p1, p2, k3 = camera["distCoeffs"]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    k = np.array(camera["cameraMatrix"])
+    return np.stack([k[0, 0] * xd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
+
+
+def test_speedplus_export_matches_the_devkit_convention(labelled, tmp_path):
+    out = tmp_path / "export"
+    result = speedplus("export", "--workspace", str(labelled.root), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    camera = json.loads((out / "camera.json").read_text())
+    assert {"Nu", "Nv", "ppx", "ppy", "fx", "fy", "ccx", "ccy", "cameraMatrix", "distCoeffs"} <= set(camera)
+    labels = {r["filename"]: r for r in read_manifest(labelled, "labels").to_pylist()}
+    seen = 0
+    for domain in ("lightbox", "sunlamp"):
+        for entry in json.loads((out / domain / "test.json").read_text()):
+            assert (out / domain / "images" / entry["filename"]).is_file()
+            projected = devkit_project(entry["q_vbs2tango_true"], entry["r_Vo2To_vbs_true"], camera, KEYPOINTS_M)
+            np.testing.assert_allclose(projected, labels[entry["filename"]]["keypoints_px"], atol=1e-6)
+            seen += 1
+    assert seen == len(labels)
+    bop = speedplus("export", "--workspace", str(labelled.root), "--format", "bop", "--out", str(tmp_path / "bop"))
+    assert bop.returncode == 0, bop.stderr
+    gt = json.loads((tmp_path / "bop" / "lightbox" / "scene_gt.json").read_text())
+    assert len(gt["0"][0]["cam_R_m2c"]) == 9 and np.linalg.norm(gt["0"][0]["cam_t_m2c"]) > 5000  # mm
+
+
+def test_fuse_and_label_never_open_the_truth(labelled, tmp_path):
+    blind = copy_of(labelled, tmp_path, "blind")
+    shutil.rmtree(blind.manifest_dir("truth"))
+    blind.truth_path.unlink()
+    for stage in ("fuse", "label"):
+        result = speedplus(stage, "--workspace", str(blind.root), "--force")
+        assert result.returncode == 0, result.stderr
+    for name in ("poses", "labels"):
+        expected = read_manifest(labelled, name).sort_by("sample_id")
+        assert read_manifest(blind, name).sort_by("sample_id").equals(expected)
+
+
+def test_one_source_is_enough(labelled, tmp_path):
+    ws = copy_of(labelled, tmp_path, "kuka_only")
+    session = json.loads(ws.session_path.read_text())
+    session["sources"] = ["kuka"]
+    ws.session_path.write_text(json.dumps(session))
+    for stage in ("calibrate", "fuse", "label"):
+        result = speedplus(stage, "--workspace", str(ws.root), "--force")
+        assert result.returncode == 0, result.stderr
+    calibration = json.loads((ws.root / "calibration.json").read_text())
+    assert calibration["vicon"] is None and calibration["fused"] is None
+    poses = read_manifest(ws, "poses").to_pylist()
+    assert all(not p["vicon_accepted"] and p["reject_reason"] == "no motion capture in this session" for p in poses)
+    assert {r["label_source"] for r in read_manifest(ws, "labels").to_pylist()} == {"kuka_only"}
+
+
+def test_too_few_detections_is_a_clear_error(labelled, tmp_path):
+    ws = copy_of(labelled, tmp_path, "few")
+    result = speedplus("calibrate", "--workspace", str(ws.root), "--force", "--set", "calibrate.min_corners=500")
+    assert result.returncode == 1
+    assert "0 usable calibration samples, at least 8 needed" in " ".join(result.stderr.split())
+
+
+def test_captures_not_in_the_plan_are_refused(labelled, tmp_path):
+    ws = copy_of(labelled, tmp_path, "stranger")
+    part = list_parts(ws, "captures")[0]
+    table = pq.read_table(part)
+    ids = table.column("sample_id").to_pylist()
+    ids[0] = "cal999999"
+    table = table.set_column(0, table.schema.field(0), pa.array(ids))
+    pq.write_table(table, part)
+    result = speedplus("calibrate", "--workspace", str(ws.root), "--force")
+    assert result.returncode == 1 and "cal999999 are not in the plan" in " ".join(result.stderr.split())
+
+
+def test_non_finite_telemetry_names_file_row_and_column(labelled, tmp_path):
+    ws = copy_of(labelled, tmp_path, "nan")
+    part = list_parts(ws, "captures")[0]
+    table = pq.read_table(part)
+    index = table.column_names.index("kuka_world_from_camee_t")
+    values = table.column(index).to_pylist()
+    values[1] = [0.0, float("nan"), 1.0]
+    table = table.set_column(index, table.schema.field(index), pa.array(values, type=table.schema.field(index).type))
+    pq.write_table(table, part)
+    result = speedplus("calibrate", "--workspace", str(ws.root), "--force")
+    message = " ".join(result.stderr.split())
+    assert result.returncode == 1
+    assert "part-00000.parquet, row 1" in message and "kuka_world_from_camee_t" in message and "not finite" in message

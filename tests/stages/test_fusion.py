@@ -1,0 +1,64 @@
+"""Fusion against closed forms; the rejection test at its threshold; sigma growth."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from stages import geometry as g
+from stages.fusion import Sigma, at_distance, fuse, rejection_reason, sigma_between
+
+
+def pose(rotvec, t):
+    return g.make_transform(g.rotvec_to_matrix(rotvec), t)
+
+
+def test_equal_variances_give_the_midpoint():
+    sigma = Sigma(np.array([1e-3, 2e-3, 3e-3]), 0.01)
+    fused, fused_sigma = fuse(pose([0, 0, 0.2], [0, 0, 1.0]), sigma, pose([0, 0, 0.4], [0.01, 0, 1.02]), sigma)
+    np.testing.assert_allclose(fused[:3, 3], [0.005, 0, 1.01], atol=1e-15)
+    np.testing.assert_allclose(g.matrix_to_rotvec(fused[:3, :3]), [0, 0, 0.3], atol=1e-12)
+    np.testing.assert_allclose(fused_sigma.t_m, sigma.t_m / np.sqrt(2))
+    assert fused_sigma.r_rad == pytest.approx(0.01 / np.sqrt(2))
+
+
+def test_inverse_variance_weights_per_axis_and_chordal_rotation_mean():
+    rng = np.random.default_rng(0)
+    a, b = pose(rng.normal(size=3), rng.normal(size=3)), pose(rng.normal(size=3) * 0.01, rng.normal(size=3))
+    b[:3, :3] = a[:3, :3] @ g.rotvec_to_matrix([0.02, -0.01, 0.03])
+    sigma_a, sigma_b = Sigma(np.array([1.0, 2.0, 3.0]), 0.1), Sigma(np.array([2.0, 1.0, 3.0]), 0.3)
+    fused, _ = fuse(a, sigma_a, b, sigma_b)
+    weights_a = sigma_b.t_m**2 / (sigma_a.t_m**2 + sigma_b.t_m**2)
+    np.testing.assert_allclose(fused[:3, 3], weights_a * a[:3, 3] + (1 - weights_a) * b[:3, 3], atol=1e-12)
+    w = np.array([0.3**2, 0.1**2]) / (0.1**2 + 0.3**2)
+    expected = Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])).mean(weights=w).as_matrix()
+    np.testing.assert_allclose(fused[:3, :3], expected, atol=1e-9)
+
+
+def test_rejection_exactly_at_the_threshold():
+    sigma = Sigma(np.array([1e-3, 1e-3, 1e-3]), 1e-3)
+    kuka = pose([0, 0, 0], [0, 0, 1.0])
+    at = pose([0, 0, 0], [1.96e-3, 0, 1.0])
+    assert rejection_reason(kuka, at, sigma) is None  # beyond means strictly beyond
+    over = pose([0, 0, 0], [1.96e-3 + 1e-9, 0, 1.0])
+    assert rejection_reason(kuka, over, sigma).startswith("x differs by 1.96 mm > 1.96 sigma")
+    turned = pose([0, 0, 1.97e-3], [0, 0, 1.0])
+    assert rejection_reason(kuka, turned, sigma).startswith("rotation differs")
+    assert rejection_reason(kuka, None, sigma) == "not tracked"
+    assert rejection_reason(kuka, np.full((4, 4), np.nan), sigma) == "non-finite pose"
+
+
+def test_sigma_between_is_the_papers_variance():
+    references = np.stack([pose([0, 0, 0], [0, 0, 1.0])] * 3)
+    estimates = np.stack([pose([0, 0, 0.01], [0.001, 0, 1.0]), pose([0, 0, -0.01], [-0.001, 0, 1.0]),
+                          pose([0, 0, 0], [0, 0, 1.0])])
+    sigma = sigma_between(estimates, references)
+    np.testing.assert_allclose(sigma.t_m, [1e-3, 0, 0], atol=1e-15)
+    assert sigma.r_rad == pytest.approx(0.01)
+
+
+def test_sideways_sigma_grows_with_distance():
+    sigma = Sigma(np.array([1e-3, 1e-3, 1e-3]), 1e-3)
+    far = at_distance(sigma, 4.0, 0.75)
+    assert far.t_m[0] == pytest.approx(np.sqrt(1e-6 + 1e-6 * (16 - 0.5625)))
+    assert far.t_m[2] == sigma.t_m[2] and far.r_rad == sigma.r_rad
+    np.testing.assert_allclose(at_distance(sigma, 0.5, 0.75).t_m, sigma.t_m)
