@@ -3,7 +3,7 @@
 import importlib
 import sys
 
-BENCHMARKS = ("plan", "acquire", "accuracy")
+BENCHMARKS = ("plan", "acquire", "accuracy", "solvers")
 
 if __name__ == "__main__":
     names = sys.argv[1:2] or list(BENCHMARKS)

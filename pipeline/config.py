@@ -216,7 +216,8 @@ class VirtualConfig:
     vicon_fov_rad: float = param(1.35, "full field of view of a motion-capture camera (Vicon Vero: 77 deg)", "rad")
     vicon_max_range_m: float = param(9.0, "farthest marker a motion-capture camera resolves", "m")
     vicon_marker_sigma_m: float = param(
-        0.0003, "1-sigma marker position noise seen by two cameras; scales with sqrt(2 / cameras)", "m")
+        0.00045, "1-sigma marker position noise seen by two cameras (Vicon systems: sub-millimetre); "
+        "scales with sqrt(2 / cameras)", "m")
     vicon_ghost_rate: float = param(
         0.04, "probability that a tracked rigid body includes one ghost or mislabelled marker", "1")
     vicon_ghost_offset_m: tuple[float, float] = param((0.005, 0.03), "range of a ghost marker's displacement", "m")
@@ -258,8 +259,9 @@ class CalibrateConfig:
     intrinsics: str = param("auto", "fixed (the session's camera), estimate (cv2.calibrateCamera), or auto: "
                                      "fixed when the session knows the camera", "")
     min_corners: int = param(6, "pattern corners an image needs to be used", "count")
-    solver: str = param("reprojection", "shah (closed form), frobenius (the paper's LM), or reprojection "
-                                        "(Shah, then the paper's LM, then the pattern's reprojection error)", "")
+    solver: str = param("frobenius", "shah (closed form), frobenius (Shah, then the paper's LM; the most accurate "
+                                     "against the virtual truth, see README), or reprojection (then also the "
+                                     "pattern's reprojection error)", "")
     folds: int = param(5, "k of the k-fold cross-validation", "count")
     seed: int = param(0, "random assignment of samples to folds", "")
     min_samples: int = param(8, "usable calibration samples a source needs", "count")

@@ -27,14 +27,23 @@ class Sigma:
         return {"sigma_t_m": [float(v) for v in self.t_m], "sigma_r_rad": float(self.r_rad)}
 
 
-def at_distance(sigma: Sigma, distance_m: float, calibration_distance_m: float) -> Sigma:
-    """Sigma of a pose whose target is ``distance_m`` away, from a sigma measured at
-    ``calibration_distance_m``: an angular error moves the target sideways (camera x and y)
-    in proportion to its distance, so those axes grow as
-    ``s_xy^2 + s_r^2 (d^2 - d_cal^2)``; depth (z) and angle do not change."""
-    grow = sigma.r_rad**2 * max(distance_m**2 - calibration_distance_m**2, 0.0)
-    t = np.array([np.sqrt(sigma.t_m[0] ** 2 + grow), np.sqrt(sigma.t_m[1] ** 2 + grow), sigma.t_m[2]])
-    return Sigma(t, sigma.r_rad)
+def lever_sq(t: np.ndarray) -> np.ndarray:
+    """Per camera axis, ``|t|^2 - t_i^2`` (m^2) of positions (..., 3): how much a rotation of
+    the line of sight moves a target at ``t`` along that axis (``d t = d theta x t``)."""
+    t = np.asarray(t, dtype=float)
+    return np.sum(t**2, axis=-1, keepdims=True) - t**2
+
+
+def at_position(sigma: Sigma, t: np.ndarray, calibration_lever_sq: np.ndarray) -> Sigma:
+    """Sigma of a pose whose target is at ``t`` (3,) in the camera frame, from a sigma measured
+    on calibration samples whose mean ``lever_sq`` was ``calibration_lever_sq`` (3,).
+
+    A rotation error of the line of sight (``sigma.r_rad``, taken whole as the camera's:
+    conservative) moves the target by ``d theta x t``; per axis its variance grows by
+    ``s_r^2 (lever_sq(t) - lever_sq(calibration))``. Distance-independent errors keep their
+    calibrated size."""
+    grow = sigma.r_rad**2 * np.maximum(lever_sq(t) - np.asarray(calibration_lever_sq), 0.0)
+    return Sigma(np.sqrt(sigma.t_m**2 + grow), sigma.r_rad)
 
 
 def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:

@@ -21,7 +21,7 @@ from stages import geometry as g
 from stages.calibrate import observations as obs
 from stages.calibrate import rwhe
 from stages.calibrate.table import print_table
-from stages.fusion import Sigma, fuse, sigma_between
+from stages.fusion import Sigma, fuse, lever_sq, sigma_between
 from stages.patterns import PatternSpec
 
 SOURCES = ("kuka", "vicon")
@@ -229,9 +229,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                            for t, o in zip(true, both, strict=True)]
             results["fused"]["metrics"]["truth"] = metrics(fused["in_sample"], true, both, intrinsics, true_pixels)
 
-    pnp_distances = [np.linalg.norm(o.cam_from_target[:3, 3]) for o in observations if o.cam_from_target is not None]
+    pnp_positions = np.array([o.cam_from_target[:3, 3] for o in observations if o.cam_from_target is not None])
     calibration = {"intrinsics": intrinsics.to_json(), **{s: results[s] for s in SOURCES},
-                   "calibration_distance_m": float(np.mean(pnp_distances)),
+                   "calibration_distance_m": float(np.mean(np.linalg.norm(pnp_positions, axis=1))),
+                   "calibration_lever_sq_m2": np.mean(lever_sq(pnp_positions), axis=0).tolist(),
                    "fused": results["fused"], "rejection": results["rejection"],
                    "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
                               "pattern": spec.to_json(),

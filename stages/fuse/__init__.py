@@ -18,7 +18,7 @@ from pipeline.errors import InputError
 from pipeline.progress import track
 from stages import geometry as g
 from stages.calibrate import measurement
-from stages.fusion import Sigma, at_distance, fuse, rejection_reason
+from stages.fusion import Sigma, at_position, fuse, rejection_reason
 
 CALIBRATION_FILE = "calibration.json"
 
@@ -30,11 +30,11 @@ def _pose(entry: dict[str, list[float]]) -> np.ndarray:
 class SourceModel:
     """One source's calibrated offsets and uncertainty."""
 
-    def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_distance_m: float) -> None:
+    def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray) -> None:
         self.z = _pose(entry[z_name])
         self.x = {fixture: _pose(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
         self.sigma = Sigma(np.array(entry["sigma_t_m"]), entry["sigma_r_rad"])
-        self.calibration_distance_m = calibration_distance_m
+        self.calibration_lever_sq = calibration_lever_sq
 
     def estimate(self, b: np.ndarray, fixture: str, sample_id: str) -> np.ndarray:
         if fixture not in self.x:
@@ -43,7 +43,7 @@ class SourceModel:
         return self.z @ b @ g.invert(self.x[fixture])
 
     def sigma_at(self, pose: np.ndarray) -> Sigma:
-        return at_distance(self.sigma, float(np.linalg.norm(pose[:3, 3])), self.calibration_distance_m)
+        return at_position(self.sigma, pose[:3, 3], self.calibration_lever_sq)
 
 
 def load_models(workspace: Workspace) -> tuple[SourceModel, SourceModel | None, Sigma | None]:
@@ -51,12 +51,12 @@ def load_models(workspace: Workspace) -> tuple[SourceModel, SourceModel | None, 
     if not path.exists():
         raise InputError(f"{path}: missing; run calibrate first")
     calibration = json.loads(path.read_text())
-    distance = calibration["calibration_distance_m"]
-    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", distance)
+    lever = np.array(calibration["calibration_lever_sq_m2"])
+    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever)
     vicon = None
     rejection = None
     if calibration.get("vicon"):
-        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", distance)
+        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever)
         rejection = Sigma(np.array(calibration["rejection"]["sigma_t_m"]), calibration["rejection"]["sigma_r_rad"])
     return kuka, vicon, rejection
 
@@ -70,9 +70,8 @@ def fuse_capture(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | No
     if vicon is not None:
         b = measurement(row, "vicon")
         vicon_pose = None if b is None else vicon.estimate(b, row["fixture"], row["sample_id"])
-        distance = float(np.linalg.norm(kuka_pose[:3, 3]))
-        reason = rejection_reason(kuka_pose, vicon_pose, at_distance(rejection, distance, kuka.calibration_distance_m),
-                                  rejection_k)
+        reason = rejection_reason(kuka_pose, vicon_pose,
+                                  at_position(rejection, kuka_pose[:3, 3], kuka.calibration_lever_sq), rejection_k)
     if reason is None:
         fused, sigma = fuse(kuka_pose, kuka.sigma_at(kuka_pose), vicon_pose, vicon.sigma_at(vicon_pose))
     else:

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from stages import geometry as g
-from stages.fusion import Sigma, at_distance, fuse, rejection_reason, sigma_between
+from stages.fusion import Sigma, at_position, fuse, lever_sq, rejection_reason, sigma_between
 
 
 def pose(rotvec, t):
@@ -56,9 +56,12 @@ def test_sigma_between_is_the_papers_variance():
     assert sigma.r_rad == pytest.approx(0.01)
 
 
-def test_sideways_sigma_grows_with_distance():
+def test_sigma_grows_with_the_lever_of_the_line_of_sight():
     sigma = Sigma(np.array([1e-3, 1e-3, 1e-3]), 1e-3)
-    far = at_distance(sigma, 4.0, 0.75)
+    calibration = lever_sq(np.array([0.0, 0.0, 0.75]))
+    far = at_position(sigma, np.array([0.0, 0.0, 4.0]), calibration)
     assert far.t_m[0] == pytest.approx(np.sqrt(1e-6 + 1e-6 * (16 - 0.5625)))
-    assert far.t_m[2] == sigma.t_m[2] and far.r_rad == sigma.r_rad
-    np.testing.assert_allclose(at_distance(sigma, 0.5, 0.75).t_m, sigma.t_m)
+    assert far.t_m[2] == sigma.t_m[2] and far.r_rad == sigma.r_rad  # on the axis, depth does not move
+    off_axis = at_position(sigma, np.array([1.0, 0.0, 4.0]), calibration)
+    assert off_axis.t_m[2] == pytest.approx(np.sqrt(1e-6 + 1e-6 * 1.0))  # off the axis it does
+    np.testing.assert_allclose(at_position(sigma, np.array([0.0, 0.0, 0.5]), calibration).t_m, sigma.t_m)
