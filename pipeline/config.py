@@ -216,8 +216,11 @@ class VirtualConfig:
     vicon_fov_rad: float = param(1.35, "full field of view of a motion-capture camera (Vicon Vero: 77 deg)", "rad")
     vicon_max_range_m: float = param(9.0, "farthest marker a motion-capture camera resolves", "m")
     vicon_marker_sigma_m: float = param(
-        0.00045, "1-sigma marker position noise seen by two cameras (Vicon systems: sub-millimetre); "
+        0.0003, "1-sigma marker position noise seen by two cameras (Vicon systems: sub-millimetre); "
         "scales with sqrt(2 / cameras)", "m")
+    vicon_model_noise_factor: float = param(
+        2.0, "marker noise on the mock-up relative to the camera's markers: its reflective foil and panels "
+        "blur the marker images (the paper blames 'the reflective surfaces of the RSO model')", "1")
     vicon_ghost_rate: float = param(
         0.04, "probability that a tracked rigid body includes one ghost or mislabelled marker", "1")
     vicon_ghost_offset_m: tuple[float, float] = param((0.005, 0.03), "range of a ghost marker's displacement", "m")

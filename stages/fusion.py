@@ -22,9 +22,17 @@ REJECTION_K = 1.96
 class Sigma:
     t_m: np.ndarray  # (3,)
     r_rad: float
+    pointing_rad: float | None = None  # the part of r_rad that turns the line of sight (None: all of it)
 
     def to_json(self) -> dict:
-        return {"sigma_t_m": [float(v) for v in self.t_m], "sigma_r_rad": float(self.r_rad)}
+        out = {"sigma_t_m": [float(v) for v in self.t_m], "sigma_r_rad": float(self.r_rad)}
+        if self.pointing_rad is not None:
+            out["sigma_pointing_rad"] = float(self.pointing_rad)
+        return out
+
+    @classmethod
+    def from_json(cls, entry: dict) -> Sigma:
+        return cls(np.array(entry["sigma_t_m"]), entry["sigma_r_rad"], entry.get("sigma_pointing_rad"))
 
 
 def lever_sq(t: np.ndarray) -> np.ndarray:
@@ -38,23 +46,33 @@ def at_position(sigma: Sigma, t: np.ndarray, calibration_lever_sq: np.ndarray) -
     """Sigma of a pose whose target is at ``t`` (3,) in the camera frame, from a sigma measured
     on calibration samples whose mean ``lever_sq`` was ``calibration_lever_sq`` (3,).
 
-    A rotation error of the line of sight (``sigma.r_rad``, taken whole as the camera's:
-    conservative) moves the target by ``d theta x t``; per axis its variance grows by
-    ``s_r^2 (lever_sq(t) - lever_sq(calibration))``. Distance-independent errors keep their
-    calibrated size."""
-    grow = sigma.r_rad**2 * np.maximum(lever_sq(t) - np.asarray(calibration_lever_sq), 0.0)
-    return Sigma(np.sqrt(sigma.t_m**2 + grow), sigma.r_rad)
+    A rotation error of the line of sight (``sigma.pointing_rad``; all of ``r_rad`` when
+    unknown, which is conservative) moves the target by ``d theta x t``; per axis its
+    variance grows by ``s^2 (lever_sq(t) - lever_sq(calibration))``. Distance-independent
+    errors keep their calibrated size."""
+    pointing = sigma.r_rad if sigma.pointing_rad is None else sigma.pointing_rad
+    grow = pointing**2 * np.maximum(lever_sq(t) - np.asarray(calibration_lever_sq), 0.0)
+    return Sigma(np.sqrt(sigma.t_m**2 + grow), sigma.r_rad, sigma.pointing_rad)
 
 
 def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:
     """The paper's variances of ``estimates`` about ``references`` (N, 4, 4): per camera axis
-    ``sum (t - t_ref)^2 / (N - 1)``, and the same of the rotation angle."""
+    ``sum (t - t_ref)^2 / (N - 1)``, and the same of the rotation angle.
+
+    Also the pointing share of the rotation error: a rotation ``d`` of the line of sight
+    moves the target by ``d x t``, one of the target about itself does not. Regressing the
+    translation errors on ``d x t`` gives the share ``a`` (0..1) of the rotation variance
+    that turns the line of sight: ``pointing = sqrt(a) * sigma_r``."""
     n = len(estimates)
     if n < 2:
         raise ValueError("variances need at least two samples")
     dt = estimates[:, :3, 3] - references[:, :3, 3]
     angle = g.angular_distance(estimates[:, :3, :3], references[:, :3, :3])
-    return Sigma(np.sqrt(np.sum(dt**2, axis=0) / (n - 1)), float(np.sqrt(np.sum(angle**2) / (n - 1))))
+    rotation_error = g.matrix_to_rotvec(estimates[:, :3, :3] @ np.swapaxes(references[:, :3, :3], -1, -2))
+    lever = np.cross(rotation_error, references[:, :3, 3])
+    share = float(np.clip(np.sum(lever * dt) / max(np.sum(lever * lever), 1e-30), 0.0, 1.0))
+    sigma_r = float(np.sqrt(np.sum(angle**2) / (n - 1)))
+    return Sigma(np.sqrt(np.sum(dt**2, axis=0) / (n - 1)), sigma_r, float(np.sqrt(share) * sigma_r))
 
 
 def fuse(pose_a: np.ndarray, sigma_a: Sigma, pose_b: np.ndarray, sigma_b: Sigma) -> tuple[np.ndarray, Sigma]:

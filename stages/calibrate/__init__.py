@@ -213,7 +213,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         kuka = np.stack([predictions["kuka"][o.sample_id] for o in both])
         vicon = np.stack([predictions["vicon"][o.sample_id] for o in both])
         results["rejection"] = sigma_between(vicon, kuka).to_json()
-        sigma = {s: Sigma(np.array(results[s]["sigma_t_m"]), results[s]["sigma_r_rad"]) for s in ("kuka", "vicon")}
+        sigma = {s: Sigma.from_json(results[s]) for s in ("kuka", "vicon")}
         fused = {}
         for label, suffix in (("in_sample", ""), ("cross_validated", "_cv")):
             fused[label] = np.stack([fuse(predictions[f"kuka{suffix}"][o.sample_id], sigma["kuka"],

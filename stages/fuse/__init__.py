@@ -33,7 +33,7 @@ class SourceModel:
     def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray) -> None:
         self.z = _pose(entry[z_name])
         self.x = {fixture: _pose(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
-        self.sigma = Sigma(np.array(entry["sigma_t_m"]), entry["sigma_r_rad"])
+        self.sigma = Sigma.from_json(entry)
         self.calibration_lever_sq = calibration_lever_sq
 
     def estimate(self, b: np.ndarray, fixture: str, sample_id: str) -> np.ndarray:
@@ -57,7 +57,7 @@ def load_models(workspace: Workspace) -> tuple[SourceModel, SourceModel | None, 
     rejection = None
     if calibration.get("vicon"):
         vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever)
-        rejection = Sigma(np.array(calibration["rejection"]["sigma_t_m"]), calibration["rejection"]["sigma_r_rad"])
+        rejection = Sigma.from_json(calibration["rejection"])
     return kuka, vicon, rejection
 
 

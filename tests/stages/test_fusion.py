@@ -65,3 +65,18 @@ def test_sigma_grows_with_the_lever_of_the_line_of_sight():
     off_axis = at_position(sigma, np.array([1.0, 0.0, 4.0]), calibration)
     assert off_axis.t_m[2] == pytest.approx(np.sqrt(1e-6 + 1e-6 * 1.0))  # off the axis it does
     np.testing.assert_allclose(at_position(sigma, np.array([0.0, 0.0, 0.5]), calibration).t_m, sigma.t_m)
+
+
+def test_pointing_share_tells_camera_turns_from_target_turns():
+    rng = np.random.default_rng(1)
+    references = np.stack([pose(rng.normal(size=3), [*rng.uniform(-0.2, 0.2, 2), 0.75]) for _ in range(200)])
+    turns = g.rotvec_to_matrix(rng.normal(scale=2e-3, size=(200, 3)))
+    camera_turned = references.copy()
+    camera_turned[:, :3, :3] = turns @ references[:, :3, :3]
+    camera_turned[:, :3, 3] = np.einsum("nij,nj->ni", turns, references[:, :3, 3])
+    target_turned = references.copy()
+    target_turned[:, :3, :3] = references[:, :3, :3] @ turns  # about the target's own origin
+    camera = sigma_between(camera_turned, references)
+    target = sigma_between(target_turned, references)
+    assert camera.pointing_rad == pytest.approx(camera.r_rad, rel=0.02)
+    assert target.pointing_rad < 0.1 * target.r_rad

@@ -77,7 +77,8 @@ class VirtualTestbed:
                                     truth.vicon_world_from_world, segments, state.world_from_target)
         target_body = mocap.observe(config, rng, self.target_markers_rb,
                                     state.world_from_target @ truth.target_from_targetrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target)
+                                    truth.vicon_world_from_world, segments, state.world_from_target,
+                                    config.virtual.vicon_model_noise_factor)
         image = self.photograph(state, sample["light"], list(sample["light_boxes"]), session == "calibration",
                                 rng, seed=SESSION_CODES[session] * 1_000_000 + index)
         image_path = self.workspace.image_relpath(session, sample_id)

@@ -127,13 +127,14 @@ def kabsch(model: np.ndarray, observed: np.ndarray) -> np.ndarray:
 
 def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, world_from_rb: np.ndarray,
             vicon_world_from_world: np.ndarray, link_segments: np.ndarray,
-            world_from_target: np.ndarray) -> RigidBodyObservation:
-    """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``."""
+            world_from_target: np.ndarray, noise_factor: float = 1.0) -> RigidBodyObservation:
+    """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``;
+    ``noise_factor`` scales the marker noise (markers on reflective surfaces)."""
     v = config.virtual
     markers_world = g.apply(world_from_rb, markers_rb)
     cameras_seeing = visibility(config, markers_world, link_segments, world_from_target).sum(axis=0)
     counted = cameras_seeing >= MIN_CAMERAS
-    sigma = v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))
+    sigma = noise_factor * v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))
     noisy = markers_world + rng.normal(size=markers_world.shape) * sigma[:, None]
     ghost = bool(rng.uniform() < v.vicon_ghost_rate)
     visible = np.flatnonzero(counted)
