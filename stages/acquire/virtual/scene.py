@@ -27,8 +27,39 @@ _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked
 MITSUBA_FROM_OPENCV = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
+_CACHE_LOCKS: list[int] = []
+
+
+def private_kernel_cache() -> None:
+    """Give this process a Dr.Jit kernel cache of its own (before Dr.Jit is imported).
+
+    Processes rendering at the same time through one shared ``~/.drjit`` cache were seen to
+    produce different images from the same seed; each process takes the first free cache
+    slot (an flock held for its lifetime, released even when it is killed) and reuses it.
+    """
+    if "DRJIT_CACHE_DIR" in os.environ:
+        return
+    import fcntl
+    from pathlib import Path
+
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "drjit"
+    for slot in range(256):
+        directory = base / f"slot-{slot}"
+        directory.mkdir(parents=True, exist_ok=True)
+        handle = os.open(directory / ".lock", os.O_CREAT | os.O_RDWR)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(handle)
+            continue
+        _CACHE_LOCKS.append(handle)
+        os.environ["DRJIT_CACHE_DIR"] = str(directory)
+        return
+
+
 def load_mitsuba() -> Any:
     """Mitsuba with the fast LLVM variant, or ``scalar_rgb`` (about 25x slower) with a warning."""
+    private_kernel_cache()
     import mitsuba as mi
 
     if not os.environ.get("DRJIT_LIBLLVM_PATH"):

@@ -108,14 +108,18 @@ class Sensor:
     def expose(self, radiance: np.ndarray, exposure: float, rng: np.random.Generator,
                glare: np.ndarray | None = None) -> np.ndarray:
         """Radiance (H, W) after the lens -> uint8 image: electrons = radiance * exposure *
-        full well, Poisson shot noise, Gaussian read noise, clipping at full well, gamma,
-        8-bit quantisation."""
+        full well, shot noise (Gaussian approximation of Poisson), Gaussian read noise,
+        clipping at full well, gamma, 8-bit quantisation."""
         full_well = self.virtual.full_well_e
         signal = np.clip(radiance, 0, None) * exposure
         if glare is not None:
             signal = signal + glare
-        electrons = rng.poisson(np.clip(signal, 0, 4.0) * full_well).astype(np.float64)
-        electrons += rng.normal(0.0, self.virtual.read_noise_e, electrons.shape)
+        expected = np.clip(signal, 0, 4.0) * full_well
+        # Shot noise as sqrt(n) * z with one standard normal per pixel, so that the noise does
+        # not reshuffle when the expected count changes in its last bits (a Poisson sampler
+        # consumes a varying amount of randomness); read noise dominates where n is small.
+        shot, read = rng.standard_normal((2, *expected.shape))
+        electrons = expected + np.sqrt(expected) * shot + self.virtual.read_noise_e * read
         linear = np.clip(electrons / full_well, 0.0, 1.0)
         encoded = np.power(linear, 1.0 / self.virtual.gamma)
         return np.round(encoded * 255.0).astype(np.uint8)
