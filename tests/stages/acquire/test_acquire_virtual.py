@@ -105,4 +105,5 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
         b = cv2.imread(str(smoke_workspace.resolve(name)), cv2.IMREAD_UNCHANGED).astype(float)
         # Monte-Carlo noise can differ with a worker's render history (a known issue; the
         # render stage must fix it for its byte-identical twins): compare content, not noise
-        assert np.abs(a - b).mean() < 1.5 and abs(a.mean() - b.mean()) < 0.5, name
+        blurred_a, blurred_b = cv2.GaussianBlur(a, (0, 0), 2), cv2.GaussianBlur(b, (0, 0), 2)
+        assert np.abs(blurred_a - blurred_b).mean() < 1.0 and abs(a.mean() - b.mean()) < 0.5, name
