@@ -14,7 +14,7 @@ import math
 import tomllib
 import types
 import typing
-from dataclasses import MISSING, dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -307,7 +307,6 @@ class Config:
         return getattr(self, name)
 
 
-SECTIONS: dict[str, type] = {f.name: f.type for f in fields(Config) if f.name != "profile"}
 SECTION_TYPES: dict[str, type] = {
     "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
     "acquire": AcquireConfig, "virtual": VirtualConfig, "calibrate": CalibrateConfig, "fuse": FuseConfig,
@@ -508,13 +507,3 @@ def write_config(config: Config, path: Path) -> None:
     temporary.write_text("# resolved SPEED+ builder configuration (written by speedplus)\n"
                          + tomli_w.dumps(to_dict(config)))
     temporary.replace(path)
-
-
-def describe(section_name: str) -> list[tuple[str, str, str, str]]:
-    """(key, default, unit, help) of every field of a section, for documentation."""
-    rows = []
-    for f in fields(SECTION_TYPES[section_name]):
-        default = f.default if f.default is not MISSING else "-"
-        rows.append((f"{section_name}.{f.name}", repr(default), f.metadata.get("unit", ""),
-                     f.metadata.get("help", "")))
-    return rows
