@@ -54,15 +54,6 @@ def target_from_board(testbed: TestbedConfig) -> np.ndarray:
     return g.transform_from_qt(testbed.target_from_board_q, testbed.target_from_board_t_m)
 
 
-def board_inner_corners(testbed: TestbedConfig) -> np.ndarray:
-    """(M, 3) inner chessboard corners of the ChArUco board in the board frame, metres,
-    in OpenCV's ChArUco id order (row-major from the origin)."""
-    squares_x, squares_y = testbed.board_squares
-    xs, ys = np.meshgrid(np.arange(1, squares_x), np.arange(1, squares_y))
-    corners = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
-    return corners * testbed.board_square_m
-
-
 def board_centre(testbed: TestbedConfig) -> np.ndarray:
     """(3,) board centre in the board frame, metres."""
     squares_x, squares_y = testbed.board_squares

@@ -12,6 +12,7 @@ from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
 from pipeline.errors import InputError
 from stages import geometry as g
 from stages import layout, tango
+from stages.patterns import board_pattern
 
 #: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
 _MAX_VISIBILITY_DRAWS = 1000
@@ -34,7 +35,7 @@ def calibration_pose(rng: np.random.Generator, plan: PlanConfig, testbed: Testbe
     Redrawn until ``calibration_min_corner_fraction`` of the inner corners are in the image.
     """
     target_from_board = layout.target_from_board(testbed)
-    corners_target = g.apply(target_from_board, layout.board_inner_corners(testbed))
+    corners_target = g.apply(target_from_board, board_pattern(testbed).object_points())
     centre_board = layout.board_centre(testbed)
     for _ in range(_MAX_VISIBILITY_DRAWS):
         tilt = rng.uniform(0.0, plan.calibration_max_tilt_rad)

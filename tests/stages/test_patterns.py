@@ -7,10 +7,13 @@ from stages import layout
 from stages.patterns import PatternSpec, board_pattern
 
 
-def test_charuco_corners_match_the_layout_and_survive_json():
+def test_charuco_corners_are_the_inner_corners_row_by_row_and_survive_json():
     testbed = load_config("default").testbed
     spec = board_pattern(testbed)
-    np.testing.assert_allclose(spec.object_points(), layout.board_inner_corners(testbed), atol=1e-12)
+    xs, ys = np.meshgrid(np.arange(1, 11), np.arange(1, 11))
+    expected = np.stack([xs.ravel(), ys.ravel(), np.zeros(100)], axis=1) * 0.030
+    np.testing.assert_allclose(spec.object_points(), expected, atol=1e-12)
+    np.testing.assert_allclose(layout.board_centre(testbed), [0.165, 0.165, 0.0])
     assert PatternSpec.from_json(spec.to_json()) == spec
 
 

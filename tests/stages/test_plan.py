@@ -11,6 +11,7 @@ from pipeline.config import load_config
 from stages import geometry as g
 from stages import layout, tango
 from stages.kinematics import KR16_2, forward, limit_margin
+from stages.patterns import board_pattern
 from stages.plan import PlanningError, plan_sample, sample_ids
 
 
@@ -85,7 +86,7 @@ def test_dataset_range_and_model_in_frame(default_config, default_plan):
 def test_calibration_poses_look_at_the_board(default_config, default_plan):
     testbed, plan, camera = default_config.testbed, default_config.plan, default_config.camera
     target_from_board = layout.target_from_board(testbed)
-    corners = g.apply(target_from_board, layout.board_inner_corners(testbed))
+    corners = g.apply(target_from_board, board_pattern(testbed).object_points())
     tilts = []
     for row in default_plan[:64]:
         cam_from_board = pose(row, "cam_from_target") @ target_from_board
