@@ -17,31 +17,14 @@ BOP (``--format bop``)::
 
 from __future__ import annotations
 
-import json
-import os
-import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manifests.io import read_manifest
+from manifests.io import copy_atomic, read_manifest, write_json_atomic
 from manifests.workspace import Workspace
 from stages import geometry as g
-
-
-def _write_json(path: Path, payload: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_text(json.dumps(payload, indent=2) + "\n")
-    os.replace(temporary, path)
-
-
-def _copy(source: Path, destination: Path) -> None:
-    destination.parent.mkdir(parents=True, exist_ok=True)
-    temporary = destination.with_name(f".{destination.name}.tmp")
-    shutil.copyfile(source, temporary)
-    os.replace(temporary, destination)
 
 
 def camera_json(camera_matrix: np.ndarray, dist: np.ndarray, width: int, height: int,
@@ -62,7 +45,7 @@ def _labels_and_images(workspace: Workspace) -> tuple[list[dict[str, Any]], dict
 def export_speedplus(workspace: Workspace, out: Path, camera: dict[str, Any]) -> dict[str, int]:
     """Write the SPEED+ layout; returns the number of labels per domain."""
     labels, images = _labels_and_images(workspace)
-    _write_json(out / "camera.json", camera)
+    write_json_atomic(out / "camera.json", camera)
     counts: dict[str, int] = {}
     for domain in ("lightbox", "sunlamp"):
         chosen = [r for r in labels if r["domain"] == domain]
@@ -70,10 +53,10 @@ def export_speedplus(workspace: Workspace, out: Path, camera: dict[str, Any]) ->
             continue
         entries = []
         for row in chosen:
-            _copy(workspace.resolve(images[row["sample_id"]]), out / domain / "images" / row["filename"])
+            copy_atomic(workspace.resolve(images[row["sample_id"]]), out / domain / "images" / row["filename"])
             entries.append({"filename": row["filename"], "q_vbs2tango_true": list(row["q_vbs2tango_true"]),
                             "r_Vo2To_vbs_true": list(row["r_Vo2To_vbs_true"])})
-        _write_json(out / domain / "test.json", entries)
+        write_json_atomic(out / domain / "test.json", entries)
         counts[domain] = len(entries)
     return counts
 
@@ -88,15 +71,15 @@ def export_bop(workspace: Workspace, out: Path, camera_matrix: np.ndarray) -> di
             continue
         scene_camera, scene_gt, ids = {}, {}, {}
         for im_id, row in enumerate(chosen):
-            _copy(workspace.resolve(images[row["sample_id"]]), out / domain / "rgb" / f"{im_id:06d}.png")
+            copy_atomic(workspace.resolve(images[row["sample_id"]]), out / domain / "rgb" / f"{im_id:06d}.png")
             rotation = g.quat_to_matrix(row["q_vbs2tango_true"])
             scene_camera[str(im_id)] = {"cam_K": camera_matrix.ravel().tolist(), "depth_scale": 1.0}
             scene_gt[str(im_id)] = [{"cam_R_m2c": rotation.ravel().tolist(),
                                      "cam_t_m2c": (np.asarray(row["r_Vo2To_vbs_true"]) * 1000.0).tolist(),
                                      "obj_id": 1}]
             ids[str(im_id)] = row["sample_id"]
-        _write_json(out / domain / "scene_camera.json", scene_camera)
-        _write_json(out / domain / "scene_gt.json", scene_gt)
-        _write_json(out / domain / "image_ids.json", ids)
+        write_json_atomic(out / domain / "scene_camera.json", scene_camera)
+        write_json_atomic(out / domain / "scene_gt.json", scene_gt)
+        write_json_atomic(out / domain / "image_ids.json", ids)
         counts[domain] = len(chosen)
     return counts

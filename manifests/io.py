@@ -24,7 +24,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from manifests.schema import MANIFESTS, SCHEMA_VERSION, Column, ManifestSpec
-from manifests.workspace import PART_TEMPLATE, SUCCESS_FILE, PathEscapeError, Workspace, check_relative
+from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
 
 QUATERNION_TOLERANCE = 1e-6
 _PART_RE = re.compile(r"^part-(\d{5})\.parquet$")
@@ -222,6 +222,22 @@ def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | 
     return final
 
 
+def write_json_atomic(path: Path, payload: Any) -> None:
+    """Write JSON under a temporary name and rename it: readers never see half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text(json.dumps(payload, indent=2) + "\n")
+    os.replace(temporary, path)
+
+
+def copy_atomic(source: Path, destination: Path) -> None:
+    """Copy a file under a temporary name and rename it: readers never see half a file."""
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    temporary = destination.with_name(f".{destination.name}.tmp")
+    shutil.copyfile(source, temporary)
+    os.replace(temporary, destination)
+
+
 def clear(workspace: Workspace, name: str) -> None:
     """Remove a manifest entirely (used by ``--force``)."""
     shutil.rmtree(workspace.manifest_dir(name), ignore_errors=True)
@@ -338,10 +354,7 @@ def read_keys(workspace: Workspace, name: str | ManifestSpec) -> set[str]:
 
 # ------------------------------------------------------------------------- success marker
 def write_success(workspace: Workspace, name: str, payload: Mapping[str, Any]) -> None:
-    path = workspace.success_path(name)
-    temporary = path.with_name(f".{SUCCESS_FILE}.tmp")
-    temporary.write_text(json.dumps(dict(payload), indent=2, sort_keys=True) + "\n")
-    os.replace(temporary, path)
+    write_json_atomic(workspace.success_path(name), dict(sorted(payload.items())))
 
 
 def read_success(workspace: Workspace, name: str) -> dict[str, Any] | None:

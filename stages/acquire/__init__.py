@@ -9,14 +9,13 @@ plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session``
 from __future__ import annotations
 
 import hashlib
-import json
-import os
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.engines import map_local
 from pipeline.progress import track
@@ -64,17 +63,11 @@ def outputs(config: Config) -> tuple[str, ...]:
     return ("captures", "truth") if config.acquire.backend == "virtual" else ("captures",)
 
 
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_text(json.dumps(payload, indent=2) + "\n")
-    os.replace(temporary, path)
-
-
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Capture every sample missing from the manifests; returns the ``captures`` table."""
     testbed = open_testbed(config, str(workspace.root))
     samples = testbed.samples()
-    _write_json(workspace.session_path, testbed.session())
+    write_json_atomic(workspace.session_path, testbed.session())
     with_truth = config.acquire.backend == "virtual"
     if with_truth:
         from stages.acquire.virtual.truth import write_truth_json

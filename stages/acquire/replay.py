@@ -17,7 +17,6 @@ images/<sample_id>.png
 from __future__ import annotations
 
 import math
-import shutil
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace
+from manifests.io import copy_atomic
 from manifests.schema import SESSIONS
 from stages import geometry as g
 from stages.acquire.backend import CaptureRecord, pose_columns
@@ -146,11 +146,7 @@ class SessionReplay:
         sample_id = sample["sample_id"]
         robot = self.robot[sample_id]
         image_path = self.workspace.image_relpath(robot["session"], sample_id)
-        destination = self.workspace.resolve(image_path)
-        destination.parent.mkdir(parents=True, exist_ok=True)
-        temporary = destination.with_name(f".{destination.name}.tmp")
-        shutil.copyfile(self.source / "images" / f"{sample_id}.png", temporary)
-        temporary.replace(destination)
+        copy_atomic(self.source / "images" / f"{sample_id}.png", self.workspace.resolve(image_path))
         empty = {"pose": None, "markers": 0}
         camera_body = self.mocap.get((sample_id, "camrb"), empty)
         target_body = self.mocap.get((sample_id, "targetrb"), empty)

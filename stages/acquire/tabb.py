@@ -10,13 +10,13 @@ robot world K) and the camera flange C_K is the hand. The only source is the rob
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from manifests import Workspace
+from manifests.io import copy_atomic
 from stages import geometry as g
 from stages.acquire.backend import CaptureRecord, pose_columns
 from stages.acquire.ingest import IngestError, check_rotation, check_translation_mm, read_text
@@ -103,11 +103,7 @@ class TabbReplay:
         hand_from_base = self.hand_from_base_mm[index].copy()
         hand_from_base[:3, 3] /= 1000.0  # millimetres, converted once, here
         image_path = self.workspace.image_relpath("calibration", sample["sample_id"])
-        destination = self.workspace.resolve(image_path)
-        destination.parent.mkdir(parents=True, exist_ok=True)
-        temporary = destination.with_name(f".{destination.name}.tmp")
-        shutil.copyfile(self.source / "images" / f"image{index}.png", temporary)
-        temporary.replace(destination)
+        copy_atomic(self.source / "images" / f"image{index}.png", self.workspace.resolve(image_path))
         captures = {
             "sample_id": sample["sample_id"], "session": "calibration", "fixture": "fixed", "image_path": image_path,
             **pose_columns("kuka_world_from_camee", g.invert(hand_from_base)),

@@ -8,13 +8,13 @@ Writes ``W/calibration.json`` and the ``calibration_samples`` manifest.
 from __future__ import annotations
 
 import json
-import os
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages import geometry as g
@@ -238,9 +238,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                               "pattern": spec.to_json(),
                               "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
                    "session": {"backend": session.get("backend"), "sources": session.get("sources")}}
-    temporary = workspace.root / ".calibration.json.tmp"
-    temporary.write_text(json.dumps(calibration, indent=2) + "\n")
-    os.replace(temporary, workspace.root / "calibration.json")
+    write_json_atomic(workspace.root / "calibration.json", calibration)
 
     with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:
         done = read_keys(workspace, "calibration_samples")

@@ -8,13 +8,13 @@ the motion-capture world frame.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from manifests.io import write_json_atomic
 from pipeline.config import Config
 from stages import geometry as g
 from stages import layout
@@ -102,6 +102,4 @@ def draw_truth(config: Config) -> Truth:
 
 
 def write_truth_json(truth: Truth, path: Path) -> None:
-    temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_text(json.dumps(truth.to_json(), indent=2) + "\n")
-    temporary.replace(path)
+    write_json_atomic(path, truth.to_json())
