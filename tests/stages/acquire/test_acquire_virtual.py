@@ -106,4 +106,5 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
         # Monte-Carlo noise can differ with a worker's render history (a known issue; the
         # render stage must fix it for its byte-identical twins): compare content, not noise
         blurred_a, blurred_b = cv2.GaussianBlur(a, (0, 0), 2), cv2.GaussianBlur(b, (0, 0), 2)
-        assert np.abs(blurred_a - blurred_b).mean() < 1.0 and abs(a.mean() - b.mean()) < 0.5, name
+        correlation = np.corrcoef(blurred_a.ravel(), blurred_b.ravel())[0, 1]  # another capture: ~0.2
+        assert correlation > 0.99 and abs(a.mean() - b.mean()) < 0.5, name
