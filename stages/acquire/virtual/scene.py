@@ -133,6 +133,8 @@ class TestbedScene:
         self._board_vertices = self._board(mi, objects)
         self.scene = mi.load_dict(objects)
         self.params = mi.traverse(self.scene)
+        self._opaque_keys = [key for key in self.params.keys() if key == "sensor.to_world"
+                             or key.endswith(("emitter.radiance.value", "emitter.sampling_weight"))]
 
     # ----------------------------------------------------------------------- construction
     def _room(self, mi: Any) -> dict[str, Any]:
@@ -252,6 +254,13 @@ class TestbedScene:
                  else self._board_vertices + _HIDDEN_OFFSET)
         self.params["board.vertex_positions"] = mi.Float(board.astype(np.float32).ravel())
         self.set_lights(light, boxes)
+        # Opaque parameters: literal values would be folded into the compiled kernel, whose
+        # random-number use (and so the image's noise) would then depend on the light set-up
+        # of whichever capture compiled it; opaque ones give one kernel for every capture.
+        import drjit as dr
+
+        for key in self._opaque_keys:
+            dr.make_opaque(self.params[key])
         self.params.update()
         image = np.array(mi.render(self.scene, spp=self.config.virtual.spp, seed=seed))
         return image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
