@@ -133,7 +133,8 @@ class TestbedScene:
         self._board_vertices = self._board(mi, objects)
         self.scene = mi.load_dict(objects)
         self.params = mi.traverse(self.scene)
-        self._opaque_keys = [key for key in self.params.keys() if key == "sensor.to_world"
+        names = list(self.params.keys())
+        self._opaque_keys = [key for key in names if key == "sensor.to_world"
                              or key.endswith(("emitter.radiance.value", "emitter.sampling_weight"))]
 
     # ----------------------------------------------------------------------- construction
