@@ -187,6 +187,25 @@ def transform_to_qt(a_from_b: ArrayLike) -> tuple[Array, Array]:
     return matrix_to_quat(a_from_b[..., :3, :3]), a_from_b[..., :3, 3].copy()
 
 
+def pose_columns(prefix: str, a_from_b: ArrayLike | None) -> dict[str, Array | None]:
+    """Manifest values ``<prefix>_q`` / ``<prefix>_t`` of a transform (both None when absent)."""
+    if a_from_b is None:
+        return {f"{prefix}_q": None, f"{prefix}_t": None}
+    q, t = transform_to_qt(a_from_b)
+    return {f"{prefix}_q": q, f"{prefix}_t": t}
+
+
+def pose_to_json(a_from_b: ArrayLike) -> dict[str, list[float]]:
+    """``{"q": [w, x, y, z], "t": [x, y, z]}`` of a transform (the layout of W/*.json)."""
+    q, t = transform_to_qt(a_from_b)
+    return {"q": q.tolist(), "t": t.tolist()}
+
+
+def pose_from_json(entry: dict[str, list[float]]) -> Array:
+    """Inverse of ``pose_to_json``."""
+    return transform_from_qt(entry["q"], entry["t"])
+
+
 def invert(a_from_b: ArrayLike) -> Array:
     """``b_from_a`` for rigid transforms ``a_from_b`` (..., 4, 4), exact (no matrix inverse)."""
     a_from_b = np.asarray(a_from_b, dtype=np.float64)

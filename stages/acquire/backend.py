@@ -17,8 +17,6 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from stages import geometry as g
-
 
 @dataclass(frozen=True)
 class CaptureRecord:
@@ -32,14 +30,6 @@ class Testbed(Protocol):
     def capture(self, sample: dict[str, Any]) -> CaptureRecord: ...
 
     def session(self) -> dict[str, Any]: ...
-
-
-def pose_columns(prefix: str, a_from_b: np.ndarray | None) -> dict[str, Any]:
-    """``<prefix>_q`` / ``_t`` manifest values (None for an untracked pose)."""
-    if a_from_b is None:
-        return {f"{prefix}_q": None, f"{prefix}_t": None}
-    q, t = g.transform_to_qt(a_from_b)
-    return {f"{prefix}_q": q, f"{prefix}_t": t}
 
 
 def write_png_atomic(path: Path, image: np.ndarray) -> None:

@@ -27,8 +27,9 @@ from manifests import Workspace
 from manifests.io import copy_atomic
 from manifests.schema import SESSIONS
 from stages import geometry as g
-from stages.acquire.backend import CaptureRecord, pose_columns
+from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import IngestError, check_finite, check_translation, number, read_csv, read_text
+from stages.geometry import pose_columns
 from stages.patterns import PatternSpec
 
 ROBOT_COLUMNS = ["sample_id", "session", "rail"] + [f"{body}_{axis}" for body in ("camee", "targetee")

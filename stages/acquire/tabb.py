@@ -18,8 +18,9 @@ import numpy as np
 from manifests import Workspace
 from manifests.io import copy_atomic
 from stages import geometry as g
-from stages.acquire.backend import CaptureRecord, pose_columns
+from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import IngestError, check_rotation, check_translation_mm, read_text
+from stages.geometry import pose_columns
 from stages.patterns import PatternSpec
 
 

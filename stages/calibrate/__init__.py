@@ -30,11 +30,6 @@ OFFSET_NAMES = {"kuka": ("cam_from_camee", "target_from_targetee"),
                 "vicon": ("cam_from_camrb", "target_from_targetrb")}
 
 
-def pose_json(a_from_b: np.ndarray) -> dict[str, list[float]]:
-    q, t = g.transform_to_qt(a_from_b)
-    return {"q": q.tolist(), "t": t.tolist()}
-
-
 def measurement(row: dict[str, Any], source: str) -> np.ndarray | None:
     """``B_i`` of a capture for a source (4, 4), or None when the source did not measure it."""
     if source == "kuka":
@@ -180,9 +175,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         predicted = solution.predict(b, fixtures)
         cross = cross_validate(config, a, b, fixtures, used, intrinsics)
         entry = results[source] = {
-            **{name: pose_json(offset) for name, offset in
+            **{name: g.pose_to_json(offset) for name, offset in
                zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
-            f"{OFFSET_NAMES[source][1]}_by_fixture": {f: pose_json(x) for f, x in solution.x.items()},
+            f"{OFFSET_NAMES[source][1]}_by_fixture": {f: g.pose_to_json(x) for f, x in solution.x.items()},
             **sigma_between(predicted, a).to_json(),
             "samples": len(used),
             "outliers": outliers,

@@ -23,16 +23,12 @@ from stages.fusion import Sigma, at_position, fuse, rejection_reason
 CALIBRATION_FILE = "calibration.json"
 
 
-def _pose(entry: dict[str, list[float]]) -> np.ndarray:
-    return g.transform_from_qt(entry["q"], entry["t"])
-
-
 class SourceModel:
     """One source's calibrated offsets and uncertainty."""
 
     def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray) -> None:
-        self.z = _pose(entry[z_name])
-        self.x = {fixture: _pose(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
+        self.z = g.pose_from_json(entry[z_name])
+        self.x = {fixture: g.pose_from_json(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
         self.sigma = Sigma.from_json(entry)
         self.calibration_lever_sq = calibration_lever_sq
 

@@ -39,11 +39,6 @@ def sample_ids(config: Config) -> list[tuple[str, int, str]]:
     return ids
 
 
-def _pose_columns(prefix: str, a_from_b: np.ndarray) -> dict[str, np.ndarray]:
-    q, t = g.transform_to_qt(a_from_b)
-    return {f"{prefix}_q": q, f"{prefix}_t": t}
-
-
 def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dict:
     """One row of the plan manifest. Unreachable relative poses are redrawn and counted."""
     plan, testbed, camera = config.plan, config.testbed, config.camera
@@ -79,7 +74,7 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dic
     return {
         "sample_id": sample_id,
         "session": session,
-        **_pose_columns("cam_from_target", cam_from_target),
+        **g.pose_columns("cam_from_target", cam_from_target),
         "view": view,
         "light": light,
         "light_boxes": boxes,
@@ -87,8 +82,8 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dic
         "rail_m": commands.rail_m,
         "camera_joints_rad": commands.camera_joints_rad,
         "target_joints_rad": commands.target_joints_rad,
-        **_pose_columns("world_from_camee", commands.world_from_camee),
-        **_pose_columns("world_from_targetee", commands.world_from_targetee),
+        **g.pose_columns("world_from_camee", commands.world_from_camee),
+        **g.pose_columns("world_from_targetee", commands.world_from_targetee),
         "reachable": True,
         "redraws": redraws,
     }

@@ -179,3 +179,13 @@ def test_look_at_rotation_points_boresight_and_keeps_image_up():
     np.testing.assert_allclose(world_from_cam[:, 2], [1, 0, 0], atol=1e-15)
     np.testing.assert_allclose(world_from_cam[:, 1], [0, 0, -1], atol=1e-15)  # y down
     assert np.isclose(np.linalg.det(world_from_cam), 1.0)
+
+
+def test_pose_json_and_manifest_columns_round_trip():
+    rng = np.random.default_rng(9)
+    a_from_b = g.transform_from_qt(g.random_quats(rng, 1)[0], rng.normal(size=3))
+    np.testing.assert_allclose(g.pose_from_json(g.pose_to_json(a_from_b)), a_from_b, atol=1e-12)
+    columns = g.pose_columns("cam_from_target", a_from_b)
+    np.testing.assert_allclose(g.transform_from_qt(columns["cam_from_target_q"], columns["cam_from_target_t"]),
+                               a_from_b, atol=1e-12)
+    assert g.pose_columns("vicon", None) == {"vicon_q": None, "vicon_t": None}

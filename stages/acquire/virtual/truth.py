@@ -41,10 +41,7 @@ class Truth:
     vicon_world_from_world: np.ndarray
 
     def to_json(self) -> dict[str, Any]:
-        def pose(a_from_b: np.ndarray) -> dict[str, list[float]]:
-            q, t = g.transform_to_qt(a_from_b)
-            return {"q": q.tolist(), "t": t.tolist()}
-
+        pose = g.pose_to_json
         return {
             "camera_arm": asdict(self.camera_arm),
             "target_arm": asdict(self.target_arm),
