@@ -131,7 +131,7 @@ class TestbedScene:
                                                   part.uv, self._mockup_bsdf(mi, name, rng))
             self._parts[f"model_{name}"] = part.vertices * self.scale
         self._board_vertices = self._board(mi, objects)
-        self.scene = mi.load_dict(objects)
+        self.scene = mi.load_dict(objects, parallel=False, optimize=False)
         self.params = mi.traverse(self.scene)
         names = list(self.params.keys())
         self._opaque_keys = [key for key in names if key == "sensor.to_world"

@@ -100,11 +100,7 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
     assert got.equals(reference)
     truth = read_manifest(Workspace(ws), "truth")
     assert sorted(truth.column("sample_id").to_pylist()) == got.column("sample_id").to_pylist()
-    for name in got.column("image_path").to_pylist():  # the images show the same scene
-        a = cv2.imread(str(Workspace(ws).resolve(name)), cv2.IMREAD_UNCHANGED).astype(float)
-        b = cv2.imread(str(smoke_workspace.resolve(name)), cv2.IMREAD_UNCHANGED).astype(float)
-        # Monte-Carlo noise can differ with a worker's render history (a known issue; the
-        # render stage must fix it for its byte-identical twins): compare content, not noise
-        blurred_a, blurred_b = cv2.GaussianBlur(a, (0, 0), 2), cv2.GaussianBlur(b, (0, 0), 2)
-        correlation = np.corrcoef(blurred_a.ravel(), blurred_b.ravel())[0, 1]  # another capture: ~0.2
-        assert correlation > 0.99 and abs(a.mean() - b.mean()) < 0.5, name
+    for name in got.column("image_path").to_pylist():  # a worker's render history changes nothing
+        a = cv2.imread(str(Workspace(ws).resolve(name)), cv2.IMREAD_UNCHANGED)
+        b = cv2.imread(str(smoke_workspace.resolve(name)), cv2.IMREAD_UNCHANGED)
+        assert np.array_equal(a, b), name
