@@ -230,6 +230,17 @@ def write_json_atomic(path: Path, payload: Any) -> None:
     os.replace(temporary, path)
 
 
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write bytes under a temporary name, fsync, rename: readers never see half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp")
+    with open(temporary, "wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(temporary, path)
+
+
 def copy_atomic(source: Path, destination: Path) -> None:
     """Copy a file under a temporary name and rename it: readers never see half a file."""
     destination.parent.mkdir(parents=True, exist_ok=True)

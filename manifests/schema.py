@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -194,21 +194,30 @@ LABELS = ManifestSpec(
     ),
 )
 
-RENDERS = ManifestSpec(
-    "renders",
-    "synthetic images: twins of labelled captures and the training set",
-    (
-        _sample_id(),
-        Column("set", pa.string(), "", "twin of a label or training image", kind="enum", allowed=("twin", "train")),
-        Column("image_path", pa.string(), "", "PNG relative to the workspace", kind="path"),
-        Column("mask_path", pa.string(), "", "mask PNG relative to the workspace", kind="path"),
-        Column("q_vbs2tango_true", QUAT, "1", "rotation of cam_from_target, Hamilton (w, x, y, z)", kind="quaternion"),
-        Column("r_Vo2To_vbs_true", VEC3, "m", "translation of cam_from_target, full scale"),
-        Column("light_dir_cam", VEC3, "1", "unit direction towards the light, camera frame"),
-        Column("spp", pa.int32(), "count", "samples per pixel"),
-        Column("seconds", pa.float64(), "s", "render wall time"),
-    ),
+_RENDER_COLUMNS = (
+    _sample_id(),
+    Column("set", pa.string(), "", "twin of a label or training image", kind="enum", allowed=("twin", "train")),
+    Column("image_path", pa.string(), "", "8-bit RGB PNG relative to the workspace", kind="path"),
+    Column("mask_path", pa.string(), "", "8-bit mask PNG (255: the target covers the pixel centre)", kind="path"),
+    Column("q_vbs2tango_true", QUAT, "1", "rotation of cam_from_target, Hamilton (w, x, y, z)", kind="quaternion"),
+    Column("r_Vo2To_vbs_true", VEC3, "m", "translation of cam_from_target, full scale"),
+    Column("light_dir_cam", VEC3, "1", "unit direction from the target towards the light, camera frame"),
+    Column("irradiance", pa.float64(), "W/m^2", "irradiance of the directional light"),
+    Column("earth", pa.bool_(), "", "the Earth is in the background"),
+    Column("keypoints_px", KEYPOINTS, "px", "the 11 Tango keypoints, distorted image coordinates"),
+    Column("bbox_px", BBOX, "px", "x_min, y_min, x_max, y_max of the mask (pixel centres)"),
+    Column("width", pa.int32(), "px", "image width"),
+    Column("height", pa.int32(), "px", "image height"),
+    Column("seed", pa.int64(), "", "Monte-Carlo seed of this image"),
+    Column("spp", pa.int32(), "count", "samples per pixel"),
+    Column("seconds", pa.float64(), "s", "render wall time"),
 )
+
+RENDERS = ManifestSpec("renders", "synthetic twins of the labelled testbed captures (same pose, aligned light)",
+                       _RENDER_COLUMNS)
+
+TRAIN = ManifestSpec("train", "the synthetic training set: SO(3)-uniform poses, random lights (SPEED+-like)",
+                     _RENDER_COLUMNS)
 
 PREDICTIONS = ManifestSpec(
     "predictions",
@@ -228,5 +237,6 @@ PREDICTIONS = ManifestSpec(
 )
 
 MANIFESTS: dict[str, ManifestSpec] = {
-    spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, PREDICTIONS)
+    spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
+                                  PREDICTIONS)
 }

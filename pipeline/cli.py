@@ -53,10 +53,14 @@ def _context(workspace: Path | None, profile: str | None, config: Path | None,
 
 
 def _run(stages: list[str], workspace: Path | None, profile: str | None, config: Path | None,
-         overrides: list[str] | None, force: bool) -> None:
+         overrides: list[str] | None, force: bool, transient: list[str] | None = None) -> None:
+    """Run ``stages``; ``overrides`` are saved in W/config.toml, ``transient`` ones (which
+    choose what a command does, e.g. the image set or engine of render) apply to this run only."""
     resolved, ws = _context(workspace, profile, config, overrides)
     ws.root.mkdir(parents=True, exist_ok=True)
     write_config(resolved, ws.config_path)
+    if transient:
+        resolved = load_config(resolved.profile, ws.config_path, transient)
     if resolved.acquire.backend == "replay" and len(stages) > 1:
         stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
     last_done = None
@@ -88,7 +92,7 @@ def _stage_command(name: str) -> None:
 
 
 for _name in runner.STAGE_NAMES:
-    if _name != "acquire":
+    if _name not in ("acquire", "render"):
         _stage_command(_name)
 
 
@@ -109,6 +113,30 @@ def acquire_command(
     if source is not None:
         overrides.append(f"acquire.source={str(source.resolve())!r}")
     _run(["acquire"], workspace, profile, config, overrides, force)
+
+
+@app.command("render")
+def render_command(
+    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+    set_: Annotated[list[str] | None, typer.Option(
+        "--set", "-s", help="twin (one per label) or train (the training set); or, like every command, "
+        "section.key=value to override one key (repeatable)")] = None,
+    force: ForceOption = False,
+    count: Annotated[int | None, typer.Option("--count", help="train: number of images (render.train_count)")] = None,
+    engine: Annotated[str | None, typer.Option("--engine", help="local | ray (run.engine)")] = None,
+    ray_address: Annotated[str | None, typer.Option("--ray-address", help="Ray cluster address (run.ray_address)")]
+    = None,
+) -> None:
+    """Run the render stage: Mitsuba 3 twins of the labels, or the training set."""
+    overrides = [value for value in set_ or [] if "=" in value]
+    transient = [f"render.set={value}" for value in set_ or [] if "=" not in value]
+    if count is not None:
+        overrides.append(f"render.train_count={count}")
+    if engine is not None:
+        transient.append(f"run.engine={engine}")
+    if ray_address is not None:
+        transient.append(f"run.ray_address={ray_address!r}")
+    _run(["render"], workspace, profile, config, overrides, force, transient)
 
 
 @app.command("run")

@@ -45,6 +45,9 @@ class RunConfig:
     workers: int = param(2, "worker processes of the local engine (spawned; each loads its renderer once)", "count")
     worker_max_tasks: int = param(
         60, "samples a worker processes before it is replaced (bounds the renderer's memory growth)", "count")
+    engine: str = param("local", "where render runs its samples: local (spawned processes) or ray (a Ray "
+                        "cluster, one renderer actor per worker); same seed, same pixels", "")
+    ray_address: str = param("", "Ray cluster to join (e.g. ray://host:10001); empty: start a local one", "")
 
 
 @dataclass(frozen=True)
@@ -289,6 +292,31 @@ class LabelConfig:
 
 
 @dataclass(frozen=True)
+class RenderConfig:
+    """The render stage: Mitsuba 3 synthetic twins of the labels, and the training set."""
+
+    set: str = param("twin", "what to render: twin (one per label) or train (the synthetic training set)", "")
+    seed: int = param(7, "random seed of the training poses, lights and of every image's Monte-Carlo noise", "")
+    spp: int = param(64, "samples per pixel", "count")
+    max_depth: int = param(4, "path length of the path tracer (3: direct light and one bounce)", "count")
+    irradiance: float = param(
+        3.0, "irradiance of the directional light on the model; the synthetic images' exposure is fixed, "
+        "so 3.0 puts a sunlit white radiator near saturation", "W/m^2")
+    train_count: int = param(1000, "images of the training set (render --set train --count N)", "count")
+    train_distance_m: tuple[float, float] = param(
+        (3.0, 10.0), "camera-to-target distance of training images, full scale (SPEED+ synthetic: a few "
+        "metres to about 10 m)", "m")
+    train_irradiance: tuple[float, float] = param(
+        (1.0, 6.0), "training images: range of the light's irradiance (log-uniform)", "W/m^2")
+    train_earth_fraction: float = param(
+        0.5, "share of training images with the Earth behind the target", "1")
+    train_resolution_scale: float = param(
+        1.0, "training images: camera resolution times this (intrinsics scaled with it)", "1")
+    margin_px: float = param(
+        10.0, "training images: the target's bounding sphere stays this far inside the image when it fits", "px")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole configuration of a run."""
 
@@ -302,6 +330,7 @@ class Config:
     calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
     fuse: FuseConfig = field(default_factory=FuseConfig)
     label: LabelConfig = field(default_factory=LabelConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
 
     def section(self, name: str) -> Any:
         return getattr(self, name)
@@ -310,7 +339,7 @@ class Config:
 SECTION_TYPES: dict[str, type] = {
     "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
     "acquire": AcquireConfig, "virtual": VirtualConfig, "calibrate": CalibrateConfig, "fuse": FuseConfig,
-    "label": LabelConfig,
+    "label": LabelConfig, "render": RenderConfig,
 }
 
 
@@ -426,6 +455,19 @@ def _check(config: Config) -> Config:
                           f"got {config.calibrate.solver!r}")
     if config.calibrate.folds < 2:
         raise ConfigError("calibrate.folds: at least 2")
+    if config.run.engine not in ("local", "ray"):
+        raise ConfigError(f"run.engine: expected local or ray, got {config.run.engine!r}")
+    r = config.render
+    if r.set not in ("twin", "train"):
+        raise ConfigError(f"render.set: expected twin or train, got {r.set!r}")
+    if r.spp < 1 or r.max_depth < 1 or r.train_count < 0:
+        raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
+    if not 0 < r.train_distance_m[0] <= r.train_distance_m[1]:
+        raise ConfigError(f"render.train_distance_m: expected 0 < min <= max, got {r.train_distance_m}")
+    if not 0 < r.train_irradiance[0] <= r.train_irradiance[1]:
+        raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {r.train_irradiance}")
+    if not 0 <= r.train_earth_fraction <= 1 or not 0 < r.train_resolution_scale <= 4:
+        raise ConfigError("render.train_earth_fraction: expected [0, 1]; render.train_resolution_scale: (0, 4]")
     if config.run.part_rows < 1:
         raise ConfigError("run.part_rows: must be at least 1")
     for section, key in (("testbed", "camee_from_cam_q"), ("testbed", "mount_target_from_targetee_q"),

@@ -78,7 +78,8 @@ STAGES: tuple[StageSpec, ...] = (
               "per-source poses, rejection, Bayesian fusion"),
     StageSpec("label", "stages.label", ("poses",), ("labels",), ("label", "testbed"),
               "SPEED+ labels, keypoints, boxes"),
-    StageSpec("render", None, ("labels",), ("renders",), (), "Mitsuba 3 synthetic twins"),
+    StageSpec("render", "stages.render", ("labels",), ("renders",), ("render", "testbed"),
+              "Mitsuba 3 synthetic twins (or, with --set train, the training set)"),
     StageSpec("evaluate", None, ("renders", "labels"), ("predictions",), (), "ONNX model scores (Table 2)"),
     StageSpec("report", None, ("predictions",), (), (), "static HTML report"),
 )

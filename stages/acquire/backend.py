@@ -9,13 +9,8 @@ the stages after it: the calibration pattern, the camera and the measurement sou
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Protocol
-
-import cv2
-import numpy as np
 
 
 @dataclass(frozen=True)
@@ -32,15 +27,3 @@ class Testbed(Protocol):
     def session(self) -> dict[str, Any]: ...
 
 
-def write_png_atomic(path: Path, image: np.ndarray) -> None:
-    """Write a PNG under a temporary name, fsync, rename: never a half image."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    ok, encoded = cv2.imencode(".png", image)
-    if not ok:
-        raise OSError(f"could not encode {path}")
-    temporary = path.with_name(f".{path.name}.tmp")
-    with open(temporary, "wb") as handle:
-        handle.write(encoded.tobytes())
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(temporary, path)

@@ -11,11 +11,12 @@ from manifests import Workspace, read_manifest
 from pipeline.config import Config
 from stages import geometry as g
 from stages import layout
-from stages.acquire.backend import CaptureRecord, write_png_atomic
+from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, robots
 from stages.acquire.virtual.sensor import Sensor
 from stages.acquire.virtual.truth import Truth, draw_truth
 from stages.geometry import pose_columns
+from stages.image_io import write_png_atomic
 from stages.kinematics import link_points
 from stages.patterns import board_pattern
 

@@ -8,7 +8,6 @@ the board, and switches lights, through ``mi.traverse``. Coordinates: robot worl
 from __future__ import annotations
 
 import os
-import warnings
 from typing import Any
 
 import numpy as np
@@ -17,69 +16,13 @@ from pipeline.config import Config
 from stages import geometry as g
 from stages import layout
 from stages.acquire.virtual import textures
-from stages.acquire.virtual.sensor import RenderGeometry
+from stages.lens import RenderGeometry
+from stages.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
 from stages.patterns import board_image, board_pattern
 from stages.tango_mesh import tango_parts
 
 BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
 _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)
-#: Mitsuba's camera looks along +z with x to the left and y up; OpenCV's has x right, y down.
-MITSUBA_FROM_OPENCV = np.diag([-1.0, -1.0, 1.0, 1.0])
-
-
-_CACHE_LOCKS: list[int] = []
-
-
-def private_kernel_cache() -> None:
-    """Give this process a Dr.Jit kernel cache of its own (before Dr.Jit is imported).
-
-    Processes rendering at the same time through one shared ``~/.drjit`` cache were seen to
-    produce different images from the same seed; each process takes the first free cache
-    slot (an flock held for its lifetime, released even when it is killed) and reuses it.
-    """
-    if "DRJIT_CACHE_DIR" in os.environ:
-        return
-    import fcntl
-    from pathlib import Path
-
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "drjit"
-    for slot in range(256):
-        directory = base / f"slot-{slot}"
-        directory.mkdir(parents=True, exist_ok=True)
-        handle = os.open(directory / ".lock", os.O_CREAT | os.O_RDWR)
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(handle)
-            continue
-        _CACHE_LOCKS.append(handle)
-        os.environ["DRJIT_CACHE_DIR"] = str(directory)
-        return
-
-
-def load_mitsuba() -> Any:
-    """Mitsuba with the fast LLVM variant, or ``scalar_rgb`` (about 25x slower) with a warning."""
-    private_kernel_cache()
-    import mitsuba as mi
-
-    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
-        for candidate in ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"):
-            if os.path.exists(candidate):
-                os.environ["DRJIT_LIBLLVM_PATH"] = candidate
-                break
-    try:
-        mi.set_variant("llvm_ad_rgb")
-    except Exception as error:  # noqa: BLE001 - any failure of the LLVM backend means: fall back
-        warnings.warn(f"Mitsuba llvm_ad_rgb unavailable ({error}); rendering with the slow scalar_rgb variant. "
-                      "Install Debian libllvm19 (make setup does, as root).", RuntimeWarning, stacklevel=2)
-        mi.set_variant("scalar_rgb")
-    return mi
-
-
-def _transform(mi: Any, matrix: np.ndarray) -> Any:
-    return mi.ScalarTransform4f(np.asarray(matrix, dtype=float).tolist())
-
-
 def _facing(centre: np.ndarray, normal: np.ndarray, half_size: tuple[float, float]) -> np.ndarray:
     """to_world (4, 4) of Mitsuba's rectangle ([-1, 1]^2, normal +z) centred at ``centre``
     and facing ``normal``."""
@@ -117,7 +60,7 @@ class TestbedScene:
                 "fov": float(np.degrees(geometry.fov_x_rad)),
                 "near_clip": 0.05,
                 "far_clip": 30.0,
-                "to_world": _transform(mi, np.eye(4)),
+                "to_world": transform(mi, np.eye(4)),
                 "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height,
                          "rfilter": {"type": "gaussian", "stddev": 0.4}, "pixel_format": "rgb"},
                 "sampler": {"type": "independent"},
@@ -127,11 +70,11 @@ class TestbedScene:
         objects.update(self._lights(mi))
         self._parts = {}
         for name, part in tango_parts().items():
-            objects[f"model_{name}"] = self._mesh(mi, f"model_{name}", part.vertices * self.scale, part.faces,
+            objects[f"model_{name}"] = mesh(mi, f"model_{name}", part.vertices * self.scale, part.faces,
                                                   part.uv, self._mockup_bsdf(mi, name, rng))
             self._parts[f"model_{name}"] = part.vertices * self.scale
         self._board_vertices = self._board(mi, objects)
-        self.scene = mi.load_dict(objects, parallel=False, optimize=False)
+        self.scene = load_scene(mi, objects)
         self.params = mi.traverse(self.scene)
         names = list(self.params.keys())
         self._opaque_keys = [key for key in names if key == "sensor.to_world"
@@ -150,7 +93,7 @@ class TestbedScene:
             "wall_x0": ([0.0, width / 2, height / 2], [1, 0, 0], (width / 2, height / 2), curtain),
             "wall_x1": ([length, width / 2, height / 2], [-1, 0, 0], (width / 2, height / 2), curtain),
         }
-        return {name: {"type": "rectangle", "to_world": _transform(mi, _facing(np.array(c, float), np.array(n, float),
+        return {name: {"type": "rectangle", "to_world": transform(mi, _facing(np.array(c, float), np.array(n, float),
                                                                                 half)), "bsdf": bsdf}
                 for name, (c, n, half, bsdf) in walls.items()}
 
@@ -163,7 +106,7 @@ class TestbedScene:
         aim = np.asarray(testbed.light_box_aim_m)
         for index, centre in enumerate(np.asarray(testbed.light_box_centres_m)):
             lights[f"light_box_{index}"] = {
-                "type": "rectangle", "to_world": _transform(mi, _facing(centre, aim - centre, half)),
+                "type": "rectangle", "to_world": transform(mi, _facing(centre, aim - centre, half)),
                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
                 "bsdf": covered,
             }
@@ -175,7 +118,7 @@ class TestbedScene:
         for index, x in enumerate((0.25 * length, 0.5 * length)):
             lights[f"ambient_{index}"] = {
                 "type": "rectangle",
-                "to_world": _transform(mi, _facing(np.array([x, width / 2, height - 0.02]), np.array([0, 0, -1.0]),
+                "to_world": transform(mi, _facing(np.array([x, width / 2, height - 0.02]), np.array([0, 0, -1.0]),
                                                    (0.6, 0.6))),
                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
                 "bsdf": covered,
@@ -201,19 +144,6 @@ class TestbedScene:
                                                           "bitmap": mi.Bitmap(textures.rear_panel(rng))}})
         return mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.55, 0.55]}})
 
-    @staticmethod
-    def _mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, bsdf: Any) -> Any:
-        props = mi.Properties()
-        props["bsdf"] = bsdf
-        mesh = mi.Mesh(name, len(vertices), len(faces), props=props, has_vertex_normals=False,
-                       has_vertex_texcoords=True)
-        params = mi.traverse(mesh)
-        params["vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
-        params["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
-        params["vertex_texcoords"] = mi.Float(np.asarray(uv, np.float32).ravel())
-        params.update()
-        return mesh
-
     def _board(self, mi: Any, objects: dict[str, Any]) -> np.ndarray:
         """The printed ChArUco plate as a textured quad; returns its corners in T."""
         spec = board_pattern(self.config.testbed)
@@ -226,7 +156,7 @@ class TestbedScene:
         faces = np.array([[0, 2, 1], [0, 3, 2]])  # front faces -z of the board frame, towards the camera
         corners_target = g.apply(layout.target_from_board(self.config.testbed), corners_board)
         bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(reflectance)}})
-        objects["board"] = self._mesh(mi, "board", corners_target + _HIDDEN_OFFSET, faces, uv, bsdf)
+        objects["board"] = mesh(mi, "board", corners_target + _HIDDEN_OFFSET, faces, uv, bsdf)
         return corners_target
 
     # --------------------------------------------------------------------------- per capture
@@ -247,7 +177,7 @@ class TestbedScene:
                show_board: bool, seed: int) -> np.ndarray:
         """Linear luminance (H_render, W_render) of the pinhole render at these true poses."""
         mi = self.mi
-        self.params["sensor.to_world"] = _transform(mi, world_from_cam @ MITSUBA_FROM_OPENCV)
+        self.params["sensor.to_world"] = transform(mi, world_from_cam @ MITSUBA_FROM_OPENCV)
         for name, vertices in self._parts.items():
             self.params[f"{name}.vertex_positions"] = mi.Float(
                 g.apply(world_from_target, vertices).astype(np.float32).ravel())

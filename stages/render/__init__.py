@@ -1,0 +1,67 @@
+"""The render stage: Mitsuba 3 synthetic twins of the labelled testbed captures (same pose,
+same camera and lens, light aligned with the testbed light), or the synthetic training set.
+
+``render.set = twin`` writes the ``renders`` manifest and ``W/renders/twins/``;
+``render.set = train`` writes the ``train`` manifest and ``W/renders/train/``. Each image
+depends only on its job (pose, light, seed), so the local and Ray engines give the same
+pixels and an interrupted run resumes with the missing ``sample_id``s.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pyarrow as pa
+
+from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.io import write_json_atomic
+from pipeline.config import Config
+from pipeline.engines import map_engine
+from pipeline.progress import console, track
+from stages.render.jobs import SET_DIRECTORIES, label_camera, train_camera, train_jobs, twin_jobs
+from stages.render.scene import default_threads
+from stages.render.worker import open_worker
+
+
+def output_name(config: Config) -> str:
+    return "renders" if config.render.set == "twin" else "train"
+
+
+def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
+    """(input manifests, configuration sections, extra fingerprint content)."""
+    if config.render.set == "train":
+        return (), ("render", "camera"), {}
+    inputs = ("labels", "captures", "calibration_samples")
+    if config.acquire.backend == "virtual":
+        inputs += ("plan",)  # the light set-up of each sample
+    return inputs, ("render", "testbed"), {}
+
+
+def outputs(config: Config) -> tuple[str, ...]:
+    return (output_name(config),)
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    """Render every job missing from the manifest; returns the manifest."""
+    name = output_name(config)
+    if config.render.set == "twin":
+        camera = label_camera(workspace)
+        jobs, rejected = twin_jobs(config, workspace)
+        write_json_atomic(workspace.root / "renders" / SET_DIRECTORIES["twin"] / "rejected.json", rejected)
+        for entry in rejected:
+            console.print(f"[yellow]render: label {entry['sample_id']} not rendered: {entry['reason']}[/]")
+    else:
+        camera = train_camera(config)
+        jobs = train_jobs(config)
+    done = read_keys(workspace, name)
+    todo = [job for job in jobs if job.sample_id not in done]
+    run_config = config.run
+    threads = default_threads(run_config.workers)
+    rows = map_engine(run_config.engine, open_worker,
+                      (camera, str(workspace.root), config.render.spp, config.render.max_depth, threads),
+                      "render", todo, workers=run_config.workers, max_tasks=run_config.worker_max_tasks,
+                      ray_address=run_config.ray_address)
+    with open_sink(workspace, name, run_config.part_rows) as sink:
+        for row in track(rows, len(todo), f"render {config.render.set} ({run_config.engine})"):
+            sink.add(row)
+    return read_manifest(workspace, name)

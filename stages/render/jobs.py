@@ -1,0 +1,201 @@
+"""What to render: one ``RenderJob`` per image, for the twins (from the labels, with the
+light aligned to the testbed's) or for the training set (a seeded pose and light sampler).
+
+Jobs are plain data, built in the main process and sent to the renderers of any engine;
+every random choice is made here or seeded by the job, so an image depends on its job only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from manifests import Workspace, read_manifest, read_success
+from manifests.workspace import MASK_TEMPLATE, RENDER_TEMPLATE
+from pipeline.config import Config
+from pipeline.errors import InputError
+from stages import geometry as g
+from stages import tango
+from stages.lens import LensCamera
+
+SET_DIRECTORIES = {"twin": "twins", "train": "train"}
+NEAR_CLIP_M = 0.05
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """One image: pose (full scale), light, seed and where it goes."""
+
+    sample_id: str
+    set: str
+    q_vbs2tango_true: tuple[float, ...]  # (4,) rotation of cam_from_target
+    r_Vo2To_vbs_true: tuple[float, ...]  # noqa: N815 - SPEED+'s name; (3,) m, cam_from_target, full scale
+    light_dir_cam: tuple[float, ...]  # (3,) unit, target towards the light, camera frame
+    irradiance: float  # W/m^2
+    earth: bool
+    seed: int  # uint32 Monte-Carlo seed; also seeds the Earth background
+
+    @property
+    def image_path(self) -> str:
+        return RENDER_TEMPLATE.format(set=SET_DIRECTORIES[self.set], sample_id=self.sample_id)
+
+    @property
+    def mask_path(self) -> str:
+        return MASK_TEMPLATE.format(set=SET_DIRECTORIES[self.set], sample_id=self.sample_id)
+
+    def cam_from_target(self) -> np.ndarray:
+        return g.transform_from_qt(self.q_vbs2tango_true, self.r_Vo2To_vbs_true)
+
+
+def image_seed(seed: int, set_name: str, sample_id: str) -> int:
+    """A stable uint32 seed per image (no dependence on order, engine or worker)."""
+    digest = hashlib.sha256(f"{seed}/{set_name}/{sample_id}".encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+def rejection_reason(q: Any, t: Any) -> str | None:
+    """Why a pose cannot be rendered, or None: q must be a finite unit quaternion, t finite
+    with the whole model (its bounding sphere) in front of the camera."""
+    q, t = np.asarray(q, float), np.asarray(t, float)
+    if q.shape != (4,) or not np.all(np.isfinite(q)):
+        return "quaternion is not 4 finite numbers"
+    if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+        return f"quaternion is not unit (norm {np.linalg.norm(q):.6f})"
+    if t.shape != (3,) or not np.all(np.isfinite(t)):
+        return "translation is not 3 finite numbers"
+    if t[2] <= 0:
+        return f"target behind the camera (z = {t[2]:.3f} m)"
+    if t[2] - tango.BOUNDING_RADIUS_M <= NEAR_CLIP_M:
+        return f"target too close: its bounding sphere crosses the camera plane (z = {t[2]:.3f} m)"
+    return None
+
+
+# ------------------------------------------------------------------------------- twins
+def label_camera(workspace: Workspace) -> LensCamera:
+    """The calibrated camera of the labels (calibration.json)."""
+    path = workspace.root / "calibration.json"
+    try:
+        intrinsics = json.loads(path.read_text())["intrinsics"]
+        return LensCamera(np.array(intrinsics["K"], float), np.array(intrinsics["dist"], float),
+                          int(intrinsics["width"]), int(intrinsics["height"]))
+    except FileNotFoundError:
+        raise InputError(f"{path}: missing; run calibrate first") from None
+    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as error:
+        raise InputError(f"{path}: intrinsics unreadable ({error}); expected K (3x3), dist (5), width, "
+                         "height; rerun calibrate") from None
+
+
+def _world_from_cam(workspace: Workspace) -> dict[str, np.ndarray]:
+    """Camera poses in the robot world K per dataset capture: KUKA telemetry composed with
+    the calibrated camera offset (the light positions are known in K)."""
+    path = workspace.root / "calibration.json"
+    try:
+        cam_from_camee = g.pose_from_json(json.loads(path.read_text())["kuka"]["cam_from_camee"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise InputError(f"{path}: kuka.cam_from_camee unreadable ({error}); rerun calibrate") from None
+    captures = read_manifest(workspace, "captures").to_pylist()
+    return {row["sample_id"]: g.transform_from_qt(row["kuka_world_from_camee_q"], row["kuka_world_from_camee_t"])
+            @ g.invert(cam_from_camee) for row in captures}
+
+
+def light_position(config: Config, light: str, boxes: list[int]) -> np.ndarray:
+    """Where the testbed light of a sample is, in K (m): the sun lamp, or the centroid of the
+    active light boxes (equal radiance, so equal weights)."""
+    testbed = config.testbed
+    if light == "sunlamp":
+        return np.asarray(testbed.sun_lamp_position_m, float)
+    centres = np.asarray(testbed.light_box_centres_m, float)
+    active = [b for b in boxes if 0 <= b < len(centres)] or list(range(len(centres)))
+    return centres[active].mean(axis=0)
+
+
+def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], list[dict[str, str]]]:
+    """A job per label, and the labels that cannot be rendered with their reasons."""
+    scale = tango_scale(config, workspace)
+    world_from_cam = _world_from_cam(workspace)
+    plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
+            if read_success(workspace, "plan") is not None else {})
+    # unvalidated read: a bad row is rejected with its reason, the valid ones still render
+    labels = read_manifest(workspace, "labels", validate=False).to_pylist()
+    jobs, rejected = [], []
+    for label in labels:
+        sample_id = label["sample_id"]
+        reason = rejection_reason(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"])
+        if reason is None and sample_id not in world_from_cam:
+            reason = "no capture with this sample_id (camera position unknown)"
+        if reason is not None:
+            rejected.append({"sample_id": sample_id, "reason": reason})
+            continue
+        q = g.quat_normalize(label["q_vbs2tango_true"])
+        cam_from_target = g.transform_from_qt(q, np.asarray(label["r_Vo2To_vbs_true"]) * scale)
+        row = plan.get(sample_id, {})
+        light = row.get("light") or label["domain"]
+        world_from_target = world_from_cam[sample_id] @ cam_from_target
+        towards = light_position(config, light, list(row.get("light_boxes") or [])) - world_from_target[:3, 3]
+        direction = g.invert(world_from_cam[sample_id])[:3, :3] @ (towards / np.linalg.norm(towards))
+        jobs.append(RenderJob(sample_id, "twin", tuple(q), tuple(label["r_Vo2To_vbs_true"]), tuple(direction),
+                              config.render.irradiance, False, image_seed(config.render.seed, "twin", sample_id)))
+    return jobs, rejected
+
+
+def tango_scale(config: Config, workspace: Workspace) -> float:
+    """Mock-up scale of the session (session.json), else the configured one."""
+    if workspace.session_path.exists():
+        scale = json.loads(workspace.session_path.read_text()).get("mockup_scale")
+        if scale:
+            return float(scale)
+    return config.testbed.mockup_scale
+
+
+# --------------------------------------------------------------------------- training set
+def train_camera(config: Config) -> LensCamera:
+    """The SPEED+ camera of the profile, resized by ``render.train_resolution_scale``."""
+    camera, factor = config.camera, config.render.train_resolution_scale
+    k = camera.camera_matrix().copy()
+    width, height = round(camera.width_px * factor), round(camera.height_px * factor)
+    k[0, :] *= width / camera.width_px
+    k[1, :] *= height / camera.height_px
+    # pixel centres at integer coordinates: rescale about the image corner (-0.5, -0.5)
+    k[0, 2] = (camera.camera_matrix()[0, 2] + 0.5) * width / camera.width_px - 0.5
+    k[1, 2] = (camera.camera_matrix()[1, 2] + 0.5) * height / camera.height_px - 0.5
+    return LensCamera(k, camera.dist_coeffs(), width, height)
+
+
+def train_jobs(config: Config) -> list[RenderJob]:
+    """``render.train_count`` jobs: SO(3)-uniform attitudes, distances uniform in
+    ``render.train_distance_m``, the target's centre uniform over the image where its
+    bounding sphere fits, light directions uniform over the half-sphere facing the camera,
+    log-uniform irradiance, the Earth behind the target in ``render.train_earth_fraction``."""
+    r = config.render
+    camera = train_camera(config)
+    rng = np.random.default_rng([r.seed, 0x7A1])
+    quats = g.random_quats(rng, r.train_count)
+    jobs = []
+    k_inv = np.linalg.inv(camera.camera_matrix)
+    for index in range(r.train_count):
+        distance = rng.uniform(*r.train_distance_m)
+        radius_px = tango.BOUNDING_RADIUS_M / distance * camera.camera_matrix[0, 0] + r.margin_px
+        lows = np.array([radius_px, radius_px])
+        highs = np.array([camera.width - 1 - radius_px, camera.height - 1 - radius_px])
+        centre_px = np.where(lows < highs, rng.uniform(np.minimum(lows, highs), np.maximum(lows, highs)),
+                             [(camera.width - 1) / 2, (camera.height - 1) / 2])
+        ray = k_inv @ np.array([centre_px[0], centre_px[1], 1.0])
+        centre_cam = ray / np.linalg.norm(ray) * distance
+        q = quats[index]
+        # the body centre (not the body origin) goes to the sampled point
+        t = centre_cam - g.quat_to_matrix(q) @ tango.BODY_CENTRE_M
+        light = rng.normal(size=3)
+        light /= np.linalg.norm(light)
+        if light @ centre_cam > 0:  # keep the lit side towards the camera, as SPEED+'s synthetic images do
+            light = -light
+        irradiance = math.exp(rng.uniform(math.log(r.train_irradiance[0]), math.log(r.train_irradiance[1])))
+        earth = bool(rng.random() < r.train_earth_fraction)
+        sample_id = f"trn{index:06d}"
+        jobs.append(RenderJob(sample_id, "train", tuple(q), tuple(t), tuple(light), irradiance, earth,
+                              image_seed(r.seed, "train", sample_id)))
+    return jobs
