@@ -19,3 +19,29 @@ def default_acquisition(tmp_path_factory):
                             env={**os.environ, "COLUMNS": "200"}, timeout=1800)
     assert result.returncode == 0, result.stderr
     return Workspace(root)
+
+
+def speedplus(*args, env=None, timeout=1800):
+    """Run the CLI in a fresh process (as users do)."""
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
+                          env={**os.environ, "COLUMNS": "200", **(env or {})}, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def smoke_labelled(tmp_path_factory):
+    """A smoke workspace after `speedplus run --until label` (about half a minute)."""
+    root = tmp_path_factory.mktemp("smoke") / "w"
+    result = speedplus("run", "--profile", "smoke", "--workspace", str(root), "--until", "label")
+    assert result.returncode == 0, result.stderr
+    assert "Table 1" in result.stdout and "KUKA-only" in result.stdout
+    return Workspace(root)
+
+
+@pytest.fixture(scope="session")
+def ray_cluster():
+    """One local Ray cluster for the whole session (ray.init takes seconds)."""
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()

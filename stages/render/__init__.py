@@ -9,6 +9,7 @@ pixels and an interrupted run resumes with the missing ``sample_id``s.
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any
 
 import pyarrow as pa
@@ -27,14 +28,19 @@ def output_name(config: Config) -> str:
     return "renders" if config.render.set == "twin" else "train"
 
 
+TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance")
+
+
 def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
-    """(input manifests, configuration sections, extra fingerprint content)."""
+    """(input manifests, configuration sections, extra fingerprint content): each image set
+    depends on its own render keys only (resizing the training set leaves the twins done)."""
+    render = {f.name: getattr(config.render, f.name) for f in fields(config.render) if f.name != "set"}
     if config.render.set == "train":
-        return (), ("render", "camera"), {}
+        return (), ("camera",), {"render": render}
     inputs = ("labels", "captures", "calibration_samples")
     if config.acquire.backend == "virtual":
         inputs += ("plan",)  # the light set-up of each sample
-    return inputs, ("render", "testbed"), {}
+    return inputs, ("testbed",), {"render": {key: render[key] for key in TWIN_KEYS}}
 
 
 def outputs(config: Config) -> tuple[str, ...]:

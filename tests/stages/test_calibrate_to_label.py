@@ -21,12 +21,8 @@ def speedplus(*args):
 
 
 @pytest.fixture(scope="module")
-def labelled(tmp_path_factory):
-    root = tmp_path_factory.mktemp("label") / "w"
-    result = speedplus("run", "--profile", "smoke", "--workspace", str(root), "--until", "label")
-    assert result.returncode == 0, result.stderr
-    assert "Table 1" in result.stdout and "KUKA-only" in result.stdout
-    return Workspace(root)
+def labelled(smoke_labelled):
+    return smoke_labelled
 
 
 def copy_of(ws, tmp_path, name):

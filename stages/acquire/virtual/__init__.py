@@ -117,3 +117,13 @@ class VirtualTestbed:
         exposure = {"lightbox": config.virtual.exposure_lightbox, "sunlamp": config.virtual.exposure_sunlamp,
                     "ambient": config.virtual.exposure_ambient}[light]
         return self.sensor.expose(radiance, exposure, rng, glare)
+
+    def silhouette(self, sample: dict[str, Any]) -> np.ndarray:
+        """The mock-up's silhouette (H, W) bool in the capture of a plan row: the scene's
+        model at the TRUE poses of that capture, through the camera's lens."""
+        config, truth = self.config, self.truth
+        session, index = sample["session"], int(sample["sample_id"][3:])
+        rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
+        state = robots.move(config, truth, sample, rng)  # the same draws as capture()
+        coverage = self.sensor.distort(self.scene.silhouette(state.world_from_cam, state.world_from_target))
+        return coverage >= 0.5

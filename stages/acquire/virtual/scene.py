@@ -195,3 +195,28 @@ class TestbedScene:
         self.params.update()
         image = np.array(mi.render(self.scene, spp=self.config.virtual.spp, seed=seed))
         return image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
+
+    def silhouette(self, world_from_cam: np.ndarray, world_from_target: np.ndarray) -> np.ndarray:
+        """Where the mock-up is the first surface seen (H_render, W_render) float32 (0 or 1),
+        one ray per pixel centre through this scene's own camera: the model's silhouette in
+        a capture at these poses (tests and benchmarks compare twins with it)."""
+        mi = self.mi
+        import drjit as dr
+
+        self.params["sensor.to_world"] = transform(mi, world_from_cam @ MITSUBA_FROM_OPENCV)
+        for name, vertices in self._parts.items():
+            self.params[f"{name}.vertex_positions"] = mi.Float(
+                g.apply(world_from_target, vertices).astype(np.float32).ravel())
+        self.params.update()
+        width, height = self.geometry.width, self.geometry.height
+        ys, xs = np.mgrid[0:height, 0:width]
+        position = mi.Point2f(((xs.ravel() + 0.5) / width).astype(np.float32),
+                              ((ys.ravel() + 0.5) / height).astype(np.float32))
+        sensor = self.scene.sensors()[0]
+        rays, _ = sensor.sample_ray(0.0, 0.0, position, mi.Point2f(0.5, 0.5))
+        hit = self.scene.ray_intersect(rays)
+        on_model = dr.zeros(mi.Bool, width * height)
+        for shape in self.scene.shapes():
+            if shape.id() in self._parts:
+                on_model |= hit.is_valid() & (hit.shape == mi.ShapePtr(shape))
+        return np.array(on_model, dtype=np.float32).reshape(height, width)
