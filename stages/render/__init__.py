@@ -50,12 +50,10 @@ def outputs(config: Config) -> tuple[str, ...]:
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Render every job missing from the manifest; returns the manifest."""
     name = output_name(config)
+    rejected: list[dict[str, str]] = []
     if config.render.set == "twin":
         camera = label_camera(workspace)
         jobs, rejected = twin_jobs(config, workspace)
-        write_json_atomic(workspace.root / "renders" / SET_DIRECTORIES["twin"] / "rejected.json", rejected)
-        for entry in rejected:
-            console.print(f"[yellow]render: label {entry['sample_id']} not rendered: {entry['reason']}[/]")
     else:
         camera = train_camera(config)
         jobs = train_jobs(config)
@@ -69,5 +67,12 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                       ray_address=run_config.ray_address)
     with open_sink(workspace, name, run_config.part_rows) as sink:
         for row in track(rows, len(todo), f"render {config.render.set} ({run_config.engine})"):
-            sink.add(row)
+            if "rejected" in row:
+                rejected.append({"sample_id": row["sample_id"], "reason": row["rejected"]})
+            else:
+                sink.add(row)
+    rejected.sort(key=lambda entry: entry["sample_id"])
+    write_json_atomic(workspace.root / "renders" / SET_DIRECTORIES[config.render.set] / "rejected.json", rejected)
+    for entry in rejected:
+        console.print(f"[yellow]render: {entry['sample_id']} not rendered: {entry['reason']}[/]")
     return read_manifest(workspace, name)

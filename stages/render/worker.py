@@ -59,12 +59,12 @@ class RenderWorker:
         return np.ascontiguousarray(image), mask
 
     def render(self, job: RenderJob) -> dict[str, Any]:
-        """Render, write both PNGs atomically, and return the job's ``renders`` row."""
+        """Render, write both PNGs atomically, and return the job's ``renders`` row; or, when
+        the target covers no pixel, ``{"sample_id", "rejected": reason}`` and no files."""
         started = time.perf_counter()
         image, mask = self.image(job)
         if not mask.any():
-            raise RuntimeError(f"{job.sample_id}: the target covers no pixel of the image; "
-                               f"pose t = {job.r_Vo2To_vbs_true} m")
+            return {"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"}
         write_png_atomic(self.workspace.resolve(job.image_path), image)
         write_png_atomic(self.workspace.resolve(job.mask_path), mask.astype(np.uint8) * 255)
         keypoints = g.project(job.cam_from_target(), tango.KEYPOINTS_M, self.camera.camera_matrix, self.camera.dist)

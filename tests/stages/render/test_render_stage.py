@@ -94,7 +94,7 @@ def test_bad_labels_are_rejected_with_their_reason_and_the_rest_rendered(smoke_l
     pq.write_table(pa.Table.from_pylist(rows, schema=table.schema), part)
     result = speedplus("render", "--workspace", str(ws.root))
     assert result.returncode == 0, result.stderr
-    assert f"{bad_q} not rendered: quaternion is not unit" in result.stderr
+    assert f"{bad_q} not rendered: quaternion is not unit" in result.stderr.replace("\n", " ")
     rejected = json.loads((ws.root / "renders" / "twins" / "rejected.json").read_text())
     assert {r["sample_id"] for r in rejected} == {bad_q, behind}
     assert "behind the camera" in next(r["reason"] for r in rejected if r["sample_id"] == behind)
