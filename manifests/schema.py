@@ -219,24 +219,54 @@ RENDERS = ManifestSpec("renders", "synthetic twins of the labelled testbed captu
 TRAIN = ManifestSpec("train", "the synthetic training set: SO(3)-uniform poses, random lights (SPEED+-like)",
                      _RENDER_COLUMNS)
 
+PREDICTION_DOMAINS = ("synthetic", "lightbox", "sunlamp")
+
 PREDICTIONS = ManifestSpec(
     "predictions",
-    "model predictions and SPEED / SPEED+ scores",
+    "model predictions and SPEED / SPEED+ scores, one row per image (twin or testbed capture)",
     (
+        Column("prediction_id", pa.string(), "", "<domain>:<sample_id>"),
         _sample_id(),
-        Column("domain", pa.string(), "", "image domain", kind="enum", allowed=("synthetic", "lightbox", "sunlamp")),
+        Column("domain", pa.string(), "", "image domain: synthetic twin or testbed light", kind="enum",
+               allowed=PREDICTION_DOMAINS),
         Column("view", pa.string(), "", "visible face", kind="enum", allowed=VIEWS),
-        Column("light", pa.string(), "", "light set-up of the sample", kind="enum", allowed=LIGHTS),
-        Column("q_pred", QUAT, "1", "predicted rotation of cam_from_target", kind="quaternion"),
-        Column("t_pred", VEC3, "m", "predicted translation of cam_from_target, full scale"),
-        Column("err_q_rad", pa.float64(), "rad", "2 arccos |<q_pred, q_true>|"),
-        Column("err_t_norm", pa.float64(), "1", "|t_true - t_pred| / |t_true|"),
+        Column("light", pa.string(), "", "light set-up of the sample (the twin's light is aligned with it)",
+               kind="enum", allowed=LIGHTS),
+        Column("crop", pa.string(), "", "full image, or oracle box from the label", kind="enum",
+               allowed=("full", "oracle_box")),
+        Column("pose_found", pa.bool_(), "", "the model's output gave a pose (else scored as the worst case)"),
+        Column("q_pred", QUAT, "1", "predicted rotation of cam_from_target", nullable=True, kind="quaternion"),
+        Column("t_pred", VEC3, "m", "predicted translation of cam_from_target, full scale", nullable=True),
+        Column("err_q_rad", pa.float64(), "rad", "2 arccos |<q_pred, q_true>| (pi when no pose)"),
+        Column("err_t_norm", pa.float64(), "1", "|t_true - t_pred| / |t_true| (1 when no pose)"),
         Column("score_speed", pa.float64(), "1", "SPEED (2019) score, err_q_rad + err_t_norm"),
         Column("score_speedplus", pa.float64(), "1", "SPEED+ (2021) score, terms zeroed under thresholds"),
+        Column("seconds", pa.float64(), "s", "inference time of this image (its share of the batch)"),
     ),
+    key="prediction_id",
+)
+
+SCORES = ManifestSpec(
+    "scores",
+    "the paper's Table 2: mean scores per domain and configuration (view x light)",
+    (
+        Column("group", pa.string(), "", "<domain>/<view>/<light>, 'all' for every value"),
+        Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
+               allowed=("synthetic", "testbed")),
+        Column("view", pa.string(), "", "visible face or all", kind="enum", allowed=(*VIEWS, "all")),
+        Column("light", pa.string(), "", "light set-up or all", kind="enum", allowed=("lightbox", "sunlamp", "all")),
+        Column("count", pa.int64(), "count", "images"),
+        Column("pose_found_share", pa.float64(), "1", "share of images that gave a pose"),
+        Column("mean_score_speed", pa.float64(), "1", "mean SPEED score"),
+        Column("mean_score_speedplus", pa.float64(), "1", "mean SPEED+ score"),
+        Column("mean_err_q_deg", pa.float64(), "deg", "mean rotation error"),
+        Column("median_err_q_deg", pa.float64(), "deg", "median rotation error"),
+        Column("mean_err_t_norm", pa.float64(), "1", "mean normalised translation error"),
+    ),
+    key="group",
 )
 
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
-                                  PREDICTIONS)
+                                  PREDICTIONS, SCORES)
 }

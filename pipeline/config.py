@@ -314,6 +314,36 @@ class RenderConfig:
         1.0, "training images: camera resolution times this (intrinsics scaled with it)", "1")
     margin_px: float = param(
         10.0, "training images: the target's bounding sphere stays this far inside the image when it fits", "px")
+    train_spp: int = param(16, "training images: samples per pixel", "count")
+
+
+@dataclass(frozen=True)
+class ReferenceConfig:
+    """speedplus train-reference: the recipe of the reference keypoint CNN (torch)."""
+
+    images: int = param(3000, "training-set images rendered for it (90% train, 10% held out)", "count")
+    resolution_scale: float = param(0.5, "training images: camera resolution times this", "1")
+    input_width: int = param(256, "network input width (images are resized to it)", "px")
+    input_height: int = param(160, "network input height", "px")
+    width: int = param(16, "channels of the network's first layer (the others are multiples)", "count")
+    epochs: int = param(20, "passes over the training images", "count")
+    batch_size: int = param(32, "images per optimiser step", "count")
+    learning_rate: float = param(2e-3, "Adam's initial learning rate (cosine decay to 2% of it)", "1")
+    heatmap_sigma: float = param(1.0, "standard deviation of the target Gaussians, in heatmap pixels", "px")
+    seed: int = param(0, "seed of initialisation, shuffling and augmentation", "")
+    threads: int = param(2, "torch threads", "count")
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """The evaluate stage: an ONNX model scored on twins and testbed images."""
+
+    model: str = param("models/reference.onnx", "ONNX model following the contract of stages/evaluate/model.py; "
+                       "relative paths: from the current directory, else from the repository", "")
+    batch_size: int = param(16, "images per inference call", "count")
+    threads: int = param(2, "ONNX Runtime intra-op threads", "count")
+    ransac_fraction: float = param(
+        0.01, "RANSAC inlier threshold of keypoint PnP, as a fraction of the image width", "1")
 
 
 @dataclass(frozen=True)
@@ -331,6 +361,8 @@ class Config:
     fuse: FuseConfig = field(default_factory=FuseConfig)
     label: LabelConfig = field(default_factory=LabelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
 
     def section(self, name: str) -> Any:
         return getattr(self, name)
@@ -339,7 +371,8 @@ class Config:
 SECTION_TYPES: dict[str, type] = {
     "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
     "acquire": AcquireConfig, "virtual": VirtualConfig, "calibrate": CalibrateConfig, "fuse": FuseConfig,
-    "label": LabelConfig, "render": RenderConfig,
+    "label": LabelConfig, "render": RenderConfig, "reference": ReferenceConfig,
+    "evaluate": EvaluateConfig,
 }
 
 
@@ -460,7 +493,7 @@ def _check(config: Config) -> Config:
     r = config.render
     if r.set not in ("twin", "train"):
         raise ConfigError(f"render.set: expected twin or train, got {r.set!r}")
-    if r.spp < 1 or r.max_depth < 1 or r.train_count < 0:
+    if r.spp < 1 or r.train_spp < 1 or r.max_depth < 1 or r.train_count < 0:
         raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
     if not 0 < r.train_distance_m[0] <= r.train_distance_m[1]:
         raise ConfigError(f"render.train_distance_m: expected 0 < min <= max, got {r.train_distance_m}")

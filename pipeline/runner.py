@@ -80,7 +80,8 @@ STAGES: tuple[StageSpec, ...] = (
               "SPEED+ labels, keypoints, boxes"),
     StageSpec("render", "stages.render", ("labels",), ("renders",), ("render", "testbed"),
               "Mitsuba 3 synthetic twins (or, with --set train, the training set)"),
-    StageSpec("evaluate", None, ("renders", "labels"), ("predictions",), (), "ONNX model scores (Table 2)"),
+    StageSpec("evaluate", "stages.evaluate", ("renders", "labels"), ("predictions", "scores"), ("evaluate",),
+              "ONNX model scores on twins and testbed images (Table 2)"),
     StageSpec("report", None, ("predictions",), (), (), "static HTML report"),
 )
 STAGE_NAMES = tuple(stage.name for stage in STAGES)

@@ -61,10 +61,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     todo = [job for job in jobs if job.sample_id not in done]
     run_config = config.run
     threads = default_threads(run_config.workers)
-    rows = map_engine(run_config.engine, open_worker,
-                      (camera, str(workspace.root), config.render.spp, config.render.max_depth, threads),
-                      "render", todo, workers=run_config.workers, max_tasks=run_config.worker_max_tasks,
-                      ray_address=run_config.ray_address)
+    spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
+    args = (camera, str(workspace.root), spp, config.render.max_depth, threads)
+    rows = map_engine(run_config.engine, open_worker, args, "render", todo, workers=run_config.workers,
+                      max_tasks=run_config.worker_max_tasks, ray_address=run_config.ray_address)
     with open_sink(workspace, name, run_config.part_rows) as sink:
         for row in track(rows, len(todo), f"render {config.render.set} ({run_config.engine})"):
             if "rejected" in row:

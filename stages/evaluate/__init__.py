@@ -1,0 +1,137 @@
+"""The evaluate stage: score an ONNX pose model on pairs of synthetic twins and testbed
+captures that share their labels (the paper's Table 2 and Figure 12).
+
+Every labelled capture is one ``lightbox`` or ``sunlamp`` image; its twin is one
+``synthetic`` image. Both are scored against the label with the label camera. Writes the
+``predictions`` manifest (per image) and the ``scores`` manifest (per domain and
+configuration), and prints Table 2.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pyarrow as pa
+
+from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
+from manifests import clear as clear_manifest
+from pipeline.config import Config
+from pipeline.errors import InputError
+from pipeline.progress import console, track
+from stages.evaluate.model import PoseModel, decode_heatmaps, pose_from_keypoints
+from stages.evaluate.scores import score
+from stages.evaluate.table import print_table2, summarise
+from stages.render.jobs import label_camera
+
+REPOSITORY = Path(__file__).resolve().parents[2]
+
+
+def model_path(config: Config) -> Path:
+    """``evaluate.model``: absolute, relative to the current directory, or to the repository."""
+    path = Path(config.evaluate.model).expanduser()
+    if path.is_absolute() or path.exists():
+        return path.resolve()
+    return (REPOSITORY / path).resolve()
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.exists() else "missing"
+
+
+def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
+    path = model_path(config)
+    return ("labels", "renders", "captures"), ("evaluate",), {"model_digest": _digest(path)}
+
+
+def outputs(config: Config) -> tuple[str, ...]:
+    return ("predictions", "scores")
+
+
+def _items(workspace: Workspace) -> list[dict[str, Any]]:
+    """One item per image to score: the testbed capture and the twin of every label."""
+    labels = read_manifest(workspace, "labels").to_pylist()
+    captures = {row["sample_id"]: row["image_path"] for row in read_manifest(workspace, "captures").to_pylist()}
+    twins = {row["sample_id"]: row["image_path"] for row in read_manifest(workspace, "renders").to_pylist()}
+    items = []
+    for label in labels:
+        common = {"sample_id": label["sample_id"], "view": label["view"], "light": label["domain"],
+                  "q_true": label["q_vbs2tango_true"], "t_true": label["r_Vo2To_vbs_true"], "box": label["bbox_px"]}
+        if label["sample_id"] in captures:
+            items.append({**common, "domain": label["domain"], "image_path": captures[label["sample_id"]]})
+        if label["sample_id"] in twins:
+            items.append({**common, "domain": "synthetic", "image_path": twins[label["sample_id"]]})
+    return items
+
+
+def predict(model: PoseModel, workspace: Workspace, items: list[dict[str, Any]], camera_matrix: np.ndarray,
+            dist: np.ndarray, reprojection_fraction: float) -> list[dict[str, Any]]:
+    """Prediction rows for a batch of items."""
+    started = time.perf_counter()
+    tensors, image_from_input, widths = [], [], []
+    for item in items:
+        path = workspace.resolve(item["image_path"])
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise InputError(f"{path}: missing or unreadable image ({item['domain']} {item['sample_id']})")
+        tensor, affine = model.preprocess(image, np.asarray(item["box"]))
+        tensors.append(tensor)
+        image_from_input.append(affine)
+        widths.append(image.shape[1])
+    outputs = model.infer(np.stack(tensors))
+    contract = model.contract
+    if contract.output == "pose":
+        poses = list(zip(outputs[0], outputs[1], strict=True))
+    else:
+        if contract.output == "heatmaps":
+            points, _ = decode_heatmaps(outputs[0], contract.width, contract.height)
+        else:
+            points = np.asarray(outputs[0], float)
+        poses = []
+        for keypoints, affine, width in zip(points, image_from_input, widths, strict=True):
+            in_image = keypoints @ affine[:2, :2].T + affine[:2, 2]
+            poses.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
+                                             reprojection_fraction * width))
+    seconds = (time.perf_counter() - started) / len(items)
+    rows = []
+    for item, pose in zip(items, poses, strict=True):
+        found = pose is not None and bool(np.all(np.isfinite(pose[0])) and np.all(np.isfinite(pose[1])))
+        if found:
+            q = np.asarray(pose[0], float) / np.linalg.norm(pose[0])
+            q = q if q[0] >= 0 else -q
+            t = np.asarray(pose[1], float)
+            numbers = {k: float(v) for k, v in score(q, t, item["q_true"], item["t_true"]).items()}
+        else:
+            q = t = None
+            numbers = {"err_q_rad": float(np.pi), "err_t_norm": 1.0}
+            numbers |= {"score_speed": np.pi + 1.0, "score_speedplus": np.pi + 1.0}
+        rows.append({"prediction_id": f"{item['domain']}:{item['sample_id']}", "sample_id": item["sample_id"],
+                     "domain": item["domain"], "view": item["view"], "light": item["light"], "crop": contract.crop,
+                     "pose_found": found, "q_pred": q, "t_pred": t, **numbers, "seconds": seconds})
+    return rows
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    """Score every image missing from ``predictions``, then rewrite the ``scores`` summary."""
+    path = model_path(config)
+    model = PoseModel(path, threads=config.evaluate.threads)
+    camera = label_camera(workspace)
+    done = read_keys(workspace, "predictions")
+    items = [item for item in _items(workspace) if f"{item['domain']}:{item['sample_id']}" not in done]
+    batch = config.evaluate.batch_size
+    batches = [items[i:i + batch] for i in range(0, len(items), batch)]
+    with open_sink(workspace, "predictions", config.run.part_rows) as sink:
+        for chunk in track(batches, len(batches), f"evaluate {path.name} (batches of {batch})"):
+            for row in predict(model, workspace, chunk, camera.camera_matrix, camera.dist,
+                               config.evaluate.ransac_fraction):
+                sink.add(row)
+    predictions = read_manifest(workspace, "predictions")
+    table = summarise(predictions.to_pylist())
+    clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
+    write_part(workspace, "scores", table, workspace.active_fingerprints.get("scores", ""))
+    console.print(print_table2(table, path.name, model.contract.crop))
+    return predictions

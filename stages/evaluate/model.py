@@ -1,0 +1,228 @@
+"""The ONNX model contract, preprocessing, output decoding and pose recovery.
+
+Any ONNX model can be scored if its metadata (``metadata_props``) says how to feed it and
+read it:
+
+=========================  ==============================================================
+key                        value
+=========================  ==============================================================
+``speedplus.contract``     ``1``
+``speedplus.input_size``   ``WxH`` of the input tensor, e.g. ``256x160``; input is
+                           ``(N, C, H, W)`` float32
+``speedplus.channels``     ``rgb`` (C = 3) or ``gray`` (C = 1)
+``speedplus.normalize``    ``mean/std`` per channel on pixel values scaled to [0, 1], e.g.
+                           ``0.485,0.456,0.406/0.229,0.224,0.225``
+``speedplus.output``       ``keypoints`` (N, K, 2) input pixels; ``heatmaps`` (N, K, h, w),
+                           heatmap pixel centres spread evenly over the input; or ``pose``
+                           (two outputs: q (N, 4) Hamilton w first, t (N, 3) metres, full
+                           scale, of ``cam_from_target``)
+``speedplus.keypoints``    ``tango11`` (the 11 keypoints of DESIGN section 7, in order) or
+                           a JSON list of K body-frame points, metres, full scale
+``speedplus.crop``         ``full`` (the whole image, resized) or ``oracle_box`` (a square
+                           around the label's box, enlarged 1.25 times: reported as oracle)
+=========================  ==============================================================
+
+Keypoint outputs become poses by EPnP inside RANSAC, then Levenberg-Marquardt refinement
+on the inliers, with the label camera (intrinsics and distortion).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from pipeline.errors import InputError
+from stages import geometry as g
+from stages import tango
+
+CONTRACT_VERSION = "1"
+OUTPUT_KINDS = ("keypoints", "heatmaps", "pose")
+CROPS = ("full", "oracle_box")
+OPSET = 17
+IR_VERSION = 8  # onnxruntime 1.31 reads IR versions up to 13
+
+
+@dataclass(frozen=True)
+class ModelContract:
+    width: int
+    height: int
+    channels: str
+    mean: tuple[float, ...]
+    std: tuple[float, ...]
+    output: str
+    keypoints_m: np.ndarray  # (K, 3) body frame, full scale
+    crop: str
+
+    def metadata(self) -> dict[str, str]:
+        """The ``metadata_props`` that state this contract (for exporters)."""
+        keypoints = ("tango11" if self.keypoints_m.shape == tango.KEYPOINTS_M.shape
+                     and np.allclose(self.keypoints_m, tango.KEYPOINTS_M) else json.dumps(self.keypoints_m.tolist()))
+        return {
+            "speedplus.contract": CONTRACT_VERSION,
+            "speedplus.input_size": f"{self.width}x{self.height}",
+            "speedplus.channels": self.channels,
+            "speedplus.normalize": ",".join(map(str, self.mean)) + "/" + ",".join(map(str, self.std)),
+            "speedplus.output": self.output,
+            "speedplus.keypoints": keypoints,
+            "speedplus.crop": self.crop,
+        }
+
+
+def parse_contract(metadata: dict[str, str], source: str) -> ModelContract:
+    """The contract stated by a model's metadata; InputError naming the key otherwise."""
+    def need(key: str) -> str:
+        if key not in metadata:
+            raise InputError(f"{source}: ONNX metadata key {key!r} missing; a model must state "
+                             "speedplus.contract/input_size/channels/normalize/output/keypoints/crop "
+                             "(see stages/evaluate/model.py)")
+        return metadata[key]
+
+    def fail(key: str, expected: str) -> InputError:
+        return InputError(f"{source}: ONNX metadata {key}={metadata.get(key)!r}; expected {expected}")
+
+    if need("speedplus.contract") != CONTRACT_VERSION:
+        raise fail("speedplus.contract", CONTRACT_VERSION)
+    try:
+        width, height = (int(v) for v in need("speedplus.input_size").lower().split("x"))
+    except ValueError:
+        raise fail("speedplus.input_size", "WIDTHxHEIGHT, e.g. 256x160") from None
+    channels = need("speedplus.channels")
+    if channels not in ("rgb", "gray"):
+        raise fail("speedplus.channels", "rgb or gray")
+    count = 3 if channels == "rgb" else 1
+    try:
+        mean_text, std_text = need("speedplus.normalize").split("/")
+        mean = tuple(float(v) for v in mean_text.split(","))
+        std = tuple(float(v) for v in std_text.split(","))
+    except ValueError:
+        raise fail("speedplus.normalize", f"{count} means / {count} standard deviations, comma-separated") from None
+    if len(mean) != count or len(std) != count or min(std) <= 0:
+        raise fail("speedplus.normalize", f"{count} means / {count} positive standard deviations")
+    output = need("speedplus.output")
+    if output not in OUTPUT_KINDS:
+        raise fail("speedplus.output", " or ".join(OUTPUT_KINDS))
+    keypoints_text = need("speedplus.keypoints")
+    try:
+        keypoints = (tango.KEYPOINTS_M.copy() if keypoints_text == "tango11"
+                     else np.asarray(json.loads(keypoints_text), float))
+    except (ValueError, TypeError):
+        raise fail("speedplus.keypoints", "tango11 or a JSON list of [x, y, z] metres") from None
+    if keypoints.ndim != 2 or keypoints.shape[1] != 3 or len(keypoints) < 4:
+        raise fail("speedplus.keypoints", "at least 4 points [x, y, z]")
+    crop = need("speedplus.crop")
+    if crop not in CROPS:
+        raise fail("speedplus.crop", " or ".join(CROPS))
+    return ModelContract(width, height, channels, mean, std, output, keypoints, crop)
+
+
+class PoseModel:
+    """An ONNX Runtime session with its contract; ``predict`` turns images into poses."""
+
+    def __init__(self, path: Path, threads: int = 1) -> None:
+        import onnxruntime as ort
+
+        source = str(path)
+        if not Path(path).exists():
+            raise InputError(f"{source}: model file not found")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = max(1, threads)
+        options.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
+        except Exception as error:  # noqa: BLE001 - onnxruntime raises several types for unreadable models
+            raise InputError(f"{source}: not a loadable ONNX model ({error})") from None
+        self.contract = parse_contract(self.session.get_modelmeta().custom_metadata_map, source)
+        inputs = self.session.get_inputs()
+        expected = [3 if self.contract.channels == "rgb" else 1, self.contract.height, self.contract.width]
+        if len(inputs) != 1 or len(inputs[0].shape) != 4 or list(inputs[0].shape[1:]) != expected:
+            raise InputError(f"{source}: input {[(i.name, i.shape) for i in inputs]} does not match the metadata; "
+                             f"expected one input (N, {expected[0]}, {expected[1]}, {expected[2]})")
+        self.input_name = inputs[0].name
+        outputs = self.session.get_outputs()
+        if self.contract.output == "pose" and len(outputs) != 2:
+            raise InputError(f"{source}: speedplus.output=pose needs two outputs (q, t), got {len(outputs)}")
+
+    def preprocess(self, image_bgr: np.ndarray, box: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(C, H, W) float32 input, and the (3, 3) affine map from input pixels to image pixels."""
+        c = self.contract
+        if c.crop == "oracle_box":
+            if box is None:
+                raise InputError("speedplus.crop=oracle_box needs the label's box")
+            centre = (np.asarray(box[:2]) + np.asarray(box[2:])) / 2
+            side = 1.25 * max(box[2] - box[0], box[3] - box[1], 8.0)
+            scale_x, scale_y = side / c.width, side / c.height
+            # the crop's square is stretched to the input's aspect; pixel centres stay aligned
+            origin = centre - np.array([side, side]) / 2
+        else:
+            height, width = image_bgr.shape[:2]
+            scale_x, scale_y = width / c.width, height / c.height
+            origin = np.array([0.0, 0.0])
+        image_from_input = np.array([[scale_x, 0, origin[0] + 0.5 * scale_x - 0.5],
+                                     [0, scale_y, origin[1] + 0.5 * scale_y - 0.5], [0, 0, 1.0]])
+        if c.crop == "full":
+            warped = cv2.resize(image_bgr, (c.width, c.height), interpolation=cv2.INTER_AREA)
+        else:
+            warped = cv2.warpAffine(image_bgr, np.linalg.inv(image_from_input)[:2], (c.width, c.height),
+                                    flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        if c.channels == "rgb":
+            pixels = warped[..., ::-1].astype(np.float32) / 255.0
+        else:
+            pixels = cv2.cvtColor(warped, cv2.COLOR_BGR2GRAY)[..., None].astype(np.float32) / 255.0
+        pixels = (pixels - np.asarray(c.mean, np.float32)) / np.asarray(c.std, np.float32)
+        return np.ascontiguousarray(pixels.transpose(2, 0, 1)), image_from_input
+
+    def infer(self, batch: np.ndarray) -> list[np.ndarray]:
+        return self.session.run(None, {self.input_name: batch})
+
+
+def _parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Sub-pixel position of a peak from its value and its two neighbours, in [-0.5, 0.5]."""
+    curvature = lo - 2 * mid + hi
+    safe = np.where(np.abs(curvature) > 1e-12, curvature, -1.0)
+    return np.clip(np.where(np.abs(curvature) > 1e-12, 0.5 * (lo - hi) / safe, 0.0), -0.5, 0.5)
+
+
+def decode_heatmaps(heatmaps: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Keypoints (N, K, 2) in input pixels and confidences (N, K) from heatmaps (N, K, h, w):
+    the peak, refined by a parabola through its neighbours in x and in y."""
+    n, k, h, w = heatmaps.shape
+    index = heatmaps.reshape(n, k, -1).argmax(axis=-1)
+    ys, xs = np.divmod(index, w)
+    i, j = np.meshgrid(np.arange(n), np.arange(k), indexing="ij")
+    peak = heatmaps[i, j, ys, xs]
+    left, right = heatmaps[i, j, ys, np.maximum(xs - 1, 0)], heatmaps[i, j, ys, np.minimum(xs + 1, w - 1)]
+    up, down = heatmaps[i, j, np.maximum(ys - 1, 0), xs], heatmaps[i, j, np.minimum(ys + 1, h - 1), xs]
+    x = xs + _parabola_offset(left, peak, right) * ((xs > 0) & (xs < w - 1))
+    y = ys + _parabola_offset(up, peak, down) * ((ys > 0) & (ys < h - 1))
+    points = np.stack([(x + 0.5) * width / w - 0.5, (y + 0.5) * height / h - 0.5], axis=-1)
+    return points, peak
+
+
+def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
+                        dist: np.ndarray, reprojection_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(q (4,), t (3,) m) of cam_from_target from K image points (K, 2) and body points
+    (K, 3): EPnP in RANSAC, then LM on the inliers. None when no pose is found."""
+    object_points = np.ascontiguousarray(keypoints_m, np.float64)
+    image_points = np.ascontiguousarray(keypoints_px, np.float64)
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        object_points, image_points, camera_matrix, dist, flags=cv2.SOLVEPNP_EPNP,
+        reprojectionError=reprojection_px, iterationsCount=200, confidence=0.999)
+    if not ok or inliers is None or len(inliers) < 4:
+        return None
+    chosen = inliers[:, 0]
+    rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], camera_matrix, dist, rvec, tvec)
+    if not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0:
+        return None
+    cam_from_target = g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0])
+    return g.transform_to_qt(cam_from_target)
+
+
+def describe(model: PoseModel) -> dict[str, Any]:
+    """What a report says about a model."""
+    meta = model.session.get_modelmeta()
+    return {"producer": meta.producer_name, "graph": meta.graph_name, **model.contract.metadata()}

@@ -1,0 +1,61 @@
+"""The paper's Table 2 from the predictions: mean scores per domain and configuration."""
+
+from __future__ import annotations
+
+from itertools import product
+from typing import Any
+
+import numpy as np
+from rich.table import Table
+
+from manifests import to_table
+from manifests.schema import SCORES, VIEWS
+
+TESTBED = ("lightbox", "sunlamp")
+
+
+def _group(rows: list[dict[str, Any]], domain: str, view: str, light: str) -> dict[str, Any] | None:
+    chosen = [r for r in rows if (r["domain"] == "synthetic") == (domain == "synthetic")
+              and view in ("all", r["view"]) and light in ("all", r["light"])]
+    if not chosen:
+        return None
+    err_q = np.degrees([r["err_q_rad"] for r in chosen])
+    return {"group": f"{domain}/{view}/{light}", "domain": domain, "view": view, "light": light,
+            "count": len(chosen), "pose_found_share": float(np.mean([r["pose_found"] for r in chosen])),
+            "mean_score_speed": float(np.mean([r["score_speed"] for r in chosen])),
+            "mean_score_speedplus": float(np.mean([r["score_speedplus"] for r in chosen])),
+            "mean_err_q_deg": float(err_q.mean()), "median_err_q_deg": float(np.median(err_q)),
+            "mean_err_t_norm": float(np.mean([r["err_t_norm"] for r in chosen]))}
+
+
+def summarise(predictions: list[dict[str, Any]]) -> Any:
+    """The ``scores`` table: every (domain, view, light) combination present, and 'all'."""
+    rows = []
+    for domain, view, light in product(("synthetic", "testbed"), (*VIEWS, "all"), (*TESTBED, "all")):
+        group = _group(predictions, domain, view, light)
+        if group is not None:
+            rows.append(group)
+    return to_table(rows, SCORES)
+
+
+def print_table2(scores: Any, model_name: str, crop: str) -> Table:
+    """Configuration (view, light) x {synthetic, testbed}: mean SPEED (and SPEED+) scores."""
+    by_group = {row["group"]: row for row in scores.to_pylist()}
+    oracle = " (oracle crop)" if crop == "oracle_box" else ""
+    table = Table(title=f"Table 2: mean SPEED score of {model_name}{oracle} on twins and testbed images")
+    for column in ("configuration (view, light)", "images", "synthetic", "testbed", "synthetic SPEED+",
+                   "testbed SPEED+"):
+        table.add_column(column)
+    for view, light in [*product(VIEWS, TESTBED), ("all", "all")]:
+        synthetic, testbed = by_group.get(f"synthetic/{view}/{light}"), by_group.get(f"testbed/{view}/{light}")
+        if synthetic is None and testbed is None:
+            continue
+
+        def cell(row: dict[str, Any] | None, key: str) -> str:
+            return "-" if row is None else f"{row[key]:.4f}"
+
+        count = (testbed or synthetic)["count"]
+        table.add_row(f"{view}, {light}", str(count), cell(synthetic, "mean_score_speed"),
+                      cell(testbed, "mean_score_speed"), cell(synthetic, "mean_score_speedplus"),
+                      cell(testbed, "mean_score_speedplus"))
+    return table

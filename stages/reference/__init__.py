@@ -1,0 +1,1 @@
+"""The reference keypoint CNN: network (torch), training recipe, ONNX export."""

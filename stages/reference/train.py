@@ -1,0 +1,199 @@
+"""The reference model's recipe: train ``KeypointNet`` on the synthetic training set
+(``render --set train``), export it to ONNX with the evaluation contract's metadata, and
+score it on held-out synthetic images through ONNX Runtime (never through torch).
+
+Data: every image is resized to the network input exactly as ``evaluate`` will resize
+testbed images and twins (``PoseModel.preprocess``, crop ``full``); targets are Gaussian
+heatmaps at the keypoints' projections from the ``train`` manifest. Augmentation:
+brightness, contrast and gamma jitter and sensor-like noise, nothing geometric (the
+keypoints' identities depend on the image's handedness).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from manifests import Workspace, read_manifest
+from pipeline.config import Config, ReferenceConfig
+from pipeline.progress import console, track
+from stages import tango
+from stages.evaluate.model import IR_VERSION, OPSET, ModelContract, PoseModel, pose_from_keypoints
+from stages.evaluate.scores import score
+
+MEAN = (0.485, 0.456, 0.406)
+STD = (0.229, 0.224, 0.225)
+STRIDE = 4
+
+
+def contract(recipe: ReferenceConfig) -> ModelContract:
+    return ModelContract(recipe.input_width, recipe.input_height, "rgb", MEAN, STD, "heatmaps",
+                         tango.KEYPOINTS_M.copy(), "full")
+
+
+def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str, np.ndarray]:
+    """Images (N, H, W, 3) uint8 RGB at the input size, keypoints (N, 11, 2) in input pixels,
+    and the rows' poses and cameras (for scoring held-out images)."""
+    rows = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
+    if not rows:
+        raise ValueError(f"{workspace.manifest_dir('train')}: no training images; run render --set train")
+    size = (recipe.input_width, recipe.input_height)
+    images = np.empty((len(rows), size[1], size[0], 3), np.uint8)
+    keypoints = np.empty((len(rows), len(tango.KEYPOINTS_M), 2))
+    for index, row in enumerate(track(rows, len(rows), "load training images")):
+        image = cv2.imread(str(workspace.resolve(row["image_path"])), cv2.IMREAD_COLOR)
+        images[index] = cv2.resize(image, size, interpolation=cv2.INTER_AREA)[..., ::-1]
+        scale = np.array([size[0] / row["width"], size[1] / row["height"]])
+        keypoints[index] = (np.asarray(row["keypoints_px"]) + 0.5) * scale - 0.5
+    return {"images": images, "keypoints": keypoints, "rows": np.array(rows, dtype=object)}
+
+
+def heatmap_targets(keypoints: np.ndarray, height: int, width: int, sigma: float) -> np.ndarray:
+    """Gaussian heatmaps (N, K, h, w) float32 at input-pixel keypoints (N, K, 2); zero for
+    keypoints outside the image."""
+    h, w = height // STRIDE, width // STRIDE
+    centres = (keypoints + 0.5) / STRIDE - 0.5  # input pixels -> heatmap pixels (centres aligned)
+    ys, xs = np.arange(h, dtype=np.float32), np.arange(w, dtype=np.float32)
+    gx = np.exp(-((xs[None, None, :] - centres[..., 0:1]) ** 2) / (2 * sigma**2))
+    gy = np.exp(-((ys[None, None, :] - centres[..., 1:2]) ** 2) / (2 * sigma**2))
+    inside = ((centres[..., 0] > -0.5) & (centres[..., 0] < w - 0.5) & (centres[..., 1] > -0.5)
+              & (centres[..., 1] < h - 0.5))
+    return (gy[..., :, None] * gx[..., None, :] * inside[..., None, None]).astype(np.float32)
+
+
+def _augment(images: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    x = images.astype(np.float32) / 255.0
+    n = len(x)
+    gain = rng.uniform(0.6, 1.6, (n, 1, 1, 1)).astype(np.float32)
+    gamma = rng.uniform(0.7, 1.4, (n, 1, 1, 1)).astype(np.float32)
+    offset = rng.uniform(-0.03, 0.05, (n, 1, 1, 1)).astype(np.float32)
+    noise = rng.normal(0.0, 1.0, x.shape).astype(np.float32) * rng.uniform(0.0, 0.04, (n, 1, 1, 1)).astype(np.float32)
+    return np.clip(np.power(np.clip(x * gain, 0, 1), gamma) + offset + noise, 0.0, 1.0)
+
+
+def _normalise(x: np.ndarray) -> np.ndarray:
+    """(N, H, W, 3) in [0, 1] -> (N, 3, H, W) normalised as the contract says."""
+    return ((x - np.asarray(MEAN, np.float32)) / np.asarray(STD, np.float32)).transpose(0, 3, 1, 2)
+
+
+def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, max_steps: int | None = None) -> Any:
+    """The trained ``KeypointNet`` (torch, eval mode) and its training log."""
+    import torch
+
+    from stages.reference.network import KeypointNet
+
+    torch.manual_seed(recipe.seed)
+    torch.set_num_threads(recipe.threads)
+    rng = np.random.default_rng(recipe.seed)
+    model = KeypointNet(len(tango.KEYPOINTS_M), recipe.width)
+    images, keypoints = data["images"], data["keypoints"]
+    steps_per_epoch = max(1, len(images) // recipe.batch_size)
+    total = recipe.epochs * steps_per_epoch if max_steps is None else max_steps
+    optimiser = torch.optim.Adam(model.parameters(), lr=recipe.learning_rate)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda step: 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
+    log, step, started = [], 0, time.perf_counter()
+    model.train()
+    while step < total:
+        order = rng.permutation(len(images))
+        for first in range(0, steps_per_epoch * recipe.batch_size, recipe.batch_size):
+            if step >= total:
+                break
+            batch = order[first:first + recipe.batch_size]
+            x = torch.from_numpy(np.ascontiguousarray(_normalise(_augment(images[batch], rng))))
+            target = torch.from_numpy(heatmap_targets(keypoints[batch], recipe.input_height, recipe.input_width,
+                                                      recipe.heatmap_sigma))
+            output = model(x)
+            # foreground pixels weigh more: most of a heatmap is background
+            weight = 1.0 + 20.0 * target
+            loss = (weight * (output - target) ** 2).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            step += 1
+            if step % steps_per_epoch == 0 or step == total:
+                log.append({"step": step, "epoch": step / steps_per_epoch, "loss": loss.item(),
+                            "seconds": time.perf_counter() - started})
+                console.print(f"train-reference: epoch {step / steps_per_epoch:.1f}/{total / steps_per_epoch:.0f} "
+                              f"loss {loss.item():.5f} ({time.perf_counter() - started:.0f} s)")
+    model.eval()
+    return model, log
+
+
+def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[str, str]) -> None:
+    """ONNX (opset ``OPSET``, IR version ``IR_VERSION``) with the contract's metadata."""
+    import onnx
+    import torch
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    temporary = out.with_name(f".{out.name}.tmp")
+    dummy = torch.zeros(1, 3, recipe.input_height, recipe.input_width)
+    torch.onnx.export(model, (dummy,), str(temporary), input_names=["image"], output_names=["heatmaps"],
+                      dynamic_axes={"image": {0: "batch"}, "heatmaps": {0: "batch"}}, opset_version=OPSET,
+                      dynamo=False)
+    proto = onnx.load(str(temporary))
+    proto.ir_version = IR_VERSION
+    proto.producer_name = "speedplus train-reference"
+    del proto.metadata_props[:]
+    for key, value in {**contract(recipe).metadata(), **extra_metadata}.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.checker.check_model(proto)
+    onnx.save(proto, str(temporary))
+    temporary.replace(out)
+
+
+def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_of_row: Any) -> dict[str, float]:
+    """SPEED scores of the exported model on images through ONNX Runtime and PnP."""
+    from stages.evaluate.model import decode_heatmaps
+
+    model = PoseModel(path, threads=2)
+    errors = []
+    for first in range(0, len(data["images"]), 32):
+        images = data["images"][first:first + 32]
+        batch = np.ascontiguousarray(_normalise(images.astype(np.float32) / 255.0))
+        heatmaps = model.infer(batch)[0]
+        points, _ = decode_heatmaps(heatmaps, model.contract.width, model.contract.height)
+        for row, keypoints in zip(data["rows"][first:first + 32], points, strict=True):
+            camera_matrix, dist = camera_of_row(row)
+            scale = np.array([row["width"] / model.contract.width, row["height"] / model.contract.height])
+            pose = pose_from_keypoints((keypoints + 0.5) * scale - 0.5, tango.KEYPOINTS_M, camera_matrix, dist,
+                                       reprojection_px=0.02 * row["width"])
+            q, t = pose if pose is not None else (np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.0]))
+            errors.append(score(q, t, row["q_vbs2tango_true"], row["r_Vo2To_vbs_true"]))
+    err_q = np.degrees([e["err_q_rad"] for e in errors])
+    return {"images": len(errors), "mean_speed_score": float(np.mean([e["score_speed"] for e in errors])),
+            "median_rotation_error_deg": float(np.median(err_q)), "mean_rotation_error_deg": float(np.mean(err_q)),
+            "median_translation_error": float(np.median([e["err_t_norm"] for e in errors]))}
+
+
+def run(config: Config, workspace: Workspace, out: Path, *, max_steps: int | None = None) -> dict[str, Any]:
+    """Train on the workspace's ``train`` manifest, export to ``out``, score held-out images;
+    returns the model card (also written beside the model as JSON)."""
+    from stages.render.jobs import train_camera
+
+    recipe = config.reference
+    data = load_training_set(workspace, recipe)
+    held = max(1, len(data["images"]) // 10)
+    split = {key: value[:-held] for key, value in data.items()}, {key: value[-held:] for key, value in data.items()}
+    started = time.perf_counter()
+    model, log = train(split[0], recipe, max_steps=max_steps)
+    seconds = time.perf_counter() - started
+    export(model, recipe, out, {"speedplus.recipe": json.dumps(asdict(recipe))})
+    camera = train_camera(config)
+    scores = held_out_scores(out, split[1], lambda row: (camera.camera_matrix, camera.dist))
+    card = {"model": str(out.name), "training_images": len(split[0]["images"]), "held_out_images": held,
+            "train_seconds": round(seconds, 1), "recipe": asdict(recipe), "held_out": scores,
+            "render": {"count": config.render.train_count, "seed": config.render.seed,
+                       "resolution_scale": config.render.train_resolution_scale, "spp": config.render.train_spp},
+            "log": log}
+    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    return card
