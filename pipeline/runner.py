@@ -82,7 +82,8 @@ STAGES: tuple[StageSpec, ...] = (
               "Mitsuba 3 synthetic twins (or, with --set train, the training set)"),
     StageSpec("evaluate", "stages.evaluate", ("renders", "labels"), ("predictions", "scores"), ("evaluate",),
               "ONNX model scores on twins and testbed images (Table 2)"),
-    StageSpec("report", None, ("predictions",), (), (), "static HTML report"),
+    StageSpec("report", "stages.report", ("labels", "renders", "predictions", "scores"), ("report",), (),
+              "static HTML report (W/report/index.html)"),
 )
 STAGE_NAMES = tuple(stage.name for stage in STAGES)
 

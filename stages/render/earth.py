@@ -2,11 +2,16 @@
 the target, composited under the render (whose background is empty space).
 
 The planet is a sphere of Earth's radius ray-traced per pixel through the lens model, lit
-by the same sun as the target (Lambert), coloured by smooth 3-D value noise (oceans,
-land, clouds), with a thin bright limb. Deterministic for a given generator.
+by the same sun as the target (Lambert), coloured by a fixed albedo map of smooth 3-D
+value noise (oceans, land, clouds) seen in a random orientation, with a thin bright limb.
+Deterministic for a given generator.
 """
 
 from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -39,38 +44,95 @@ def _value_noise(points: np.ndarray, rng: np.random.Generator, octaves: int = 5)
     return total / norm
 
 
+@functools.lru_cache(maxsize=1)
+def albedo_map(width: int = 2048) -> np.ndarray:
+    """Equirectangular albedo (width / 2, width, 3) float32 of an Earth-like planet: oceans,
+    land and clouds from fixed-seed value noise on the sphere. Built once (seconds) and
+    kept in the user's cache directory, so that recycled workers load it."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / f"earth-{width}-v1.npy"
+    if cache.exists():
+        try:
+            return np.load(cache)
+        except (OSError, ValueError):
+            pass  # a damaged cache file is rebuilt
+    texture = _build_albedo_map(width)
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    temporary = cache.with_name(f".{cache.name}.{os.getpid()}.tmp")
+    with open(temporary, "wb") as handle:
+        np.save(handle, texture)
+    os.replace(temporary, cache)
+    return texture
+
+
+def _build_albedo_map(width: int) -> np.ndarray:
+    height = width // 2
+    lat = (0.5 - (np.arange(height) + 0.5) / height) * np.pi
+    lon = ((np.arange(width) + 0.5) / width * 2 - 1) * np.pi
+    lon_grid, lat_grid = np.meshgrid(lon, lat)
+    points = np.stack([np.cos(lat_grid) * np.cos(lon_grid), np.cos(lat_grid) * np.sin(lon_grid),
+                       np.sin(lat_grid)], axis=-1).reshape(-1, 3)
+    rng = np.random.default_rng(0xEA27)
+    land = _value_noise(points * 2.0, rng, octaves=7) > 0.55
+    clouds = np.clip((_value_noise(points * 6.0, rng, octaves=6) - 0.45) * 3.0, 0.0, 1.0)
+    albedo = np.where(land[:, None], LAND, OCEAN)
+    albedo = albedo * (1 - clouds[:, None]) + CLOUD * clouds[:, None]
+    return albedo.reshape(height, width, 3).astype(np.float32)
+
+
+def _bilinear(texture: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Texture (H, W, C) at continuous pixel coordinates (N,): u wraps around, v is clamped."""
+    height, width = texture.shape[:2]
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+    u0, u1 = u0 % width, (u0 + 1) % width
+    v0, v1 = np.clip(v0, 0, height - 1), np.clip(v0 + 1, 0, height - 1)
+    top = texture[v0, u0] * (1 - fu) + texture[v0, u1] * fu
+    bottom = texture[v1, u0] * (1 - fu) + texture[v1, u1] * fu
+    return top * (1 - fv) + bottom * fv
+
+
+_RAYS: dict[tuple, np.ndarray] = {}
+
+
+def _camera_rays(camera: LensCamera) -> np.ndarray:
+    """Unit ray directions (H * W, 3) of every pixel centre through the lens (cached)."""
+    key = (camera.width, camera.height, np.asarray(camera.camera_matrix).tobytes(), np.asarray(camera.dist).tobytes())
+    if key not in _RAYS:
+        us, vs = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+        normalised = undistort_pixels(np.stack([us.ravel(), vs.ravel()], 1), camera)
+        rays = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)
+        _RAYS.clear()
+        _RAYS[key] = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    return _RAYS[key]
+
+
 def earth_background(camera: LensCamera, light_dir_cam: np.ndarray, irradiance: float,
                      rng: np.random.Generator) -> np.ndarray:
     """Linear radiance (H, W, 3) of the Earth seen by ``camera``, lit from ``light_dir_cam``
-    (3,) with ``irradiance`` W/m^2, for an orbit altitude of 300-1500 km with the planet somewhere behind the target."""
+    (3,) with ``irradiance`` W/m^2, for an orbit altitude of 300-1500 km with the planet
+    somewhere behind the target and a random region of it below."""
     altitude = rng.uniform(300e3, 1500e3)
     # the nadir direction: mostly away from the camera, tilted so that the limb often shows
     nadir = np.array([rng.normal(0, 0.6), rng.normal(0, 0.6), 1.0])
     nadir /= np.linalg.norm(nadir)
+    spin = np.linalg.qr(rng.normal(size=(3, 3)))[0]  # which part of the planet is below
     centre = nadir * (EARTH_RADIUS_M + altitude)
-    us, vs = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-    normalised = undistort_pixels(np.stack([us.ravel(), vs.ravel()], 1), camera)
-    rays = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    # ray-sphere intersection from the camera (origin)
+    rays = _camera_rays(camera)
     along = rays @ centre
     miss_sq = along**2 - (centre @ centre - EARTH_RADIUS_M**2)
     hit = (miss_sq > 0) & (along > 0)
-    image = np.zeros((len(rays), 3))
-    if not hit.any():
-        return image.reshape(camera.height, camera.width, 3).astype(np.float32)
-    distance = along[hit] - np.sqrt(miss_sq[hit])
-    normals = (rays[hit] * distance[:, None] - centre) / EARTH_RADIUS_M
-    spin = np.linalg.qr(rng.normal(size=(3, 3)))[0]  # a random longitude/latitude under the camera
-    surface = normals @ spin.T
-    land = _value_noise(surface, rng) > 0.55
-    clouds = np.clip((_value_noise(surface * 1.7, rng) - 0.45) * 3.0, 0.0, 1.0)
-    albedo = np.where(land[:, None], LAND, OCEAN)
-    albedo = albedo * (1 - clouds[:, None]) + CLOUD * clouds[:, None]
-    sun = np.clip(normals @ np.asarray(light_dir_cam, float), 0.0, None)
-    facing = np.clip(-(normals * rays[hit]).sum(axis=1), 0.0, 1.0)  # 0 at the limb
-    haze = (1.0 - facing) ** 8  # the atmosphere seen edge-on
-    radiance = irradiance / np.pi * (albedo * sun[:, None] + 0.5 * np.array([0.3, 0.5, 1.0]) * haze[:, None]
-                                     * np.clip(sun[:, None] + 0.2, 0.0, 1.0))
-    image[hit] = radiance
-    return image.reshape(camera.height, camera.width, 3).astype(np.float32)
+    image = np.zeros((len(rays), 3), np.float32)
+    if hit.any():
+        distance = along[hit] - np.sqrt(miss_sq[hit])
+        normals = (rays[hit] * distance[:, None] - centre) / EARTH_RADIUS_M
+        surface = normals @ spin.T
+        texture = albedo_map()
+        u = ((np.arctan2(surface[:, 1], surface[:, 0]) / np.pi + 1) / 2 * texture.shape[1] - 0.5).astype(np.float32)
+        v = ((0.5 - np.arcsin(np.clip(surface[:, 2], -1, 1)) / np.pi) * texture.shape[0] - 0.5).astype(np.float32)
+        albedo = _bilinear(texture, u, v)
+        sun = np.clip(normals @ np.asarray(light_dir_cam, float), 0.0, None)
+        facing = np.clip(-(normals * rays[hit]).sum(axis=1), 0.0, 1.0)  # 0 at the limb
+        haze = (1.0 - facing) ** 8  # the atmosphere seen edge-on
+        image[hit] = irradiance / np.pi * (albedo * sun[:, None] + 0.5 * np.array([0.3, 0.5, 1.0]) * haze[:, None]
+                                           * np.clip(sun[:, None] + 0.2, 0.0, 1.0))
+    return image.reshape(camera.height, camera.width, 3)

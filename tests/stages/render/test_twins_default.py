@@ -30,8 +30,10 @@ def test_every_label_has_a_twin(default_twins):
 def test_twins_overlap_the_mockup_silhouette_in_the_capture(default_twins):
     rows = twin_overlap(load_config(None, default_twins.config_path), default_twins)
     at_truth = np.array([r["iou_truth"] for r in rows])
-    at_label = np.array([r["iou_label"] for r in rows])
-    assert at_truth.min() > 0.97, at_truth.min()  # one set of conventions from plan to render
-    assert at_label.min() >= 0.9, [(r["sample_id"], r["label_source"], r["iou_label"]) for r in rows
-                                   if r["iou_label"] < 0.9]
-    assert np.median(at_label) > 0.95
+    fused = np.array([r["iou_label"] for r in rows if r["label_source"] == "fused"])
+    assert at_truth.min() > 0.98, at_truth.min()  # one set of conventions from plan to render
+    assert len(fused) >= 30 and fused.min() >= 0.9, sorted(fused)[:3]
+    assert np.median(fused) > 0.95
+    # KUKA-only labels (motion capture rejected or untracked) carry the fixture sag: worse, yet close
+    kuka_only = np.array([r["iou_label"] for r in rows if r["label_source"] == "kuka_only"])
+    assert kuka_only.size == 0 or kuka_only.min() > 0.75

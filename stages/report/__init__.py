@@ -1,0 +1,202 @@
+"""The report stage: a static HTML page, ``W/report/index.html``, with the paper's tables
+and figures for this run (no server, no network: open it from the file system).
+
+Sections: Table 1 (in-sample, cross-validated, against the truth when there is one),
+calibration residuals, the label pose distribution, rejection statistics, wireframe
+overlays of the labels on testbed images, synthetic/testbed pairs with their scores,
+Table 2, per-sample scores, rotation-error CDFs, and the run's provenance.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import platform
+from collections import Counter
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from manifests import Workspace, read_manifest, read_success
+from manifests.io import write_bytes_atomic
+from pipeline.config import Config
+from stages.render.jobs import label_camera
+from stages.report import figures
+
+REPORT_DIR = "report"
+PACKAGES = ("speedplus-builder", "numpy", "opencv-contrib-python-headless", "mitsuba", "drjit", "onnxruntime",
+            "pyarrow", "ray")
+
+
+def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
+    return ("labels", "renders", "predictions", "scores"), (), {}
+
+
+def outputs(config: Config) -> tuple[str, ...]:
+    return ("report",)  # a completion marker only: the report is W/report/
+
+
+def _table(headers: list[str], rows: list[list[Any]]) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _metric(metrics: dict[str, Any] | None, kind: str, key: str, factor: float) -> str:
+    if not metrics or not metrics.get(kind):
+        return "-"
+    mean, std = metrics[kind][key]
+    return f"{mean * factor:.3f} ± {std * factor:.3f}"
+
+
+def table1(calibration: dict[str, Any]) -> str:
+    rows = []
+    for kind, name in (("in_sample", "in-sample"), ("cross_validated", "cross-validated"), ("truth", "vs truth")):
+        for key, unit, factor in (("E_T_m", "mm", 1000.0), ("E_R_rad", "deg", float(np.degrees(1.0))),
+                                  ("E_p_px", "px", 1.0)):
+            cells = [_metric((calibration.get(source) or {}).get("metrics"), kind, key, factor)
+                     for source in ("kuka", "vicon", "fused")]
+            rows.append([f"{key.split('_')[0]}_{key.split('_')[1]} [{unit}] {name}", *cells])
+    return _table(["metric", "KUKA-only", "Vicon-only", "fused"], rows)
+
+
+def _cell(row: dict[str, Any] | None, key: str) -> str:
+    return "-" if row is None else f"{row[key]:.4f}"
+
+
+def table2(scores: list[dict[str, Any]], crop: str) -> str:
+    by_group = {row["group"]: row for row in scores}
+    rows = []
+    for view in ("solar_panel", "rear_panel", "all"):
+        for light in (("lightbox", "sunlamp") if view != "all" else ("all",)):
+            synthetic, testbed = by_group.get(f"synthetic/{view}/{light}"), by_group.get(f"testbed/{view}/{light}")
+            if synthetic is None and testbed is None:
+                continue
+            rows.append([f"{view}, {light}", (testbed or synthetic)["count"], _cell(synthetic, "mean_score_speed"),
+                         _cell(testbed, "mean_score_speed"), _cell(synthetic, "mean_score_speedplus"),
+                         _cell(testbed, "mean_score_speedplus"), _cell(synthetic, "median_err_q_deg"),
+                         _cell(testbed, "median_err_q_deg")])
+    note = " (oracle crop: boxes from the labels)" if crop == "oracle_box" else ""
+    return "<p>Mean scores" + note + "</p>" + _table(
+        ["configuration (view, light)", "images", "synthetic SPEED", "testbed SPEED", "synthetic SPEED+",
+         "testbed SPEED+", "synthetic median e_q [deg]", "testbed median e_q [deg]"], rows)
+
+
+def rejection_table(poses: list[dict[str, Any]], labels: list[dict[str, Any]]) -> str:
+    reasons = Counter()
+    for row in poses:
+        reason = row["reject_reason"] or "accepted"
+        reasons[reason.split(" differs")[0] + (" differs" if " differs" in reason else "")] += 1
+    sources = Counter(row["label_source"] for row in labels)
+    rows = [[reason, count] for reason, count in reasons.most_common()]
+    rows += [[f"labels from {source}", count] for source, count in sources.items()]
+    return _table(["motion-capture decision / label source", "samples"], rows)
+
+
+def provenance(config: Config, workspace: Workspace) -> str:
+    versions = []
+    for package in PACKAGES:
+        try:
+            versions.append([package, metadata.version(package)])
+        except metadata.PackageNotFoundError:
+            versions.append([package, "not installed"])
+    versions.append(["python", platform.python_version()])
+    timings = []
+    for name in ("plan", "captures", "calibration_samples", "poses", "labels", "renders", "predictions"):
+        marker = read_success(workspace, name)
+        if marker:
+            timings.append([marker.get("stage", name), name, marker.get("rows"), marker.get("seconds"),
+                            marker.get("completed_at"), marker.get("fingerprint")])
+    config_text = workspace.config_path.read_text() if workspace.config_path.exists() else ""
+    return (_table(["package", "version"], versions)
+            + _table(["stage", "manifest", "rows", "seconds", "completed", "fingerprint"], timings)
+            + f"<details><summary>configuration (W/config.toml)</summary><pre>{html.escape(config_text)}</pre>"
+              "</details>")
+
+
+def _write_png(path: Path, image: np.ndarray) -> str:
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    write_bytes_atomic(path, encoded.tobytes())
+    return path.name
+
+
+def run(config: Config, workspace: Workspace) -> None:
+    out = workspace.root / REPORT_DIR
+    figure_dir, thumb_dir = out / "figures", out / "thumbs"
+    calibration = json.loads((workspace.root / "calibration.json").read_text())
+    labels = read_manifest(workspace, "labels").to_pylist()
+    poses = read_manifest(workspace, "poses").to_pylist()
+    renders = {row["sample_id"]: row for row in read_manifest(workspace, "renders").to_pylist()}
+    captures = {row["sample_id"]: row for row in read_manifest(workspace, "captures").to_pylist()}
+    predictions = read_manifest(workspace, "predictions").to_pylist()
+    scores = read_manifest(workspace, "scores").to_pylist()
+    samples = read_manifest(workspace, "calibration_samples").to_pylist()
+    camera = label_camera(workspace)
+    score_of = {(row["domain"], row["sample_id"]): row for row in predictions}
+
+    made = {
+        "residuals": figures.calibration_residuals(samples, figure_dir / "calibration_residuals.png"),
+        "poses": figures.pose_distribution(labels, figure_dir / "pose_distribution.png"),
+        "scores": figures.per_sample_scores(predictions, figure_dir / "per_sample_scores.png"),
+        "cdf": figures.rotation_cdf(predictions, figure_dir / "rotation_cdf.png"),
+    }
+    # a few samples of each configuration for the picture sections
+    chosen: list[dict[str, Any]] = []
+    for view in ("solar_panel", "rear_panel"):
+        for light in ("lightbox", "sunlamp"):
+            chosen += [row for row in labels if row["view"] == view and row["domain"] == light][:2]
+    overlays, pairs = [], []
+    for label in chosen:
+        sample_id = label["sample_id"]
+        capture = cv2.imread(str(workspace.resolve(captures[sample_id]["image_path"])), cv2.IMREAD_COLOR)
+        name = _write_png(thumb_dir / f"overlay_{sample_id}.png",
+                          figures.thumbnail(figures.overlay(capture, label, camera.camera_matrix, camera.dist)))
+        overlays.append(f'<figure><img src="thumbs/{name}" alt="wireframe of {sample_id}"><figcaption>{sample_id}: '
+                        f'{label["view"]}, {label["domain"]}, {label["label_source"]}</figcaption></figure>')
+        if sample_id in renders:
+            twin = cv2.imread(str(workspace.resolve(renders[sample_id]["image_path"])), cv2.IMREAD_COLOR)
+            pair = np.hstack([figures.thumbnail(twin), figures.thumbnail(np.clip(capture.astype(np.float32) * 2, 0,
+                                                                                 255).astype(np.uint8))])
+            name = _write_png(thumb_dir / f"pair_{sample_id}.png", pair)
+            synthetic, testbed = score_of.get(("synthetic", sample_id)), score_of.get((label["domain"], sample_id))
+            caption = " / ".join(f"{r['score_speed']:.3f}" if r else "-" for r in (synthetic, testbed))
+            pairs.append(f'<figure><img src="thumbs/{name}" alt="twin and capture of {sample_id}"><figcaption>'
+                         f'{sample_id} ({label["view"]}, {label["domain"]}): SPEED score twin / testbed {caption}'
+                         '</figcaption></figure>')
+    crop = predictions[0]["crop"] if predictions else "full"
+    sections = [
+        ("Table 1: calibration accuracy", f"<p>Solver: {html.escape(str(calibration.get('solver')))}. Mean ± "
+         "standard deviation over the calibration samples.</p>" + table1(calibration)),
+        ("Calibration residuals", f'<img src="figures/{made["residuals"]}" alt="calibration residuals">'),
+        ("Pose distribution of the labels", f'<img src="figures/{made["poses"]}" alt="pose distribution">'),
+        ("Motion-capture rejection and label sources", rejection_table(poses, labels)),
+        ("Labels on testbed images (wireframe, brightened)", '<div class="grid">' + "".join(overlays) + "</div>"),
+        ("Synthetic twins and testbed images", '<div class="grid">' + "".join(pairs) + "</div>"),
+        ("Table 2: domain gap of the model", table2(scores, crop)),
+        ("Per-sample scores", f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
+        ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
+        ("Provenance", provenance(config, workspace)),
+    ]
+    body = "".join(f"<section><h2>{html.escape(title)}</h2>{content}</section>" for title, content in sections)
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>SPEED+ builder report: {html.escape(workspace.root.name)}</title>
+<style>
+body {{ font-family: sans-serif; margin: 2em auto; max-width: 1200px; color: #222; background: #fff; }}
+h1 {{ border-bottom: 2px solid #444; }} h2 {{ margin-top: 1.6em; color: #334; }}
+table {{ border-collapse: collapse; margin: 0.5em 0; }} td, th {{ border: 1px solid #bbb; padding: 3px 8px; }}
+th {{ background: #eef; }} img {{ max-width: 100%; }}
+.grid {{ display: flex; flex-wrap: wrap; gap: 10px; }} figure {{ margin: 0; }}
+figcaption {{ font-size: 0.85em; color: #555; }} pre {{ font-size: 0.8em; background: #f6f6f6; padding: 1em; }}
+</style></head><body>
+<h1>SPEED+ builder report: {html.escape(str(workspace.root))}</h1>
+<p>Profile {html.escape(config.profile)}, model {html.escape(Path(config.evaluate.model).name)}; {len(labels)}
+labels, {len(renders)} twins, {len(predictions)} scored images.</p>
+{body}
+</body></html>
+"""
+    write_bytes_atomic(out / "index.html", page.encode())

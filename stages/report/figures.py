@@ -1,0 +1,128 @@
+"""The report's figures (matplotlib, Agg) and image thumbnails, each written to a file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
+import numpy as np  # noqa: E402
+
+from stages import geometry as g  # noqa: E402
+from stages import tango  # noqa: E402
+from stages.tango_mesh import antenna_base  # noqa: E402
+
+DOMAIN_COLOURS = {"synthetic": "tab:blue", "lightbox": "tab:orange", "sunlamp": "tab:red"}
+
+
+def _save(figure: Any, path: Path) -> str:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path.name
+
+
+def calibration_residuals(samples: list[dict[str, Any]], path: Path) -> str:
+    """Per calibration sample: each source's disagreement with the pattern's PnP pose."""
+    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 3.4))
+    for source, marker in (("kuka", "o"), ("vicon", "s")):
+        ids, dt, dr = [], [], []
+        for index, row in enumerate(samples):
+            if row.get(f"{source}_cam_from_target_q") is None or row["cam_from_target_cal_q"] is None:
+                continue
+            measured = g.transform_from_qt(row[f"{source}_cam_from_target_q"], row[f"{source}_cam_from_target_t"])
+            pattern = g.transform_from_qt(row["cam_from_target_cal_q"], row["cam_from_target_cal_t"])
+            ids.append(index)
+            dt.append(1000 * np.linalg.norm(measured[:3, 3] - pattern[:3, 3]))
+            dr.append(np.degrees(g.angular_distance(measured[:3, :3], pattern[:3, :3])))
+        left.plot(ids, dt, marker, ms=4, label=source.upper() if source == "kuka" else "Vicon")
+        right.plot(ids, dr, marker, ms=4)
+    left.set(xlabel="calibration sample", ylabel="translation residual [mm]", title="E_T per sample")
+    right.set(xlabel="calibration sample", ylabel="rotation residual [deg]", title="E_R per sample")
+    left.legend()
+    return _save(figure, path)
+
+
+def pose_distribution(labels: list[dict[str, Any]], path: Path) -> str:
+    """Label positions (full scale) and Euler angles of cam_from_target."""
+    from scipy.spatial.transform import Rotation
+
+    t = np.array([row["r_Vo2To_vbs_true"] for row in labels])
+    q = np.array([row["q_vbs2tango_true"] for row in labels])
+    euler = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)
+    figure, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    colours = ["tab:orange" if row["domain"] == "lightbox" else "tab:red" for row in labels]
+    axes[0].scatter(t[:, 0], t[:, 2], c=colours, s=12)
+    axes[0].set(xlabel="x [m]", ylabel="z (boresight) [m]", title="positions (full scale)")
+    axes[1].scatter(t[:, 1], t[:, 2], c=colours, s=12)
+    axes[1].set(xlabel="y [m]", ylabel="z [m]", title="orange: light boxes, red: sun lamp")
+    for column, name in enumerate(("yaw (Z)", "pitch (Y)", "roll (X)")):
+        axes[2].hist(euler[:, column], bins=18, range=(-180, 180), histtype="step", label=name)
+    axes[2].set(xlabel="angle [deg]", ylabel="labels", title="Euler angles Z-Y-X")
+    axes[2].legend(fontsize=8)
+    return _save(figure, path)
+
+
+def per_sample_scores(predictions: list[dict[str, Any]], path: Path) -> str:
+    """The paper's Figure 12: SPEED score per sample, synthetic twin against testbed image."""
+    testbed = sorted((r for r in predictions if r["domain"] != "synthetic"),
+                     key=lambda r: (r["view"], r["light"], r["sample_id"]))
+    synthetic = {r["sample_id"]: r for r in predictions if r["domain"] == "synthetic"}
+    figure, axis = plt.subplots(figsize=(11, 3.6))
+    xs = np.arange(len(testbed))
+    axis.plot(xs, [synthetic[r["sample_id"]]["score_speed"] if r["sample_id"] in synthetic else np.nan
+                   for r in testbed], "o", ms=4, color=DOMAIN_COLOURS["synthetic"], label="synthetic twin")
+    axis.plot(xs, [r["score_speed"] for r in testbed], "x", ms=5, color="black", label="testbed")
+    for index, row in enumerate(testbed):
+        if row["light"] == "sunlamp":
+            axis.axvspan(index - 0.5, index + 0.5, color="tab:red", alpha=0.08, lw=0)
+    axis.set(xlabel="sample (solar-panel views first; shaded: sun lamp)", ylabel="SPEED score", yscale="log",
+             title="SPEED score per sample")
+    axis.legend()
+    return _save(figure, path)
+
+
+def rotation_cdf(predictions: list[dict[str, Any]], path: Path) -> str:
+    """Cumulative distribution of the rotation error per domain."""
+    figure, axis = plt.subplots(figsize=(6, 3.6))
+    for domain, colour in DOMAIN_COLOURS.items():
+        errors = np.sort(np.degrees([r["err_q_rad"] for r in predictions if r["domain"] == domain]))
+        if len(errors):
+            axis.step(errors, np.arange(1, len(errors) + 1) / len(errors), where="post", color=colour, label=domain)
+    axis.set(xscale="log", xlabel="rotation error [deg]", ylabel="share of images", title="rotation error CDF")
+    axis.axvline(0.169, color="grey", ls=":", lw=1)
+    axis.legend()
+    return _save(figure, path)
+
+
+def wireframe_edges() -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """Points (P, 3) of the Tango wireframe (body frame, full scale) and its edges."""
+    body = tango.KEYPOINTS_M[:8]
+    tips = tango.KEYPOINTS_M[8:]
+    points = np.concatenate([body, tips, np.array([antenna_base(tip) for tip in tips])])
+    edges = [(i, (i + 1) % 4) for i in range(4)] + [(4 + i, 4 + (i + 1) % 4) for i in range(4)]
+    edges += [(i, i + 4) for i in range(4)] + [(8 + i, 11 + i) for i in range(3)]
+    return points, edges
+
+
+def thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
+    scale = width / image.shape[1]
+    return cv2.resize(image, (width, round(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)
+
+
+def overlay(image: np.ndarray, label: dict[str, Any], camera_matrix: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """The label's wireframe drawn on a testbed image (BGR)."""
+    points, edges = wireframe_edges()
+    cam_from_target = g.transform_from_qt(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"])
+    pixels = g.project(cam_from_target, points, camera_matrix, dist)
+    drawn = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    brightened = np.clip(drawn.astype(np.float32) * 2.0, 0, 255).astype(np.uint8)  # dark room: lift shadows
+    for a, b in edges:
+        cv2.line(brightened, tuple(np.round(pixels[a] * 4).astype(int)), tuple(np.round(pixels[b] * 4).astype(int)),
+                 (80, 255, 80), 1, cv2.LINE_AA, shift=2)
+    return brightened
