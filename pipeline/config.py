@@ -322,9 +322,9 @@ class ReferenceConfig:
     """speedplus train-reference: the recipe of the reference keypoint CNN (torch)."""
 
     images: int = param(3000, "training-set images rendered for it (90% train, 10% held out)", "count")
-    resolution_scale: float = param(0.5, "training images: camera resolution times this", "1")
-    input_width: int = param(256, "network input width (images are resized to it)", "px")
-    input_height: int = param(160, "network input height", "px")
+    resolution_scale: float = param(1.0, "training images: camera resolution times this", "1")
+    input_width: int = param(192, "network input width (the crop around the target is resized to it)", "px")
+    input_height: int = param(192, "network input height", "px")
     width: int = param(16, "channels of the network's first layer (the others are multiples)", "count")
     epochs: int = param(20, "passes over the training images", "count")
     batch_size: int = param(32, "images per optimiser step", "count")

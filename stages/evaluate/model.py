@@ -149,32 +149,8 @@ class PoseModel:
 
     def preprocess(self, image_bgr: np.ndarray, box: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """(C, H, W) float32 input, and the (3, 3) affine map from input pixels to image pixels."""
-        c = self.contract
-        if c.crop == "oracle_box":
-            if box is None:
-                raise InputError("speedplus.crop=oracle_box needs the label's box")
-            centre = (np.asarray(box[:2]) + np.asarray(box[2:])) / 2
-            side = 1.25 * max(box[2] - box[0], box[3] - box[1], 8.0)
-            scale_x, scale_y = side / c.width, side / c.height
-            # the crop's square is stretched to the input's aspect; pixel centres stay aligned
-            origin = centre - np.array([side, side]) / 2
-        else:
-            height, width = image_bgr.shape[:2]
-            scale_x, scale_y = width / c.width, height / c.height
-            origin = np.array([0.0, 0.0])
-        image_from_input = np.array([[scale_x, 0, origin[0] + 0.5 * scale_x - 0.5],
-                                     [0, scale_y, origin[1] + 0.5 * scale_y - 0.5], [0, 0, 1.0]])
-        if c.crop == "full":
-            warped = cv2.resize(image_bgr, (c.width, c.height), interpolation=cv2.INTER_AREA)
-        else:
-            warped = cv2.warpAffine(image_bgr, np.linalg.inv(image_from_input)[:2], (c.width, c.height),
-                                    flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        if c.channels == "rgb":
-            pixels = warped[..., ::-1].astype(np.float32) / 255.0
-        else:
-            pixels = cv2.cvtColor(warped, cv2.COLOR_BGR2GRAY)[..., None].astype(np.float32) / 255.0
-        pixels = (pixels - np.asarray(c.mean, np.float32)) / np.asarray(c.std, np.float32)
-        return np.ascontiguousarray(pixels.transpose(2, 0, 1)), image_from_input
+        pixels, image_from_input = prepare(image_bgr, self.contract, box)
+        return normalise(pixels.astype(np.float32) / 255.0, self.contract), image_from_input
 
     def infer(self, batch: np.ndarray) -> list[np.ndarray]:
         return self.session.run(None, {self.input_name: batch})
@@ -185,6 +161,45 @@ def _parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndar
     curvature = lo - 2 * mid + hi
     safe = np.where(np.abs(curvature) > 1e-12, curvature, -1.0)
     return np.clip(np.where(np.abs(curvature) > 1e-12, 0.5 * (lo - hi) / safe, 0.0), -0.5, 0.5)
+
+
+def crop_window(contract: ModelContract, width: int, height: int, box: np.ndarray | None) -> tuple[int, ...]:
+    """The image window (x0, y0, w, h) in pixels that becomes the network input: the whole
+    image, or a square of 1.25 times the box's larger side centred on the box."""
+    if contract.crop == "full":
+        return 0, 0, width, height
+    if box is None or not np.all(np.isfinite(box)):
+        raise InputError("speedplus.crop=oracle_box needs the label's box")
+    centre = (np.asarray(box[:2], float) + np.asarray(box[2:], float)) / 2
+    side = int(np.ceil(1.25 * max(box[2] - box[0], box[3] - box[1], 8.0)))
+    x0, y0 = (int(round(c - (side - 1) / 2)) for c in centre)
+    return x0, y0, side, side
+
+
+def prepare(image_bgr: np.ndarray, contract: ModelContract, box: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The input image (H, W, C) uint8 (RGB or gray) and the (3, 3) affine map from input
+    pixels to image pixels (pixel centres at integer coordinates in both)."""
+    height, width = image_bgr.shape[:2]
+    x0, y0, w, h = crop_window(contract, width, height, box)
+    if (x0, y0, w, h) == (0, 0, width, height):
+        window = image_bgr
+    else:  # an integer shift: exact pixels, black outside the image
+        window = cv2.warpAffine(image_bgr, np.array([[1.0, 0, -x0], [0, 1.0, -y0]]), (w, h), flags=cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT)
+    shrinking = w > contract.width or h > contract.height
+    resized = cv2.resize(window, (contract.width, contract.height),
+                         interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+    pixels = resized[..., ::-1] if contract.channels == "rgb" else cv2.cvtColor(resized, cv2.COLOR_BGR2GRAY)[..., None]
+    scale_x, scale_y = w / contract.width, h / contract.height
+    image_from_input = np.array([[scale_x, 0, x0 + 0.5 * scale_x - 0.5], [0, scale_y, y0 + 0.5 * scale_y - 0.5],
+                                 [0, 0, 1.0]])
+    return np.ascontiguousarray(pixels), image_from_input
+
+
+def normalise(pixels: np.ndarray, contract: ModelContract) -> np.ndarray:
+    """(..., H, W, C) values in [0, 1] -> (..., C, H, W) float32 normalised as the contract says."""
+    out = (pixels - np.asarray(contract.mean, np.float32)) / np.asarray(contract.std, np.float32)
+    return np.ascontiguousarray(np.moveaxis(out.astype(np.float32), -1, -3))
 
 
 def decode_heatmaps(heatmaps: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

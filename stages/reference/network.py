@@ -1,7 +1,7 @@
 """The reference keypoint CNN: a small encoder-decoder that outputs one heatmap per Tango
 keypoint at a quarter of the input resolution (torch; imported only by training).
 
-Input (N, 3, 160, 256) normalised RGB; output (N, 11, 40, 64). About 0.2 G multiply-adds
+Input (N, 3, 192, 192) normalised RGB; output (N, 11, 48, 48). About 0.2 G multiply-adds
 per image: small enough to train on two CPU cores in under half an hour.
 """
 

@@ -2,9 +2,10 @@
 (``render --set train``), export it to ONNX with the evaluation contract's metadata, and
 score it on held-out synthetic images through ONNX Runtime (never through torch).
 
-Data: every image is resized to the network input exactly as ``evaluate`` will resize
-testbed images and twins (``PoseModel.preprocess``, crop ``full``); targets are Gaussian
-heatmaps at the keypoints' projections from the ``train`` manifest. Augmentation:
+Data: every image is cropped and resized exactly as ``evaluate`` will crop testbed images
+and twins (``stages.evaluate.model.prepare``, crop ``oracle_box``: a square around the
+keypoints' box, so scores are those of the pose network given a perfect detector, as the
+report says); targets are Gaussian heatmaps at the keypoints' projections. Augmentation:
 brightness, contrast and gamma jitter and sensor-like noise, nothing geometric (the
 keypoints' identities depend on the image's handedness).
 """
@@ -25,7 +26,15 @@ from manifests import Workspace, read_manifest
 from pipeline.config import Config, ReferenceConfig
 from pipeline.progress import console, track
 from stages import tango
-from stages.evaluate.model import IR_VERSION, OPSET, ModelContract, PoseModel, pose_from_keypoints
+from stages.evaluate.model import (
+    IR_VERSION,
+    OPSET,
+    ModelContract,
+    PoseModel,
+    normalise,
+    pose_from_keypoints,
+    prepare,
+)
 from stages.evaluate.scores import score
 
 MEAN = (0.485, 0.456, 0.406)
@@ -35,24 +44,31 @@ STRIDE = 4
 
 def contract(recipe: ReferenceConfig) -> ModelContract:
     return ModelContract(recipe.input_width, recipe.input_height, "rgb", MEAN, STD, "heatmaps",
-                         tango.KEYPOINTS_M.copy(), "full")
+                         tango.KEYPOINTS_M.copy(), "oracle_box")
+
+
+def keypoint_box(keypoints_px: np.ndarray) -> np.ndarray:
+    """x_min, y_min, x_max, y_max of projected keypoints: the labels' box definition."""
+    keypoints_px = np.asarray(keypoints_px, float)
+    return np.concatenate([keypoints_px.min(axis=0), keypoints_px.max(axis=0)])
 
 
 def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str, np.ndarray]:
-    """Images (N, H, W, 3) uint8 RGB at the input size, keypoints (N, 11, 2) in input pixels,
-    and the rows' poses and cameras (for scoring held-out images)."""
+    """Inputs (N, H, W, 3) uint8 RGB cropped and resized as ``evaluate`` will, keypoints
+    (N, 11, 2) in input pixels, the input-to-image maps (N, 3, 3) and the manifest rows."""
     rows = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
     if not rows:
         raise ValueError(f"{workspace.manifest_dir('train')}: no training images; run render --set train")
-    size = (recipe.input_width, recipe.input_height)
-    images = np.empty((len(rows), size[1], size[0], 3), np.uint8)
+    terms = contract(recipe)
+    images = np.empty((len(rows), recipe.input_height, recipe.input_width, 3), np.uint8)
     keypoints = np.empty((len(rows), len(tango.KEYPOINTS_M), 2))
+    maps = np.empty((len(rows), 3, 3))
     for index, row in enumerate(track(rows, len(rows), "load training images")):
         image = cv2.imread(str(workspace.resolve(row["image_path"])), cv2.IMREAD_COLOR)
-        images[index] = cv2.resize(image, size, interpolation=cv2.INTER_AREA)[..., ::-1]
-        scale = np.array([size[0] / row["width"], size[1] / row["height"]])
-        keypoints[index] = (np.asarray(row["keypoints_px"]) + 0.5) * scale - 0.5
-    return {"images": images, "keypoints": keypoints, "rows": np.array(rows, dtype=object)}
+        images[index], maps[index] = prepare(image, terms, keypoint_box(row["keypoints_px"]))
+        input_from_image = np.linalg.inv(maps[index])
+        keypoints[index] = np.asarray(row["keypoints_px"]) @ input_from_image[:2, :2].T + input_from_image[:2, 2]
+    return {"images": images, "keypoints": keypoints, "maps": maps, "rows": np.array(rows, dtype=object)}
 
 
 def heatmap_targets(keypoints: np.ndarray, height: int, width: int, sigma: float) -> np.ndarray:
@@ -78,17 +94,13 @@ def _augment(images: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.clip(np.power(np.clip(x * gain, 0, 1), gamma) + offset + noise, 0.0, 1.0)
 
 
-def _normalise(x: np.ndarray) -> np.ndarray:
-    """(N, H, W, 3) in [0, 1] -> (N, 3, H, W) normalised as the contract says."""
-    return ((x - np.asarray(MEAN, np.float32)) / np.asarray(STD, np.float32)).transpose(0, 3, 1, 2)
-
-
 def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, max_steps: int | None = None) -> Any:
     """The trained ``KeypointNet`` (torch, eval mode) and its training log."""
     import torch
 
     from stages.reference.network import KeypointNet
 
+    terms = contract(recipe)
     torch.manual_seed(recipe.seed)
     torch.set_num_threads(recipe.threads)
     rng = np.random.default_rng(recipe.seed)
@@ -107,7 +119,7 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, max_steps: in
             if step >= total:
                 break
             batch = order[first:first + recipe.batch_size]
-            x = torch.from_numpy(np.ascontiguousarray(_normalise(_augment(images[batch], rng))))
+            x = torch.from_numpy(normalise(_augment(images[batch], rng), terms))
             target = torch.from_numpy(heatmap_targets(keypoints[batch], recipe.input_height, recipe.input_width,
                                                       recipe.heatmap_sigma))
             output = model(x)
@@ -151,22 +163,21 @@ def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[
     temporary.replace(out)
 
 
-def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_of_row: Any) -> dict[str, float]:
-    """SPEED scores of the exported model on images through ONNX Runtime and PnP."""
+def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.ndarray,
+                    dist: np.ndarray) -> dict[str, float]:
+    """SPEED scores of the exported model on prepared images, through ONNX Runtime and PnP."""
     from stages.evaluate.model import decode_heatmaps
 
     model = PoseModel(path, threads=2)
     errors = []
     for first in range(0, len(data["images"]), 32):
-        images = data["images"][first:first + 32]
-        batch = np.ascontiguousarray(_normalise(images.astype(np.float32) / 255.0))
-        heatmaps = model.infer(batch)[0]
-        points, _ = decode_heatmaps(heatmaps, model.contract.width, model.contract.height)
-        for row, keypoints in zip(data["rows"][first:first + 32], points, strict=True):
-            camera_matrix, dist = camera_of_row(row)
-            scale = np.array([row["width"] / model.contract.width, row["height"] / model.contract.height])
-            pose = pose_from_keypoints((keypoints + 0.5) * scale - 0.5, tango.KEYPOINTS_M, camera_matrix, dist,
-                                       reprojection_px=0.02 * row["width"])
+        batch = normalise(data["images"][first:first + 32].astype(np.float32) / 255.0, model.contract)
+        points, _ = decode_heatmaps(model.infer(batch)[0], model.contract.width, model.contract.height)
+        for row, keypoints, image_from_input in zip(data["rows"][first:first + 32], points,
+                                                    data["maps"][first:first + 32], strict=True):
+            in_image = keypoints @ image_from_input[:2, :2].T + image_from_input[:2, 2]
+            pose = pose_from_keypoints(in_image, tango.KEYPOINTS_M, camera_matrix, dist,
+                                       reprojection_px=0.01 * row["width"])
             q, t = pose if pose is not None else (np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.0]))
             errors.append(score(q, t, row["q_vbs2tango_true"], row["r_Vo2To_vbs_true"]))
     err_q = np.degrees([e["err_q_rad"] for e in errors])
@@ -189,7 +200,7 @@ def run(config: Config, workspace: Workspace, out: Path, *, max_steps: int | Non
     seconds = time.perf_counter() - started
     export(model, recipe, out, {"speedplus.recipe": json.dumps(asdict(recipe))})
     camera = train_camera(config)
-    scores = held_out_scores(out, split[1], lambda row: (camera.camera_matrix, camera.dist))
+    scores = held_out_scores(out, split[1], camera.camera_matrix, camera.dist)
     card = {"model": str(out.name), "training_images": len(split[0]["images"]), "held_out_images": held,
             "train_seconds": round(seconds, 1), "recipe": asdict(recipe), "held_out": scores,
             "render": {"count": config.render.train_count, "seed": config.render.seed,
