@@ -19,6 +19,10 @@ $(STAMP): pyproject.toml
 		 (apt-get update >/dev/null && apt-get install -y libllvm19 >/dev/null)) || \
 		echo "warning: libllvm19 not installed; rendering falls back to the slow scalar variant"; \
 	fi
+	@if [ "$$(id -u)" = "0" ] && ! command -v chromium >/dev/null; then \
+		echo "installing Debian chromium (the report test renders the HTML page headless)"; \
+		apt-get install -y chromium >/dev/null 2>&1 || echo "warning: chromium not installed; the report test fails"; \
+	fi
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
@@ -26,6 +30,9 @@ $(STAMP): pyproject.toml
 
 dataset: setup
 	$(BIN)/speedplus run --profile $(PROFILE) --workspace $(WORKSPACE)
+	$(BIN)/speedplus export --workspace $(WORKSPACE) --format speedplus --out $(WORKSPACE)/export
+	@echo "report:  $(WORKSPACE)/report/index.html"
+	@echo "exports: $(WORKSPACE)/export (SPEED+ layout); manifests: $(WORKSPACE)/manifests"
 
 test: setup
 	$(BIN)/ruff check pipeline stages manifests tests bench

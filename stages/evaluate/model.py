@@ -221,7 +221,8 @@ def decode_heatmaps(heatmaps: np.ndarray, width: int, height: int) -> tuple[np.n
 def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
                         dist: np.ndarray, reprojection_px: float) -> tuple[np.ndarray, np.ndarray] | None:
     """(q (4,), t (3,) m) of cam_from_target from K image points (K, 2) and body points
-    (K, 3): EPnP in RANSAC, then LM on the inliers. None when no pose is found."""
+    (K, 3): EPnP in RANSAC, then LM on the inliers. None when no pose is found, or when
+    the target would be under 2 pixels across."""
     object_points = np.ascontiguousarray(keypoints_m, np.float64)
     image_points = np.ascontiguousarray(keypoints_px, np.float64)
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
@@ -231,7 +232,11 @@ def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camer
         return None
     chosen = inliers[:, 0]
     rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], camera_matrix, dist, rvec, tvec)
-    if not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0:
+    # a target smaller than a couple of pixels has no measurable pose (degenerate solutions
+    # at huge distances explain collapsed keypoints perfectly)
+    radius = float(np.max(np.linalg.norm(object_points - object_points.mean(axis=0), axis=1)))
+    farthest = camera_matrix[0][0] * radius
+    if not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0 or np.linalg.norm(tvec) > farthest:
         return None
     cam_from_target = g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0])
     return g.transform_to_qt(cam_from_target)

@@ -1,0 +1,67 @@
+"""Every stage, end to end, on the smoke profile with the committed reference model; the
+report page opened in headless Chromium."""
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from manifests import Workspace, read_manifest
+from tests.conftest import speedplus
+
+REPOSITORY = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def finished(smoke_labelled, tmp_path_factory):
+    root = tmp_path_factory.mktemp("e2e") / "w"
+    shutil.copytree(smoke_labelled.root, root)
+    result = speedplus("run", "--workspace", str(root))
+    assert result.returncode == 0, result.stderr
+    return Workspace(root), result.stdout
+
+
+def test_every_stage_is_done(finished):
+    ws, stdout = finished
+    assert "Table 2" in stdout
+    status = speedplus("status", "--workspace", str(ws.root)).stdout
+    for stage in ("plan", "acquire", "calibrate", "fuse", "label", "render", "evaluate", "report"):
+        line = next(line for line in status.splitlines() if f" {stage} " in line)
+        assert " done " in line, line
+    predictions = read_manifest(ws, "predictions").to_pylist()
+    assert {p["domain"] for p in predictions} == {"synthetic", "lightbox", "sunlamp"}
+    assert len(predictions) == 16  # 8 testbed images and their 8 twins
+    scores = {row["group"]: row for row in read_manifest(ws, "scores").to_pylist()}
+    assert scores["synthetic/all/all"]["count"] == 8 and scores["testbed/all/all"]["count"] == 8
+
+
+def test_report_references_only_existing_files(finished):
+    ws, _ = finished
+    page = (ws.root / "report" / "index.html").read_text()
+    references = re.findall(r'(?:src|href)="([^"#]+)"', page)
+    assert len(references) >= 10
+    for reference in references:
+        assert not reference.startswith(("http:", "https:", "//")), reference  # no network
+        assert (ws.root / "report" / reference).is_file(), reference
+    for section in ("Table 1", "Table 2", "Calibration residuals", "Pose distribution", "Rotation-error CDFs",
+                    "Provenance", "rejection"):
+        assert section in page
+
+
+def test_report_renders_in_headless_chromium(finished, tmp_path):
+    ws, _ = finished
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert browser, "Debian's chromium is needed (make setup and .ci/run install it)"
+    shot = tmp_path / "report.png"
+    subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                    "--window-size=1280,2400", f"--screenshot={shot}", (ws.root / "report" / "index.html").as_uri()],
+                   capture_output=True, timeout=120, check=False)
+    image = cv2.imread(str(shot))
+    assert image is not None and image.shape[:2] == (2400, 1280)
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    assert (grey < 128).mean() > 0.02  # text, tables and figures, not a blank page
+    assert len(np.unique(image.reshape(-1, 3), axis=0)) > 200  # figures and thumbnails, not only text
