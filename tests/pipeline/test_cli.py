@@ -31,12 +31,11 @@ def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
     assert "done" in line
 
 
-def test_run_stops_at_the_first_stage_not_built(tmp_path):
-    result = speedplus("run", "--profile", "smoke", "--workspace", str(tmp_path / "w"))
-    assert result.returncode == 3
-    assert "stage 'render' is not built yet" in result.stderr and "after 'label'" in result.stderr
-    until = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "label")
-    assert until.returncode == 0 and "up to date" in until.stdout
+def test_run_until_stops_there_and_a_rerun_skips_what_is_done(tmp_path):
+    result = speedplus("run", "--profile", "smoke", "--workspace", str(tmp_path / "w"), "--until", "fuse")
+    assert result.returncode == 0 and "fuse: ran" in result.stdout and "label" not in result.stdout
+    again = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "fuse")
+    assert again.returncode == 0 and again.stdout.count("up to date") == 4
 
 
 def test_bad_configuration_exits_1_naming_the_key(tmp_path):

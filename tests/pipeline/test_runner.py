@@ -88,5 +88,6 @@ def test_missing_input_names_the_manifest(smoke, tmp_path):
 
 
 def test_unbuilt_stage_says_so(smoke, tmp_path):
-    with pytest.raises(runner.NotBuiltError, match="render"):
-        runner.run_stage(runner.stage_spec("render"), smoke, Workspace(tmp_path))
+    planned = runner.StageSpec("track", None, ("labels",), ("tracks",), (), "a stage of a later version")
+    with pytest.raises(runner.NotBuiltError, match="track"):
+        runner.run_stage(planned, smoke, Workspace(tmp_path))
