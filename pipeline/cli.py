@@ -77,6 +77,8 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
         else:
             out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
         last_done = name
+    if last_done == "report":
+        out.print(f"report: {ws.root / 'report' / 'index.html'}")
 
 
 def _stage_command(name: str) -> None:

@@ -17,7 +17,7 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.io import write_json_atomic
 from pipeline.config import Config
-from pipeline.engines import map_local
+from pipeline.engines import map_engine
 from pipeline.progress import track
 from stages.acquire.backend import Testbed
 
@@ -79,8 +79,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             if s["sample_id"] not in have_captures or (with_truth and s["sample_id"] not in have_truth)]
     part_rows = config.run.part_rows
     workers = config.run.workers if with_truth else 1
-    records = map_local(open_testbed, (config, str(workspace.root)), "capture", todo, workers=workers,
-                        max_tasks=config.run.worker_max_tasks)
+    engine = config.run.engine if with_truth else "local"  # replays read files: no cluster needed
+    records = map_engine(engine, open_testbed, (config, str(workspace.root)), "capture", todo, workers=workers,
+                         max_tasks=config.run.worker_max_tasks, ray_address=config.run.ray_address)
     with open_sink(workspace, "captures", part_rows) as captures:
         truth = open_sink(workspace, "truth", part_rows) if with_truth else None
         try:
