@@ -17,12 +17,13 @@ from typing import Any
 import cv2
 import numpy as np
 import pyarrow as pa
+from rich.console import Console
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from pipeline.config import Config
 from pipeline.errors import InputError
-from pipeline.progress import console, track
+from pipeline.progress import track
 from stages.evaluate.model import PoseModel, decode_heatmaps, pose_from_keypoints
 from stages.evaluate.scores import score
 from stages.evaluate.table import print_table2, summarise
@@ -133,5 +134,5 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     table = summarise(predictions.to_pylist())
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
     write_part(workspace, "scores", table, workspace.active_fingerprints.get("scores", ""))
-    console.print(print_table2(table, path.name, model.contract.crop))
+    Console().print(print_table2(table, path.name, model.contract.crop))  # results: standard output
     return predictions
