@@ -65,3 +65,55 @@ def test_report_renders_in_headless_chromium(finished, tmp_path):
     grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     assert (grey < 128).mean() > 0.02  # text, tables and figures, not a blank page
     assert len(np.unique(image.reshape(-1, 3), axis=0)) > 200  # figures and thumbnails, not only text
+
+
+def constant_keypoint_model(path, metadata):
+    """An ONNX model of kind `keypoints` that answers the same 11 points for any image."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from stages import geometry as g
+    from stages import tango
+
+    camera = np.array([[120.0, 0, 31.5], [0, 120.0, 31.5], [0, 0, 1]])
+    points = g.project(g.make_transform(np.eye(3), [0, 0, 8.0]), tango.KEYPOINTS_M, camera, np.zeros(5))
+    nodes = [
+        helper.make_node("Shape", ["image"], ["shape"]),
+        helper.make_node("Gather", ["shape", "zero"], ["n"], axis=0),
+        helper.make_node("Concat", ["n", "rest"], ["out_shape"], axis=0),
+        helper.make_node("Expand", ["points"], ["keypoints"]),
+    ]
+    nodes[-1].input.append("out_shape")
+    graph = helper.make_graph(
+        nodes, "constant", [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["n", 3, 64, 64])],
+        [helper.make_tensor_value_info("keypoints", TensorProto.FLOAT, ["n", 11, 2])],
+        [helper.make_tensor("zero", TensorProto.INT64, [1], [0]),
+         helper.make_tensor("rest", TensorProto.INT64, [2], [11, 2]),
+         helper.make_tensor("points", TensorProto.FLOAT, [1, 11, 2], points.astype(np.float32).ravel())])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    for key, value in metadata.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(model, str(path))
+
+
+def test_any_model_following_the_contract_can_be_scored(finished, tmp_path):
+    ws, _ = finished
+    copy = Workspace(tmp_path / "w")
+    shutil.copytree(ws.root, copy.root)
+    contract = {"speedplus.contract": "1", "speedplus.input_size": "64x64", "speedplus.channels": "rgb",
+                "speedplus.normalize": "0,0,0/1,1,1", "speedplus.output": "keypoints",
+                "speedplus.keypoints": "tango11", "speedplus.crop": "full"}
+    constant_keypoint_model(tmp_path / "mine.onnx", contract)
+    result = speedplus("evaluate", "--workspace", str(copy.root), "--model", str(tmp_path / "mine.onnx"), "--force")
+    assert result.returncode == 0, result.stderr
+    assert "Table 2: mean SPEED score of mine.onnx" in result.stdout
+    predictions = read_manifest(copy, "predictions").to_pylist()
+    assert len(predictions) == 16 and {p["crop"] for p in predictions} == {"full"}
+    assert all(p["score_speed"] > 0 for p in predictions)  # a constant answer is wrong everywhere
+    del contract["speedplus.output"]
+    constant_keypoint_model(tmp_path / "unlabelled.onnx", contract)
+    bad = speedplus("evaluate", "--workspace", str(copy.root), "--model", str(tmp_path / "unlabelled.onnx"),
+                    "--force")
+    assert bad.returncode == 1 and "speedplus.output" in bad.stderr and "unlabelled.onnx" in bad.stderr
