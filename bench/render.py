@@ -49,11 +49,11 @@ def _seconds_per_image(profile: str, count: int) -> tuple[float, float]:
         return first, (time.perf_counter() - started) / count
 
 
-def _throughput(workers: int, count: int) -> float:
+def _throughput(workers: int, count: int, threads: int) -> float:
     config = load_config("default", overrides=[f"render.train_count={count}"])
     jobs = train_jobs(config)
     with tempfile.TemporaryDirectory() as root:
-        args = (train_camera(config), root, config.render.spp, config.render.max_depth, default_threads(workers))
+        args = (train_camera(config), root, config.render.spp, config.render.max_depth, threads)
         started = time.perf_counter()
         for _ in map_local(open_worker, args, "render", jobs, workers=workers, max_tasks=1000):
             pass
@@ -77,14 +77,20 @@ def speed() -> None:
     for profile, count in (("default", 8), ("paper", 3)):
         first, per_image = _seconds_per_image(profile, count)
         config = load_config(profile)
-        rows.append({"what": f"seconds per twin, {profile} ({config.camera.width_px}x{config.camera.height_px}, "
-                             f"{config.render.spp} spp, one worker, all cores)", "value": per_image})
+        rows.append({"what": f"seconds per image, {profile} ({config.camera.width_px}x{config.camera.height_px}, "
+                             f"{config.render.spp} spp, one worker, all cores; training-set poses)",
+                     "value": per_image})
         rows.append({"what": f"first image incl. scene load and JIT, {profile}", "value": first})
     count = 24
-    one, two = _throughput(1, count), _throughput(2, count)
-    rows.append({"what": f"images per minute, 1 local worker ({count} default images, incl. start-up)", "value": one})
-    rows.append({"what": f"images per minute, 2 local workers ({count} default images, incl. start-up)", "value": two})
-    rows.append({"what": "scaling efficiency 2 workers vs 1 (2 cores)", "value": two / one / 2})
+    one, two = _throughput(1, count, threads=1), _throughput(2, count, threads=1)
+    both = _throughput(1, count, threads=default_threads(1))
+    rows.append({"what": f"images per minute, 1 worker x 1 thread ({count} default images, incl. start-up)",
+                 "value": one})
+    rows.append({"what": f"images per minute, 2 workers x 1 thread ({count} default images, incl. start-up)",
+                 "value": two})
+    rows.append({"what": "scaling efficiency of worker processes, 2 vs 1", "value": two / one / 2})
+    rows.append({"what": f"images per minute, 1 worker x {default_threads(1)} threads (Dr.Jit's own parallelism)",
+                 "value": both})
     context = multiprocessing.get_context("spawn")
     queue = context.Queue()
     child = context.Process(target=_memory_child, args=(200, queue))
