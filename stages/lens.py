@@ -78,6 +78,15 @@ def distortion_maps(camera: LensCamera, geometry: RenderGeometry) -> tuple[np.nd
     return map_x, map_y
 
 
+def pixel_rays(camera: LensCamera) -> np.ndarray:
+    """Unit directions (H * W, 3), camera frame, of the rays through every pixel centre
+    (row-major), traced back through the distortion model."""
+    us, vs = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+    normalised = undistort_pixels(np.stack([us.ravel(), vs.ravel()], 1), camera)
+    rays = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)
+    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
 class Lens:
     """Remaps pinhole renders (H_render, W_render[, C]) to the camera's distorted image (H, W[, C])."""
 

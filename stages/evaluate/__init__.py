@@ -24,10 +24,11 @@ from manifests import clear as clear_manifest
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
+from stages import geometry as g
 from stages.evaluate.model import PoseModel, decode_heatmaps, pose_from_keypoints
 from stages.evaluate.scores import score
 from stages.evaluate.table import print_table2, summarise
-from stages.render.jobs import label_camera
+from stages.label import calibrated_camera
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 
@@ -100,10 +101,10 @@ def predict(model: PoseModel, workspace: Workspace, items: list[dict[str, Any]],
     seconds = (time.perf_counter() - started) / len(items)
     rows = []
     for item, pose in zip(items, poses, strict=True):
-        found = pose is not None and bool(np.all(np.isfinite(pose[0])) and np.all(np.isfinite(pose[1])))
+        found = pose is not None and bool(np.all(np.isfinite(pose[0])) and np.all(np.isfinite(pose[1]))
+                                          and np.linalg.norm(pose[0]) > 0)
         if found:
-            q = np.asarray(pose[0], float) / np.linalg.norm(pose[0])
-            q = q if q[0] >= 0 else -q
+            q = g.quat_normalize(pose[0])
             t = np.asarray(pose[1], float)
             numbers = {k: float(v) for k, v in score(q, t, item["q_true"], item["t_true"]).items()}
         else:
@@ -120,7 +121,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     """Score every image missing from ``predictions``, then rewrite the ``scores`` summary."""
     path = model_path(config)
     model = PoseModel(path, threads=config.evaluate.threads)
-    camera = label_camera(workspace)
+    camera = calibrated_camera(workspace)
     done = read_keys(workspace, "predictions")
     items = [item for item in _items(workspace) if f"{item['domain']}:{item['sample_id']}" not in done]
     batch = config.evaluate.batch_size

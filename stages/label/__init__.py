@@ -20,15 +20,30 @@ from pipeline.errors import InputError
 from pipeline.progress import track
 from stages import geometry as g
 from stages import tango
+from stages.lens import LensCamera
 
 
-def camera_of(workspace: Workspace) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """The calibrated camera: K (3, 3), dist (5,), width, height."""
+def read_calibration(workspace: Workspace) -> dict[str, Any]:
+    """W/calibration.json, or an InputError saying what to do."""
     path = workspace.root / "calibration.json"
-    if not path.exists():
-        raise InputError(f"{path}: missing; run calibrate first")
-    intrinsics = json.loads(path.read_text())["intrinsics"]
-    return np.array(intrinsics["K"]), np.array(intrinsics["dist"]), intrinsics["width"], intrinsics["height"]
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: missing; run calibrate first") from None
+    except json.JSONDecodeError as error:
+        raise InputError(f"{path}: not valid JSON ({error}); rerun calibrate") from None
+
+
+def calibrated_camera(workspace: Workspace) -> LensCamera:
+    """The calibrated camera of the labels: K (3, 3), dist (5,), width, height."""
+    path = workspace.root / "calibration.json"
+    try:
+        intrinsics = read_calibration(workspace)["intrinsics"]
+        return LensCamera(np.array(intrinsics["K"], float), np.array(intrinsics["dist"], float),
+                          int(intrinsics["width"]), int(intrinsics["height"]))
+    except (KeyError, TypeError, ValueError) as error:
+        raise InputError(f"{path}: intrinsics unreadable ({error!r}); expected K (3x3), dist (5), width, "
+                         "height; rerun calibrate") from None
 
 
 def mockup_scale(config: Config, workspace: Workspace) -> float:
@@ -65,7 +80,8 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    camera_matrix, dist, _, _ = camera_of(workspace)
+    camera = calibrated_camera(workspace)
+    camera_matrix, dist = camera.camera_matrix, camera.dist
     scale = mockup_scale(config, workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})

@@ -19,7 +19,8 @@ from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.engines import map_engine
 from pipeline.progress import console, track
-from stages.render.jobs import SET_DIRECTORIES, label_camera, train_camera, train_jobs, twin_jobs
+from stages.label import calibrated_camera
+from stages.render.jobs import SET_DIRECTORIES, train_camera, train_jobs, twin_jobs
 from stages.render.scene import default_threads
 from stages.render.worker import open_worker
 
@@ -52,7 +53,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     name = output_name(config)
     rejected: list[dict[str, str]] = []
     if config.render.set == "twin":
-        camera = label_camera(workspace)
+        camera = calibrated_camera(workspace)
         jobs, rejected = twin_jobs(config, workspace)
     else:
         camera = train_camera(config)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.lens import LensCamera, undistort_pixels
+from stages.lens import LensCamera, pixel_rays
 
 EARTH_RADIUS_M = 6_371_000.0
 OCEAN = np.array([0.02, 0.06, 0.16])
@@ -98,11 +98,8 @@ def _camera_rays(camera: LensCamera) -> np.ndarray:
     """Unit ray directions (H * W, 3) of every pixel centre through the lens (cached)."""
     key = (camera.width, camera.height, np.asarray(camera.camera_matrix).tobytes(), np.asarray(camera.dist).tobytes())
     if key not in _RAYS:
-        us, vs = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-        normalised = undistort_pixels(np.stack([us.ravel(), vs.ravel()], 1), camera)
-        rays = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)
         _RAYS.clear()
-        _RAYS[key] = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        _RAYS[key] = pixel_rays(camera)
     return _RAYS[key]
 
 

@@ -8,7 +8,6 @@ every random choice is made here or seeded by the job, so an image depends on it
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -21,6 +20,7 @@ from pipeline.config import Config
 from pipeline.errors import InputError
 from stages import geometry as g
 from stages import tango
+from stages.label import mockup_scale, read_calibration
 from stages.lens import LensCamera
 
 SET_DIRECTORIES = {"twin": "twins", "train": "train"}
@@ -76,26 +76,12 @@ def rejection_reason(q: Any, t: Any) -> str | None:
 
 
 # ------------------------------------------------------------------------------- twins
-def label_camera(workspace: Workspace) -> LensCamera:
-    """The calibrated camera of the labels (calibration.json)."""
-    path = workspace.root / "calibration.json"
-    try:
-        intrinsics = json.loads(path.read_text())["intrinsics"]
-        return LensCamera(np.array(intrinsics["K"], float), np.array(intrinsics["dist"], float),
-                          int(intrinsics["width"]), int(intrinsics["height"]))
-    except FileNotFoundError:
-        raise InputError(f"{path}: missing; run calibrate first") from None
-    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as error:
-        raise InputError(f"{path}: intrinsics unreadable ({error}); expected K (3x3), dist (5), width, "
-                         "height; rerun calibrate") from None
-
-
 def _world_from_cam(workspace: Workspace) -> dict[str, np.ndarray]:
     """Camera poses in the robot world K per dataset capture: KUKA telemetry composed with
     the calibrated camera offset (the light positions are known in K)."""
     path = workspace.root / "calibration.json"
     try:
-        cam_from_camee = g.pose_from_json(json.loads(path.read_text())["kuka"]["cam_from_camee"])
+        cam_from_camee = g.pose_from_json(read_calibration(workspace)["kuka"]["cam_from_camee"])
     except (KeyError, TypeError, ValueError) as error:
         raise InputError(f"{path}: kuka.cam_from_camee unreadable ({error}); rerun calibrate") from None
     captures = read_manifest(workspace, "captures").to_pylist()
@@ -116,7 +102,7 @@ def light_position(config: Config, light: str, boxes: list[int]) -> np.ndarray:
 
 def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], list[dict[str, str]]]:
     """A job per label, and the labels that cannot be rendered with their reasons."""
-    scale = tango_scale(config, workspace)
+    scale = mockup_scale(config, workspace)
     world_from_cam = _world_from_cam(workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})
@@ -141,15 +127,6 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
         jobs.append(RenderJob(sample_id, "twin", tuple(q), tuple(label["r_Vo2To_vbs_true"]), tuple(direction),
                               config.render.irradiance, False, image_seed(config.render.seed, "twin", sample_id)))
     return jobs, rejected
-
-
-def tango_scale(config: Config, workspace: Workspace) -> float:
-    """Mock-up scale of the session (session.json), else the configured one."""
-    if workspace.session_path.exists():
-        scale = json.loads(workspace.session_path.read_text()).get("mockup_scale")
-        if scale:
-            return float(scale)
-    return config.testbed.mockup_scale
 
 
 # --------------------------------------------------------------------------- training set

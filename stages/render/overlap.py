@@ -17,7 +17,8 @@ import numpy as np
 
 from manifests import Workspace, read_manifest
 from pipeline.config import Config
-from stages.render.jobs import RenderJob, label_camera, tango_scale
+from stages.label import calibrated_camera, mockup_scale
+from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
 
 
@@ -36,8 +37,8 @@ def twin_overlap(config: Config, workspace: Workspace, *, at_truth: bool = True)
     plan = {row["sample_id"]: row for row in read_manifest(workspace, "plan").to_pylist()}
     truth = {row["sample_id"]: row for row in read_manifest(workspace, "truth").to_pylist()}
     labels = {row["sample_id"]: row for row in read_manifest(workspace, "labels").to_pylist()}
-    scale = tango_scale(config, workspace)
-    worker = RenderWorker(label_camera(workspace), str(workspace.root), 16, 1, 2) if at_truth else None
+    scale = mockup_scale(config, workspace)
+    worker = RenderWorker(calibrated_camera(workspace), str(workspace.root), 16, 1, 2) if at_truth else None
     rows = []
     for render in read_manifest(workspace, "renders").to_pylist():
         sample_id = render["sample_id"]

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from stages import geometry as g
-from stages.lens import Lens, LensCamera
+from stages.lens import Lens, LensCamera, pixel_rays
 from stages.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
 from stages.tango_mesh import tango_parts
 
@@ -114,16 +114,10 @@ class TangoRenderer:
 def ray_traced_mask(renderer: TangoRenderer, cam_from_target: np.ndarray) -> np.ndarray:
     """Where the model covers each output pixel centre (H, W) bool, by casting one ray per
     pixel through the lens model; independent of the film, the filter and the remap."""
-    from stages.lens import undistort_pixels
-
     mi = renderer.mi
     camera = renderer.lens.camera
-    us, vs = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-    normalised = undistort_pixels(np.stack([us.ravel(), vs.ravel()], 1), camera)
-    directions_cam = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)
     target_from_cam = g.invert(cam_from_target)
-    directions = directions_cam @ target_from_cam[:3, :3].T
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    directions = pixel_rays(camera) @ target_from_cam[:3, :3].T
     origin = np.broadcast_to(target_from_cam[:3, 3], directions.shape)
     rays = mi.Ray3f(mi.Point3f(*[np.ascontiguousarray(origin[:, i], np.float32) for i in range(3)]),
                     mi.Vector3f(*[np.ascontiguousarray(directions[:, i], np.float32) for i in range(3)]))

@@ -10,7 +10,6 @@ Table 2, per-sample scores, rotation-error CDFs, and the run's provenance.
 from __future__ import annotations
 
 import html
-import json
 import platform
 from collections import Counter
 from importlib import metadata
@@ -23,7 +22,8 @@ import numpy as np
 from manifests import Workspace, read_manifest, read_success
 from manifests.io import write_bytes_atomic
 from pipeline.config import Config
-from stages.render.jobs import label_camera
+from stages.image_io import write_png_atomic
+from stages.label import calibrated_camera, read_calibration
 from stages.report import figures
 
 REPORT_DIR = "report"
@@ -118,17 +118,14 @@ def provenance(config: Config, workspace: Workspace) -> str:
 
 
 def _write_png(path: Path, image: np.ndarray) -> str:
-    ok, encoded = cv2.imencode(".png", image)
-    if not ok:
-        raise OSError(f"could not encode {path}")
-    write_bytes_atomic(path, encoded.tobytes())
+    write_png_atomic(path, image)
     return path.name
 
 
 def run(config: Config, workspace: Workspace) -> None:
     out = workspace.root / REPORT_DIR
     figure_dir, thumb_dir = out / "figures", out / "thumbs"
-    calibration = json.loads((workspace.root / "calibration.json").read_text())
+    calibration = read_calibration(workspace)
     labels = read_manifest(workspace, "labels").to_pylist()
     poses = read_manifest(workspace, "poses").to_pylist()
     renders = {row["sample_id"]: row for row in read_manifest(workspace, "renders").to_pylist()}
@@ -136,7 +133,7 @@ def run(config: Config, workspace: Workspace) -> None:
     predictions = read_manifest(workspace, "predictions").to_pylist()
     scores = read_manifest(workspace, "scores").to_pylist()
     samples = read_manifest(workspace, "calibration_samples").to_pylist()
-    camera = label_camera(workspace)
+    camera = calibrated_camera(workspace)
     score_of = {(row["domain"], row["sample_id"]): row for row in predictions}
 
     made = {
@@ -160,8 +157,7 @@ def run(config: Config, workspace: Workspace) -> None:
                         f'{label["view"]}, {label["domain"]}, {label["label_source"]}</figcaption></figure>')
         if sample_id in renders:
             twin = cv2.imread(str(workspace.resolve(renders[sample_id]["image_path"])), cv2.IMREAD_COLOR)
-            pair = np.hstack([figures.thumbnail(twin), figures.thumbnail(np.clip(capture.astype(np.float32) * 2, 0,
-                                                                                 255).astype(np.uint8))])
+            pair = np.hstack([figures.thumbnail(twin), figures.thumbnail(figures.brighten(capture))])
             name = _write_png(thumb_dir / f"pair_{sample_id}.png", pair)
             synthetic, testbed = score_of.get(("synthetic", sample_id)), score_of.get((label["domain"], sample_id))
             caption = " / ".join(f"{r['score_speed']:.3f}" if r else "-" for r in (synthetic, testbed))

@@ -53,8 +53,8 @@ def pose_distribution(labels: list[dict[str, Any]], path: Path) -> str:
     from scipy.spatial.transform import Rotation
 
     t = np.array([row["r_Vo2To_vbs_true"] for row in labels])
-    q = np.array([row["q_vbs2tango_true"] for row in labels])
-    euler = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)
+    rotations = g.quat_to_matrix(np.array([row["q_vbs2tango_true"] for row in labels]))
+    euler = Rotation.from_matrix(rotations).as_euler("ZYX", degrees=True)
     figure, axes = plt.subplots(1, 3, figsize=(12, 3.4))
     colours = ["tab:orange" if row["domain"] == "lightbox" else "tab:red" for row in labels]
     axes[0].scatter(t[:, 0], t[:, 2], c=colours, s=12)
@@ -115,13 +115,18 @@ def thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     return cv2.resize(image, (width, round(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)
 
 
+def brighten(image: np.ndarray, gain: float = 2.0) -> np.ndarray:
+    """A testbed image with its shadows lifted for viewing (the room is dark)."""
+    return np.clip(image.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+
+
 def overlay(image: np.ndarray, label: dict[str, Any], camera_matrix: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """The label's wireframe drawn on a testbed image (BGR)."""
     points, edges = wireframe_edges()
     cam_from_target = g.transform_from_qt(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"])
     pixels = g.project(cam_from_target, points, camera_matrix, dist)
     drawn = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    brightened = np.clip(drawn.astype(np.float32) * 2.0, 0, 255).astype(np.uint8)  # dark room: lift shadows
+    brightened = brighten(drawn)
     for a, b in edges:
         cv2.line(brightened, tuple(np.round(pixels[a] * 4).astype(int)), tuple(np.round(pixels[b] * 4).astype(int)),
                  (80, 255, 80), 1, cv2.LINE_AA, shift=2)

@@ -152,3 +152,11 @@ def test_training_set_is_reproducible_and_separate_from_the_twins(twins, tmp_pat
     assert load_config(None, twins.config_path).render.set == "twin"
     status = speedplus("status", "--workspace", str(twins.root))
     assert "render" in status.stdout and "stale" not in status.stdout
+
+
+def test_unreadable_calibration_is_an_error_naming_the_file(smoke_labelled, tmp_path):
+    ws = copy_of(smoke_labelled, tmp_path, "broken")
+    (ws.root / "calibration.json").write_text("{")
+    result = speedplus("render", "--workspace", str(ws.root))
+    assert result.returncode == 1 and "calibration.json" in result.stderr and "not valid JSON" in result.stderr
+    assert "Traceback" not in result.stderr
