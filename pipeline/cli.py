@@ -221,14 +221,15 @@ def export_command(
 ) -> None:
     """Export the labels as a SPEED+ (or BOP) dataset."""
     from manifests import exports, read_success
-    from stages.label import camera_of
+    from stages.label import calibrated_camera
 
     resolved, ws = _context(workspace, profile, config, set_)
     if read_success(ws, "labels") is None:
         raise runner.StageError(f"{ws.root}: no complete labels to export; run `speedplus run --until label` first")
     if format_ not in ("speedplus", "bop"):
         raise typer.BadParameter(f"unknown format {format_!r}; expected speedplus or bop", param_hint="--format")
-    camera_matrix, dist, width, height = camera_of(ws)
+    camera = calibrated_camera(ws)
+    camera_matrix, dist, width, height = camera.camera_matrix, camera.dist, camera.width, camera.height
     target = out_dir or ws.root / "export"
     if format_ == "speedplus":
         pitch = resolved.camera.pixel_pitch_m * resolved.camera.reference_width_px / width
