@@ -274,6 +274,14 @@ class CalibrateConfig:
     outlier_k: float = param(5.0, "a sample whose residual exceeds median + k robust sigmas is excluded", "1")
     min_rotation_spread_rad: float = param(
         math.radians(2.0), "least spread of the measured rotations about a second axis", "rad")
+    fixture_compliance: str = param(
+        "auto", "estimate the model fixture's tilt under the model's weight with the robots' offsets: on, off, "
+        "or auto (on when the target flange's attitude to gravity varies by calibrate.min_gravity_spread_rad)", "")
+    min_gravity_spread_rad: float = param(
+        math.radians(5.0), "least spread of the up direction in the target flange frame over the calibration "
+        "captures for the fixture compliance to be estimated", "rad")
+    world_up: tuple[float, float, float] = param(
+        (0.0, 0.0, 1.0), "the up direction (against gravity) in the robot world K", "1")
 
 
 @dataclass(frozen=True)
@@ -282,6 +290,13 @@ class FuseConfig:
 
     rejection_k: float = param(1.96, "motion capture is rejected beyond this many sigmas in any component "
                                      "(the paper: 1.96, a 95% interval)", "1")
+    sigma_scale: str = param(
+        "dataset", "dataset: scale the calibrated sigmas by how much the two sources disagree on the dataset "
+        "captures themselves (robust a posteriori variance factor; the dataset's poses are farther and more "
+        "varied than the calibration's); calibration: use the calibrated sigmas as they are (the paper)", "")
+    min_scale_samples: int = param(
+        10, "two-source dataset captures needed to estimate the variance factor (else the calibrated sigmas)",
+        "count")
 
 
 @dataclass(frozen=True)
@@ -488,6 +503,13 @@ def _check(config: Config) -> Config:
                           f"got {config.calibrate.solver!r}")
     if config.calibrate.folds < 2:
         raise ConfigError("calibrate.folds: at least 2")
+    if config.fuse.sigma_scale not in ("dataset", "calibration"):
+        raise ConfigError(f"fuse.sigma_scale: expected dataset or calibration, got {config.fuse.sigma_scale!r}")
+    if config.calibrate.fixture_compliance not in ("auto", "on", "off"):
+        raise ConfigError(f"calibrate.fixture_compliance: expected auto, on or off, "
+                          f"got {config.calibrate.fixture_compliance!r}")
+    if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):
+        raise ConfigError(f"calibrate.world_up: expected a unit vector, got {config.calibrate.world_up}")
     if config.run.engine not in ("local", "ray"):
         raise ConfigError(f"run.engine: expected local or ray, got {config.run.engine!r}")
     r = config.render

@@ -16,6 +16,10 @@ import numpy as np
 from stages import geometry as g
 
 REJECTION_K = 1.96
+#: medians of chi-square variables with 1 and 3 degrees of freedom: a robust scale of a
+#: normal component (|r| / 0.6745) and of an isotropic rotation's squared angle
+_CHI2_1_MEDIAN = 0.454936
+_CHI2_3_MEDIAN = 2.365974
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,44 @@ def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:
     share = float(np.clip(np.sum(lever * dt) / max(np.sum(lever * lever), 1e-30), 0.0, 1.0))
     sigma_r = float(np.sqrt(np.sum(angle**2) / (n - 1)))
     return Sigma(np.sqrt(np.sum(dt**2, axis=0) / (n - 1)), sigma_r, float(np.sqrt(share) * sigma_r))
+
+
+@dataclass(frozen=True)
+class VarianceFactor:
+    """A posteriori scale of the calibrated sigmas on the dataset captures: per camera axis
+    ``t`` (3,) and for the rotation angle ``r``, from ``samples`` two-source captures."""
+
+    t: np.ndarray
+    r: float
+    samples: int
+
+    def scale(self, sigma: Sigma) -> Sigma:
+        pointing = None if sigma.pointing_rad is None else sigma.pointing_rad * self.r
+        return Sigma(sigma.t_m * self.t, sigma.r_rad * self.r, pointing)
+
+    def to_json(self) -> dict:
+        return {"t": [float(v) for v in self.t], "r": float(self.r), "samples": self.samples}
+
+
+UNIT_FACTOR = VarianceFactor(np.ones(3), 1.0, 0)
+
+
+def variance_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: list[Sigma]) -> VarianceFactor:
+    """How much larger two independent sources' disagreement on these captures (poses
+    (N, 4, 4)) is than the calibrated sigma of their difference (per capture) says.
+
+    The difference's variance is ``s_a^2 + s_b^2``; a common factor on both sources is what
+    the data can tell without a third source (variance component estimation with one
+    component). Medians, not means: a ghost marker or a mislabelled body must not inflate
+    it; up to half of the captures may be such outliers."""
+    difference = pose_b[:, :3, 3] - pose_a[:, :3, 3]
+    normalised = difference / np.stack([s.t_m for s in sigma_difference])
+    t = np.sqrt(np.median(normalised**2, axis=0) / _CHI2_1_MEDIAN)
+    # sigma_r is the RMS angle; an isotropic error's squared angle is that times chi2_3 / 3
+    angle = g.angular_distance(pose_b[:, :3, :3], pose_a[:, :3, :3])
+    ratio = (angle / np.array([s.r_rad for s in sigma_difference])) ** 2
+    r = float(np.sqrt(np.median(ratio) / (_CHI2_3_MEDIAN / 3)))
+    return VarianceFactor(t, r, len(pose_a))
 
 
 def fuse(pose_a: np.ndarray, sigma_a: Sigma, pose_b: np.ndarray, sigma_b: Sigma) -> tuple[np.ndarray, Sigma]:

@@ -59,20 +59,57 @@ def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs
             (("E_T_m", e_t), ("E_R_rad", e_r), ("E_p_px", np.array(e_p)))}
 
 
+def up_targetee(row: dict[str, Any], world_up: np.ndarray) -> np.ndarray:
+    """The up direction (3,) in the target flange frame at a capture, from the robots' telemetry."""
+    return g.quat_to_matrix(row["kuka_world_from_targetee_q"]).T @ np.asarray(world_up, float)
+
+
+def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> tuple[bool, str]:
+    """Whether to estimate the fixture compliance, and why (for calibration.json and the log).
+
+    Observing ``k_f`` needs the up direction in the flange frame to span two axes for every
+    fixture; otherwise the tilt is indistinguishable from the fixed offset ``X_f``."""
+    c = config.calibrate
+    if c.fixture_compliance == "off":
+        return False, "calibrate.fixture_compliance = off"
+    if c.solver == "shah":
+        if c.fixture_compliance == "on":
+            raise InputError("calibrate.fixture_compliance = on needs the frobenius or reprojection solver "
+                             "(Shah's closed form has no compliance)")
+        return False, "Shah's closed form has no compliance"
+    spreads = {f: rwhe.gravity_spread(up[[i for i, name in enumerate(fixtures) if name == f]])
+               for f in sorted(set(fixtures))}
+    narrow = {f: s for f, s in spreads.items() if s < c.min_gravity_spread_rad}
+    summary = ", ".join(f"{f} {np.degrees(s):.1f} deg" for f, s in spreads.items())
+    if not narrow:
+        return True, f"the target flange's attitude to gravity spreads by {summary}"
+    message = (f"the target flange's attitude to gravity spreads by {summary}, under "
+               f"{np.degrees(c.min_gravity_spread_rad):.1f} deg for {', '.join(narrow)}")
+    if c.fixture_compliance == "on":
+        raise rwhe.DegenerateError(f"kuka calibration: {message}; add calibration captures with the model "
+                                   "presented at other attitudes, or set calibrate.fixture_compliance = off")
+    return False, message
+
+
 def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
-          intrinsics: obs.Intrinsics, method: str | None = None) -> rwhe.Solution:
+          intrinsics: obs.Intrinsics, up: np.ndarray | None = None, method: str | None = None) -> rwhe.Solution:
+    """Offsets from ``A`` (PnP) and ``B`` (N, 4, 4); ``up`` (N, 3): also the fixtures' compliance."""
     method = method or config.calibrate.solver
     solution = rwhe.shah(a, b, fixtures)
     if method in ("frobenius", "reprojection"):
-        solution = rwhe.frobenius(a, b, fixtures, solution)
+        solution = rwhe.frobenius(a, b, fixtures, solution, up)
     if method == "reprojection":
         solution = rwhe.reprojection(b, fixtures, solution, [o.object_points for o in used],
-                                     [o.pixels for o in used], intrinsics.camera_matrix, intrinsics.dist)
+                                     [o.pixels for o in used], intrinsics.camera_matrix, intrinsics.dist, up)
     return solution
 
 
+def _subset(up: np.ndarray | None, mask: np.ndarray) -> np.ndarray | None:
+    return None if up is None else up[mask]
+
+
 def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
-                 intrinsics: obs.Intrinsics) -> tuple[rwhe.Solution, np.ndarray]:
+                 intrinsics: obs.Intrinsics, up: np.ndarray | None = None) -> tuple[rwhe.Solution, np.ndarray]:
     """Solve, then drop samples whose residual against PnP is an outlier (a ghost marker, a
     bad detection) and solve again, until nothing changes. Returns the solution and the
     inlier mask. Outlier: position or angle residual beyond median + k * 1.4826 * MAD."""
@@ -80,8 +117,8 @@ def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[st
     for _ in range(5):
         chosen = [f for f, k in zip(fixtures, keep, strict=True) if k]
         solution = solve(config, a[keep], b[keep], chosen, [o for o, k in zip(used, keep, strict=True) if k],
-                         intrinsics)
-        predicted = solution.predict(b, fixtures)
+                         intrinsics, _subset(up, keep))
+        predicted = solution.predict(b, fixtures, up)
         residual_t = np.linalg.norm(predicted[:, :3, 3] - a[:, :3, 3], axis=1)
         residual_r = g.angular_distance(predicted[:, :3, :3], a[:, :3, :3])
         new_keep = np.ones(len(a), dtype=bool)
@@ -96,7 +133,8 @@ def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[st
 
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
-                   used: list[obs.Observation], intrinsics: obs.Intrinsics) -> np.ndarray:
+                   used: list[obs.Observation], intrinsics: obs.Intrinsics,
+                   up: np.ndarray | None = None) -> np.ndarray:
     """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets fitted without it."""
     folds = np.random.default_rng(config.calibrate.seed).permutation(len(a)) % config.calibrate.folds
     predicted = np.zeros_like(a)
@@ -104,14 +142,26 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
         test, train = folds == fold, folds != fold
         train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
         solution = solve(config, a[train], b[train], train_fixtures,
-                         [o for o, keep in zip(used, train, strict=True) if keep], intrinsics)
+                         [o for o, keep in zip(used, train, strict=True) if keep], intrinsics, _subset(up, train))
         test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]
         missing = set(test_fixtures) - set(solution.x)
         if missing:
             raise rwhe.DegenerateError(f"cross-validation: fold {fold} leaves fixture(s) {missing} without "
                                        "training samples; capture more calibration poses")
-        predicted[test] = solution.predict(b[test], test_fixtures)
+        predicted[test] = solution.predict(b[test], test_fixtures, _subset(up, test))
     return predicted
+
+
+def compliance_json(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],
+                    note: str) -> dict[str, Any]:
+    """The estimated compliances ``k_f`` (rad) and the tilts they imply over the samples."""
+    if not solution.compliance or up is None:
+        return {"estimated": False, "why": note, "k_rad_by_fixture": None}
+    k = np.stack([solution.compliance[f] for f in fixtures])
+    tilt = np.linalg.norm(np.cross(up, k), axis=1)
+    return {"estimated": True, "why": note,
+            "k_rad_by_fixture": {f: [float(v) for v in k_f] for f, k_f in solution.compliance.items()},
+            "tilt_rad_mean": float(tilt.mean()), "tilt_rad_max": float(tilt.max())}
 
 
 def load_truth(workspace: Workspace) -> dict[str, np.ndarray] | None:
@@ -164,20 +214,27 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         fixtures = [by_id[o.sample_id]["fixture"] for o in used]
         rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
                              f"{source} calibration")
-        solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics)
+        up = None
+        compliance_note = "motion capture tracks the model itself"
+        if source == "kuka":
+            up = np.stack([up_targetee(by_id[o.sample_id], config.calibrate.world_up) for o in used])
+            compliant, compliance_note = compliance_decision(config, up, fixtures)
+            up = up if compliant else None
+        solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics, up)
         for o, inlier in zip(used, inliers, strict=True):
             if not inlier:
                 o.extra[f"{source}_outlier"] = True
         outliers = [o.sample_id for o, inlier in zip(used, inliers, strict=True) if not inlier]
         used = [o for o, inlier in zip(used, inliers, strict=True) if inlier]
-        a, b = a[inliers], b[inliers]
+        a, b, up = a[inliers], b[inliers], _subset(up, inliers)
         fixtures = [f for f, inlier in zip(fixtures, inliers, strict=True) if inlier]
-        predicted = solution.predict(b, fixtures)
-        cross = cross_validate(config, a, b, fixtures, used, intrinsics)
+        predicted = solution.predict(b, fixtures, up)
+        cross = cross_validate(config, a, b, fixtures, used, intrinsics, up)
         entry = results[source] = {
             **{name: g.pose_to_json(offset) for name, offset in
                zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
             f"{OFFSET_NAMES[source][1]}_by_fixture": {f: g.pose_to_json(x) for f, x in solution.x.items()},
+            "fixture_compliance": compliance_json(solution, up, fixtures, compliance_note),
             **sigma_between(predicted, a).to_json(),
             "samples": len(used),
             "outliers": outliers,
@@ -228,6 +285,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     calibration = {"intrinsics": intrinsics.to_json(), **{s: results[s] for s in SOURCES},
                    "calibration_distance_m": float(np.mean(np.linalg.norm(pnp_positions, axis=1))),
                    "calibration_lever_sq_m2": np.mean(lever_sq(pnp_positions), axis=0).tolist(),
+                   "world_up": [float(v) for v in config.calibrate.world_up],
                    "fused": results["fused"], "rejection": results["rejection"],
                    "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
                               "pattern": spec.to_json(),

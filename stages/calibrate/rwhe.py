@@ -8,11 +8,20 @@ offset (``cam_from_camee``), ``X_f`` = the target-side offset of fixture f
 Solvers: Shah's closed form (Kronecker null space, then linear translations), the
 paper's Levenberg-Marquardt on ``sum |A_i - Z B_i X^-1|_F^2`` over rotation vectors, and
 a refinement on the pattern's reprojection error (maximum likelihood for pixel noise).
+
+Compliant fixtures: the model hangs off its flange on a fixture that tilts under the
+model's weight (the paper blames its KUKA-only rotation error on it). To first order
+(linear elastostatics, tilt about the flange origin) the tilt's rotation vector in the
+flange frame is ``up_i x k_f``: ``up_i`` (3,) the world's up direction in the flange frame
+at capture i (from the robot's telemetry), ``k_f = c m g p`` (3,) radians, with ``c`` the
+fixture's compliance (rad / N m), ``m g`` the model's weight and ``p`` its centre of mass
+in the flange frame. Then ``A_i X_f = Z B_i S(up_i x k_f)``; ``k_f`` is estimated with the
+offsets when the flange's attitude varies enough to observe it (``gravity_spread``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -25,17 +34,38 @@ class DegenerateError(InputError):
     """The calibration data cannot determine the offsets; the message says what to add."""
 
 
+def fixture_tilt(up_targetee: np.ndarray, compliance: np.ndarray) -> np.ndarray:
+    """Rotations (N, 4, 4) of compliant fixtures about the flange origin: rotation vector
+    ``up x k`` of the up directions (N, 3, unit, flange frame) and compliances (N, 3, rad)."""
+    return g.make_transform(g.rotvec_to_matrix(np.cross(up_targetee, compliance)), np.zeros(3))
+
+
+def gravity_spread(up_targetee: np.ndarray) -> float:
+    """How much the flange's attitude to gravity varies (rad): the second principal spread
+    of the up directions (N, 3). A compliance needs it to span two axes to be observed."""
+    centred = up_targetee - up_targetee.mean(axis=0)
+    return float(np.linalg.svd(centred, compute_uv=False)[1] / np.sqrt(max(len(up_targetee), 1)))
+
+
 @dataclass(frozen=True)
 class Solution:
-    """``cam_from_camee`` (Z) and ``target_from_targetee`` (X) per fixture, (4, 4) each."""
+    """``cam_from_camee`` (Z) and ``target_from_targetee`` (X) per fixture, (4, 4) each, and
+    each compliant fixture's ``k_f`` (3,) in radians (empty: rigid fixtures)."""
 
     z: np.ndarray
     x: dict[str, np.ndarray]
+    compliance: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def predict(self, b: np.ndarray, fixtures: list[str]) -> np.ndarray:
-        """``cam_from_target`` (N, 4, 4) = Z B_i X_f^-1."""
+    def predict(self, b: np.ndarray, fixtures: list[str], up_targetee: np.ndarray | None = None) -> np.ndarray:
+        """``cam_from_target`` (N, 4, 4) = Z B_i S_i X_f^-1; ``up_targetee`` (N, 3) is needed
+        when the solution has compliant fixtures."""
         x_inv = np.stack([g.invert(self.x[f]) for f in fixtures])
-        return self.z @ b @ x_inv
+        if not self.compliance:
+            return self.z @ b @ x_inv
+        if up_targetee is None:
+            raise ValueError("a solution with compliant fixtures predicts from the up directions")
+        k = np.stack([self.compliance[f] for f in fixtures])
+        return self.z @ b @ fixture_tilt(np.asarray(up_targetee, float), k) @ x_inv
 
 
 def check_diversity(b: np.ndarray, fixtures: list[str], min_samples: int, min_spread_rad: float,
@@ -90,43 +120,54 @@ def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     return Solution(z, x)
 
 
-def _pack(solution: Solution, names: list[str]) -> np.ndarray:
+def _pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
     parts = [g.matrix_to_rotvec(solution.z[:3, :3]), solution.z[:3, 3]]
     for name in names:
         parts += [g.matrix_to_rotvec(solution.x[name][:3, :3]), solution.x[name][:3, 3]]
+    if compliant:
+        parts += [solution.compliance.get(name, np.zeros(3)) for name in names]
     return np.concatenate(parts)
 
 
-def _unpack(params: np.ndarray, names: list[str]) -> Solution:
+def _unpack(params: np.ndarray, names: list[str], compliant: bool) -> Solution:
     def pose(k: int) -> np.ndarray:
         return g.make_transform(g.rotvec_to_matrix(params[6 * k:6 * k + 3]), params[6 * k + 3:6 * k + 6])
 
-    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)})
+    start = 6 * (1 + len(names))
+    compliance = {name: params[start + 3 * j:start + 3 * j + 3] for j, name in enumerate(names)} if compliant else {}
+    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)}, compliance)
 
 
-def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution) -> Solution:
-    """The paper's cost, Levenberg-Marquardt over rotation vectors and translations."""
+def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution,
+              up_targetee: np.ndarray | None = None) -> Solution:
+    """The paper's cost, Levenberg-Marquardt over rotation vectors and translations; with
+    ``up_targetee`` (N, 3) also over the fixtures' compliances (from ``start``'s or zero)."""
     names = sorted(start.x)
+    compliant = up_targetee is not None
 
     def residuals(params: np.ndarray) -> np.ndarray:
-        return (a - _unpack(params, names).predict(b, fixtures))[:, :3, :].ravel()
+        return (a - _unpack(params, names, compliant).predict(b, fixtures, up_targetee))[:, :3, :].ravel()
 
-    result = least_squares(residuals, _pack(start, names), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    return _unpack(result.x, names)
+    result = least_squares(residuals, _pack(start, names, compliant), method="lm", xtol=1e-15, ftol=1e-15,
+                           gtol=1e-15)
+    return _unpack(result.x, names, compliant)
 
 
 def reprojection(b: np.ndarray, fixtures: list[str], start: Solution, object_points: list[np.ndarray],
-                 pixels: list[np.ndarray], camera_matrix: np.ndarray, dist: np.ndarray) -> Solution:
+                 pixels: list[np.ndarray], camera_matrix: np.ndarray, dist: np.ndarray,
+                 up_targetee: np.ndarray | None = None) -> Solution:
     """Refine on the pattern's reprojection error: the detected corners are what was
     measured, with (nearly) independent pixel noise. object_points[i] (M_i, 3) in T."""
     names = sorted(start.x)
     observed = np.concatenate(pixels)
+    compliant = up_targetee is not None
 
     def residuals(params: np.ndarray) -> np.ndarray:
-        poses = _unpack(params, names).predict(b, fixtures)
+        poses = _unpack(params, names, compliant).predict(b, fixtures, up_targetee)
         projected = [g.project(pose, points, camera_matrix, dist) for pose, points in zip(poses, object_points,
                                                                                           strict=True)]
         return (np.concatenate(projected) - observed).ravel()
 
-    result = least_squares(residuals, _pack(start, names), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
-    return _unpack(result.x, names)
+    result = least_squares(residuals, _pack(start, names, compliant), method="trf", x_scale="jac", xtol=1e-12,
+                           ftol=1e-12)
+    return _unpack(result.x, names, compliant)

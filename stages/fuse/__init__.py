@@ -1,41 +1,58 @@
 """The fuse stage: per dataset capture, the pose from each source through its calibrated
 offsets, the motion-capture rejection test, and the Bayesian fusion (DESIGN section 6).
 
-It reads the captures and ``W/calibration.json``, never the truth.
+It reads the captures and ``W/calibration.json``, never the truth. The calibrated sigmas
+were measured at the calibration distance and attitudes; on the dataset captures both
+sources err more (longer lever, other arm configurations), so by default they are scaled
+by the a posteriori variance factor of the session, measured by how much the two sources
+disagree on its own captures (``W/fusion.json``).
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
 from stages import geometry as g
-from stages.calibrate import measurement
-from stages.fusion import Sigma, at_position, fuse, rejection_reason
+from stages.calibrate import measurement, up_targetee
+from stages.calibrate.rwhe import fixture_tilt
+from stages.fusion import UNIT_FACTOR, Sigma, VarianceFactor, at_position, fuse, rejection_reason, variance_factor
 
 CALIBRATION_FILE = "calibration.json"
+FUSION_FILE = "fusion.json"
 
 
 class SourceModel:
-    """One source's calibrated offsets and uncertainty."""
+    """One source's calibrated offsets, fixture compliance and uncertainty."""
 
-    def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray) -> None:
+    def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray,
+                 world_up: np.ndarray) -> None:
         self.z = g.pose_from_json(entry[z_name])
         self.x = {fixture: g.pose_from_json(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
+        compliance = (entry.get("fixture_compliance") or {}).get("k_rad_by_fixture") or {}
+        self.compliance = {fixture: np.asarray(k, float) for fixture, k in compliance.items()}
         self.sigma = Sigma.from_json(entry)
         self.calibration_lever_sq = calibration_lever_sq
+        self.world_up = np.asarray(world_up, float)
 
-    def estimate(self, b: np.ndarray, fixture: str, sample_id: str) -> np.ndarray:
+    def estimate(self, b: np.ndarray, row: dict[str, Any]) -> np.ndarray:
+        """``cam_from_target`` (4, 4) of a capture from this source's measurement ``b``."""
+        fixture = row["fixture"]
         if fixture not in self.x:
-            raise InputError(f"captures: sample {sample_id} uses fixture {fixture!r}, which the calibration did not "
-                             f"see (calibrated: {', '.join(sorted(self.x))}); add calibration captures with it")
+            raise InputError(f"captures: sample {row['sample_id']} uses fixture {fixture!r}, which the calibration "
+                             f"did not see (calibrated: {', '.join(sorted(self.x))}); add calibration captures "
+                             "with it")
+        if fixture in self.compliance:
+            b = b @ fixture_tilt(up_targetee(row, self.world_up)[None], self.compliance[fixture][None])[0]
         return self.z @ b @ g.invert(self.x[fixture])
 
     def sigma_at(self, pose: np.ndarray) -> Sigma:
@@ -48,34 +65,65 @@ def load_models(workspace: Workspace) -> tuple[SourceModel, SourceModel | None, 
         raise InputError(f"{path}: missing; run calibrate first")
     calibration = json.loads(path.read_text())
     lever = np.array(calibration["calibration_lever_sq_m2"])
-    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever)
+    world_up = np.array(calibration.get("world_up", (0.0, 0.0, 1.0)), float)  # the up the compliance was fitted with
+    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever, world_up)
     vicon = None
     rejection = None
     if calibration.get("vicon"):
-        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever)
+        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever, world_up)
         rejection = Sigma.from_json(calibration["rejection"])
     return kuka, vicon, rejection
 
 
-def fuse_capture(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None,
-                 rejection: Sigma | None, rejection_k: float) -> dict[str, Any]:
-    """One ``poses`` row."""
-    kuka_pose = kuka.estimate(measurement(row, "kuka"), row["fixture"], row["sample_id"])
+@dataclass(frozen=True)
+class Estimates:
+    """A dataset capture's pose (4, 4) from each source; ``vicon`` None when not measured."""
+
+    row: dict[str, Any]
+    kuka: np.ndarray
+    vicon: np.ndarray | None
+
+
+def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None) -> Estimates:
     vicon_pose = None
-    reason = "no motion capture in this session"
     if vicon is not None:
         b = measurement(row, "vicon")
-        vicon_pose = None if b is None else vicon.estimate(b, row["fixture"], row["sample_id"])
-        reason = rejection_reason(kuka_pose, vicon_pose,
-                                  at_position(rejection, kuka_pose[:3, 3], kuka.calibration_lever_sq), rejection_k)
+        vicon_pose = None if b is None else vicon.estimate(b, row)
+    return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose)
+
+
+def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel,
+                   rejection: Sigma | None) -> tuple[VarianceFactor, str]:
+    """The variance factor of this dataset session, and why it is what it is."""
+    if rejection is None:
+        return UNIT_FACTOR, "one source: the calibrated sigmas"
+    if config.fuse.sigma_scale == "calibration":
+        return UNIT_FACTOR, "fuse.sigma_scale = calibration"
+    both = [e for e in estimates if e.vicon is not None and np.all(np.isfinite(e.vicon))]
+    if len(both) < config.fuse.min_scale_samples:
+        return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
+                             f"({config.fuse.min_scale_samples}): the calibrated sigmas")
+    predicted = [at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq) for e in both]
+    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
+    return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
+
+
+def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
+                 factor: VarianceFactor, rejection_k: float) -> dict[str, Any]:
+    """One ``poses`` row."""
+    reason = "no motion capture in this session"
+    if vicon is not None:
+        threshold = factor.scale(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq))
+        reason = rejection_reason(e.kuka, e.vicon, threshold, rejection_k)
+    sigma_kuka = factor.scale(kuka.sigma_at(e.kuka))
     if reason is None:
-        fused, sigma = fuse(kuka_pose, kuka.sigma_at(kuka_pose), vicon_pose, vicon.sigma_at(vicon_pose))
+        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(vicon.sigma_at(e.vicon)))
     else:
-        fused, sigma = kuka_pose, kuka.sigma_at(kuka_pose)
-    q_k, t_k = g.transform_to_qt(kuka_pose)
-    q_v, t_v = g.transform_to_qt(vicon_pose) if vicon_pose is not None else (None, None)
+        fused, sigma = e.kuka, sigma_kuka
+    q_k, t_k = g.transform_to_qt(e.kuka)
+    q_v, t_v = g.transform_to_qt(e.vicon) if e.vicon is not None and np.all(np.isfinite(e.vicon)) else (None, None)
     q, t = g.transform_to_qt(fused)
-    return {"sample_id": row["sample_id"], "kuka_cam_from_target_q": q_k, "kuka_cam_from_target_t": t_k,
+    return {"sample_id": e.row["sample_id"], "kuka_cam_from_target_q": q_k, "kuka_cam_from_target_t": t_k,
             "vicon_cam_from_target_q": q_v, "vicon_cam_from_target_t": t_v, "vicon_accepted": reason is None,
             "reject_reason": reason, "cam_from_target_q": q, "cam_from_target_t": t,
             "sigma_t_m": sigma.t_m, "sigma_r_rad": sigma.r_rad}
@@ -83,10 +131,19 @@ def fuse_capture(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | No
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
     kuka, vicon, rejection = load_models(workspace)
-    done = read_keys(workspace, "poses")
     rows = [r for r in read_manifest(workspace, "captures").to_pylist()
-            if r["session"] == "dataset" and r["status"] == "ok" and r["sample_id"] not in done]
+            if r["session"] == "dataset" and r["status"] == "ok"]
+    # every capture's estimates first: the session's variance factor depends on all of them,
+    # so an interrupted run resumes with the same factor
+    estimates = [estimate(row, kuka, vicon) for row in rows]
+    factor, why = session_factor(config, estimates, kuka, rejection)
+    write_json_atomic(workspace.root / FUSION_FILE, {"variance_factor": factor.to_json(), "why": why,
+                                                     "rejection_k": config.fuse.rejection_k})
+    print(f"fuse: sigma factor x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f} "
+          f"rotation {factor.r:.2f} ({why})")
+    done = read_keys(workspace, "poses")
+    todo = [e for e in estimates if e.row["sample_id"] not in done]
     with open_sink(workspace, "poses", config.run.part_rows) as sink:
-        for row in track(rows, len(rows), "fuse"):
-            sink.add(fuse_capture(row, kuka, vicon, rejection, config.fuse.rejection_k))
+        for e in track(todo, len(todo), "fuse"):
+            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k))
     return read_manifest(workspace, "poses")

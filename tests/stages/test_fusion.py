@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from stages import geometry as g
-from stages.fusion import Sigma, at_position, fuse, lever_sq, rejection_reason, sigma_between
+from stages.fusion import Sigma, at_position, fuse, lever_sq, rejection_reason, sigma_between, variance_factor
 
 
 def pose(rotvec, t):
@@ -80,3 +80,39 @@ def test_pointing_share_tells_camera_turns_from_target_turns():
     target = sigma_between(target_turned, references)
     assert camera.pointing_rad == pytest.approx(camera.r_rad, rel=0.02)
     assert target.pointing_rad < 0.1 * target.r_rad
+
+
+def noisy_pairs(rng, n, sigma_t, sigma_r):
+    """Pairs of estimates (N, 4, 4) of random poses whose difference has the given
+    per-axis sigma (3,) and an isotropic rotation with RMS angle ``sigma_r``."""
+    truth = np.stack([pose(rng.normal(size=3), rng.normal(size=3)) for _ in range(n)])
+    turn = g.rotvec_to_matrix(rng.normal(scale=sigma_r / np.sqrt(3), size=(n, 3)))
+    other = truth.copy()
+    other[:, :3, :3] = turn @ truth[:, :3, :3]
+    other[:, :3, 3] += rng.normal(size=(n, 3)) * sigma_t
+    return truth, other
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_variance_factor_measures_how_much_the_sources_disagree_beyond_calibration(seed):
+    rng = np.random.default_rng(seed)
+    calibrated = Sigma(np.array([1e-3, 2e-3, 0.5e-3]), 2e-3)
+    truth, other = noisy_pairs(rng, 4000, np.array([2e-3, 2e-3, 0.5e-3]), 3e-3)
+    factor = variance_factor(truth, other, [calibrated] * len(truth))
+    np.testing.assert_allclose(factor.t, [2.0, 1.0, 1.0], rtol=0.06)
+    assert factor.r == pytest.approx(1.5, rel=0.06)
+    scaled = factor.scale(calibrated)
+    np.testing.assert_allclose(scaled.t_m, calibrated.t_m * factor.t)
+
+
+def test_variance_factor_ignores_a_minority_of_gross_outliers():
+    rng = np.random.default_rng(2)
+    sigma = Sigma(np.full(3, 1e-3), 2e-3)
+    truth, other = noisy_pairs(rng, 3000, sigma.t_m, sigma.r_rad)
+    ghosts = rng.random(len(truth)) < 0.2  # ghost markers: centimetres and degrees off
+    other[ghosts, :3, 3] += rng.normal(scale=0.05, size=(ghosts.sum(), 3))
+    other[ghosts, :3, :3] = g.rotvec_to_matrix(rng.normal(scale=0.1, size=(ghosts.sum(), 3))) @ other[ghosts, :3, :3]
+    factor = variance_factor(truth, other, [sigma] * len(truth))
+    # a 20% contamination moves a median-based scale by about a third, a mean-based one by 30x
+    assert np.all(factor.t < 1.45) and factor.r < 1.45
+    assert np.all(factor.t > 0.9) and factor.r > 0.9

@@ -99,3 +99,61 @@ def test_degenerate_data_is_refused_with_advice():
     with pytest.raises(rwhe.DegenerateError, match="about one axis only.*tilted about other axes"):
         rwhe.check_diversity(about_z, ["fixed"] * 12, 6, np.radians(2), "kuka calibration")
     rwhe.check_diversity(b, names, 6, np.radians(2), "kuka calibration")  # diverse data passes
+
+
+def compliant(rng, n, k, spread_rad=0.5):
+    """Synthetic data whose fixtures tilt under gravity: A_i X_f = Z B_i S(up_i x k_f).
+    The up directions (flange frame) scatter by about ``spread_rad`` around one attitude."""
+    a, b, names, z, x = synthetic(rng, n)
+    up = np.array([0.3, -0.2, -0.93]) + rng.normal(scale=spread_rad, size=(n, 3))
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    tilt = rwhe.fixture_tilt(up, np.stack([k[f] for f in names]))
+    a = z @ b @ tilt @ np.stack([g.invert(x[f]) for f in names])
+    return a, b, names, z, x, up
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_noise_free_fixture_compliance_is_recovered(seed):
+    rng = np.random.default_rng(seed)
+    k = {"minus_x": np.array([-0.0006, 0.0009, 0.011]), "plus_x": np.array([0.001, -0.0007, 0.010])}
+    a, b, names, z, x, up = compliant(rng, 24, k)
+    solution = rwhe.frobenius(a, b, names, rwhe.shah(a, b, names), up)
+    assert_recovers(solution, z, x, 1e-9)
+    for name, k_f in k.items():
+        np.testing.assert_allclose(solution.compliance[name], k_f, atol=1e-9)
+    np.testing.assert_allclose(solution.predict(b, names, up), a, atol=1e-9)
+    # the rigid model cannot explain the tilt: the compliant one predicts other captures better
+    rigid = rwhe.frobenius(a, b, names, rwhe.shah(a, b, names))
+    a_new, b_new, names_new, *_ = a[:4], b[:4], names[:4]
+    assert np.abs(rigid.predict(b_new, names_new) - a_new).max() > 1e-4
+    with pytest.raises(ValueError, match="up directions"):
+        solution.predict(b, names)
+
+
+def test_compliance_refined_on_reprojection_stays_exact():
+    rng = np.random.default_rng(5)
+    k = {"minus_x": np.array([0.002, 0.001, 0.012]), "plus_x": np.array([0.0, 0.003, 0.009])}
+    a, b, names, z, x, up = compliant(rng, 16, k)
+    # put the patterns in front of the camera: shift the target side so every A looks forward
+    points = np.stack(np.meshgrid(np.linspace(-0.1, 0.1, 5), np.linspace(-0.1, 0.1, 4), [0.0]), -1).reshape(-1, 3)
+    camera_matrix = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    dist = np.zeros(5)
+    shift = g.make_transform(np.eye(3), [0, 0, 3.0])
+    a = shift @ a
+    z = shift @ z
+    pixels = [g.project(a_i, points, camera_matrix, dist) for a_i in a]
+    start = rwhe.frobenius(a, b, names, rwhe.shah(a, b, names), up)
+    refined = rwhe.reprojection(b, names, start, [points] * len(a), pixels, camera_matrix, dist, up)
+    assert_recovers(refined, z, x, 1e-7)
+    for name, k_f in k.items():
+        np.testing.assert_allclose(refined.compliance[name], k_f, atol=1e-7)
+
+
+def test_gravity_spread_sees_a_fixed_attitude_as_zero():
+    rng = np.random.default_rng(6)
+    fixed = np.tile([0.0, 0.0, 1.0], (20, 1))
+    assert rwhe.gravity_spread(fixed) < 1e-12
+    about_one_axis = np.stack([[np.sin(t), 0.0, np.cos(t)] for t in rng.uniform(-0.5, 0.5, 20)])
+    assert rwhe.gravity_spread(about_one_axis) < 0.05  # a tilt about one axis moves up along one curve
+    scattered = rng.normal(size=(20, 3)) * 0.3 + [0, 0, 1]
+    assert rwhe.gravity_spread(scattered / np.linalg.norm(scattered, axis=1, keepdims=True)) > 0.15
