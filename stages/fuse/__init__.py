@@ -93,9 +93,9 @@ def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None) 
 
 
 def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel,
-                   rejection: Sigma | None) -> tuple[VarianceFactor, str]:
-    """The variance factor of this dataset session, and why it is what it is."""
-    if rejection is None:
+                   vicon: SourceModel | None) -> tuple[VarianceFactor, str]:
+    """The robots' variance factor for this dataset session, and why it is what it is."""
+    if vicon is None:
         return UNIT_FACTOR, "one source: the calibrated sigmas"
     if config.fuse.sigma_scale == "calibration":
         return UNIT_FACTOR, "fuse.sigma_scale = calibration"
@@ -103,21 +103,30 @@ def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel
     if len(both) < config.fuse.min_scale_samples:
         return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
                              f"({config.fuse.min_scale_samples}): the calibrated sigmas")
-    predicted = [at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq) for e in both]
-    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
+    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]),
+                             [kuka.sigma_at(e.kuka) for e in both], [vicon.sigma_at(e.vicon) for e in both])
     return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
+
+
+def difference_sigma(rejection: Sigma, kuka: SourceModel, factor: VarianceFactor, e: Estimates) -> Sigma:
+    """Sigma of motion capture minus the robots at a capture: the calibrated rejection sigma
+    at the capture's position, with the robots' position share and the rotation grown by
+    the session's factors."""
+    calibrated = at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq)
+    unscaled = kuka.sigma_at(e.kuka)
+    t = np.sqrt(calibrated.t_m**2 + (factor.t**2 - 1) * unscaled.t_m**2)
+    return Sigma(t, calibrated.r_rad * factor.r)
 
 
 def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
                  factor: VarianceFactor, rejection_k: float) -> dict[str, Any]:
     """One ``poses`` row."""
     reason = "no motion capture in this session"
+    sigma_kuka = factor.scale_robots(kuka.sigma_at(e.kuka))
     if vicon is not None:
-        threshold = factor.scale(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq))
-        reason = rejection_reason(e.kuka, e.vicon, threshold, rejection_k)
-    sigma_kuka = factor.scale(kuka.sigma_at(e.kuka))
+        reason = rejection_reason(e.kuka, e.vicon, difference_sigma(rejection, kuka, factor, e), rejection_k)
     if reason is None:
-        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(vicon.sigma_at(e.vicon)))
+        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale_mocap(vicon.sigma_at(e.vicon)))
     else:
         fused, sigma = e.kuka, sigma_kuka
     q_k, t_k = g.transform_to_qt(e.kuka)
@@ -136,10 +145,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
     estimates = [estimate(row, kuka, vicon) for row in rows]
-    factor, why = session_factor(config, estimates, kuka, rejection)
+    factor, why = session_factor(config, estimates, kuka, vicon)
     write_json_atomic(workspace.root / FUSION_FILE, {"variance_factor": factor.to_json(), "why": why,
                                                      "rejection_k": config.fuse.rejection_k})
-    print(f"fuse: sigma factor x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f} "
+    print(f"fuse: sigma factors: robots' position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, "
           f"rotation {factor.r:.2f} ({why})")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]

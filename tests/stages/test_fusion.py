@@ -57,14 +57,27 @@ def test_sigma_between_is_the_papers_variance():
 
 
 def test_sigma_grows_with_the_lever_of_the_line_of_sight():
-    sigma = Sigma(np.array([1e-3, 1e-3, 1e-3]), 1e-3)
+    sigma = Sigma(np.array([1e-3, 1e-3, 1e-3]), 3e-3)
     calibration = lever_sq(np.array([0.0, 0.0, 0.75]))
     far = at_position(sigma, np.array([0.0, 0.0, 4.0]), calibration)
-    assert far.t_m[0] == pytest.approx(np.sqrt(1e-6 + 1e-6 * (16 - 0.5625)))
+    assert far.t_m[0] == pytest.approx(np.sqrt(1e-6 + 9e-6 / 3 * (16 - 0.5625)))
     assert far.t_m[2] == sigma.t_m[2] and far.r_rad == sigma.r_rad  # on the axis, depth does not move
     off_axis = at_position(sigma, np.array([1.0, 0.0, 4.0]), calibration)
-    assert off_axis.t_m[2] == pytest.approx(np.sqrt(1e-6 + 1e-6 * 1.0))  # off the axis it does
+    assert off_axis.t_m[2] == pytest.approx(np.sqrt(1e-6 + 9e-6 / 3 * 1.0))  # off the axis it does
     np.testing.assert_allclose(at_position(sigma, np.array([0.0, 0.0, 0.5]), calibration).t_m, sigma.t_m)
+
+
+def test_grown_sigma_matches_the_spread_of_turned_lines_of_sight():
+    """Monte Carlo: a camera turned by an isotropic error of RMS angle s moves a target at
+    t by d x t; the per-axis spread is what at_position predicts from the calibration's."""
+    rng = np.random.default_rng(3)
+    s = 2e-3
+    turns = rng.normal(scale=s / np.sqrt(3), size=(20000, 3))
+    near, far = np.array([0.05, -0.03, 0.75]), np.array([0.8, -0.5, 4.0])
+    spread_near = np.std(np.cross(turns, near), axis=0)
+    spread_far = np.std(np.cross(turns, far), axis=0)
+    predicted = at_position(Sigma(spread_near, s, s), far, lever_sq(near))
+    np.testing.assert_allclose(predicted.t_m, spread_far, rtol=0.03)
 
 
 def test_pointing_share_tells_camera_turns_from_target_turns():
@@ -82,37 +95,52 @@ def test_pointing_share_tells_camera_turns_from_target_turns():
     assert target.pointing_rad < 0.1 * target.r_rad
 
 
-def noisy_pairs(rng, n, sigma_t, sigma_r):
-    """Pairs of estimates (N, 4, 4) of random poses whose difference has the given
-    per-axis sigma (3,) and an isotropic rotation with RMS angle ``sigma_r``."""
+def noisy_pairs(rng, n, sigma_robots, sigma_mocap):
+    """Robots' and motion capture's estimates (N, 4, 4) of random true poses with the given
+    per-axis position sigmas (3,) and isotropic rotations of the given RMS angles."""
     truth = np.stack([pose(rng.normal(size=3), rng.normal(size=3)) for _ in range(n)])
-    turn = g.rotvec_to_matrix(rng.normal(scale=sigma_r / np.sqrt(3), size=(n, 3)))
-    other = truth.copy()
-    other[:, :3, :3] = turn @ truth[:, :3, :3]
-    other[:, :3, 3] += rng.normal(size=(n, 3)) * sigma_t
-    return truth, other
+    estimates = []
+    for sigma in (sigma_robots, sigma_mocap):
+        estimate = truth.copy()
+        estimate[:, :3, :3] = g.rotvec_to_matrix(rng.normal(scale=sigma.r_rad / np.sqrt(3), size=(n, 3))) @ truth[
+            :, :3, :3]
+        estimate[:, :3, 3] += rng.normal(size=(n, 3)) * sigma.t_m
+        estimates.append(estimate)
+    return estimates
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_variance_factor_measures_how_much_the_sources_disagree_beyond_calibration(seed):
+def test_variance_factor_grows_the_robots_position_and_both_rotations(seed):
     rng = np.random.default_rng(seed)
-    calibrated = Sigma(np.array([1e-3, 2e-3, 0.5e-3]), 2e-3)
-    truth, other = noisy_pairs(rng, 4000, np.array([2e-3, 2e-3, 0.5e-3]), 3e-3)
-    factor = variance_factor(truth, other, [calibrated] * len(truth))
-    np.testing.assert_allclose(factor.t, [2.0, 1.0, 1.0], rtol=0.06)
+    robots, mocap = Sigma(np.array([1e-3, 2e-3, 0.5e-3]), 2e-3), Sigma(np.array([1e-3, 1e-3, 0.3e-3]), 1e-3)
+    true_robots = Sigma(robots.t_m * [2.5, 1.0, 1.0], robots.r_rad * 1.5)
+    true_mocap = Sigma(mocap.t_m, mocap.r_rad * 1.5)
+    robots_pose, mocap_pose = noisy_pairs(rng, 6000, true_robots, true_mocap)
+    factor = variance_factor(robots_pose, mocap_pose, [robots] * 6000, [mocap] * 6000)
+    np.testing.assert_allclose(factor.t, [2.5, 1.0, 1.0], rtol=0.06, atol=0.03)
     assert factor.r == pytest.approx(1.5, rel=0.06)
-    scaled = factor.scale(calibrated)
-    np.testing.assert_allclose(scaled.t_m, calibrated.t_m * factor.t)
+    np.testing.assert_allclose(factor.scale_robots(robots).t_m, robots.t_m * factor.t)
+    np.testing.assert_allclose(factor.scale_mocap(mocap).t_m, mocap.t_m)
+    assert factor.scale_mocap(mocap).r_rad == pytest.approx(mocap.r_rad * factor.r)
+
+
+def test_variance_factor_never_shrinks_the_calibrated_sigmas():
+    rng = np.random.default_rng(4)
+    sigma = Sigma(np.full(3, 1e-3), 2e-3)
+    robots_pose, mocap_pose = noisy_pairs(rng, 2000, Sigma(sigma.t_m / 3, sigma.r_rad / 3), sigma)
+    factor = variance_factor(robots_pose, mocap_pose, [sigma] * 2000, [sigma] * 2000)
+    np.testing.assert_array_equal(factor.t, 1.0)
+    assert factor.r == 1.0
 
 
 def test_variance_factor_ignores_a_minority_of_gross_outliers():
     rng = np.random.default_rng(2)
     sigma = Sigma(np.full(3, 1e-3), 2e-3)
-    truth, other = noisy_pairs(rng, 3000, sigma.t_m, sigma.r_rad)
-    ghosts = rng.random(len(truth)) < 0.2  # ghost markers: centimetres and degrees off
-    other[ghosts, :3, 3] += rng.normal(scale=0.05, size=(ghosts.sum(), 3))
-    other[ghosts, :3, :3] = g.rotvec_to_matrix(rng.normal(scale=0.1, size=(ghosts.sum(), 3))) @ other[ghosts, :3, :3]
-    factor = variance_factor(truth, other, [sigma] * len(truth))
-    # a 20% contamination moves a median-based scale by about a third, a mean-based one by 30x
-    assert np.all(factor.t < 1.45) and factor.r < 1.45
-    assert np.all(factor.t > 0.9) and factor.r > 0.9
+    robots_pose, mocap_pose = noisy_pairs(rng, 3000, sigma, sigma)
+    ghosts = rng.random(3000) < 0.2  # ghost markers: centimetres and degrees off
+    mocap_pose[ghosts, :3, 3] += rng.normal(scale=0.05, size=(ghosts.sum(), 3))
+    mocap_pose[ghosts, :3, :3] = g.rotvec_to_matrix(rng.normal(scale=0.1, size=(ghosts.sum(), 3))) @ mocap_pose[
+        ghosts, :3, :3]
+    factor = variance_factor(robots_pose, mocap_pose, [sigma] * 3000, [sigma] * 3000)
+    # 20% contamination moves a median-based factor by a fraction, a mean-based one 30-fold
+    assert np.all(factor.t < 1.8) and factor.r < 1.5
