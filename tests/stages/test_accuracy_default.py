@@ -108,5 +108,21 @@ def test_dataset_labels_against_the_speedplus_thresholds(labelled, rigid):
     assert np.mean(ours["rotation"] < SPEEDPLUS_ROTATION_RAD) >= 0.85
     assert under["ours"].mean() >= 0.7 and under["ours"].mean() > under["paper"].mean() + 0.1
     assert ours["rotation"].mean() < 0.6 * papers["rotation"].mean()
-    # (e) the sigmas: at least 80% of true errors inside 1.96 sigma on every axis
-    assert np.all(ours["inside"].mean(axis=0) >= 0.8), ours["inside"].mean(axis=0)
+    # (e) the sigmas: 90-99% is the goal; README: 96%, 98%, 90%
+    assert np.all(ours["inside"].mean(axis=0) >= 0.85), ours["inside"].mean(axis=0)
+
+
+def test_the_sessions_variance_factor_makes_the_sigmas_honest(labelled, tmp_path):
+    """With the fixture compliance, the robots' calibrated sigmas are small; carried to the
+    dataset's poses unscaled they reject good motion capture and under-state the error."""
+    factor = json.loads((labelled.root / "fusion.json").read_text())["variance_factor"]
+    assert factor["samples"] >= 30 and min(factor["robots_t"]) >= 1.0 and factor["r"] >= 1.0
+    unscaled = Workspace(tmp_path / "unscaled")
+    shutil.copytree(labelled.root, unscaled.root)
+    for stage in ("fuse", "label"):
+        result = speedplus(stage, "--workspace", str(unscaled.root), "--force", "--set", "fuse.sigma_scale=calibration")
+        assert result.returncode == 0, result.stderr
+    assert json.loads((unscaled.root / "fusion.json").read_text())["variance_factor"]["samples"] == 0
+    scaled, plain = dataset_errors(labelled), dataset_errors(unscaled)
+    assert plain["inside"].mean() < 0.75 < 0.85 < scaled["inside"].mean()
+    assert scaled["fused"].mean() < plain["fused"].mean()

@@ -34,6 +34,7 @@ def test_twins_overlap_the_mockup_silhouette_in_the_capture(default_twins):
     assert at_truth.min() > 0.98, at_truth.min()  # one set of conventions from plan to render
     assert len(fused) >= 30 and fused.min() >= 0.9, sorted(fused)[:3]
     assert np.median(fused) > 0.95
-    # KUKA-only labels (motion capture rejected or untracked) carry the fixture sag: worse, yet close
+    # KUKA-only labels (motion capture rejected or untracked) carry the robots' pointing error
+    # at 4 m (README): worse, yet close
     kuka_only = np.array([r["iou_label"] for r in rows if r["label_source"] == "kuka_only"])
-    assert kuka_only.size == 0 or kuka_only.min() > 0.75
+    assert kuka_only.size == 0 or kuka_only.min() > 0.8
