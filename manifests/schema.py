@@ -15,10 +15,11 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
+VEC6 = pa.list_(pa.float64(), 6)
 JOINTS = pa.list_(pa.float64(), 6)
 KEYPOINTS = pa.list_(pa.list_(pa.float64(), 2), 11)
 BBOX = pa.list_(pa.float64(), 4)
@@ -121,6 +122,12 @@ CAPTURES = ManifestSpec(
         Column("image_path", pa.string(), "", "PNG relative to the workspace", kind="path"),
         *pose("kuka_world_from_camee", "robot telemetry, frame K"),
         *pose("kuka_world_from_targetee", "robot telemetry, frame K"),
+        Column("kuka_camera_joints_rad", VEC6, "rad", "camera robot's encoder readings A1-A6 (KUKA signs); null when "
+               "not recorded", nullable=True),
+        Column("kuka_target_joints_rad", VEC6, "rad", "target robot's encoder readings A1-A6; null when not recorded",
+               nullable=True),
+        Column("kuka_rail_m", pa.float64(), "m", "camera robot's reported rail position; null when not recorded",
+               nullable=True),
         *pose("vicon_world_from_camrb", "motion capture, frame V; null when not tracked", nullable=True),
         *pose("vicon_world_from_targetrb", "motion capture, frame V; null when not tracked", nullable=True),
         Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body"),

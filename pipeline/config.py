@@ -282,6 +282,14 @@ class CalibrateConfig:
         "captures for the fixture compliance to be estimated", "rad")
     world_up: tuple[float, float, float] = param(
         (0.0, 0.0, 1.0), "the up direction (against gravity) in the robot world K", "1")
+    arm_kinematics: str = param(
+        "auto", "calibrate the arms themselves (joint offsets, link lengths, bases, rail scale) with the offsets: "
+        "on, off, or auto (on when every calibration capture has the robots' encoder readings)", "")
+    arm_prior_joint_rad: float = param(2e-3, "prior 1-sigma of a joint's zero offset (mastering tolerance)", "rad")
+    arm_prior_length_m: float = param(2e-3, "prior 1-sigma of an arm dimension against the data sheet", "m")
+    arm_prior_base_m: float = param(2e-3, "prior 1-sigma of a robot base's surveyed position", "m")
+    arm_prior_base_rad: float = param(2e-3, "prior 1-sigma of a robot base's surveyed orientation", "rad")
+    arm_prior_rail_scale: float = param(1e-3, "prior 1-sigma of the rail encoder's scale error", "1")
 
 
 @dataclass(frozen=True)
@@ -505,6 +513,12 @@ def _check(config: Config) -> Config:
         raise ConfigError("calibrate.folds: at least 2")
     if config.fuse.sigma_scale not in ("dataset", "calibration"):
         raise ConfigError(f"fuse.sigma_scale: expected dataset or calibration, got {config.fuse.sigma_scale!r}")
+    if config.calibrate.arm_kinematics not in ("auto", "on", "off"):
+        raise ConfigError(f"calibrate.arm_kinematics: expected auto, on or off, "
+                          f"got {config.calibrate.arm_kinematics!r}")
+    if min(config.calibrate.arm_prior_joint_rad, config.calibrate.arm_prior_length_m, config.calibrate.arm_prior_base_m,
+           config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale) <= 0:
+        raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
     if config.calibrate.fixture_compliance not in ("auto", "on", "off"):
         raise ConfigError(f"calibrate.fixture_compliance: expected auto, on or off, "
                           f"got {config.calibrate.fixture_compliance!r}")

@@ -156,6 +156,8 @@ class SessionReplay:
             "image_path": image_path,
             **pose_columns("kuka_world_from_camee", robot["camee"]),
             **pose_columns("kuka_world_from_targetee", robot["targetee"]),
+            # the recorded format has no encoder readings: no kinematic calibration of the arms
+            "kuka_camera_joints_rad": None, "kuka_target_joints_rad": None, "kuka_rail_m": robot["rail_m"],
             **pose_columns("vicon_world_from_camrb", camera_body["pose"]),
             **pose_columns("vicon_world_from_targetrb", target_body["pose"]),
             "vicon_camrb_markers": camera_body["markers"], "vicon_targetrb_markers": target_body["markers"],

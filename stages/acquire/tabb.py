@@ -109,6 +109,7 @@ class TabbReplay:
             "sample_id": sample["sample_id"], "session": "calibration", "fixture": "fixed", "image_path": image_path,
             **pose_columns("kuka_world_from_camee", g.invert(hand_from_base)),
             **pose_columns("kuka_world_from_targetee", np.eye(4)),
+            "kuka_camera_joints_rad": None, "kuka_target_joints_rad": None, "kuka_rail_m": None,
             **pose_columns("vicon_world_from_camrb", None), **pose_columns("vicon_world_from_targetrb", None),
             "vicon_camrb_markers": 0, "vicon_targetrb_markers": 0, "status": "ok",
         }

@@ -18,8 +18,8 @@ from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages import geometry as g
+from stages.calibrate import arms, rwhe
 from stages.calibrate import observations as obs
-from stages.calibrate import rwhe
 from stages.calibrate.table import print_table
 from stages.fusion import Sigma, fuse, lever_sq, sigma_between
 from stages.patterns import PatternSpec
@@ -91,6 +91,23 @@ def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> 
     return False, message
 
 
+def arm_decision(config: Config, readings: arms.Readings | None) -> tuple[bool, str]:
+    """Whether to calibrate the arms' kinematics, and why (for calibration.json)."""
+    mode = config.calibrate.arm_kinematics
+    if mode == "off":
+        return False, "calibrate.arm_kinematics = off"
+    if readings is None:
+        if mode == "on":
+            raise InputError("calibrate.arm_kinematics = on: the calibration captures lack the robots' encoder "
+                             "readings (kuka_camera_joints_rad, kuka_target_joints_rad, kuka_rail_m)")
+        return False, "the captures have no encoder readings"
+    if config.calibrate.solver == "shah":
+        if mode == "on":
+            raise InputError("calibrate.arm_kinematics = on needs the frobenius or reprojection solver")
+        return False, "Shah's closed form has no arm kinematics"
+    return True, f"encoder readings of {len(readings.rail_m)} calibration captures"
+
+
 def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
           intrinsics: obs.Intrinsics, up: np.ndarray | None = None, method: str | None = None) -> rwhe.Solution:
     """Offsets from ``A`` (PnP) and ``B`` (N, 4, 4); ``up`` (N, 3): also the fixtures' compliance."""
@@ -134,8 +151,9 @@ def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[st
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
                    used: list[obs.Observation], intrinsics: obs.Intrinsics,
-                   up: np.ndarray | None = None) -> np.ndarray:
-    """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets fitted without it."""
+                   up: np.ndarray | None = None, readings: arms.Readings | None = None) -> np.ndarray:
+    """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets (and arms, with
+    ``readings``) fitted without it."""
     folds = np.random.default_rng(config.calibrate.seed).permutation(len(a)) % config.calibrate.folds
     predicted = np.zeros_like(a)
     for fold in range(config.calibrate.folds):
@@ -148,7 +166,13 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
         if missing:
             raise rwhe.DegenerateError(f"cross-validation: fold {fold} leaves fixture(s) {missing} without "
                                        "training samples; capture more calibration poses")
-        predicted[test] = solution.predict(b[test], test_fixtures, _subset(up, test))
+        b_test, up_test = b[test], _subset(up, test)
+        if readings is not None:
+            solution, errors = arms.fit(config.testbed, config.calibrate, a[train], readings.subset(train),
+                                        train_fixtures, solution, up is not None)
+            b_test, up_arms = arms.measurement(config.testbed, errors, readings.subset(test), config.calibrate.world_up)
+            up_test = None if up is None else up_arms
+        predicted[test] = solution.predict(b_test, test_fixtures, up_test)
     return predicted
 
 
@@ -214,12 +238,14 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         fixtures = [by_id[o.sample_id]["fixture"] for o in used]
         rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
                              f"{source} calibration")
-        up = None
-        compliance_note = "motion capture tracks the model itself"
+        up, readings, kinematic = None, None, False
+        compliance_note = arm_note = "motion capture tracks the model itself"
         if source == "kuka":
             up = np.stack([up_targetee(by_id[o.sample_id], config.calibrate.world_up) for o in used])
             compliant, compliance_note = compliance_decision(config, up, fixtures)
             up = up if compliant else None
+            readings = arms.readings([by_id[o.sample_id] for o in used])
+            kinematic, arm_note = arm_decision(config, readings)
         solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics, up)
         for o, inlier in zip(used, inliers, strict=True):
             if not inlier:
@@ -228,13 +254,24 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         used = [o for o, inlier in zip(used, inliers, strict=True) if inlier]
         a, b, up = a[inliers], b[inliers], _subset(up, inliers)
         fixtures = [f for f, inlier in zip(fixtures, inliers, strict=True) if inlier]
+        errors = None
+        if kinematic:
+            readings = readings.subset(inliers)
+            cross = cross_validate(config, a, b, fixtures, used, intrinsics, up, readings)
+            solution, errors = arms.fit(config.testbed, config.calibrate, a, readings, fixtures, solution,
+                                        up is not None)
+            b, up_arms = arms.measurement(config.testbed, errors, readings, config.calibrate.world_up)
+            up = None if up is None else up_arms
+        else:
+            cross = cross_validate(config, a, b, fixtures, used, intrinsics, up)
         predicted = solution.predict(b, fixtures, up)
-        cross = cross_validate(config, a, b, fixtures, used, intrinsics, up)
         entry = results[source] = {
             **{name: g.pose_to_json(offset) for name, offset in
                zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
             f"{OFFSET_NAMES[source][1]}_by_fixture": {f: g.pose_to_json(x) for f, x in solution.x.items()},
             "fixture_compliance": compliance_json(solution, up, fixtures, compliance_note),
+            "arm_kinematics": {"estimated": errors is not None, "why": arm_note,
+                               **(errors.to_json() if errors is not None else {})},
             **sigma_between(predicted, a).to_json(),
             "samples": len(used),
             "outliers": outliers,

@@ -120,7 +120,7 @@ def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     return Solution(z, x)
 
 
-def _pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
+def pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
     parts = [g.matrix_to_rotvec(solution.z[:3, :3]), solution.z[:3, 3]]
     for name in names:
         parts += [g.matrix_to_rotvec(solution.x[name][:3, :3]), solution.x[name][:3, 3]]
@@ -129,7 +129,7 @@ def _pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def _unpack(params: np.ndarray, names: list[str], compliant: bool) -> Solution:
+def unpack(params: np.ndarray, names: list[str], compliant: bool) -> Solution:
     def pose(k: int) -> np.ndarray:
         return g.make_transform(g.rotvec_to_matrix(params[6 * k:6 * k + 3]), params[6 * k + 3:6 * k + 6])
 
@@ -146,11 +146,11 @@ def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution
     compliant = up_targetee is not None
 
     def residuals(params: np.ndarray) -> np.ndarray:
-        return (a - _unpack(params, names, compliant).predict(b, fixtures, up_targetee))[:, :3, :].ravel()
+        return (a - unpack(params, names, compliant).predict(b, fixtures, up_targetee))[:, :3, :].ravel()
 
-    result = least_squares(residuals, _pack(start, names, compliant), method="lm", xtol=1e-15, ftol=1e-15,
+    result = least_squares(residuals, pack(start, names, compliant), method="lm", xtol=1e-15, ftol=1e-15,
                            gtol=1e-15)
-    return _unpack(result.x, names, compliant)
+    return unpack(result.x, names, compliant)
 
 
 def reprojection(b: np.ndarray, fixtures: list[str], start: Solution, object_points: list[np.ndarray],
@@ -163,11 +163,11 @@ def reprojection(b: np.ndarray, fixtures: list[str], start: Solution, object_poi
     compliant = up_targetee is not None
 
     def residuals(params: np.ndarray) -> np.ndarray:
-        poses = _unpack(params, names, compliant).predict(b, fixtures, up_targetee)
+        poses = unpack(params, names, compliant).predict(b, fixtures, up_targetee)
         projected = [g.project(pose, points, camera_matrix, dist) for pose, points in zip(poses, object_points,
                                                                                           strict=True)]
         return (np.concatenate(projected) - observed).ravel()
 
-    result = least_squares(residuals, _pack(start, names, compliant), method="trf", x_scale="jac", xtol=1e-12,
+    result = least_squares(residuals, pack(start, names, compliant), method="trf", x_scale="jac", xtol=1e-12,
                            ftol=1e-12)
-    return _unpack(result.x, names, compliant)
+    return unpack(result.x, names, compliant)

@@ -19,11 +19,11 @@ import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.io import write_json_atomic
-from pipeline.config import Config
+from pipeline.config import Config, TestbedConfig
 from pipeline.errors import InputError
 from pipeline.progress import track
 from stages import geometry as g
-from stages.calibrate import measurement, up_targetee
+from stages.calibrate import arms, measurement, up_targetee
 from stages.calibrate.rwhe import fixture_tilt
 from stages.fusion import UNIT_FACTOR, Sigma, VarianceFactor, at_position, fuse, rejection_reason, variance_factor
 
@@ -35,8 +35,11 @@ class SourceModel:
     """One source's calibrated offsets, fixture compliance and uncertainty."""
 
     def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray,
-                 world_up: np.ndarray) -> None:
+                 world_up: np.ndarray, testbed: TestbedConfig) -> None:
         self.z = g.pose_from_json(entry[z_name])
+        kinematics = entry.get("arm_kinematics") or {}
+        self.arms = arms.ArmErrors.from_json(kinematics) if kinematics.get("estimated") else None
+        self.testbed = testbed
         self.x = {fixture: g.pose_from_json(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
         compliance = (entry.get("fixture_compliance") or {}).get("k_rad_by_fixture") or {}
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in compliance.items()}
@@ -51,26 +54,35 @@ class SourceModel:
             raise InputError(f"captures: sample {row['sample_id']} uses fixture {fixture!r}, which the calibration "
                              f"did not see (calibrated: {', '.join(sorted(self.x))}); add calibration captures "
                              "with it")
+        up = up_targetee(row, self.world_up)
+        if self.arms is not None:
+            readings = arms.readings([row])
+            if readings is None:
+                raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
+                                 "calibration of the arms needs (calibrate.arm_kinematics)")
+            b_arms, up_arms = arms.measurement(self.testbed, self.arms, readings, self.world_up)
+            b, up = b_arms[0], up_arms[0]
         if fixture in self.compliance:
-            b = b @ fixture_tilt(up_targetee(row, self.world_up)[None], self.compliance[fixture][None])[0]
+            b = b @ fixture_tilt(up[None], self.compliance[fixture][None])[0]
         return self.z @ b @ g.invert(self.x[fixture])
 
     def sigma_at(self, pose: np.ndarray) -> Sigma:
         return at_position(self.sigma, pose[:3, 3], self.calibration_lever_sq)
 
 
-def load_models(workspace: Workspace) -> tuple[SourceModel, SourceModel | None, Sigma | None]:
+def load_models(workspace: Workspace, testbed: TestbedConfig) -> tuple[SourceModel, SourceModel | None,
+                                                                      Sigma | None]:
     path = workspace.root / CALIBRATION_FILE
     if not path.exists():
         raise InputError(f"{path}: missing; run calibrate first")
     calibration = json.loads(path.read_text())
     lever = np.array(calibration["calibration_lever_sq_m2"])
     world_up = np.array(calibration.get("world_up", (0.0, 0.0, 1.0)), float)  # the up the compliance was fitted with
-    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever, world_up)
+    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever, world_up, testbed)
     vicon = None
     rejection = None
     if calibration.get("vicon"):
-        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever, world_up)
+        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever, world_up, testbed)
         rejection = Sigma.from_json(calibration["rejection"])
     return kuka, vicon, rejection
 
@@ -139,7 +151,7 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    kuka, vicon, rejection = load_models(workspace)
+    kuka, vicon, rejection = load_models(workspace, config.testbed)
     rows = [r for r in read_manifest(workspace, "captures").to_pylist()
             if r["session"] == "dataset" and r["status"] == "ok"]
     # every capture's estimates first: the session's variance factor depends on all of them,

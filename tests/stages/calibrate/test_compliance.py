@@ -1,4 +1,4 @@
-"""When calibrate estimates the model fixture's compliance, and why not."""
+"""When calibrate estimates the model fixture's compliance and the arms' kinematics, and why not."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import pytest
 from pipeline.config import load_config
 from pipeline.errors import InputError
 from stages import geometry as g
-from stages.calibrate import compliance_decision, rwhe, up_targetee
+from stages.calibrate import arm_decision, arms, compliance_decision, rwhe, up_targetee
 
 
 def config_with(**calibrate):
@@ -48,3 +48,12 @@ def test_up_direction_comes_from_the_target_flange_telemetry():
     row = {"kuka_world_from_targetee_q": g.matrix_to_quat(flange)}
     np.testing.assert_allclose(up_targetee(row, np.array([0.0, 0.0, 1.0])), [0, 0, 1] @ flange, atol=1e-12)
     np.testing.assert_allclose(up_targetee(row, np.array([0.0, 0.0, 1.0])), [0, 1, 0], atol=1e-12)
+
+
+def test_arm_kinematics_need_encoder_readings():
+    readings = arms.Readings(np.zeros((10, 6)), np.zeros((10, 6)), np.zeros(10))
+    assert arm_decision(config_with(), readings) == (True, "encoder readings of 10 calibration captures")
+    assert arm_decision(config_with(), None) == (False, "the captures have no encoder readings")
+    assert arm_decision(config_with(arm_kinematics="off"), readings)[0] is False
+    with pytest.raises(InputError, match="lack the robots' encoder readings.*kuka_camera_joints_rad"):
+        arm_decision(config_with(arm_kinematics="on"), None)

@@ -1,0 +1,162 @@
+"""Kinematic calibration of the two arms: joint zero offsets, link lengths, base poses and
+the rail scale, estimated with the RWHE offsets from the calibration captures.
+
+Why: RWHE alone fits one ``Z`` and one ``X_f`` that absorb the arms' errors only at the
+calibration session's arm configurations (camera 0.75 m from the board). The dataset
+session puts the arms elsewhere (camera 3-5 m from the model), where the uncorrected
+pose-dependent errors reappear: about 0.14 deg of pointing on the default profile, 10 mm
+at 4 m. Correcting the arms' own parameters carries the calibration over.
+
+Model. The controller reports the nominal forward kinematics of its encoder readings
+``q``; the true flange is ``base_c(rail * (1 + s)) @ E_c @ FK(arm_c + dl_c, q_c + dq_c)``
+for the camera robot on its rail, and ``base_t @ E_t @ FK(arm_t + dl_t, q_t + dq_t)`` for
+the target robot, with ``E`` a small base correction (rotation vector, translation).
+Then ``B_i = camee_from_targetee`` follows from the readings, and the robots' RWHE is
+``A_i X_f = Z B_i(p) S(up_i x k_f)`` over ``p``, ``Z``, ``X_f`` (and ``k_f``). Several of
+these parameters are not separable from each other or from ``Z``/``X_f`` (A6's offset
+turns the flange like a rotation of ``Z``; A1's offset of the floor robot like a turn of
+its base about z): Gaussian priors of the lab's tolerances (``calibrate.arm_prior_*``)
+make the problem well posed (a maximum a posteriori estimate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from pipeline.config import CalibrateConfig, TestbedConfig
+from stages import geometry as g
+from stages import layout
+from stages.calibrate import rwhe
+from stages.kinematics import ArmModel, arm_model, forward
+
+LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
+#: parameters of the arms: joint offsets (6 + 6), link lengths (6 + 6), bases (6 + 6), rail scale
+N_ARM = 37
+
+
+@dataclass(frozen=True)
+class Readings:
+    """Encoder readings of the captures: joints (N, 6) rad of each robot, rail (N,) m."""
+
+    camera_joints_rad: np.ndarray
+    target_joints_rad: np.ndarray
+    rail_m: np.ndarray
+
+    def subset(self, mask: np.ndarray) -> Readings:
+        return Readings(self.camera_joints_rad[mask], self.target_joints_rad[mask], self.rail_m[mask])
+
+
+def readings(rows: list[dict[str, Any]]) -> Readings | None:
+    """The captures' encoder readings, or None when any capture lacks them."""
+    keys = ("kuka_camera_joints_rad", "kuka_target_joints_rad", "kuka_rail_m")
+    if not rows or any(row.get(key) is None for row in rows for key in keys):
+        return None
+    return Readings(np.array([r["kuka_camera_joints_rad"] for r in rows], float),
+                    np.array([r["kuka_target_joints_rad"] for r in rows], float),
+                    np.array([r["kuka_rail_m"] for r in rows], float))
+
+
+@dataclass(frozen=True)
+class ArmErrors:
+    """The arms' estimated corrections (see the module docstring); zero: the nominal testbed."""
+
+    params: np.ndarray  # (N_ARM,)
+
+    @property
+    def camera_joint_offsets_rad(self) -> np.ndarray:
+        return self.params[0:6]
+
+    @property
+    def target_joint_offsets_rad(self) -> np.ndarray:
+        return self.params[6:12]
+
+    def arms(self, nominal: ArmModel) -> tuple[ArmModel, ArmModel]:
+        def corrected(deltas: np.ndarray) -> ArmModel:
+            return replace(nominal, **{name: getattr(nominal, name) + float(d) for name, d in zip(LENGTHS, deltas,
+                                                                                               strict=True)})
+        return corrected(self.params[12:18]), corrected(self.params[18:24])
+
+    def to_json(self) -> dict[str, Any]:
+        p = [float(v) for v in self.params]
+        return {"camera_joint_offsets_rad": p[0:6], "target_joint_offsets_rad": p[6:12],
+                "camera_link_deltas_m": dict(zip(LENGTHS, p[12:18], strict=True)),
+                "target_link_deltas_m": dict(zip(LENGTHS, p[18:24], strict=True)),
+                "camera_base_correction": {"rotvec_rad": p[24:27], "t_m": p[27:30]},
+                "target_base_correction": {"rotvec_rad": p[30:33], "t_m": p[33:36]}, "rail_scale_error": p[36]}
+
+    @classmethod
+    def from_json(cls, entry: dict[str, Any]) -> ArmErrors:
+        p = [*entry["camera_joint_offsets_rad"], *entry["target_joint_offsets_rad"],
+             *(entry["camera_link_deltas_m"][n] for n in LENGTHS), *(entry["target_link_deltas_m"][n] for n in LENGTHS),
+             *entry["camera_base_correction"]["rotvec_rad"], *entry["camera_base_correction"]["t_m"],
+             *entry["target_base_correction"]["rotvec_rad"], *entry["target_base_correction"]["t_m"],
+             entry["rail_scale_error"]]
+        return cls(np.array(p, float))
+
+
+NOMINAL = ArmErrors(np.zeros(N_ARM))
+
+
+def _small(params: np.ndarray) -> np.ndarray:
+    return g.make_transform(g.rotvec_to_matrix(params[:3]), params[3:6])
+
+
+def flanges(testbed: TestbedConfig, errors: ArmErrors, r: Readings) -> tuple[np.ndarray, np.ndarray]:
+    """``world_from_camee`` and ``world_from_targetee`` (N, 4, 4) of the readings."""
+    arm_camera, arm_target = errors.arms(arm_model(testbed.robot_model))
+    p = errors.params
+    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[36])) @ _small(p[24:30])
+                        @ forward(arm_camera, r.camera_joints_rad + p[0:6]))
+    world_from_targetee = (layout.world_from_target_base(testbed) @ _small(p[30:36])
+                           @ forward(arm_target, r.target_joints_rad + p[6:12]))
+    return world_from_camee, world_from_targetee
+
+
+def measurement(testbed: TestbedConfig, errors: ArmErrors, r: Readings,
+                world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The robots' ``B`` = ``camee_from_targetee`` (N, 4, 4) and the up direction in the
+    target flange frame (N, 3) from the readings, with the arms corrected by ``errors``."""
+    world_from_camee, world_from_targetee = flanges(testbed, errors, r)
+    up = np.einsum("nji,j->ni", world_from_targetee[:, :3, :3], np.asarray(world_up, float))
+    return g.invert(world_from_camee) @ world_from_targetee, up
+
+
+def priors(c: CalibrateConfig) -> np.ndarray:
+    """1-sigma of each arm parameter before calibration (N_ARM,)."""
+    base = [c.arm_prior_base_rad] * 3 + [c.arm_prior_base_m] * 3
+    return np.array([c.arm_prior_joint_rad] * 12 + [c.arm_prior_length_m] * 12 + base * 2 + [c.arm_prior_rail_scale])
+
+
+def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, fixtures: list[str],
+        start: rwhe.Solution, compliant: bool) -> tuple[rwhe.Solution, ArmErrors]:
+    """Arms, ``Z``, ``X_f`` (and ``k_f``) from PnP poses ``a`` (N, 4, 4) and readings ``r``.
+
+    Maximum a posteriori: the paper's Frobenius residuals divided by their scale (the RMS
+    residual of ``start`` with nominal arms, refined once with the fitted one) and the
+    parameters divided by their prior sigma."""
+    names = sorted(start.x)
+    sigma_prior = priors(c)
+    world_up = np.asarray(c.world_up, float)
+
+    def unpack(params: np.ndarray) -> tuple[rwhe.Solution, ArmErrors]:
+        offsets = rwhe.unpack(params[N_ARM:], names, compliant)
+        return offsets, ArmErrors(params[:N_ARM])
+
+    def predicted(params: np.ndarray) -> np.ndarray:
+        offsets, errors = unpack(params)
+        b, up = measurement(testbed, errors, r, world_up)
+        return offsets.predict(b, fixtures, up if compliant else None)
+
+    params = np.concatenate([NOMINAL.params, rwhe.pack(start, names, compliant)])
+    scale = float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2)))
+    for _ in range(2):
+        def residuals(q: np.ndarray, scale: float = scale) -> np.ndarray:
+            return np.concatenate([((a - predicted(q))[:, :3, :] / scale).ravel(), q[:N_ARM] / sigma_prior])
+
+        params = least_squares(residuals, params, method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12).x
+        scale = max(float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2))), 1e-12)
+    return unpack(params)

@@ -1,0 +1,72 @@
+"""Kinematic calibration of the arms: exact on noise-free data, carried over to other arm
+configurations, and read back from calibration.json unchanged."""
+
+import numpy as np
+import pytest
+
+from pipeline.config import load_config
+from stages import geometry as g
+from stages.calibrate import arms, rwhe
+from stages.kinematics import arm_model
+
+
+def random_readings(rng, n, limits_fraction=0.4):
+    nominal = arm_model(load_config("default").testbed.robot_model)
+    low, high = np.array(nominal.lower) * limits_fraction, np.array(nominal.upper) * limits_fraction
+    return arms.Readings(rng.uniform(low, high, (n, 6)), rng.uniform(low, high, (n, 6)), rng.uniform(0.5, 5.5, n))
+
+
+def true_errors(rng):
+    """Arm errors of the size the virtual testbed draws (DESIGN section 5)."""
+    return arms.ArmErrors(np.concatenate([rng.normal(0, 6e-4, 12), rng.normal(0, 3e-4, 12), rng.normal(0, 2e-4, 3),
+                                          rng.normal(0, 5e-4, 3), rng.normal(0, 2e-4, 3), rng.normal(0, 5e-4, 3),
+                                          rng.normal(0, 1e-4, 1)]))
+
+
+def captures(testbed, errors, readings, z, x, k, fixtures, world_up):
+    """PnP poses A (N, 4, 4) the true arms and compliant fixtures would give."""
+    b, up = arms.measurement(testbed, errors, readings, world_up)
+    return rwhe.Solution(z, x, k).predict(b, fixtures, up)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(seed):
+    rng = np.random.default_rng(seed)
+    config = load_config("default")
+    testbed, world_up = config.testbed, np.array(config.calibrate.world_up)
+    errors = true_errors(rng)
+    z = g.transform_from_qt(g.random_quats(rng, 1)[0], rng.normal(0, 0.1, 3))
+    x = {f: g.transform_from_qt(g.random_quats(rng, 1)[0], rng.normal(0, 0.2, 3)) for f in ("minus_x", "plus_x")}
+    k = {"minus_x": np.array([-6e-4, 9e-4, 0.011]), "plus_x": np.array([1e-3, -7e-4, 0.010])}
+    readings = random_readings(rng, 60)
+    fixtures = ["minus_x", "plus_x"] * 30
+    a = captures(testbed, errors, readings, z, x, k, fixtures, world_up)
+
+    # the nominal arms' solution is the start, as in the calibrate stage
+    b_nominal, up_nominal = arms.measurement(testbed, arms.NOMINAL, readings, world_up)
+    start = rwhe.frobenius(a, b_nominal, fixtures, rwhe.shah(a, b_nominal, fixtures), up_nominal)
+    solution, fitted = arms.fit(testbed, config.calibrate, a, readings, fixtures, start, compliant=True)
+
+    others = random_readings(rng, 40)  # other arm configurations: what the dataset session does
+    other_fixtures = ["plus_x", "minus_x"] * 20
+    expected = captures(testbed, errors, others, z, x, k, other_fixtures, world_up)
+    b_fitted, up_fitted = arms.measurement(testbed, fitted, others, world_up)
+    predicted = solution.predict(b_fitted, other_fixtures, up_fitted)
+    assert np.abs(predicted[:, :3, 3] - expected[:, :3, 3]).max() < 1e-6
+    assert g.angular_distance(predicted[:, :3, :3], expected[:, :3, :3]).max() < 1e-6
+    # the nominal arms' solution does not carry over
+    b_rigid, up_rigid = arms.measurement(testbed, arms.NOMINAL, others, world_up)
+    rigid = start.predict(b_rigid, other_fixtures, up_rigid)
+    assert np.abs(rigid[:, :3, 3] - expected[:, :3, 3]).max() > 1e-3
+
+
+def test_arm_errors_survive_json():
+    errors = true_errors(np.random.default_rng(3))
+    assert np.array_equal(arms.ArmErrors.from_json(errors.to_json()).params, errors.params)
+
+
+def test_readings_need_every_capture_to_have_them():
+    row = {"kuka_camera_joints_rad": [0.0] * 6, "kuka_target_joints_rad": [0.1] * 6, "kuka_rail_m": 2.0}
+    assert arms.readings([row, row]).rail_m.tolist() == [2.0, 2.0]
+    assert arms.readings([row, {**row, "kuka_rail_m": None}]) is None
+    assert arms.readings([]) is None
