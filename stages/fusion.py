@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from stages import geometry as g
 
@@ -83,70 +82,57 @@ def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:
 
 @dataclass(frozen=True)
 class VarianceFactor:
-    """A posteriori scales of the calibrated sigmas on the dataset captures, from
-    ``samples`` two-source captures: the robots' position sigma per camera axis ``t``
-    (3,), and both sources' rotation sigma ``r``."""
+    """A posteriori scale of the calibrated sigmas on the dataset captures, common to both
+    sources: per camera axis ``t`` (3,) and for the rotation angle ``r``, from ``samples``
+    two-source captures."""
 
     t: np.ndarray
     r: float
     samples: int
 
-    def scale_robots(self, sigma: Sigma) -> Sigma:
+    def scale(self, sigma: Sigma) -> Sigma:
         pointing = None if sigma.pointing_rad is None else sigma.pointing_rad * self.r
         return Sigma(sigma.t_m * self.t, sigma.r_rad * self.r, pointing)
 
-    def scale_mocap(self, sigma: Sigma) -> Sigma:
-        return Sigma(sigma.t_m, sigma.r_rad * self.r, sigma.pointing_rad)
-
     def to_json(self) -> dict:
-        return {"robots_t": [float(v) for v in self.t], "r": float(self.r), "samples": self.samples}
+        return {"t": [float(v) for v in self.t], "r": float(self.r), "samples": self.samples}
 
 
 UNIT_FACTOR = VarianceFactor(np.ones(3), 1.0, 0)
 
 
-def _robots_factor(residual_sq: np.ndarray, var_robots: np.ndarray, var_mocap: np.ndarray) -> float:
-    """The s >= 1 with ``median(residual^2 / (s^2 var_robots + var_mocap))`` at the median
-    of chi-square(1): 1 when the calibrated variances already explain the residuals."""
-    def excess(s: float) -> float:
-        return float(np.median(residual_sq / (s**2 * var_robots + var_mocap))) - _CHI2_1_MEDIAN
+def variance_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: list[Sigma]) -> VarianceFactor:
+    """How much larger two independent sources' disagreement on these captures (poses
+    (N, 4, 4)) is than the calibrated sigma of their difference (per capture) says.
 
-    if excess(1.0) <= 0:
-        return 1.0
-    high = 2.0
-    while excess(high) > 0 and high < 1e6:
-        high *= 2
-    return float(brentq(excess, 1.0, high, xtol=1e-6))
-
-
-def variance_factor(robots: np.ndarray, mocap: np.ndarray, sigma_robots: list[Sigma],
-                    sigma_mocap: list[Sigma]) -> VarianceFactor:
-    """How much larger the errors are on these captures than the calibrated sigmas say,
-    from the disagreement of the robots and motion capture (poses (N, 4, 4), sigmas per
-    capture, each already grown to the capture's position).
-
-    The difference of two independent estimates has variance ``sigma_R^2 + sigma_M^2``;
-    one variance can only be told from the other by what is known about the sources:
-    - Position: the robots' errors depend on both arms' configurations, which differ
-      between the calibration and the dataset sessions; motion capture's position error
-      comes from the camera body's pointing, whose markers are seen alike in both (its
-      sigma grown with the lever matches its true spread on the default profile, the
-      robots' is 2-3 times too small: README). So ``s`` goes to the robots, per axis.
-    - Rotation: both degrade, the robots' for the same reason, motion capture's because on
-      the dataset's orientations fewer cameras see fewer of the model's markers; one
-      common factor on both.
-    Medians, not means: a ghost marker must not inflate a factor (up to half of the
-    captures may be outliers). Only inflation (>= 1): a short session cannot show the
-    sources better than their calibration."""
-    difference = mocap[:, :3, 3] - robots[:, :3, 3]
-    var_robots = np.stack([s.t_m for s in sigma_robots]) ** 2
-    var_mocap = np.stack([s.t_m for s in sigma_mocap]) ** 2
-    t = np.array([_robots_factor(difference[:, k] ** 2, var_robots[:, k], var_mocap[:, k]) for k in range(3)])
+    The difference's variance is ``s_a^2 + s_b^2``: which source grew cannot be told
+    without a third, so the factor is common to both (variance component estimation with
+    one component). Medians, not means: a ghost marker or a mislabelled body must not
+    inflate it; up to half of the captures may be such outliers. Only inflation (>= 1): a
+    short session cannot show the sources better than their calibration."""
+    difference = pose_b[:, :3, 3] - pose_a[:, :3, 3]
+    normalised = difference / np.stack([s.t_m for s in sigma_difference])
+    t = np.maximum(np.sqrt(np.median(normalised**2, axis=0) / _CHI2_1_MEDIAN), 1.0)
     # sigma_r is the RMS angle; an isotropic error's squared angle is that times chi2_3 / 3
-    angle_sq = g.angular_distance(mocap[:, :3, :3], robots[:, :3, :3]) ** 2
-    var_difference = np.array([a.r_rad**2 + b.r_rad**2 for a, b in zip(sigma_robots, sigma_mocap, strict=True)])
-    r = max(1.0, float(np.sqrt(np.median(angle_sq / var_difference) / (_CHI2_3_MEDIAN / 3))))
-    return VarianceFactor(t, r, len(robots))
+    angle = g.angular_distance(pose_b[:, :3, :3], pose_a[:, :3, :3])
+    ratio = (angle / np.array([s.r_rad for s in sigma_difference])) ** 2
+    r = max(float(np.sqrt(np.median(ratio) / (_CHI2_3_MEDIAN / 3))), 1.0)
+    return VarianceFactor(t, r, len(pose_a))
+
+
+def without_reference_noise(sigma: Sigma, reference_var_t: np.ndarray, reference_var_r: float,
+                            floor: float = 0.1) -> Sigma:
+    """A source's sigma measured against a noisy reference (PnP), with the reference's own
+    mean variance (per axis ``reference_var_t`` (3,) m^2, angle ``reference_var_r`` rad^2)
+    removed: ``s^2 = s_measured^2 - s_reference^2``. Differences of independent errors add
+    their variances; without this a source far better than PnP would be credited with
+    PnP's noise and under-weighted in the fusion. ``floor``: the variance never drops
+    below that fraction of the measured one (a few dozen samples estimate both roughly)."""
+    var_t = np.maximum(sigma.t_m**2 - np.asarray(reference_var_t), floor * sigma.t_m**2)
+    var_r = max(sigma.r_rad**2 - reference_var_r, floor * sigma.r_rad**2)
+    share = 1.0 if sigma.pointing_rad is None else (sigma.pointing_rad / max(sigma.r_rad, 1e-300)) ** 2
+    r = float(np.sqrt(var_r))
+    return Sigma(np.sqrt(var_t), r, None if sigma.pointing_rad is None else float(np.sqrt(share) * r))
 
 
 def fuse(pose_a: np.ndarray, sigma_a: Sigma, pose_b: np.ndarray, sigma_b: Sigma) -> tuple[np.ndarray, Sigma]:

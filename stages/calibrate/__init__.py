@@ -21,7 +21,7 @@ from stages import geometry as g
 from stages.calibrate import arms, rwhe
 from stages.calibrate import observations as obs
 from stages.calibrate.table import print_table
-from stages.fusion import Sigma, fuse, lever_sq, sigma_between
+from stages.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
 from stages.patterns import PatternSpec
 
 SOURCES = ("kuka", "vicon")
@@ -168,9 +168,11 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
                                        "training samples; capture more calibration poses")
         b_test, up_test = b[test], _subset(up, test)
         if readings is not None:
-            solution, errors = arms.fit(config.testbed, config.calibrate, a[train], readings.subset(train),
-                                        train_fixtures, solution, up is not None)
-            b_test, up_arms = arms.measurement(config.testbed, errors, readings.subset(test), config.calibrate.world_up)
+            fitted = arms.fit(config.testbed, config.calibrate, a[train], readings.subset(train), train_fixtures,
+                              solution, up is not None)
+            solution = fitted.offsets
+            b_test, up_arms = arms.measurement(config.testbed, fitted.errors, readings.subset(test),
+                                               config.calibrate.world_up)
             up_test = None if up is None else up_arms
         predicted[test] = solution.predict(b_test, test_fixtures, up_test)
     return predicted
@@ -186,6 +188,15 @@ def compliance_json(solution: rwhe.Solution, up: np.ndarray | None, fixtures: li
     return {"estimated": True, "why": note,
             "k_rad_by_fixture": {f: [float(v) for v in k_f] for f, k_f in solution.compliance.items()},
             "tilt_rad_mean": float(tilt.mean()), "tilt_rad_max": float(tilt.max())}
+
+
+def pnp_variance(used: list[obs.Observation]) -> tuple[np.ndarray, float]:
+    """Mean variance of the PnP poses (per camera axis m^2, rotation angle rad^2)."""
+    covariances = [o.covariance for o in used if o.covariance is not None]
+    if not covariances:
+        return np.zeros(3), 0.0
+    mean = np.mean(covariances, axis=0)
+    return np.diag(mean)[3:], float(np.trace(mean[:3, :3]))
 
 
 def load_truth(workspace: Workspace) -> dict[str, np.ndarray] | None:
@@ -254,13 +265,13 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         used = [o for o, inlier in zip(used, inliers, strict=True) if inlier]
         a, b, up = a[inliers], b[inliers], _subset(up, inliers)
         fixtures = [f for f, inlier in zip(fixtures, inliers, strict=True) if inlier]
-        errors = None
+        fitted = None
         if kinematic:
             readings = readings.subset(inliers)
             cross = cross_validate(config, a, b, fixtures, used, intrinsics, up, readings)
-            solution, errors = arms.fit(config.testbed, config.calibrate, a, readings, fixtures, solution,
-                                        up is not None)
-            b, up_arms = arms.measurement(config.testbed, errors, readings, config.calibrate.world_up)
+            fitted = arms.fit(config.testbed, config.calibrate, a, readings, fixtures, solution, up is not None)
+            solution = fitted.offsets
+            b, up_arms = arms.measurement(config.testbed, fitted.errors, readings, config.calibrate.world_up)
             up = None if up is None else up_arms
         else:
             cross = cross_validate(config, a, b, fixtures, used, intrinsics, up)
@@ -270,9 +281,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
             f"{OFFSET_NAMES[source][1]}_by_fixture": {f: g.pose_to_json(x) for f, x in solution.x.items()},
             "fixture_compliance": compliance_json(solution, up, fixtures, compliance_note),
-            "arm_kinematics": {"estimated": errors is not None, "why": arm_note,
-                               **(errors.to_json() if errors is not None else {})},
-            **sigma_between(predicted, a).to_json(),
+            "arm_kinematics": {"estimated": fitted is not None, "why": arm_note,
+                               **(fitted.to_json() if fitted is not None else {})},
+            **without_reference_noise(sigma_between(predicted, a), *pnp_variance(used)).to_json(),
             "samples": len(used),
             "outliers": outliers,
             "metrics": {"in_sample": metrics(predicted, a, used, intrinsics),

@@ -131,25 +131,64 @@ def priors(c: CalibrateConfig) -> np.ndarray:
     return np.array([c.arm_prior_joint_rad] * 12 + [c.arm_prior_length_m] * 12 + base * 2 + [c.arm_prior_rail_scale])
 
 
+def predict(testbed: TestbedConfig, params: np.ndarray, names: list[str], compliant: bool, r: Readings,
+            fixtures: list[str], world_up: np.ndarray) -> np.ndarray:
+    """``cam_from_target`` (N, 4, 4) of readings ``r`` from the packed parameters of ``fit``
+    (arms, then ``rwhe.pack`` of the offsets of fixtures ``names``)."""
+    offsets = rwhe.unpack(params[N_ARM:], names, compliant)
+    b, up = measurement(testbed, ArmErrors(params[:N_ARM]), r, world_up)
+    return offsets.predict(b, fixtures, up if compliant else None)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The fitted offsets and arms, the packed parameters and their covariance."""
+
+    offsets: rwhe.Solution
+    errors: ArmErrors
+    params: np.ndarray
+    covariance: np.ndarray  # (P, P), from the Gauss-Newton information at the optimum
+    names: list[str]
+    compliant: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.errors.to_json(), "fixtures": self.names, "compliant": self.compliant,
+                "parameters": [float(v) for v in self.params], "covariance": self.covariance.tolist()}
+
+
+def pose_covariance(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixture: str,
+                    world_up: np.ndarray, step: float = 1e-7) -> np.ndarray:
+    """(6, 6) covariance (rotation applied on the camera side, rad; translation, m) of the
+    pose predicted for one capture, propagated from the fitted parameters' covariance:
+    where the arms' configuration differs from the calibration's, it grows."""
+    params, covariance = np.asarray(entry["parameters"]), np.asarray(entry["covariance"])
+    names, compliant = list(entry["fixtures"]), bool(entry["compliant"])
+    centre = predict(testbed, params, names, compliant, r, [fixture], world_up)[0]
+    jacobian = np.zeros((6, len(params)))
+    for k in range(len(params)):
+        moved = params.copy()
+        moved[k] += step
+        pose = predict(testbed, moved, names, compliant, r, [fixture], world_up)[0]
+        jacobian[:3, k] = g.matrix_to_rotvec(pose[:3, :3] @ centre[:3, :3].T) / step
+        jacobian[3:, k] = (pose[:3, 3] - centre[:3, 3]) / step
+    return jacobian @ covariance @ jacobian.T
+
+
 def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, fixtures: list[str],
-        start: rwhe.Solution, compliant: bool) -> tuple[rwhe.Solution, ArmErrors]:
+        start: rwhe.Solution, compliant: bool) -> Fit:
     """Arms, ``Z``, ``X_f`` (and ``k_f``) from PnP poses ``a`` (N, 4, 4) and readings ``r``.
 
     Maximum a posteriori: the paper's Frobenius residuals divided by their scale (the RMS
     residual of ``start`` with nominal arms, refined once with the fitted one) and the
-    parameters divided by their prior sigma."""
+    parameters divided by their prior sigma; the covariance is ``(J^T J)^-1`` of those
+    whitened residuals (one scale for the rotation and translation entries, as the
+    paper's cost weighs them alike)."""
     names = sorted(start.x)
     sigma_prior = priors(c)
     world_up = np.asarray(c.world_up, float)
 
-    def unpack(params: np.ndarray) -> tuple[rwhe.Solution, ArmErrors]:
-        offsets = rwhe.unpack(params[N_ARM:], names, compliant)
-        return offsets, ArmErrors(params[:N_ARM])
-
     def predicted(params: np.ndarray) -> np.ndarray:
-        offsets, errors = unpack(params)
-        b, up = measurement(testbed, errors, r, world_up)
-        return offsets.predict(b, fixtures, up if compliant else None)
+        return predict(testbed, params, names, compliant, r, fixtures, world_up)
 
     params = np.concatenate([NOMINAL.params, rwhe.pack(start, names, compliant)])
     scale = float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2)))
@@ -157,6 +196,9 @@ def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, 
         def residuals(q: np.ndarray, scale: float = scale) -> np.ndarray:
             return np.concatenate([((a - predicted(q))[:, :3, :] / scale).ravel(), q[:N_ARM] / sigma_prior])
 
-        params = least_squares(residuals, params, method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12).x
+        result = least_squares(residuals, params, method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
+        params = result.x
         scale = max(float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2))), 1e-12)
-    return unpack(params)
+    covariance = np.linalg.pinv(result.jac.T @ result.jac)
+    offsets = rwhe.unpack(params[N_ARM:], names, compliant)
+    return Fit(offsets, ArmErrors(params[:N_ARM]), params, covariance, names, compliant)

@@ -25,6 +25,9 @@ class Observation:
     object_points: np.ndarray  # (M, 3) the same corners in T
     cam_from_target: np.ndarray | None = None
     rms_px: float | None = None
+    #: (6, 6) covariance of the PnP pose: a small rotation (rad) applied on the camera side,
+    #: then the translation (m), both in the camera frame
+    covariance: np.ndarray | None = None
     reason: str | None = None  # why unusable
     extra: dict = field(default_factory=dict)
 
@@ -91,3 +94,31 @@ def solve_pnp(observations: list[Observation], intrinsics: Intrinsics) -> None:
         o.cam_from_target = g.make_transform(g.rotvec_to_matrix(rvec.ravel()), tvec.ravel())
         projected = g.project(o.cam_from_target, points, intrinsics.camera_matrix, intrinsics.dist)
         o.rms_px = float(np.sqrt(np.mean(np.sum((projected - pixels) ** 2, axis=1))))
+        o.covariance = pnp_covariance(o.cam_from_target, points, projected - pixels, intrinsics)
+
+
+def pnp_covariance(cam_from_target: np.ndarray, points: np.ndarray, residuals: np.ndarray,
+                   intrinsics: Intrinsics, step: float = 1e-7) -> np.ndarray | None:
+    """(6, 6) covariance of a least-squares PnP pose from its reprojection residuals (M, 2):
+    ``s^2 (J^T J)^-1`` with ``s^2`` the residual variance per coordinate and ``J`` the
+    projection's Jacobian (central differences) in the rotation-then-translation
+    perturbation of ``Observation.covariance``. None when the pose is not determined."""
+    dof = residuals.size - 6
+    if dof <= 0:
+        return None
+    jacobian = np.zeros((residuals.size, 6))
+    for k in range(6):
+        delta = np.zeros(6)
+        delta[k] = step
+        moved = []
+        for sign in (1.0, -1.0):
+            perturbation = g.make_transform(g.rotvec_to_matrix(sign * delta[:3]), sign * delta[3:])
+            pose = cam_from_target.copy()
+            pose[:3, :3] = perturbation[:3, :3] @ cam_from_target[:3, :3]
+            pose[:3, 3] = cam_from_target[:3, 3] + perturbation[:3, 3]
+            moved.append(g.project(pose, points, intrinsics.camera_matrix, intrinsics.dist).ravel())
+        jacobian[:, k] = (moved[0] - moved[1]) / (2 * step)
+    information = jacobian.T @ jacobian
+    if np.linalg.cond(information) > 1e14:
+        return None
+    return float(np.sum(residuals**2) / dof) * np.linalg.inv(information)

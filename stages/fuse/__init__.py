@@ -39,6 +39,7 @@ class SourceModel:
         self.z = g.pose_from_json(entry[z_name])
         kinematics = entry.get("arm_kinematics") or {}
         self.arms = arms.ArmErrors.from_json(kinematics) if kinematics.get("estimated") else None
+        self.kinematics = kinematics
         self.testbed = testbed
         self.x = {fixture: g.pose_from_json(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
         compliance = (entry.get("fixture_compliance") or {}).get("k_rad_by_fixture") or {}
@@ -69,6 +70,13 @@ class SourceModel:
     def sigma_at(self, pose: np.ndarray) -> Sigma:
         return at_position(self.sigma, pose[:3, 3], self.calibration_lever_sq)
 
+    def parameter_covariance(self, row: dict[str, Any]) -> np.ndarray | None:
+        """(6, 6) covariance of this capture's pose from the calibrated arms' uncertainty."""
+        if self.arms is None:
+            return None
+        return arms.pose_covariance(self.testbed, self.kinematics, arms.readings([row]), row["fixture"],
+                                    self.world_up)
+
 
 def load_models(workspace: Workspace, testbed: TestbedConfig) -> tuple[SourceModel, SourceModel | None,
                                                                       Sigma | None]:
@@ -94,6 +102,14 @@ class Estimates:
     row: dict[str, Any]
     kuka: np.ndarray
     vicon: np.ndarray | None
+    kuka_covariance: np.ndarray | None  # (6, 6) from the calibrated arms' parameters
+
+    def plus_parameters(self, sigma: Sigma) -> Sigma:
+        """``sigma`` with the robots' parameter uncertainty at this capture added."""
+        if self.kuka_covariance is None:
+            return sigma
+        return Sigma(np.sqrt(sigma.t_m**2 + np.diag(self.kuka_covariance)[3:]),
+                     float(np.sqrt(sigma.r_rad**2 + np.trace(self.kuka_covariance[:3, :3]))), sigma.pointing_rad)
 
 
 def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None) -> Estimates:
@@ -101,13 +117,13 @@ def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None) 
     if vicon is not None:
         b = measurement(row, "vicon")
         vicon_pose = None if b is None else vicon.estimate(b, row)
-    return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose)
+    return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose, kuka.parameter_covariance(row))
 
 
 def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel,
-                   vicon: SourceModel | None) -> tuple[VarianceFactor, str]:
-    """The robots' variance factor for this dataset session, and why it is what it is."""
-    if vicon is None:
+                   rejection: Sigma | None) -> tuple[VarianceFactor, str]:
+    """The variance factor of this dataset session, and why it is what it is."""
+    if rejection is None:
         return UNIT_FACTOR, "one source: the calibrated sigmas"
     if config.fuse.sigma_scale == "calibration":
         return UNIT_FACTOR, "fuse.sigma_scale = calibration"
@@ -115,30 +131,21 @@ def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel
     if len(both) < config.fuse.min_scale_samples:
         return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
                              f"({config.fuse.min_scale_samples}): the calibrated sigmas")
-    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]),
-                             [kuka.sigma_at(e.kuka) for e in both], [vicon.sigma_at(e.vicon) for e in both])
+    predicted = [e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq)) for e in both]
+    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
     return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
-
-
-def difference_sigma(rejection: Sigma, kuka: SourceModel, factor: VarianceFactor, e: Estimates) -> Sigma:
-    """Sigma of motion capture minus the robots at a capture: the calibrated rejection sigma
-    at the capture's position, with the robots' position share and the rotation grown by
-    the session's factors."""
-    calibrated = at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq)
-    unscaled = kuka.sigma_at(e.kuka)
-    t = np.sqrt(calibrated.t_m**2 + (factor.t**2 - 1) * unscaled.t_m**2)
-    return Sigma(t, calibrated.r_rad * factor.r)
 
 
 def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
                  factor: VarianceFactor, rejection_k: float) -> dict[str, Any]:
     """One ``poses`` row."""
     reason = "no motion capture in this session"
-    sigma_kuka = factor.scale_robots(kuka.sigma_at(e.kuka))
+    sigma_kuka = factor.scale(e.plus_parameters(kuka.sigma_at(e.kuka)))
     if vicon is not None:
-        reason = rejection_reason(e.kuka, e.vicon, difference_sigma(rejection, kuka, factor, e), rejection_k)
+        threshold = factor.scale(e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq)))
+        reason = rejection_reason(e.kuka, e.vicon, threshold, rejection_k)
     if reason is None:
-        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale_mocap(vicon.sigma_at(e.vicon)))
+        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(vicon.sigma_at(e.vicon)))
     else:
         fused, sigma = e.kuka, sigma_kuka
     q_k, t_k = g.transform_to_qt(e.kuka)
@@ -157,10 +164,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
     estimates = [estimate(row, kuka, vicon) for row in rows]
-    factor, why = session_factor(config, estimates, kuka, vicon)
+    factor, why = session_factor(config, estimates, kuka, rejection)
     write_json_atomic(workspace.root / FUSION_FILE, {"variance_factor": factor.to_json(), "why": why,
                                                      "rejection_k": config.fuse.rejection_k})
-    print(f"fuse: sigma factors: robots' position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, "
+    print(f"fuse: sigma factors: position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, "
           f"rotation {factor.r:.2f} ({why})")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]

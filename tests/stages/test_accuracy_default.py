@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
+from bench.accuracy import PAPERS_METHOD
 from manifests import Workspace, read_manifest
 from stages import geometry as g
 from stages.calibrate.table import PAPER
@@ -33,9 +34,8 @@ def labelled(default_acquisition, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def rigid(default_acquisition, tmp_path_factory):
-    """The paper's method: rigid fixtures, calibrated sigmas as they are."""
-    return labelled_copy(default_acquisition, tmp_path_factory.mktemp("rigid") / "w",
-                         "calibrate.fixture_compliance=off", "fuse.sigma_scale=calibration")
+    """The paper's method: nominal arms, rigid fixtures, calibrated sigmas as they are."""
+    return labelled_copy(default_acquisition, tmp_path_factory.mktemp("rigid") / "w", *PAPERS_METHOD)
 
 
 def calibration(ws):

@@ -45,7 +45,8 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     # the nominal arms' solution is the start, as in the calibrate stage
     b_nominal, up_nominal = arms.measurement(testbed, arms.NOMINAL, readings, world_up)
     start = rwhe.frobenius(a, b_nominal, fixtures, rwhe.shah(a, b_nominal, fixtures), up_nominal)
-    solution, fitted = arms.fit(testbed, config.calibrate, a, readings, fixtures, start, compliant=True)
+    fit = arms.fit(testbed, config.calibrate, a, readings, fixtures, start, compliant=True)
+    solution, fitted = fit.offsets, fit.errors
 
     others = random_readings(rng, 40)  # other arm configurations: what the dataset session does
     other_fixtures = ["plus_x", "minus_x"] * 20
@@ -54,6 +55,11 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     predicted = solution.predict(b_fitted, other_fixtures, up_fitted)
     assert np.abs(predicted[:, :3, 3] - expected[:, :3, 3]).max() < 1e-6
     assert g.angular_distance(predicted[:, :3, :3], expected[:, :3, :3]).max() < 1e-6
+    # the uncertainty of a prediction: a covariance, tiny for noise-free data
+    entry = fit.to_json()
+    covariance = arms.pose_covariance(testbed, entry, others.subset(np.arange(40) == 0), "plus_x", world_up)
+    np.testing.assert_allclose(covariance, covariance.T, atol=1e-20)
+    assert np.linalg.eigvalsh(covariance).min() > -1e-18 and np.sqrt(np.trace(covariance)) < 1e-5
     # the nominal arms' solution does not carry over
     b_rigid, up_rigid = arms.measurement(testbed, arms.NOMINAL, others, world_up)
     rigid = start.predict(b_rigid, other_fixtures, up_rigid)
