@@ -47,3 +47,9 @@ def print_table(calibration: dict[str, Any]) -> None:
     for label, cells in rows(calibration):
         table.add_row(escape(label), *cells)
     Console().print(table)
+    fused = calibration.get("fused")
+    if fused:
+        kind = "truth" if fused["metrics"]["truth"] else "cross_validated"
+        same = {**fused["sources_on_the_same_samples"], "fused": fused["metrics"]}
+        Console().print(f"On the {fused['samples']} samples both sources measured, E_T {kind.replace('_', '-')}: "
+                        + ", ".join(f"{label} {same[name][kind]['E_T_m'][0] * 1000:.4f} mm" for name, label in COLUMNS))

@@ -52,26 +52,32 @@ def test_the_testbed_is_as_hard_as_tron_for_the_papers_method(rigid):
             assert 0.5 <= ratio <= 2.0, (source, key, ratio)
 
 
-def test_fixture_compliance_is_estimated_and_removes_most_of_the_robots_rotation_error(labelled, rigid):
-    compliance = calibration(labelled)["kuka"]["fixture_compliance"]
-    assert compliance["estimated"], compliance["why"]
-    assert 0.001 < compliance["tilt_rad_mean"] < 0.02  # tenths of a degree, as DESIGN says
-    with_compliance = calibration(labelled)["kuka"]["metrics"]
-    without = calibration(rigid)["kuka"]["metrics"]
-    assert calibration(rigid)["kuka"]["fixture_compliance"]["estimated"] is False
+def test_compliance_and_arm_kinematics_remove_most_of_the_robots_error(labelled, rigid):
+    kuka = calibration(labelled)["kuka"]
+    assert kuka["fixture_compliance"]["estimated"], kuka["fixture_compliance"]["why"]
+    assert 0.001 < kuka["fixture_compliance"]["tilt_rad_mean"] < 0.02  # tenths of a degree, as DESIGN says
+    assert kuka["arm_kinematics"]["estimated"], kuka["arm_kinematics"]["why"]
+    papers = calibration(rigid)["kuka"]
+    assert not papers["fixture_compliance"]["estimated"] and not papers["arm_kinematics"]["estimated"]
     for kind in ("cross_validated", "truth"):
-        assert with_compliance[kind]["E_R_rad"][0] < 0.5 * without[kind]["E_R_rad"][0]
-        assert with_compliance[kind]["E_T_m"][0] < without[kind]["E_T_m"][0]
+        assert kuka["metrics"][kind]["E_R_rad"][0] < 0.2 * papers["metrics"][kind]["E_R_rad"][0]
+        assert kuka["metrics"][kind]["E_T_m"][0] < 0.2 * papers["metrics"][kind]["E_T_m"][0]
+    # the arms' corrections are of the size the lab's tolerances allow, not fitted noise
+    arms = kuka["arm_kinematics"]
+    assert np.abs(arms["camera_joint_offsets_rad"] + arms["target_joint_offsets_rad"]).max() < 0.01
 
 
-def test_fused_calibration_beats_the_papers_fused_figures_and_each_source(labelled):
-    c = calibration(labelled)
-    truth = c["fused"]["metrics"]["truth"]
+def test_fused_calibration_beats_the_papers_fused_figures_and_is_never_worse_than_a_source(labelled):
+    fused = calibration(labelled)["fused"]
+    truth = fused["metrics"]["truth"]
     assert truth["E_T_m"][0] * 1000 < PAPER["fused"][0][0]
     assert np.degrees(truth["E_R_rad"][0]) < PAPER["fused"][1][0]
-    for kind in ("in_sample", "cross_validated", "truth"):
-        fused = c["fused"]["metrics"][kind]["E_T_m"][0]
-        assert fused < c["kuka"]["metrics"][kind]["E_T_m"][0] and fused < c["vicon"]["metrics"][kind]["E_T_m"][0]
+    # on the samples both sources measured: with the arms calibrated the robots are some 20x
+    # better than motion capture, and fusion must not spoil them (README)
+    same = fused["sources_on_the_same_samples"]
+    for key in ("E_T_m", "E_R_rad"):
+        assert truth[key][0] <= 1.01 * same["kuka"]["truth"][key][0]
+        assert truth[key][0] < 0.5 * same["vicon"]["truth"][key][0]
 
 
 def dataset_errors(ws):
@@ -99,30 +105,13 @@ def dataset_errors(ws):
 
 def test_dataset_labels_against_the_speedplus_thresholds(labelled, rigid):
     ours, papers = dataset_errors(labelled), dataset_errors(rigid)
-    # (d) fusion beats each source in mean position error on the dataset captures too
+    # (d) fusion beats each source in mean position error on the dataset captures
     assert ours["fused"].mean() < ours["kuka"].mean() and ours["fused"].mean() < ours["vicon"].mean()
-    # (c) the goal is every label under both thresholds; these floors guard what is reached
-    # (README: 92% in rotation, 79% in position), and the method must beat the paper's
-    under = {name: (e["rotation"] < SPEEDPLUS_ROTATION_RAD) & (e["position"] < SPEEDPLUS_TRANSLATION)
-             for name, e in (("ours", ours), ("paper", papers))}
-    assert np.mean(ours["rotation"] < SPEEDPLUS_ROTATION_RAD) >= 0.85
-    assert under["ours"].mean() >= 0.7 and under["ours"].mean() > under["paper"].mean() + 0.1
-    assert ours["rotation"].mean() < 0.6 * papers["rotation"].mean()
-    # (e) the sigmas: 90-99% is the goal; README: 95.8%, 97.9%, 89.6%
+    # (c) the goal is every label under both thresholds (README: all 48; the paper's method 54%)
+    under = (ours["rotation"] < SPEEDPLUS_ROTATION_RAD) & (ours["position"] < SPEEDPLUS_TRANSLATION)
+    assert under.mean() >= 0.95
+    assert ours["rotation"].mean() < 0.2 * papers["rotation"].mean()
+    # (e) the sigmas: 90-99% is the goal (README)
     assert np.all(ours["inside"].mean(axis=0) >= 0.85), ours["inside"].mean(axis=0)
-
-
-def test_the_sessions_variance_factor_makes_the_sigmas_honest(labelled, tmp_path):
-    """With the fixture compliance, the robots' calibrated sigmas are small; carried to the
-    dataset's poses unscaled they reject good motion capture and under-state the error."""
     factor = json.loads((labelled.root / "fusion.json").read_text())["variance_factor"]
-    assert factor["samples"] >= 30 and min(factor["robots_t"]) >= 1.0 and factor["r"] >= 1.0
-    unscaled = Workspace(tmp_path / "unscaled")
-    shutil.copytree(labelled.root, unscaled.root)
-    for stage in ("fuse", "label"):
-        result = speedplus(stage, "--workspace", str(unscaled.root), "--force", "--set", "fuse.sigma_scale=calibration")
-        assert result.returncode == 0, result.stderr
-    assert json.loads((unscaled.root / "fusion.json").read_text())["variance_factor"]["samples"] == 0
-    scaled, plain = dataset_errors(labelled), dataset_errors(unscaled)
-    assert plain["inside"].mean() < 0.75 < 0.85 < scaled["inside"].mean()
-    assert scaled["fused"].mean() < plain["fused"].mean()
+    assert factor["samples"] >= 30 and min(factor["t"]) >= 1.0 and factor["r"] >= 1.0
