@@ -156,22 +156,24 @@ class Fit:
                 "parameters": [float(v) for v in self.params], "covariance": self.covariance.tolist()}
 
 
-def pose_covariance(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixture: str,
-                    world_up: np.ndarray, step: float = 1e-7) -> np.ndarray:
-    """(6, 6) covariance (rotation applied on the camera side, rad; translation, m) of the
-    pose predicted for one capture, propagated from the fitted parameters' covariance:
-    where the arms' configuration differs from the calibration's, it grows."""
+def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixtures: list[str],
+                     world_up: np.ndarray, step: float = 1e-7) -> np.ndarray:
+    """(N, 6, 6) covariances (rotation applied on the camera side, rad; translation, m) of
+    the poses predicted for captures ``r``, propagated from the fitted parameters'
+    covariance (``Fit.to_json``): where the arms' configuration differs from the
+    calibration's, they grow."""
     params, covariance = np.asarray(entry["parameters"]), np.asarray(entry["covariance"])
     names, compliant = list(entry["fixtures"]), bool(entry["compliant"])
-    centre = predict(testbed, params, names, compliant, r, [fixture], world_up)[0]
-    jacobian = np.zeros((6, len(params)))
+    centre = predict(testbed, params, names, compliant, r, fixtures, world_up)
+    jacobian = np.zeros((len(fixtures), 6, len(params)))
     for k in range(len(params)):
         moved = params.copy()
         moved[k] += step
-        pose = predict(testbed, moved, names, compliant, r, [fixture], world_up)[0]
-        jacobian[:3, k] = g.matrix_to_rotvec(pose[:3, :3] @ centre[:3, :3].T) / step
-        jacobian[3:, k] = (pose[:3, 3] - centre[:3, 3]) / step
-    return jacobian @ covariance @ jacobian.T
+        poses = predict(testbed, moved, names, compliant, r, fixtures, world_up)
+        jacobian[:, :3, k] = g.matrix_to_rotvec(poses[:, :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)) / step
+        jacobian[:, 3:, k] = (poses[:, :3, 3] - centre[:, :3, 3]) / step
+    propagated = jacobian @ covariance @ np.swapaxes(jacobian, -1, -2)
+    return 0.5 * (propagated + np.swapaxes(propagated, -1, -2))  # exactly symmetric despite rounding
 
 
 def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, fixtures: list[str],

@@ -2,10 +2,11 @@
 offsets, the motion-capture rejection test, and the Bayesian fusion (DESIGN section 6).
 
 It reads the captures and ``W/calibration.json``, never the truth. The calibrated sigmas
-were measured at the calibration distance and attitudes; on the dataset captures both
-sources err more (longer lever, other arm configurations), so by default they are scaled
-by the a posteriori variance factor of the session, measured by how much the two sources
-disagree on its own captures (``W/fusion.json``).
+were measured at the calibration distance and arm configurations; on the dataset
+captures they grow with the lever of the line of sight, with the calibrated arms'
+parameter uncertainty propagated to each capture's configuration, and by the session's
+a posteriori variance factor: how much the two sources disagree on its own captures
+beyond what those sigmas predict (``W/fusion.json``).
 """
 
 from __future__ import annotations
@@ -70,12 +71,17 @@ class SourceModel:
     def sigma_at(self, pose: np.ndarray) -> Sigma:
         return at_position(self.sigma, pose[:3, 3], self.calibration_lever_sq)
 
-    def parameter_covariance(self, row: dict[str, Any]) -> np.ndarray | None:
-        """(6, 6) covariance of this capture's pose from the calibrated arms' uncertainty."""
-        if self.arms is None:
-            return None
-        return arms.pose_covariance(self.testbed, self.kinematics, arms.readings([row]), row["fixture"],
-                                    self.world_up)
+    def parameter_covariances(self, rows: list[dict[str, Any]]) -> list[np.ndarray | None]:
+        """(6, 6) covariance of each capture's pose from the calibrated arms' uncertainty
+        (None without calibrated arms); all captures at once."""
+        if self.arms is None or not rows:
+            return [None] * len(rows)
+        readings = arms.readings(rows)
+        if readings is None:
+            raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
+                             "of the arms needs (calibrate.arm_kinematics)")
+        return list(arms.pose_covariances(self.testbed, self.kinematics, readings, [r["fixture"] for r in rows],
+                                          self.world_up))
 
 
 def load_models(workspace: Workspace, testbed: TestbedConfig) -> tuple[SourceModel, SourceModel | None,
@@ -112,12 +118,13 @@ class Estimates:
                      float(np.sqrt(sigma.r_rad**2 + np.trace(self.kuka_covariance[:3, :3]))), sigma.pointing_rad)
 
 
-def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None) -> Estimates:
+def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None,
+             kuka_covariance: np.ndarray | None) -> Estimates:
     vicon_pose = None
     if vicon is not None:
         b = measurement(row, "vicon")
         vicon_pose = None if b is None else vicon.estimate(b, row)
-    return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose, kuka.parameter_covariance(row))
+    return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose, kuka_covariance)
 
 
 def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel,
@@ -163,7 +170,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             if r["session"] == "dataset" and r["status"] == "ok"]
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
-    estimates = [estimate(row, kuka, vicon) for row in rows]
+    covariances = kuka.parameter_covariances(rows)
+    estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
     factor, why = session_factor(config, estimates, kuka, rejection)
     write_json_atomic(workspace.root / FUSION_FILE, {"variance_factor": factor.to_json(), "why": why,
                                                      "rejection_k": config.fuse.rejection_k})

@@ -148,4 +148,4 @@ def test_variance_factor_ignores_a_minority_of_gross_outliers():
         ghosts, :3, :3]
     factor = variance_factor(robots_pose, mocap_pose, [difference_sigma(sigma, sigma)] * 3000)
     # 20% contamination moves a median-based factor by a third, a mean-based one 30-fold
-    assert np.all(factor.t < 1.4) and factor.r < 1.4
+    assert np.all(factor.t < 1.5) and factor.r < 1.5

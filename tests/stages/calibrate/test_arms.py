@@ -57,9 +57,11 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     assert g.angular_distance(predicted[:, :3, :3], expected[:, :3, :3]).max() < 1e-6
     # the uncertainty of a prediction: a covariance, tiny for noise-free data
     entry = fit.to_json()
-    covariance = arms.pose_covariance(testbed, entry, others.subset(np.arange(40) == 0), "plus_x", world_up)
-    np.testing.assert_allclose(covariance, covariance.T, atol=1e-20)
-    assert np.linalg.eigvalsh(covariance).min() > -1e-18 and np.sqrt(np.trace(covariance)) < 1e-5
+    covariances = arms.pose_covariances(testbed, entry, others, other_fixtures, world_up)
+    assert covariances.shape == (40, 6, 6)
+    np.testing.assert_array_equal(covariances, np.swapaxes(covariances, -1, -2))
+    assert np.linalg.eigvalsh(covariances).min() > -1e-18
+    assert np.sqrt(np.trace(covariances, axis1=1, axis2=2)).max() < 1e-5
     # the nominal arms' solution does not carry over
     b_rigid, up_rigid = arms.measurement(testbed, arms.NOMINAL, others, world_up)
     rigid = start.predict(b_rigid, other_fixtures, up_rigid)
