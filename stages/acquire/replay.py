@@ -8,6 +8,9 @@ session.toml   format_version = 1, length_unit = "mm" | "m", angle_unit = "deg" 
 robot.csv      sample_id, session, rail, camee_x, camee_y, camee_z, camee_a, camee_b, camee_c,
                targetee_x, ..., targetee_c       (flange poses in the robot world, KUKA X Y Z A B C)
                optional column fixture: which model fixture (mount) was used (default "fixed")
+               optional columns camera_j1..camera_j6, target_j1..target_j6: the robots' encoder
+               readings (axis angles A1-A6, in angle_unit; all twelve or none), which let calibrate
+               calibrate the arms themselves
 mocap.csv      sample_id, body (camrb | targetrb), x, y, z, qw, qx, qy, qz, markers
                (optional; all zeros or NaN: not tracked)
 images/<sample_id>.png
@@ -36,6 +39,7 @@ ROBOT_COLUMNS = ["sample_id", "session", "rail"] + [f"{body}_{axis}" for body in
                                                     for axis in ("x", "y", "z", "a", "b", "c")]
 MOCAP_COLUMNS = ["sample_id", "body", "x", "y", "z", "qw", "qx", "qy", "qz", "markers"]
 BODIES = ("camrb", "targetrb")
+JOINT_COLUMNS = {robot: [f"{robot}_j{k}" for k in range(1, 7)] for robot in ("camera", "target")}
 
 
 def read_session_toml(path: Path) -> dict[str, Any]:
@@ -99,10 +103,29 @@ class SessionReplay:
             check_finite(path, f"{where}, rail", np.array([rail]))
             fixture = (row.get("fixture") or "fixed").strip()
             robot[sample_id] = {"line": line, "session": row["session"], "fixture": fixture,
-                                "rail_m": _to_metres(rail, length), **poses}
+                                "rail_m": _to_metres(rail, length), **poses,
+                                **self._joints(path, line, where, row, angle)}
         if not robot:
             raise IngestError(path, "no samples")
         return robot
+
+    @staticmethod
+    def _joints(path: Path, line: int, where: str, row: dict[str, Any], angle: str) -> dict[str, Any]:
+        """The encoder readings of a robot.csv row in radians, or None when not recorded."""
+        columns = [c for names in JOINT_COLUMNS.values() for c in names]
+        present = [c for c in columns if c in row]
+        if not present:
+            return {"camera_joints_rad": None, "target_joints_rad": None}
+        missing = [c for c in columns if c not in row]
+        if missing:
+            raise IngestError(path, f"encoder readings need all of {columns[0]}..{columns[-1]}; "
+                                    f"missing column(s) {', '.join(missing)}")
+        out = {}
+        for robot, names in JOINT_COLUMNS.items():
+            values = np.array([number(path, line, row, c) for c in names])
+            check_finite(path, f"{where}, {robot} joints", values)
+            out[f"{robot}_joints_rad"] = values if angle == "rad" else np.radians(values)
+        return out
 
     def _read_mocap(self, path: Path) -> dict[tuple[str, str], dict[str, Any]]:
         length = self.meta["length_unit"]
@@ -156,8 +179,8 @@ class SessionReplay:
             "image_path": image_path,
             **pose_columns("kuka_world_from_camee", robot["camee"]),
             **pose_columns("kuka_world_from_targetee", robot["targetee"]),
-            # the recorded format has no encoder readings: no kinematic calibration of the arms
-            "kuka_camera_joints_rad": None, "kuka_target_joints_rad": None, "kuka_rail_m": robot["rail_m"],
+            "kuka_camera_joints_rad": robot["camera_joints_rad"], "kuka_target_joints_rad": robot["target_joints_rad"],
+            "kuka_rail_m": robot["rail_m"],
             **pose_columns("vicon_world_from_camrb", camera_body["pose"]),
             **pose_columns("vicon_world_from_targetrb", target_body["pose"]),
             "vicon_camrb_markers": camera_body["markers"], "vicon_targetrb_markers": target_body["markers"],

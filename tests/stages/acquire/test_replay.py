@@ -12,6 +12,7 @@ from pipeline import runner
 from pipeline.config import load_config
 from stages import geometry as g
 from stages.acquire.ingest import IngestError
+from stages.acquire.replay import SessionReplay
 from stages.acquire.tabb import TabbReplay
 
 TABB = Path(__file__).resolve().parents[4] / "shared" / "external" / "tabb_ds1"
@@ -202,3 +203,35 @@ def test_tabb_bad_inputs_name_the_file(tabb_copy, tmp_path):
     (tabb_copy / "calibration_object.txt").write_text("chess_width 8\nchess_height 6\n")
     with pytest.raises(IngestError, match="calibration_object.txt: missing chess_mm_width"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
+
+
+def add_joint_columns(robot_csv: Path, joints_deg, columns=None):
+    """Append encoder-reading columns to a recorded robot.csv (what a KUKA logger adds)."""
+    columns = columns or [f"{r}_j{k}" for r in ("camera", "target") for k in range(1, 7)]
+    lines = robot_csv.read_text().splitlines()
+    out = [lines[0] + "," + ",".join(columns)]
+    for line, values in zip(lines[1:], joints_deg, strict=True):
+        out.append(line + "," + ",".join(repr(float(v)) for v in values[:len(columns)]))
+    robot_csv.write_text("\n".join(out) + "\n")
+
+
+def test_recorded_encoder_readings_replay_in_radians(tmp_path):
+    rows = recorded_rows()
+    source = write_session(tmp_path / "session", rows)
+    joints_deg = np.random.default_rng(5).uniform(-90, 90, (len(rows), 12))
+    add_joint_columns(source / "robot.csv", joints_deg)
+    ws = acquire(source, tmp_path)
+    captures = {r["sample_id"]: r for r in read_manifest(ws, "captures").to_pylist()}
+    for row, joints in zip(rows, joints_deg, strict=True):
+        got = captures[row["sample_id"]]
+        np.testing.assert_allclose(got["kuka_camera_joints_rad"], np.radians(joints[:6]), atol=1e-12)
+        np.testing.assert_allclose(got["kuka_target_joints_rad"], np.radians(joints[6:]), atol=1e-12)
+        assert got["kuka_rail_m"] == pytest.approx(row["rail"])
+
+
+def test_a_partial_set_of_encoder_columns_is_refused(tmp_path):
+    rows = recorded_rows()
+    source = write_session(tmp_path / "session", rows)
+    add_joint_columns(source / "robot.csv", np.zeros((len(rows), 6)), [f"camera_j{k}" for k in range(1, 7)])
+    with pytest.raises(IngestError, match="robot.csv.*missing column\\(s\\) target_j1"):
+        SessionReplay(source, Workspace(tmp_path / "w"))
