@@ -20,6 +20,7 @@ from pipeline.errors import InputError
 from stages import geometry as g
 from stages.calibrate import arms, rwhe
 from stages.calibrate import observations as obs
+from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json, up_targetee
 from stages.calibrate.table import print_table
 from stages.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
 from stages.patterns import PatternSpec
@@ -57,55 +58,6 @@ def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs
         e_p.append(np.sqrt(np.mean(np.sum((projected - target) ** 2, axis=1))))
     return {name: [float(np.mean(v)), float(np.std(v))] for name, v in
             (("E_T_m", e_t), ("E_R_rad", e_r), ("E_p_px", np.array(e_p)))}
-
-
-def up_targetee(row: dict[str, Any], world_up: np.ndarray) -> np.ndarray:
-    """The up direction (3,) in the target flange frame at a capture, from the robots' telemetry."""
-    return g.quat_to_matrix(row["kuka_world_from_targetee_q"]).T @ np.asarray(world_up, float)
-
-
-def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> tuple[bool, str]:
-    """Whether to estimate the fixture compliance, and why (for calibration.json and the log).
-
-    Observing ``k_f`` needs the up direction in the flange frame to span two axes for every
-    fixture; otherwise the tilt is indistinguishable from the fixed offset ``X_f``."""
-    c = config.calibrate
-    if c.fixture_compliance == "off":
-        return False, "calibrate.fixture_compliance = off"
-    if c.solver == "shah":
-        if c.fixture_compliance == "on":
-            raise InputError("calibrate.fixture_compliance = on needs the frobenius or reprojection solver "
-                             "(Shah's closed form has no compliance)")
-        return False, "Shah's closed form has no compliance"
-    spreads = {f: rwhe.gravity_spread(up[[i for i, name in enumerate(fixtures) if name == f]])
-               for f in sorted(set(fixtures))}
-    narrow = {f: s for f, s in spreads.items() if s < c.min_gravity_spread_rad}
-    summary = ", ".join(f"{f} {np.degrees(s):.1f} deg" for f, s in spreads.items())
-    if not narrow:
-        return True, f"the target flange's attitude to gravity spreads by {summary}"
-    message = (f"the target flange's attitude to gravity spreads by {summary}, under "
-               f"{np.degrees(c.min_gravity_spread_rad):.1f} deg for {', '.join(narrow)}")
-    if c.fixture_compliance == "on":
-        raise rwhe.DegenerateError(f"kuka calibration: {message}; add calibration captures with the model "
-                                   "presented at other attitudes, or set calibrate.fixture_compliance = off")
-    return False, message
-
-
-def arm_decision(config: Config, readings: arms.Readings | None) -> tuple[bool, str]:
-    """Whether to calibrate the arms' kinematics, and why (for calibration.json)."""
-    mode = config.calibrate.arm_kinematics
-    if mode == "off":
-        return False, "calibrate.arm_kinematics = off"
-    if readings is None:
-        if mode == "on":
-            raise InputError("calibrate.arm_kinematics = on: the calibration captures lack the robots' encoder "
-                             "readings (kuka_camera_joints_rad, kuka_target_joints_rad, kuka_rail_m)")
-        return False, "the captures have no encoder readings"
-    if config.calibrate.solver == "shah":
-        if mode == "on":
-            raise InputError("calibrate.arm_kinematics = on needs the frobenius or reprojection solver")
-        return False, "Shah's closed form has no arm kinematics"
-    return True, f"encoder readings of {len(readings.rail_m)} calibration captures"
 
 
 def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
@@ -176,18 +128,6 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
             up_test = None if up is None else up_arms
         predicted[test] = solution.predict(b_test, test_fixtures, up_test)
     return predicted
-
-
-def compliance_json(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],
-                    note: str) -> dict[str, Any]:
-    """The estimated compliances ``k_f`` (rad) and the tilts they imply over the samples."""
-    if not solution.compliance or up is None:
-        return {"estimated": False, "why": note, "k_rad_by_fixture": None}
-    k = np.stack([solution.compliance[f] for f in fixtures])
-    tilt = np.linalg.norm(np.cross(up, k), axis=1)
-    return {"estimated": True, "why": note,
-            "k_rad_by_fixture": {f: [float(v) for v in k_f] for f, k_f in solution.compliance.items()},
-            "tilt_rad_mean": float(tilt.mean()), "tilt_rad_max": float(tilt.max())}
 
 
 def pnp_variance(used: list[obs.Observation]) -> tuple[np.ndarray, float]:
