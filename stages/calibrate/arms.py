@@ -64,15 +64,7 @@ def readings(rows: list[dict[str, Any]]) -> Readings | None:
 class ArmErrors:
     """The arms' estimated corrections (see the module docstring); zero: the nominal testbed."""
 
-    params: np.ndarray  # (N_ARM,)
-
-    @property
-    def camera_joint_offsets_rad(self) -> np.ndarray:
-        return self.params[0:6]
-
-    @property
-    def target_joint_offsets_rad(self) -> np.ndarray:
-        return self.params[6:12]
+    params: np.ndarray  # (N_ARM,): joint offsets (camera, target), link deltas (camera, target), bases, rail
 
     def arms(self, nominal: ArmModel) -> tuple[ArmModel, ArmModel]:
         def corrected(deltas: np.ndarray) -> ArmModel:
