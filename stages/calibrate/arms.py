@@ -93,17 +93,13 @@ class ArmErrors:
 NOMINAL = ArmErrors(np.zeros(N_ARM))
 
 
-def _small(params: np.ndarray) -> np.ndarray:
-    return g.make_transform(g.rotvec_to_matrix(params[:3]), params[3:6])
-
-
 def flanges(testbed: TestbedConfig, errors: ArmErrors, r: Readings) -> tuple[np.ndarray, np.ndarray]:
     """``world_from_camee`` and ``world_from_targetee`` (N, 4, 4) of the readings."""
     arm_camera, arm_target = errors.arms(arm_model(testbed.robot_model))
     p = errors.params
-    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[36])) @ _small(p[24:30])
-                        @ forward(arm_camera, r.camera_joints_rad + p[0:6]))
-    world_from_targetee = (layout.world_from_target_base(testbed) @ _small(p[30:36])
+    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[36]))
+                        @ rwhe.transform_from_vector(p[24:30]) @ forward(arm_camera, r.camera_joints_rad + p[0:6]))
+    world_from_targetee = (layout.world_from_target_base(testbed) @ rwhe.transform_from_vector(p[30:36])
                            @ forward(arm_target, r.target_joints_rad + p[6:12]))
     return world_from_camee, world_from_targetee
 

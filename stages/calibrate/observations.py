@@ -108,14 +108,12 @@ def pnp_covariance(cam_from_target: np.ndarray, points: np.ndarray, residuals: n
         return None
     jacobian = np.zeros((residuals.size, 6))
     for k in range(6):
-        delta = np.zeros(6)
-        delta[k] = step
         moved = []
-        for sign in (1.0, -1.0):
-            perturbation = g.make_transform(g.rotvec_to_matrix(sign * delta[:3]), sign * delta[3:])
-            pose = cam_from_target.copy()
-            pose[:3, :3] = perturbation[:3, :3] @ cam_from_target[:3, :3]
-            pose[:3, 3] = cam_from_target[:3, 3] + perturbation[:3, 3]
+        for delta in (step, -step):
+            change = np.zeros(6)
+            change[k] = delta
+            pose = g.make_transform(g.rotvec_to_matrix(change[:3]) @ cam_from_target[:3, :3],
+                                    cam_from_target[:3, 3] + change[3:])
             moved.append(g.project(pose, points, intrinsics.camera_matrix, intrinsics.dist).ravel())
         jacobian[:, k] = (moved[0] - moved[1]) / (2 * step)
     information = jacobian.T @ jacobian

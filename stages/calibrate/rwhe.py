@@ -120,6 +120,11 @@ def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     return Solution(z, x)
 
 
+def transform_from_vector(vector: np.ndarray) -> np.ndarray:
+    """(4, 4) of a packed 6-vector: rotation vector (rad), then translation (m)."""
+    return g.make_transform(g.rotvec_to_matrix(vector[:3]), vector[3:6])
+
+
 def pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
     parts = [g.matrix_to_rotvec(solution.z[:3, :3]), solution.z[:3, 3]]
     for name in names:
@@ -131,7 +136,7 @@ def pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
 
 def unpack(params: np.ndarray, names: list[str], compliant: bool) -> Solution:
     def pose(k: int) -> np.ndarray:
-        return g.make_transform(g.rotvec_to_matrix(params[6 * k:6 * k + 3]), params[6 * k + 3:6 * k + 6])
+        return transform_from_vector(params[6 * k:6 * k + 6])
 
     start = 6 * (1 + len(names))
     compliance = {name: params[start + 3 * j:start + 3 * j + 3] for j, name in enumerate(names)} if compliant else {}

@@ -11,7 +11,6 @@ beyond what those sigmas predict (``W/fusion.json``).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,6 +26,7 @@ from stages import geometry as g
 from stages.calibrate import arms, measurement, up_targetee
 from stages.calibrate.rwhe import fixture_tilt
 from stages.fusion import UNIT_FACTOR, Sigma, VarianceFactor, at_position, fuse, rejection_reason, variance_factor
+from stages.label import read_calibration
 
 CALIBRATION_FILE = "calibration.json"
 FUSION_FILE = "fusion.json"
@@ -86,18 +86,20 @@ class SourceModel:
 
 def load_models(workspace: Workspace, testbed: TestbedConfig) -> tuple[SourceModel, SourceModel | None,
                                                                       Sigma | None]:
-    path = workspace.root / CALIBRATION_FILE
-    if not path.exists():
-        raise InputError(f"{path}: missing; run calibrate first")
-    calibration = json.loads(path.read_text())
-    lever = np.array(calibration["calibration_lever_sq_m2"])
-    world_up = np.array(calibration.get("world_up", (0.0, 0.0, 1.0)), float)  # the up the compliance was fitted with
-    kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever, world_up, testbed)
-    vicon = None
-    rejection = None
-    if calibration.get("vicon"):
-        vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever, world_up, testbed)
-        rejection = Sigma.from_json(calibration["rejection"])
+    """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``."""
+    calibration = read_calibration(workspace)
+    try:
+        lever = np.array(calibration["calibration_lever_sq_m2"], float)
+        world_up = np.array(calibration.get("world_up", (0.0, 0.0, 1.0)), float)  # the up the compliance used
+        kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever, world_up, testbed)
+        vicon = rejection = None
+        if calibration.get("vicon"):
+            vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever, world_up,
+                                testbed)
+            rejection = Sigma.from_json(calibration["rejection"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise InputError(f"{workspace.root / CALIBRATION_FILE}: unreadable ({error!r} missing or malformed); "
+                         "rerun calibrate") from None
     return kuka, vicon, rejection
 
 

@@ -177,3 +177,14 @@ def test_non_finite_telemetry_names_file_row_and_column(labelled, tmp_path):
     message = " ".join(result.stderr.split())
     assert result.returncode == 1
     assert "part-00000.parquet, row 1" in message and "kuka_world_from_camee_t" in message and "not finite" in message
+
+
+@pytest.mark.parametrize("text", ["{", '{"calibration_lever_sq_m2": [0, 0, 0], "kuka": {}}'])
+def test_unreadable_calibration_stops_fuse_naming_the_file(labelled, tmp_path, text):
+    ws = copy_of(labelled, tmp_path, "broken")
+    (ws.root / "calibration.json").write_text(text)
+    result = speedplus("fuse", "--workspace", str(ws.root), "--force")
+    assert result.returncode == 1, result.stderr
+    message = " ".join(result.stderr.split())  # the console wraps long lines
+    assert "calibration.json" in message and "rerun calibrate" in message
+    assert "Traceback" not in message
