@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.3"
+SCHEMA_VERSION = "1.4"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -119,7 +119,13 @@ CAPTURES = ManifestSpec(
         Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
         Column("fixture", pa.string(), "", "model fixture (mount) in use: the plan's mount, or 'fixed' for "
                "sessions with one fixture; each fixture has its own flange-to-model offset"),
-        Column("image_path", pa.string(), "", "PNG relative to the workspace", kind="path"),
+        Column("image_path", pa.string(), "", "image relative to the workspace: PNG (8 or 16-bit), or the "
+               "recorded file itself for float images (EXR)", kind="path"),
+        Column("source_image", pa.string(), "", "replay: the recorded image, relative to the source folder; "
+               "null for the virtual testbed", nullable=True),
+        Column("image_conversion", pa.string(), "", "replay: how a non-PNG image was stored without loss (e.g. "
+               "'bmp uint8 3ch 640x480 -> png (lossless)'); null when copied byte for byte or rendered",
+               nullable=True),
         *pose("kuka_world_from_camee", "robot telemetry, frame K"),
         *pose("kuka_world_from_targetee", "robot telemetry, frame K"),
         Column("kuka_camera_joints_rad", VEC6, "rad", "camera robot's encoder readings A1-A6 (KUKA signs); null when "

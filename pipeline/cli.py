@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from manifests import ManifestError, Workspace
@@ -103,7 +104,7 @@ def acquire_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
     backend: Annotated[str | None, typer.Option("--backend", help="virtual | replay (acquire.backend)")] = None,
-    format_: Annotated[str | None, typer.Option("--format", help="replay format: session | tabb")] = None,
+    format_: Annotated[str | None, typer.Option("--format", help="replay format: session | handeye | tabb")] = None,
     source: Annotated[Path | None, typer.Option("--source", help="replay: recorded session directory")] = None,
 ) -> None:
     """Run the acquire stage: drive the testbed (virtual) or ingest a recorded session (replay)."""
@@ -244,10 +245,10 @@ def main() -> None:
     try:
         app()
     except (InputError, ManifestError) as error:
-        err.print(f"[bold red]error:[/] {error}", highlight=False)
+        err.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False)
         sys.exit(1)
     except runner.NotBuiltError as error:
-        err.print(f"[bold yellow]stopped:[/] {error}", highlight=False)
+        err.print(f"[bold yellow]stopped:[/] {escape(str(error))}", highlight=False)
         sys.exit(3)
     except KeyboardInterrupt:
         err.print("[yellow]interrupted[/]: finished parts are kept; rerun the same command to resume")

@@ -186,7 +186,9 @@ class AcquireConfig:
     """The acquire stage: which testbed backend produces the captures."""
 
     backend: str = param("virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
-    format: str = param("session", "replay format: session (see README) or tabb (robot-world/hand-eye data)", "")
+    format: str = param("session", "replay format: session (a TRON-like logger's folder), handeye (images and a "
+                        "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
+                        "preset of handeye); see README", "")
     source: str = param("", "replay: the recorded session directory", "")
 
 
@@ -495,8 +497,8 @@ def _check(config: Config) -> Config:
         raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
     if config.acquire.backend not in ("virtual", "replay"):
         raise ConfigError(f"acquire.backend: expected virtual or replay, got {config.acquire.backend!r}")
-    if config.acquire.format not in ("session", "tabb"):
-        raise ConfigError(f"acquire.format: expected session or tabb, got {config.acquire.format!r}")
+    if config.acquire.format not in ("session", "handeye", "tabb"):
+        raise ConfigError(f"acquire.format: expected session, handeye or tabb, got {config.acquire.format!r}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
     if config.run.workers < 1 or config.run.worker_max_tasks < 1:

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from pipeline.config import TestbedConfig
+from stages.image_io import significant_bits, to_float, to_uint8
 
 
 @dataclass(frozen=True)
@@ -32,8 +33,26 @@ class PatternSpec:
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> PatternSpec:
-        tuples = {key: tuple(data[key]) for key in ("size", "target_from_pattern_q", "target_from_pattern_t")}
+        """From ``session.json`` (validated by ``pattern_from_table`` on ingestion): the
+        ``target_from_pattern_q/_t`` keys are optional (identity)."""
+        tuples = {key: tuple(data[key]) for key in ("size", "target_from_pattern_q", "target_from_pattern_t")
+                  if key in data}
         return cls(**{**data, **tuples})
+
+    def reorderings(self) -> list[tuple[str, np.ndarray]]:
+        """Corner relabellings a chessboard detector cannot tell apart from the identity:
+        (name, ids (M,) mapping each detected id to the relabelled one). A chessboard whose
+        squares repeat under a half turn (``size`` x + y even) can be found from either end;
+        a square one also a quarter turn. ChArUco ids are absolute: no alternative."""
+        if self.kind != "chessboard":
+            return []
+        w, h = self.size
+        ids = np.arange(w * h)
+        i, j = ids % w, ids // w
+        out = [("half turn", (w - 1 - i) + w * (h - 1 - j))]
+        if w == h:
+            out += [("quarter turn", j + w * (w - 1 - i)), ("three-quarter turn", (w - 1 - j) + w * i)]
+        return out
 
     def object_points(self) -> np.ndarray:
         """(M, 3) corners in the pattern frame, metres, in OpenCV's id order."""
@@ -41,6 +60,53 @@ class PatternSpec:
             return np.asarray(charuco_board(self).getChessboardCorners(), dtype=float)
         xs, ys = np.meshgrid(np.arange(self.size[0]), np.arange(self.size[1]))
         return np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1) * self.square_m
+
+
+PATTERN_KEYS = {"kind", "size", "square_m", "marker_m", "dictionary", "target_from_pattern_q", "target_from_pattern_t"}
+
+
+def pattern_from_table(table: Any, where: str) -> PatternSpec:
+    """A ``[pattern]`` table of a recorded session (``session.toml``, ``dataset.toml``),
+    validated; errors start with ``where`` and name the key."""
+    from pipeline.errors import InputError
+
+    def fail(message: str) -> InputError:
+        return InputError(f"{where}: [pattern] {message}")
+
+    if not isinstance(table, dict):
+        raise fail("must be a table")
+    unknown = sorted(set(table) - PATTERN_KEYS)
+    if unknown:
+        raise fail(f"unknown key(s) {', '.join(unknown)}; expected some of {', '.join(sorted(PATTERN_KEYS))}")
+    kind = table.get("kind")
+    if kind not in ("chessboard", "charuco"):
+        raise fail(f"kind must be chessboard or charuco, got {kind!r}")
+    size = table.get("size")
+    if (not isinstance(size, list) or len(size) != 2 or not all(isinstance(v, int) and v >= 2 for v in size)):
+        what = "inner corners" if kind == "chessboard" else "squares"
+        raise fail(f"size must be two integers >= 2 ({what} along x and y), got {size!r}")
+    square = table.get("square_m")
+    if not isinstance(square, int | float) or not 0 < square < 1:
+        raise fail(f"square_m must be the square's side in metres (0 to 1), got {square!r}")
+    marker, dictionary = table.get("marker_m", 0.0), table.get("dictionary", "")
+    if kind == "charuco":
+        if not isinstance(marker, int | float) or not 0 < marker < square:
+            raise fail(f"marker_m must be in metres, positive and smaller than square_m, got {marker!r}")
+        if not isinstance(dictionary, str) or not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
+            raise fail(f"dictionary must name a cv2.aruco predefined dictionary (e.g. DICT_5X5_100), "
+                       f"got {dictionary!r}")
+    elif "marker_m" in table or "dictionary" in table:
+        raise fail("marker_m and dictionary belong to charuco patterns only")
+    q = table.get("target_from_pattern_q", [1.0, 0.0, 0.0, 0.0])
+    t = table.get("target_from_pattern_t", [0.0, 0.0, 0.0])
+    for key, value, n in (("target_from_pattern_q", q, 4), ("target_from_pattern_t", t, 3)):
+        if (not isinstance(value, list) or len(value) != n
+                or not all(isinstance(v, int | float) and np.isfinite(v) for v in value)):
+            raise fail(f"{key} must be {n} finite numbers, got {value!r}")
+    if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+        raise fail(f"target_from_pattern_q must be a unit quaternion (w, x, y, z), norm {np.linalg.norm(q):.6f}")
+    return PatternSpec(kind, (size[0], size[1]), float(square), float(marker), str(dictionary),
+                       tuple(float(v) for v in q), tuple(float(v) for v in t))
 
 
 def charuco_board(spec: PatternSpec) -> cv2.aruco.CharucoBoard:
@@ -68,15 +134,26 @@ def board_image(spec: PatternSpec, px_per_m: float, margin_m: float) -> np.ndarr
 
 
 def detect(image: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Pattern corners in a grey image: pixels (N, 2) and their ids (N,) into
-    ``spec.object_points()``; empty arrays when nothing is found."""
+    """Pattern corners in a grey image (H, W) of any pixel type: pixels (N, 2) and their ids
+    (N,) into ``spec.object_points()``; empty arrays when nothing is found.
+
+    OpenCV's detectors need 8 bits: they run on ``to_uint8(image)``. When the file holds
+    more than 8 significant bits (a 12- or 16-bit camera), the corners are then refined on
+    the full-precision image (``cv2.cornerSubPix`` on float32), so the extra bits count."""
+    detection = to_uint8(image)
     if spec.kind == "charuco":
         detector = cv2.aruco.CharucoDetector(charuco_board(spec))
-        corners, ids, _, _ = detector.detectBoard(image)
+        corners, ids, _, _ = detector.detectBoard(detection)
         if ids is None or len(ids) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=int)
-        return corners.reshape(-1, 2).astype(float), ids.ravel().astype(int)
-    found, corners = cv2.findChessboardCornersSB(image, spec.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
-    if not found:
-        return np.zeros((0, 2)), np.zeros(0, dtype=int)
-    return corners.reshape(-1, 2).astype(float), np.arange(spec.size[0] * spec.size[1])
+        pixels, found_ids = corners.reshape(-1, 2).astype(float), ids.ravel().astype(int)
+    else:
+        found, corners = cv2.findChessboardCornersSB(detection, spec.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
+        if not found:
+            return np.zeros((0, 2)), np.zeros(0, dtype=int)
+        pixels, found_ids = corners.reshape(-1, 2).astype(float), np.arange(spec.size[0] * spec.size[1])
+    if significant_bits(image) > 8 and len(pixels):
+        refined = cv2.cornerSubPix(to_float(image), np.ascontiguousarray(pixels, np.float32).reshape(-1, 1, 2),
+                                   (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3))
+        pixels = refined.reshape(-1, 2).astype(float)
+    return pixels, found_ids

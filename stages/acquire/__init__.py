@@ -2,8 +2,8 @@
 measures (``captures``), the images, and, for the virtual testbed, the hidden ``truth``.
 
 Backends (``acquire.backend``): ``virtual`` (the embedded digital twin; captures the
-plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session`` or
-``tabb``). Interrupted runs resume with the samples missing from the manifests.
+plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session``,
+``handeye`` or its preset ``tabb``). Interrupted runs resume with the samples missing from the manifests.
 """
 
 from __future__ import annotations
@@ -29,10 +29,14 @@ def open_testbed(config: Config, root: str) -> Testbed:
         from stages.acquire.virtual import VirtualTestbed
 
         return VirtualTestbed(config, workspace)
-    if config.acquire.format == "tabb":
-        from stages.acquire.tabb import TabbReplay
+    if config.acquire.format in ("handeye", "tabb"):
+        from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
+        from stages.acquire.tabb import tabb_dataset
 
-        return TabbReplay(Path(config.acquire.source), workspace)
+        source = Path(config.acquire.source)
+        if config.acquire.format == "tabb":
+            return HandEyeReplay(tabb_dataset(source), workspace, "tabb")
+        return HandEyeReplay(read_dataset_toml(source), workspace)
     from stages.acquire.replay import SessionReplay
 
     return SessionReplay(Path(config.acquire.source), workspace)

@@ -10,8 +10,9 @@ import numpy as np
 from pipeline.errors import InputError
 
 #: Plausible distances of a flange or rigid body from its world origin, per unit: an
-#: industrial cell is metres across, so values outside these ranges mean a wrong unit.
-PLAUSIBLE_RANGE = {"mm": (5.0, 30_000.0), "m": (0.005, 30.0)}
+#: industrial cell is metres across (at most 30 m), and a flange never stays within 50 mm of
+#: its robot's base, so a file whose farthest position is nearer is in another unit.
+PLAUSIBLE_RANGE = {"mm": (50.0, 30_000.0), "m": (0.05, 30.0)}
 ORTHONORMAL_TOLERANCE = 1e-3
 
 
@@ -55,6 +56,14 @@ def check_finite(path: Path, where: str, values: np.ndarray) -> None:
         raise IngestError(path, f"{where}: non-finite value")
 
 
+def check_angles(path: Path, where: str, angles: np.ndarray, unit: str) -> None:
+    """Euler angles (3,) of a robot controller lie within a turn: more in radians means degrees."""
+    limit = 2 * np.pi + 1e-6 if unit == "rad" else 360.0 + 1e-6
+    if np.abs(angles).max() > limit:
+        hint = "; is the file in degrees (angle_unit = \"deg\")?" if unit == "rad" else ""
+        raise IngestError(path, f"{where}: angle {np.abs(angles).max():.6g} {unit} is more than a turn{hint}")
+
+
 def check_rotation(path: Path, where: str, rotation: np.ndarray) -> None:
     """A proper rotation matrix (3, 3) within ``ORTHONORMAL_TOLERANCE``."""
     error = np.abs(rotation.T @ rotation - np.eye(3)).max()
@@ -64,14 +73,20 @@ def check_rotation(path: Path, where: str, rotation: np.ndarray) -> None:
 
 
 def check_translation(path: Path, label: str, translations: np.ndarray, unit: str, rows: list[str]) -> None:
-    """Distances (N,) of positions (N, 3) must be plausible for ``unit``."""
+    """Positions (N, 3) must be plausible for ``unit``: none farther from the origin than a
+    cell is across, and not all of them within a few millimetres of it (the mark of metres
+    declared as millimetres). A single pose at the origin is plausible: a static target
+    or a camera at the robot's base frame."""
     low, high = PLAUSIBLE_RANGE[unit]
+    other = "m" if unit == "mm" else "mm"
     norms = np.linalg.norm(translations, axis=-1)
     for norm, row in zip(norms, rows, strict=True):
-        if not low <= norm <= high:
-            other = "m" if unit == "mm" else "mm"
+        if norm > high:
             raise IngestError(path, f"{row}: {label} {norm:.6g} {unit} from the origin is implausible for "
-                                    f"{unit} (expected {low:g} to {high:g}); is the file in {other}?")
+                                    f"{unit} (at most {high:g}); is the file in {other}?")
+    if len(norms) and norms.max() < low:
+        raise IngestError(path, f"{label}: every position lies within {norms.max():.6g} {unit} of the origin, "
+                                f"implausible for {unit} (a flange is at least {low:g} {unit} from its base); is the file in {other}?")
 
 
 def check_translation_mm(path: Path, label: str, translations: np.ndarray) -> None:

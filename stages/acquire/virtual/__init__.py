@@ -88,6 +88,7 @@ class VirtualTestbed:
         cam_from_target = g.invert(state.world_from_cam) @ state.world_from_target
         captures = {
             "sample_id": sample_id, "session": session, "fixture": sample["mount"], "image_path": image_path,
+            "source_image": None, "image_conversion": None,
             **pose_columns("kuka_world_from_camee", state.kuka_world_from_camee),
             **pose_columns("kuka_world_from_targetee", state.kuka_world_from_targetee),
             "kuka_camera_joints_rad": state.camera_joints_rad, "kuka_target_joints_rad": state.target_joints_rad,

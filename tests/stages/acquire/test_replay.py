@@ -13,7 +13,8 @@ from pipeline.config import load_config
 from stages import geometry as g
 from stages.acquire.ingest import IngestError
 from stages.acquire.replay import SessionReplay
-from stages.acquire.tabb import TabbReplay
+from stages.acquire.handeye import HandEyeReplay
+from stages.acquire.tabb import tabb_dataset
 
 TABB = Path(__file__).resolve().parents[4] / "shared" / "external" / "tabb_ds1"
 
@@ -107,7 +108,7 @@ def test_session_without_images_or_with_bad_rows_is_refused(tmp_path):
     rows = recorded_rows()
     source = write_session(tmp_path / "s1", rows)
     (source / "images" / "cal000001.png").unlink()
-    with pytest.raises(IngestError, match=r"robot.csv: sample cal000001: image images/cal000001.png is missing"):
+    with pytest.raises(IngestError, match=r"robot.csv: sample cal000001: image images/cal000001.png \(or .bmp.*\) is missing"):
         acquire(source, tmp_path)
 
     def edit(name, line, old, new, directory):
@@ -134,7 +135,7 @@ def test_wrong_units_and_rotations_are_refused(tmp_path):
     metres_declared_mm = write_session(tmp_path / "units", rows, "m")
     toml = metres_declared_mm / "session.toml"
     toml.write_text(toml.read_text().replace('length_unit = "m"', 'length_unit = "mm"'))
-    with pytest.raises(IngestError, match=r"robot.csv: line 2 \(sample_id cal000000\): camee position .* "
+    with pytest.raises(IngestError, match=r"robot.csv: camee position: every position lies within .* "
                                           r"implausible for mm.*in m\?"):
         acquire(metres_declared_mm, tmp_path)
     quaternion = write_session(tmp_path / "quat", rows)
@@ -166,25 +167,30 @@ def test_tabb_dataset_ingests_as_88_captures_in_metres(tmp_path):
     assert '"chessboard"' in session and "0.0285" in session
 
 
+def TabbReplay(source, workspace):  # noqa: N802 - reads like the class it was
+    return HandEyeReplay(tabb_dataset(source), workspace, "tabb")
+
+
 def test_tabb_hand_poses_invert_the_recorded_matrices():
     replay = TabbReplay(TABB, Workspace("/nonexistent"))
-    first = replay.hand_from_base_mm[0]
-    base_from_hand = g.invert(np.concatenate([first[:3], [[0, 0, 0, 1]]]))
-    assert np.allclose(base_from_hand[:3, :3].T, first[:3, :3])
+    first = np.loadtxt(TABB / "robot_cali.txt", skiprows=1)[:4]  # hand_from_base, mm
+    base_from_hand = replay.base_from_flange[0]
+    np.testing.assert_allclose(base_from_hand[:3, :3].T, first[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(base_from_hand[:3, 3], g.invert(first)[:3, 3] / 1000.0, atol=1e-12)
 
 
 def test_tabb_bad_inputs_name_the_file(tabb_copy, tmp_path):
     (tabb_copy / "images" / "image40.png").unlink()
-    with pytest.raises(IngestError, match="image.s. missing, first images/image40.png"):
+    with pytest.raises(IngestError, match="87 images match .* but robot_cali.txt holds 88 poses"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     fake_png(tabb_copy / "images" / "image40.png")
     robot = tabb_copy / "robot_cali.txt"
     original = robot.read_text()
     robot.write_text(original.replace("-0.178668", "-0.5", 1))
-    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(robot stop 0\): rotation is not orthonormal"):
+    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(line 2\): rotation is not orthonormal"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     robot.write_text(original.replace("-525.397105", "nan", 1))
-    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(robot stop 0\): non-finite"):
+    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(line 2\): non-finite"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     robot.write_text(original.replace("88", "89", 1))
     with pytest.raises(IngestError, match="announces 89 matrices but holds 88"):
