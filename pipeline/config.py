@@ -292,6 +292,25 @@ class CalibrateConfig:
     arm_prior_base_m: float = param(2e-3, "prior 1-sigma of a robot base's surveyed position", "m")
     arm_prior_base_rad: float = param(2e-3, "prior 1-sigma of a robot base's surveyed orientation", "rad")
     arm_prior_rail_scale: float = param(1e-3, "prior 1-sigma of the rail encoder's scale error", "1")
+    max_intrinsics_rms_px: float = param(
+        2.0, "an estimated camera whose reprojection RMS over the kept images exceeds this is refused: corners of "
+        "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see README)", "px")
+    motion_angle_floor_rad: float = param(
+        math.radians(1.0), "an image is rejected when its camera motions' rotation angles differ from the robot's "
+        "by more than this and by more than median + outlier_k robust sigmas (median over its pairs; a flipped "
+        "corner order is off by tens of degrees, a good image by a few hundredths)", "rad")
+    motion_pitch_floor_m: float = param(
+        0.01, "the same for the pitch (translation along the screw axis) of the motions; good real data: 1-2 mm",
+        "m")
+    max_scale_error: float = param(
+        0.03, "the camera's motions may differ from the robot's by at most this relative scale (a wrong square "
+        "size or length unit scales them; a robot's own scale error is about 1e-4)", "1")
+    max_rotation_error_rad: float = param(
+        math.radians(5.0), "a calibration whose cross-validated E_R exceeds this is refused as absurd: robots and "
+        "PnP err by tenths of a degree; 5 deg means the data do not fit the model", "rad")
+    max_reprojection_fraction: float = param(
+        0.02, "a calibration whose cross-validated E_p exceeds this fraction of the image diagonal is refused as "
+        "absurd (about 45 px at 1920 x 1200; real calibrations: 1-5 px)", "1")
 
 
 @dataclass(frozen=True)

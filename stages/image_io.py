@@ -81,7 +81,9 @@ def read_image(path: Path, mode: Literal["gray", "bgr", "unchanged"] = "unchange
     """Decode a whole image (every pixel checked: a truncated file is an error naming it).
 
     ``gray``: (H, W); ``bgr``: (H, W, 3); ``unchanged``: (H, W) for grey files, else (H, W, 3).
-    The pixel type is the file's (uint8, uint16, else float32)."""
+    The pixel type is the file's (uint8, uint16, else float32), except that ``gray`` and
+    ``bgr`` return 16-bit files holding 8-bit data (every value x * 257 or x * 256) as uint8,
+    so that converting a camera's 8-bit images to 16 bits changes nothing downstream."""
     image_input = _open(path)
     try:
         spec = image_input.spec()
@@ -92,6 +94,8 @@ def read_image(path: Path, mode: Literal["gray", "bgr", "unchanged"] = "unchange
     finally:
         image_input.close()
     pixels = np.asarray(pixels)
+    if mode != "unchanged" and pixels.dtype == np.uint16 and significant_bits(pixels) == 8:
+        pixels = to_uint8(pixels)  # 8-bit data stored in 16 bits: exactly the 8-bit file's pixels
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
     channels = pixels.shape[2]

@@ -40,10 +40,11 @@ class PatternSpec:
         return cls(**{**data, **tuples})
 
     def reorderings(self) -> list[tuple[str, np.ndarray]]:
-        """Corner relabellings a chessboard detector cannot tell apart from the identity:
-        (name, ids (M,) mapping each detected id to the relabelled one). A chessboard whose
-        squares repeat under a half turn (``size`` x + y even) can be found from either end;
-        a square one also a quarter turn. ChArUco ids are absolute: no alternative."""
+        """Corner relabellings a chessboard detection may need: (name, ids (M,) mapping each
+        detected id to the relabelled one). OpenCV's chessboard detectors may start a board
+        from either end (always possible when its squares repeat under a half turn, i.e.
+        ``size`` x + y even), a square board also a quarter turn away; calibrate lets the
+        robot's motion decide. ChArUco ids are absolute: no alternative."""
         if self.kind != "chessboard":
             return []
         w, h = self.size

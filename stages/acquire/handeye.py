@@ -207,10 +207,10 @@ def _xyzabc(path: Path, angle_unit: str) -> tuple[np.ndarray, list[str]]:
         check_finite(path, f"line {line}", values)
         angles = values[3:]
         check_angles(path, f"line {line}", angles, angle_unit)
-        radians = angles if angle_unit == "rad" else np.radians(angles)
-        rotation = g.rotvec_to_matrix(np.array([0, 0, radians[0]])) @ g.rotvec_to_matrix(
-            np.array([0, radians[1], 0])) @ g.rotvec_to_matrix(np.array([radians[2], 0, 0]))
-        matrices.append(g.make_transform(rotation, values[:3]))
+        degrees = angles if angle_unit == "deg" else np.degrees(angles)
+        pose = g.kuka_to_transform(np.concatenate([values[:3], degrees]))  # R = Rz(a) Ry(b) Rx(c)
+        pose[:3, 3] = values[:3]  # lengths stay in the declared unit until read_poses converts them
+        matrices.append(pose)
         where.append(f"line {line} (sample {sample})")
     return np.array(matrices).reshape(-1, 4, 4), where
 

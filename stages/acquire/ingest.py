@@ -86,7 +86,8 @@ def check_translation(path: Path, label: str, translations: np.ndarray, unit: st
                                     f"{unit} (at most {high:g}); is the file in {other}?")
     if len(norms) and norms.max() < low:
         raise IngestError(path, f"{label}: every position lies within {norms.max():.6g} {unit} of the origin, "
-                                f"implausible for {unit} (a flange is at least {low:g} {unit} from its base); is the file in {other}?")
+                                f"implausible for {unit} (a flange is at least {low:g} {unit} from its base); "
+                                f"is the file in {other}?")
 
 
 def check_translation_mm(path: Path, label: str, translations: np.ndarray) -> None:

@@ -18,7 +18,7 @@ from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages import geometry as g
-from stages.calibrate import arms, rwhe
+from stages.calibrate import arms, rwhe, screening
 from stages.calibrate import observations as obs
 from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json, up_targetee
 from stages.calibrate.table import print_table
@@ -64,12 +64,16 @@ def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], use
           intrinsics: obs.Intrinsics, up: np.ndarray | None = None, method: str | None = None) -> rwhe.Solution:
     """Offsets from ``A`` (PnP) and ``B`` (N, 4, 4); ``up`` (N, 3): also the fixtures' compliance."""
     method = method or config.calibrate.solver
-    solution = rwhe.shah(a, b, fixtures)
-    if method in ("frobenius", "reprojection"):
-        solution = rwhe.frobenius(a, b, fixtures, solution, up)
-    if method == "reprojection":
-        solution = rwhe.reprojection(b, fixtures, solution, [o.object_points for o in used],
-                                     [o.pixels for o in used], intrinsics.camera_matrix, intrinsics.dist, up)
+    try:
+        solution = rwhe.closed_form(a, b, fixtures)
+        if method in ("frobenius", "reprojection"):
+            solution = rwhe.frobenius(a, b, fixtures, solution, up)
+        if method == "reprojection":
+            solution = rwhe.reprojection(b, fixtures, solution, [o.object_points for o in used],
+                                         [o.pixels for o in used], intrinsics.camera_matrix, intrinsics.dist, up)
+    except (ValueError, np.linalg.LinAlgError) as error:  # SciPy's refusal of non-finite residuals, singular fits
+        raise rwhe.DegenerateError(f"the {method} solver failed on {len(a)} samples ({error}); the poses and "
+                                   "images do not determine the offsets") from None
     return solution
 
 
@@ -130,6 +134,22 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
     return predicted
 
 
+def opencv_shah_metrics(a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
+                        intrinsics: obs.Intrinsics) -> dict[str, Any]:
+    """In-sample metrics of OpenCV's Shah solution (one fixture), or why it has none: its
+    closed form fails on some data ("Rotation normalization issue"), ours falls back."""
+    import cv2
+
+    try:
+        r_x, t_x, r_z, t_z = cv2.calibrateRobotWorldHandEye(
+            [m[:3, :3] for m in a], [m[:3, 3] for m in a], [m[:3, :3] for m in b], [m[:3, 3] for m in b],
+            method=cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH)
+    except cv2.error as error:
+        return {"failed": " ".join(str(error).split())[-200:]}
+    baseline = rwhe.Solution(g.make_transform(r_z, t_z.ravel()), {fixtures[0]: g.make_transform(r_x, t_x.ravel())})
+    return metrics(baseline.predict(b, fixtures), a, used, intrinsics)
+
+
 def pnp_variance(used: list[obs.Observation]) -> tuple[np.ndarray, float]:
     """Mean variance of the PnP poses (per camera axis m^2, rotation angle rad^2)."""
     covariances = [o.covariance for o in used if o.covariance is not None]
@@ -161,8 +181,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         if unknown:
             raise InputError(f"captures: sample(s) {', '.join(unknown[:5])} are not in the plan")
     observations = obs.detect_all(workspace, captures, spec, config.calibrate.min_corners)
-    for o in observations:
-        o.extra["pattern_points"] = spec.object_points()[o.ids]
     camera = session.get("camera") or {}
     fixed = config.calibrate.intrinsics == "fixed" or (config.calibrate.intrinsics == "auto" and camera.get("K"))
     if fixed:
@@ -171,9 +189,21 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         intrinsics = obs.Intrinsics(np.array(camera["K"], float), np.array(camera["dist"], float),
                                     camera["width"], camera["height"], 0.0, False)
     else:
-        intrinsics = obs.estimate_intrinsics(observations, camera["width"], camera["height"])
+        intrinsics = obs.estimate_intrinsics(observations, camera["width"], camera["height"],
+                                             k=config.calibrate.outlier_k)
+        screening.check_intrinsics(intrinsics, observations, spec, config.calibrate)
     obs.solve_pnp(observations, intrinsics)
     by_id = {r["sample_id"]: r for r in captures}
+    robot_b = {r["sample_id"]: measurement(r, "kuka") for r in captures}
+    fixture_of = {r["sample_id"]: r["fixture"] for r in captures}
+    posed = [o.sample_id for o in observations if o.cam_from_target is not None]
+    rwhe.check_diversity(np.stack([robot_b[s] for s in posed]) if posed else np.zeros((0, 4, 4)),
+                         [fixture_of[s] for s in posed], config.calibrate.min_samples,
+                         config.calibrate.min_rotation_spread_rad, "kuka calibration")
+    checks = {"corner_order": screening.order_corners(observations, robot_b, fixture_of, spec, intrinsics,
+                                                      config.calibrate),
+              "motions": screening.check_motions(observations, robot_b, fixture_of, spec, config.calibrate,
+                                                 "the pose file's declared unit")}
     truth = load_truth(workspace)
 
     results: dict[str, Any] = {}
@@ -216,6 +246,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         else:
             cross = cross_validate(config, a, b, fixtures, used, intrinsics, up)
         predicted = solution.predict(b, fixtures, up)
+        cross_metrics = metrics(cross, a, used, intrinsics)
+        screening.check_result(f"{source}", cross_metrics, intrinsics, config.calibrate)
         entry = results[source] = {
             **{name: g.pose_to_json(offset) for name, offset in
                zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
@@ -227,7 +259,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             "samples": len(used),
             "outliers": outliers,
             "metrics": {"in_sample": metrics(predicted, a, used, intrinsics),
-                        "cross_validated": metrics(cross, a, used, intrinsics), "truth": None},
+                        "cross_validated": cross_metrics, "truth": None},
         }
         if truth is not None:
             true = np.stack([truth[o.sample_id] for o in used])
@@ -235,14 +267,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                            for t, o in zip(true, used, strict=True)]
             entry["metrics"]["truth"] = metrics(predicted, true, used, intrinsics, true_pixels)
         if len(solution.x) == 1:  # OpenCV's Shah on the same detections and intrinsics, for comparison
-            import cv2
-
-            r_x, t_x, r_z, t_z = cv2.calibrateRobotWorldHandEye(
-                [m[:3, :3] for m in a], [m[:3, 3] for m in a], [m[:3, :3] for m in b], [m[:3, 3] for m in b],
-                method=cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH)
-            baseline = rwhe.Solution(g.make_transform(r_z, t_z.ravel()),
-                                     {fixtures[0]: g.make_transform(r_x, t_x.ravel())})
-            entry["opencv_shah_in_sample"] = metrics(baseline.predict(b, fixtures), a, used, intrinsics)
+            entry["opencv_shah_in_sample"] = opencv_shah_metrics(a, b, fixtures, used, intrinsics)
         predictions[source] = {o.sample_id: p for o, p in zip(used, predicted, strict=True)}
         predictions[f"{source}_cv"] = {o.sample_id: p for o, p in zip(used, cross, strict=True)}
 
@@ -288,7 +313,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                    "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
                               "pattern": spec.to_json(),
                               "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
-                   "session": {"backend": session.get("backend"), "sources": session.get("sources")}}
+                   "session": {"backend": session.get("backend"), "sources": session.get("sources")},
+                   "screening": checks}
     write_json_atomic(workspace.root / "calibration.json", calibration)
 
     with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:

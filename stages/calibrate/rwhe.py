@@ -89,7 +89,8 @@ def check_diversity(b: np.ndarray, fixtures: list[str], min_samples: int, min_sp
 
 
 def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
-    """Closed form (Shah 2013, extended to several fixtures sharing Z)."""
+    """Closed form (Shah 2013, extended to several fixtures sharing Z). Raises
+    ``DegenerateError`` when the null space gives no rotation (``closed_form`` falls back)."""
     names = sorted(set(fixtures))
     n_unknown = 9 * (1 + len(names))
     rows = []
@@ -103,10 +104,58 @@ def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     _, _, vt = np.linalg.svd(np.concatenate(rows))
     null = vt[-1]
     rz = null[:9].reshape(3, 3, order="F")
-    scale = np.sign(np.linalg.det(rz)) / abs(np.linalg.det(rz)) ** (1 / 3)
+    determinant = np.linalg.det(rz)
+    if not np.isfinite(determinant) or abs(determinant) < 1e-9:
+        raise DegenerateError(f"Shah's closed form: the null space gives no rotation (det {determinant:.3g})")
+    scale = np.sign(determinant) / abs(determinant) ** (1 / 3)
     rotations = [g.project_to_so3(scale * null[9 * j:9 * j + 9].reshape(3, 3, order="F"))
                  for j in range(1 + len(names))]
-    # translations: R_A t_X + t_A = R_Z t_B + t_Z  ->  R_A t_X - t_Z = R_Z t_B - t_A
+    return _with_translations(a, b, fixtures, names, rotations)
+
+
+def park(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
+    """Linear rotation estimate from motion pairs (Park and Martin 1994), the fallback start:
+    ``A_i A_j^-1 = Z B_i B_j^-1 Z^-1`` gives ``log(R_Ai R_Aj^T) = R_Z log(R_Bi R_Bj^T)`` for
+    captures on one fixture; R_Z by orthogonal Procrustes, each R_X as the chordal mean of
+    ``R_Ai^T R_Z R_Bi``, then the translations as in ``shah``."""
+    names = sorted(set(fixtures))
+    alphas, betas = [], []
+    for i in range(len(a)):
+        for j in range(i + 1, len(a)):
+            if fixtures[i] != fixtures[j]:
+                continue
+            alpha = g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T)
+            beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
+            if 1e-3 < np.linalg.norm(beta) < np.radians(170.0):  # a half turn's axis sign is ambiguous
+                alphas.append(alpha)
+                betas.append(beta)
+    if len(alphas) < 2:
+        raise DegenerateError("the robot's motions have too few usable rotations to estimate the offsets")
+    u, _, vt = np.linalg.svd(np.array(alphas).T @ np.array(betas))
+    rz = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    rotations = [rz]
+    for name in names:
+        chosen = [i for i, f in enumerate(fixtures) if f == name]
+        rotations.append(g.chordal_mean(np.stack([a[i, :3, :3].T @ rz @ b[i, :3, :3] for i in chosen])))
+    return _with_translations(a, b, fixtures, names, rotations)
+
+
+def closed_form(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
+    """Shah's closed form, or Park's linear estimate where Shah's has no solution."""
+    try:
+        solution = shah(a, b, fixtures)
+        if all(np.all(np.isfinite(m)) for m in (solution.z, *solution.x.values())):
+            return solution
+    except (DegenerateError, np.linalg.LinAlgError):
+        pass
+    return park(a, b, fixtures)
+
+
+def _with_translations(a: np.ndarray, b: np.ndarray, fixtures: list[str], names: list[str],
+                       rotations: list[np.ndarray]) -> Solution:
+    """Linear translations given the rotations [R_Z, R_X per fixture in ``names`` order]."""
+    eye = np.eye(3)
+    # R_A t_X + t_A = R_Z t_B + t_Z  ->  R_A t_X - t_Z = R_Z t_B - t_A
     design = np.zeros((3 * len(a), 3 * (1 + len(names))))
     target = np.zeros(3 * len(a))
     for i, (a_i, b_i, fixture) in enumerate(zip(a, b, fixtures, strict=True)):

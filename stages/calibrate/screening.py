@@ -1,0 +1,150 @@
+"""Screen the calibration captures between PnP and the solve: put every chessboard's
+corners in one consistent order, reject single images that disagree with the robot's
+motion (each with its reason), and refuse the whole set, naming the likely cause, when the
+detections do not fit the declared pattern (``stages.calibrate.consistency``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pipeline.config import CalibrateConfig
+from stages import geometry as g
+from stages.calibrate import observations as obs
+from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags
+from stages.calibrate.rwhe import DegenerateError
+from stages.patterns import PatternSpec
+
+
+class InconsistentPatternError(DegenerateError):
+    """The detections do not fit the declared pattern and the robot; the message names why."""
+
+
+def likely_causes(observations: list[obs.Observation], spec: PatternSpec) -> list[str]:
+    """What the images themselves say about a pattern definition that does not fit them."""
+    causes = []
+    checked = [o for o in observations if "board_continues" in o.extra]
+    larger = [o for o in checked if o.extra["board_continues"]]
+    if checked and len(larger) >= max(1, len(checked) // 3):
+        sides = sorted({side for o in larger for side in o.extra["board_continues"]})
+        causes.append(f"the printed chessboard is larger than [pattern] size = {list(spec.size)} inner corners: its "
+                      f"squares go on beyond the detected grid ({', '.join(sides)}) in {len(larger)} of "
+                      f"{len(checked)} images, so each image may show another part of it; count the inner corners "
+                      "(squares minus one) along each side")
+    return causes
+
+
+def _refuse(message: str, observations: list[obs.Observation], spec: PatternSpec, extra: list[str]) -> None:
+    causes = likely_causes(observations, spec) + extra
+    hint = "; likely cause: " + "; or ".join(causes) if causes else ""
+    raise InconsistentPatternError(f"calibration refused: {message}{hint}")
+
+
+def check_intrinsics(intrinsics: obs.Intrinsics, observations: list[obs.Observation], spec: PatternSpec,
+                     limits: CalibrateConfig) -> None:
+    """An estimated camera must fit most images, and fit them well."""
+    detected = [o for o in observations if len(o.ids) >= limits.min_corners]
+    kept = [o for o in detected if o.reason is None]
+    if intrinsics.rms_px > limits.max_intrinsics_rms_px or len(kept) < 0.5 * len(detected):
+        _refuse(f"the camera model fits {len(kept)} of {len(detected)} images with the pattern, with a reprojection "
+                f"RMS of {intrinsics.rms_px:.3g} px (at most {limits.max_intrinsics_rms_px:g} px expected: "
+                "corners of one printed pattern fit a camera to a fraction of a pixel)", observations, spec,
+                ["a [pattern] size, square_m or kind that does not match the printed board"])
+
+
+def order_corners(observations: list[obs.Observation], b: dict[str, np.ndarray], fixtures: dict[str, str],
+                  spec: PatternSpec, intrinsics: obs.Intrinsics, limits: CalibrateConfig) -> dict[str, Any]:
+    """Relabel chessboards found from their other end so that every image agrees with the
+    robot's motion; an image whose order cannot be decided is rejected with its reason."""
+    reorderings = spec.reorderings()
+    used = [o for o in observations if o.cam_from_target is not None]
+    if not reorderings or len(used) < 3:
+        return {"reordered": [], "undecided": []}
+    options: list[list[np.ndarray | None]] = []
+    for o in used:
+        poses: list[np.ndarray | None] = [o.cam_from_target]
+        for _, mapping in reorderings:
+            trial = obs.Observation(o.sample_id, mapping[o.ids], o.pixels, np.zeros((0, 3)))
+            obs.relabel(trial, spec, mapping[o.ids])
+            obs.pnp(trial, intrinsics)
+            poses.append(trial.cam_from_target)
+        options.append(poses)
+    labels, margins = choose_orderings(options, np.stack([b[o.sample_id] for o in used]),
+                                       [fixtures[o.sample_id] for o in used])
+    reordered, undecided = [], []
+    for o, label, margin in zip(used, labels, margins, strict=True):
+        if margin < limits.motion_angle_floor_rad:
+            undecided.append(o.sample_id)
+            o.reason, o.cam_from_target = (f"chessboard corner order cannot be decided: the robot's motion fits "
+                                           f"two orders within {np.degrees(margin):.2f} deg"), None
+        elif label:
+            name, mapping = reorderings[label - 1]
+            obs.relabel(o, spec, mapping[o.ids])
+            obs.pnp(o, intrinsics)
+            o.extra["reordered"] = name
+            reordered.append(o.sample_id)
+    return {"reordered": reordered, "undecided": undecided}
+
+
+def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray], fixtures: dict[str, str],
+                  spec: PatternSpec, limits: CalibrateConfig, length_hint: str) -> dict[str, Any]:
+    """Screw congruence of the camera's and the robot's motions: reject single images that
+    disagree, refuse the set when most do, when the pitches differ by a scale, or when the
+    robot's poses fit only inverted."""
+    used = [o for o in observations if o.cam_from_target is not None]
+    if len(used) < 3:
+        return {"checked": len(used)}
+    a = np.stack([o.cam_from_target for o in used])
+    b_used = np.stack([b[o.sample_id] for o in used])
+    names = [fixtures[o.sample_id] for o in used]
+    pairs = Pairs.of(a, b_used, names)
+    angle, pitch = pairs.angle_scores(), pairs.pitch_scores()
+    inverted = Pairs.of(a, np.stack([g.invert(m) for m in b_used]), names)
+    straight_pitch, inverted_pitch = np.nanmedian(pitch), np.nanmedian(inverted.pitch_scores())
+    if np.isfinite(inverted_pitch) and inverted_pitch < 0.25 * straight_pitch and \
+            straight_pitch > limits.motion_pitch_floor_m:
+        _refuse(f"the robot's poses fit the camera's motion only inverted (median pitch mismatch "
+                f"{1000 * straight_pitch:.1f} mm as given, {1000 * inverted_pitch:.1f} mm inverted)", [], spec,
+                ["the pose file's transform is the other way round (base_from_flange or flange_from_base), or "
+                 "the camera is on the other side ([setup] camera_on flange or world)"])
+    angle_bad, angle_limit = robust_flags(angle, limits.motion_angle_floor_rad, limits.outlier_k)
+    scale, spread = pairs.scale(~angle_bad)
+    if scale is not None and abs(scale - 1.0) > limits.max_scale_error:
+        _refuse(f"the camera's motions are {scale:.3f} times the robot's along their screw axes ({spread * 1000:.0f} "
+                "mm RMS robot pitch)", observations, spec,
+                [f"[pattern] square_m = {spec.square_m:g} m, but the images suggest {spec.square_m / scale:.4g} m "
+                 "(a printer's scaling?)", f"robot lengths in another unit than {length_hint}"])
+    pitch_bad, pitch_limit = robust_flags(pitch, limits.motion_pitch_floor_m, limits.outlier_k)
+    bad = angle_bad | pitch_bad
+    if bad.sum() > 0.5 * len(used):
+        _refuse(f"{int(bad.sum())} of {len(used)} images disagree with the robot's motion (median rotation-angle "
+                f"mismatch {np.degrees(np.nanmedian(angle)):.2f} deg, pitch mismatch "
+                f"{1000 * np.nanmedian(pitch):.1f} mm)", observations, spec,
+                ["images and poses paired in another order (the N-th image must belong to the N-th pose)",
+                 "a chessboard whose corner order flips or mirrors between images"])
+    for o, a_score, p_score, flag in zip(used, angle, pitch, bad, strict=True):
+        if flag:
+            o.reason = (f"disagrees with the robot's motion: rotation angles differ by {np.degrees(a_score):.2f} deg "
+                        f"(limit {np.degrees(angle_limit):.2f}), pitches by {1000 * p_score:.1f} mm (limit "
+                        f"{1000 * pitch_limit:.1f}), median over its pairs")
+            o.cam_from_target = None
+    return {"checked": len(used), "rejected": [o.sample_id for o, flag in zip(used, bad, strict=True) if flag],
+            "angle_mismatch_rad_median": float(np.nanmedian(angle)),
+            "pitch_mismatch_m_median": float(np.nanmedian(pitch)),
+            "pitch_scale": scale, "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit}
+
+
+def check_result(name: str, cross_validated: dict[str, list[float]], intrinsics: obs.Intrinsics,
+                 limits: CalibrateConfig) -> None:
+    """Refuse a calibration whose cross-validated errors are absurd for any real set-up
+    (the thresholds and why: ``CalibrateConfig`` and the README)."""
+    e_r, e_p = cross_validated["E_R_rad"][0], cross_validated["E_p_px"][0]
+    diagonal = float(np.hypot(intrinsics.width, intrinsics.height))
+    if e_r > limits.max_rotation_error_rad or e_p > limits.max_reprojection_fraction * diagonal:
+        raise InconsistentPatternError(
+            f"calibration refused: {name} cross-validated E_R {np.degrees(e_r):.3g} deg, E_p {e_p:.4g} px (at most "
+            f"{np.degrees(limits.max_rotation_error_rad):g} deg and {limits.max_reprojection_fraction:g} of the "
+            f"{diagonal:.0f} px diagonal): the offsets do not predict the pattern; check the pose file's "
+            "units and transform, the pairing of images and poses, and the [pattern] definition")
