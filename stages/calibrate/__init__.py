@@ -228,6 +228,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             readings = arms.readings([by_id[o.sample_id] for o in used])
             kinematic, arm_note = arm_decision(config, readings)
         solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics, up)
+        screening.check_inliers(source, int(inliers.sum()), len(inliers))
         for o, inlier in zip(used, inliers, strict=True):
             if not inlier:
                 o.extra[f"{source}_outlier"] = True

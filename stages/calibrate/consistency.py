@@ -75,6 +75,28 @@ class Pairs:
         return float(np.sum(pitch_a * pitch_b) / np.sum(pitch_b**2)), spread
 
 
+def rotation_fit(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> float:
+    """How well one camera-side rotation maps the robot's motions onto the camera's: the
+    median |log(R_Ai R_Aj^T) - R_Z log(R_Bi R_Bj^T)| (rad) over pairs on one fixture that
+    turn by 10-170 deg, R_Z by orthogonal Procrustes (Park and Martin 1994). Screw
+    invariants cannot tell ``B`` from ``B^-1``; this can. NaN with fewer than 3 pairs."""
+    alphas, betas = [], []
+    for i in range(len(a)):
+        for j in range(i + 1, len(a)):
+            if fixtures[i] != fixtures[j]:
+                continue
+            beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
+            if MIN_PITCH_ANGLE_RAD <= np.linalg.norm(beta) <= np.radians(170.0):
+                alphas.append(g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T))
+                betas.append(beta)
+    if len(alphas) < 3:
+        return float("nan")
+    alphas, betas = np.array(alphas), np.array(betas)
+    u, _, vt = np.linalg.svd(alphas.T @ betas)
+    rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    return float(np.median(np.linalg.norm(alphas - betas @ rotation.T, axis=1)))
+
+
 def _row_medians(values: np.ndarray) -> np.ndarray:
     out = np.full(len(values), np.nan)
     for i, row in enumerate(values):

@@ -13,7 +13,7 @@ import numpy as np
 from pipeline.config import CalibrateConfig
 from stages import geometry as g
 from stages.calibrate import observations as obs
-from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags
+from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags, rotation_fit
 from stages.calibrate.rwhe import DegenerateError
 from stages.patterns import PatternSpec
 
@@ -101,12 +101,12 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
     names = [fixtures[o.sample_id] for o in used]
     pairs = Pairs.of(a, b_used, names)
     angle, pitch = pairs.angle_scores(), pairs.pitch_scores()
-    inverted = Pairs.of(a, np.stack([g.invert(m) for m in b_used]), names)
-    straight_pitch, inverted_pitch = np.nanmedian(pitch), np.nanmedian(inverted.pitch_scores())
-    if np.isfinite(inverted_pitch) and inverted_pitch < 0.25 * straight_pitch and \
-            straight_pitch > limits.motion_pitch_floor_m:
-        _refuse(f"the robot's poses fit the camera's motion only inverted (median pitch mismatch "
-                f"{1000 * straight_pitch:.1f} mm as given, {1000 * inverted_pitch:.1f} mm inverted)", [], spec,
+    straight = rotation_fit(a, b_used, names)
+    inverted = rotation_fit(a, np.stack([g.invert(m) for m in b_used]), names)
+    if straight > limits.motion_angle_floor_rad and inverted < 0.25 * straight:
+        _refuse(f"the robot's poses fit the camera's motion only inverted (one camera-side rotation maps the "
+                f"robot's turns onto the camera's to {np.degrees(straight):.2f} deg as given, "
+                f"{np.degrees(inverted):.3f} deg inverted)", [], spec,
                 ["the pose file's transform is the other way round (base_from_flange or flange_from_base), or "
                  "the camera is on the other side ([setup] camera_on flange or world)"])
     angle_bad, angle_limit = robust_flags(angle, limits.motion_angle_floor_rad, limits.outlier_k)
@@ -131,9 +131,20 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
                         f"{1000 * pitch_limit:.1f}), median over its pairs")
             o.cam_from_target = None
     return {"checked": len(used), "rejected": [o.sample_id for o, flag in zip(used, bad, strict=True) if flag],
+            "rotation_fit_rad": straight, "rotation_fit_inverted_rad": inverted,
             "angle_mismatch_rad_median": float(np.nanmedian(angle)),
             "pitch_mismatch_m_median": float(np.nanmedian(pitch)),
             "pitch_scale": scale, "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit}
+
+
+def check_inliers(name: str, inliers: int, total: int) -> None:
+    """The offsets must explain most samples: when the robust solve keeps fewer than half,
+    it has found a pattern in noise, not the calibration."""
+    if inliers < 0.5 * total:
+        raise InconsistentPatternError(
+            f"calibration refused: the {name} offsets fit only {inliers} of {total} samples (the others are outliers "
+            "beyond median + outlier_k robust sigmas); check the pose file's transform and units, [setup] camera_on, "
+            "and the pairing of images and poses")
 
 
 def check_result(name: str, cross_validated: dict[str, list[float]], intrinsics: obs.Intrinsics,
