@@ -3,7 +3,7 @@
 import importlib
 import sys
 
-BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "honesty", "render", "evaluate")
+BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "render", "evaluate")
 
 if __name__ == "__main__":
     names = sys.argv[1:2] or list(BENCHMARKS)

@@ -1,6 +1,7 @@
 """Replay backends: a recorded session (written by a fixture) and Tabb's dataset."""
 
 import csv
+import json
 import shutil
 from pathlib import Path
 
@@ -10,10 +11,11 @@ import pytest
 from manifests import Workspace, read_manifest
 from pipeline import runner
 from pipeline.config import load_config
+from pipeline.errors import InputError
 from stages import geometry as g
+from stages.acquire.handeye import HandEyeReplay
 from stages.acquire.ingest import IngestError
 from stages.acquire.replay import SessionReplay
-from stages.acquire.handeye import HandEyeReplay
 from stages.acquire.tabb import tabb_dataset
 
 TABB = Path(__file__).resolve().parents[4] / "shared" / "external" / "tabb_ds1"
@@ -108,7 +110,8 @@ def test_session_without_images_or_with_bad_rows_is_refused(tmp_path):
     rows = recorded_rows()
     source = write_session(tmp_path / "s1", rows)
     (source / "images" / "cal000001.png").unlink()
-    with pytest.raises(IngestError, match=r"robot.csv: sample cal000001: image images/cal000001.png \(or .bmp.*\) is missing"):
+    with pytest.raises(IngestError, match=r"robot.csv: sample cal000001: image images/cal000001.png \(or .*\) is "
+                                          r"missing"):
         acquire(source, tmp_path)
 
     def edit(name, line, old, new, directory):
@@ -241,3 +244,69 @@ def test_a_partial_set_of_encoder_columns_is_refused(tmp_path):
     add_joint_columns(source / "robot.csv", np.zeros((len(rows), 6)), [f"camera_j{k}" for k in range(1, 7)])
     with pytest.raises(IngestError, match="robot.csv.*missing column\\(s\\) target_j1"):
         SessionReplay(source, Workspace(tmp_path / "w"))
+
+
+def one_robot_session(directory: Path, rows, static="target", extra_pattern=""):
+    """A one-robot session: the other body stands still in the robot world, no columns for it."""
+    moving = "camee" if static == "target" else "targetee"
+    directory.mkdir(parents=True)
+    (directory / "images").mkdir()
+    (directory / "session.toml").write_text(
+        'format_version = 1\nlength_unit = "mm"\nangle_unit = "deg"\neuler = "ZYX"\nsources = ["kuka"]\n'
+        f'[setup]\n{static}_on = "world"\n[camera]\nwidth = 32\nheight = 20\n'
+        f'[pattern]\nkind = "chessboard"\nsize = [9, 6]\nsquare_m = 0.02\n{extra_pattern}')
+    with open(directory / "robot.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["sample_id", "session"] + [f"{moving}_{a}" for a in "xyzabc"])
+        for row in rows:
+            xyzabc = g.transform_to_kuka(row[moving])
+            writer.writerow([row["sample_id"], "calibration", *(repr(float(v)) for v in xyzabc)])
+    for row in rows:
+        fake_png(directory / "images" / f"{row['sample_id']}.png")
+    return directory
+
+
+@pytest.mark.parametrize("static", ["target", "camera"])
+def test_one_robot_sessions_need_no_invented_columns(tmp_path, static):
+    rows = recorded_rows()
+    moving = "camee" if static == "target" else "targetee"
+    rows[0][moving] = np.eye(4)  # a pose at the robot's origin is plausible
+    ws = acquire(one_robot_session(tmp_path / "one", rows, static), tmp_path)
+    captures = read_manifest(ws, "captures").to_pylist()
+    for row, got in zip(rows, captures, strict=True):
+        camee = g.transform_from_qt(got["kuka_world_from_camee_q"], got["kuka_world_from_camee_t"])
+        targetee = g.transform_from_qt(got["kuka_world_from_targetee_q"], got["kuka_world_from_targetee_t"])
+        moved, still = (camee, targetee) if static == "target" else (targetee, camee)
+        np.testing.assert_allclose(moved, row[moving], atol=1e-9)
+        np.testing.assert_allclose(still, np.eye(4), atol=1e-15)
+        assert got["kuka_rail_m"] is None
+    pattern = json.loads((ws.root / "session.json").read_text())["pattern"]
+    assert pattern["target_from_pattern_q"] == [1.0, 0.0, 0.0, 0.0] and pattern["target_from_pattern_t"] == [0, 0, 0]
+
+
+def test_one_robot_sessions_refuse_columns_of_the_still_body_and_bad_patterns(tmp_path):
+    rows = recorded_rows()
+    source = one_robot_session(tmp_path / "one", rows)
+    text = (source / "robot.csv").read_text().splitlines()
+    text = [text[0] + ",targetee_x"] + [line + ",1.0" for line in text[1:]]
+    (source / "robot.csv").write_text("\n".join(text) + "\n")
+    with pytest.raises(IngestError, match=r"robot.csv: column\(s\) targetee_x given, but session.toml \[setup\]"):
+        acquire(source, tmp_path)
+    source = one_robot_session(tmp_path / "two", rows, extra_pattern="target_from_pattern_q = [1, 0, 0]\n")
+    with pytest.raises(InputError, match=r"session.toml: \[pattern\] target_from_pattern_q must be 4 finite numbers"):
+        acquire(source, tmp_path, name="w2")
+    source = one_robot_session(tmp_path / "three", rows, extra_pattern="dictionary = 'DICT_5X5_100'\n")
+    with pytest.raises(InputError, match=r"session.toml: \[pattern\] marker_m and dictionary belong to charuco"):
+        acquire(source, tmp_path, name="w3")
+
+
+def test_degrees_declared_as_radians_are_refused(tmp_path):
+    rows = recorded_rows()
+    source = write_session(tmp_path / "deg", rows)
+    edit_toml = source / "session.toml"
+    edit_toml.write_text(edit_toml.read_text().replace('angle_unit = "deg"', 'angle_unit = "rad"'))
+    angles = np.abs(g.transform_to_kuka(rows[0]["camee"])[3:])
+    assert angles.max() > 2 * np.pi  # the fixture's rows turn by more than a turn in radians
+    with pytest.raises(IngestError, match=r"robot.csv: line 2 \(sample_id cal000000\), camee: angle .* rad is more "
+                                          r"than a turn; is the file in degrees"):
+        acquire(source, tmp_path)
