@@ -94,6 +94,8 @@ def estimate_intrinsics(observations: list[Observation], width: int, height: int
         # calibrateCamera wants planar points with z = 0: use the pattern's own frame
         object_points = [np.ascontiguousarray(o.extra["pattern_points"], np.float32) for o in usable]
         image_points = [np.ascontiguousarray(o.pixels, np.float32) for o in usable]
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)  # OpenCV's parallel sums vary in the last bits from run to run
         try:
             rms, camera_matrix, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(
                 object_points, image_points, (width, height), None, None)
@@ -101,6 +103,8 @@ def estimate_intrinsics(observations: list[Observation], width: int, height: int
             raise DegenerateError(f"intrinsics: OpenCV's calibrateCamera failed on {len(usable)} images "
                                   f"({' '.join(str(error).split())[-160:]}); the detections do not fit a "
                                   "camera model") from None
+        finally:
+            cv2.setNumThreads(threads)
         per_view = per_view.ravel()
         median = float(np.median(per_view))
         limit = max(floor_px, median + k * 1.4826 * float(np.median(np.abs(per_view - median))))

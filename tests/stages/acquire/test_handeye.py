@@ -38,12 +38,20 @@ square_m = 0.02
 """
 
 
-def kuka_folder(directory: Path, images: int = 30, camera_on: str = "flange", toml: str | None = None) -> Path:
-    """Ali et al.'s folder as a lab would describe it: its files plus a dataset.toml."""
+#: 12 of the 30 views that rotate about several axes (the first 11 only translate)
+VARIED = [1, 6, 12, 13, 14, 16, 18, 21, 22, 24, 27, 30]
+
+
+def kuka_folder(directory: Path, images: int | list[int] = 30, camera_on: str = "flange",
+                toml: str | None = None) -> Path:
+    """Ali et al.'s folder (the first ``images`` views, or those numbered) as a lab would
+    describe it: its files plus a dataset.toml."""
     directory.mkdir(parents=True)
-    for index in range(1, images + 1):
+    numbers = list(range(1, images + 1)) if isinstance(images, int) else images
+    for index in numbers:
         shutil.copyfile(KUKA / f"{index:02d}.png", directory / f"{index:02d}.png")
-    lines = (KUKA / "RobotPosesVec.txt").read_text().splitlines()[:images]
+    recorded = (KUKA / "RobotPosesVec.txt").read_text().splitlines()
+    lines = [recorded[index - 1] for index in numbers]
     (directory / "RobotPosesVec.txt").write_text("\n".join(lines) + "\n")
     (directory / "dataset.toml").write_text(toml or KUKA_TOML.format(camera_on=camera_on))
     return directory
