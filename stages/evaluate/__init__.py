@@ -14,7 +14,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import pyarrow as pa
 from rich.console import Console
@@ -22,12 +21,12 @@ from rich.console import Console
 from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from pipeline.config import Config
-from pipeline.errors import InputError
 from pipeline.progress import track
 from stages import geometry as g
 from stages.evaluate.model import PoseModel, decode_heatmaps, pose_from_keypoints
 from stages.evaluate.scores import score
 from stages.evaluate.table import print_table2, summarise
+from stages.image_io import read_image, to_uint8
 from stages.label import calibrated_camera
 
 REPOSITORY = Path(__file__).resolve().parents[2]
@@ -77,9 +76,7 @@ def predict(model: PoseModel, workspace: Workspace, items: list[dict[str, Any]],
     tensors, image_from_input, widths = [], [], []
     for item in items:
         path = workspace.resolve(item["image_path"])
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise InputError(f"{path}: missing or unreadable image ({item['domain']} {item['sample_id']})")
+        image = to_uint8(read_image(path, "bgr"))  # 16-bit and float captures scaled by their range
         tensor, affine = model.preprocess(image, np.asarray(item["box"]))
         tensors.append(tensor)
         image_from_input.append(affine)

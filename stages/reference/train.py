@@ -19,7 +19,6 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from manifests import Workspace, read_manifest
@@ -36,6 +35,7 @@ from stages.evaluate.model import (
     prepare,
 )
 from stages.evaluate.scores import score
+from stages.image_io import read_image, to_uint8
 
 MEAN = (0.485, 0.456, 0.406)
 STD = (0.229, 0.224, 0.225)
@@ -64,7 +64,7 @@ def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str
     keypoints = np.empty((len(rows), len(tango.KEYPOINTS_M), 2))
     maps = np.empty((len(rows), 3, 3))
     for index, row in enumerate(track(rows, len(rows), "load training images")):
-        image = cv2.imread(str(workspace.resolve(row["image_path"])), cv2.IMREAD_COLOR)
+        image = to_uint8(read_image(workspace.resolve(row["image_path"]), "bgr"))
         images[index], maps[index] = prepare(image, terms, keypoint_box(row["keypoints_px"]))
         input_from_image = np.linalg.inv(maps[index])
         keypoints[index] = np.asarray(row["keypoints_px"]) @ input_from_image[:2, :2].T + input_from_image[:2, 2]

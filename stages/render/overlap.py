@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import cv2
 import numpy as np
 
 from manifests import Workspace, read_manifest
 from pipeline.config import Config
+from stages.image_io import read_image
 from stages.label import calibrated_camera, mockup_scale
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
@@ -43,7 +43,7 @@ def twin_overlap(config: Config, workspace: Workspace, *, at_truth: bool = True)
     for render in read_manifest(workspace, "renders").to_pylist():
         sample_id = render["sample_id"]
         silhouette = testbed.silhouette(plan[sample_id])
-        twin = cv2.imread(str(workspace.resolve(render["mask_path"])), cv2.IMREAD_GRAYSCALE) > 127
+        twin = read_image(workspace.resolve(render["mask_path"]), "gray") > 127
         row = {"sample_id": sample_id, "label_source": labels[sample_id]["label_source"],
                "domain": labels[sample_id]["domain"], "view": labels[sample_id]["view"],
                "silhouette_px": int(silhouette.sum()), "iou_label": iou(twin, silhouette)}

@@ -16,13 +16,12 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
 from manifests.io import write_bytes_atomic
 from pipeline.config import Config
-from stages.image_io import write_png_atomic
+from stages.image_io import read_image, to_uint8, write_png_atomic
 from stages.label import calibrated_camera, read_calibration
 from stages.report import figures
 
@@ -150,13 +149,13 @@ def run(config: Config, workspace: Workspace) -> None:
     overlays, pairs = [], []
     for label in chosen:
         sample_id = label["sample_id"]
-        capture = cv2.imread(str(workspace.resolve(captures[sample_id]["image_path"])), cv2.IMREAD_COLOR)
+        capture = to_uint8(read_image(workspace.resolve(captures[sample_id]["image_path"]), "bgr"))
         name = _write_png(thumb_dir / f"overlay_{sample_id}.png",
                           figures.thumbnail(figures.overlay(capture, label, camera.camera_matrix, camera.dist)))
         overlays.append(f'<figure><img src="thumbs/{name}" alt="wireframe of {sample_id}"><figcaption>{sample_id}: '
                         f'{label["view"]}, {label["domain"]}, {label["label_source"]}</figcaption></figure>')
         if sample_id in renders:
-            twin = cv2.imread(str(workspace.resolve(renders[sample_id]["image_path"])), cv2.IMREAD_COLOR)
+            twin = to_uint8(read_image(workspace.resolve(renders[sample_id]["image_path"]), "bgr"))
             pair = np.hstack([figures.thumbnail(twin), figures.thumbnail(figures.brighten(capture))])
             name = _write_png(thumb_dir / f"pair_{sample_id}.png", pair)
             synthetic, testbed = score_of.get(("synthetic", sample_id)), score_of.get((label["domain"], sample_id))
