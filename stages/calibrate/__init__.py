@@ -200,7 +200,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     rwhe.check_diversity(np.stack([robot_b[s] for s in posed]) if posed else np.zeros((0, 4, 4)),
                          [fixture_of[s] for s in posed], config.calibrate.min_samples,
                          config.calibrate.min_rotation_spread_rad, "kuka calibration")
-    checks = {"corner_order": screening.order_corners(observations, robot_b, fixture_of, spec, intrinsics,
+    checks = {"facing": screening.check_facing(observations, spec),
+              "corner_order": screening.order_corners(observations, robot_b, fixture_of, spec, intrinsics,
                                                       config.calibrate),
               "motions": screening.check_motions(observations, robot_b, fixture_of, spec, config.calibrate,
                                                  "the pose file's declared unit")}

@@ -22,6 +22,12 @@ class InconsistentPatternError(DegenerateError):
     """The detections do not fit the declared pattern and the robot; the message names why."""
 
 
+def named(sample_ids: list[str], most: int = 6) -> str:
+    """A short list of samples for a message (their files: captures.source_image)."""
+    more = f" and {len(sample_ids) - most} more" if len(sample_ids) > most else ""
+    return ", ".join(sample_ids[:most]) + more
+
+
 def likely_causes(observations: list[obs.Observation], spec: PatternSpec) -> list[str]:
     """What the images themselves say about a pattern definition that does not fit them."""
     causes = []
@@ -31,9 +37,31 @@ def likely_causes(observations: list[obs.Observation], spec: PatternSpec) -> lis
         sides = sorted({side for o in larger for side in o.extra["board_continues"]})
         causes.append(f"the printed chessboard is larger than [pattern] size = {list(spec.size)} inner corners: its "
                       f"squares go on beyond the detected grid ({', '.join(sides)}) in {len(larger)} of "
-                      f"{len(checked)} images, so each image may show another part of it; count the inner corners "
-                      "(squares minus one) along each side")
+                      f"{len(checked)} images ({named([o.sample_id for o in larger])}), so each image may show "
+                      "another part of it; count the inner corners (squares minus one) along each side")
     return causes
+
+
+def check_facing(observations: list[obs.Observation], spec: PatternSpec) -> dict[str, Any]:
+    """A pattern is seen from its front: its z axis (into the board) points away from the
+    camera. A PnP pose from behind means the corners were labelled in mirror image (an
+    image flipped by a camera driver, a mirrored ordering): rejected, or, when most
+    images are, the set is refused."""
+    target_from_pattern = g.transform_from_qt(spec.target_from_pattern_q, spec.target_from_pattern_t)
+    posed = [o for o in observations if o.cam_from_target is not None]
+    behind = []
+    for o in posed:
+        cam_from_pattern = o.cam_from_target @ target_from_pattern
+        if cam_from_pattern[:3, 2] @ cam_from_pattern[:3, 3] <= 0:
+            behind.append(o)
+    if posed and len(behind) > 0.5 * len(posed):
+        _refuse(f"the pattern is seen from behind in {len(behind)} of {len(posed)} images "
+                f"({named([o.sample_id for o in behind])})", observations, spec,
+                ["mirrored images (a camera driver's flip) or a mirrored corner ordering"])
+    for o in behind:
+        o.reason, o.cam_from_target = ("the pattern is seen from behind: its corners are labelled in mirror image "
+                                       "(a flipped image?)"), None
+    return {"mirrored": [o.sample_id for o in behind]}
 
 
 def _refuse(message: str, observations: list[obs.Observation], spec: PatternSpec, extra: list[str]) -> None:
@@ -48,7 +76,9 @@ def check_intrinsics(intrinsics: obs.Intrinsics, observations: list[obs.Observat
     detected = [o for o in observations if len(o.ids) >= limits.min_corners]
     kept = [o for o in detected if o.reason is None]
     if intrinsics.rms_px > limits.max_intrinsics_rms_px or len(kept) < 0.5 * len(detected):
-        _refuse(f"the camera model fits {len(kept)} of {len(detected)} images with the pattern, with a reprojection "
+        misfits = [o.sample_id for o in detected if o.reason is not None]
+        _refuse(f"the camera model fits {len(kept)} of {len(detected)} images with the pattern (not "
+                f"{named(misfits) or 'any'}), with a reprojection "
                 f"RMS of {intrinsics.rms_px:.3g} px (at most {limits.max_intrinsics_rms_px:g} px expected: "
                 "corners of one printed pattern fit a camera to a fraction of a pixel)", observations, spec,
                 ["a [pattern] size, square_m or kind that does not match the printed board"])
@@ -119,8 +149,9 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
     pitch_bad, pitch_limit = robust_flags(pitch, limits.motion_pitch_floor_m, limits.outlier_k)
     bad = angle_bad | pitch_bad
     if bad.sum() > 0.5 * len(used):
-        _refuse(f"{int(bad.sum())} of {len(used)} images disagree with the robot's motion (median rotation-angle "
-                f"mismatch {np.degrees(np.nanmedian(angle)):.2f} deg, pitch mismatch "
+        flagged = [o.sample_id for o, flag in zip(used, bad, strict=True) if flag]
+        _refuse(f"{len(flagged)} of {len(used)} images ({named(flagged)}) disagree with the robot's motion "
+                f"(median rotation-angle mismatch {np.degrees(np.nanmedian(angle)):.2f} deg, pitch mismatch "
                 f"{1000 * np.nanmedian(pitch):.1f} mm)", observations, spec,
                 ["images and poses paired in another order (the N-th image must belong to the N-th pose)",
                  "a chessboard whose corner order flips or mirrors between images"])

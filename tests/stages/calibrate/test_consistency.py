@@ -92,6 +92,24 @@ def test_a_wrong_square_size_and_inverted_poses_are_refused():
         screening.check_motions(observations, by_id, fixtures, PatternSpec("chessboard", (8, 6), 0.03), limits, "m")
 
 
+def test_mirrored_labellings_are_seen_from_behind():
+    spec, observations, b, _, intrinsics = eye_in_hand_views(5)
+    w, h = spec.size
+    mirror = (w - 1 - np.arange(w * h) % w) + w * (np.arange(w * h) // w)
+
+    def flip(o):
+        obs.relabel(o, spec, mirror[o.ids])
+        obs.pnp(o, intrinsics)
+
+    flip(observations[2])
+    assert screening.check_facing(observations, spec) == {"mirrored": ["cal000002"]}
+    assert observations[2].cam_from_target is None and "seen from behind" in observations[2].reason
+    for o in observations[3:]:
+        flip(o)
+    with pytest.raises(screening.InconsistentPatternError, match=r"seen from behind in 11 of 13 images"):
+        screening.check_facing(observations, spec)
+
+
 def test_a_board_larger_than_declared_is_seen_going_on():
     image = chessboard_image(squares=(10, 7), px=24, margin=30)  # 9 x 6 inner corners
     corners = np.stack(np.meshgrid(np.arange(1, 10), np.arange(1, 7)), -1).reshape(-1, 2) * 24 + 30 - 0.5
