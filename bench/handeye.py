@@ -25,9 +25,15 @@ import numpy as np
 from bench.common import report
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "external"
+#: Ali et al.'s folder described for ``--format handeye`` (``camera_on``: flange, as recorded)
 KUKA_TOML = """format_version = 1
 [robot]
-file = "RobotPosesVec.txt"      # row-major base_from_flange, metres
+file = "RobotPosesVec.txt"
+layout = "rowmajor4x4"
+transform = "base_from_flange"
+length_unit = "m"
+[setup]
+camera_on = "{camera_on}"
 [images]
 glob = "*.png"
 [pattern]
@@ -96,7 +102,7 @@ def main() -> None:
         for path in sorted((EXTERNAL / "ali2019_kuka_1").glob("*.png")) + [
                 EXTERNAL / "ali2019_kuka_1" / "RobotPosesVec.txt"]:
             shutil.copyfile(path, kuka / path.name)
-        (kuka / "dataset.toml").write_text(KUKA_TOML)
+        (kuka / "dataset.toml").write_text(KUKA_TOML.format(camera_on="flange"))
         sets = {"Ali KUKA (30 x 1928x1208)": (kuka, "handeye", sorted(kuka.glob("*.png")), kuka_b(), (28, 17), 0.02),
                 "Tabb DS1 (88 x 640x480)": (EXTERNAL / "tabb_ds1", "tabb",
                                             [EXTERNAL / "tabb_ds1" / "images" / f"image{i}.png" for i in range(88)],

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from stages import geometry as g
+from stages.calibrate.rwhe import motion_rotations, procrustes
 from stages.patterns import PatternSpec
 
 #: pairs whose robot rotation is smaller than this say little about the pitch (axis ill-defined)
@@ -80,20 +81,10 @@ def rotation_fit(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> float:
     median |log(R_Ai R_Aj^T) - R_Z log(R_Bi R_Bj^T)| (rad) over pairs on one fixture that
     turn by 10-170 deg, R_Z by orthogonal Procrustes (Park and Martin 1994). Screw
     invariants cannot tell ``B`` from ``B^-1``; this can. NaN with fewer than 3 pairs."""
-    alphas, betas = [], []
-    for i in range(len(a)):
-        for j in range(i + 1, len(a)):
-            if fixtures[i] != fixtures[j]:
-                continue
-            beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
-            if MIN_PITCH_ANGLE_RAD <= np.linalg.norm(beta) <= np.radians(170.0):
-                alphas.append(g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T))
-                betas.append(beta)
+    alphas, betas = motion_rotations(a, b, fixtures, MIN_PITCH_ANGLE_RAD, np.radians(170.0))
     if len(alphas) < 3:
         return float("nan")
-    alphas, betas = np.array(alphas), np.array(betas)
-    u, _, vt = np.linalg.svd(alphas.T @ betas)
-    rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    rotation = procrustes(alphas, betas)
     return float(np.median(np.linalg.norm(alphas - betas @ rotation.T, axis=1)))
 
 

@@ -113,26 +113,39 @@ def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     return _with_translations(a, b, fixtures, names, rotations)
 
 
+def motion_rotations(a: np.ndarray, b: np.ndarray, fixtures: list[str], min_rad: float,
+                     max_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation vectors (K, 3) of the camera's and the robot's motions ``log(R_Ai R_Aj^T)``
+    and ``log(R_Bi R_Bj^T)`` over pairs i < j on one fixture whose robot turn lies in
+    [min_rad, max_rad] (near a half turn the axis's sign is ambiguous)."""
+    alphas, betas = [], []
+    for i in range(len(a)):
+        for j in range(i + 1, len(a)):
+            if fixtures[i] != fixtures[j]:
+                continue
+            beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
+            if min_rad <= np.linalg.norm(beta) <= max_rad:
+                alphas.append(g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T))
+                betas.append(beta)
+    return np.array(alphas).reshape(-1, 3), np.array(betas).reshape(-1, 3)
+
+
+def procrustes(alphas: np.ndarray, betas: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) that best maps ``betas`` onto ``alphas`` (N, 3) (orthogonal Procrustes)."""
+    u, _, vt = np.linalg.svd(alphas.T @ betas)
+    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+
+
 def park(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     """Linear rotation estimate from motion pairs (Park and Martin 1994), the fallback start:
     ``A_i A_j^-1 = Z B_i B_j^-1 Z^-1`` gives ``log(R_Ai R_Aj^T) = R_Z log(R_Bi R_Bj^T)`` for
     captures on one fixture; R_Z by orthogonal Procrustes, each R_X as the chordal mean of
     ``R_Ai^T R_Z R_Bi``, then the translations as in ``shah``."""
     names = sorted(set(fixtures))
-    alphas, betas = [], []
-    for i in range(len(a)):
-        for j in range(i + 1, len(a)):
-            if fixtures[i] != fixtures[j]:
-                continue
-            alpha = g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T)
-            beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
-            if 1e-3 < np.linalg.norm(beta) < np.radians(170.0):  # a half turn's axis sign is ambiguous
-                alphas.append(alpha)
-                betas.append(beta)
+    alphas, betas = motion_rotations(a, b, fixtures, 1e-3, np.radians(170.0))
     if len(alphas) < 2:
         raise DegenerateError("the robot's motions have too few usable rotations to estimate the offsets")
-    u, _, vt = np.linalg.svd(np.array(alphas).T @ np.array(betas))
-    rz = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    rz = procrustes(alphas, betas)
     rotations = [rz]
     for name in names:
         chosen = [i for i, f in enumerate(fixtures) if f == name]

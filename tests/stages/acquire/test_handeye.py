@@ -7,36 +7,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.handeye import KUKA_TOML
 from manifests import Workspace, read_manifest
-from pipeline import runner
-from pipeline.config import load_config
 from pipeline.errors import InputError
 from stages import geometry as g
 from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
 from stages.acquire.ingest import IngestError
 from stages.image_io import ImageReadError
 from tests.conftest import speedplus
+from tests.stages.acquire.test_replay import acquire
 
 EXTERNAL = Path(__file__).resolve().parents[4] / "shared" / "external"
 KUKA = EXTERNAL / "ali2019_kuka_1"
 TABB = EXTERNAL / "tabb_ds1"
-
-KUKA_TOML = """format_version = 1
-[robot]
-file = "RobotPosesVec.txt"
-layout = "rowmajor4x4"
-transform = "base_from_flange"
-length_unit = "m"
-[setup]
-camera_on = "{camera_on}"
-[images]
-glob = "*.png"
-[pattern]
-kind = "chessboard"
-size = [28, 17]
-square_m = 0.02
-"""
-
 
 #: 12 of the 30 views that rotate about several axes (the first 11 only translate)
 VARIED = [1, 6, 12, 13, 14, 16, 18, 21, 22, 24, 27, 30]
@@ -57,21 +40,13 @@ def kuka_folder(directory: Path, images: int | list[int] = 30, camera_on: str = 
     return directory
 
 
-def acquire(source, tmp_path, fmt="handeye", name="w"):
-    config = load_config("smoke", overrides=["acquire.backend=replay", f"acquire.format={fmt}",
-                                             f"acquire.source='{source}'"])
-    ws = Workspace(tmp_path / name)
-    runner.run_stage(runner.stage_spec("acquire"), config, ws)
-    return ws
-
-
 def test_kuka_folder_maps_flange_poses_for_both_setups(tmp_path):
     source = kuka_folder(tmp_path / "kuka", images=4)
     recorded = np.loadtxt(KUKA / "RobotPosesVec.txt").reshape(-1, 4, 4)[:4]
     for camera_on in ("flange", "world"):
         toml = source / "dataset.toml"
         toml.write_text(KUKA_TOML.format(camera_on=camera_on).replace("*.png", "0*.png"))
-        ws = acquire(source, tmp_path, name=f"w_{camera_on}")
+        ws = acquire(source, tmp_path, "handeye", f"w_{camera_on}")
         rows = read_manifest(ws, "captures").to_pylist()
         assert [r["source_image"] for r in rows] == ["01.png", "02.png", "03.png", "04.png"]
         for row, base_from_flange in zip(rows, recorded, strict=True):
@@ -154,7 +129,7 @@ def test_counts_missing_corrupt_and_escaping_images_are_refused(small_kuka, tmp_
     data = (KUKA / "03.png").read_bytes()
     (small_kuka / "03.png").write_bytes(data[: len(data) // 3])
     with pytest.raises(ImageReadError, match=r"03.png: truncated or corrupt image"):
-        acquire(small_kuka, tmp_path)
+        acquire(small_kuka, tmp_path, "handeye")
     (small_kuka / "03.png").unlink()
     (small_kuka / "03.png").symlink_to("/etc/hostname")
     with pytest.raises(IngestError, match=r"image '03.png' leads outside"):

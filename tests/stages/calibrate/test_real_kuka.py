@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from bench.handeye import kuka_b, opencv_reference
+from bench.handeye import KUKA_TOML, kuka_b, opencv_reference
 from manifests import Workspace, read_manifest
 from stages.image_io import read_image
 from tests.conftest import speedplus
-from tests.stages.acquire.test_handeye import KUKA, KUKA_TOML, VARIED, edit, kuka_folder
+from tests.stages.acquire.test_handeye import KUKA, VARIED, edit, kuka_folder
 
 
 def calibrate(source, root):
