@@ -234,6 +234,7 @@ def read_poses(dataset: HandEyeDataset) -> np.ndarray:
         check_rotation(path, label, matrix[:3, :3])
     check_translation(path, "translation", matrices[:, :3, 3], dataset.length_unit, where)
     matrices = matrices.copy()
+    matrices[:, :3, :3] = g.project_to_so3(matrices[:, :3, :3])  # files round their rotations
     if dataset.length_unit == "mm":
         matrices[:, :3, 3] /= 1000.0  # converted once, here
     if dataset.transform == "flange_from_base":

@@ -9,16 +9,17 @@ import pytest
 
 from bench.handeye import KUKA_TOML, kuka_b, opencv_reference
 from manifests import Workspace, read_manifest
+from stages import geometry as g
 from stages.image_io import read_image
 from tests.conftest import speedplus
 from tests.stages.acquire.test_handeye import KUKA, VARIED, edit, kuka_folder
 
 
-def calibrate(source, root):
+def calibrate(source, root, *settings):
     result = speedplus("acquire", "-w", str(root), "--backend", "replay", "--format", "handeye", "--source",
                        str(source))
     assert result.returncode == 0, result.stderr
-    return speedplus("calibrate", "-w", str(root))
+    return speedplus("calibrate", "-w", str(root), *settings)
 
 
 @pytest.fixture(scope="module")
@@ -144,3 +145,28 @@ def test_too_few_views_and_rotations_about_one_axis_are_refused(tmp_path):
         lines.append("\t".join(repr(float(v)) for v in pose.ravel()))
     (source / "RobotPosesVec.txt").write_text("\n".join(lines) + "\n")
     refused(calibrate(source, tmp_path / "w2"), "vary about one axis only")
+
+
+def test_eye_to_hand_swaps_the_roles_of_flange_and_base(kuka_png_12, tmp_path):
+    """Read the same recording as if the base carried the camera and the flange the board
+    (the inverse poses, ``camera_on = "world"``): B_i = camee_from_targetee is unchanged,
+    so the calibration must be too, with Z and X in the swapped frames. (The board now
+    hangs on the flange, whose attitude to gravity varies: calibrate would estimate the
+    fixture's sag, which the original set-up has not; switched off to compare.)"""
+    source, reference = kuka_png_12
+    swapped = kuka_folder(tmp_path / "swapped", images=VARIED, camera_on="world")
+    lines = []
+    for line in (swapped / "RobotPosesVec.txt").read_text().splitlines():
+        inverse = g.invert(np.array(line.split(), float).reshape(4, 4))
+        lines.append("\t".join(repr(float(v)) for v in inverse.ravel()))
+    (swapped / "RobotPosesVec.txt").write_text("\n".join(lines) + "\n")
+    result = calibrate(swapped, tmp_path / "w", "--set", "calibrate.fixture_compliance=off")
+    assert result.returncode == 0, result.stderr
+    calibration = json.loads((tmp_path / "w" / "calibration.json").read_text())
+    assert calibration["kuka"]["fixture_compliance"]["estimated"] is False
+    for fit in ("in_sample", "cross_validated"):
+        assert calibration["kuka"]["metrics"][fit]["E_T_m"][0] == pytest.approx(
+            reference["kuka"]["metrics"][fit]["E_T_m"][0], rel=1e-6)
+    for key in ("cam_from_camee", "target_from_targetee"):
+        for part in ("q", "t"):
+            np.testing.assert_allclose(calibration["kuka"][key][part], reference["kuka"][key][part], atol=1e-7)
