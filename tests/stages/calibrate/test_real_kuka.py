@@ -56,7 +56,9 @@ def convert(source, target, suffix, dtype):
         pixels = rgb.astype(np.uint16) * 257 if dtype == "uint16" else rgb
         name = str(target / f"{path.stem}{suffix}")
         output = oiio.ImageOutput.create(name)
-        output.open(name, oiio.ImageSpec(rgb.shape[1], rgb.shape[0], 3, dtype))
+        spec = oiio.ImageSpec(rgb.shape[1], rgb.shape[0], 3, dtype)
+        spec.attribute("compression", "none")  # as machine-vision drivers write them, and fast
+        output.open(name, spec)
         output.write_image(np.ascontiguousarray(pixels))
         output.close()
     (target / "RobotPosesVec.txt").write_bytes((source / "RobotPosesVec.txt").read_bytes())
@@ -119,15 +121,15 @@ def test_poses_read_the_wrong_way_round_are_refused(tmp_path):
     refused(calibrate(source, tmp_path / "w"), "fit the camera's motion only inverted", "[setup] camera_on")
 
 
-def test_one_wrong_image_is_rejected_with_its_reason_and_does_not_poison_the_rest(tmp_path, kuka_png):
-    _, reference = kuka_png
-    source = kuka_folder(tmp_path / "k")
-    (source / "05.png").write_bytes((source / "20.png").read_bytes())  # the image of another pose
+def test_one_wrong_image_is_rejected_with_its_reason_and_does_not_poison_the_rest(tmp_path, kuka_png_12):
+    _, reference = kuka_png_12
+    source = kuka_folder(tmp_path / "k", images=VARIED)
+    (source / "14.png").write_bytes((KUKA / "20.png").read_bytes())  # the image of another pose
     result = calibrate(source, tmp_path / "w")
     assert result.returncode == 0, result.stderr
     rows = {r["sample_id"]: r for r in read_manifest(Workspace(tmp_path / "w"), "calibration_samples").to_pylist()}
     assert not rows["cal000004"]["used"] and "disagrees with the robot's motion" in rows["cal000004"]["reason"]
-    assert sum(r["used"] for r in rows.values()) == 29
+    assert sum(r["used"] for r in rows.values()) == 11
     calibration = json.loads((tmp_path / "w" / "calibration.json").read_text())
     assert calibration["kuka"]["metrics"]["in_sample"]["E_T_m"][0] < 1.2 * reference["kuka"]["metrics"][
         "in_sample"]["E_T_m"][0]
