@@ -101,7 +101,9 @@ def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
         k = 9 * (1 + names.index(fixture))
         block[:, k:k + 9] = np.kron(eye, a_i[:3, :3])  # vec(R_A R_X) = (I kron R_A) vec(R_X)
         rows.append(block)
-    _, _, vt = np.linalg.svd(np.concatenate(rows))
+    _, singular, vt = np.linalg.svd(np.concatenate(rows))
+    if singular[-2] < 1e-9 * singular[0]:
+        raise DegenerateError("Shah's closed form: the null space has more than one dimension")
     null = vt[-1]
     rz = null[:9].reshape(3, 3, order="F")
     determinant = np.linalg.det(rz)
