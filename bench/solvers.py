@@ -46,7 +46,7 @@ def main(root: str = "data/default") -> None:
                 rows.append({"solver": solver, "source": source, "against": kind,
                              "E_T_mm": metric["E_T_m"][0] * 1000, "E_R_deg": float(np.degrees(metric["E_R_rad"][0])),
                              "E_p_px": metric["E_p_px"][0], "seconds": seconds})
-            if "opencv_shah_in_sample" in entry and solver == SOLVERS[-1]:
+            if "E_T_m" in entry.get("opencv_shah_in_sample", {}) and solver == SOLVERS[-1]:  # else it failed
                 metric = entry["opencv_shah_in_sample"]
                 rows.append({"solver": "OpenCV Shah", "source": source, "against": "in_sample",
                              "E_T_mm": metric["E_T_m"][0] * 1000, "E_R_deg": float(np.degrees(metric["E_R_rad"][0])),
