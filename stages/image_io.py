@@ -88,12 +88,12 @@ def read_image(path: Path, mode: Literal["gray", "bgr", "unchanged"] = "unchange
     try:
         spec = image_input.spec()
         dtype = _dtype(spec)
-        pixels = image_input.read_image(0, 0, 0, min(spec.nchannels, 4), dtype)
+        pixels = image_input.read_image(0, 0, 0, min(spec.nchannels, 4), "float" if dtype == "float32" else dtype)
         if pixels is None or image_input.has_error:
             raise ImageReadError(path, f"truncated or corrupt image ({_one_line(image_input.geterror())})")
     finally:
         image_input.close()
-    pixels = np.asarray(pixels)
+    pixels = np.asarray(pixels, dtype=dtype)
     if mode != "unchanged" and pixels.dtype == np.uint16 and significant_bits(pixels) == 8:
         pixels = to_uint8(pixels)  # 8-bit data stored in 16 bits: exactly the 8-bit file's pixels
     if pixels.ndim == 2:
@@ -169,7 +169,7 @@ def ingest_image(source: Path, destination_png: Path) -> tuple[Path, str | None]
     if info.format == "png":
         copy_atomic(source, destination_png)
         return destination_png, None
-    if pixels.dtype == np.float32:
+    if pixels.dtype not in (np.uint8, np.uint16):  # float data has no lossless PNG form
         stored = destination_png.with_suffix(source.suffix.lower())
         copy_atomic(source, stored)
         return stored, None

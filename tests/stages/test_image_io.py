@@ -35,15 +35,17 @@ def sample_rgb(seed=0):
 
 
 @pytest.mark.parametrize("suffix, dtype", [(".png", "uint8"), (".png", "uint16"), (".bmp", "uint8"),
-                                           (".tif", "uint8"), (".tif", "uint16"), (".exr", "float")])
+                                           (".tif", "uint8"), (".tif", "uint16"), (".exr", "float"),
+                                           (".exr", "half")])
 @pytest.mark.parametrize("colour", [True, False])
 def test_every_lossless_format_reads_back_exactly(tmp_path, suffix, dtype, colour):
     rgb = sample_rgb()
     data = rgb if colour else rgb[:, :, 1].copy()
     if dtype == "uint16":
         data = data.astype(np.uint16) * 251 + 3  # 16 significant bits, not 8-bit data scaled
-    elif dtype == "float":
+    elif dtype in ("float", "half"):
         data = data.astype(np.float32) / 255.0 * 4.0  # HDR radiance beyond 1
+        data = data.astype(np.float16).astype(np.float32) if dtype == "half" else data  # what half keeps
     path = write(tmp_path / f"image{suffix}", data, dtype)
     got = read_image(path)
     expected = data[:, :, ::-1] if colour else data

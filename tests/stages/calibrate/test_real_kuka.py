@@ -53,7 +53,7 @@ def convert(source, target, suffix, dtype):
     target.mkdir()
     for path in sorted(source.glob("*.png")):
         rgb = read_image(path, "bgr")[:, :, ::-1]
-        pixels = rgb.astype(np.uint16) * 257 if dtype == "uint16" else rgb
+        pixels = {"uint16": rgb.astype(np.uint16) * 257, "half": rgb.astype(np.float32) / 255.0}.get(dtype, rgb)
         name = str(target / f"{path.stem}{suffix}")
         output = oiio.ImageOutput.create(name)
         spec = oiio.ImageSpec(rgb.shape[1], rgb.shape[0], 3, dtype)
@@ -89,6 +89,22 @@ def test_the_same_images_as_16_bit_tiff_or_bmp_give_the_same_calibration(kuka_pn
                 reference["kuka"]["metrics"][fit][metric][0], rel=1e-6)
     captures = read_manifest(Workspace(tmp_path / "w"), "captures").to_pylist()
     assert all(r["image_path"].endswith(".png") and f"{suffix[1:4]}" in r["image_conversion"] for r in captures)
+
+
+def test_a_renderers_half_float_exr_images_calibrate_as_well(kuka_png_12, tmp_path):
+    """Linear half floats (what a renderer writes): kept as EXR, detected on an 8-bit view,
+    refined on the floats; the calibration matches the PNGs' to a few percent."""
+    source, reference = kuka_png_12
+    converted = convert(source, tmp_path / "converted", ".exr", "half")
+    result = calibrate(converted, tmp_path / "w")
+    assert result.returncode == 0, result.stderr
+    captures = read_manifest(Workspace(tmp_path / "w"), "captures").to_pylist()
+    assert all(r["image_path"].endswith(".exr") and r["image_conversion"] is None for r in captures)
+    calibration = json.loads((tmp_path / "w" / "calibration.json").read_text())
+    assert calibration["kuka"]["samples"] == 12
+    for metric in ("E_T_m", "E_p_px"):
+        assert calibration["kuka"]["metrics"]["in_sample"][metric][0] == pytest.approx(
+            reference["kuka"]["metrics"]["in_sample"][metric][0], rel=0.05)
 
 
 def refused(result, *fragments):
