@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from pipeline.config import TestbedConfig
-from stages.image_io import significant_bits, to_float, to_uint8
+from stages.image_io import to_uint8
 
 
 @dataclass(frozen=True)
@@ -138,23 +138,19 @@ def detect(image: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray
     """Pattern corners in a grey image (H, W) of any pixel type: pixels (N, 2) and their ids
     (N,) into ``spec.object_points()``; empty arrays when nothing is found.
 
-    OpenCV's detectors need 8 bits: they run on ``to_uint8(image)``. When the file holds
-    more than 8 significant bits (a 12- or 16-bit camera), the corners are then refined on
-    the full-precision image (``cv2.cornerSubPix`` on float32), so the extra bits count."""
+    OpenCV's detectors need 8 bits: they run on ``to_uint8(image)``, which stretches data
+    of more than 8 significant bits over its own range. Their sub-pixel fits are kept:
+    refining them with ``cv2.cornerSubPix`` on the full-precision image was measured worse
+    (12 dark 12-bit views of Ali et al.'s board: calibrateCamera RMS 0.120 px refined,
+    0.067 px as detected)."""
     detection = to_uint8(image)
     if spec.kind == "charuco":
         detector = cv2.aruco.CharucoDetector(charuco_board(spec))
         corners, ids, _, _ = detector.detectBoard(detection)
         if ids is None or len(ids) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=int)
-        pixels, found_ids = corners.reshape(-1, 2).astype(float), ids.ravel().astype(int)
-    else:
-        found, corners = cv2.findChessboardCornersSB(detection, spec.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
-        if not found:
-            return np.zeros((0, 2)), np.zeros(0, dtype=int)
-        pixels, found_ids = corners.reshape(-1, 2).astype(float), np.arange(spec.size[0] * spec.size[1])
-    if significant_bits(image) > 8 and len(pixels):
-        refined = cv2.cornerSubPix(to_float(image), np.ascontiguousarray(pixels, np.float32).reshape(-1, 1, 2),
-                                   (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3))
-        pixels = refined.reshape(-1, 2).astype(float)
-    return pixels, found_ids
+        return corners.reshape(-1, 2).astype(float), ids.ravel().astype(int)
+    found, corners = cv2.findChessboardCornersSB(detection, spec.size, flags=cv2.CALIB_CB_EXHAUSTIVE)
+    if not found:
+        return np.zeros((0, 2)), np.zeros(0, dtype=int)
+    return corners.reshape(-1, 2).astype(float), np.arange(spec.size[0] * spec.size[1])
