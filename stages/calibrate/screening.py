@@ -1,7 +1,9 @@
-"""Screen the calibration captures between PnP and the solve: put every chessboard's
-corners in one consistent order, reject single images that disagree with the robot's
-motion (each with its reason), and refuse the whole set, naming the likely cause, when the
-detections do not fit the declared pattern (``stages.calibrate.consistency``).
+"""Screen the calibration captures between PnP and the solve: an estimated camera must fit
+the images, patterns are seen from the front, every chessboard's corners are put in one
+order, single images that disagree with the robot's motion are rejected (each with its
+reason), and the whole set is refused, naming the likely cause, when the detections do
+not fit the declared pattern (``stages.calibrate.consistency``); after the solve, absurd
+results are refused. Thresholds: ``CalibrateConfig``; why: the README.
 """
 
 from __future__ import annotations
