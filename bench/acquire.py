@@ -21,8 +21,8 @@ import numpy as np
 from bench.common import report
 from manifests import Workspace, read_manifest
 from pipeline.config import load_config
-from stages import geometry as g
-from stages.patterns import PatternSpec, detect
+from stages.common import geometry as g
+from stages.common.patterns import PatternSpec, detect
 from stages.plan import plan_sample, sample_ids
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.common import report
 from pipeline.config import load_config
-from stages.evaluate.model import PoseModel
+from stages.common.pose_model import PoseModel
 
 
 def main(*args: str) -> None:

@@ -47,7 +47,7 @@ def opencv_reference(images: list[Path], cam_side_b: np.ndarray, size: tuple[int
                      square_m: float) -> dict[str, float]:
     """OpenCV's recipe on ``images`` with the robot's ``B_i = camee_from_targetee`` (N, 4, 4, m):
     mean E_T (m), E_R (rad), E_p (px) over the images where the board is found."""
-    from stages import geometry as g
+    from stages.common import geometry as g
 
     xs, ys = np.meshgrid(np.arange(size[0]), np.arange(size[1]))
     board = (np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1) * square_m).astype(np.float32)
@@ -76,7 +76,7 @@ def opencv_reference(images: list[Path], cam_side_b: np.ndarray, size: tuple[int
 
 def kuka_b() -> np.ndarray:
     """Ali et al.'s poses as ``B_i = flange_from_base`` (eye-in-hand)."""
-    from stages import geometry as g
+    from stages.common import geometry as g
 
     base_from_flange = np.loadtxt(EXTERNAL / "ali2019_kuka_1" / "RobotPosesVec.txt").reshape(-1, 4, 4)
     return np.stack([g.invert(m) for m in base_from_flange])

@@ -15,7 +15,7 @@ from scipy import stats
 
 from bench.common import report
 from pipeline.config import load_config
-from stages import geometry as g
+from stages.common import geometry as g
 from stages.plan import plan_sample
 
 

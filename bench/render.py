@@ -22,7 +22,8 @@ from bench.common import report
 from manifests import Workspace
 from pipeline.config import load_config
 from pipeline.engines import map_local
-from stages.render.jobs import train_camera, train_jobs
+from stages.common.cameras import train_camera
+from stages.render.jobs import train_jobs
 from stages.render.scene import default_threads
 from stages.render.worker import open_worker
 
@@ -103,7 +104,7 @@ def speed() -> None:
 
 
 def proof(root: str) -> None:
-    from stages.render.overlap import twin_overlap
+    from bench.overlap import twin_overlap
 
     workspace = Workspace(root)
     config = load_config(None, workspace.config_path)

@@ -24,7 +24,7 @@ import numpy as np
 
 from manifests.io import copy_atomic, read_manifest, write_json_atomic
 from manifests.workspace import Workspace
-from stages import geometry as g
+from stages.common import geometry as g
 
 
 def camera_json(camera_matrix: np.ndarray, dist: np.ndarray, width: int, height: int,

@@ -172,10 +172,8 @@ def train_reference_command(
     transient = ["render.set=train", f"render.train_count={recipe.images}",
                  f"render.train_resolution_scale={recipe.resolution_scale}"]
     _run(["render"], workspace, profile, config, set_, False, transient)
-    from stages.reference import train
-
     trained = load_config(resolved.profile, ws.config_path, transient)
-    card = train.run(trained, ws, model_path, max_steps=steps)
+    card = runner.train_reference(trained, ws, model_path, max_steps=steps)
     held = card["held_out"]
     out.print(f"{model_path}: trained on {card['training_images']} images in {card['train_seconds']:.0f} s; "
               f"held-out synthetic: mean SPEED score {held['mean_speed_score']:.4f}, median rotation error "
@@ -222,7 +220,7 @@ def export_command(
 ) -> None:
     """Export the labels as a SPEED+ (or BOP) dataset."""
     from manifests import exports, read_success
-    from stages.label import calibrated_camera
+    from stages.common.sidecars import calibrated_camera
 
     resolved, ws = _context(workspace, profile, config, set_)
     if read_success(ws, "labels") is None:

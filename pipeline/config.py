@@ -95,7 +95,7 @@ class TestbedConfig:
     __test__ = False  # not a pytest test class despite the name
 
     room_m: tuple[float, float, float] = param((8.0, 3.0, 3.0), "room size x, y, z (TRON: 8 x 3 x 3 m)", "m")
-    robot_model: str = param("KR16-2", "KUKA arm model of both robots (see stages/kinematics.py)")
+    robot_model: str = param("KR16-2", "KUKA arm model of both robots (see stages/common/kinematics.py)")
     target_base_m: tuple[float, float, float] = param(
         (0.6, 1.5, 0.0), "position of the floor-mounted target robot's base in K", "m")
     target_base_yaw_rad: float = param(0.0, "rotation of the target robot's base about K's z", "rad")
@@ -382,7 +382,7 @@ class ReferenceConfig:
 class EvaluateConfig:
     """The evaluate stage: an ONNX model scored on twins and testbed images."""
 
-    model: str = param("models/reference.onnx", "ONNX model following the contract of stages/evaluate/model.py; "
+    model: str = param("models/reference.onnx", "ONNX model following the contract of stages/common/pose_model.py; "
                        "relative paths: from the current directory, else from the repository", "")
     batch_size: int = param(16, "images per inference call", "count")
     threads: int = param(2, "ONNX Runtime intra-op threads", "count")

@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from importlib import metadata
+from pathlib import Path
 from typing import Any
 
 import pyarrow.parquet as pq
@@ -86,6 +87,14 @@ STAGES: tuple[StageSpec, ...] = (
               "static HTML report (W/report/index.html)"),
 )
 STAGE_NAMES = tuple(stage.name for stage in STAGES)
+
+
+def train_reference(config: Config, workspace: Workspace, model_path: Path, max_steps: int | None = None
+                    ) -> dict[str, Any]:
+    """Train the reference model (``stages.reference``) on the workspace's training set and
+    export it to ``model_path``; returns its card. Like the stages, reached only from here."""
+    module = importlib.import_module("stages.reference.train")
+    return module.run(config, workspace, model_path, max_steps=max_steps)
 
 
 def stage_spec(name: str) -> StageSpec:

@@ -72,8 +72,8 @@ def constant_keypoint_model(path, metadata):
     import onnx
     from onnx import TensorProto, helper
 
-    from stages import geometry as g
-    from stages import tango
+    from stages.common import geometry as g
+    from stages.common import tango
 
     camera = np.array([[120.0, 0, 31.5], [0, 120.0, 31.5], [0, 0, 1]])
     points = g.project(g.make_transform(np.eye(3), [0, 0, 8.0]), tango.KEYPOINTS_M, camera, np.zeros(5))

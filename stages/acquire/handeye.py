@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace
-from stages import geometry as g
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import (
     IngestError,
@@ -32,9 +31,10 @@ from stages.acquire.ingest import (
     read_csv,
     read_text,
 )
-from stages.geometry import pose_columns
-from stages.image_io import IMAGE_SUFFIXES, ImageInfo, image_info, ingest_image
-from stages.patterns import PatternSpec, pattern_from_table
+from stages.common import geometry as g
+from stages.common.geometry import pose_columns
+from stages.common.image_io import IMAGE_SUFFIXES, ImageInfo, image_info, ingest_image
+from stages.common.patterns import PatternSpec, pattern_from_table
 
 DATASET_FILE = "dataset.toml"
 FORMAT_VERSION = 1

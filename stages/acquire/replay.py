@@ -32,7 +32,6 @@ import numpy as np
 
 from manifests import Workspace
 from manifests.schema import SESSIONS
-from stages import geometry as g
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.handeye import check_images, inside
 from stages.acquire.ingest import (
@@ -44,9 +43,10 @@ from stages.acquire.ingest import (
     read_csv,
     read_text,
 )
-from stages.geometry import pose_columns
-from stages.image_io import IMAGE_SUFFIXES, ingest_image
-from stages.patterns import pattern_from_table
+from stages.common import geometry as g
+from stages.common.geometry import pose_columns
+from stages.common.image_io import IMAGE_SUFFIXES, ingest_image
+from stages.common.patterns import pattern_from_table
 
 BODY_COLUMNS = {body: [f"{body}_{axis}" for axis in ("x", "y", "z", "a", "b", "c")] for body in ("camee", "targetee")}
 SETUP_BODIES = {"camera_on": "camee", "target_on": "targetee"}

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from stages.acquire.handeye import HandEyeDataset
 from stages.acquire.ingest import IngestError, read_text
-from stages.patterns import PatternSpec
+from stages.common.patterns import PatternSpec
 
 
 def read_calibration_object(path: Path) -> PatternSpec:

@@ -17,32 +17,15 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, read_succe
 from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages.calibrate import arms, rwhe, screening
 from stages.calibrate import observations as obs
-from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json, up_targetee
+from stages.calibrate import screening
+from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json
 from stages.calibrate.table import print_table
-from stages.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
-from stages.patterns import PatternSpec
-
-SOURCES = ("kuka", "vicon")
-#: names of each source's offsets in calibration.json: (camera side Z, target side X)
-OFFSET_NAMES = {"kuka": ("cam_from_camee", "target_from_targetee"),
-                "vicon": ("cam_from_camrb", "target_from_targetrb")}
-
-
-def measurement(row: dict[str, Any], source: str) -> np.ndarray | None:
-    """``B_i`` of a capture for a source (4, 4), or None when the source did not measure it."""
-    if source == "kuka":
-        world_from_camee = g.transform_from_qt(row["kuka_world_from_camee_q"], row["kuka_world_from_camee_t"])
-        world_from_targetee = g.transform_from_qt(row["kuka_world_from_targetee_q"],
-                                                  row["kuka_world_from_targetee_t"])
-        return g.invert(world_from_camee) @ world_from_targetee
-    if row["vicon_world_from_camrb_q"] is None or row["vicon_world_from_targetrb_q"] is None:
-        return None
-    world_from_camrb = g.transform_from_qt(row["vicon_world_from_camrb_q"], row["vicon_world_from_camrb_t"])
-    world_from_targetrb = g.transform_from_qt(row["vicon_world_from_targetrb_q"], row["vicon_world_from_targetrb_t"])
-    return g.invert(world_from_camrb) @ world_from_targetrb
+from stages.common import arms, rwhe
+from stages.common import geometry as g
+from stages.common.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
+from stages.common.patterns import PatternSpec
+from stages.common.sources import OFFSET_NAMES, SOURCES, measurement, up_targetee
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],

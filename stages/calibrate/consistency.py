@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stages import geometry as g
-from stages.calibrate.rwhe import motion_rotations, procrustes
-from stages.patterns import PatternSpec
+from stages.common import geometry as g
+from stages.common.patterns import PatternSpec
+from stages.common.rwhe import motion_rotations, procrustes
 
 #: pairs whose robot rotation is smaller than this say little about the pitch (axis ill-defined)
 MIN_PITCH_ANGLE_RAD = np.radians(10.0)

@@ -11,11 +11,11 @@ import numpy as np
 
 from manifests import Workspace
 from pipeline.progress import track
-from stages import geometry as g
 from stages.calibrate.consistency import board_continues
-from stages.calibrate.rwhe import DegenerateError
-from stages.image_io import read_image, to_uint8
-from stages.patterns import PatternSpec, detect
+from stages.common import geometry as g
+from stages.common.image_io import read_image, to_uint8
+from stages.common.patterns import PatternSpec, detect
+from stages.common.rwhe import DegenerateError
 
 
 @dataclass
@@ -63,7 +63,7 @@ def relabel(o: Observation, spec: PatternSpec, ids: np.ndarray) -> None:
 
 
 def detect_all(workspace: Workspace, captures: list[dict], spec: PatternSpec, min_corners: int) -> list[Observation]:
-    """Detect the pattern in every capture (images read through ``stages.image_io``: an
+    """Detect the pattern in every capture (images read through ``stages.common.image_io``: an
     unreadable one is an error naming it). For chessboards, also which sides of the grid
     the printed board goes on beyond (``extra["board_continues"]``)."""
     observations = []

@@ -1,6 +1,5 @@
-"""The robots' model choices in calibration: the up direction at the target flange, and
-whether to estimate the model fixture's compliance and the arms' kinematics (each with
-the reason recorded in ``calibration.json``)."""
+"""The robots' model choices in calibration: whether to estimate the model fixture's
+compliance and the arms' kinematics, each with the reason recorded in ``calibration.json``."""
 
 from __future__ import annotations
 
@@ -10,13 +9,7 @@ import numpy as np
 
 from pipeline.config import Config
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages.calibrate import arms, rwhe
-
-
-def up_targetee(row: dict[str, Any], world_up: np.ndarray) -> np.ndarray:
-    """The up direction (3,) in the target flange frame at a capture, from the robots' telemetry."""
-    return g.quat_to_matrix(row["kuka_world_from_targetee_q"]).T @ np.asarray(world_up, float)
+from stages.common import arms, rwhe
 
 
 def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> tuple[bool, str]:

@@ -13,11 +13,11 @@ from typing import Any
 import numpy as np
 
 from pipeline.config import CalibrateConfig
-from stages import geometry as g
 from stages.calibrate import observations as obs
 from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags, rotation_fit
-from stages.calibrate.rwhe import DegenerateError
-from stages.patterns import PatternSpec
+from stages.common import geometry as g
+from stages.common.patterns import PatternSpec
+from stages.common.rwhe import DegenerateError
 
 
 class InconsistentPatternError(DegenerateError):

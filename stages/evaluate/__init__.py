@@ -22,12 +22,12 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from pipeline.config import Config
 from pipeline.progress import track
-from stages import geometry as g
-from stages.evaluate.model import PoseModel, decode_heatmaps, pose_from_keypoints
-from stages.evaluate.scores import score
+from stages.common import geometry as g
+from stages.common.image_io import read_image, to_uint8
+from stages.common.pose_model import PoseModel, decode_heatmaps, pose_from_keypoints
+from stages.common.scores import score
+from stages.common.sidecars import calibrated_camera
 from stages.evaluate.table import print_table2, summarise
-from stages.image_io import read_image, to_uint8
-from stages.label import calibrated_camera
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 

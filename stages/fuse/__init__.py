@@ -22,11 +22,20 @@ from manifests.io import write_json_atomic
 from pipeline.config import Config, TestbedConfig
 from pipeline.errors import InputError
 from pipeline.progress import track
-from stages import geometry as g
-from stages.calibrate import arms, measurement, up_targetee
-from stages.calibrate.rwhe import fixture_tilt
-from stages.fusion import UNIT_FACTOR, Sigma, VarianceFactor, at_position, fuse, rejection_reason, variance_factor
-from stages.label import read_calibration
+from stages.common import arms
+from stages.common import geometry as g
+from stages.common.fusion import (
+    UNIT_FACTOR,
+    Sigma,
+    VarianceFactor,
+    at_position,
+    fuse,
+    rejection_reason,
+    variance_factor,
+)
+from stages.common.rwhe import fixture_tilt
+from stages.common.sidecars import read_calibration
+from stages.common.sources import measurement, up_targetee
 
 CALIBRATION_FILE = "calibration.json"
 FUSION_FILE = "fusion.json"

@@ -8,7 +8,6 @@ the session and the calibration; never the truth.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np
@@ -18,40 +17,9 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, read_succe
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
-from stages import geometry as g
-from stages import tango
-from stages.lens import LensCamera
-
-
-def read_calibration(workspace: Workspace) -> dict[str, Any]:
-    """W/calibration.json, or an InputError saying what to do."""
-    path = workspace.root / "calibration.json"
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: missing; run calibrate first") from None
-    except json.JSONDecodeError as error:
-        raise InputError(f"{path}: not valid JSON ({error}); rerun calibrate") from None
-
-
-def calibrated_camera(workspace: Workspace) -> LensCamera:
-    """The calibrated camera of the labels: K (3, 3), dist (5,), width, height."""
-    path = workspace.root / "calibration.json"
-    try:
-        intrinsics = read_calibration(workspace)["intrinsics"]
-        return LensCamera(np.array(intrinsics["K"], float), np.array(intrinsics["dist"], float),
-                          int(intrinsics["width"]), int(intrinsics["height"]))
-    except (KeyError, TypeError, ValueError) as error:
-        raise InputError(f"{path}: intrinsics unreadable ({error!r}); expected K (3x3), dist (5), width, "
-                         "height; rerun calibrate") from None
-
-
-def mockup_scale(config: Config, workspace: Workspace) -> float:
-    if workspace.session_path.exists():
-        scale = json.loads(workspace.session_path.read_text()).get("mockup_scale")
-        if scale:
-            return float(scale)
-    return config.testbed.mockup_scale
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.sidecars import calibrated_camera, mockup_scale
 
 
 def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: np.ndarray, dist: np.ndarray,

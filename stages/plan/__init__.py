@@ -13,8 +13,8 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from pipeline.config import Config
 from pipeline.progress import track
-from stages import geometry as g
-from stages import layout, tango
+from stages.common import geometry as g
+from stages.common import layout, tango
 from stages.plan.poses import (
     PlanningError,
     calibration_pose,

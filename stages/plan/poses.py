@@ -10,9 +10,9 @@ import numpy as np
 
 from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages import layout, tango
-from stages.patterns import board_pattern
+from stages.common import geometry as g
+from stages.common import layout, tango
+from stages.common.patterns import board_pattern
 
 #: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
 _MAX_VISIBILITY_DRAWS = 1000

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.config import PlanConfig, TestbedConfig
-from stages import geometry as g
-from stages import layout, tango
-from stages.kinematics import arm_model, limit_margin, solve
+from stages.common import geometry as g
+from stages.common import layout, tango
+from stages.common.kinematics import arm_model, limit_margin, solve
 
 
 @dataclass(frozen=True)

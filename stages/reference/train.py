@@ -3,7 +3,7 @@
 score it on held-out synthetic images through ONNX Runtime (never through torch).
 
 Data: every image is cropped and resized exactly as ``evaluate`` will crop testbed images
-and twins (``stages.evaluate.model.prepare``, crop ``oracle_box``: a square around the
+and twins (``stages.common.pose_model.prepare``, crop ``oracle_box``: a square around the
 keypoints' box, so scores are those of the pose network given a perfect detector, as the
 report says); targets are Gaussian heatmaps at the keypoints' projections. Augmentation:
 brightness, contrast and gamma jitter and sensor-like noise, nothing geometric (the
@@ -24,8 +24,9 @@ import numpy as np
 from manifests import Workspace, read_manifest
 from pipeline.config import Config, ReferenceConfig
 from pipeline.progress import console, track
-from stages import tango
-from stages.evaluate.model import (
+from stages.common import tango
+from stages.common.image_io import read_image, to_uint8
+from stages.common.pose_model import (
     IR_VERSION,
     OPSET,
     ModelContract,
@@ -34,8 +35,7 @@ from stages.evaluate.model import (
     pose_from_keypoints,
     prepare,
 )
-from stages.evaluate.scores import score
-from stages.image_io import read_image, to_uint8
+from stages.common.scores import score
 
 MEAN = (0.485, 0.456, 0.406)
 STD = (0.229, 0.224, 0.225)
@@ -166,7 +166,7 @@ def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[
 def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.ndarray,
                     dist: np.ndarray) -> dict[str, float]:
     """SPEED scores of the exported model on prepared images, through ONNX Runtime and PnP."""
-    from stages.evaluate.model import decode_heatmaps
+    from stages.common.pose_model import decode_heatmaps
 
     model = PoseModel(path, threads=2)
     errors = []
@@ -189,7 +189,7 @@ def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.n
 def run(config: Config, workspace: Workspace, out: Path, *, max_steps: int | None = None) -> dict[str, Any]:
     """Train on the workspace's ``train`` manifest, export to ``out``, score held-out images;
     returns the model card (also written beside the model as JSON)."""
-    from stages.render.jobs import train_camera
+    from stages.common.cameras import train_camera
 
     recipe = config.reference
     data = load_training_set(workspace, recipe)

@@ -19,8 +19,9 @@ from manifests.io import write_json_atomic
 from pipeline.config import Config
 from pipeline.engines import map_engine
 from pipeline.progress import console, track
-from stages.label import calibrated_camera
-from stages.render.jobs import SET_DIRECTORIES, train_camera, train_jobs, twin_jobs
+from stages.common.cameras import train_camera
+from stages.common.sidecars import calibrated_camera
+from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
 from stages.render.scene import default_threads
 from stages.render.worker import open_worker
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.lens import LensCamera, pixel_rays
+from stages.common.lens import LensCamera, pixel_rays
 
 EARTH_RADIUS_M = 6_371_000.0
 OCEAN = np.array([0.02, 0.06, 0.16])

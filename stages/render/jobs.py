@@ -18,10 +18,10 @@ from manifests import Workspace, read_manifest, read_success
 from manifests.workspace import MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages import tango
-from stages.label import mockup_scale, read_calibration
-from stages.lens import LensCamera
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.cameras import train_camera
+from stages.common.sidecars import mockup_scale, read_calibration
 
 SET_DIRECTORIES = {"twin": "twins", "train": "train"}
 NEAR_CLIP_M = 0.05
@@ -130,19 +130,6 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
 
 
 # --------------------------------------------------------------------------- training set
-def train_camera(config: Config) -> LensCamera:
-    """The SPEED+ camera of the profile, resized by ``render.train_resolution_scale``."""
-    camera, factor = config.camera, config.render.train_resolution_scale
-    k = camera.camera_matrix().copy()
-    width, height = round(camera.width_px * factor), round(camera.height_px * factor)
-    k[0, :] *= width / camera.width_px
-    k[1, :] *= height / camera.height_px
-    # pixel centres at integer coordinates: rescale about the image corner (-0.5, -0.5)
-    k[0, 2] = (camera.camera_matrix()[0, 2] + 0.5) * width / camera.width_px - 0.5
-    k[1, 2] = (camera.camera_matrix()[1, 2] + 0.5) * height / camera.height_px - 0.5
-    return LensCamera(k, camera.dist_coeffs(), width, height)
-
-
 def train_jobs(config: Config) -> list[RenderJob]:
     """``render.train_count`` jobs: SO(3)-uniform attitudes, distances uniform in
     ``render.train_distance_m``, the target's centre uniform over the image where its

@@ -1,10 +1,10 @@
-"""The synthetic Tango in Mitsuba 3: the procedural mesh of ``stages.tango_mesh`` at full
+"""The synthetic Tango in Mitsuba 3: the procedural mesh of ``stages.common.tango_mesh`` at full
 scale with physically based materials of the flight model's look (smooth gold MLI, solar
 cells, white radiator, metal antennas), black space, one directional light.
 
 The model stays in its body frame T; each image moves the camera (``target_from_cam``)
 and turns the light through ``mi.traverse``, so the acceleration structure is built once.
-The render is an RGBA pinhole image wider than the camera's; ``stages.lens`` remaps it
+The render is an RGBA pinhole image wider than the camera's; ``stages.common.lens`` remaps it
 through the label camera's distortion.
 """
 
@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from stages import geometry as g
-from stages.lens import Lens, LensCamera, pixel_rays
-from stages.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
-from stages.tango_mesh import tango_parts
+from stages.common import geometry as g
+from stages.common.lens import Lens, LensCamera, pixel_rays
+from stages.common.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
+from stages.common.tango_mesh import tango_parts
 
 
 def solar_cell_texture(cells: tuple[int, int] = (8, 12), px_per_cell: int = 24) -> np.ndarray:

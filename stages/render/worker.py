@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace
-from stages import geometry as g
-from stages import tango
-from stages.image_io import write_png_atomic
-from stages.lens import LensCamera
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.image_io import write_png_atomic
+from stages.common.lens import LensCamera
 from stages.render.earth import earth_background
 from stages.render.jobs import RenderJob
 from stages.render.scene import TangoRenderer

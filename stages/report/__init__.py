@@ -21,8 +21,8 @@ import numpy as np
 from manifests import Workspace, read_manifest, read_success
 from manifests.io import write_bytes_atomic
 from pipeline.config import Config
-from stages.image_io import read_image, to_uint8, write_png_atomic
-from stages.label import calibrated_camera, read_calibration
+from stages.common.image_io import read_image, to_uint8, write_png_atomic
+from stages.common.sidecars import calibrated_camera, read_calibration
 from stages.report import figures
 
 REPORT_DIR = "report"

@@ -12,9 +12,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 import numpy as np  # noqa: E402
 
-from stages import geometry as g  # noqa: E402
-from stages import tango  # noqa: E402
-from stages.tango_mesh import antenna_base  # noqa: E402
+from stages.common import geometry as g  # noqa: E402
+from stages.common import tango  # noqa: E402
+from stages.common.tango_mesh import antenna_base  # noqa: E402
 
 DOMAIN_COLOURS = {"synthetic": "tab:blue", "lightbox": "tab:orange", "sunlamp": "tab:red"}
 

@@ -30,7 +30,10 @@ def test_every_field_is_typed_and_documented_with_a_unit():
         assert dataclasses.is_dataclass(section) and section.__dataclass_params__.frozen, name
         hints = typing.get_type_hints(section)
         for field in dataclasses.fields(section):
-            assert field.name in hints
+            hint = hints[field.name]
+            if hint in (int, float, str, bool):  # the default is of the declared type
+                assert isinstance(field.default, hint) or (hint is float and type(field.default) is int), \
+                    f"{name}.{field.name}: default {field.default!r} is not {hint.__name__}"
             assert field.metadata.get("help"), f"{name}.{field.name} has no documentation"
             assert "unit" in field.metadata, f"{name}.{field.name} has no unit"
 

@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import Workspace, list_parts, read_manifest
-from stages.tango import KEYPOINTS_M
+from stages.common.tango import KEYPOINTS_M
 
 
 def speedplus(*args):

@@ -8,10 +8,10 @@ import pytest
 from scipy import stats
 
 from pipeline.config import load_config
-from stages import geometry as g
-from stages import layout, tango
-from stages.kinematics import KR16_2, forward, limit_margin
-from stages.patterns import board_pattern
+from stages.common import geometry as g
+from stages.common import layout, tango
+from stages.common.kinematics import KR16_2, forward, limit_margin
+from stages.common.patterns import board_pattern
 from stages.plan import PlanningError, plan_sample, sample_ids
 
 

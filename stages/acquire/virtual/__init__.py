@@ -9,16 +9,16 @@ import numpy as np
 
 from manifests import Workspace, read_manifest
 from pipeline.config import Config
-from stages import geometry as g
-from stages import layout
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, robots
 from stages.acquire.virtual.sensor import Sensor
 from stages.acquire.virtual.truth import Truth, draw_truth
-from stages.geometry import pose_columns
-from stages.image_io import write_png_atomic
-from stages.kinematics import link_points
-from stages.patterns import board_pattern
+from stages.common import geometry as g
+from stages.common import layout
+from stages.common.geometry import pose_columns
+from stages.common.image_io import write_png_atomic
+from stages.common.kinematics import link_points
+from stages.common.patterns import board_pattern
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
 

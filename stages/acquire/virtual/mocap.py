@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.config import Config
-from stages import geometry as g
-from stages import tango
+from stages.common import geometry as g
+from stages.common import tango
 
 MIN_CAMERAS = 2
 MIN_MARKERS = 3

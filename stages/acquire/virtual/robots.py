@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 
 from pipeline.config import Config
-from stages import geometry as g
-from stages import layout, tango
 from stages.acquire.virtual.truth import Truth
-from stages.kinematics import arm_model, forward
+from stages.common import geometry as g
+from stages.common import layout, tango
+from stages.common.kinematics import arm_model, forward
 
 GRAVITY_M_S2 = 9.80665
 

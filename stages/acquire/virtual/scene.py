@@ -13,13 +13,13 @@ from typing import Any
 import numpy as np
 
 from pipeline.config import Config
-from stages import geometry as g
-from stages import layout
 from stages.acquire.virtual import textures
-from stages.lens import RenderGeometry
-from stages.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
-from stages.patterns import board_image, board_pattern
-from stages.tango_mesh import tango_parts
+from stages.common import geometry as g
+from stages.common import layout
+from stages.common.lens import RenderGeometry
+from stages.common.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
+from stages.common.patterns import board_image, board_pattern
+from stages.common.tango_mesh import tango_parts
 
 BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
 _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)

@@ -1,7 +1,7 @@
 """From rendered radiance to an 8-bit photograph: lens distortion, glare, exposure, shot
 and read noise, saturation, gamma.
 
-The renderer draws an ideal pinhole image wider than the camera's (``stages.lens``);
+The renderer draws an ideal pinhole image wider than the camera's (``stages.common.lens``);
 lens distortion is applied by remapping it.
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.config import CameraConfig, VirtualConfig
-from stages import geometry as g
-from stages.lens import Lens, LensCamera, RenderGeometry
+from stages.common import geometry as g
+from stages.common.lens import Lens, LensCamera, RenderGeometry
 
 __all__ = ["RenderGeometry", "Sensor", "lens_camera"]
 

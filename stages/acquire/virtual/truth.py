@@ -16,9 +16,9 @@ import numpy as np
 
 from manifests.io import write_json_atomic
 from pipeline.config import Config
-from stages import geometry as g
-from stages import layout
-from stages.kinematics import ArmModel, arm_model
+from stages.common import geometry as g
+from stages.common import layout
+from stages.common.kinematics import ArmModel, arm_model
 
 _LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 
 from manifests import read_manifest
-from stages import geometry as g
-from stages import tango
-from stages.patterns import PatternSpec, detect
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.patterns import PatternSpec, detect
 
 
 def test_charuco_is_detected_in_95_percent_of_calibration_captures(default_acquisition):

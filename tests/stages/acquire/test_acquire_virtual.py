@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from manifests import Workspace, list_parts, read_manifest
-from stages import geometry as g
-from stages import tango
-from stages.patterns import PatternSpec, detect
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.patterns import PatternSpec, detect
 
 
 def speedplus(*args, env=None):

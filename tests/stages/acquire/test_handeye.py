@@ -10,10 +10,10 @@ import pytest
 from bench.handeye import KUKA_TOML
 from manifests import Workspace, read_manifest
 from pipeline.errors import InputError
-from stages import geometry as g
 from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
 from stages.acquire.ingest import IngestError
-from stages.image_io import ImageReadError
+from stages.common import geometry as g
+from stages.common.image_io import ImageReadError
 from tests.conftest import speedplus
 from tests.stages.acquire.test_replay import acquire
 

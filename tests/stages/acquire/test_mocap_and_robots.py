@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from stages import geometry as g
 from stages.acquire.virtual import VirtualTestbed, mocap, robots
 from stages.acquire.virtual.truth import draw_truth
+from stages.common import geometry as g
 from stages.plan import plan_sample, sample_ids
 
 

@@ -12,11 +12,11 @@ from manifests import Workspace, read_manifest
 from pipeline import runner
 from pipeline.config import load_config
 from pipeline.errors import InputError
-from stages import geometry as g
 from stages.acquire.handeye import HandEyeReplay
 from stages.acquire.ingest import IngestError
 from stages.acquire.replay import SessionReplay
 from stages.acquire.tabb import tabb_dataset
+from stages.common import geometry as g
 
 TABB = Path(__file__).resolve().parents[4] / "shared" / "external" / "tabb_ds1"
 

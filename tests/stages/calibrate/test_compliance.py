@@ -5,8 +5,10 @@ import pytest
 
 from pipeline.config import load_config
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages.calibrate import arm_decision, arms, compliance_decision, rwhe, up_targetee
+from stages.calibrate import arm_decision, compliance_decision
+from stages.common import arms, rwhe
+from stages.common import geometry as g
+from stages.common.sources import up_targetee
 
 
 def config_with(**calibrate):

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from stages import geometry as g
-from stages.calibrate import consistency, rwhe, screening
+from stages.calibrate import consistency, screening
 from stages.calibrate import observations as obs
-from stages.patterns import PatternSpec
-from tests.stages.calibrate.test_rwhe import assert_recovers, synthetic
-from tests.stages.test_image_io import chessboard_image
+from stages.common import geometry as g
+from stages.common import rwhe
+from stages.common.patterns import PatternSpec
+from tests.stages.common.test_image_io import chessboard_image
+from tests.stages.common.test_rwhe import assert_recovers, synthetic
 
 CAMERA = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
 

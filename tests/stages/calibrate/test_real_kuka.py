@@ -12,8 +12,8 @@ from manifests import Workspace, read_manifest
 from pipeline import runner
 from pipeline.config import load_config
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages.image_io import read_image
+from stages.common import geometry as g
+from stages.common.image_io import read_image
 from tests.conftest import speedplus
 from tests.stages.acquire.test_handeye import KUKA, VARIED, edit, kuka_folder
 

@@ -6,7 +6,7 @@ import numpy as np
 import onnx
 
 from pipeline.config import load_config
-from stages.evaluate.model import PoseModel
+from stages.common.pose_model import PoseModel
 from stages.reference.train import heatmap_targets
 from tests.conftest import speedplus
 

@@ -5,9 +5,10 @@ import pytest
 from scipy import stats
 
 from pipeline.config import load_config
-from stages import geometry as g
-from stages import tango
-from stages.render.jobs import image_seed, light_position, rejection_reason, train_camera, train_jobs
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.cameras import train_camera
+from stages.render.jobs import image_seed, light_position, rejection_reason, train_jobs
 
 
 @pytest.mark.parametrize(("q", "t", "expected"), [

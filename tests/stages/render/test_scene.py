@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from stages import geometry as g
-from stages import tango
 from stages.acquire.virtual.sensor import lens_camera
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.tango_mesh import tango_parts
 from stages.render.jobs import RenderJob
 from stages.render.scene import TangoRenderer, ray_traced_mask
 from stages.render.worker import mask_bbox
-from stages.tango_mesh import tango_parts
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,9 @@ import shutil
 import numpy as np
 import pytest
 
+from bench.overlap import twin_overlap
 from manifests import Workspace, read_manifest
 from pipeline.config import load_config
-from stages.render.overlap import twin_overlap
 from tests.conftest import speedplus
 
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from stages import geometry as g
-from stages.fusion import Sigma, at_position, fuse, lever_sq, rejection_reason, sigma_between, variance_factor
+from stages.common import geometry as g
+from stages.common.fusion import Sigma, at_position, fuse, lever_sq, rejection_reason, sigma_between, variance_factor
 
 
 def pose(rotvec, t):

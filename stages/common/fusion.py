@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages import geometry as g
+from stages.common import geometry as g
 
 REJECTION_K = 1.96
 #: medians of chi-square variables with 1 and 3 degrees of freedom: a robust scale of a

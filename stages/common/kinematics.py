@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from stages.geometry import Array, axis_angle_matrix, make_transform
+from stages.common.geometry import Array, axis_angle_matrix, make_transform
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from stages import geometry as g
-from stages.kinematics import KR16_2, fit_limits, forward, inverse, limit_margin, solve
+from stages.common import geometry as g
+from stages.common.kinematics import KR16_2, fit_limits, forward, inverse, limit_margin, solve
 
 # Joint origins and axes of kr16_2_macro.xacro (ROS-Industrial kuka_experimental), the
 # independent description of the same arm that the OPW parameters must reproduce.
@@ -77,7 +77,7 @@ def test_solve_respects_limits_and_rejects_unreachable_poses():
 
 
 def test_link_points_follow_the_urdf_chain():
-    from stages.kinematics import link_points
+    from stages.common.kinematics import link_points
 
     rng = np.random.default_rng(4)
     for joints in random_joints(rng, 20):

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from stages.tango import KEYPOINTS_M
-from stages.tango_mesh import tango_parts
+from stages.common.tango import KEYPOINTS_M
+from stages.common.tango_mesh import tango_parts
 
 
 def face_normals(part):

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.tango import KEYPOINTS_M, SOLAR_PANEL_Z_M
+from stages.common.tango import KEYPOINTS_M, SOLAR_PANEL_Z_M
 
 ANTENNA_RADIUS_M = 0.008
 _ANTENNA_SIDES = 10

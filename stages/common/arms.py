@@ -28,10 +28,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pipeline.config import CalibrateConfig, TestbedConfig
-from stages import geometry as g
-from stages import layout
-from stages.calibrate import rwhe
-from stages.kinematics import ArmModel, arm_model, forward
+from stages.common import geometry as g
+from stages.common import layout, rwhe
+from stages.common.kinematics import ArmModel, arm_model, forward
 
 LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 #: parameters of the arms: joint offsets (6 + 6), link lengths (6 + 6), bases (6 + 6), rail scale

@@ -3,8 +3,8 @@
 import numpy as np
 
 from pipeline.config import load_config
-from stages import layout
-from stages.patterns import PatternSpec, board_pattern
+from stages.common import layout
+from stages.common.patterns import PatternSpec, board_pattern
 
 
 def test_charuco_corners_are_the_inner_corners_row_by_row_and_survive_json():

@@ -7,7 +7,7 @@ import numpy as np
 import OpenImageIO as oiio  # noqa: N813 - the library's documented alias
 import pytest
 
-from stages.image_io import (
+from stages.common.image_io import (
     ImageReadError,
     image_info,
     ingest_image,
@@ -15,7 +15,7 @@ from stages.image_io import (
     significant_bits,
     to_uint8,
 )
-from stages.patterns import PatternSpec, detect
+from stages.common.patterns import PatternSpec, detect
 
 
 def write(path: Path, rgb_or_grey: np.ndarray, dtype: str) -> Path:

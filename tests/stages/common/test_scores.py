@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from stages import geometry as g
-from stages.evaluate.scores import (
+from stages.common import geometry as g
+from stages.common.scores import (
     ROTATION_THRESHOLD_RAD,
     TRANSLATION_THRESHOLD,
     rotation_error,

@@ -6,7 +6,7 @@ import pytest
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from stages import geometry as g
+from stages.common import geometry as g
 
 SEEDS = [0, 1, 2]
 

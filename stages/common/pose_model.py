@@ -37,8 +37,8 @@ import cv2
 import numpy as np
 
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages import tango
+from stages.common import geometry as g
+from stages.common import tango
 
 CONTRACT_VERSION = "1"
 OUTPUT_KINDS = ("keypoints", "heatmaps", "pose")
@@ -79,7 +79,7 @@ def parse_contract(metadata: dict[str, str], source: str) -> ModelContract:
         if key not in metadata:
             raise InputError(f"{source}: ONNX metadata key {key!r} missing; a model must state "
                              "speedplus.contract/input_size/channels/normalize/output/keypoints/crop "
-                             "(see stages/evaluate/model.py)")
+                             "(see stages/common/pose_model.py)")
         return metadata[key]
 
     def fail(key: str, expected: str) -> InputError:
@@ -121,7 +121,9 @@ def parse_contract(metadata: dict[str, str], source: str) -> ModelContract:
 
 
 class PoseModel:
-    """An ONNX Runtime session with its contract; ``predict`` turns images into poses."""
+    """An ONNX Runtime session with its contract: ``preprocess`` turns an image (and the
+    label's box, for ``oracle_box`` crops) into the model's input, ``infer`` runs a batch;
+    evaluate turns the outputs into poses (``decode_heatmaps``, ``pose_from_keypoints``)."""
 
     def __init__(self, path: Path, threads: int = 1) -> None:
         import onnxruntime as ort

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from pipeline.config import TestbedConfig
-from stages.image_io import to_uint8
+from stages.common.image_io import to_uint8
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from pipeline.errors import InputError
-from stages import geometry as g
-from stages import tango
-from stages.evaluate.model import (
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.pose_model import (
     ModelContract,
     crop_window,
     decode_heatmaps,

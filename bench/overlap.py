@@ -16,8 +16,8 @@ import numpy as np
 
 from manifests import Workspace, read_manifest
 from pipeline.config import Config
-from stages.image_io import read_image
-from stages.label import calibrated_camera, mockup_scale
+from stages.common.image_io import read_image
+from stages.common.sidecars import calibrated_camera, mockup_scale
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
 

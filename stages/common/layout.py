@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.config import TestbedConfig
-from stages import geometry as g
+from stages.common import geometry as g
 
 MOUNT_NAMES = ("minus_x", "plus_x")
 

@@ -4,8 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stages import geometry as g
-from stages.calibrate import rwhe
+from stages.common import geometry as g
+from stages.common import rwhe
 
 
 def random_pose(rng, scale=0.3):

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pipeline.errors import InputError
-from stages import geometry as g
+from stages.common import geometry as g
 
 
 class DegenerateError(InputError):

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from stages import geometry as g
-from stages.calibrate import arms, rwhe
-from stages.kinematics import arm_model
+from stages.common import arms, rwhe
+from stages.common import geometry as g
+from stages.common.kinematics import arm_model
 
 
 def random_readings(rng, n, limits_fraction=0.4):
