@@ -45,8 +45,9 @@ class RunConfig:
     workers: int = param(2, "worker processes of the local engine (spawned; each loads its renderer once)", "count")
     worker_max_tasks: int = param(
         60, "samples a worker processes before it is replaced (bounds the renderer's memory growth)", "count")
-    engine: str = param("local", "where render runs its samples: local (spawned processes) or ray (a Ray "
-                        "cluster, one renderer actor per worker); same seed, same pixels", "")
+    engine: Literal["local", "ray"] = param(
+        "local", "where render runs its samples: local (spawned processes) or ray (a Ray "
+        "cluster, one renderer actor per worker); same seed, same pixels", "")
     ray_address: str = param("", "Ray cluster to join (e.g. ray://host:10001); empty: start a local one", "")
 
 
@@ -185,10 +186,12 @@ class PlanConfig:
 class AcquireConfig:
     """The acquire stage: which testbed backend produces the captures."""
 
-    backend: str = param("virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
-    format: str = param("session", "replay format: session (a TRON-like logger's folder), handeye (images and a "
-                        "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
-                        "preset of handeye); see README", "")
+    backend: Literal["virtual", "replay"] = param(
+        "virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
+    format: Literal["session", "handeye", "tabb"] = param(
+        "session", "replay format: session (a TRON-like logger's folder), handeye (images and a "
+        "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
+        "preset of handeye); see README", "")
     source: str = param("", "replay: the recorded session directory", "")
 
 
@@ -264,19 +267,21 @@ class VirtualConfig:
 class CalibrateConfig:
     """The calibrate stage: pattern detection, intrinsics, PnP and RWHE per source."""
 
-    intrinsics: str = param("auto", "fixed (the session's camera), estimate (cv2.calibrateCamera), or auto: "
-                                     "fixed when the session knows the camera", "")
+    intrinsics: Literal["auto", "fixed", "estimate"] = param(
+        "auto", "fixed (the session's camera), estimate (cv2.calibrateCamera), or auto: "
+        "fixed when the session knows the camera", "")
     min_corners: int = param(6, "pattern corners an image needs to be used", "count")
-    solver: str = param("frobenius", "shah (closed form), frobenius (Shah, then the paper's LM; the most accurate "
-                                     "against the virtual truth, see README), or reprojection (then also the "
-                                     "pattern's reprojection error)", "")
+    solver: Literal["shah", "frobenius", "reprojection"] = param(
+        "frobenius", "shah (closed form), frobenius (Shah, then the paper's LM; the most accurate "
+        "against the virtual truth, see README), or reprojection (then also the "
+        "pattern's reprojection error)", "")
     folds: int = param(5, "k of the k-fold cross-validation", "count")
     seed: int = param(0, "random assignment of samples to folds", "")
     min_samples: int = param(8, "usable calibration samples a source needs", "count")
     outlier_k: float = param(5.0, "a sample whose residual exceeds median + k robust sigmas is excluded", "1")
     min_rotation_spread_rad: float = param(
         math.radians(2.0), "least spread of the measured rotations about a second axis", "rad")
-    fixture_compliance: str = param(
+    fixture_compliance: Literal["auto", "on", "off"] = param(
         "auto", "estimate the model fixture's tilt under the model's weight with the robots' offsets: on, off, "
         "or auto (on when the target flange's attitude to gravity varies by calibrate.min_gravity_spread_rad)", "")
     min_gravity_spread_rad: float = param(
@@ -284,7 +289,7 @@ class CalibrateConfig:
         "captures for the fixture compliance to be estimated", "rad")
     world_up: tuple[float, float, float] = param(
         (0.0, 0.0, 1.0), "the up direction (against gravity) in the robot world K", "1")
-    arm_kinematics: str = param(
+    arm_kinematics: Literal["auto", "on", "off"] = param(
         "auto", "calibrate the arms themselves (joint offsets, link lengths, bases, rail scale) with the offsets: "
         "on, off, or auto (on when every calibration capture has the robots' encoder readings)", "")
     arm_prior_joint_rad: float = param(2e-3, "prior 1-sigma of a joint's zero offset (mastering tolerance)", "rad")
@@ -319,7 +324,7 @@ class FuseConfig:
 
     rejection_k: float = param(1.96, "motion capture is rejected beyond this many sigmas in any component "
                                      "(the paper: 1.96, a 95% interval)", "1")
-    sigma_scale: str = param(
+    sigma_scale: Literal["dataset", "calibration"] = param(
         "dataset", "dataset: scale the calibrated sigmas by how much the two sources disagree on the dataset "
         "captures themselves (robust a posteriori variance factor; the dataset's poses are farther and more "
         "varied than the calibration's); calibration: use the calibrated sigmas as they are (the paper)", "")
@@ -339,7 +344,8 @@ class LabelConfig:
 class RenderConfig:
     """The render stage: Mitsuba 3 synthetic twins of the labels, and the training set."""
 
-    set: str = param("twin", "what to render: twin (one per label) or train (the synthetic training set)", "")
+    set: Literal["twin", "train"] = param(
+        "twin", "what to render: twin (one per label) or train (the synthetic training set)", "")
     seed: int = param(7, "random seed of the training poses, lights and of every image's Monte-Carlo noise", "")
     spp: int = param(64, "samples per pixel", "count")
     max_depth: int = param(4, "path length of the path tracer (3: direct light and one bounce)", "count")
@@ -412,12 +418,9 @@ class Config:
         return getattr(self, name)
 
 
-SECTION_TYPES: dict[str, type] = {
-    "run": RunConfig, "camera": CameraConfig, "testbed": TestbedConfig, "plan": PlanConfig,
-    "acquire": AcquireConfig, "virtual": VirtualConfig, "calibrate": CalibrateConfig, "fuse": FuseConfig,
-    "label": LabelConfig, "render": RenderConfig, "reference": ReferenceConfig,
-    "evaluate": EvaluateConfig,
-}
+#: section name -> its dataclass, read off ``Config`` (every field but ``profile``)
+SECTION_TYPES: dict[str, type] = {name: hint for name, hint in typing.get_type_hints(Config).items()
+                                  if name != "profile"}
 
 
 # ---------------------------------------------------------------------------- validation
@@ -441,8 +444,10 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
             raise ConfigError(f"{key}: expected a string, got {value!r}")
         return value
     if origin is Literal:
-        if value not in typing.get_args(annotation):
-            raise ConfigError(f"{key}: expected one of {typing.get_args(annotation)}, got {value!r}")
+        choices = typing.get_args(annotation)
+        if value not in choices:
+            listed = ", ".join(str(c) for c in choices[:-1]) + f" or {choices[-1]}"
+            raise ConfigError(f"{key}: expected {listed}, got {value!r}")
         return value
     if origin is tuple:
         args = typing.get_args(annotation)
@@ -514,42 +519,20 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
     if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
         raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
-    if config.acquire.backend not in ("virtual", "replay"):
-        raise ConfigError(f"acquire.backend: expected virtual or replay, got {config.acquire.backend!r}")
-    if config.acquire.format not in ("session", "handeye", "tabb"):
-        raise ConfigError(f"acquire.format: expected session, handeye or tabb, got {config.acquire.format!r}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
     if config.run.workers < 1 or config.run.worker_max_tasks < 1:
         raise ConfigError("run.workers/worker_max_tasks: must be at least 1")
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
         raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
-    if config.calibrate.intrinsics not in ("auto", "fixed", "estimate"):
-        raise ConfigError(f"calibrate.intrinsics: expected auto, fixed or estimate, "
-                          f"got {config.calibrate.intrinsics!r}")
-    if config.calibrate.solver not in ("shah", "frobenius", "reprojection"):
-        raise ConfigError(f"calibrate.solver: expected shah, frobenius or reprojection, "
-                          f"got {config.calibrate.solver!r}")
     if config.calibrate.folds < 2:
         raise ConfigError("calibrate.folds: at least 2")
-    if config.fuse.sigma_scale not in ("dataset", "calibration"):
-        raise ConfigError(f"fuse.sigma_scale: expected dataset or calibration, got {config.fuse.sigma_scale!r}")
-    if config.calibrate.arm_kinematics not in ("auto", "on", "off"):
-        raise ConfigError(f"calibrate.arm_kinematics: expected auto, on or off, "
-                          f"got {config.calibrate.arm_kinematics!r}")
     if min(config.calibrate.arm_prior_joint_rad, config.calibrate.arm_prior_length_m, config.calibrate.arm_prior_base_m,
            config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale) <= 0:
         raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
-    if config.calibrate.fixture_compliance not in ("auto", "on", "off"):
-        raise ConfigError(f"calibrate.fixture_compliance: expected auto, on or off, "
-                          f"got {config.calibrate.fixture_compliance!r}")
     if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):
         raise ConfigError(f"calibrate.world_up: expected a unit vector, got {config.calibrate.world_up}")
-    if config.run.engine not in ("local", "ray"):
-        raise ConfigError(f"run.engine: expected local or ray, got {config.run.engine!r}")
     r = config.render
-    if r.set not in ("twin", "train"):
-        raise ConfigError(f"render.set: expected twin or train, got {r.set!r}")
     if r.spp < 1 or r.train_spp < 1 or r.max_depth < 1 or r.train_count < 0:
         raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
     if not 0 < r.train_distance_m[0] <= r.train_distance_m[1]:

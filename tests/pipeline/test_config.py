@@ -34,6 +34,8 @@ def test_every_field_is_typed_and_documented_with_a_unit():
             if hint in (int, float, str, bool):  # the default is of the declared type
                 assert isinstance(field.default, hint) or (hint is float and type(field.default) is int), \
                     f"{name}.{field.name}: default {field.default!r} is not {hint.__name__}"
+            if typing.get_origin(hint) is typing.Literal:  # the default is one of the choices
+                assert field.default in typing.get_args(hint), f"{name}.{field.name}: default {field.default!r}"
             assert field.metadata.get("help"), f"{name}.{field.name} has no documentation"
             assert "unit" in field.metadata, f"{name}.{field.name} has no unit"
 
