@@ -25,8 +25,8 @@ import numpy as np
 
 from bench.common import report
 from manifests import Workspace, read_manifest
-from stages.calibrate.table import PAPER
 from stages.common import geometry as g
+from stages.common.tables import PAPER
 
 SPEEDPLUS_ROTATION_RAD = np.radians(0.169)
 SPEEDPLUS_TRANSLATION = 2.173e-3

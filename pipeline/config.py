@@ -36,6 +36,17 @@ def param(default: Any, help: str, unit: str = "") -> Any:  # noqa: A002 - "help
     return field(default=default, metadata={"help": help, "unit": unit})
 
 
+def resize_camera_matrix(camera_matrix: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
+    """K (3, 3) of an image resized by ``scale_x``, ``scale_y``. With pixel centres at integer
+    coordinates a resize by s maps x to (x + 0.5) s - 0.5, which is what the principal point gets."""
+    k = np.asarray(camera_matrix, dtype=float)
+    return np.array([
+        [k[0, 0] * scale_x, k[0, 1] * scale_x, (k[0, 2] + 0.5) * scale_x - 0.5],
+        [k[1, 0] * scale_y, k[1, 1] * scale_y, (k[1, 2] + 0.5) * scale_y - 0.5],
+        [0.0, 0.0, 1.0],
+    ])
+
+
 # --------------------------------------------------------------------------------- sections
 @dataclass(frozen=True)
 class RunConfig:
@@ -74,14 +85,9 @@ class CameraConfig:
         return self.width_px / self.reference_width_px
 
     def camera_matrix(self) -> np.ndarray:
-        """K (3, 3) at ``width_px x height_px``. With pixel centres at integer coordinates a
-        resize by s maps x to (x + 0.5) s - 0.5, which is what the principal point gets."""
-        s = self.scale
-        return np.array([
-            [self.fx_px * s, 0.0, (self.cx_px + 0.5) * s - 0.5],
-            [0.0, self.fy_px * s, (self.cy_px + 0.5) * s - 0.5],
-            [0.0, 0.0, 1.0],
-        ])
+        """K (3, 3) at ``width_px x height_px``: the reference K resized (``resize_camera_matrix``)."""
+        reference = np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+        return resize_camera_matrix(reference, self.scale, self.scale)
 
     def dist_coeffs(self) -> np.ndarray:
         return np.asarray(self.dist, dtype=float)

@@ -20,12 +20,12 @@ from pipeline.errors import InputError
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json
-from stages.calibrate.table import print_table
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
 from stages.common.patterns import PatternSpec
 from stages.common.sources import OFFSET_NAMES, SOURCES, measurement, up_targetee
+from stages.common.tables import print_table
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],

@@ -10,8 +10,7 @@ from rich.table import Table
 
 from manifests import to_table
 from manifests.schema import SCORES, VIEWS
-
-TESTBED = ("lightbox", "sunlamp")
+from stages.common.tables import TESTBED, table2_groups
 
 
 def _group(rows: list[dict[str, Any]], domain: str, view: str, light: str) -> dict[str, Any] | None:
@@ -40,22 +39,17 @@ def summarise(predictions: list[dict[str, Any]]) -> Any:
 
 def print_table2(scores: Any, model_name: str, crop: str) -> Table:
     """Configuration (view, light) x {synthetic, testbed}: mean SPEED (and SPEED+) scores."""
-    by_group = {row["group"]: row for row in scores.to_pylist()}
     oracle = " (oracle crop)" if crop == "oracle_box" else ""
     table = Table(title=f"Table 2: mean SPEED score of {model_name}{oracle} on twins and testbed images")
     for column in ("configuration (view, light)", "images", "synthetic", "testbed", "synthetic SPEED+",
                    "testbed SPEED+"):
         table.add_column(column)
-    for view, light in [*product(VIEWS, TESTBED), ("all", "all")]:
-        synthetic, testbed = by_group.get(f"synthetic/{view}/{light}"), by_group.get(f"testbed/{view}/{light}")
-        if synthetic is None and testbed is None:
-            continue
 
-        def cell(row: dict[str, Any] | None, key: str) -> str:
-            return "-" if row is None else f"{row[key]:.4f}"
+    def cell(row: dict[str, Any] | None, key: str) -> str:
+        return "-" if row is None else f"{row[key]:.4f}"
 
-        count = (testbed or synthetic)["count"]
-        table.add_row(f"{view}, {light}", str(count), cell(synthetic, "mean_score_speed"),
+    for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist()):
+        table.add_row(configuration, str(count), cell(synthetic, "mean_score_speed"),
                       cell(testbed, "mean_score_speed"), cell(synthetic, "mean_score_speedplus"),
                       cell(testbed, "mean_score_speedplus"))
     return table

@@ -21,6 +21,7 @@ import numpy as np
 from manifests import Workspace, read_manifest, read_success
 from manifests.io import write_bytes_atomic
 from pipeline.config import Config
+from stages.common import tables
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
 from stages.common.sidecars import calibrated_camera, read_calibration
 from stages.report import figures
@@ -44,21 +45,8 @@ def _table(headers: list[str], rows: list[list[Any]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _metric(metrics: dict[str, Any] | None, kind: str, key: str, factor: float) -> str:
-    if not metrics or not metrics.get(kind):
-        return "-"
-    mean, std = metrics[kind][key]
-    return f"{mean * factor:.3f} ± {std * factor:.3f}"
-
-
 def table1(calibration: dict[str, Any]) -> str:
-    rows = []
-    for kind, name in (("in_sample", "in-sample"), ("cross_validated", "cross-validated"), ("truth", "vs truth")):
-        for key, unit, factor in (("E_T_m", "mm", 1000.0), ("E_R_rad", "deg", float(np.degrees(1.0))),
-                                  ("E_p_px", "px", 1.0)):
-            cells = [_metric((calibration.get(source) or {}).get("metrics"), kind, key, factor)
-                     for source in ("kuka", "vicon", "fused")]
-            rows.append([f"{key.split('_')[0]}_{key.split('_')[1]} [{unit}] {name}", *cells])
+    rows = [[label, *cells] for label, cells in tables.rows(calibration, with_paper=False)]
     return _table(["metric", "KUKA-only", "Vicon-only", "fused"], rows)
 
 
@@ -67,17 +55,10 @@ def _cell(row: dict[str, Any] | None, key: str) -> str:
 
 
 def table2(scores: list[dict[str, Any]], crop: str) -> str:
-    by_group = {row["group"]: row for row in scores}
-    rows = []
-    for view in ("solar_panel", "rear_panel", "all"):
-        for light in (("lightbox", "sunlamp") if view != "all" else ("all",)):
-            synthetic, testbed = by_group.get(f"synthetic/{view}/{light}"), by_group.get(f"testbed/{view}/{light}")
-            if synthetic is None and testbed is None:
-                continue
-            rows.append([f"{view}, {light}", (testbed or synthetic)["count"], _cell(synthetic, "mean_score_speed"),
-                         _cell(testbed, "mean_score_speed"), _cell(synthetic, "mean_score_speedplus"),
-                         _cell(testbed, "mean_score_speedplus"), _cell(synthetic, "median_err_q_deg"),
-                         _cell(testbed, "median_err_q_deg")])
+    rows = [[configuration, count, _cell(synthetic, "mean_score_speed"), _cell(testbed, "mean_score_speed"),
+             _cell(synthetic, "mean_score_speedplus"), _cell(testbed, "mean_score_speedplus"),
+             _cell(synthetic, "median_err_q_deg"), _cell(testbed, "median_err_q_deg")]
+            for configuration, count, synthetic, testbed in tables.table2_groups(scores)]
     note = " (oracle crop: boxes from the labels)" if crop == "oracle_box" else ""
     return "<p>Mean scores" + note + "</p>" + _table(
         ["configuration (view, light)", "images", "synthetic SPEED", "testbed SPEED", "synthetic SPEED+",

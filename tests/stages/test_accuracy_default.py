@@ -11,8 +11,8 @@ import pytest
 
 from bench.accuracy import PAPERS_METHOD
 from manifests import Workspace, read_manifest
-from stages.calibrate.table import PAPER
 from stages.common import geometry as g
+from stages.common.tables import PAPER
 from tests.conftest import speedplus
 
 SPEEDPLUS_ROTATION_RAD = np.radians(0.169)

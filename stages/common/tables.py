@@ -1,13 +1,20 @@
-"""The paper's Table 1 for this run: E_T [mm], E_R [deg], E_p [px] per source and fused."""
+"""The paper's tables for this run, built once and shown by the stages that print them
+(calibrate, evaluate) and by the report: Table 1, E_T [mm], E_R [deg], E_p [px] per source
+and fused; Table 2, mean scores per configuration (view, light) on twins and testbed."""
 
 from __future__ import annotations
 
+from itertools import product
 from typing import Any
 
 import numpy as np
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+
+from manifests.schema import VIEWS
+
+TESTBED = ("lightbox", "sunlamp")
 
 #: TRON's Table 1 (in-sample, mean +- std), for comparison.
 PAPER = {"kuka": ((2.429, 0.866), (0.637, 0.120), (5.176, 2.397)),
@@ -23,7 +30,9 @@ def _cell(metric: dict[str, list[float]] | None, key: str, scale: float) -> str:
     return f"{mean * scale:.3f} ± {std * scale:.3f}"
 
 
-def rows(calibration: dict[str, Any]) -> list[tuple[str, list[str]]]:
+def rows(calibration: dict[str, Any], with_paper: bool = True) -> list[tuple[str, list[str]]]:
+    """Table 1's rows: (metric label, a cell per column of ``COLUMNS``), then the paper's
+    figures unless ``with_paper`` is false."""
     out = []
     for kind, label in (("in_sample", "in-sample"), ("cross_validated", "cross-validated"), ("truth", "vs truth")):
         for key, unit, scale in (("E_T_m", "E_T [mm]", 1000.0), ("E_R_rad", "E_R [deg]", float(np.degrees(1.0))),
@@ -33,6 +42,8 @@ def rows(calibration: dict[str, Any]) -> list[tuple[str, list[str]]]:
                 entry = calibration.get(source)
                 cells.append(_cell(entry["metrics"][kind] if entry else None, key, scale))
             out.append((f"{unit} {label}", cells))
+    if not with_paper:
+        return out
     for index, unit in enumerate(("E_T [mm]", "E_R [deg]", "E_p [px]")):
         out.append((f"{unit} paper (TRON)", [f"{PAPER[s][index][0]:.3f} ± {PAPER[s][index][1]:.3f}"
                                              for s, _ in COLUMNS]))
@@ -53,3 +64,17 @@ def print_table(calibration: dict[str, Any]) -> None:
         same = {**fused["sources_on_the_same_samples"], "fused": fused["metrics"]}
         Console().print(f"On the {fused['samples']} samples both sources measured, E_T {kind.replace('_', '-')}: "
                         + ", ".join(f"{label} {same[name][kind]['E_T_m'][0] * 1000:.4f} mm" for name, label in COLUMNS))
+
+
+def table2_groups(scores: list[dict[str, Any]]) -> list[tuple[str, int, dict[str, Any] | None,
+                                                              dict[str, Any] | None]]:
+    """Table 2's rows: (configuration "view, light", images, synthetic row, testbed row) of
+    the ``scores`` rows, for every view x light present and then "all, all"."""
+    by_group = {row["group"]: row for row in scores}
+    out = []
+    for view, light in [*product(VIEWS, TESTBED), ("all", "all")]:
+        synthetic, testbed = by_group.get(f"synthetic/{view}/{light}"), by_group.get(f"testbed/{view}/{light}")
+        if synthetic is None and testbed is None:
+            continue
+        out.append((f"{view}, {light}", (testbed or synthetic)["count"], synthetic, testbed))
+    return out
