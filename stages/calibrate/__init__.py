@@ -316,8 +316,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             for prefix, pose in (("cam_from_target_cal", o.cam_from_target),
                                  ("kuka_cam_from_target", predictions.get("kuka", {}).get(o.sample_id)),
                                  ("vicon_cam_from_target", predictions.get("vicon", {}).get(o.sample_id))):
-                q, t = g.transform_to_qt(pose) if pose is not None else (None, None)
-                row[f"{prefix}_q"], row[f"{prefix}_t"] = q, t
+                row.update(g.pose_columns(prefix, pose))
             sink.add(row)
     print_table(calibration)
     return read_manifest(workspace, "calibration_samples")

@@ -166,12 +166,10 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
         fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(vicon.sigma_at(e.vicon)))
     else:
         fused, sigma = e.kuka, sigma_kuka
-    q_k, t_k = g.transform_to_qt(e.kuka)
-    q_v, t_v = g.transform_to_qt(e.vicon) if e.vicon is not None and np.all(np.isfinite(e.vicon)) else (None, None)
-    q, t = g.transform_to_qt(fused)
-    return {"sample_id": e.row["sample_id"], "kuka_cam_from_target_q": q_k, "kuka_cam_from_target_t": t_k,
-            "vicon_cam_from_target_q": q_v, "vicon_cam_from_target_t": t_v, "vicon_accepted": reason is None,
-            "reject_reason": reason, "cam_from_target_q": q, "cam_from_target_t": t,
+    tracked = e.vicon is not None and np.all(np.isfinite(e.vicon))
+    return {"sample_id": e.row["sample_id"], **g.pose_columns("kuka_cam_from_target", e.kuka),
+            **g.pose_columns("vicon_cam_from_target", e.vicon if tracked else None), "vicon_accepted": reason is None,
+            "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
             "sigma_t_m": sigma.t_m, "sigma_r_rad": sigma.r_rad}
 
 
