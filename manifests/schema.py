@@ -1,4 +1,4 @@
-"""The manifests of DESIGN section 4, defined as code.
+"""The manifests of docs/architecture.md section 4, defined as code.
 
 Each manifest is a ``ManifestSpec``: ordered columns with their Arrow type, unit,
 convention and validation rule (quaternion, workspace path, enumeration). The Arrow

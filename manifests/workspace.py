@@ -1,4 +1,4 @@
-"""The on-disk layout of a run (DESIGN section 4), as path templates.
+"""The on-disk layout of a run (docs/architecture.md section 4), as path templates.
 
 ```
 W/config.toml                                  resolved configuration

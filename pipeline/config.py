@@ -2,7 +2,7 @@
 
 Resolution order: dataclass defaults, then the profile shipped in ``pipeline/profiles``
 (``smoke``, ``default``, ``paper``), then ``--config FILE``, then ``--set section.key=value``.
-The resolved configuration is written to ``W/config.toml``. Units follow DESIGN section 3:
+The resolved configuration is written to ``W/config.toml``. Units follow docs/architecture.md section 3:
 metres and radians (field names end in ``_m``, ``_rad``, ``_px``; quaternions ``_q`` are
 Hamilton ``(w, x, y, z)``).
 """
@@ -64,7 +64,7 @@ class RunConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """The testbed camera. Defaults: the SPEED+ camera (DESIGN section 5), scaled to the
+    """The testbed camera. Defaults: the SPEED+ camera (docs/architecture.md section 5), scaled to the
     profile resolution so that the field of view is unchanged."""
 
     reference_width_px: int = param(1920, "width at which fx, fy, cx, cy are given", "px")

@@ -1,7 +1,7 @@
 """Replay of a hand-eye folder: images plus one robot pose file, described by
 ``DIR/dataset.toml`` (format version 1; the README documents every key).
 
-Frames (DESIGN section 4): the target T is the pattern's frame. With ``camera_on =
+Frames (docs/architecture.md section 4): the target T is the pattern's frame. With ``camera_on =
 "flange"`` (eye-in-hand: the camera rides the flange, the pattern stands still) the camera
 flange C_K is the flange and the target flange T_K is the robot base, which is the robot
 world K. With ``camera_on = "world"`` (eye-to-hand) the roles swap: C_K is the robot base,

@@ -4,7 +4,7 @@ the hand-eye folder format (``stages.acquire.handeye``).
 Layout: ``images/imageN.png`` (robot stop N), ``robot_cali.txt`` (the number of stops,
 then one 4 x 4 ``hand_from_base`` matrix per stop, millimetres) and
 ``calibration_object.txt`` (``chess_width``, ``chess_height`` inner corners,
-``chess_mm_width``/``chess_mm_height`` square size). Mapped onto DESIGN section 4 as every
+``chess_mm_width``/``chess_mm_height`` square size). Mapped onto docs/architecture.md section 4 as every
 eye-in-hand folder: the target T is the chessboard's OpenCV frame, the target flange T_K is
 the robot base (= the robot world K) and the camera flange C_K is the hand.
 """

@@ -1,6 +1,6 @@
 """Rigid-body geometry shared by every stage.
 
-Conventions (DESIGN section 3), one rule everywhere:
+Conventions (docs/architecture.md section 3), one rule everywhere:
 
 - A transform ``a_from_b`` is a (..., 4, 4) homogeneous matrix mapping coordinates in
   frame b to frame a: ``x_a = a_from_b @ x_b``. Composition cancels inner names:

@@ -16,7 +16,7 @@ key                        value
                            heatmap pixel centres spread evenly over the input; or ``pose``
                            (two outputs: q (N, 4) Hamilton w first, t (N, 3) metres, full
                            scale, of ``cam_from_target``)
-``speedplus.keypoints``    ``tango11`` (the 11 keypoints of DESIGN section 7, in order) or
+``speedplus.keypoints``    ``tango11`` (the 11 keypoints of docs/architecture.md section 7, in order) or
                            a JSON list of K body-frame points, metres, full scale
 ``speedplus.crop``         ``full`` (the whole image, resized) or ``oracle_box`` (a square
                            around the label's box, enlarged 1.25 times: reported as oracle)

@@ -1,4 +1,4 @@
-"""SPEED (2019) and SPEED+ (2021) pose scores (DESIGN section 8).
+"""SPEED (2019) and SPEED+ (2021) pose scores (docs/architecture.md section 8).
 
 ``e_q = 2 arccos |<q_pred, q_true>|`` (rad, sign-invariant: q and -q are one rotation),
 ``e_t = |t_true - t_pred| / |t_true|`` (translation error normalised by the true distance),

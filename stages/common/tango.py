@@ -1,7 +1,7 @@
 """The Tango spacecraft (PRISMA mission) as SPEED+ describes it: body frame and keypoints.
 
 Body frame T: origin on the centre of the rear (-z) face, +z through the solar-panel
-face. Coordinates are full scale, metres (DESIGN section 7); multiply by the mock-up
+face. Coordinates are full scale, metres (docs/architecture.md section 7); multiply by the mock-up
 scale for the testbed model.
 """
 

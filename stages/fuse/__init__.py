@@ -1,5 +1,5 @@
 """The fuse stage: per dataset capture, the pose from each source through its calibrated
-offsets, the motion-capture rejection test, and the Bayesian fusion (DESIGN section 6).
+offsets, the motion-capture rejection test, and the Bayesian fusion (docs/architecture.md section 6).
 
 It reads the captures and ``W/calibration.json``, never the truth. The calibrated sigmas
 were measured at the calibration distance and arm configurations; on the dataset

@@ -1,4 +1,4 @@
-"""The label stage: SPEED+ labels of the dataset captures (DESIGN section 4).
+"""The label stage: SPEED+ labels of the dataset captures (docs/architecture.md section 4).
 
 Full-scale translation (mock-up translation / scale), the quaternion of
 ``cam_from_target``, the 11 keypoints projected through the calibrated camera (with lens

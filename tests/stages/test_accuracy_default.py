@@ -55,7 +55,7 @@ def test_the_testbed_is_as_hard_as_tron_for_the_papers_method(rigid):
 def test_compliance_and_arm_kinematics_remove_most_of_the_robots_error(labelled, rigid):
     kuka = calibration(labelled)["kuka"]
     assert kuka["fixture_compliance"]["estimated"], kuka["fixture_compliance"]["why"]
-    assert 0.001 < kuka["fixture_compliance"]["tilt_rad_mean"] < 0.02  # tenths of a degree, as DESIGN says
+    assert 0.001 < kuka["fixture_compliance"]["tilt_rad_mean"] < 0.02  # tenths of a degree
     assert kuka["arm_kinematics"]["estimated"], kuka["arm_kinematics"]["why"]
     papers = calibration(rigid)["kuka"]
     assert not papers["fixture_compliance"]["estimated"] and not papers["arm_kinematics"]["estimated"]

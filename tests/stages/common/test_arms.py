@@ -17,7 +17,7 @@ def random_readings(rng, n, limits_fraction=0.4):
 
 
 def true_errors(rng):
-    """Arm errors of the size the virtual testbed draws (DESIGN section 5)."""
+    """Arm errors of the size the virtual testbed draws (docs/architecture.md section 5)."""
     return arms.ArmErrors(np.concatenate([rng.normal(0, 6e-4, 12), rng.normal(0, 3e-4, 12), rng.normal(0, 2e-4, 3),
                                           rng.normal(0, 5e-4, 3), rng.normal(0, 2e-4, 3), rng.normal(0, 5e-4, 3),
                                           rng.normal(0, 1e-4, 1)]))
