@@ -15,7 +15,7 @@ from typing import Any
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.io import write_json_atomic
+from manifests.sidecars import write_session
 from pipeline.config import Config
 from pipeline.engines import map_engine
 from pipeline.progress import track
@@ -71,7 +71,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     """Capture every sample missing from the manifests; returns the ``captures`` table."""
     testbed = open_testbed(config, str(workspace.root))
     samples = testbed.samples()
-    write_json_atomic(workspace.session_path, testbed.session())
+    write_session(workspace, testbed.session())
     with_truth = config.acquire.backend == "virtual"
     if with_truth:
         from stages.acquire.virtual.truth import write_truth_json

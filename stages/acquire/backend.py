@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from manifests.sidecars import Session
+
 
 @dataclass(frozen=True)
 class CaptureRecord:
@@ -24,6 +26,6 @@ class Testbed(Protocol):
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord: ...
 
-    def session(self) -> dict[str, Any]: ...
+    def session(self) -> Session: ...
 
 

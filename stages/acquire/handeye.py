@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace
+from manifests.sidecars import Session, SessionCamera
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import (
     IngestError,
@@ -289,16 +290,15 @@ class HandEyeReplay:
         return [{"sample_id": f"cal{i:06d}", "session": "calibration", "index": i}
                 for i in range(len(self.images))]
 
-    def session(self) -> dict[str, Any]:
+    def session(self) -> Session:
         camera = self.dataset.camera or {"K": None, "dist": None}
         eye_in_hand = self.dataset.camera_on == "flange"
-        return {"backend": "replay", "format": self.format_name, "source": str(self.dataset.source),
-                "sources": ["kuka"], "pattern": self.dataset.pattern.to_json(),
-                "camera": {"K": camera["K"], "dist": camera["dist"], "width": self.info.width,
-                           "height": self.info.height},
-                "frames": {"camee": "flange" if eye_in_hand else "robot base",
-                           "targetee": "robot base" if eye_in_hand else "flange",
-                           "world": "robot base", "target": f"{self.dataset.pattern.kind} (OpenCV)"}}
+        return Session("replay", self.format_name, ("kuka",),
+                       SessionCamera(self.info.width, self.info.height, camera["K"], camera["dist"]),
+                       self.dataset.pattern.to_json(), str(self.dataset.source),
+                       {"camee": "flange" if eye_in_hand else "robot base",
+                        "targetee": "robot base" if eye_in_hand else "flange",
+                        "world": "robot base", "target": f"{self.dataset.pattern.kind} (OpenCV)"})
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:
         index = sample["index"]

@@ -32,6 +32,7 @@ import numpy as np
 
 from manifests import Workspace
 from manifests.schema import SESSIONS
+from manifests.sidecars import Session, SessionCamera
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.handeye import check_images, inside
 from stages.acquire.ingest import (
@@ -223,17 +224,16 @@ class SessionReplay:
     def samples(self) -> list[dict[str, Any]]:
         return [{"sample_id": sample_id, "session": row["session"]} for sample_id, row in self.robot.items()]
 
-    def session(self) -> dict[str, Any]:
+    def session(self) -> Session:
         camera = self.meta["camera"]
         pattern = self.meta.get("pattern")
         setup = self.meta["setup"]
-        return {"backend": "replay", "format": "session", "source": str(self.source),
-                "sources": list(self.meta.get("sources", ["kuka"])),
-                "pattern": pattern.to_json() if pattern else None,
-                "frames": {"camee": "camera flange" if setup["camera_on"] == "flange" else "robot world K",
-                           "targetee": "target flange" if setup["target_on"] == "flange" else "robot world K"},
-                "camera": {"K": camera.get("K"), "dist": camera.get("dist"), "width": camera["width"],
-                           "height": camera["height"]}}
+        sources = tuple(sorted(self.meta.get("sources", ["kuka"]), key=("kuka", "vicon").index))
+        return Session("replay", "session", sources,
+                       SessionCamera(camera["width"], camera["height"], camera.get("K"), camera.get("dist")),
+                       pattern.to_json() if pattern else None, str(self.source),
+                       {"camee": "camera flange" if setup["camera_on"] == "flange" else "robot world K",
+                        "targetee": "target flange" if setup["target_on"] == "flange" else "robot world K"})
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:
         sample_id = sample["sample_id"]

@@ -7,7 +7,6 @@ Writes ``W/calibration.json`` and the ``calibration_samples`` manifest.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np
@@ -15,6 +14,7 @@ import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
 from manifests.io import write_json_atomic
+from manifests.sidecars import read_session
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages.calibrate import observations as obs
@@ -151,28 +151,26 @@ def load_truth(workspace: Workspace) -> dict[str, np.ndarray] | None:
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    if not workspace.session_path.exists():
-        raise InputError(f"{workspace.session_path}: missing; run acquire first")
-    session = json.loads(workspace.session_path.read_text())
-    if not session.get("pattern"):
+    session = read_session(workspace)
+    if not session.pattern:
         raise InputError(f"{workspace.session_path}: the capture session defines no calibration pattern")
-    spec = PatternSpec.from_json(session["pattern"])
+    spec = PatternSpec.from_json(session.pattern)
     captures = [r for r in read_manifest(workspace, "captures").to_pylist()
                 if r["session"] == "calibration" and r["status"] == "ok"]
-    if read_success(workspace, "plan") is not None and session.get("backend") == "virtual":
+    if read_success(workspace, "plan") is not None and session.backend == "virtual":
         unknown = sorted({r["sample_id"] for r in captures} - read_keys(workspace, "plan"))
         if unknown:
             raise InputError(f"captures: sample(s) {', '.join(unknown[:5])} are not in the plan")
     observations = obs.detect_all(workspace, captures, spec, config.calibrate.min_corners)
-    camera = session.get("camera") or {}
-    fixed = config.calibrate.intrinsics == "fixed" or (config.calibrate.intrinsics == "auto" and camera.get("K"))
+    camera = session.camera
+    fixed = config.calibrate.intrinsics == "fixed" or (config.calibrate.intrinsics == "auto" and camera.camera_matrix)
     if fixed:
-        if not camera.get("K"):
+        if not camera.camera_matrix:
             raise InputError(f"{workspace.session_path}: calibrate.intrinsics=fixed but the session has no camera K")
-        intrinsics = obs.Intrinsics(np.array(camera["K"], float), np.array(camera["dist"], float),
-                                    camera["width"], camera["height"], 0.0, False)
+        intrinsics = obs.Intrinsics(np.array(camera.camera_matrix, float), np.array(camera.dist, float),
+                                    camera.width, camera.height, 0.0, False)
     else:
-        intrinsics = obs.estimate_intrinsics(observations, camera["width"], camera["height"],
+        intrinsics = obs.estimate_intrinsics(observations, camera.width, camera.height,
                                              k=config.calibrate.outlier_k)
         screening.check_intrinsics(intrinsics, observations, spec, config.calibrate)
     obs.solve_pnp(observations, intrinsics)
@@ -193,7 +191,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     results: dict[str, Any] = {}
     predictions: dict[str, dict[str, np.ndarray]] = {}
     for source in SOURCES:
-        if source not in session.get("sources", ["kuka"]):
+        if source not in session.sources:
             results[source] = None
             continue
         used = [o for o in observations if o.cam_from_target is not None
@@ -298,7 +296,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                    "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
                               "pattern": spec.to_json(),
                               "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
-                   "session": {"backend": session.get("backend"), "sources": session.get("sources")},
+                   "session": {"backend": session.backend, "sources": list(session.sources)},
                    "screening": checks}
     write_json_atomic(workspace.root / "calibration.json", calibration)
 

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace
+from manifests.sidecars import read_session
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages.common.lens import LensCamera
@@ -40,8 +41,9 @@ def calibrated_camera(workspace: Workspace) -> LensCamera:
 
 
 def mockup_scale(config: Config, workspace: Workspace) -> float:
+    """The mock-up's scale recorded by acquire, else the configuration's."""
     if workspace.session_path.exists():
-        scale = json.loads(workspace.session_path.read_text()).get("mockup_scale")
+        scale = read_session(workspace).mockup_scale
         if scale:
-            return float(scale)
+            return scale
     return config.testbed.mockup_scale

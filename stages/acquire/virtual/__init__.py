@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest
+from manifests.sidecars import Session, SessionCamera
 from pipeline.config import Config
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, robots
@@ -38,16 +39,12 @@ class VirtualTestbed:
     def samples(self) -> list[dict[str, Any]]:
         return read_manifest(self.workspace, "plan").to_pylist()
 
-    def session(self) -> dict[str, Any]:
+    def session(self) -> Session:
         camera = self.config.camera
-        return {
-            "backend": "virtual",
-            "sources": ["kuka", "vicon"],
-            "pattern": board_pattern(self.config.testbed).to_json(),
-            "camera": {"K": camera.camera_matrix().tolist(), "dist": list(camera.dist),
-                       "width": camera.width_px, "height": camera.height_px},
-            "mockup_scale": self.config.testbed.mockup_scale,
-        }
+        return Session("virtual", "virtual", ("kuka", "vicon"),
+                       SessionCamera(camera.width_px, camera.height_px, camera.camera_matrix().tolist(),
+                                     list(camera.dist)),
+                       board_pattern(self.config.testbed).to_json(), mockup_scale=self.config.testbed.mockup_scale)
 
     @property
     def scene(self):  # noqa: ANN201 - TestbedScene, imported lazily with Mitsuba
