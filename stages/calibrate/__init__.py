@@ -155,8 +155,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     if not session.pattern:
         raise InputError(f"{workspace.session_path}: the capture session defines no calibration pattern")
     spec = PatternSpec.from_json(session.pattern)
-    captures = [r for r in read_manifest(workspace, "captures").to_pylist()
-                if r["session"] == "calibration" and r["status"] == "ok"]
+    # in sample_id order: acquire writes rows as its workers finish, and the folds, the
+    # solvers' sums and the screening's medians must not depend on that
+    captures = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
+                       if r["session"] == "calibration" and r["status"] == "ok"), key=lambda r: r["sample_id"])
     if read_success(workspace, "plan") is not None and session.backend == "virtual":
         unknown = sorted({r["sample_id"] for r in captures} - read_keys(workspace, "plan"))
         if unknown:
