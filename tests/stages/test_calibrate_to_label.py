@@ -188,3 +188,19 @@ def test_unreadable_calibration_stops_fuse_naming_the_file(labelled, tmp_path, t
     message = " ".join(result.stderr.split())  # the console wraps long lines
     assert "calibration.json" in message and "rerun calibrate" in message
     assert "Traceback" not in message
+
+
+def test_calibration_does_not_depend_on_the_order_acquire_wrote_the_captures(labelled, tmp_path):
+    """Acquire's workers finish in any order; calibrate's folds and sums must not follow it."""
+    from manifests.io import part_fingerprints, write_part
+
+    ws = copy_of(labelled, tmp_path, "reversed")
+    captures = read_manifest(ws, "captures")
+    (fingerprint,) = part_fingerprints(ws, "captures")
+    for part in list_parts(ws, "captures"):
+        part.unlink()
+    write_part(ws, "captures", captures.take(list(range(captures.num_rows))[::-1]), fingerprint)
+    assert read_manifest(ws, "captures").column("sample_id").to_pylist()[0] == captures.column("sample_id")[-1].as_py()
+    result = speedplus("calibrate", "-w", str(ws.root), "--force")
+    assert result.returncode == 0, result.stderr
+    assert (ws.root / "calibration.json").read_bytes() == (labelled.root / "calibration.json").read_bytes()
