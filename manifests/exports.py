@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from manifests.io import copy_atomic, read_manifest, write_json_atomic
+from manifests.schema import DOMAINS
 from manifests.workspace import Workspace
 from stages.common import geometry as g
 
@@ -47,7 +48,7 @@ def export_speedplus(workspace: Workspace, out: Path, camera: dict[str, Any]) ->
     labels, images = _labels_and_images(workspace)
     write_json_atomic(out / "camera.json", camera)
     counts: dict[str, int] = {}
-    for domain in ("lightbox", "sunlamp"):
+    for domain in DOMAINS:
         chosen = [r for r in labels if r["domain"] == domain]
         if not chosen:
             continue
@@ -65,7 +66,7 @@ def export_bop(workspace: Workspace, out: Path, camera_matrix: np.ndarray) -> di
     """Write BOP scenes, one per domain (object 1 = Tango, full scale, millimetres)."""
     labels, images = _labels_and_images(workspace)
     counts: dict[str, int] = {}
-    for domain in ("lightbox", "sunlamp"):
+    for domain in DOMAINS:
         chosen = [r for r in labels if r["domain"] == domain]
         if not chosen:
             continue

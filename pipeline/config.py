@@ -22,6 +22,7 @@ from typing import Any, Literal
 import numpy as np
 import tomli_w
 
+from manifests.schema import DOMAINS, MOUNTS
 from pipeline.errors import InputError
 
 PROFILES = ("smoke", "default", "paper")
@@ -162,13 +163,13 @@ class PlanConfig:
     calibration_min_corner_fraction: float = param(
         0.5, "share of the board's inner corners that must project inside the image", "1")
     calibration_mounts: tuple[str, ...] = param(
-        ("minus_x", "plus_x"), "model fixtures calibrated, alternated over calibration captures "
+        MOUNTS, "model fixtures calibrated, alternated over calibration captures "
         "(each dataset capture uses the one away from the camera)", "")
     dataset_range_m: tuple[float, float] = param(
         (6.5, 9.5), "camera-to-target distance range, FULL scale (paper: at least 6.5 m)", "m")
     image_margin_px: float = param(
         10.0, "the target's bounding sphere stays this far inside the image edges", "px")
-    lights: tuple[str, ...] = param(("lightbox", "sunlamp"), "light set-ups of the dataset session", "")
+    lights: tuple[str, ...] = param(DOMAINS, "light set-ups of the dataset session", "")
     n_light_boxes: int = param(10, "Earth-albedo light boxes in the room (TRON: 10)", "count")
     light_boxes_per_sample: tuple[int, int] = param((1, 3), "active light boxes per lightbox capture", "count")
     max_redraws: int = param(200, "unreachable relative poses redrawn per sample before giving up", "count")
@@ -516,9 +517,9 @@ def _check(config: Config) -> Config:
             raise ConfigError(f"{key}: expected 0 < min <= max, got ({low}, {high})")
     if p.n_calibration < 0 or p.n_dataset < 0:
         raise ConfigError("plan.n_calibration/n_dataset: must not be negative")
-    if not set(p.lights) <= {"lightbox", "sunlamp"} or not p.lights:
+    if not set(p.lights) <= set(DOMAINS) or not p.lights:
         raise ConfigError(f"plan.lights: expected a non-empty subset of lightbox, sunlamp, got {p.lights}")
-    if not set(p.calibration_mounts) <= {"minus_x", "plus_x"} or not p.calibration_mounts:
+    if not set(p.calibration_mounts) <= set(MOUNTS) or not p.calibration_mounts:
         raise ConfigError(f"plan.calibration_mounts: expected minus_x and/or plus_x, got {p.calibration_mounts}")
     low, high = p.light_boxes_per_sample
     if not 1 <= low <= high <= p.n_light_boxes:

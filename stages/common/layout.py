@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from manifests.schema import MOUNTS
 from pipeline.config import TestbedConfig
 from stages.common import geometry as g
 
-MOUNT_NAMES = ("minus_x", "plus_x")
+MOUNT_NAMES = MOUNTS
 
 
 def world_from_target_base(testbed: TestbedConfig) -> np.ndarray:

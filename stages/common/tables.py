@@ -12,9 +12,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from manifests.schema import VIEWS
+from manifests.schema import DOMAINS, VIEWS
 
-TESTBED = ("lightbox", "sunlamp")
+TESTBED = DOMAINS
 
 #: TRON's Table 1 (in-sample, mean +- std), for comparison.
 PAPER = {"kuka": ((2.429, 0.866), (0.637, 0.120), (5.176, 2.397)),

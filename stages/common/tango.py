@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from manifests.schema import VIEWS
+
 #: The 11 public SPEED+ keypoints (11, 3), full scale, metres. 0-3: solar-panel face
 #: (z = 0.3215); 4-7: the opposite face (z = 0); 8-10: antenna tips.
 KEYPOINTS_M = np.array([
@@ -41,4 +43,4 @@ def view_of(camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
     the +z face), else ``"rear_panel"``.
     """
     camera_in_target_m = np.asarray(camera_in_target_m, dtype=float)
-    return np.where(camera_in_target_m[..., 2] > scale * BODY_CENTRE_M[2], "solar_panel", "rear_panel")
+    return np.where(camera_in_target_m[..., 2] > scale * BODY_CENTRE_M[2], VIEWS[0], VIEWS[1])

@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from manifests.schema import DOMAINS
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
@@ -28,7 +29,7 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
     keypoints = g.project(cam_from_target, tango.KEYPOINTS_M * scale, camera_matrix, dist)
     camera_in_target = g.invert(cam_from_target)[:3, 3]
     light = plan["light"] if plan is not None else "lightbox"
-    if light not in ("lightbox", "sunlamp"):
+    if light not in DOMAINS:
         raise InputError(f"plan: dataset sample {pose['sample_id']} has light {light!r}; "
                          "labels need lightbox or sunlamp")
     q, t = g.transform_to_qt(cam_from_target)

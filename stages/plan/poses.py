@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from manifests.schema import VIEWS
 from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
 from pipeline.errors import InputError
 from stages.common import geometry as g
@@ -106,7 +107,7 @@ def dataset_pose(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedCon
 def dataset_configuration(index: int, plan: PlanConfig) -> tuple[str, str]:
     """(view, light) of the index-th dataset sample: cycling through view x light keeps the
     configurations balanced (counts differ by at most one) for any session length."""
-    configurations = [(view, light) for view in ("solar_panel", "rear_panel") for light in plan.lights]
+    configurations = [(view, light) for view in VIEWS for light in plan.lights]
     return configurations[index % len(configurations)]
 
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
 from manifests.io import write_bytes_atomic
+from manifests.schema import DOMAINS, VIEWS
 from pipeline.config import Config
 from stages.common import tables
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
@@ -124,8 +125,8 @@ def run(config: Config, workspace: Workspace) -> None:
     }
     # a few samples of each configuration for the picture sections
     chosen: list[dict[str, Any]] = []
-    for view in ("solar_panel", "rear_panel"):
-        for light in ("lightbox", "sunlamp"):
+    for view in VIEWS:
+        for light in DOMAINS:
             chosen += [row for row in labels if row["view"] == view and row["domain"] == light][:2]
     overlays, pairs = [], []
     for label in chosen:
