@@ -154,30 +154,26 @@ def read_dataset_toml(source: Path) -> HandEyeDataset:
 
 
 # ------------------------------------------------------------------------------ pose files
-def _numbers(path: Path) -> list[tuple[int, float]]:
-    """(line, value) of every number in a whitespace- or comma-separated text file
-    (blank lines and ``#`` comments skipped)."""
+def _number_lines(path: Path) -> list[tuple[int, list[float]]]:
+    """(line, numbers) of every non-empty line of a whitespace- or comma-separated text file
+    (``#`` starts a comment)."""
     out = []
     for line_number, line in enumerate(read_text(path).splitlines(), start=1):
-        text = line.split("#", 1)[0].replace(",", " ")
-        for token in text.split():
+        tokens = line.split("#", 1)[0].replace(",", " ").split()
+        values = []
+        for token in tokens:
             try:
-                out.append((line_number, float(token)))
+                values.append(float(token))
             except ValueError:
                 raise IngestError(path, f"line {line_number}: not a number: {token!r}") from None
+        if values:
+            out.append((line_number, values))
     return out
 
 
 def _rowmajor(path: Path) -> tuple[np.ndarray, list[str]]:
     matrices, where = [], []
-    for line_number, line in enumerate(read_text(path).splitlines(), start=1):
-        text = line.split("#", 1)[0].replace(",", " ").split()
-        if not text:
-            continue
-        try:
-            values = [float(token) for token in text]
-        except ValueError as error:
-            raise IngestError(path, f"line {line_number}: not a number ({error})") from None
+    for line_number, values in _number_lines(path):
         if len(values) != 16:
             raise IngestError(path, f"line {line_number}: expected 16 numbers (a row-major 4 x 4 matrix), "
                                     f"got {len(values)}")
@@ -187,9 +183,10 @@ def _rowmajor(path: Path) -> tuple[np.ndarray, list[str]]:
 
 
 def _counted(path: Path) -> tuple[np.ndarray, list[str]]:
-    numbers = _numbers(path)
-    if not numbers or numbers[0][1] != int(numbers[0][1]) or numbers[0][1] < 1:
-        raise IngestError(path, "line 1: must start with the number of poses")
+    numbers = [(line, value) for line, values in _number_lines(path) for value in values]
+    if not numbers or not np.isfinite(numbers[0][1]) or numbers[0][1] != int(numbers[0][1]) or numbers[0][1] < 1:
+        raise IngestError(path, f"line {numbers[0][0] if numbers else 1}: must start with the number of poses, "
+                                f"got {numbers[0][1] if numbers else 'nothing'}")
     count = int(numbers[0][1])
     if len(numbers) - 1 != 16 * count:
         raise IngestError(path, f"announces {count} matrices but holds {(len(numbers) - 1) / 16:g}")
@@ -209,9 +206,9 @@ def _xyzabc(path: Path, angle_unit: str) -> tuple[np.ndarray, list[str]]:
         angles = values[3:]
         check_angles(path, f"line {line}", angles, angle_unit)
         degrees = angles if angle_unit == "deg" else np.degrees(angles)
-        pose = g.kuka_to_transform(np.concatenate([values[:3], degrees]))  # R = Rz(a) Ry(b) Rx(c)
-        pose[:3, 3] = values[:3]  # lengths stay in the declared unit until read_poses converts them
-        matrices.append(pose)
+        rotation = g.kuka_to_transform(np.concatenate([np.zeros(3), degrees]))[:3, :3]  # Rz(a) Ry(b) Rx(c)
+        # lengths stay in the declared unit: read_poses converts them, once, for every layout
+        matrices.append(g.make_transform(rotation, values[:3]))
         where.append(f"line {line} (sample {sample})")
     return np.array(matrices).reshape(-1, 4, 4), where
 
@@ -247,9 +244,12 @@ def list_images(dataset: HandEyeDataset) -> list[Path]:
     """The images matched by ``[images] glob``, in natural order, all inside the folder."""
     where = dataset.source / dataset.label
     pattern = dataset.image_glob
-    if Path(pattern).is_absolute() or ".." in Path(pattern).parts:
-        raise IngestError(where, f"[images] glob {pattern!r} must stay inside {dataset.source}")
-    found = [p for p in dataset.source.glob(pattern) if p.is_file()]
+    if not pattern.strip() or Path(pattern).is_absolute() or ".." in Path(pattern).parts:
+        raise IngestError(where, f"[images] glob {pattern!r} must be a non-empty pattern inside {dataset.source}")
+    try:
+        found = [p for p in dataset.source.glob(pattern) if p.is_file()]
+    except ValueError as error:  # pathlib's "Unacceptable pattern"
+        raise IngestError(where, f"[images] glob {pattern!r}: {error}") from None
     found.sort(key=lambda p: natural_key(str(p.relative_to(dataset.source))))
     for path in found:
         inside(dataset.source, str(path.relative_to(dataset.source)), where, "image")

@@ -23,7 +23,7 @@ from stages.calibrate.robots import arm_decision, compliance_decision, complianc
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
-from stages.common.patterns import PatternSpec
+from stages.common.patterns import pattern_from_table
 from stages.common.sources import OFFSET_NAMES, SOURCES, measurement, up_targetee
 from stages.common.tables import print_table
 
@@ -154,7 +154,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     session = read_session(workspace)
     if not session.pattern:
         raise InputError(f"{workspace.session_path}: the capture session defines no calibration pattern")
-    spec = PatternSpec.from_json(session.pattern)
+    spec = pattern_from_table(session.pattern, str(workspace.session_path))
     # in sample_id order: acquire writes rows as its workers finish, and the folds, the
     # solvers' sums and the screening's medians must not depend on that
     captures = sorted((r for r in read_manifest(workspace, "captures").to_pylist()

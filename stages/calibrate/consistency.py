@@ -24,6 +24,8 @@ from stages.common.rwhe import motion_rotations, procrustes
 
 #: pairs whose robot rotation is smaller than this say little about the pitch (axis ill-defined)
 MIN_PITCH_ANGLE_RAD = np.radians(10.0)
+#: near a half turn a rotation vector's sign is ambiguous, and so are its axis and pitch
+MAX_AXIS_ANGLE_RAD = np.radians(170.0)
 
 
 def screw(motions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,16 +61,18 @@ class Pairs:
         mismatch = np.where(self.valid, np.abs(self.angle_a - self.angle_b), np.nan)
         return _row_medians(mismatch)
 
-    def pitch_scores(self, scale: float = 1.0) -> np.ndarray:
-        """Per image (N,): median |pitch mismatch| (m) over its pairs that rotate enough."""
-        usable = self.valid & (self.angle_b >= MIN_PITCH_ANGLE_RAD)
-        mismatch = np.where(usable, np.abs(self.pitch_a - scale * self.pitch_b), np.nan)
-        return _row_medians(mismatch)
+    def axis_pairs(self) -> np.ndarray:
+        """(N, N) bool: valid pairs whose robot turn defines an axis (10-170 deg)."""
+        return self.valid & (self.angle_b >= MIN_PITCH_ANGLE_RAD) & (self.angle_b <= MAX_AXIS_ANGLE_RAD)
+
+    def pitch_scores(self) -> np.ndarray:
+        """Per image (N,): median |pitch mismatch| (m) over its pairs with an axis."""
+        return _row_medians(np.where(self.axis_pairs(), np.abs(self.pitch_a - self.pitch_b), np.nan))
 
     def scale(self, keep: np.ndarray) -> tuple[float | None, float]:
         """Least-squares ratio of camera to robot pitches over the kept images' pairs, and
         the RMS robot pitch it rests on (m); None when the pitches are too small to tell."""
-        usable = self.valid & (self.angle_b >= MIN_PITCH_ANGLE_RAD) & keep[:, None] & keep[None]
+        usable = self.axis_pairs() & keep[:, None] & keep[None]
         pitch_a, pitch_b = self.pitch_a[usable], self.pitch_b[usable]
         spread = float(np.sqrt(np.mean(pitch_b**2))) if pitch_b.size else 0.0
         if pitch_b.size < 6 or spread < 0.02:
@@ -81,7 +85,7 @@ def rotation_fit(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> float:
     median |log(R_Ai R_Aj^T) - R_Z log(R_Bi R_Bj^T)| (rad) over pairs on one fixture that
     turn by 10-170 deg, R_Z by orthogonal Procrustes (Park and Martin 1994). Screw
     invariants cannot tell ``B`` from ``B^-1``; this can. NaN with fewer than 3 pairs."""
-    alphas, betas = motion_rotations(a, b, fixtures, MIN_PITCH_ANGLE_RAD, np.radians(170.0))
+    alphas, betas = motion_rotations(a, b, fixtures, MIN_PITCH_ANGLE_RAD, MAX_AXIS_ANGLE_RAD)
     if len(alphas) < 3:
         return float("nan")
     rotation = procrustes(alphas, betas)

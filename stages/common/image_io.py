@@ -59,12 +59,10 @@ def _one_line(text: str) -> str:
 
 
 def _dtype(spec) -> str:  # spec: OpenImageIO.ImageSpec
+    """uint8 and uint16 as they are; anything else (signed, 32-bit, half, float) as float32,
+    which holds it exactly, so no integer conversion can clip or rescale it."""
     name = str(spec.format)
-    if name in ("uint8", "int8"):
-        return "uint8"
-    if name in ("uint16", "int16"):
-        return "uint16"
-    return "float32"
+    return name if name in ("uint8", "uint16") else "float32"
 
 
 def image_info(path: Path) -> ImageInfo:
@@ -151,9 +149,10 @@ def write_png_atomic(path: Path, image: np.ndarray) -> None:
 
 def ingest_image(source: Path, destination_png: Path) -> tuple[Path, str | None]:
     """Bring a recorded image into the workspace without loss. PNGs are copied byte for
-    byte; other integer formats (BMP, TIFF, JPEG's decoded pixels) are written as a PNG of
-    the same type and channels; float images (EXR, float TIFF) are copied as they are,
-    with their own suffix. Returns (the stored file, what was converted or None)."""
+    byte; other 8- and 16-bit unsigned formats (BMP, TIFF, JPEG's decoded pixels) are
+    written as a PNG of the same type and colour channels (an alpha channel, which no
+    stage reads, is dropped and said so); anything else (EXR, float or signed TIFF) is
+    copied as it is, with its own suffix. Returns (the stored file, what was converted or None)."""
     from manifests.io import copy_atomic
 
     info = image_info(source)
@@ -166,4 +165,5 @@ def ingest_image(source: Path, destination_png: Path) -> tuple[Path, str | None]
         copy_atomic(source, stored)
         return stored, None
     write_png_atomic(destination_png, pixels)
-    return destination_png, f"{info.describe()} -> png (lossless)"
+    alpha = ", alpha channel dropped" if info.channels in (2, 4) else ""
+    return destination_png, f"{info.describe()} -> png (lossless{alpha})"

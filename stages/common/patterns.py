@@ -96,7 +96,7 @@ def pattern_from_table(table: Any, where: str) -> PatternSpec:
         if not isinstance(dictionary, str) or not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
             raise fail(f"dictionary must name a cv2.aruco predefined dictionary (e.g. DICT_5X5_100), "
                        f"got {dictionary!r}")
-    elif "marker_m" in table or "dictionary" in table:
+    elif marker or dictionary:  # session.json writes the chessboard's 0.0 and "" explicitly
         raise fail("marker_m and dictionary belong to charuco patterns only")
     q = table.get("target_from_pattern_q", [1.0, 0.0, 0.0, 0.0])
     t = table.get("target_from_pattern_t", [0.0, 0.0, 0.0])

@@ -115,10 +115,21 @@ def small_kuka(tmp_path):
     ("RobotPosesVec.txt", "\t0.523998047\t", "\tx\t", r"RobotPosesVec.txt: line 1: not a number"),
     ("RobotPosesVec.txt", "\t0.523998047\t", "\t", r"RobotPosesVec.txt: line 1: expected 16 numbers .* got 15"),
     ("RobotPosesVec.txt", "\t1.000000000\n", "\t0.5\n", r"RobotPosesVec.txt: line 1: last row must be 0 0 0 1"),
+    ("dataset.toml", 'glob = "*.png"', 'glob = ""', r"dataset.toml: \[images\] glob '' must be a non-empty pattern"),
+    ("dataset.toml", 'layout = "rowmajor4x4"', 'layout = "counted4x4"',
+     r"RobotPosesVec.txt: announces 1 matrices but holds 2.9375"),  # a row-major file read as counted
 ])
 def test_bad_dataset_inputs_name_the_file_and_key(small_kuka, tmp_path, file, old, new, message):
     edit(small_kuka / file, old, new)
     with pytest.raises(InputError, match=message):
+        HandEyeReplay(read_dataset_toml(small_kuka), Workspace(tmp_path / "w"))
+
+
+@pytest.mark.parametrize("first_line", ["inf", "nan", "-3", "2.5"])
+def test_a_counted_file_must_start_with_a_count(small_kuka, tmp_path, first_line):
+    edit(small_kuka / "dataset.toml", 'layout = "rowmajor4x4"', 'layout = "counted4x4"')
+    (small_kuka / "RobotPosesVec.txt").write_text(f"{first_line}\n" + (KUKA / "RobotPosesVec.txt").read_text())
+    with pytest.raises(IngestError, match="RobotPosesVec.txt: line 1: must start with the number of poses"):
         HandEyeReplay(read_dataset_toml(small_kuka), Workspace(tmp_path / "w"))
 
 

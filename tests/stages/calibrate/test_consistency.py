@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
+from pipeline.errors import InputError
 from stages.calibrate import consistency, screening
 from stages.calibrate import observations as obs
 from stages.common import geometry as g
@@ -163,3 +164,17 @@ def test_absurd_results_and_solves_that_keep_few_samples_are_refused():
     screening.check_inliers("kuka", 15, 30)
     with pytest.raises(screening.InconsistentPatternError, match="fit only 11 of 30 samples"):
         screening.check_inliers("kuka", 11, 30)
+
+
+def test_a_hand_edited_session_pattern_is_refused_by_key(tmp_path):
+    from manifests import Workspace
+    from manifests.sidecars import Session, SessionCamera, write_session
+    from stages import calibrate
+
+    workspace = Workspace(tmp_path)
+    pattern = {"kind": "chessboard", "size": [28, 17], "square_m": 0.02, "marker_m": 0.0, "dictionary": "",
+               "target_from_pattern_q": [1.0, 0.0, 0.0, 0.0], "target_from_pattern_t": [0.0, 0.0, 0.0],
+               "colour": "red"}
+    write_session(workspace, Session("replay", "handeye", ("kuka",), SessionCamera(640, 480), pattern))
+    with pytest.raises(InputError, match=r"session.json: \[pattern\] unknown key\(s\) colour"):
+        calibrate.run(load_config("smoke"), workspace)

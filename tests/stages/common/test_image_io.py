@@ -100,6 +100,12 @@ def test_ingest_copies_png_and_converts_the_rest_without_loss(tmp_path):
     stored, note = ingest_image(tiff, tmp_path / "w" / "b.png")
     assert stored.suffix == ".png" and "tiff uint16 3ch" in note and "lossless" in note
     assert np.array_equal(read_image(stored), read_image(tiff))
+    rgba = np.concatenate([rgb, np.full((24, 40, 1), 200, np.uint8)], axis=2)
+    stored, note = ingest_image(write(tmp_path / "d.tif", rgba, "uint8"), tmp_path / "w" / "d.png")
+    assert "alpha channel dropped" in note and np.array_equal(read_image(stored), rgb[:, :, ::-1])
+    signed = write(tmp_path / "e.tif", (rgb[:, :, 0].astype(np.int16) - 128), "int16")
+    stored, note = ingest_image(signed, tmp_path / "w" / "e.png")  # no unsigned PNG holds it: kept
+    assert stored.suffix == ".tif" and note is None and read_image(stored).min() < 0
     exr = write(tmp_path / "c.exr", rgb.astype(np.float32) / 7.0, "float")
     stored, note = ingest_image(exr, tmp_path / "w" / "c.png")
     assert stored.suffix == ".exr" and note is None and stored.read_bytes() == exr.read_bytes()
