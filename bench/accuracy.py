@@ -25,6 +25,7 @@ import numpy as np
 
 from bench.common import report
 from manifests import Workspace, read_manifest
+from manifests.sidecars import read_calibration, read_fusion
 from stages.common import geometry as g
 from stages.common.tables import PAPER
 
@@ -34,7 +35,7 @@ PAPERS_METHOD = ("calibrate.fixture_compliance=off", "calibrate.arm_kinematics=o
 
 
 def table1_rows(ws: Workspace, method: str) -> list[dict[str, Any]]:
-    calibration = json.loads((ws.root / "calibration.json").read_text())
+    calibration = read_calibration(ws).to_json()
     # the paper's camera is 1920 px wide: pixel errors compare at that resolution
     to_paper_px = 1920 / calibration["intrinsics"]["width"]
     rows = []
@@ -77,8 +78,7 @@ def dataset_metrics(ws: Workspace) -> dict[str, float]:
                 sources[source].append(np.linalg.norm(estimate[:3, 3] - true[:3, 3]))
         sources["fused"].append(np.linalg.norm(fused[:3, 3] - true[:3, 3]))
     error_t, error_r, inside = np.array(error_t), np.array(error_r), np.array(inside)
-    fusion_path = ws.root / "fusion.json"
-    factor = json.loads(fusion_path.read_text())["variance_factor"] if fusion_path.exists() else None
+    factor = read_fusion(ws).to_json()["variance_factor"] if ws.fusion_path.exists() else None
     return {
         "dataset labels": len(poses),
         "motion capture accepted (fraction)": float(np.mean([p["vicon_accepted"] for p in poses])),

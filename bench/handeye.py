@@ -11,7 +11,6 @@ in-sample and cross-validated.
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 import sys
@@ -23,6 +22,8 @@ import cv2
 import numpy as np
 
 from bench.common import report
+from manifests import Workspace
+from manifests.sidecars import read_calibration
 
 EXTERNAL = Path(__file__).resolve().parents[2] / "shared" / "external"
 #: Ali et al.'s folder described for ``--format handeye`` (``camera_on``: flange, as recorded)
@@ -120,7 +121,7 @@ def main() -> None:
                 started = time.perf_counter()
                 speedplus("calibrate", "-w", str(workspace), "--force", "--set", f"calibrate.solver={solver}")
                 seconds = time.perf_counter() - started
-                entry = json.loads((workspace / "calibration.json").read_text())["kuka"]
+                entry = read_calibration(Workspace(workspace)).to_json()["kuka"]
                 for fit in ("in_sample", "cross_validated"):
                     metric = entry["metrics"][fit]
                     rows.append({"set": name, "method": f"speedplus ({solver})", "fit": fit.replace("_", "-"),

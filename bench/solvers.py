@@ -7,7 +7,6 @@ dataset, our default against OpenCV's Shah closed form.
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 import sys
@@ -18,6 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
+from manifests import Workspace
+from manifests.sidecars import read_calibration
 
 SOLVERS = ("shah", "frobenius", "reprojection")
 
@@ -34,7 +35,7 @@ def main(root: str = "data/default") -> None:
             seconds = time.perf_counter() - started
             if result.returncode != 0:
                 raise SystemExit(result.stderr)
-            calibration = json.loads((copy / "calibration.json").read_text())
+            calibration = read_calibration(Workspace(copy)).to_json()
         for source in ("kuka", "vicon"):
             entry = calibration.get(source)
             if not entry:

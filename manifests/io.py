@@ -298,12 +298,7 @@ class PartSink:
 
 def open_sink(workspace: Workspace, name: str, part_rows: int) -> PartSink:
     """A ``PartSink`` for the manifest the running stage writes (fingerprint from the runner)."""
-    try:
-        fingerprint = workspace.active_fingerprints[name]
-    except KeyError:
-        raise RuntimeError(f"manifest {name!r} is not being written by a stage run; "
-                           "run stages through pipeline.runner.run_stage") from None
-    return PartSink(workspace, name, fingerprint, part_rows)
+    return PartSink(workspace, name, workspace.output_fingerprint(name), part_rows)
 
 
 # ------------------------------------------------------------------------------------ read

@@ -279,7 +279,34 @@ SCORES = ManifestSpec(
     key="group",
 )
 
+_EXPORT_COLUMNS = (
+    _sample_id(),
+    Column("domain", pa.string(), "", "testbed light set-up", kind="enum", allowed=DOMAINS),
+    Column("file", pa.string(), "", "the exported image, relative to the export folder (never leaves it)",
+           kind="path"),
+    Column("source_image", pa.string(), "", "the testbed image it copies, relative to W", kind="path"),
+)
+EXPORT_SPEEDPLUS = ManifestSpec("export_speedplus", "images written by export --format speedplus", _EXPORT_COLUMNS)
+EXPORT_BOP = ManifestSpec("export_bop", "images written by export --format bop", _EXPORT_COLUMNS)
+
+MODELS = ManifestSpec(
+    "models",
+    "models trained by train-reference, with their held-out synthetic accuracy",
+    (
+        Column("model", pa.string(), "", "model name"),
+        Column("path", pa.string(), "", "the ONNX file, relative to W (its model card: the same path, .json)",
+               kind="path"),
+        Column("sha256", pa.string(), "", "SHA-256 of the ONNX file"),
+        Column("training_images", pa.int64(), "count", "synthetic images trained on"),
+        Column("held_out_images", pa.int64(), "count", "synthetic images held out"),
+        Column("held_out_mean_speed_score", pa.float64(), "1", "mean SPEED score on the held-out images"),
+        Column("held_out_median_rotation_error_deg", pa.float64(), "deg", "median rotation error, held out"),
+        Column("train_seconds", pa.float64(), "s", "training wall time (this run's share when resumed)"),
+    ),
+    key="model",
+)
+
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
-                                  PREDICTIONS, SCORES)
+                                  PREDICTIONS, SCORES, EXPORT_SPEEDPLUS, EXPORT_BOP, MODELS)
 }

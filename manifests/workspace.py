@@ -6,7 +6,9 @@ W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest
 W/manifests/<name>/_SUCCESS.json               completion marker (fingerprint, rows, timings)
 W/images/{calibration,dataset}/<sample_id>.png testbed captures
 W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/ beside them)
-W/session.json  W/calibration.json  W/truth.json  W/report/index.html  W/export/
+W/models/<name>.onnx, <name>.json              trained models and their cards
+W/session.json  W/calibration.json  W/fusion.json  W/truth.json     typed sidecars (manifests.sidecars)
+W/report/index.html  W/export/
 ```
 Paths stored in manifests are relative to ``W`` and may never leave it.
 """
@@ -15,18 +17,23 @@ from __future__ import annotations
 
 from pathlib import Path, PurePosixPath
 
+from pipeline.errors import InputError
+
 CONFIG_FILE = "config.toml"
 SESSION_FILE = "session.json"
 TRUTH_FILE = "truth.json"
+CALIBRATION_FILE = "calibration.json"
+FUSION_FILE = "fusion.json"
 MANIFESTS_DIR = "manifests"
 PART_TEMPLATE = "part-{index:05d}.parquet"
 SUCCESS_FILE = "_SUCCESS.json"
 IMAGE_TEMPLATE = "images/{session}/{sample_id}.png"
 RENDER_TEMPLATE = "renders/{set}/{sample_id}.png"
 MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
+MODEL_TEMPLATE = "models/{name}.onnx"
 
 
-class PathEscapeError(ValueError):
+class PathEscapeError(InputError, ValueError):
     """A manifest path that is absolute or climbs out of the workspace."""
 
 
@@ -41,10 +48,22 @@ def check_relative(path: str) -> PurePosixPath:
 class Workspace:
     """A run directory ``W``; every stage reads and writes through these paths."""
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, output_fingerprints: dict[str, str] | None = None) -> None:
         self.root = Path(root).resolve()
-        #: manifest name -> fingerprint of the stage run now writing it (set by the runner)
-        self.active_fingerprints: dict[str, str] = {}
+        self._output_fingerprints = dict(output_fingerprints or {})
+
+    def for_run(self, output_fingerprints: dict[str, str]) -> Workspace:
+        """The same workspace as a stage run sees it: writers stamp each output manifest's
+        parts with its fingerprint (docs/architecture.md section 5). Made by the runner."""
+        return Workspace(self.root, output_fingerprints)
+
+    def output_fingerprint(self, name: str) -> str:
+        """The fingerprint the running stage stamps on manifest ``name``'s parts."""
+        try:
+            return self._output_fingerprints[name]
+        except KeyError:
+            raise RuntimeError(f"manifest {name!r} is not being written by a stage run; run stages through "
+                               "pipeline.runner.run_stage") from None
 
     def __repr__(self) -> str:
         return f"Workspace({str(self.root)!r})"
@@ -59,6 +78,16 @@ class Workspace:
         return self.root / SESSION_FILE
 
     @property
+    def calibration_path(self) -> Path:
+        """Calibrated camera, offsets, sigmas and Table 1, written by calibrate."""
+        return self.root / CALIBRATION_FILE
+
+    @property
+    def fusion_path(self) -> Path:
+        """The dataset session's variance factor, written by fuse."""
+        return self.root / FUSION_FILE
+
+    @property
     def truth_path(self) -> Path:
         """Hidden truth of the virtual testbed; read only by tests, benchmarks and report."""
         return self.root / TRUTH_FILE
@@ -71,6 +100,9 @@ class Workspace:
 
     def image_relpath(self, session: str, sample_id: str) -> str:
         return IMAGE_TEMPLATE.format(session=session, sample_id=sample_id)
+
+    def model_relpath(self, name: str) -> str:
+        return MODEL_TEMPLATE.format(name=name)
 
     def resolve(self, relpath: str) -> Path:
         """Absolute path of a manifest path, after checking it stays inside ``W``."""

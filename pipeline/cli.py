@@ -1,12 +1,14 @@
 """The ``speedplus`` command: builds a configuration and calls the runner, nothing more.
+One command per stage of ``pipeline.registry``, plus ``run`` (the chain) and ``status``.
 
 Exit codes: 0 success; 1 bad input or configuration (the message names the file, row,
-field or key); 2 usage error; 3 a stage that is not built yet.
+field or key); 2 usage error; 130 interrupted.
 """
 
 from __future__ import annotations
 
 import sys
+from dataclasses import fields
 from pathlib import Path
 from typing import Annotated
 
@@ -16,8 +18,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from manifests import ManifestError, Workspace
-from pipeline import runner
-from pipeline.config import load_config, write_config
+from pipeline import registry, runner
+from pipeline.config import SECTION_TYPES, Config, Override, load_config, parse_override, with_overrides, write_config
 from pipeline.errors import InputError
 
 app = typer.Typer(
@@ -29,6 +31,17 @@ app = typer.Typer(
 )
 out = Console()
 err = Console(stderr=True)
+
+
+def key_help(dotted: str) -> str:
+    """The documentation of configuration key ``section.key`` (its field's help and unit)."""
+    section, key = dotted.split(".")
+    for item in fields(SECTION_TYPES[section]):
+        if item.name == key:
+            unit = item.metadata.get("unit")
+            return f"{item.metadata['help']}{f' [{unit}]' if unit else ''} ({dotted})"
+    raise KeyError(dotted)
+
 
 WorkspaceOption = Annotated[
     Path | None, typer.Option("--workspace", "-w", help="run directory W (default: data/<profile>)")]
@@ -42,9 +55,8 @@ ForceOption = Annotated[bool, typer.Option("--force", help="discard this stage's
 
 
 def _context(workspace: Path | None, profile: str | None, config: Path | None,
-             overrides: list[str] | None) -> tuple[runner.Config, Workspace]:
+             overrides: list[Override]) -> tuple[Config, Workspace]:
     """Resolve the configuration: explicit options win; else the workspace's config.toml."""
-    overrides = overrides or []
     if workspace is not None and profile is None and config is None:
         existing = Workspace(workspace).config_path
         if existing.exists():
@@ -53,68 +65,62 @@ def _context(workspace: Path | None, profile: str | None, config: Path | None,
     return resolved, Workspace(workspace or Path("data") / resolved.profile)
 
 
+def _parsed(texts: list[str] | None) -> list[Override]:
+    return [parse_override(text) for text in texts or []]
+
+
 def _run(stages: list[str], workspace: Path | None, profile: str | None, config: Path | None,
-         overrides: list[str] | None, force: bool, transient: list[str] | None = None) -> None:
-    """Run ``stages``; ``overrides`` are saved in W/config.toml, ``transient`` ones (which
-    choose what a command does, e.g. the image set or engine of render) apply to this run only."""
-    resolved, ws = _context(workspace, profile, config, overrides)
+         saved: list[Override], force: bool, transient: list[Override] = ()) -> Workspace:
+    """Run ``stages``; ``saved`` overrides go into W/config.toml, ``transient`` ones (which
+    choose what a command does: render's image set, export's format) apply to this run only."""
+    resolved, ws = _context(workspace, profile, config, saved)
     ws.root.mkdir(parents=True, exist_ok=True)
     write_config(resolved, ws.config_path)
-    if transient:
-        resolved = load_config(resolved.profile, ws.config_path, transient)
+    resolved = with_overrides(resolved, transient)
     if resolved.acquire.backend == "replay" and len(stages) > 1:
         stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
-    last_done = None
     for name in stages:
-        stage = runner.stage_spec(name)
-        if stage.module is None:
-            after = f" after {last_done!r}" if last_done else ""
-            raise runner.NotBuiltError(
-                f"stage {name!r} is not built yet; the pipeline stopped{after}. Results so far are in {ws.root}")
-        outcome = runner.run_stage(stage, resolved, ws, force=force)
+        outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force)
         rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
         if outcome.action == "skipped":
             out.print(f"[green]{name}[/]: up to date ({rows})")
         else:
             out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
-        last_done = name
-    if last_done == "report":
+    if stages and stages[-1] == "report":
         out.print(f"report: {ws.root / 'report' / 'index.html'}")
+    return ws
 
 
-def _stage_command(name: str) -> None:
-    stage = runner.stage_spec(name)
-
+def _stage_command(entry: registry.StageEntry) -> None:
     def command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
                 set_: SetOption = None, force: ForceOption = False) -> None:
-        _run([name], workspace, profile, config, set_, force)
+        _run([entry.name], workspace, profile, config, _parsed(set_), force)
 
-    command.__doc__ = f"Run the {name} stage: {stage.summary}."
-    # typer reads the parameter name for --set from the annotation's option name
-    app.command(name)(command)
+    command.__doc__ = f"Run the {entry.name} stage: {entry.summary}."
+    app.command(entry.name)(command)
 
 
-for _name in runner.STAGE_NAMES:
-    if _name not in ("acquire", "render", "evaluate"):
-        _stage_command(_name)
+for _entry in registry.STAGES:
+    if _entry.name not in ("acquire", "render", "evaluate", "export", "train-reference"):
+        _stage_command(_entry)
 
 
 @app.command("acquire")
 def acquire_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    backend: Annotated[str | None, typer.Option("--backend", help="virtual | replay (acquire.backend)")] = None,
-    format_: Annotated[str | None, typer.Option("--format", help="replay format: session | handeye | tabb")] = None,
-    source: Annotated[Path | None, typer.Option("--source", help="replay: recorded session directory")] = None,
+    backend: Annotated[str | None, typer.Option("--backend", help=key_help("acquire.backend"))] = None,
+    format_: Annotated[str | None, typer.Option("--format", help=key_help("acquire.format"))] = None,
+    source: Annotated[Path | None, typer.Option("--source", help=key_help("acquire.source"))] = None,
 ) -> None:
     """Run the acquire stage: drive the testbed (virtual) or ingest a recorded session (replay)."""
-    overrides = list(set_ or [])
+    overrides = _parsed(set_)
     if backend is not None:
-        overrides.append(f"acquire.backend={backend}")
+        overrides.append(Override.of("acquire.backend", backend, "--backend"))
     if format_ is not None:
-        overrides.append(f"acquire.format={format_}")
+        overrides.append(Override.of("acquire.format", format_, "--format"))
     if source is not None:
-        overrides.append(f"acquire.source={str(source.resolve())!r}")
+        overrides.append(Override.of("acquire.source", str(source.resolve()), "--source"))
     _run(["acquire"], workspace, profile, config, overrides, force)
 
 
@@ -125,20 +131,19 @@ def render_command(
         "--set", "-s", help="twin (one per label) or train (the training set); or, like every command, "
         "section.key=value to override one key (repeatable)")] = None,
     force: ForceOption = False,
-    count: Annotated[int | None, typer.Option("--count", help="train: number of images (render.train_count)")] = None,
-    engine: Annotated[str | None, typer.Option("--engine", help="local | ray (run.engine)")] = None,
-    ray_address: Annotated[str | None, typer.Option("--ray-address", help="Ray cluster address (run.ray_address)")]
-    = None,
+    count: Annotated[int | None, typer.Option("--count", help=key_help("render.train_count"))] = None,
+    engine: Annotated[str | None, typer.Option("--engine", help=key_help("run.engine"))] = None,
+    ray_address: Annotated[str | None, typer.Option("--ray-address", help=key_help("run.ray_address"))] = None,
 ) -> None:
     """Run the render stage: Mitsuba 3 twins of the labels, or the training set."""
-    overrides = [value for value in set_ or [] if "=" in value]
-    transient = [f"render.set={value}" for value in set_ or [] if "=" not in value]
+    overrides = _parsed([value for value in set_ or [] if "=" in value])
+    transient = [Override.of("render.set", value, "--set") for value in set_ or [] if "=" not in value]
     if count is not None:
-        overrides.append(f"render.train_count={count}")
+        overrides.append(Override.of("render.train_count", count, "--count"))
     if engine is not None:
-        transient.append(f"run.engine={engine}")
+        transient.append(Override.of("run.engine", engine, "--engine"))
     if ray_address is not None:
-        transient.append(f"run.ray_address={ray_address!r}")
+        transient.append(Override.of("run.ray_address", ray_address, "--ray-address"))
     _run(["render"], workspace, profile, config, overrides, force, transient)
 
 
@@ -146,96 +151,85 @@ def render_command(
 def evaluate_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    model: Annotated[Path | None, typer.Option(
-        "--model", help="ONNX model following the contract (evaluate.model; default: the reference model)")] = None,
+    model: Annotated[Path | None, typer.Option("--model", help=key_help("evaluate.model"))] = None,
 ) -> None:
     """Run the evaluate stage: score an ONNX model on the twins and the testbed images (Table 2)."""
-    overrides = list(set_ or [])
+    overrides = _parsed(set_)
     if model is not None:
-        overrides.append(f"evaluate.model={str(model.resolve())!r}")
+        overrides.append(Override.of("evaluate.model", str(model.resolve()), "--model"))
     _run(["evaluate"], workspace, profile, config, overrides, force)
+
+
+@app.command("export")
+def export_command(
+    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+    set_: SetOption = None, force: ForceOption = False,
+    format_: Annotated[str, typer.Option("--format", help=key_help("export.format"))] = "speedplus",
+    out_dir: Annotated[Path | None, typer.Option("--out", help=key_help("export.out"))] = None,
+) -> None:
+    """Run the export stage: the labels and their images as a SPEED+ (or BOP) dataset. The
+    format and folder are saved in W/config.toml, so `status` reports this export."""
+    overrides = [*_parsed(set_), Override.of("export.format", format_, "--format")]
+    if out_dir is not None:
+        overrides.append(Override.of("export.out", str(out_dir.resolve()), "--out"))
+    _run(["export"], workspace, profile, config, overrides, force)
 
 
 @app.command("train-reference")
 def train_reference_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None,
-    model_path: Annotated[Path, typer.Option("--out", help="where the ONNX model goes (and its card, .json)")]
-    = Path("models/reference.onnx"),
-    steps: Annotated[int | None, typer.Option("--steps", help="stop after this many optimiser steps (a quick "
-                                                                "check of the recipe)")] = None,
+    set_: SetOption = None, force: ForceOption = False,
+    model_path: Annotated[Path, typer.Option("--out", help="where a copy of the ONNX model goes (and its card, "
+                                                           ".json)")] = Path("models/reference.onnx"),
+    steps: Annotated[int | None, typer.Option("--steps", help=key_help("reference.max_steps"))] = None,
 ) -> None:
-    """Train the reference keypoint CNN on the synthetic training set (rendered first if
-    needed, section [reference]) and export it to ONNX with the evaluation contract."""
-    resolved, ws = _context(workspace, profile, config, set_)
-    recipe = resolved.reference
-    transient = ["render.set=train", f"render.train_count={recipe.images}",
-                 f"render.train_resolution_scale={recipe.resolution_scale}"]
-    _run(["render"], workspace, profile, config, set_, False, transient)
-    trained = load_config(resolved.profile, ws.config_path, transient)
-    card = runner.train_reference(trained, ws, model_path, max_steps=steps)
-    held = card["held_out"]
-    out.print(f"{model_path}: trained on {card['training_images']} images in {card['train_seconds']:.0f} s; "
-              f"held-out synthetic: mean SPEED score {held['mean_speed_score']:.4f}, median rotation error "
-              f"{held['median_rotation_error_deg']:.2f} deg")
+    """Run the train-reference stage: render the synthetic training set its recipe asks for
+    (section [reference]), train the reference keypoint CNN on it, export it to ONNX with
+    the evaluation contract (W/models/reference.onnx), and copy it to --out."""
+    overrides = _parsed(set_)
+    recipe = _context(workspace, profile, config, overrides)[0].reference
+    transient = [Override.of("render.set", "train", "train-reference"),
+                 Override.of("render.train_count", recipe.images, "reference.images"),
+                 Override.of("render.train_resolution_scale", recipe.resolution_scale, "reference.resolution_scale")]
+    if steps is not None:
+        transient.append(Override.of("reference.max_steps", steps, "--steps"))
+    ws = _run(["render", "train-reference"], workspace, profile, config, overrides, force, transient)
+    row = runner.publish_model(ws, "reference", model_path)
+    out.print(f"{model_path}: trained on {row['training_images']} images in {row['train_seconds']:.0f} s; "
+              f"held-out synthetic: mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation error "
+              f"{row['held_out_median_rotation_error_deg']:.2f} deg")
 
 
 @app.command("run")
 def run_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    until: Annotated[str | None, typer.Option("--until", help="last stage to run")] = None,
+    until: Annotated[str | None, typer.Option("--until", help="last stage to run: " + ", ".join(registry.CHAIN))]
+    = None,
 ) -> None:
-    """Run the stages in order, skipping those already up to date."""
-    names = list(runner.STAGE_NAMES)
+    """Run the stages of the chain in order, skipping those already up to date."""
+    names = list(registry.CHAIN)
     if until is not None:
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, set_, force)
+    _run(names, workspace, profile, config, _parsed(set_), force)
 
 
 @app.command("status")
 def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
                    set_: SetOption = None) -> None:
     """List every stage as done / partial / stale / missing, with row counts."""
-    resolved, ws = _context(workspace, profile, config, set_)
-    table = Table(title=f"{ws.root} (profile {resolved.profile})")
+    resolved, ws = _context(workspace, profile, config, _parsed(set_))
+    table = Table(title=escape(f"{ws.root} (profile {resolved.profile})"))
     for column in ("stage", "state", "rows", "detail"):
         table.add_column(column)
-    colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim", "not built": "dim"}
-    for stage in runner.STAGES:
-        state = runner.status(stage, resolved, ws)
+    colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim"}
+    for entry in registry.STAGES:
+        state = runner.status(entry, resolved, ws)
         rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
-        table.add_row(stage.name, f"[{colours[state.state]}]{state.state}[/]", rows, state.detail)
+        table.add_row(entry.name, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(state.detail))
     out.print(table)
-
-
-@app.command("export")
-def export_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None,
-    format_: Annotated[str, typer.Option("--format", help="speedplus | bop")] = "speedplus",
-    out_dir: Annotated[Path | None, typer.Option("--out", help="export directory (default W/export)")] = None,
-) -> None:
-    """Export the labels as a SPEED+ (or BOP) dataset."""
-    from manifests import exports, read_success
-    from stages.common.sidecars import calibrated_camera
-
-    resolved, ws = _context(workspace, profile, config, set_)
-    if read_success(ws, "labels") is None:
-        raise runner.StageError(f"{ws.root}: no complete labels to export; run `speedplus run --until label` first")
-    if format_ not in ("speedplus", "bop"):
-        raise typer.BadParameter(f"unknown format {format_!r}; expected speedplus or bop", param_hint="--format")
-    camera = calibrated_camera(ws)
-    camera_matrix, dist, width, height = camera.camera_matrix, camera.dist, camera.width, camera.height
-    target = out_dir or ws.root / "export"
-    if format_ == "speedplus":
-        pitch = resolved.camera.pixel_pitch_m * resolved.camera.reference_width_px / width
-        counts = exports.export_speedplus(ws, target, exports.camera_json(camera_matrix, dist, width, height, pitch))
-    else:
-        counts = exports.export_bop(ws, target, camera_matrix)
-    out.print(f"exported {', '.join(f'{v} {k}' for k, v in counts.items())} labels ({format_}) to {target}")
 
 
 def main() -> None:
@@ -245,9 +239,6 @@ def main() -> None:
     except (InputError, ManifestError) as error:
         err.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False)
         sys.exit(1)
-    except runner.NotBuiltError as error:
-        err.print(f"[bold yellow]stopped:[/] {escape(str(error))}", highlight=False)
-        sys.exit(3)
     except KeyboardInterrupt:
         err.print("[yellow]interrupted[/]: finished parts are kept; rerun the same command to resume")
         sys.exit(130)

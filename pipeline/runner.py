@@ -1,4 +1,4 @@
-"""Stage registry, fingerprints, resume and status.
+"""Fingerprints, resume and status of the stages declared in ``pipeline.registry``.
 
 A stage's fingerprint hashes what determines its results: its configuration sections,
 the completion markers of the manifests it reads, and the schema version. A stage whose
@@ -10,7 +10,6 @@ another fingerprint are never mixed with new ones unless ``--force`` discards th
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import time
 from dataclasses import dataclass, fields
@@ -26,82 +25,20 @@ from manifests import (
     Workspace,
     list_parts,
     part_fingerprints,
+    read_manifest,
     read_success,
     remove_temporaries,
     write_success,
 )
 from manifests import clear as clear_manifest
+from manifests.io import copy_atomic
 from pipeline.config import Config
 from pipeline.errors import InputError
+from pipeline.registry import StageEntry
 
 
 class StageError(InputError):
     """A stage cannot run as asked (exit code 1); the message says what to do."""
-
-
-class NotBuiltError(Exception):
-    """The stage exists in the design but not yet in this program (exit code 3)."""
-
-
-@dataclass(frozen=True)
-class StageSpec:
-    """A stage. Its module provides ``run(config, workspace)``; it may also provide
-    ``dependencies(config) -> (inputs, sections, extra)`` and ``outputs(config)`` when
-    they depend on the configuration (e.g. acquire's backend)."""
-
-    name: str
-    module: str | None  # importable module with run(config, workspace); None: not built yet
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    sections: tuple[str, ...]
-    summary: str
-
-    def resolve(self, config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
-        """(inputs, config sections, extra fingerprint content, outputs) for this configuration."""
-        inputs, sections, extra, outputs = self.inputs, self.sections, {}, self.outputs
-        if self.module is not None:
-            module = importlib.import_module(self.module)
-            if hasattr(module, "dependencies"):
-                inputs, sections, extra = module.dependencies(config)
-            if hasattr(module, "outputs"):
-                outputs = module.outputs(config)
-        return inputs, sections, extra, outputs
-
-
-STAGES: tuple[StageSpec, ...] = (
-    StageSpec("plan", "stages.plan", (), ("plan",), ("plan", "camera", "testbed"),
-              "relative poses, view, light and robot/rail commands"),
-    StageSpec("acquire", "stages.acquire", ("plan",), ("captures", "truth"),
-              ("acquire", "virtual", "camera", "testbed"), "drive the testbed: telemetry, motion capture and images"),
-    StageSpec("calibrate", "stages.calibrate", ("captures",), ("calibration_samples",), ("calibrate", "testbed"),
-              "RWHE calibration per source and Table 1"),
-    StageSpec("fuse", "stages.fuse", ("captures", "calibration_samples"), ("poses",), ("fuse", "testbed"),
-              "per-source poses, rejection, Bayesian fusion"),
-    StageSpec("label", "stages.label", ("poses",), ("labels",), ("label", "testbed"),
-              "SPEED+ labels, keypoints, boxes"),
-    StageSpec("render", "stages.render", ("labels",), ("renders",), ("render", "testbed"),
-              "Mitsuba 3 synthetic twins (or, with --set train, the training set)"),
-    StageSpec("evaluate", "stages.evaluate", ("renders", "labels"), ("predictions", "scores"), ("evaluate",),
-              "ONNX model scores on twins and testbed images (Table 2)"),
-    StageSpec("report", "stages.report", ("labels", "renders", "predictions", "scores"), ("report",), (),
-              "static HTML report (W/report/index.html)"),
-)
-STAGE_NAMES = tuple(stage.name for stage in STAGES)
-
-
-def train_reference(config: Config, workspace: Workspace, model_path: Path, max_steps: int | None = None
-                    ) -> dict[str, Any]:
-    """Train the reference model (``stages.reference``) on the workspace's training set and
-    export it to ``model_path``; returns its card. Like the stages, reached only from here."""
-    module = importlib.import_module("stages.reference.train")
-    return module.run(config, workspace, model_path, max_steps=max_steps)
-
-
-def stage_spec(name: str) -> StageSpec:
-    for stage in STAGES:
-        if stage.name == name:
-            return stage
-    raise StageError(f"unknown stage {name!r}; stages: {', '.join(STAGE_NAMES)}")
 
 
 def _section_dict(config: Config, name: str) -> dict[str, Any]:
@@ -109,11 +46,11 @@ def _section_dict(config: Config, name: str) -> dict[str, Any]:
     return {f.name: getattr(section, f.name) for f in fields(section)}
 
 
-def fingerprint(stage: StageSpec, config: Config, workspace: Workspace) -> str | None:
+def fingerprint(stage: StageEntry, config: Config, workspace: Workspace) -> str | None:
     """Hex digest of the stage's inputs, or None while an input manifest is incomplete."""
-    input_names, sections, extra, _ = stage.resolve(config)
+    resolved = stage.resolved(config)
     inputs = {}
-    for name in input_names:
+    for name in resolved.inputs:
         marker = read_success(workspace, name)
         if marker is None:
             return None
@@ -121,9 +58,9 @@ def fingerprint(stage: StageSpec, config: Config, workspace: Workspace) -> str |
     payload = {
         "stage": stage.name,
         "schema_version": SCHEMA_VERSION,
-        "config": {name: _section_dict(config, name) for name in sections},
+        "config": {name: _section_dict(config, name) for name in resolved.sections},
         "inputs": inputs,
-        "extra": extra,
+        "extra": resolved.extra,
     }
     text = json.dumps(payload, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -137,20 +74,19 @@ def row_count(workspace: Workspace, name: str) -> int:
 @dataclass(frozen=True)
 class StageStatus:
     stage: str
-    state: str  # done | partial | stale | missing | not built
+    state: str  # done | partial | stale | missing
     rows: dict[str, int]
     detail: str
 
 
-def status(stage: StageSpec, config: Config, workspace: Workspace) -> StageStatus:
-    inputs, _, _, outputs = stage.resolve(config)
+def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStatus:
+    resolved = stage.resolved(config)
+    inputs, outputs = resolved.inputs, resolved.outputs
     rows = {name: row_count(workspace, name) for name in outputs}
     current = fingerprint(stage, config, workspace)
     markers = [read_success(workspace, name) for name in outputs]
     recorded = set().union(*(part_fingerprints(workspace, name) for name in outputs)) if outputs else set()
     recorded |= {m["fingerprint"] for m in markers if m}
-    if stage.module is None and not recorded:
-        return StageStatus(stage.name, "not built", rows, "not implemented yet")
     if not recorded:
         detail = "waiting for " + ", ".join(inputs) if current is None else "not run"
         return StageStatus(stage.name, "missing", rows, detail)
@@ -169,11 +105,10 @@ class StageOutcome:
     seconds: float
 
 
-def run_stage(stage: StageSpec, config: Config, workspace: Workspace, *, force: bool = False) -> StageOutcome:
+def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False) -> StageOutcome:
     """Run (or resume, or skip) one stage; see the module docstring."""
-    if stage.module is None:
-        raise NotBuiltError(f"stage {stage.name!r} is not built yet")
-    inputs, _, _, outputs = stage.resolve(config)
+    resolved = stage.resolved(config)
+    inputs, outputs = resolved.inputs, resolved.outputs
     current = fingerprint(stage, config, workspace)
     if current is None:
         missing = [name for name in inputs if read_success(workspace, name) is None]
@@ -192,14 +127,10 @@ def run_stage(stage: StageSpec, config: Config, workspace: Workspace, *, force: 
     resumed = not force and any(state.rows.values())
     for name in outputs:
         remove_temporaries(workspace, name)
-    module = importlib.import_module(stage.module)
+    run = stage.function()
     workspace.root.mkdir(parents=True, exist_ok=True)
-    workspace.active_fingerprints = {name: current for name in outputs}
     started = time.perf_counter()
-    try:
-        module.run(config, workspace)
-    finally:
-        workspace.active_fingerprints = {}
+    run(config, workspace.for_run({name: current for name in outputs}))
     seconds = time.perf_counter() - started
     rows = {name: row_count(workspace, name) for name in outputs}
     for name in outputs:
@@ -214,3 +145,16 @@ def run_stage(stage: StageSpec, config: Config, workspace: Workspace, *, force: 
             "completed_at": datetime.now(UTC).isoformat(timespec="seconds"),
         })
     return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
+
+
+def publish_model(workspace: Workspace, name: str, destination: Path) -> dict[str, Any]:
+    """Copy model ``name`` (``W/models/<name>.onnx`` and its card) to ``destination``,
+    atomically; returns its ``models`` row."""
+    rows = {row["model"]: row for row in read_manifest(workspace, "models").to_pylist()}
+    if name not in rows:
+        raise StageError(f"{workspace.display(workspace.manifest_dir('models'))}: no model {name!r}; run "
+                         "train-reference first")
+    source = workspace.resolve(rows[name]["path"])
+    copy_atomic(source, destination)
+    copy_atomic(source.with_suffix(".json"), destination.with_suffix(".json"))
+    return rows[name]

@@ -1,8 +1,8 @@
-"""The import contract of the layers (docs: ``stages/common/__init__.py``, README
-"Development"): a stage package imports the shared layer ``stages.common``, ``manifests``
-and ``pipeline`` (configuration, errors, progress, engines), never another stage;
-``stages.common`` and ``manifests`` import no stage; in ``pipeline`` only the runner
-reaches stages, by their registry entries' module names."""
+"""The import contract of the layers (docs/architecture.md section 1): a stage package
+imports the shared layer ``stages.common``, ``manifests`` and ``pipeline`` (configuration,
+errors, progress, engines), never another stage; ``stages.common`` imports no stage;
+``manifests`` imports nothing under ``stages``; ``pipeline`` imports no stage, and its
+registry names each stage's entry points as strings, imported only when the stage runs."""
 
 import ast
 from pathlib import Path
@@ -42,9 +42,9 @@ def violations(files: list[Path], allowed: set[str]) -> list[str]:
 
 
 def test_the_stage_list_is_the_registrys():
-    from pipeline import runner
+    from pipeline import registry
 
-    assert set(STAGES) == {spec.module.split(".")[1] for spec in runner.STAGES if spec.module} | {"reference"}
+    assert set(STAGES) == {entry.run.split(":")[0].split(".")[1] for entry in registry.STAGES}
 
 
 @pytest.mark.parametrize("stage", STAGES)
@@ -54,14 +54,21 @@ def test_a_stage_imports_no_other_stage(stage):
 
 @pytest.mark.parametrize("package", ["stages/common", "manifests", "pipeline"])
 def test_shared_layers_import_no_stage(package):
-    files = [p for p in sorted((ROOT / package).rglob("*.py")) if p.name != "runner.py"]
-    assert violations(files, set()) == []
+    assert violations(sorted((ROOT / package).rglob("*.py")), set()) == []
 
 
-def test_the_runner_reaches_stages_only_by_name():
-    assert violations([ROOT / "pipeline" / "runner.py"], set()) == []
-    source = (ROOT / "pipeline" / "runner.py").read_text()
+def test_manifests_sit_below_the_shared_domain_code():
+    imports = [(path.name, line, module) for path in sorted((ROOT / "manifests").rglob("*.py"))
+               for line, module in imported_modules(path) if module.split(".")[0] == "stages"]
+    assert imports == []
+
+
+def test_only_the_registry_names_stages():
+    source = (ROOT / "pipeline" / "registry.py").read_text()
     assert all(f'"stages.{stage}' in source for stage in STAGES)
+    for path in sorted((ROOT / "pipeline").rglob("*.py")):
+        if path.name != "registry.py":
+            assert '"stages.' not in path.read_text(), path.name
 
 
 def test_the_contract_catches_lazy_imports_of_another_stage(tmp_path):

@@ -15,7 +15,7 @@ from typing import Any
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.sidecars import write_session
+from manifests.sidecars import write_session, write_truth
 from pipeline.config import Config
 from pipeline.engines import map_engine
 from pipeline.progress import track
@@ -55,16 +55,14 @@ def source_digest(source: Path) -> str:
     return digest.hexdigest()[:16]
 
 
-def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
-    """(input manifests, configuration sections, extra fingerprint content) of this stage."""
+def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
+    (pipeline/registry.py): the virtual testbed follows the plan and draws a truth; a
+    replayed session is fingerprinted by its folder's content."""
     if config.acquire.backend == "virtual":
-        return ("plan",), ("acquire", "virtual", "camera", "testbed"), {}
+        return ("plan",), ("acquire", "virtual", "camera", "testbed"), {}, ("captures", "truth")
     source = Path(config.acquire.source).resolve()
-    return (), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}
-
-
-def outputs(config: Config) -> tuple[str, ...]:
-    return ("captures", "truth") if config.acquire.backend == "virtual" else ("captures",)
+    return (), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}, ("captures",)
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
@@ -74,9 +72,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     write_session(workspace, testbed.session())
     with_truth = config.acquire.backend == "virtual"
     if with_truth:
-        from stages.acquire.virtual.truth import write_truth_json
-
-        write_truth_json(testbed.truth, workspace.truth_path)
+        write_truth(workspace, testbed.truth.to_record())
     have_captures = read_keys(workspace, "captures")
     have_truth = read_keys(workspace, "truth") if with_truth else set()
     todo = [s for s in samples

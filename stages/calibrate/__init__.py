@@ -13,8 +13,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
-from manifests.io import write_json_atomic
-from manifests.sidecars import read_session
+from manifests.sidecars import SOURCES, Calibration, SourceCalibration, read_session, write_calibration
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages.calibrate import observations as obs
@@ -24,7 +23,8 @@ from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
 from stages.common.patterns import pattern_from_table
-from stages.common.sources import OFFSET_NAMES, SOURCES, measurement, up_targetee
+from stages.common.sidecars import record
+from stages.common.sources import measurement, up_targetee
 from stages.common.tables import print_table
 
 
@@ -190,7 +190,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                                                  "the pose file's declared unit")}
     truth = load_truth(workspace)
 
-    results: dict[str, Any] = {}
+    results: dict[str, SourceCalibration | None] = {}
     predictions: dict[str, dict[str, np.ndarray]] = {}
     for source in SOURCES:
         if source not in session.sources:
@@ -233,37 +233,31 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         predicted = solution.predict(b, fixtures, up)
         cross_metrics = metrics(cross, a, used, intrinsics)
         screening.check_result(f"{source}", cross_metrics, intrinsics, config.calibrate)
-        entry = results[source] = {
-            **{name: g.pose_to_json(offset) for name, offset in
-               zip(OFFSET_NAMES[source], (solution.z, solution.x[sorted(solution.x)[0]]), strict=True)},
-            f"{OFFSET_NAMES[source][1]}_by_fixture": {f: g.pose_to_json(x) for f, x in solution.x.items()},
-            "fixture_compliance": compliance_json(solution, up, fixtures, compliance_note),
-            "arm_kinematics": {"estimated": fitted is not None, "why": arm_note,
-                               **(fitted.to_json() if fitted is not None else {})},
-            **without_reference_noise(sigma_between(predicted, a), *pnp_variance(used)).to_json(),
-            "samples": len(used),
-            "outliers": outliers,
-            "metrics": {"in_sample": metrics(predicted, a, used, intrinsics),
-                        "cross_validated": cross_metrics, "truth": None},
-        }
+        truth_metrics = None
         if truth is not None:
             true = np.stack([truth[o.sample_id] for o in used])
             true_pixels = [g.project(t, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
                            for t, o in zip(true, used, strict=True)]
-            entry["metrics"]["truth"] = metrics(predicted, true, used, intrinsics, true_pixels)
-        if len(solution.x) == 1:  # OpenCV's Shah on the same detections and intrinsics, for comparison
-            entry["opencv_shah_in_sample"] = opencv_shah_metrics(a, b, fixtures, used, intrinsics)
+            truth_metrics = metrics(predicted, true, used, intrinsics, true_pixels)
+        results[source] = SourceCalibration(
+            source, record(solution.z), {f: record(x) for f, x in solution.x.items()},
+            compliance_json(solution, up, fixtures, compliance_note),
+            {"estimated": fitted is not None, "why": arm_note, **(fitted.to_json() if fitted is not None else {})},
+            without_reference_noise(sigma_between(predicted, a), *pnp_variance(used)).to_record(), len(used),
+            tuple(outliers), {"in_sample": metrics(predicted, a, used, intrinsics), "cross_validated": cross_metrics,
+                              "truth": truth_metrics},
+            # OpenCV's Shah on the same detections and intrinsics, for comparison
+            opencv_shah_metrics(a, b, fixtures, used, intrinsics) if len(solution.x) == 1 else None)
         predictions[source] = {o.sample_id: p for o, p in zip(used, predicted, strict=True)}
         predictions[f"{source}_cv"] = {o.sample_id: p for o, p in zip(used, cross, strict=True)}
 
-    results["rejection"] = None
-    results["fused"] = None
+    rejection = fused_column = None
     if results.get("vicon") is not None:
         both = [o for o in observations if o.sample_id in predictions["kuka"] and o.sample_id in predictions["vicon"]]
         kuka = np.stack([predictions["kuka"][o.sample_id] for o in both])
         vicon = np.stack([predictions["vicon"][o.sample_id] for o in both])
-        results["rejection"] = sigma_between(vicon, kuka).to_json()
-        sigma = {s: Sigma.from_json(results[s]) for s in ("kuka", "vicon")}
+        rejection = sigma_between(vicon, kuka).to_record()
+        sigma = {s: Sigma.from_record(results[s].sigma) for s in SOURCES}
         fused = {}
         for label, suffix in (("in_sample", ""), ("cross_validated", "_cv")):
             fused[label] = np.stack([fuse(predictions[f"kuka{suffix}"][o.sample_id], sigma["kuka"],
@@ -286,21 +280,19 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                           "truth": None if true is None else metrics(e["in_sample"], true, both, intrinsics,
                                                                      true_pixels)}
                    for name, e in estimates.items()}
-        results["fused"] = {"samples": len(both), "metrics": on_both["fused"],
-                            "sources_on_the_same_samples": {source: on_both[source] for source in SOURCES}}
+        fused_column = {"samples": len(both), "metrics": on_both["fused"],
+                        "sources_on_the_same_samples": {source: on_both[source] for source in SOURCES}}
 
     pnp_positions = np.array([o.cam_from_target[:3, 3] for o in observations if o.cam_from_target is not None])
-    calibration = {"intrinsics": intrinsics.to_json(), **{s: results[s] for s in SOURCES},
-                   "calibration_distance_m": float(np.mean(np.linalg.norm(pnp_positions, axis=1))),
-                   "calibration_lever_sq_m2": np.mean(lever_sq(pnp_positions), axis=0).tolist(),
-                   "world_up": [float(v) for v in config.calibrate.world_up],
-                   "fused": results["fused"], "rejection": results["rejection"],
-                   "solver": {"method": config.calibrate.solver, "folds": config.calibrate.folds,
-                              "pattern": spec.to_json(),
-                              "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
-                   "session": {"backend": session.backend, "sources": list(session.sources)},
-                   "screening": checks}
-    write_json_atomic(workspace.root / "calibration.json", calibration)
+    calibration = Calibration(
+        intrinsics.to_record(), results["kuka"], results["vicon"],
+        float(np.mean(np.linalg.norm(pnp_positions, axis=1))),
+        tuple(np.mean(lever_sq(pnp_positions), axis=0).tolist()), tuple(float(v) for v in config.calibrate.world_up),
+        fused_column, rejection,
+        {"method": config.calibrate.solver, "folds": config.calibrate.folds, "pattern": spec.to_json(),
+         "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
+        {"backend": session.backend, "sources": list(session.sources)}, checks)
+    write_calibration(workspace, calibration)
 
     with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:
         done = read_keys(workspace, "calibration_samples")

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from manifests import Workspace
+from manifests import Workspace, sidecars
 from pipeline.progress import track
 from stages.calibrate.consistency import board_continues
 from stages.common import geometry as g
@@ -44,9 +44,10 @@ class Intrinsics:
     rms_px: float
     estimated: bool
 
-    def to_json(self) -> dict:
-        return {"K": self.camera_matrix.tolist(), "dist": self.dist.tolist(), "width": self.width,
-                "height": self.height, "rms_px": self.rms_px, "estimated": self.estimated}
+    def to_record(self) -> sidecars.Intrinsics:
+        return sidecars.Intrinsics(tuple(tuple(row) for row in self.camera_matrix.tolist()),
+                                   tuple(self.dist.tolist()), self.width, self.height, float(self.rms_px),
+                                   self.estimated)
 
 
 def target_points(spec: PatternSpec) -> np.ndarray:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from manifests.sidecars import SigmaRecord
 from stages.common import geometry as g
 
 REJECTION_K = 1.96
@@ -28,15 +29,13 @@ class Sigma:
     r_rad: float
     pointing_rad: float | None = None  # the part of r_rad that turns the line of sight (None: all of it)
 
-    def to_json(self) -> dict:
-        out = {"sigma_t_m": [float(v) for v in self.t_m], "sigma_r_rad": float(self.r_rad)}
-        if self.pointing_rad is not None:
-            out["sigma_pointing_rad"] = float(self.pointing_rad)
-        return out
+    def to_record(self) -> SigmaRecord:
+        return SigmaRecord(tuple(float(v) for v in self.t_m), float(self.r_rad),
+                           None if self.pointing_rad is None else float(self.pointing_rad))
 
     @classmethod
-    def from_json(cls, entry: dict) -> Sigma:
-        return cls(np.array(entry["sigma_t_m"]), entry["sigma_r_rad"], entry.get("sigma_pointing_rad"))
+    def from_record(cls, record: SigmaRecord) -> Sigma:
+        return cls(np.array(record.t_m), record.r_rad, record.pointing_rad)
 
 
 def lever_sq(t: np.ndarray) -> np.ndarray:

@@ -1,43 +1,34 @@
-"""Readers of the JSON files that stages share through the workspace: the calibrated camera
-and offsets in ``W/calibration.json`` (written by calibrate; read by fuse, label, render,
-evaluate, report and export) and the mock-up scale in ``W/session.json`` (written by
-acquire). Every error names the file and says what to rerun."""
+"""The stages' side of the workspace's typed JSON files (``manifests.sidecars``): poses as
+4 x 4 arrays, the calibrated camera as a ``LensCamera``, and the mock-up scale. Every error
+names the file and the key and says what to rerun."""
 
 from __future__ import annotations
-
-import json
-from typing import Any
 
 import numpy as np
 
 from manifests import Workspace
-from manifests.sidecars import read_session
+from manifests.sidecars import Pose, read_calibration, read_session
 from pipeline.config import Config
-from pipeline.errors import InputError
+from stages.common import geometry as g
 from stages.common.lens import LensCamera
 
 
-def read_calibration(workspace: Workspace) -> dict[str, Any]:
-    """W/calibration.json, or an InputError saying what to do."""
-    path = workspace.root / "calibration.json"
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: missing; run calibrate first") from None
-    except json.JSONDecodeError as error:
-        raise InputError(f"{path}: not valid JSON ({error}); rerun calibrate") from None
+def matrix(pose: Pose) -> np.ndarray:
+    """The (4, 4) transform of a stored pose."""
+    return g.transform_from_qt(pose.q, pose.t)
+
+
+def record(a_from_b: np.ndarray) -> Pose:
+    """The stored form of a (4, 4) rigid transform."""
+    q, t = g.transform_to_qt(a_from_b)
+    return Pose(tuple(q.tolist()), tuple(t.tolist()))
 
 
 def calibrated_camera(workspace: Workspace) -> LensCamera:
     """The calibrated camera of the labels: K (3, 3), dist (5,), width, height."""
-    path = workspace.root / "calibration.json"
-    try:
-        intrinsics = read_calibration(workspace)["intrinsics"]
-        return LensCamera(np.array(intrinsics["K"], float), np.array(intrinsics["dist"], float),
-                          int(intrinsics["width"]), int(intrinsics["height"]))
-    except (KeyError, TypeError, ValueError) as error:
-        raise InputError(f"{path}: intrinsics unreadable ({error!r}); expected K (3x3), dist (5), width, "
-                         "height; rerun calibrate") from None
+    intrinsics = read_calibration(workspace).intrinsics
+    return LensCamera(np.array(intrinsics.camera_matrix, float), np.array(intrinsics.dist, float),
+                      intrinsics.width, intrinsics.height)
 
 
 def mockup_scale(config: Config, workspace: Workspace) -> float:

@@ -11,11 +11,6 @@ import numpy as np
 
 from stages.common import geometry as g
 
-SOURCES = ("kuka", "vicon")
-#: names of each source's offsets in calibration.json: (camera side Z, target side X)
-OFFSET_NAMES = {"kuka": ("cam_from_camee", "target_from_targetee"),
-                "vicon": ("cam_from_camrb", "target_from_targetrb")}
-
 
 def measurement(row: dict[str, Any], source: str) -> np.ndarray | None:
     """``B_i`` of a capture for a source (4, 4), or None when the source did not measure it."""

@@ -13,6 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from manifests.schema import DOMAINS, VIEWS
+from manifests.sidecars import Calibration
 
 TESTBED = DOMAINS
 
@@ -30,7 +31,7 @@ def _cell(metric: dict[str, list[float]] | None, key: str, scale: float) -> str:
     return f"{mean * scale:.3f} ± {std * scale:.3f}"
 
 
-def rows(calibration: dict[str, Any], with_paper: bool = True) -> list[tuple[str, list[str]]]:
+def rows(calibration: Calibration, with_paper: bool = True) -> list[tuple[str, list[str]]]:
     """Table 1's rows: (metric label, a cell per column of ``COLUMNS``), then the paper's
     figures unless ``with_paper`` is false."""
     out = []
@@ -39,8 +40,8 @@ def rows(calibration: dict[str, Any], with_paper: bool = True) -> list[tuple[str
                                  ("E_p_px", "E_p [px]", 1.0)):
             cells = []
             for source, _ in COLUMNS:
-                entry = calibration.get(source)
-                cells.append(_cell(entry["metrics"][kind] if entry else None, key, scale))
+                metrics = _column_metrics(calibration, source)
+                cells.append(_cell(metrics[kind] if metrics else None, key, scale))
             out.append((f"{unit} {label}", cells))
     if not with_paper:
         return out
@@ -50,7 +51,14 @@ def rows(calibration: dict[str, Any], with_paper: bool = True) -> list[tuple[str
     return out
 
 
-def print_table(calibration: dict[str, Any]) -> None:
+def _column_metrics(calibration: Calibration, column: str) -> dict[str, Any] | None:
+    if column == "fused":
+        return calibration.fused["metrics"] if calibration.fused else None
+    entry = calibration.source(column)
+    return entry.metrics if entry else None
+
+
+def print_table(calibration: Calibration) -> None:
     table = Table(title="Table 1: calibration accuracy (mean ± std over calibration samples)")
     table.add_column("metric")
     for _, label in COLUMNS:
@@ -58,7 +66,7 @@ def print_table(calibration: dict[str, Any]) -> None:
     for label, cells in rows(calibration):
         table.add_row(escape(label), *cells)
     Console().print(table)
-    fused = calibration.get("fused")
+    fused = calibration.fused
     if fused:
         kind = "truth" if fused["metrics"]["truth"] else "cross_validated"
         same = {**fused["sources_on_the_same_samples"], "fused": fused["metrics"]}

@@ -44,13 +44,11 @@ def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.exists() else "missing"
 
 
-def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
+def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
+    (pipeline/registry.py): the model is fingerprinted by its bytes."""
     path = model_path(config)
-    return ("labels", "renders", "captures"), ("evaluate",), {"model_digest": _digest(path)}
-
-
-def outputs(config: Config) -> tuple[str, ...]:
-    return ("predictions", "scores")
+    return ("labels", "renders", "captures"), ("evaluate",), {"model_digest": _digest(path)}, ("predictions", "scores")
 
 
 def _items(workspace: Workspace) -> list[dict[str, Any]]:
@@ -131,6 +129,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     predictions = read_manifest(workspace, "predictions")
     table = summarise(predictions.to_pylist())
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
-    write_part(workspace, "scores", table, workspace.active_fingerprints.get("scores", ""))
+    write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
     Console().print(print_table2(table, path.name, model.contract.crop))  # results: standard output
     return predictions

@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.io import write_json_atomic
+from manifests.sidecars import FusionRecord, SourceCalibration, read_calibration, write_fusion
 from pipeline.config import Config, TestbedConfig
 from pipeline.errors import InputError
 from pipeline.progress import track
@@ -34,27 +34,23 @@ from stages.common.fusion import (
     variance_factor,
 )
 from stages.common.rwhe import fixture_tilt
-from stages.common.sidecars import read_calibration
+from stages.common.sidecars import matrix
 from stages.common.sources import measurement, up_targetee
-
-CALIBRATION_FILE = "calibration.json"
-FUSION_FILE = "fusion.json"
 
 
 class SourceModel:
     """One source's calibrated offsets, fixture compliance and uncertainty."""
 
-    def __init__(self, entry: dict[str, Any], z_name: str, x_name: str, calibration_lever_sq: np.ndarray,
-                 world_up: np.ndarray, testbed: TestbedConfig) -> None:
-        self.z = g.pose_from_json(entry[z_name])
-        kinematics = entry.get("arm_kinematics") or {}
-        self.arms = arms.ArmErrors.from_json(kinematics) if kinematics.get("estimated") else None
+    def __init__(self, entry: SourceCalibration, calibration_lever_sq: np.ndarray, world_up: np.ndarray,
+                 testbed: TestbedConfig) -> None:
+        self.z = matrix(entry.cam_from_offset)
+        kinematics = entry.arm_kinematics
+        self.arms = arms.ArmErrors.from_json(kinematics) if kinematics["estimated"] else None
         self.kinematics = kinematics
         self.testbed = testbed
-        self.x = {fixture: g.pose_from_json(pose) for fixture, pose in entry[f"{x_name}_by_fixture"].items()}
-        compliance = (entry.get("fixture_compliance") or {}).get("k_rad_by_fixture") or {}
-        self.compliance = {fixture: np.asarray(k, float) for fixture, k in compliance.items()}
-        self.sigma = Sigma.from_json(entry)
+        self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
+        self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
+        self.sigma = Sigma.from_record(entry.sigma)
         self.calibration_lever_sq = calibration_lever_sq
         self.world_up = np.asarray(world_up, float)
 
@@ -97,18 +93,13 @@ def load_models(workspace: Workspace, testbed: TestbedConfig) -> tuple[SourceMod
                                                                       Sigma | None]:
     """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``."""
     calibration = read_calibration(workspace)
-    try:
-        lever = np.array(calibration["calibration_lever_sq_m2"], float)
-        world_up = np.array(calibration.get("world_up", (0.0, 0.0, 1.0)), float)  # the up the compliance used
-        kuka = SourceModel(calibration["kuka"], "cam_from_camee", "target_from_targetee", lever, world_up, testbed)
-        vicon = rejection = None
-        if calibration.get("vicon"):
-            vicon = SourceModel(calibration["vicon"], "cam_from_camrb", "target_from_targetrb", lever, world_up,
-                                testbed)
-            rejection = Sigma.from_json(calibration["rejection"])
-    except (KeyError, TypeError, ValueError) as error:
-        raise InputError(f"{workspace.root / CALIBRATION_FILE}: unreadable ({error!r} missing or malformed); "
-                         "rerun calibrate") from None
+    lever = np.array(calibration.calibration_lever_sq_m2, float)
+    world_up = np.array(calibration.world_up, float)  # the up the compliance was fitted with
+    kuka = SourceModel(calibration.kuka, lever, world_up, testbed)
+    vicon = rejection = None
+    if calibration.vicon is not None:
+        vicon = SourceModel(calibration.vicon, lever, world_up, testbed)
+        rejection = Sigma.from_record(calibration.rejection)
     return kuka, vicon, rejection
 
 
@@ -182,8 +173,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     covariances = kuka.parameter_covariances(rows)
     estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
     factor, why = session_factor(config, estimates, kuka, rejection)
-    write_json_atomic(workspace.root / FUSION_FILE, {"variance_factor": factor.to_json(), "why": why,
-                                                     "rejection_k": config.fuse.rejection_k})
+    write_fusion(workspace, FusionRecord(tuple(float(v) for v in factor.t), float(factor.r), factor.samples, why,
+                                         config.fuse.rejection_k))
     print(f"fuse: sigma factors: position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, "
           f"rotation {factor.r:.2f} ({why})")
     done = read_keys(workspace, "poses")

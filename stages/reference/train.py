@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest
+from manifests.io import write_json_atomic
 from pipeline.config import Config, ReferenceConfig
 from pipeline.progress import console, track
 from stages.common import tango
@@ -94,8 +95,35 @@ def _augment(images: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.clip(np.power(np.clip(x * gain, 0, 1), gamma) + offset + noise, 0.0, 1.0)
 
 
-def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, max_steps: int | None = None) -> Any:
-    """The trained ``KeypointNet`` (torch, eval mode) and its training log."""
+def _save_checkpoint(path: Path, tag: str, state: dict[str, Any]) -> None:
+    import torch
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp")
+    torch.save({"tag": tag, **state}, temporary)
+    temporary.replace(path)
+
+
+def _load_checkpoint(path: Path | None, tag: str) -> dict[str, Any] | None:
+    """The checkpoint at ``path`` when it was made by the same run (``tag``: the stage's
+    fingerprint), else None."""
+    import torch
+
+    if path is None or not path.exists():
+        return None
+    try:
+        state = torch.load(path, weights_only=False)
+    except Exception:  # a checkpoint torn by a crash is worth nothing, never an error
+        return None
+    return state if state.get("tag") == tag else None
+
+
+def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, checkpoint: Path | None = None,
+          tag: str = "") -> Any:
+    """The trained ``KeypointNet`` (torch, eval mode) and its training log. With a
+    ``checkpoint`` path, the state is saved after every epoch and a run with the same
+    ``tag`` resumes from it: the random streams are restored with the weights, so a resumed
+    training ends with the weights an uninterrupted one would have."""
     import torch
 
     from stages.reference.network import KeypointNet
@@ -107,11 +135,20 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, max_steps: in
     model = KeypointNet(len(tango.KEYPOINTS_M), recipe.width)
     images, keypoints = data["images"], data["keypoints"]
     steps_per_epoch = max(1, len(images) // recipe.batch_size)
-    total = recipe.epochs * steps_per_epoch if max_steps is None else max_steps
+    total = recipe.epochs * steps_per_epoch if recipe.max_steps == 0 else recipe.max_steps
     optimiser = torch.optim.Adam(model.parameters(), lr=recipe.learning_rate)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimiser, lambda step: 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
     log, step, started = [], 0, time.perf_counter()
+    saved = _load_checkpoint(checkpoint, tag)
+    if saved is not None:
+        model.load_state_dict(saved["model"])
+        optimiser.load_state_dict(saved["optimiser"])
+        schedule.load_state_dict(saved["schedule"])
+        rng.bit_generator.state = saved["numpy_rng"]
+        torch.set_rng_state(saved["torch_rng"])
+        log, step = saved["log"], saved["step"]
+        console.print(f"train-reference: resumed at epoch {step / steps_per_epoch:.1f} from {checkpoint}")
     model.train()
     while step < total:
         order = rng.permutation(len(images))
@@ -136,6 +173,10 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, max_steps: in
                             "seconds": time.perf_counter() - started})
                 console.print(f"train-reference: epoch {step / steps_per_epoch:.1f}/{total / steps_per_epoch:.0f} "
                               f"loss {loss.item():.5f} ({time.perf_counter() - started:.0f} s)")
+        if checkpoint is not None:  # at an epoch's end: the next epoch draws its order afresh
+            _save_checkpoint(checkpoint, tag, {
+                "model": model.state_dict(), "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict(),
+                "numpy_rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "log": log, "step": step})
     model.eval()
     return model, log
 
@@ -186,9 +227,11 @@ def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.n
             "median_translation_error": float(np.median([e["err_t_norm"] for e in errors]))}
 
 
-def run(config: Config, workspace: Workspace, out: Path, *, max_steps: int | None = None) -> dict[str, Any]:
-    """Train on the workspace's ``train`` manifest, export to ``out``, score held-out images;
-    returns the model card (also written beside the model as JSON)."""
+def run(config: Config, workspace: Workspace, out: Path, checkpoint: Path | None = None,
+        tag: str = "") -> dict[str, Any]:
+    """Train on the workspace's ``train`` manifest (resuming from ``checkpoint`` when it
+    carries ``tag``), export to ``out``, score held-out images; returns the model card (also
+    written beside the model as JSON)."""
     from stages.common.cameras import train_camera
 
     recipe = config.reference
@@ -196,7 +239,7 @@ def run(config: Config, workspace: Workspace, out: Path, *, max_steps: int | Non
     held = max(1, len(data["images"]) // 10)
     split = {key: value[:-held] for key, value in data.items()}, {key: value[-held:] for key, value in data.items()}
     started = time.perf_counter()
-    model, log = train(split[0], recipe, max_steps=max_steps)
+    model, log = train(split[0], recipe, checkpoint=checkpoint, tag=tag)
     seconds = time.perf_counter() - started
     export(model, recipe, out, {"speedplus.recipe": json.dumps(asdict(recipe))})
     camera = train_camera(config)
@@ -206,5 +249,5 @@ def run(config: Config, workspace: Workspace, out: Path, *, max_steps: int | Non
             "render": {"count": config.render.train_count, "seed": config.render.seed,
                        "resolution_scale": config.render.train_resolution_scale, "spp": config.render.train_spp},
             "log": log}
-    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    write_json_atomic(out.with_suffix(".json"), card)
     return card

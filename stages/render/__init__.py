@@ -33,20 +33,17 @@ def output_name(config: Config) -> str:
 TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance")
 
 
-def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
-    """(input manifests, configuration sections, extra fingerprint content): each image set
-    depends on its own render keys only (resizing the training set leaves the twins done)."""
+def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
+    (pipeline/registry.py): each image set depends on its own render keys only (resizing
+    the training set leaves the twins done)."""
     render = {f.name: getattr(config.render, f.name) for f in fields(config.render) if f.name != "set"}
     if config.render.set == "train":
-        return (), ("camera",), {"render": render}
+        return (), ("camera",), {"render": render}, (output_name(config),)
     inputs = ("labels", "captures", "calibration_samples")
     if config.acquire.backend == "virtual":
         inputs += ("plan",)  # the light set-up of each sample
-    return inputs, ("testbed",), {"render": {key: render[key] for key in TWIN_KEYS}}
-
-
-def outputs(config: Config) -> tuple[str, ...]:
-    return (output_name(config),)
+    return inputs, ("testbed",), {"render": {key: render[key] for key in TWIN_KEYS}}, (output_name(config),)
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

@@ -15,13 +15,13 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
+from manifests.sidecars import read_calibration
 from manifests.workspace import MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
-from pipeline.errors import InputError
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.cameras import train_camera
-from stages.common.sidecars import mockup_scale, read_calibration
+from stages.common.sidecars import matrix, mockup_scale
 
 SET_DIRECTORIES = {"twin": "twins", "train": "train"}
 NEAR_CLIP_M = 0.05
@@ -79,11 +79,7 @@ def rejection_reason(q: Any, t: Any) -> str | None:
 def _world_from_cam(workspace: Workspace) -> dict[str, np.ndarray]:
     """Camera poses in the robot world K per dataset capture: KUKA telemetry composed with
     the calibrated camera offset (the light positions are known in K)."""
-    path = workspace.root / "calibration.json"
-    try:
-        cam_from_camee = g.pose_from_json(read_calibration(workspace)["kuka"]["cam_from_camee"])
-    except (KeyError, TypeError, ValueError) as error:
-        raise InputError(f"{path}: kuka.cam_from_camee unreadable ({error}); rerun calibrate") from None
+    cam_from_camee = matrix(read_calibration(workspace).kuka.cam_from_offset)
     captures = read_manifest(workspace, "captures").to_pylist()
     return {row["sample_id"]: g.transform_from_qt(row["kuka_world_from_camee_q"], row["kuka_world_from_camee_t"])
             @ g.invert(cam_from_camee) for row in captures}

@@ -10,14 +10,24 @@ through the label camera's distortion.
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import numpy as np
 
 from stages.common import geometry as g
 from stages.common.lens import Lens, LensCamera, pixel_rays
-from stages.common.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
+from stages.common.mitsuba_adapter import (
+    first_hit_on,
+    load_mitsuba,
+    load_scene,
+    mesh,
+    rays,
+    render_threads,
+    sensor,
+    sensor_to_world,
+    set_threads,
+    transform,
+)
 from stages.common.tango_mesh import tango_parts
 
 
@@ -42,28 +52,16 @@ class TangoRenderer:
 
     def __init__(self, camera: LensCamera, *, spp: int, max_depth: int, threads: int) -> None:
         self.mi = mi = load_mitsuba()
-        import drjit as dr
-
         # the same thread count in every engine: part of what makes the pixels reproducible
-        dr.set_thread_count(max(1, threads))
+        set_threads(threads)
         self.lens = Lens(camera)
         self.spp = spp
         geometry = self.lens.geometry
         objects: dict[str, Any] = {
             "type": "scene",
             "integrator": {"type": "path", "max_depth": max_depth, "hide_emitters": True},
-            "sensor": {
-                "type": "perspective",
-                "fov_axis": "x",
-                "fov": float(np.degrees(geometry.fov_x_rad)),
-                "near_clip": 0.05,
-                "far_clip": 1000.0,
-                "to_world": transform(mi, MITSUBA_FROM_OPENCV),
-                # box filter: a sample lands in its own pixel only, so alpha is exact coverage
-                "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height,
-                         "rfilter": {"type": "box"}, "pixel_format": "rgba"},
-                "sampler": {"type": "independent"},
-            },
+            # box filter: alpha is exact coverage
+            "sensor": sensor(mi, geometry, far_clip_m=1000.0, rfilter="box", pixel_format="rgba"),
             "sun": {"type": "directional", "direction": [0.0, 0.0, -1.0],
                     "irradiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
         }
@@ -100,7 +98,7 @@ class TangoRenderer:
         # the directional emitter sends its light along its local +z axis
         sun_rotation = g.look_at_rotation(travel, np.array([0.0, 0.0, 1.0]) if abs(travel[2]) < 0.9
                                           else np.array([1.0, 0.0, 0.0]))
-        self.params["sensor.to_world"] = transform(mi, target_from_cam @ MITSUBA_FROM_OPENCV)
+        self.params["sensor.to_world"] = sensor_to_world(mi, target_from_cam)
         self.params["sun.to_world"] = transform(mi, g.make_transform(sun_rotation, np.zeros(3)))
         self.params["sun.irradiance.value"] = mi.Color3f(irradiance, irradiance, irradiance)
         # opaque: one compiled kernel for every pose and light, whatever rendered before
@@ -114,17 +112,13 @@ class TangoRenderer:
 def ray_traced_mask(renderer: TangoRenderer, cam_from_target: np.ndarray) -> np.ndarray:
     """Where the model covers each output pixel centre (H, W) bool, by casting one ray per
     pixel through the lens model; independent of the film, the filter and the remap."""
-    mi = renderer.mi
     camera = renderer.lens.camera
     target_from_cam = g.invert(cam_from_target)
     directions = pixel_rays(camera) @ target_from_cam[:3, :3].T
-    origin = np.broadcast_to(target_from_cam[:3, 3], directions.shape)
-    rays = mi.Ray3f(mi.Point3f(*[np.ascontiguousarray(origin[:, i], np.float32) for i in range(3)]),
-                    mi.Vector3f(*[np.ascontiguousarray(directions[:, i], np.float32) for i in range(3)]))
-    hit = np.array(renderer.scene.ray_test(rays))
+    hit = first_hit_on(renderer.mi, renderer.scene, rays(renderer.mi, target_from_cam[:3, 3], directions))
     return hit.reshape(camera.height, camera.width)
 
 
 def default_threads(workers: int) -> int:
     """Threads per renderer when ``workers`` renderers share this machine."""
-    return max(1, (os.cpu_count() or 1) // max(1, workers))
+    return render_threads(workers)

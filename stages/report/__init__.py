@@ -21,23 +21,16 @@ import numpy as np
 from manifests import Workspace, read_manifest, read_success
 from manifests.io import write_bytes_atomic
 from manifests.schema import DOMAINS, VIEWS
+from manifests.sidecars import Calibration, read_calibration
 from pipeline.config import Config
 from stages.common import tables
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
-from stages.common.sidecars import calibrated_camera, read_calibration
+from stages.common.sidecars import calibrated_camera
 from stages.report import figures
 
 REPORT_DIR = "report"
 PACKAGES = ("speedplus-builder", "numpy", "opencv-contrib-python-headless", "mitsuba", "drjit", "onnxruntime",
             "pyarrow", "ray")
-
-
-def dependencies(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any]]:
-    return ("labels", "renders", "predictions", "scores"), (), {}
-
-
-def outputs(config: Config) -> tuple[str, ...]:
-    return ("report",)  # a completion marker only: the report is W/report/
 
 
 def _table(headers: list[str], rows: list[list[Any]]) -> str:
@@ -46,7 +39,7 @@ def _table(headers: list[str], rows: list[list[Any]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def table1(calibration: dict[str, Any]) -> str:
+def table1(calibration: Calibration) -> str:
     rows = [[label, *cells] for label, cells in tables.rows(calibration, with_paper=False)]
     return _table(["metric", "KUKA-only", "Vicon-only", "fused"], rows)
 
@@ -147,7 +140,7 @@ def run(config: Config, workspace: Workspace) -> None:
                          '</figcaption></figure>')
     crop = predictions[0]["crop"] if predictions else "full"
     sections = [
-        ("Table 1: calibration accuracy", f"<p>Solver: {html.escape(str(calibration.get('solver')))}. Mean ± "
+        ("Table 1: calibration accuracy", f"<p>Solver: {html.escape(str(calibration.solver))}. Mean ± "
          "standard deviation over the calibration samples.</p>" + table1(calibration)),
         ("Calibration residuals", f'<img src="figures/{made["residuals"]}" alt="calibration residuals">'),
         ("Pose distribution of the labels", f'<img src="figures/{made["poses"]}" alt="pose distribution">'),

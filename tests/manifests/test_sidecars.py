@@ -1,11 +1,31 @@
-"""session.json as a typed, versioned file: one writer, one reader, errors naming file and key."""
+"""The workspace's JSON files as typed, versioned files: one writer, one reader, errors naming file and key."""
 
 import json
 
 import pytest
 
 from manifests import Workspace
-from manifests.sidecars import Session, SessionCamera, SidecarError, read_session, write_session
+from manifests.sidecars import (
+    Calibration,
+    FusionRecord,
+    Intrinsics,
+    Pose,
+    Session,
+    SessionCamera,
+    SidecarError,
+    SigmaRecord,
+    SourceCalibration,
+    TruthRecord,
+    read_calibration,
+    read_fusion,
+    read_session,
+    read_truth,
+    write_calibration,
+    write_fusion,
+    write_session,
+    write_truth,
+)
+from manifests.sidecars.truth import POSE_KEYS
 
 SESSION = Session("replay", "handeye", ("kuka",), SessionCamera(1928, 1208, None, None),
                   {"kind": "chessboard", "size": [28, 17], "square_m": 0.02}, "/data/kuka",
@@ -20,7 +40,7 @@ def test_a_session_survives_its_file(tmp_path):
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"version": None}, r"version None, this program reads version 1; rerun acquire with --force"),
+    ({"version": None}, r"version None, this program reads version 1 .*; rerun acquire with --force"),
     ({"backend": "robot"}, r"key backend: expected virtual or replay, got 'robot'"),
     ({"sources": ["vicon"]}, r"key sources: expected a list starting with \"kuka\""),
     ({"camera": {"width": 0, "height": 10}}, r"key camera: expected an object with positive integer width"),
@@ -41,3 +61,99 @@ def test_missing_or_corrupt_sessions_say_what_to_rerun(tmp_path):
     workspace.session_path.write_text('{"version": 1, "backend": ')
     with pytest.raises(SidecarError, match="session.json: not valid JSON .*; rerun acquire with --force"):
         read_session(workspace)
+
+
+# ----------------------------------------------------------------- calibration, fusion, truth
+POSE = Pose((0.5, 0.5, -0.5, 0.5), (0.1, -0.2, 0.3))
+METRIC = {"E_T_m": [1e-4, 5e-5], "E_R_rad": [3e-4, 1e-4], "E_p_px": [0.2, 0.1]}
+METRICS = {"in_sample": METRIC, "cross_validated": METRIC, "truth": None}
+
+
+def source(name: str, kinematics: dict) -> SourceCalibration:
+    return SourceCalibration(name, POSE, {"minus_x": POSE, "plus_x": Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.1))},
+                             {"estimated": True, "why": "spread", "k_rad_by_fixture": {"minus_x": [0.0, 1e-3, 0.0],
+                                                                                     "plus_x": [1e-3, 0.0, 0.0]}},
+                             kinematics, SigmaRecord((1e-5, 2e-5, 3e-5), 1e-4, 5e-5), 60, ("cal000003",), METRICS)
+
+
+CALIBRATION = Calibration(
+    Intrinsics(((1500.0, 0.0, 480.0), (0.0, 1500.0, 300.0), (0.0, 0.0, 1.0)), (-0.2, 0.5, 0.0, 0.0, -0.1), 960, 600,
+               0.08, True),
+    source("kuka", {"estimated": True, "why": "encoders", "parameters": [0.0, 1.0], "covariance": [[1.0, 0.0],
+                                                                                                   [0.0, 1.0]],
+                    "fixtures": ["minus_x", "plus_x"], "compliant": True}),
+    source("vicon", {"estimated": False, "why": "motion capture tracks the model itself"}),
+    0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
+    {"samples": 55, "metrics": METRICS, "sources_on_the_same_samples": {"kuka": METRICS, "vicon": METRICS}},
+    SigmaRecord((6e-4, 5e-4, 2e-4), 2e-3, None), {"method": "frobenius", "folds": 5}, {"backend": "virtual"}, {})
+
+
+def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(tmp_path):
+    workspace = Workspace(tmp_path)
+    write_calibration(workspace, CALIBRATION)
+    assert read_calibration(workspace) == CALIBRATION
+    stored = json.loads(workspace.calibration_path.read_text())
+    assert stored["version"] == 1
+    assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
+    assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
+    # the first fixture's offset stands for the source's target offset
+    assert stored["vicon"]["target_from_targetrb"] == stored["vicon"]["target_from_targetrb_by_fixture"]["minus_x"]
+
+
+def _edit(data: dict, path: str, value) -> dict:
+    data = json.loads(json.dumps(data))  # a copy: to_json shares the records' metric dicts
+    keys = path.split(".")
+    node = data
+    for key in keys[:-1]:
+        node = node[key]
+    if value is KeyError:
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
+    return data
+
+
+@pytest.mark.parametrize("path, value, message", [
+    ("version", KeyError, r"version None, this program reads version 1 .*rerun calibrate with --force"),
+    ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),
+    ("kuka.cam_from_camee", KeyError, r"key kuka.cam_from_camee missing"),
+    ("intrinsics.K", [[1, 0, 0], [0, 1, 0]], r"key intrinsics.K: expected a 3 x 3 list"),
+    ("intrinsics.dist", [0.0, "x", 0, 0, 0], r"key intrinsics.dist: expected a list of 5 finite numbers"),
+    ("vicon.sigma_r_rad", float("nan"), r"key vicon.sigma_r_rad: expected a finite number"),
+    ("kuka.fixture_compliance.k_rad_by_fixture.plus_x", [0.0], r"key kuka.fixture_compliance.k_rad_by_fixture."
+                                                               r"plus_x: expected a list of 3"),
+    ("kuka.arm_kinematics.covariance", [[1.0]], r"key kuka.arm_kinematics.covariance: expected a 2 x 2"),
+    ("vicon.metrics.in_sample.E_T_m", [0.1], r"key vicon.metrics.in_sample.E_T_m: expected a list of 2"),
+    ("rejection", None, r"keys vicon, fused and rejection: all null or all present"),
+    ("kuka.pose", 1, r"unknown key\(s\) kuka.pose"),
+])
+def test_a_malformed_calibration_names_the_file_and_the_key(tmp_path, path, value, message):
+    workspace = Workspace(tmp_path)
+    workspace.calibration_path.write_text(json.dumps(_edit(CALIBRATION.to_json(), path, value)))
+    with pytest.raises(SidecarError, match=f"calibration.json: {message}"):
+        read_calibration(workspace)
+
+
+def test_missing_calibration_says_to_run_calibrate(tmp_path):
+    with pytest.raises(SidecarError, match="calibration.json: missing; run calibrate first"):
+        read_calibration(Workspace(tmp_path))
+
+
+def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
+    workspace = Workspace(tmp_path)
+    record = FusionRecord((1.02, 1.01, 1.0), 1.29, 44, "robust spread", 1.96)
+    write_fusion(workspace, record)
+    assert read_fusion(workspace) == record
+    workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "variance_factor.t", [1.0, 0.0, 1.0])))
+    with pytest.raises(SidecarError, match=r"fusion.json: key variance_factor.t: expected three positive factors"):
+        read_fusion(workspace)
+
+    arm = {"name": "KR 16", "source": "datasheet", "a1": 0.26, "a2": -0.035, "b": 0.0, "c1": 0.675, "c2": 0.68,
+           "c3": 0.67, "c4": 0.158, "offsets": [0.0] * 6, "signs": [1] * 6, "lower": [-3.0] * 6, "upper": [3.0] * 6}
+    truth = TruthRecord(arm, arm, (0.0,) * 6, (1e-3,) * 6, 1.0001, dict.fromkeys(POSE_KEYS, POSE),
+                        {"minus_x": POSE})
+    write_truth(workspace, truth)
+    assert read_truth(workspace) == truth
+    workspace.truth_path.write_text(json.dumps(_edit(truth.to_json(), "camera_arm.a1", "long")))
+    with pytest.raises(SidecarError, match=r"truth.json: key camera_arm.a1: expected a finite number"):
+        read_truth(workspace)

@@ -5,12 +5,12 @@ from dataclasses import replace
 import pyarrow.compute as pc
 import pytest
 
-from manifests import Workspace, read_manifest, read_success, write_part
-from pipeline import runner
+from manifests import Workspace, part_fingerprints, read_manifest, read_success, write_part
+from pipeline import registry, runner
 from pipeline.config import load_config
 from stages.plan import plan_sample, sample_ids
 
-PLAN = runner.stage_spec("plan")
+PLAN = registry.stage("plan")
 
 
 @pytest.fixture()
@@ -82,12 +82,15 @@ def test_partial_results_of_another_configuration_are_not_mixed(smoke, tmp_path)
 
 
 def test_missing_input_names_the_manifest(smoke, tmp_path):
-    needs_captures = runner.StageSpec("fuse-like", "stages.plan", ("captures",), ("poses",), ("plan",), "")
-    with pytest.raises(runner.StageError, match="needs the complete manifest.s. captures"):
-        runner.run_stage(needs_captures, smoke, Workspace(tmp_path))
+    with pytest.raises(runner.StageError, match="needs the complete manifest.s. captures, calibration_samples"):
+        runner.run_stage(registry.stage("fuse"), smoke, Workspace(tmp_path))
 
 
-def test_unbuilt_stage_says_so(smoke, tmp_path):
-    planned = runner.StageSpec("track", None, ("labels",), ("tracks",), (), "a stage of a later version")
-    with pytest.raises(runner.NotBuiltError, match="track"):
-        runner.run_stage(planned, smoke, Workspace(tmp_path))
+def test_a_stage_run_stamps_its_parts_and_nothing_else_can(smoke, tmp_path):
+    ws = Workspace(tmp_path)
+    with pytest.raises(RuntimeError, match="not being written by a stage run"):
+        ws.output_fingerprint("plan")
+    runner.run_stage(PLAN, smoke, ws)
+    assert part_fingerprints(ws, "plan") == {runner.fingerprint(PLAN, smoke, ws)}
+    with pytest.raises(RuntimeError):  # the runner's view of the workspace was its own
+        ws.output_fingerprint("plan")

@@ -7,7 +7,6 @@ the board, and switches lights, through ``mi.traverse``. Coordinates: robot worl
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import numpy as np
@@ -17,7 +16,18 @@ from stages.acquire.virtual import textures
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.lens import RenderGeometry
-from stages.common.mitsuba_util import MITSUBA_FROM_OPENCV, load_mitsuba, load_scene, mesh, transform
+from stages.common.mitsuba_adapter import (
+    first_hit_on,
+    load_mitsuba,
+    load_scene,
+    mesh,
+    render_threads,
+    sensor,
+    sensor_pixel_rays,
+    sensor_to_world,
+    set_threads,
+    transform,
+)
 from stages.common.patterns import board_image, board_pattern
 from stages.common.tango_mesh import tango_parts
 
@@ -41,10 +51,8 @@ class TestbedScene:
 
     def __init__(self, config: Config, geometry: RenderGeometry) -> None:
         self.mi = mi = load_mitsuba()
-        import drjit as dr
-
         # the local engine runs run.workers renderers side by side: share the cores between them
-        dr.set_thread_count(max(1, (os.cpu_count() or 1) // config.run.workers))
+        set_threads(render_threads(config.run.workers))
         self.config, self.geometry = config, geometry
         testbed, virtual = config.testbed, config.virtual
         rng = np.random.default_rng([virtual.seed, 0x7E57])
@@ -54,17 +62,7 @@ class TestbedScene:
         objects: dict[str, Any] = {
             "type": "scene",
             "integrator": {"type": "path", "max_depth": self.config.virtual.max_depth},
-            "sensor": {
-                "type": "perspective",
-                "fov_axis": "x",
-                "fov": float(np.degrees(geometry.fov_x_rad)),
-                "near_clip": 0.05,
-                "far_clip": 30.0,
-                "to_world": transform(mi, np.eye(4)),
-                "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height,
-                         "rfilter": {"type": "gaussian", "stddev": 0.4}, "pixel_format": "rgb"},
-                "sampler": {"type": "independent"},
-            },
+            "sensor": sensor(mi, geometry, far_clip_m=30.0, rfilter="gaussian", pixel_format="rgb"),
         }
         objects.update(self._room(mi))
         objects.update(self._lights(mi))
@@ -177,10 +175,7 @@ class TestbedScene:
                show_board: bool, seed: int) -> np.ndarray:
         """Linear luminance (H_render, W_render) of the pinhole render at these true poses."""
         mi = self.mi
-        self.params["sensor.to_world"] = transform(mi, world_from_cam @ MITSUBA_FROM_OPENCV)
-        for name, vertices in self._parts.items():
-            self.params[f"{name}.vertex_positions"] = mi.Float(
-                g.apply(world_from_target, vertices).astype(np.float32).ravel())
+        self._pose(world_from_cam, world_from_target)
         board = (g.apply(world_from_target, self._board_vertices) if show_board
                  else self._board_vertices + _HIDDEN_OFFSET)
         self.params["board.vertex_positions"] = mi.Float(board.astype(np.float32).ravel())
@@ -196,27 +191,20 @@ class TestbedScene:
         image = np.array(mi.render(self.scene, spp=self.config.virtual.spp, seed=seed))
         return image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
 
+    def _pose(self, world_from_cam: np.ndarray, world_from_target: np.ndarray) -> None:
+        """The camera and the mock-up at these true poses (the mesh moves: the room is static)."""
+        mi = self.mi
+        self.params["sensor.to_world"] = sensor_to_world(mi, world_from_cam)
+        for name, vertices in self._parts.items():
+            self.params[f"{name}.vertex_positions"] = mi.Float(
+                g.apply(world_from_target, vertices).astype(np.float32).ravel())
+
     def silhouette(self, world_from_cam: np.ndarray, world_from_target: np.ndarray) -> np.ndarray:
         """Where the mock-up is the first surface seen (H_render, W_render) float32 (0 or 1),
         one ray per pixel centre through this scene's own camera: the model's silhouette in
         a capture at these poses (tests and benchmarks compare twins with it)."""
-        mi = self.mi
-        import drjit as dr
-
-        self.params["sensor.to_world"] = transform(mi, world_from_cam @ MITSUBA_FROM_OPENCV)
-        for name, vertices in self._parts.items():
-            self.params[f"{name}.vertex_positions"] = mi.Float(
-                g.apply(world_from_target, vertices).astype(np.float32).ravel())
+        self._pose(world_from_cam, world_from_target)
         self.params.update()
-        width, height = self.geometry.width, self.geometry.height
-        ys, xs = np.mgrid[0:height, 0:width]
-        position = mi.Point2f(((xs.ravel() + 0.5) / width).astype(np.float32),
-                              ((ys.ravel() + 0.5) / height).astype(np.float32))
-        sensor = self.scene.sensors()[0]
-        rays, _ = sensor.sample_ray(0.0, 0.0, position, mi.Point2f(0.5, 0.5))
-        hit = self.scene.ray_intersect(rays)
-        on_model = dr.zeros(mi.Bool, width * height)
-        for shape in self.scene.shapes():
-            if shape.id() in self._parts:
-                on_model |= hit.is_valid() & (hit.shape == mi.ShapePtr(shape))
-        return np.array(on_model, dtype=np.float32).reshape(height, width)
+        hit = first_hit_on(self.mi, self.scene, sensor_pixel_rays(self.mi, self.scene, self.geometry),
+                           set(self._parts))
+        return hit.astype(np.float32).reshape(self.geometry.height, self.geometry.width)

@@ -9,16 +9,15 @@ the motion-capture world frame.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from manifests.io import write_json_atomic
+from manifests.sidecars import TruthRecord
 from pipeline.config import Config
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.kinematics import ArmModel, arm_model
+from stages.common.sidecars import record
 
 _LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 
@@ -40,24 +39,18 @@ class Truth:
     target_from_targetrb: np.ndarray  # model rigid body in T
     vicon_world_from_world: np.ndarray
 
-    def to_json(self) -> dict[str, Any]:
-        pose = g.pose_to_json
-        return {
-            "camera_arm": asdict(self.camera_arm),
-            "target_arm": asdict(self.target_arm),
-            "camera_joint_offsets_rad": self.camera_joint_offsets_rad.tolist(),
-            "target_joint_offsets_rad": self.target_joint_offsets_rad.tolist(),
-            "camera_base_error": pose(self.camera_base_error),
-            "target_base_error": pose(self.target_base_error),
-            "rail_scale": self.rail_scale,
-            "camee_from_cam": pose(self.camee_from_cam),
-            "cam_from_camee": pose(g.invert(self.camee_from_cam)),
-            "target_from_targetee": {m: pose(t) for m, t in self.target_from_targetee.items()},
-            "camee_from_camrb": pose(self.camee_from_camrb),
-            "cam_from_camrb": pose(g.invert(self.camee_from_cam) @ self.camee_from_camrb),
-            "target_from_targetrb": pose(self.target_from_targetrb),
-            "vicon_world_from_world": pose(self.vicon_world_from_world),
-        }
+    def to_record(self) -> TruthRecord:
+        """The stored form (``W/truth.json``), with the inverse offsets the estimates name."""
+        cam_from_camee = g.invert(self.camee_from_cam)
+        poses = {"camera_base_error": self.camera_base_error, "target_base_error": self.target_base_error,
+                 "camee_from_cam": self.camee_from_cam, "cam_from_camee": cam_from_camee,
+                 "camee_from_camrb": self.camee_from_camrb, "cam_from_camrb": cam_from_camee @ self.camee_from_camrb,
+                 "target_from_targetrb": self.target_from_targetrb,
+                 "vicon_world_from_world": self.vicon_world_from_world}
+        return TruthRecord(asdict(self.camera_arm), asdict(self.target_arm),
+                           tuple(self.camera_joint_offsets_rad.tolist()), tuple(self.target_joint_offsets_rad.tolist()),
+                           float(self.rail_scale), {key: record(pose) for key, pose in poses.items()},
+                           {m: record(t) for m, t in self.target_from_targetee.items()})
 
 
 def _small_transform(rng: np.random.Generator, sigma_m: float, sigma_rad: float) -> np.ndarray:
@@ -96,7 +89,3 @@ def draw_truth(config: Config) -> Truth:
         target_from_targetrb=target_from_targetrb,
         vicon_world_from_world=g.transform_from_qt(v.vicon_world_from_world_q, v.vicon_world_from_world_t_m),
     )
-
-
-def write_truth_json(truth: Truth, path: Path) -> None:
-    write_json_atomic(path, truth.to_json())

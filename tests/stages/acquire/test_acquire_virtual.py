@@ -105,13 +105,13 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
 
 
 def test_ray_engine_acquires_the_same_captures(smoke_workspace, ray_cluster, tmp_path):
-    from pipeline import runner
+    from pipeline import registry, runner
     from pipeline.config import load_config
 
     ws = Workspace(tmp_path / "ray")
     assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws.root)).returncode == 0
     config = load_config(None, ws.config_path, ["run.engine=ray"])
-    runner.run_stage(runner.stage_spec("acquire"), config, ws)
+    runner.run_stage(registry.stage("acquire"), config, ws)
     got = read_manifest(ws, "captures").sort_by("sample_id")
     assert got.equals(read_manifest(smoke_workspace, "captures").sort_by("sample_id"))
     for name in got.column("image_path").to_pylist():

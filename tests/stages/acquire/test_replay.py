@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from manifests import Workspace, read_manifest
-from pipeline import runner
+from pipeline import registry, runner
 from pipeline.config import load_config
 from pipeline.errors import InputError
 from stages.acquire.handeye import HandEyeReplay
@@ -81,7 +81,7 @@ def acquire(source, tmp_path, fmt="session", name="w"):
     config = load_config("smoke", overrides=["acquire.backend=replay", f"acquire.format={fmt}",
                                              f"acquire.source='{source}'"])
     ws = Workspace(tmp_path / name)
-    runner.run_stage(runner.stage_spec("acquire"), config, ws)
+    runner.run_stage(registry.stage("acquire"), config, ws)
     return ws
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from bench.handeye import KUKA_TOML, kuka_b, opencv_reference
 from manifests import Workspace, read_manifest
-from pipeline import runner
+from pipeline import registry, runner
 from pipeline.config import load_config
 from pipeline.errors import InputError
 from stages.common import geometry as g
@@ -25,7 +25,7 @@ def calibrate(source, root, *settings):
                                                f"acquire.source='{source}'", *settings])
     workspace = Workspace(root)
     for name in ("acquire", "calibrate"):
-        runner.run_stage(runner.stage_spec(name), config, workspace)
+        runner.run_stage(registry.stage(name), config, workspace)
     return json.loads((workspace.root / "calibration.json").read_text())
 
 

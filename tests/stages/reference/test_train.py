@@ -1,9 +1,11 @@
 """The reference model's recipe still runs and exports a model the evaluation can load."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import onnx
+import pytest
 
 from pipeline.config import load_config
 from stages.common.pose_model import PoseModel
@@ -38,3 +40,39 @@ def test_heatmap_targets_peak_at_the_keypoints():
         y, x = np.unravel_index(targets[0, k].argmax(), targets.shape[2:])
         assert abs((x + 0.5) * 4 - 0.5 - keypoints[0, k, 0]) <= 2 and abs((y + 0.5) * 4 - 0.5 - keypoints[0, k, 1]) <= 2
     assert targets[0, 2].max() == 0  # outside the image: no target
+
+
+def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(tmp_path, monkeypatch):
+    import torch
+
+    from stages.reference import train as training
+
+    recipe = replace(load_config("smoke").reference, input_width=64, input_height=64, width=4, batch_size=4,
+                     max_steps=6, threads=1)
+    rng = np.random.default_rng(3)
+    data = {"images": rng.integers(0, 255, (8, 64, 64, 3), dtype=np.uint8),
+            "keypoints": rng.uniform(5, 59, (8, 11, 2))}
+    reference, _ = training.train(data, recipe)
+
+    saved = training._save_checkpoint
+    calls = []
+
+    def crash_after_two_epochs(*args, **kwargs):
+        saved(*args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(training, "_save_checkpoint", crash_after_two_epochs)
+    checkpoint = tmp_path / "reference.checkpoint.pt"
+    with pytest.raises(KeyboardInterrupt):
+        training.train(data, recipe, checkpoint=checkpoint, tag="run-a")
+    monkeypatch.setattr(training, "_save_checkpoint", saved)
+    assert torch.load(checkpoint, weights_only=False)["step"] == 4
+    resumed, log = training.train(data, recipe, checkpoint=checkpoint, tag="run-a")
+    assert [entry["step"] for entry in log] == [2, 4, 6]
+    for name, value in reference.state_dict().items():
+        assert torch.equal(value, resumed.state_dict()[name]), name
+    # a checkpoint of another run (another fingerprint) is ignored, never resumed from
+    other, other_log = training.train(data, recipe, checkpoint=checkpoint, tag="run-b")
+    assert [entry["step"] for entry in other_log] == [2, 4, 6]

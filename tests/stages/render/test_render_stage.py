@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import Workspace, list_parts, read_manifest
-from pipeline import runner
+from pipeline import registry, runner
 from pipeline.config import load_config
 from tests.conftest import speedplus
 
@@ -118,7 +118,7 @@ def test_interrupted_render_resumes_without_duplicates(twins, smoke_labelled, tm
 def test_ray_engine_gives_the_same_pixels_as_the_local_engine(twins, smoke_labelled, ray_cluster, tmp_path):
     ws = copy_of(smoke_labelled, tmp_path, "ray")
     config = load_config(None, ws.config_path, ["run.engine=ray"])
-    outcome = runner.run_stage(runner.stage_spec("render"), config, ws)
+    outcome = runner.run_stage(registry.stage("render"), config, ws)
     assert outcome.rows == {"renders": 8}
     got, reference = read_manifest(ws, "renders"), read_manifest(twins, "renders")
     assert stable(got).equals(stable(reference))

@@ -1,26 +1,19 @@
-"""Typed JSON files of the workspace (docs/architecture.md section 4), each with a version,
-validation that names the file and the key, one path on the ``Workspace`` and one reader
-and one writer. Now: ``session.json``, which acquire writes and the later stages read.
-"""
+"""``W/session.json``: what acquire recorded about the capture session (docs/architecture.md
+section 4). Written by acquire; read by calibrate, and by label and render for the mock-up
+scale."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.io import write_json_atomic
+from manifests.sidecars.base import SidecarError, load, save
 from manifests.workspace import Workspace
-from pipeline.errors import InputError
 
 SESSION_VERSION = 1
 BACKENDS = ("virtual", "replay")
 FORMATS = ("virtual", "session", "handeye", "tabb")
 SOURCES = ("kuka", "vicon")
-
-
-class SidecarError(InputError):
-    """A JSON file of the workspace that is missing, unreadable or malformed."""
 
 
 @dataclass(frozen=True)
@@ -100,16 +93,10 @@ class Session:
 
 
 def write_session(workspace: Workspace, session: Session) -> None:
-    write_json_atomic(workspace.session_path, session.to_json())
+    save(workspace.session_path, session.to_json())
 
 
 def read_session(workspace: Workspace) -> Session:
     """``W/session.json``, validated; a SidecarError that names the file and says what to rerun."""
-    path = workspace.session_path
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise SidecarError(f"{path}: missing; run acquire first") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise SidecarError(f"{path}: not valid JSON ({error}); rerun acquire with --force") from None
-    return Session.from_json(data, str(path))
+    fields = load(workspace.session_path, SESSION_VERSION, "acquire")
+    return Session.from_json(fields.data, fields.where)

@@ -1,0 +1,42 @@
+"""Typed JSON files of the workspace (docs/architecture.md section 4). Each has a dataclass
+with ``to_json``/``from_json``, a version, validation that names the file and the key, one
+path on the ``Workspace``, and one reader and one writer:
+
+| file | written by | read by |
+|---|---|---|
+| ``session.json`` | acquire | calibrate, fuse, label, render (mock-up scale) |
+| ``calibration.json`` | calibrate | fuse, label, render, evaluate, report, export |
+| ``fusion.json`` | fuse | report, benchmarks |
+| ``truth.json`` | acquire (virtual only) | tests and benchmarks, never a stage after acquire |
+"""
+
+from manifests.sidecars.base import Pose, SidecarError
+from manifests.sidecars.calibration import (
+    CALIBRATION_VERSION,
+    OFFSET_KEYS,
+    Calibration,
+    Intrinsics,
+    SigmaRecord,
+    SourceCalibration,
+    read_calibration,
+    write_calibration,
+)
+from manifests.sidecars.fusion import FUSION_VERSION, FusionRecord, read_fusion, write_fusion
+from manifests.sidecars.session import (
+    BACKENDS,
+    FORMATS,
+    SESSION_VERSION,
+    SOURCES,
+    Session,
+    SessionCamera,
+    read_session,
+    write_session,
+)
+from manifests.sidecars.truth import TRUTH_VERSION, TruthRecord, read_truth, write_truth
+
+__all__ = [
+    "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "OFFSET_KEYS", "SESSION_VERSION", "SOURCES",
+    "TRUTH_VERSION", "Calibration", "FusionRecord", "Intrinsics", "Pose", "Session", "SessionCamera",
+    "SidecarError", "SigmaRecord", "SourceCalibration", "TruthRecord", "read_calibration", "read_fusion",
+    "read_session", "read_truth", "write_calibration", "write_fusion", "write_session", "write_truth",
+]

@@ -1,0 +1,204 @@
+"""``W/calibration.json``: what calibrate estimated and measured (docs/architecture.md
+section 4). Written by calibrate; read by fuse (offsets, compliance, arms, sigmas), label,
+render, evaluate and export (the camera), and report (Table 1).
+
+Poses are ``Pose`` records ({q, t}); each source's offsets keep the names of their frames
+(``OFFSET_KEYS``): the KUKA telemetry ends at the flanges (camee, targetee), motion capture
+at the rigid bodies (camrb, targetrb). The metrics, screening and solver records are shown,
+not computed on, and are checked for shape only where Table 1 reads them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from manifests.sidecars.base import Fields, Pose, SidecarError, load, save
+from manifests.workspace import Workspace
+
+CALIBRATION_VERSION = 1
+WRITER = "calibrate"
+#: each source's (camera offset, target offset) key in calibration.json
+OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}
+METRIC_KINDS = ("in_sample", "cross_validated", "truth")
+METRIC_KEYS = ("E_T_m", "E_R_rad", "E_p_px")
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """The camera of the labels: K (3 x 3, px), OpenCV distortion (5,), size (px), the
+    calibration's RMS reprojection (px), and whether calibrate estimated them."""
+
+    camera_matrix: tuple[tuple[float, ...], ...]
+    dist: tuple[float, ...]
+    width: int
+    height: int
+    rms_px: float
+    estimated: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {"K": [list(row) for row in self.camera_matrix], "dist": list(self.dist), "width": self.width,
+                "height": self.height, "rms_px": self.rms_px, "estimated": self.estimated}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> Intrinsics:
+        f.only("K", "dist", "width", "height", "rms_px", "estimated")
+        return cls(f.matrix("K", 3, 3), f.vector("dist", 5), f.integer("width", minimum=1),
+                   f.integer("height", minimum=1), f.number("rms_px"), f.boolean("estimated"))
+
+
+@dataclass(frozen=True)
+class SigmaRecord:
+    """A pose uncertainty: per-axis translation (3,) m, rotation rad, and pointing rad."""
+
+    t_m: tuple[float, float, float]
+    r_rad: float
+    pointing_rad: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"sigma_t_m": list(self.t_m), "sigma_r_rad": self.r_rad}
+        if self.pointing_rad is not None:
+            out["sigma_pointing_rad"] = self.pointing_rad
+        return out
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> SigmaRecord:
+        return cls(f.vector("sigma_t_m", 3), f.number("sigma_r_rad"),
+                   f.number("sigma_pointing_rad") if f.optional("sigma_pointing_rad") else None)
+
+
+def _metrics(f: Fields, name: str) -> dict[str, Any]:
+    """Table 1's metrics of one column: {kind: {E_T_m: [mean, std], ...} or null}."""
+    metrics = f.child(name)
+    for kind in METRIC_KINDS:
+        if metrics.optional(kind):
+            entry = metrics.child(kind)
+            for key in METRIC_KEYS:
+                entry.vector(key, 2)
+        elif kind != "truth":
+            raise metrics.fail(kind, "an object of mean and std per metric")
+    return metrics.data
+
+
+@dataclass(frozen=True)
+class SourceCalibration:
+    """One source's calibrated offsets, fixture compliance, arm kinematics and sigmas."""
+
+    source: str  # "kuka" or "vicon"
+    cam_from_offset: Pose  # cam_from_camee (kuka) or cam_from_camrb (vicon)
+    target_from_offset_by_fixture: dict[str, Pose]  # target_from_targetee / _targetrb per fixture
+    fixture_compliance: dict[str, Any]  # estimated, why, k_rad_by_fixture ({fixture: (3,) rad} or null), tilts
+    arm_kinematics: dict[str, Any]  # estimated, why and, when estimated, stages.common.arms' Fit JSON
+    sigma: SigmaRecord
+    samples: int
+    outliers: tuple[str, ...]
+    metrics: dict[str, Any]  # {in_sample, cross_validated, truth}: {E_T_m, E_R_rad, E_p_px: [mean, std]}
+    opencv_shah_in_sample: dict[str, Any] | None = None  # OpenCV's Shah on the same data, for comparison
+
+    @property
+    def compliance_k_rad(self) -> dict[str, tuple[float, ...]]:
+        return self.fixture_compliance.get("k_rad_by_fixture") or {}
+
+    def to_json(self) -> dict[str, Any]:
+        z_key, x_key = OFFSET_KEYS[self.source]
+        first = self.target_from_offset_by_fixture[sorted(self.target_from_offset_by_fixture)[0]]
+        out = {z_key: self.cam_from_offset.to_json(), x_key: first.to_json(),
+               f"{x_key}_by_fixture": {k: p.to_json() for k, p in self.target_from_offset_by_fixture.items()},
+               "fixture_compliance": self.fixture_compliance, "arm_kinematics": self.arm_kinematics,
+               **self.sigma.to_json(), "samples": self.samples, "outliers": list(self.outliers),
+               "metrics": self.metrics}
+        if self.opencv_shah_in_sample is not None:
+            out["opencv_shah_in_sample"] = self.opencv_shah_in_sample
+        return out
+
+    @classmethod
+    def from_fields(cls, source: str, f: Fields) -> SourceCalibration:
+        z_key, x_key = OFFSET_KEYS[source]
+        f.only(z_key, x_key, f"{x_key}_by_fixture", "fixture_compliance", "arm_kinematics", "sigma_t_m",
+               "sigma_r_rad", "sigma_pointing_rad", "samples", "outliers", "metrics", "opencv_shah_in_sample")
+        by_fixture_fields = f.child(f"{x_key}_by_fixture")
+        by_fixture = {name: by_fixture_fields.pose(name) for name in by_fixture_fields.data}
+        if not by_fixture:
+            raise f.fail(f"{x_key}_by_fixture", "at least one fixture")
+        f.pose(x_key)
+        compliance = f.child("fixture_compliance")
+        compliance.boolean("estimated")
+        if compliance.optional("k_rad_by_fixture"):
+            k = compliance.child("k_rad_by_fixture")
+            for name in k.data:
+                k.vector(name, 3)
+        kinematics = f.child("arm_kinematics")
+        if kinematics.boolean("estimated"):
+            count = len(kinematics.vector("parameters"))
+            kinematics.matrix("covariance", count, count)
+            names = kinematics.raw("fixtures")
+            if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                raise kinematics.fail("fixtures", "a list of fixture names")
+            kinematics.boolean("compliant")
+        outliers = f.raw("outliers")
+        if not isinstance(outliers, list) or not all(isinstance(s, str) for s in outliers):
+            raise f.fail("outliers", "a list of sample ids")
+        shah = f.child("opencv_shah_in_sample").data if f.optional("opencv_shah_in_sample") else None
+        return cls(source, f.pose(z_key), by_fixture, compliance.data, kinematics.data, SigmaRecord.from_fields(f),
+                   f.integer("samples", minimum=1), tuple(outliers), _metrics(f, "metrics"), shah)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """``W/calibration.json``."""
+
+    intrinsics: Intrinsics
+    kuka: SourceCalibration
+    vicon: SourceCalibration | None  # None: no motion capture in the session
+    calibration_distance_m: float  # mean camera-to-target distance of the calibration captures
+    calibration_lever_sq_m2: tuple[float, float, float]  # mean squared lever of the line of sight, per axis
+    world_up: tuple[float, float, float]  # the up the fixture compliance was fitted with, robot world frame
+    fused: dict[str, Any] | None  # Table 1's fused column: samples, metrics, sources_on_the_same_samples
+    rejection: SigmaRecord | None  # spread of motion capture against the robots (the rejection test's sigma)
+    solver: dict[str, Any]  # method, folds, pattern, fixtures
+    session: dict[str, Any]  # backend, sources
+    screening: dict[str, Any]  # stages.calibrate.screening's record of what was checked and dropped
+
+    def source(self, name: str) -> SourceCalibration | None:
+        return {"kuka": self.kuka, "vicon": self.vicon}[name]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"version": CALIBRATION_VERSION, "intrinsics": self.intrinsics.to_json(), "kuka": self.kuka.to_json(),
+                "vicon": None if self.vicon is None else self.vicon.to_json(),
+                "calibration_distance_m": self.calibration_distance_m,
+                "calibration_lever_sq_m2": list(self.calibration_lever_sq_m2), "world_up": list(self.world_up),
+                "fused": self.fused, "rejection": None if self.rejection is None else self.rejection.to_json(),
+                "solver": self.solver, "session": self.session, "screening": self.screening}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> Calibration:
+        f.only("version", "intrinsics", "kuka", "vicon", "calibration_distance_m", "calibration_lever_sq_m2",
+               "world_up", "fused", "rejection", "solver", "session", "screening")
+        vicon = SourceCalibration.from_fields("vicon", f.child("vicon")) if f.optional("vicon") else None
+        fused = None
+        if f.optional("fused"):
+            fused_fields = f.child("fused")
+            fused_fields.integer("samples", minimum=1)
+            _metrics(fused_fields, "metrics")
+            fused = fused_fields.data
+        if (vicon is None) != (fused is None) or (vicon is None) != (not f.optional("rejection")):
+            raise SidecarError(f"{f.where}: keys vicon, fused and rejection: all null or all present")
+        kuka = SourceCalibration.from_fields("kuka", f.child("kuka"))
+        return cls(Intrinsics.from_fields(f.child("intrinsics")), kuka, vicon,
+                   f.number("calibration_distance_m", positive=True), f.vector("calibration_lever_sq_m2", 3),
+                   f.vector("world_up", 3), fused,
+                   SigmaRecord.from_fields(f.child("rejection")) if f.optional("rejection") else None,
+                   f.child("solver").data, f.child("session").data, f.child("screening").data)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: str = "calibration.json") -> Calibration:
+        return cls.from_fields(Fields(data, where, ""))
+
+
+def write_calibration(workspace: Workspace, calibration: Calibration) -> None:
+    save(workspace.calibration_path, calibration.to_json())
+
+
+def read_calibration(workspace: Workspace) -> Calibration:
+    """``W/calibration.json``, validated; a SidecarError that names the file and the key."""
+    return Calibration.from_fields(load(workspace.calibration_path, CALIBRATION_VERSION, WRITER))

@@ -1,0 +1,49 @@
+"""``W/fusion.json``: the dataset session's a posteriori variance factor, which scales the
+calibrated sigmas in fuse (docs/architecture.md section 6). Written by fuse; read by the
+benchmarks and tests that judge the sigmas."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from manifests.sidecars.base import Fields, load, save
+from manifests.workspace import Workspace
+
+FUSION_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FusionRecord:
+    """The variance factor per position axis (3,) and for rotation (sigma multipliers, 1 =
+    the calibrated sigmas), the captures it was measured on, why, and the rejection k."""
+
+    factor_t: tuple[float, float, float]
+    factor_r: float
+    samples: int
+    why: str
+    rejection_k: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {"version": FUSION_VERSION,
+                "variance_factor": {"t": list(self.factor_t), "r": self.factor_r, "samples": self.samples},
+                "why": self.why, "rejection_k": self.rejection_k}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> FusionRecord:
+        f.only("version", "variance_factor", "why", "rejection_k")
+        factor = f.child("variance_factor")
+        factor.only("t", "r", "samples")
+        t = factor.vector("t", 3)
+        if min(t) <= 0:
+            raise factor.fail("t", "three positive factors")
+        return cls(t, factor.number("r", positive=True), factor.integer("samples"), f.text("why"),
+                   f.number("rejection_k", positive=True))
+
+
+def write_fusion(workspace: Workspace, record: FusionRecord) -> None:
+    save(workspace.fusion_path, record.to_json())
+
+
+def read_fusion(workspace: Workspace) -> FusionRecord:
+    return FusionRecord.from_fields(load(workspace.fusion_path, FUSION_VERSION, "fuse"))

@@ -1,0 +1,41 @@
+"""Typed configuration: one frozen dataclass per section, every field documented with its unit
+(``facility``: execution, camera, testbed, virtual testbed; ``stages``: one section per stage).
+
+Resolution order: dataclass defaults, then the profile shipped in ``pipeline/profiles``
+(``smoke``, ``default``, ``paper``), then ``--config FILE``, then ``--set section.key=value``.
+The resolved configuration is written to ``W/config.toml``. Units follow docs/architecture.md section 3:
+metres and radians (field names end in ``_m``, ``_rad``, ``_px``; quaternions ``_q`` are
+Hamilton ``(w, x, y, z)``).
+"""
+
+from pipeline.config.facility import CameraConfig, RunConfig, TestbedConfig, VirtualConfig, resize_camera_matrix
+from pipeline.config.loading import (
+    PROFILES,
+    Override,
+    load_config,
+    parse_override,
+    profile_path,
+    to_dict,
+    with_overrides,
+    write_config,
+)
+from pipeline.config.model import SECTION_TYPES, Config
+from pipeline.config.params import ConfigError, param
+from pipeline.config.stages import (
+    AcquireConfig,
+    CalibrateConfig,
+    EvaluateConfig,
+    ExportConfig,
+    FuseConfig,
+    LabelConfig,
+    PlanConfig,
+    ReferenceConfig,
+    RenderConfig,
+)
+
+__all__ = [
+    "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
+    "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
+    "RenderConfig", "RunConfig", "TestbedConfig", "VirtualConfig", "load_config", "param", "parse_override",
+    "profile_path", "resize_camera_matrix", "to_dict", "with_overrides", "write_config",
+]

@@ -1,0 +1,192 @@
+"""Configuration of the facility: how stages execute, the camera, the testbed's geometry and
+lights, and the virtual testbed's error model (units: docs/architecture.md section 3)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from pipeline.config.params import param
+
+
+def resize_camera_matrix(camera_matrix: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
+    """K (3, 3) of an image resized by ``scale_x``, ``scale_y``. With pixel centres at integer
+    coordinates a resize by s maps x to (x + 0.5) s - 0.5, which is what the principal point gets."""
+    k = np.asarray(camera_matrix, dtype=float)
+    return np.array([
+        [k[0, 0] * scale_x, k[0, 1] * scale_x, (k[0, 2] + 0.5) * scale_x - 0.5],
+        [k[1, 0] * scale_y, k[1, 1] * scale_y, (k[1, 2] + 0.5) * scale_y - 0.5],
+        [0.0, 0.0, 1.0],
+    ])
+
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """How stages execute (not part of any stage fingerprint: it never changes results)."""
+
+    part_rows: int = param(16, "rows per Parquet part; a crash loses at most one part of work", "rows")
+    workers: int = param(2, "worker processes of the local engine (spawned; each loads its renderer once)", "count")
+    worker_max_tasks: int = param(
+        60, "samples a worker processes before it is replaced (bounds the renderer's memory growth)", "count")
+    engine: Literal["local", "ray"] = param(
+        "local", "where render runs its samples: local (spawned processes) or ray (a Ray "
+        "cluster, one renderer actor per worker); same seed, same pixels", "")
+    ray_address: str = param("", "Ray cluster to join (e.g. ray://host:10001); empty: start a local one", "")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The testbed camera. Defaults: the SPEED+ camera (docs/architecture.md section 5), scaled to the
+    profile resolution so that the field of view is unchanged."""
+
+    reference_width_px: int = param(1920, "width at which fx, fy, cx, cy are given", "px")
+    pixel_pitch_m: float = param(5.86e-6, "pixel pitch at the reference resolution (Sony IMX174: 5.86 um)", "m")
+    reference_height_px: int = param(1200, "height at which fx, fy, cx, cy are given", "px")
+    fx_px: float = param(2988.5795, "focal length x at the reference resolution (SPEED+ camera.json)", "px")
+    fy_px: float = param(2988.3401, "focal length y at the reference resolution (SPEED+ camera.json)", "px")
+    cx_px: float = param(960.0, "principal point x at the reference resolution", "px")
+    cy_px: float = param(600.0, "principal point y at the reference resolution", "px")
+    dist: tuple[float, float, float, float, float] = param(
+        (-0.22383017, 0.51409797, -0.00066500, -0.00021405, -0.13124227),
+        "OpenCV distortion (k1, k2, p1, p2, k3) of the SPEED+ camera; scale-free", "1")
+    width_px: int = param(960, "image width of this run", "px")
+    height_px: int = param(600, "image height of this run", "px")
+
+    @property
+    def scale(self) -> float:
+        return self.width_px / self.reference_width_px
+
+    def camera_matrix(self) -> np.ndarray:
+        """K (3, 3) at ``width_px x height_px``: the reference K resized (``resize_camera_matrix``)."""
+        reference = np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+        return resize_camera_matrix(reference, self.scale, self.scale)
+
+    def dist_coeffs(self) -> np.ndarray:
+        return np.asarray(self.dist, dtype=float)
+
+
+@dataclass(frozen=True)
+class TestbedConfig:
+    """Geometry of the TRON-like room (frame K: x along the rail, y across, z up, origin on
+    the floor in a corner). Nominal values: what the lab believes; the virtual testbed's
+    true values differ from them."""
+
+    __test__ = False  # not a pytest test class despite the name
+
+    room_m: tuple[float, float, float] = param((8.0, 3.0, 3.0), "room size x, y, z (TRON: 8 x 3 x 3 m)", "m")
+    robot_model: str = param("KR16-2", "KUKA arm model of both robots (see stages/common/kinematics.py)")
+    target_base_m: tuple[float, float, float] = param(
+        (0.6, 1.5, 0.0), "position of the floor-mounted target robot's base in K", "m")
+    target_base_yaw_rad: float = param(0.0, "rotation of the target robot's base about K's z", "rad")
+    rail_origin_m: tuple[float, float, float] = param(
+        (1.7, 1.5, 3.0), "camera robot base position in K at rail position 0 (hanging, A1 axis down)", "m")
+    rail_length_m: float = param(5.9, "usable rail travel along K's x (TRON: about 6 m)", "m")
+    target_presentation_m: tuple[tuple[float, float, float], ...] = param(
+        ((1.55, 1.5, 1.25), (1.35, 1.5, 1.0)),
+        "candidate positions in K where the target robot presents the model's origin", "m")
+    mockup_scale: float = param(0.5, "mock-up size / real Tango size (TRON: half scale)", "1")
+    camee_from_cam_q: tuple[float, float, float, float] = param(
+        (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
+    camee_from_cam_t_m: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.12), "nominal camera position in the flange frame (lens 12 cm out along flange z)", "m")
+    mount_target_from_targetee_q: tuple[float, float, float, float] = param(
+        (0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)),
+        "nominal rotation of the target flange in T for the minus_x mount (flange z along +x of T); "
+        "the plus_x mount is this rotated 180 deg about T's z", "1")
+    mount_target_from_targetee_t_m: tuple[float, float, float] = param(
+        (-0.305, 0.0, 0.08), "nominal flange position in T for the minus_x mount: 12 cm stand-off "
+        "from the -x face of the half-scale model", "m")
+    light_box_centres_m: tuple[tuple[float, float, float], ...] = param(
+        ((0.5, 0.02, 1.3), (1.3, 0.02, 1.3), (2.1, 0.02, 1.3), (2.9, 0.02, 1.3),
+         (0.5, 2.98, 1.3), (1.3, 2.98, 1.3), (2.1, 2.98, 1.3), (2.9, 2.98, 1.3),
+         (0.02, 0.9, 1.3), (0.02, 2.1, 1.3)),
+        "centres of the 10 Earth-albedo light boxes on the walls around the model (TRON: 10 boxes)", "m")
+    light_box_size_m: tuple[float, float] = param((0.6, 0.6), "light box diffuser width, height", "m")
+    light_box_aim_m: tuple[float, float, float] = param(
+        (1.5, 1.5, 1.15), "point every light box faces (the model's working volume)", "m")
+    sun_lamp_position_m: tuple[float, float, float] = param(
+        (3.2, 0.25, 1.9), "sun lamp (metal-halide arc lamp) position in K", "m")
+    board_squares: tuple[int, int] = param((11, 11), "ChArUco board squares x, y (TRON: 11 x 11)", "count")
+    board_square_m: float = param(0.030, "ChArUco square side (TRON: 30 mm)", "m")
+    board_marker_m: float = param(0.022, "ArUco marker side inside a square", "m")
+    board_dictionary: str = param("DICT_5X5_100", "cv2.aruco predefined dictionary of the board")
+    target_from_board_q: tuple[float, float, float, float] = param(
+        (0.0, 1.0, 0.0, 0.0), "board frame (OpenCV ChArUco: origin at a corner, z into the board) in T: "
+        "board z along -z of T, i.e. lying on the solar panel facing out", "1")
+    target_from_board_t_m: tuple[float, float, float] = param(
+        (-0.165, 0.165, 0.16375), "board origin in T: board centred on the half-scale solar panel "
+        "(z = 0.3215 * 0.5 m) on a 3 mm plate", "m")
+
+
+@dataclass(frozen=True)
+class VirtualConfig:
+    """Error sources of the virtual testbed; each default's source is in its help text.
+    The hidden truth drawn from them is written to W/truth.json."""
+
+    seed: int = param(11, "random seed of the hidden truth and of all measurement noise", "")
+    link_length_sigma_m: float = param(
+        0.0003, "1-sigma error of each true arm dimension vs the data sheet (uncalibrated KUKA arms: "
+        "absolute accuracy of a few mm with 0.05 mm repeatability)", "m")
+    joint_offset_sigma_rad: float = param(
+        0.0006, "1-sigma true zero offset of each joint encoder (0.034 deg: about 1 mm at full reach)", "rad")
+    base_position_sigma_m: float = param(0.0005, "1-sigma error of each robot base position in K", "m")
+    base_rotation_sigma_rad: float = param(0.0002, "1-sigma error of each robot base orientation in K", "rad")
+    repeatability_rad: float = param(
+        1.5e-5, "1-sigma joint positioning noise (KR 16-2 data sheet: pose repeatability +-0.05 mm)", "rad")
+    rail_scale_sigma: float = param(1e-4, "1-sigma scale error of the rail position encoder", "1")
+    rail_noise_m: float = param(5e-5, "1-sigma rail positioning noise", "m")
+    camera_fixture_sigma_m: float = param(0.003, "1-sigma true camera offset from its nominal fixture", "m")
+    camera_fixture_sigma_rad: float = param(0.01, "1-sigma true camera rotation from its nominal fixture", "rad")
+    model_fixture_sigma_m: float = param(0.003, "1-sigma true model offset from each nominal mount", "m")
+    model_fixture_sigma_rad: float = param(0.01, "1-sigma true model rotation from each nominal mount", "rad")
+    model_mass_kg: float = param(4.0, "mass of the half-scale mock-up (gravity moment on its fixture)", "kg")
+    model_compliance_rad_per_nm: float = param(
+        1e-3, "fixture tilt per unit gravity moment; the paper blames its KUKA-only rotation error (0.64 deg) "
+        "on the model tilting on its fixture", "rad/(N m)")
+    vicon_camera_height_m: float = param(2.8, "height of the 12 motion-capture cameras on the walls", "m")
+    vicon_fov_rad: float = param(1.35, "full field of view of a motion-capture camera (Vicon Vero: 77 deg)", "rad")
+    vicon_max_range_m: float = param(9.0, "farthest marker a motion-capture camera resolves", "m")
+    vicon_marker_sigma_m: float = param(
+        0.0003, "1-sigma marker position noise seen by two cameras (Vicon systems: sub-millimetre); "
+        "scales with sqrt(2 / cameras)", "m")
+    vicon_model_noise_factor: float = param(
+        2.0, "marker noise on the mock-up relative to the camera's markers: its reflective foil and panels "
+        "blur the marker images (the paper blames 'the reflective surfaces of the RSO model')", "1")
+    vicon_ghost_rate: float = param(
+        0.04, "probability that a tracked rigid body includes one ghost or mislabelled marker", "1")
+    vicon_ghost_offset_m: tuple[float, float] = param((0.005, 0.03), "range of a ghost marker's displacement", "m")
+    vicon_link_radius_m: float = param(0.09, "radius of the robot links as seen by motion capture", "m")
+    vicon_world_from_world_q: tuple[float, float, float, float] = param(
+        (0.7071067811865476, 0.0, 0.0, 0.7071067811865476),
+        "motion-capture world V in K (set by the Vicon wand calibration; unrelated to K)", "1")
+    vicon_world_from_world_t_m: tuple[float, float, float] = param(
+        (1.2, -3.4, 0.05), "origin of K in V", "m")
+    camera_markers_m: tuple[tuple[float, float, float], ...] = param(
+        ((0.12, 0.08, 0.02), (-0.12, 0.09, 0.04), (0.10, -0.11, 0.10), (-0.11, -0.10, 0.13), (0.0, 0.13, 0.18)),
+        "camera rigid-body markers in the camera flange frame (5 markers on a plate around the camera, "
+        "spread about 25 cm so that the camera's pointing is tracked to about 0.05 deg)", "m")
+    target_markers_rel: tuple[tuple[float, float, float], ...] = param(
+        ((0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5), (-1.03, -0.3, 0.3),
+         (0.2, 1.03, 0.2)),
+        "model markers as fractions of the half extents of the body box about its centre (6 markers)", "1")
+    spp: int = param(16, "Mitsuba samples per pixel of a capture", "count")
+    max_depth: int = param(4, "Mitsuba path length (4: direct light and two interreflections)", "count")
+    full_well_e: float = param(32513.0, "sensor full-well capacity (Sony IMX174 of the Grasshopper3 GS3-U3-23S6M)",
+                               "e-")
+    read_noise_e: float = param(6.8, "sensor read noise (IMX174, EMVA 1288 data)", "e-")
+    gamma: float = param(1.0, "output gamma: 1 is linear, as machine-vision cameras deliver by default", "1")
+    exposure_lightbox: float = param(5.0, "exposure scale (radiance to full well) under light boxes", "1")
+    exposure_sunlamp: float = param(0.12, "exposure scale under the sun lamp", "1")
+    exposure_ambient: float = param(2.5, "exposure scale under the room's ambient light (calibration)", "1")
+    light_box_radiance: float = param(6.0, "radiance of an active light box (relative units)", "1")
+    sun_lamp_radiance: float = param(4.0e4, "radiance of the sun lamp's arc (relative units)", "1")
+    sun_lamp_radius_m: float = param(0.04, "radius of the sun lamp's emitting sphere", "m")
+    ambient_radiance: float = param(2.5, "radiance of the ceiling panels used for calibration", "1")
+    glare_strength: float = param(0.6, "veiling glare of the sun lamp relative to full scale at its image point",
+                                  "1")
+
+

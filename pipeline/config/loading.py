@@ -1,0 +1,250 @@
+"""Resolving a configuration: profile, then ``--config`` file, then overrides, each value
+checked against its field's type once, then the rules that types cannot express; and
+writing the resolved configuration to ``W/config.toml``."""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import tomli_w
+
+from manifests.schema import DOMAINS, MOUNTS
+from pipeline.config.model import SECTION_TYPES, Config
+from pipeline.config.params import ConfigError
+
+PROFILES = ("smoke", "default", "paper")
+
+
+# ---------------------------------------------------------------------------- validation
+def _coerce(value: Any, annotation: Any, key: str) -> Any:
+    """``value`` (from TOML or --set) as ``annotation``; ConfigError naming ``key`` if not."""
+    origin = typing.get_origin(annotation)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    if origin is Literal:
+        choices = typing.get_args(annotation)
+        if value not in choices:
+            listed = ", ".join(str(c) for c in choices[:-1]) + f" or {choices[-1]}"
+            raise ConfigError(f"{key}: expected {listed}, got {value!r}")
+        return value
+    if origin is tuple:
+        args = typing.get_args(annotation)
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], key) for v in value)
+        if len(value) != len(args):
+            raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)}")
+        return tuple(_coerce(v, a, key) for v, a in zip(value, args, strict=True))
+    if origin in (types.UnionType, typing.Union):
+        raise ConfigError(f"{key}: union types are not supported in configuration")
+    raise ConfigError(f"{key}: unsupported type {annotation!r}")
+
+
+def _unknown(key: str, known: list[str]) -> ConfigError:
+    close = difflib.get_close_matches(key, known, n=1)
+    hint = f" (did you mean {close[0]}?)" if close else ""
+    return ConfigError(f"unknown configuration key {key!r}{hint}")
+
+
+def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
+    known_keys = [f"{s}.{f.name}" for s, t in SECTION_TYPES.items() for f in fields(t)]
+    changes: dict[str, Any] = {}
+    for section_name, values in updates.items():
+        if section_name == "profile":
+            continue
+        if section_name not in SECTION_TYPES:
+            raise ConfigError(f"{source}: " + str(_unknown(section_name, list(SECTION_TYPES))))
+        if not isinstance(values, dict):
+            raise ConfigError(f"{source}: {section_name!r} must be a table of keys")
+        section_type = SECTION_TYPES[section_name]
+        hints = typing.get_type_hints(section_type)
+        field_names = {f.name for f in fields(section_type)}
+        coerced = {}
+        for name, value in values.items():
+            key = f"{section_name}.{name}"
+            if name not in field_names:
+                raise ConfigError(f"{source}: " + str(_unknown(key, known_keys)))
+            try:
+                coerced[name] = _coerce(value, hints[name], key)
+            except ConfigError as error:
+                raise ConfigError(f"{source}: {error}") from None
+        changes[section_name] = replace(getattr(config, section_name), **coerced)
+    return replace(config, **changes)
+
+
+def _check(config: Config) -> Config:
+    """Cross-field rules that types cannot express."""
+    c, p = config.camera, config.plan
+    if c.width_px <= 0 or c.height_px <= 0:
+        raise ConfigError("camera.width_px/height_px: must be positive")
+    if abs(c.width_px / c.reference_width_px - c.height_px / c.reference_height_px) > 1e-9:
+        raise ConfigError(
+            f"camera.width_px/height_px: {c.width_px}x{c.height_px} does not have the aspect of the reference "
+            f"{c.reference_width_px}x{c.reference_height_px}; intrinsics can only be scaled uniformly")
+    for key, low, high in (("plan.calibration_distance_m", *p.calibration_distance_m),
+                           ("plan.dataset_range_m", *p.dataset_range_m)):
+        if not 0 < low <= high:
+            raise ConfigError(f"{key}: expected 0 < min <= max, got ({low}, {high})")
+    if p.n_calibration < 0 or p.n_dataset < 0:
+        raise ConfigError("plan.n_calibration/n_dataset: must not be negative")
+    if not set(p.lights) <= set(DOMAINS) or not p.lights:
+        raise ConfigError(f"plan.lights: expected a non-empty subset of lightbox, sunlamp, got {p.lights}")
+    if not set(p.calibration_mounts) <= set(MOUNTS) or not p.calibration_mounts:
+        raise ConfigError(f"plan.calibration_mounts: expected minus_x and/or plus_x, got {p.calibration_mounts}")
+    low, high = p.light_boxes_per_sample
+    if not 1 <= low <= high <= p.n_light_boxes:
+        raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
+    if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
+        raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
+    if config.acquire.backend == "replay" and not config.acquire.source:
+        raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
+    if config.run.workers < 1 or config.run.worker_max_tasks < 1:
+        raise ConfigError("run.workers/worker_max_tasks: must be at least 1")
+    if not 0 <= config.virtual.vicon_ghost_rate <= 1:
+        raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
+    if config.calibrate.folds < 2:
+        raise ConfigError("calibrate.folds: at least 2")
+    if min(config.calibrate.arm_prior_joint_rad, config.calibrate.arm_prior_length_m, config.calibrate.arm_prior_base_m,
+           config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale) <= 0:
+        raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
+    if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):
+        raise ConfigError(f"calibrate.world_up: expected a unit vector, got {config.calibrate.world_up}")
+    r = config.render
+    if r.spp < 1 or r.train_spp < 1 or r.max_depth < 1 or r.train_count < 0:
+        raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
+    if not 0 < r.train_distance_m[0] <= r.train_distance_m[1]:
+        raise ConfigError(f"render.train_distance_m: expected 0 < min <= max, got {r.train_distance_m}")
+    if not 0 < r.train_irradiance[0] <= r.train_irradiance[1]:
+        raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {r.train_irradiance}")
+    if not 0 <= r.train_earth_fraction <= 1 or not 0 < r.train_resolution_scale <= 4:
+        raise ConfigError("render.train_earth_fraction: expected [0, 1]; render.train_resolution_scale: (0, 4]")
+    if config.run.part_rows < 1:
+        raise ConfigError("run.part_rows: must be at least 1")
+    for section, key in (("testbed", "camee_from_cam_q"), ("testbed", "mount_target_from_targetee_q"),
+                         ("testbed", "target_from_board_q"), ("virtual", "vicon_world_from_world_q")):
+        q = np.asarray(getattr(config.section(section), key))
+        if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+            raise ConfigError(f"{section}.{key}: quaternion norm {np.linalg.norm(q):.6f} is not 1")
+    return config
+
+
+# -------------------------------------------------------------------------------- loading
+def _read_toml(path: Path, label: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{label}: file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{label}: not valid TOML ({error})") from None
+
+
+def profile_path(profile: str) -> Path:
+    if profile not in PROFILES:
+        raise ConfigError(f"unknown profile {profile!r}; choose one of {', '.join(PROFILES)}")
+    return Path(str(resources.files("pipeline") / "profiles" / f"{profile}.toml"))
+
+
+@dataclass(frozen=True)
+class Override:
+    """One key set for this command: ``section.key = value`` (a typed value, checked against
+    the field's type when applied), and where it came from for messages (``--set ...``)."""
+
+    section: str
+    key: str
+    value: Any
+    origin: str
+
+    @classmethod
+    def of(cls, dotted: str, value: Any, origin: str) -> Override:
+        """An override a command option sets, e.g. ``Override.of("acquire.source", path, "--source")``."""
+        section, key = dotted.split(".", 1)
+        return cls(section, key, value, origin)
+
+
+def parse_override(text: str) -> Override:
+    """``section.key=value`` as given to ``--set``: the value in TOML syntax (bare words are
+    strings). Parsed here, once; applying it checks the type."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ConfigError(f"--set {text!r}: expected section.key=value")
+    dotted, raw = text.split("=", 1)
+    section, key = dotted.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return Override(section.strip(), key.strip(), value, f"--set {text}")
+
+
+def with_overrides(config: Config, overrides: Sequence[Override]) -> Config:
+    """``config`` with ``overrides`` applied in order, then checked as a whole."""
+    for override in overrides:
+        config = _apply(config, {override.section: {override.key: override.value}}, override.origin)
+    return _check(config)
+
+
+def load_config(profile: str | None = None, config_file: str | Path | None = None,
+                overrides: Sequence[Override | str] = ()) -> Config:
+    """Resolve a configuration: the profile, then ``config_file``, then ``overrides``
+    (``Override`` records, or ``--set`` texts, parsed once here).
+
+    Without ``profile``, the ``profile`` key of ``config_file`` (e.g. a workspace's
+    ``config.toml``) picks the base profile; otherwise ``default``.
+    """
+    data = _read_toml(Path(config_file), str(config_file)) if config_file is not None else {}
+    if profile is None:
+        profile = data.get("profile", "default")
+        if not isinstance(profile, str):
+            raise ConfigError(f"{config_file}: profile must be a string, got {profile!r}")
+    config = _apply(Config(profile=profile), _read_toml(profile_path(profile), f"profile {profile}"),
+                    f"profile {profile}")
+    if data:
+        config = _apply(config, data, str(config_file))
+    return with_overrides(config, [parse_override(o) if isinstance(o, str) else o for o in overrides])
+
+
+def to_dict(config: Config) -> dict[str, Any]:
+    """Plain TOML-able dictionary (tuples become lists)."""
+    def plain(value: Any) -> Any:
+        if isinstance(value, tuple):
+            return [plain(v) for v in value]
+        return value
+
+    out: dict[str, Any] = {"profile": config.profile}
+    for name in SECTION_TYPES:
+        section = getattr(config, name)
+        out[name] = {f.name: plain(getattr(section, f.name)) for f in fields(section)}
+    return out
+
+
+def write_config(config: Config, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text("# resolved SPEED+ builder configuration (written by speedplus)\n"
+                         + tomli_w.dumps(to_dict(config)))
+    temporary.replace(path)
+

@@ -1,0 +1,49 @@
+"""The whole configuration: one typed section per field."""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+from pipeline.config.facility import CameraConfig, RunConfig, TestbedConfig, VirtualConfig
+from pipeline.config.stages import (
+    AcquireConfig,
+    CalibrateConfig,
+    EvaluateConfig,
+    ExportConfig,
+    FuseConfig,
+    LabelConfig,
+    PlanConfig,
+    ReferenceConfig,
+    RenderConfig,
+)
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole configuration of a run."""
+
+    profile: str = "default"
+    run: RunConfig = field(default_factory=RunConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    testbed: TestbedConfig = field(default_factory=TestbedConfig)
+    plan: PlanConfig = field(default_factory=PlanConfig)
+    acquire: AcquireConfig = field(default_factory=AcquireConfig)
+    virtual: VirtualConfig = field(default_factory=VirtualConfig)
+    calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
+    fuse: FuseConfig = field(default_factory=FuseConfig)
+    label: LabelConfig = field(default_factory=LabelConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
+    export: ExportConfig = field(default_factory=ExportConfig)
+
+    def section(self, name: str) -> Any:
+        return getattr(self, name)
+
+
+#: section name -> its dataclass, read off ``Config`` (every field but ``profile``)
+SECTION_TYPES: dict[str, type] = {name: hint for name, hint in typing.get_type_hints(Config).items()
+                                  if name != "profile"}
+

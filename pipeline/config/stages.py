@@ -1,0 +1,211 @@
+"""Configuration of the stages, one section each (docs/architecture.md section 2)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from manifests.schema import DOMAINS, MOUNTS
+from pipeline.config.params import param
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """The plan stage: which relative poses to capture and how the robots realise them."""
+
+    seed: int = param(2021, "random seed of the plan; same seed, same plan", "")
+    n_calibration: int = param(64, "calibration-session captures (TRON: 64)", "count")
+    n_dataset: int = param(48, "dataset-session captures, balanced over view x light", "count")
+    calibration_distance_m: tuple[float, float] = param(
+        (0.70, 0.80), "camera-to-board-centre distance range (TRON: about 0.75 m)", "m")
+    calibration_max_tilt_rad: float = param(
+        math.radians(45.0), "largest angle between the boresight and the board normal (TRON: 45 deg)", "rad")
+    calibration_aim_jitter_m: float = param(
+        0.04, "the camera aims at a point this far (at most) from the board centre, in the board plane", "m")
+    calibration_min_corner_fraction: float = param(
+        0.5, "share of the board's inner corners that must project inside the image", "1")
+    calibration_mounts: tuple[str, ...] = param(
+        MOUNTS, "model fixtures calibrated, alternated over calibration captures "
+        "(each dataset capture uses the one away from the camera)", "")
+    dataset_range_m: tuple[float, float] = param(
+        (6.5, 9.5), "camera-to-target distance range, FULL scale (paper: at least 6.5 m)", "m")
+    image_margin_px: float = param(
+        10.0, "the target's bounding sphere stays this far inside the image edges", "px")
+    lights: tuple[str, ...] = param(DOMAINS, "light set-ups of the dataset session", "")
+    n_light_boxes: int = param(10, "Earth-albedo light boxes in the room (TRON: 10)", "count")
+    light_boxes_per_sample: tuple[int, int] = param((1, 3), "active light boxes per lightbox capture", "count")
+    max_redraws: int = param(200, "unreachable relative poses redrawn per sample before giving up", "count")
+    sight_elevations_rad: tuple[float, ...] = param(
+        tuple(math.radians(a) for a in (5.0, 15.0, 25.0, 40.0, 55.0)),
+        "candidate elevations of the camera above the model (line-of-sight angle below horizontal)", "rad")
+    sight_azimuths_rad: tuple[float, ...] = param(
+        tuple(math.radians(a) for a in (0.0, -25.0, 25.0)),
+        "candidate azimuths of the camera about the rail axis (0: camera further along +x)", "rad")
+    rail_offsets_m: tuple[float, ...] = param(
+        (-0.9, -0.5, 0.5, 0.9), "candidate x offsets of the camera robot base from its flange", "m")
+    wall_clearance_m: float = param(
+        0.3, "the camera and both flanges stay this far from the walls, floor and ceiling", "m")
+    camera_roll_candidates: int = param(
+        12, "camera rolls about the line of sight tried when searching robot configurations", "count")
+    joint_limit_margin_rad: float = param(
+        math.radians(3.0), "commanded joints keep this distance from the data-sheet limits", "rad")
+
+
+@dataclass(frozen=True)
+class AcquireConfig:
+    """The acquire stage: which testbed backend produces the captures."""
+
+    backend: Literal["virtual", "replay"] = param(
+        "virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
+    format: Literal["session", "handeye", "tabb"] = param(
+        "session", "replay format: session (a TRON-like logger's folder), handeye (images and a "
+        "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
+        "preset of handeye); see README", "")
+    source: str = param("", "replay: the recorded session directory", "")
+
+
+@dataclass(frozen=True)
+class CalibrateConfig:
+    """The calibrate stage: pattern detection, intrinsics, PnP and RWHE per source."""
+
+    intrinsics: Literal["auto", "fixed", "estimate"] = param(
+        "auto", "fixed (the session's camera), estimate (cv2.calibrateCamera), or auto: "
+        "fixed when the session knows the camera", "")
+    min_corners: int = param(6, "pattern corners an image needs to be used", "count")
+    solver: Literal["shah", "frobenius", "reprojection"] = param(
+        "frobenius", "shah (closed form), frobenius (Shah, then the paper's LM; the most accurate "
+        "against the virtual truth, see README), or reprojection (then also the "
+        "pattern's reprojection error)", "")
+    folds: int = param(5, "k of the k-fold cross-validation", "count")
+    seed: int = param(0, "random assignment of samples to folds", "")
+    min_samples: int = param(8, "usable calibration samples a source needs", "count")
+    outlier_k: float = param(5.0, "a sample whose residual exceeds median + k robust sigmas is excluded", "1")
+    min_rotation_spread_rad: float = param(
+        math.radians(2.0), "least spread of the measured rotations about a second axis", "rad")
+    fixture_compliance: Literal["auto", "on", "off"] = param(
+        "auto", "estimate the model fixture's tilt under the model's weight with the robots' offsets: on, off, "
+        "or auto (on when the target flange's attitude to gravity varies by calibrate.min_gravity_spread_rad)", "")
+    min_gravity_spread_rad: float = param(
+        math.radians(5.0), "least spread of the up direction in the target flange frame over the calibration "
+        "captures for the fixture compliance to be estimated", "rad")
+    world_up: tuple[float, float, float] = param(
+        (0.0, 0.0, 1.0), "the up direction (against gravity) in the robot world K", "1")
+    arm_kinematics: Literal["auto", "on", "off"] = param(
+        "auto", "calibrate the arms themselves (joint offsets, link lengths, bases, rail scale) with the offsets: "
+        "on, off, or auto (on when every calibration capture has the robots' encoder readings)", "")
+    arm_prior_joint_rad: float = param(2e-3, "prior 1-sigma of a joint's zero offset (mastering tolerance)", "rad")
+    arm_prior_length_m: float = param(2e-3, "prior 1-sigma of an arm dimension against the data sheet", "m")
+    arm_prior_base_m: float = param(2e-3, "prior 1-sigma of a robot base's surveyed position", "m")
+    arm_prior_base_rad: float = param(2e-3, "prior 1-sigma of a robot base's surveyed orientation", "rad")
+    arm_prior_rail_scale: float = param(1e-3, "prior 1-sigma of the rail encoder's scale error", "1")
+    max_intrinsics_rms_px: float = param(
+        2.0, "an estimated camera whose reprojection RMS over the kept images exceeds this is refused: corners of "
+        "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see README)", "px")
+    motion_angle_floor_rad: float = param(
+        math.radians(1.0), "an image is rejected when its camera motions' rotation angles differ from the robot's "
+        "by more than this and by more than median + outlier_k robust sigmas (median over its pairs; a flipped "
+        "corner order is off by tens of degrees, a good image by a few hundredths)", "rad")
+    motion_pitch_floor_m: float = param(
+        0.01, "the same for the pitch (translation along the screw axis) of the motions; good real data: 1-2 mm",
+        "m")
+    max_scale_error: float = param(
+        0.03, "the camera's motions may differ from the robot's by at most this relative scale (a wrong square "
+        "size or length unit scales them; a robot's own scale error is about 1e-4)", "1")
+    max_rotation_error_rad: float = param(
+        math.radians(5.0), "a calibration whose cross-validated E_R exceeds this is refused as absurd: robots and "
+        "PnP err by tenths of a degree; 5 deg means the data do not fit the model", "rad")
+    max_reprojection_fraction: float = param(
+        0.02, "a calibration whose cross-validated E_p exceeds this fraction of the image diagonal is refused as "
+        "absurd (about 45 px at 1920 x 1200; real calibrations: 1-5 px)", "1")
+
+
+@dataclass(frozen=True)
+class FuseConfig:
+    """The fuse stage: motion-capture rejection and Bayesian fusion."""
+
+    rejection_k: float = param(1.96, "motion capture is rejected beyond this many sigmas in any component "
+                                     "(the paper: 1.96, a 95% interval)", "1")
+    sigma_scale: Literal["dataset", "calibration"] = param(
+        "dataset", "dataset: scale the calibrated sigmas by how much the two sources disagree on the dataset "
+        "captures themselves (robust a posteriori variance factor; the dataset's poses are farther and more "
+        "varied than the calibration's); calibration: use the calibrated sigmas as they are (the paper)", "")
+    min_scale_samples: int = param(
+        10, "two-source dataset captures needed to estimate the variance factor (else the calibrated sigmas)",
+        "count")
+
+
+@dataclass(frozen=True)
+class LabelConfig:
+    """The label stage: SPEED+ labels of the dataset captures."""
+
+    filename_template: str = param("{sample_id}.png", "image file name of a label in exports", "")
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """The render stage: Mitsuba 3 synthetic twins of the labels, and the training set."""
+
+    set: Literal["twin", "train"] = param(
+        "twin", "what to render: twin (one per label) or train (the synthetic training set)", "")
+    seed: int = param(7, "random seed of the training poses, lights and of every image's Monte-Carlo noise", "")
+    spp: int = param(64, "samples per pixel", "count")
+    max_depth: int = param(4, "path length of the path tracer (3: direct light and one bounce)", "count")
+    irradiance: float = param(
+        3.0, "irradiance of the directional light on the model; the synthetic images' exposure is fixed, "
+        "so 3.0 puts a sunlit white radiator near saturation", "W/m^2")
+    train_count: int = param(1000, "images of the training set (render --set train --count N)", "count")
+    train_distance_m: tuple[float, float] = param(
+        (3.0, 10.0), "camera-to-target distance of training images, full scale (SPEED+ synthetic: a few "
+        "metres to about 10 m)", "m")
+    train_irradiance: tuple[float, float] = param(
+        (1.0, 6.0), "training images: range of the light's irradiance (log-uniform)", "W/m^2")
+    train_earth_fraction: float = param(
+        0.5, "share of training images with the Earth behind the target", "1")
+    train_resolution_scale: float = param(
+        1.0, "training images: camera resolution times this (intrinsics scaled with it)", "1")
+    margin_px: float = param(
+        10.0, "training images: the target's bounding sphere stays this far inside the image when it fits", "px")
+    train_spp: int = param(16, "training images: samples per pixel", "count")
+
+
+@dataclass(frozen=True)
+class ReferenceConfig:
+    """speedplus train-reference: the recipe of the reference keypoint CNN (torch)."""
+
+    images: int = param(3000, "training-set images rendered for it (90% train, 10% held out)", "count")
+    resolution_scale: float = param(1.0, "training images: camera resolution times this", "1")
+    input_width: int = param(192, "network input width (the crop around the target is resized to it)", "px")
+    input_height: int = param(192, "network input height", "px")
+    width: int = param(16, "channels of the network's first layer (the others are multiples)", "count")
+    epochs: int = param(45, "passes over the training images", "count")
+    batch_size: int = param(32, "images per optimiser step", "count")
+    learning_rate: float = param(2e-3, "Adam's initial learning rate (cosine decay to 2% of it)", "1")
+    heatmap_sigma: float = param(1.0, "standard deviation of the target Gaussians, in heatmap pixels", "px")
+    seed: int = param(0, "seed of initialisation, shuffling and augmentation", "")
+    threads: int = param(2, "torch threads", "count")
+    max_steps: int = param(0, "stop after this many optimiser steps (a quick check of the recipe); 0: the "
+                           "whole recipe", "count")
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """The evaluate stage: an ONNX model scored on twins and testbed images."""
+
+    model: str = param("models/reference.onnx", "ONNX model following the contract of stages/common/pose_model.py; "
+                       "relative paths: from the current directory, else from the repository", "")
+    batch_size: int = param(16, "images per inference call", "count")
+    threads: int = param(2, "ONNX Runtime intra-op threads", "count")
+    ransac_fraction: float = param(
+        0.01, "RANSAC inlier threshold of keypoint PnP, as a fraction of the image width", "1")
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    """speedplus export: the labels and testbed images in a layout other tools read."""
+
+    format: Literal["speedplus", "bop"] = param(
+        "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read) or bop (bop_toolkit's scenes)", "")
+    out: str = param("", "export folder; empty: W/export", "")
+
+

@@ -1,0 +1,93 @@
+"""Every stage, declared once (docs/architecture.md section 2): its name, what it does, the
+function that runs it, the manifests it reads and writes, and the configuration sections
+that determine its results. The runner (fingerprints, resume, status) and the CLI (one
+command per stage) derive everything from these entries; nothing else imports a stage.
+
+A stage whose inputs or outputs depend on the configuration (acquire's backend, render's
+image set, export's format) names a ``resolve`` function in its own package; it returns
+``(inputs, sections, extra, outputs)``, where ``extra`` is more fingerprint content (a
+replayed folder's digest, an ONNX model's digest).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pipeline.config import Config
+from pipeline.errors import InputError
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A stage's inputs, configuration sections, extra fingerprint content and outputs for one configuration."""
+
+    inputs: tuple[str, ...]
+    sections: tuple[str, ...]
+    extra: dict[str, Any]
+    outputs: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class StageEntry:
+    name: str
+    summary: str
+    run: str  # "module:function" taking (config, workspace); imported only when the stage runs
+    inputs: tuple[str, ...]  # manifests whose completion markers it needs
+    outputs: tuple[str, ...]  # manifests it writes (the runner writes their completion markers)
+    sections: tuple[str, ...]  # configuration sections in its fingerprint
+    resolve: str | None = None  # "module:function": (config) -> (inputs, sections, extra, outputs)
+    chained: bool = True  # a step of `speedplus run`
+
+    def resolved(self, config: Config) -> Resolved:
+        if self.resolve is None:
+            return Resolved(self.inputs, self.sections, {}, self.outputs)
+        return Resolved(*_load(self.resolve)(config))
+
+    def function(self) -> Callable[..., Any]:
+        return _load(self.run)
+
+
+def _load(target: str) -> Callable[..., Any]:
+    module, name = target.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+STAGES: tuple[StageEntry, ...] = (
+    StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan:run",
+               (), ("plan",), ("plan", "camera", "testbed")),
+    StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
+               "capture and images", "stages.acquire:run",
+               ("plan",), ("captures", "truth"), ("acquire", "virtual", "camera", "testbed"),
+               resolve="stages.acquire:resolve"),
+    StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate:run",
+               ("captures",), ("calibration_samples",), ("calibrate", "testbed")),
+    StageEntry("fuse", "per-source poses, rejection, Bayesian fusion (W/fusion.json)", "stages.fuse:run",
+               ("captures", "calibration_samples"), ("poses",), ("fuse", "testbed")),
+    StageEntry("label", "SPEED+ labels, keypoints, boxes", "stages.label:run",
+               ("poses",), ("labels",), ("label", "testbed")),
+    StageEntry("render", "Mitsuba 3 synthetic twins of the labels (or, with --set train, the training set)",
+               "stages.render:run", ("labels",), ("renders",), ("render", "testbed"),
+               resolve="stages.render:resolve"),
+    StageEntry("evaluate", "ONNX model scores on twins and testbed images (Table 2)", "stages.evaluate:run",
+               ("renders", "labels"), ("predictions", "scores"), ("evaluate",), resolve="stages.evaluate:resolve"),
+    StageEntry("report", "static HTML report (W/report/index.html)", "stages.report:run",
+               ("labels", "renders", "predictions", "scores"), ("report",), ()),
+    StageEntry("export", "the labels and images as a SPEED+ or BOP dataset", "stages.export:run",
+               ("labels", "captures"), ("export_speedplus",), ("export", "camera"),
+               resolve="stages.export:resolve", chained=False),
+    StageEntry("train-reference", "train the reference keypoint CNN on the synthetic training set and export ONNX "
+               "(W/models/reference.onnx)", "stages.reference:run",
+               ("train",), ("models",), ("reference",), chained=False),
+)
+STAGE_NAMES = tuple(stage.name for stage in STAGES)
+CHAIN = tuple(stage.name for stage in STAGES if stage.chained)
+
+
+def stage(name: str) -> StageEntry:
+    for entry in STAGES:
+        if entry.name == name:
+            return entry
+    raise InputError(f"unknown stage {name!r}; stages: {', '.join(STAGE_NAMES)}")

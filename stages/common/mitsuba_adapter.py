@@ -1,0 +1,170 @@
+"""The one adapter between this project's cameras and Mitsuba 3, used by the virtual
+testbed's camera and by the synthetic twins (docs/architecture.md section 3): loading the
+fast variant (with its fallback) and a per-process kernel cache, the thread split, the
+sensor built from a pinhole ``RenderGeometry``, the camera pose through
+``OPENCV_FROM_MITSUBA``, meshes, deterministic scene loading, and ray-cast silhouettes.
+
+Mitsuba is imported here lazily, so that stages which never render never load it.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from typing import Any, Literal
+
+import numpy as np
+
+from stages.common.lens import RenderGeometry
+
+#: Mitsuba's camera frame in OpenCV's (``opencv_from_mitsuba``): both look along +z, but
+#: Mitsuba's x points left and y up where OpenCV's x points right and y down. A sensor's
+#: ``to_world`` is ``world_from_cam @ OPENCV_FROM_MITSUBA`` (the matrix is its own inverse;
+#: the name says which way it is used).
+OPENCV_FROM_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+_CACHE_LOCKS: list[int] = []
+
+
+def private_kernel_cache() -> None:
+    """Give this process a Dr.Jit kernel cache of its own (before Dr.Jit is imported).
+
+    Worker processes compiling at the same time never write one cache file at once: each
+    takes the first free cache slot (an flock held for its lifetime, released even when it
+    is killed) and reuses it in later runs.
+    """
+    if "DRJIT_CACHE_DIR" in os.environ:
+        return
+    import fcntl
+    from pathlib import Path
+
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "drjit"
+    for slot in range(256):
+        directory = base / f"slot-{slot}"
+        directory.mkdir(parents=True, exist_ok=True)
+        handle = os.open(directory / ".lock", os.O_CREAT | os.O_RDWR)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(handle)
+            continue
+        _CACHE_LOCKS.append(handle)
+        os.environ["DRJIT_CACHE_DIR"] = str(directory)
+        return
+
+
+def load_mitsuba() -> Any:
+    """Mitsuba with the fast LLVM variant, or ``scalar_rgb`` (about 25x slower) with a warning."""
+    private_kernel_cache()
+    import mitsuba as mi
+
+    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        for candidate in ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"):
+            if os.path.exists(candidate):
+                os.environ["DRJIT_LIBLLVM_PATH"] = candidate
+                break
+    try:
+        mi.set_variant("llvm_ad_rgb")
+    except Exception as error:  # noqa: BLE001 - any failure of the LLVM backend means: fall back
+        warnings.warn(f"Mitsuba llvm_ad_rgb unavailable ({error}); rendering with the slow scalar_rgb variant. "
+                      "Install Debian libllvm19 (make setup does, as root).", RuntimeWarning, stacklevel=2)
+        mi.set_variant("scalar_rgb")
+    return mi
+
+
+def render_threads(workers: int) -> int:
+    """Dr.Jit threads per renderer when ``workers`` renderers share this machine's cores."""
+    return max(1, (os.cpu_count() or 1) // max(1, workers))
+
+
+def set_threads(threads: int) -> None:
+    """Dr.Jit's thread count for this process (fixed per engine: part of what makes pixels reproducible)."""
+    import drjit as dr
+
+    dr.set_thread_count(max(1, threads))
+
+
+def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, rfilter: Literal["box", "gaussian"],
+           pixel_format: Literal["rgb", "rgba"]) -> dict[str, Any]:
+    """A perspective sensor of the pinhole ``geometry`` (centred principal point, square
+    pixels), posed later by ``sensor_to_world``. A box filter puts a sample in its own pixel
+    only (alpha is then exact coverage); the Gaussian one resembles a real sensor's blur."""
+    film_filter = {"type": "box"} if rfilter == "box" else {"type": "gaussian", "stddev": 0.4}
+    return {
+        "type": "perspective",
+        "fov_axis": "x",
+        "fov": float(np.degrees(geometry.fov_x_rad)),
+        "near_clip": 0.05,
+        "far_clip": far_clip_m,
+        "to_world": sensor_to_world(mi, np.eye(4)),
+        "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height, "rfilter": film_filter,
+                 "pixel_format": pixel_format},
+        "sampler": {"type": "independent"},
+    }
+
+
+def sensor_to_world(mi: Any, world_from_cam: np.ndarray) -> Any:
+    """The sensor's ``to_world`` for an OpenCV camera at ``world_from_cam`` (4, 4)."""
+    return transform(mi, np.asarray(world_from_cam, float) @ OPENCV_FROM_MITSUBA)
+
+
+def transform(mi: Any, matrix: np.ndarray) -> Any:
+    """A Mitsuba transform of a (4, 4) matrix."""
+    return mi.ScalarTransform4f(np.asarray(matrix, dtype=float).tolist())
+
+
+def mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, bsdf: Any) -> Any:
+    """A triangle mesh: vertices (V, 3) m, faces (F, 3), texture coordinates (V, 2)."""
+    props = mi.Properties()
+    props["bsdf"] = bsdf
+    shape = mi.Mesh(name, len(vertices), len(faces), props=props, has_vertex_normals=False,
+                    has_vertex_texcoords=True)
+    params = mi.traverse(shape)
+    params["vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
+    params["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
+    params["vertex_texcoords"] = mi.Float(np.asarray(uv, np.float32).ravel())
+    params.update()
+    return shape
+
+
+def load_scene(mi: Any, objects: dict[str, Any]) -> Any:
+    """``mi.load_dict`` with the shapes and emitters in the dictionary's order.
+
+    Mitsuba's default (parallel, optimised) loading orders them differently from one
+    process to the next; the emitter order decides which random number picks which light,
+    so the same seed would give different noise in different workers.
+    """
+    return mi.load_dict(objects, parallel=False, optimize=False)
+
+
+def rays(mi: Any, origins: np.ndarray, directions: np.ndarray) -> Any:
+    """Mitsuba rays from origins (N, 3) or (3,) along directions (N, 3), in the scene's frame."""
+    origins = np.broadcast_to(np.asarray(origins, float), np.shape(directions))
+    return mi.Ray3f(mi.Point3f(*[np.ascontiguousarray(origins[:, i], np.float32) for i in range(3)]),
+                    mi.Vector3f(*[np.ascontiguousarray(directions[:, i], np.float32) for i in range(3)]))
+
+
+def first_hit_on(mi: Any, scene: Any, ray_batch: Any, shape_ids: set[str] | None = None) -> np.ndarray:
+    """(N,) bool: whether each ray's first surface is one of ``shape_ids`` (any shape when
+    None). Ray-cast silhouettes: independent of films, filters and sampling noise."""
+    import drjit as dr
+
+    hit = scene.ray_intersect(ray_batch)
+    if shape_ids is None:
+        return np.array(hit.is_valid(), dtype=bool)
+    on = dr.zeros(mi.Bool, dr.width(ray_batch.o))
+    for shape in scene.shapes():
+        if shape.id() in shape_ids:
+            on |= hit.is_valid() & (hit.shape == mi.ShapePtr(shape))
+    return np.array(on, dtype=bool)
+
+
+def sensor_pixel_rays(mi: Any, scene: Any, geometry: RenderGeometry) -> Any:
+    """The scene's sensor's rays through the centre of every pixel of ``geometry``, row by row."""
+    width, height = geometry.width, geometry.height
+    ys, xs = np.mgrid[0:height, 0:width]
+    position = mi.Point2f(((xs.ravel() + 0.5) / width).astype(np.float32),
+                          ((ys.ravel() + 0.5) / height).astype(np.float32))
+    ray_batch, _ = scene.sensors()[0].sample_ray(0.0, 0.0, position, mi.Point2f(0.5, 0.5))
+    return ray_batch

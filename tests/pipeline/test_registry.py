@@ -1,0 +1,51 @@
+"""The stage registry is the one place a stage is declared: every entry names things that
+exist (its function, its manifests, its configuration sections), for every configuration
+that changes them, and the CLI has a command for each."""
+
+import inspect
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from manifests import MANIFESTS
+from pipeline import registry
+from pipeline.cli import app
+from pipeline.config import SECTION_TYPES, load_config
+
+TABB = Path(__file__).resolve().parents[3] / "shared" / "external" / "tabb_ds1"
+MARKERS = {"report"}  # completion markers without Parquet parts
+
+CONFIGS = {
+    "default": [],
+    "replay": ["acquire.backend=replay", "acquire.format=tabb", f"acquire.source='{TABB}'"],
+    "train set": ["render.set=train"],
+    "bop": ["export.format=bop"],
+}
+
+
+def test_every_entry_names_existing_manifests_and_sections():
+    produced, needed = set(), set()
+    for overrides in CONFIGS.values():
+        config = load_config("smoke", overrides=overrides)
+        for entry in registry.STAGES:
+            resolved = entry.resolved(config)
+            assert set(resolved.inputs) <= set(MANIFESTS), entry.name
+            assert set(resolved.outputs) <= set(MANIFESTS) | MARKERS and resolved.outputs, entry.name
+            assert set(resolved.sections) <= set(SECTION_TYPES), entry.name
+            produced |= set(resolved.outputs)
+            needed |= set(resolved.inputs)
+    assert needed <= produced  # every input is some stage's output under some configuration
+    assert set(MANIFESTS) <= produced  # and every manifest has a stage that writes it
+
+
+def test_every_entry_runs_with_config_and_workspace_only():
+    for entry in registry.STAGES:
+        assert list(inspect.signature(entry.function()).parameters) == ["config", "workspace"], entry.name
+
+
+def test_the_cli_has_a_command_per_stage_and_no_unbuilt_path():
+    commands = {command.name for command in app.registered_commands}
+    assert set(registry.STAGE_NAMES) | {"run", "status"} == commands
+    assert registry.CHAIN == ("plan", "acquire", "calibrate", "fuse", "label", "render", "evaluate", "report")
+    result = CliRunner().invoke(app, ["export", "--help"])
+    assert "speedplus" in result.output and "bop" in result.output  # help from the configuration's docstrings
