@@ -346,7 +346,10 @@ def read_manifest(workspace: Workspace, name: str | ManifestSpec, *, validate: b
                 if key in seen:
                     raise ManifestError(source, f"key {key!r} also in {seen[key]}", row=row, column=spec.key)
                 seen[key] = source
-        tables.append(table.replace_schema_metadata(spec.schema().metadata))
+        try:  # the spec's field types and nullability, whatever wrote the part
+            tables.append(table.select(spec.schema().names).cast(spec.schema()))
+        except (pa.ArrowInvalid, pa.ArrowTypeError, KeyError) as error:
+            raise ManifestError(source, f"columns do not match the manifest's schema ({error})") from None
     if not tables:
         return spec.schema().empty_table()
     return pa.concat_tables(tables)

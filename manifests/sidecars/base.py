@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 from manifests.io import write_json_atomic
 from pipeline.errors import InputError
+
+T = TypeVar("T")
 
 
 class SidecarError(InputError):
@@ -33,6 +36,16 @@ def load(path: Path, version: int, writer: str) -> Fields:
         raise SidecarError(f"{path}: version {data.get('version')!r}, this program reads version {version} "
                            f"(written by an older or newer program); rerun {writer} with --force")
     return Fields(data, str(path), "")
+
+
+def read(path: Path, version: int, writer: str, parse: Callable[[Fields], T]) -> T:
+    """The file at ``path`` parsed by ``parse``; any error names the file and the key and
+    says which command makes the file anew."""
+    fields = load(path, version, writer)
+    try:
+        return parse(fields)
+    except SidecarError as error:
+        raise SidecarError(f"{error}; rerun {writer} with --force") from None
 
 
 def save(path: Path, payload: dict[str, Any]) -> None:

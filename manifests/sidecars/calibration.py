@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.base import Fields, Pose, SidecarError, load, save
+from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
 from manifests.workspace import Workspace
 
 CALIBRATION_VERSION = 1
@@ -201,4 +201,4 @@ def write_calibration(workspace: Workspace, calibration: Calibration) -> None:
 
 def read_calibration(workspace: Workspace) -> Calibration:
     """``W/calibration.json``, validated; a SidecarError that names the file and the key."""
-    return Calibration.from_fields(load(workspace.calibration_path, CALIBRATION_VERSION, WRITER))
+    return read(workspace.calibration_path, CALIBRATION_VERSION, WRITER, Calibration.from_fields)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.base import Fields, load, save
+from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
 FUSION_VERSION = 1
@@ -46,4 +46,4 @@ def write_fusion(workspace: Workspace, record: FusionRecord) -> None:
 
 
 def read_fusion(workspace: Workspace) -> FusionRecord:
-    return FusionRecord.from_fields(load(workspace.fusion_path, FUSION_VERSION, "fuse"))
+    return read(workspace.fusion_path, FUSION_VERSION, "fuse", FusionRecord.from_fields)

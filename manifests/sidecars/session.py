@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.base import SidecarError, load, save
+from manifests.sidecars.base import SidecarError, read, save
 from manifests.workspace import Workspace
 
 SESSION_VERSION = 1
@@ -98,5 +98,4 @@ def write_session(workspace: Workspace, session: Session) -> None:
 
 def read_session(workspace: Workspace) -> Session:
     """``W/session.json``, validated; a SidecarError that names the file and says what to rerun."""
-    fields = load(workspace.session_path, SESSION_VERSION, "acquire")
-    return Session.from_json(fields.data, fields.where)
+    return read(workspace.session_path, SESSION_VERSION, "acquire", lambda f: Session.from_json(f.data, f.where))

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.base import Fields, Pose, load, save
+from manifests.sidecars.base import Fields, Pose, read, save
 from manifests.workspace import Workspace
 
 TRUTH_VERSION = 1
@@ -69,4 +69,4 @@ def write_truth(workspace: Workspace, record: TruthRecord) -> None:
 
 
 def read_truth(workspace: Workspace) -> TruthRecord:
-    return TruthRecord.from_fields(load(workspace.truth_path, TRUTH_VERSION, "acquire (virtual backend)"))
+    return read(workspace.truth_path, TRUTH_VERSION, "acquire (virtual backend)", TruthRecord.from_fields)

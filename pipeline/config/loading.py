@@ -12,7 +12,7 @@ import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from importlib import resources
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
 import numpy as np
@@ -143,6 +143,15 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {r.train_irradiance}")
     if not 0 <= r.train_earth_fraction <= 1 or not 0 < r.train_resolution_scale <= 4:
         raise ConfigError("render.train_earth_fraction: expected [0, 1]; render.train_resolution_scale: (0, 4]")
+    template = config.label.filename_template
+    try:
+        example = PurePosixPath(template.format(sample_id="img000000"))
+    except (KeyError, IndexError, ValueError) as error:
+        raise ConfigError(f"label.filename_template: {template!r} is not a template of {{sample_id}} "
+                          f"({error})") from None
+    if example.is_absolute() or ".." in example.parts or "\\" in template or "{sample_id}" not in template:
+        raise ConfigError(f"label.filename_template: {template!r} must name a file inside the export folder and "
+                          "contain {sample_id}")
     if config.run.part_rows < 1:
         raise ConfigError("run.part_rows: must be at least 1")
     for section, key in (("testbed", "camee_from_cam_q"), ("testbed", "mount_target_from_targetee_q"),

@@ -5,6 +5,11 @@
 SPEED score ``e_q + e_t``; SPEED+ sets each term to zero when it is under its threshold
 (strictly below, as the SPEED+ devkit: ``e_q < 0.169 deg``, ``e_t < 2.173e-3``), the
 precision with which the testbed's labels are known.
+
+``rotation_error`` is the same angle as ``geometry.quat_angular_distance`` but computed as
+the devkits compute it (``arccos`` of the clipped dot product), so that a score here and
+the devkit's score of the same prediction agree to the last bit; geometry's
+``atan2`` form is the better-conditioned one for small angles and is used everywhere else.
 """
 
 from __future__ import annotations

@@ -53,7 +53,7 @@ def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str,
 
 def _items(workspace: Workspace) -> list[dict[str, Any]]:
     """One item per image to score: the testbed capture and the twin of every label."""
-    labels = read_manifest(workspace, "labels").to_pylist()
+    labels = sorted(read_manifest(workspace, "labels").to_pylist(), key=lambda r: r["sample_id"])
     captures = {row["sample_id"]: row["image_path"] for row in read_manifest(workspace, "captures").to_pylist()}
     twins = {row["sample_id"]: row["image_path"] for row in read_manifest(workspace, "renders").to_pylist()}
     items = []

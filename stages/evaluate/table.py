@@ -28,7 +28,10 @@ def _group(rows: list[dict[str, Any]], domain: str, view: str, light: str) -> di
 
 
 def summarise(predictions: list[dict[str, Any]]) -> Any:
-    """The ``scores`` table: every (domain, view, light) combination present, and 'all'."""
+    """The ``scores`` table: every (domain, view, light) combination present, and 'all'.
+    Means over the predictions in ``prediction_id`` order: the order rows were written in
+    (which follows acquire's workers) must not reach the last bits."""
+    predictions = sorted(predictions, key=lambda r: r["prediction_id"])
     rows = []
     for domain, view, light in product(("synthetic", "testbed"), (*VIEWS, "all"), (*TESTBED, "all")):
         group = _group(predictions, domain, view, light)

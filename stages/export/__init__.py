@@ -7,14 +7,15 @@ resumes with the images it lacks; the annotation files are written last, from ev
 
 from __future__ import annotations
 
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.workspace import check_relative
+from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
+from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common.sidecars import calibrated_camera
 from stages.export import formats
@@ -28,6 +29,15 @@ def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str,
 
 def out_dir(config: Config, workspace: Workspace) -> Path:
     return Path(config.export.out).resolve() if config.export.out else workspace.root / "export"
+
+
+def inside_export(file: str, label: dict[str, Any]) -> PurePosixPath:
+    """``file`` (from the labels' filename) as a path that stays inside the export folder."""
+    try:
+        return check_relative(file)
+    except PathEscapeError:
+        raise InputError(f"labels: sample {label['sample_id']}: filename {label['filename']!r} would leave the "
+                         "export folder; relabel with a plain label.filename_template") from None
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
@@ -45,8 +55,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                 file = formats.speedplus_image(row)
             else:
                 file = formats.bop_image(row, ids[row["sample_id"]])
-            # the file name comes from the labels (label.filename_template): it may not climb out
-            formats.copy_image(workspace.resolve(images[row["sample_id"]]), out / check_relative(file))
+            formats.copy_image(workspace.resolve(images[row["sample_id"]]), out / inside_export(file, row))
             sink.add({"sample_id": row["sample_id"], "domain": row["domain"], "file": file,
                       "source_image": images[row["sample_id"]]})
     if config.export.format == "speedplus":

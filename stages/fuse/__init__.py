@@ -166,8 +166,9 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
     kuka, vicon, rejection = load_models(workspace, config.testbed)
-    rows = [r for r in read_manifest(workspace, "captures").to_pylist()
-            if r["session"] == "dataset" and r["status"] == "ok"]
+    # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
+    rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
+                   if r["session"] == "dataset" and r["status"] == "ok"), key=lambda r: r["sample_id"])
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
     covariances = kuka.parameter_covariances(rows)

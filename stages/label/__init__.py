@@ -55,7 +55,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})
     done = read_keys(workspace, "labels")
-    poses = [p for p in read_manifest(workspace, "poses").to_pylist() if p["sample_id"] not in done]
+    poses = sorted((p for p in read_manifest(workspace, "poses").to_pylist() if p["sample_id"] not in done),
+                   key=lambda p: p["sample_id"])
     with open_sink(workspace, "labels", config.run.part_rows) as sink:
         for pose in track(poses, len(poses), "label"):
             filename = config.label.filename_template.format(sample_id=pose["sample_id"])

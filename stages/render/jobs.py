@@ -103,7 +103,7 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})
     # unvalidated read: a bad row is rejected with its reason, the valid ones still render
-    labels = read_manifest(workspace, "labels", validate=False).to_pylist()
+    labels = sorted(read_manifest(workspace, "labels", validate=False).to_pylist(), key=lambda r: r["sample_id"])
     jobs, rejected = [], []
     for label in labels:
         sample_id = label["sample_id"]

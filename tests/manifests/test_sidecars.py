@@ -130,8 +130,9 @@ def _edit(data: dict, path: str, value) -> dict:
 def test_a_malformed_calibration_names_the_file_and_the_key(tmp_path, path, value, message):
     workspace = Workspace(tmp_path)
     workspace.calibration_path.write_text(json.dumps(_edit(CALIBRATION.to_json(), path, value)))
-    with pytest.raises(SidecarError, match=f"calibration.json: {message}"):
+    with pytest.raises(SidecarError, match=f"calibration.json: {message}") as raised:
         read_calibration(workspace)
+    assert str(raised.value).endswith("rerun calibrate with --force")
 
 
 def test_missing_calibration_says_to_run_calibrate(tmp_path):

@@ -99,3 +99,9 @@ def test_resolved_config_round_trips_through_toml(tmp_path):
     config = load_config("smoke", overrides=["plan.seed=99"])
     write_config(config, tmp_path / "config.toml")
     assert load_config(config_file=tmp_path / "config.toml") == config
+
+
+@pytest.mark.parametrize("template", ["../{sample_id}.png", "/tmp/{sample_id}.png", "img.png", "{id}.png"])
+def test_a_label_filename_that_could_leave_the_export_folder_is_refused(template):
+    with pytest.raises(ConfigError, match="label.filename_template"):
+        load_config("smoke", overrides=[f"label.filename_template={template!r}"])

@@ -118,6 +118,35 @@ def test_speedplus_export_matches_the_devkit_convention(labelled, tmp_path):
     assert len(gt["0"][0]["cam_R_m2c"]) == 9 and np.linalg.norm(gt["0"][0]["cam_t_m2c"]) > 5000  # mm
 
 
+def test_export_records_every_copy_resumes_and_stays_in_its_folder(labelled, tmp_path):
+    ws = copy_of(labelled, tmp_path, "exporting")
+    out = tmp_path / "out"
+    assert speedplus("export", "-w", str(ws.root), "--out", str(out)).returncode == 0
+    rows = read_manifest(ws, "export_speedplus").to_pylist()
+    assert len(rows) == read_manifest(ws, "labels").num_rows and all((out / r["file"]).is_file() for r in rows)
+    annotations = (out / "lightbox" / "test.json").read_bytes()
+    # a killed export: some images copied but not recorded, the marker not written
+    for part in list_parts(ws, "export_speedplus"):
+        part.unlink()
+    ws.success_path("export_speedplus").unlink()
+    (out / rows[0]["file"]).unlink()
+    (out / "lightbox" / "test.json").unlink()
+    again = speedplus("export", "-w", str(ws.root))  # the folder is remembered in W/config.toml
+    assert again.returncode == 0, again.stderr
+    assert all((out / r["file"]).is_file() for r in rows) and (out / "lightbox" / "test.json").read_bytes() == annotations
+    assert "up to date" in speedplus("export", "-w", str(ws.root)).stdout
+    # a labels file edited to climb out of the export folder
+    part = list_parts(ws, "labels")[0]
+    table = pq.read_table(part)
+    names = table.column("filename").to_pylist()
+    names[0] = "../../escaped.png"
+    pq.write_table(table.set_column(table.schema.get_field_index("filename"), "filename", pa.array(names)), part)
+    bad = speedplus("export", "-w", str(ws.root), "--force")
+    message = " ".join(bad.stderr.split())
+    assert bad.returncode == 1 and "would leave the export folder" in message and "Traceback" not in message
+    assert not (tmp_path / "escaped.png").exists() and not (out.parent.parent / "escaped.png").exists()
+
+
 def test_fuse_and_label_never_open_the_truth(labelled, tmp_path):
     blind = copy_of(labelled, tmp_path, "blind")
     shutil.rmtree(blind.manifest_dir("truth"))
@@ -179,7 +208,7 @@ def test_non_finite_telemetry_names_file_row_and_column(labelled, tmp_path):
     assert "part-00000.parquet, row 1" in message and "kuka_world_from_camee_t" in message and "not finite" in message
 
 
-@pytest.mark.parametrize("text", ["{", '{"calibration_lever_sq_m2": [0, 0, 0], "kuka": {}}'])
+@pytest.mark.parametrize("text", ["{", '{"calibration_lever_sq_m2": [0, 0, 0], "kuka": {}}', '{"version": 1}'])
 def test_unreadable_calibration_stops_fuse_naming_the_file(labelled, tmp_path, text):
     ws = copy_of(labelled, tmp_path, "broken")
     (ws.root / "calibration.json").write_text(text)
