@@ -40,6 +40,9 @@ class StageEntry:
     sections: tuple[str, ...]  # configuration sections in its fingerprint
     resolve: str | None = None  # "module:function": (config) -> (inputs, sections, extra, outputs)
     chained: bool = True  # a step of `speedplus run`
+    #: results made with another configuration are replaced without --force (they only
+    #: record copies made elsewhere: an export to another folder or in another format)
+    replace_stale: bool = False
 
     def resolved(self, config: Config) -> Resolved:
         if self.resolve is None:
@@ -77,7 +80,7 @@ STAGES: tuple[StageEntry, ...] = (
                ("labels", "renders", "predictions", "scores"), ("report",), ()),
     StageEntry("export", "the labels and images as a SPEED+ or BOP dataset", "stages.export:run",
                ("labels", "captures"), ("export_speedplus",), ("export", "camera"),
-               resolve="stages.export:resolve", chained=False),
+               resolve="stages.export:resolve", chained=False, replace_stale=True),
     StageEntry("train-reference", "train the reference keypoint CNN on the synthetic training set and export ONNX "
                "(W/models/reference.onnx)", "stages.reference:run",
                ("train",), ("models",), ("reference",), chained=False),

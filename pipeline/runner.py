@@ -117,6 +117,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     state = status(stage, config, workspace)
     if state.state == "done" and not force:
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
+    force = force or (state.state == "stale" and stage.replace_stale)
     if state.state == "stale" and not force:
         raise StageError(
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "

@@ -121,6 +121,7 @@ def test_speedplus_export_matches_the_devkit_convention(labelled, tmp_path):
 def test_export_records_every_copy_resumes_and_stays_in_its_folder(labelled, tmp_path):
     ws = copy_of(labelled, tmp_path, "exporting")
     out = tmp_path / "out"
+    # the copied workspace recorded an export to another folder: this one replaces that record
     assert speedplus("export", "-w", str(ws.root), "--out", str(out)).returncode == 0
     rows = read_manifest(ws, "export_speedplus").to_pylist()
     assert len(rows) == read_manifest(ws, "labels").num_rows and all((out / r["file"]).is_file() for r in rows)
@@ -133,7 +134,8 @@ def test_export_records_every_copy_resumes_and_stays_in_its_folder(labelled, tmp
     (out / "lightbox" / "test.json").unlink()
     again = speedplus("export", "-w", str(ws.root))  # the folder is remembered in W/config.toml
     assert again.returncode == 0, again.stderr
-    assert all((out / r["file"]).is_file() for r in rows) and (out / "lightbox" / "test.json").read_bytes() == annotations
+    assert all((out / r["file"]).is_file() for r in rows)
+    assert (out / "lightbox" / "test.json").read_bytes() == annotations
     assert "up to date" in speedplus("export", "-w", str(ws.root)).stdout
     # a labels file edited to climb out of the export folder
     part = list_parts(ws, "labels")[0]
