@@ -1,10 +1,12 @@
 """Atomic part writer, validating reader and completion markers of manifests.
 
 A manifest is a directory of Parquet parts. Each part is written under a temporary name
-(``.part-NNNNN.parquet.tmp``, hidden from Parquet dataset readers), fsynced, renamed, and
-the directory fsynced: a crash leaves either a whole part or an ignorable temporary file.
-Every part records the fingerprint of the stage run that wrote it, so a resumed run can
-refuse to mix results made under another configuration.
+(``.part-NNNNN.parquet.<pid>.tmp``, hidden from Parquet dataset readers), fsynced, linked
+to its final name (a link never replaces an existing part) and the directory fsynced: a
+crash leaves either a whole part or an ignorable temporary file. Every part records the
+fingerprint of the stage run that wrote it, so a resumed run can refuse to mix results
+made under another configuration. A completed manifest is compacted and checked against
+its marker (``manifests.integrity``).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from manifests.integrity import damage
 from manifests.schema import MANIFESTS, SCHEMA_VERSION, Column, ManifestSpec
 from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
 
@@ -208,24 +211,41 @@ def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | 
     directory = workspace.manifest_dir(spec.name)
     directory.mkdir(parents=True, exist_ok=True)
     existing = [int(_PART_RE.match(p.name).group(1)) for p in list_parts(workspace, spec.name)]
-    final = directory / PART_TEMPLATE.format(index=max(existing, default=-1) + 1)
-    temporary = directory / f".{final.name}.tmp"
-    with open(temporary, "wb") as handle:
-        pq.write_table(table, handle, compression="zstd")
-        handle.flush()
-        os.fsync(handle.fileno())
+    index = max(existing, default=-1) + 1
+    temporary = directory / f".part-{index:05d}.parquet.{os.getpid()}.tmp"
+    write_table_file(temporary, table)
     _parts_written_in_process += 1
     if os.environ.get(_FAULT_ENV) == str(_parts_written_in_process):
         os.kill(os.getpid(), signal.SIGKILL)
-    os.replace(temporary, final)
+    while True:  # link, unlike rename, never replaces a part another process may have written
+        final = directory / PART_TEMPLATE.format(index=index)
+        try:
+            os.link(temporary, final)
+            break
+        except FileExistsError:
+            index += 1
+    temporary.unlink()
     _fsync_dir(directory)
     return final
+
+
+def write_table_file(path: Path, table: pa.Table) -> None:
+    """One Parquet file (zstd), flushed to disk before the caller renames it into place."""
+    with open(path, "wb") as handle:
+        pq.write_table(table, handle, compression="zstd")
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
+def _temporary(path: Path) -> Path:
+    """A temporary name beside ``path`` that no other process uses."""
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 
 def write_json_atomic(path: Path, payload: Any) -> None:
     """Write JSON under a temporary name and rename it: readers never see half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp")
+    temporary = _temporary(path)
     temporary.write_text(json.dumps(payload, indent=2) + "\n")
     os.replace(temporary, path)
 
@@ -233,7 +253,7 @@ def write_json_atomic(path: Path, payload: Any) -> None:
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write bytes under a temporary name, fsync, rename: readers never see half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp")
+    temporary = _temporary(path)
     with open(temporary, "wb") as handle:
         handle.write(data)
         handle.flush()
@@ -244,7 +264,7 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
 def copy_atomic(source: Path, destination: Path) -> None:
     """Copy a file under a temporary name and rename it: readers never see half a file."""
     destination.parent.mkdir(parents=True, exist_ok=True)
-    temporary = destination.with_name(f".{destination.name}.tmp")
+    temporary = _temporary(destination)
     shutil.copyfile(source, temporary)
     os.replace(temporary, destination)
 
@@ -322,7 +342,11 @@ def part_fingerprints(workspace: Workspace, name: str) -> set[str]:
     """Fingerprints recorded in the parts of a manifest (reads footers only)."""
     found = set()
     for path in list_parts(workspace, name):
-        metadata = pq.read_schema(path).metadata or {}
+        try:
+            metadata = pq.read_schema(path).metadata or {}
+        except (OSError, pa.ArrowInvalid) as error:
+            raise ManifestError(workspace.display(path), f"not a readable Parquet file ({error}); redo the stage "
+                                "that writes it with --force") from None
         found.add(metadata.get(b"speedplus.fingerprint", b"").decode())
     return found
 
@@ -335,6 +359,12 @@ def read_manifest(workspace: Workspace, name: str | ManifestSpec, *, validate: b
     """
     spec = spec_for(name)
     parts = list_parts(workspace, spec.name)
+    marker = read_success(workspace, spec.name)
+    problem = damage(parts, marker) if marker is not None else None
+    if problem is not None:
+        raise ManifestError(workspace.display(workspace.manifest_dir(spec.name)),
+                            f"damaged: {problem}; redo the stage that writes it with --force (speedplus status "
+                            "names it)")
     tables = []
     seen: dict[str, str] = {}
     for path in parts:

@@ -68,3 +68,20 @@ def _holder(handle: int) -> str:
         return f"process {info['pid']} on {info['host']} ({info['command']}, since {info['since']})"
     except (ValueError, KeyError, TypeError):
         return "another process"
+
+
+def holder(workspace: Workspace) -> str | None:
+    """Who writes the workspace now, or None (for ``status``; takes nothing)."""
+    path = workspace.root / LOCK_FILE
+    try:
+        handle = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        fcntl.flock(handle, fcntl.LOCK_UN)
+        return None
+    except BlockingIOError:
+        return _holder(handle)
+    finally:
+        os.close(handle)

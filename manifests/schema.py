@@ -52,6 +52,8 @@ class ManifestSpec:
     description: str
     columns: tuple[Column, ...]
     key: str = "sample_id"
+    #: path columns naming workspace files whose sizes and hashes the completion marker records
+    files: tuple[str, ...] = ()
 
     def schema(self) -> pa.Schema:
         return pa.schema(
@@ -140,6 +142,7 @@ CAPTURES = ManifestSpec(
         Column("vicon_targetrb_markers", pa.int8(), "count", "markers used for the target rigid body"),
         Column("status", pa.string(), "", "capture outcome", kind="enum", allowed=("ok", "failed")),
     ),
+    files=("image_path",),
 )
 
 TRUTH = ManifestSpec(
@@ -227,10 +230,10 @@ _RENDER_COLUMNS = (
 )
 
 RENDERS = ManifestSpec("renders", "synthetic twins of the labelled testbed captures (same pose, aligned light)",
-                       _RENDER_COLUMNS)
+                       _RENDER_COLUMNS, files=("image_path", "mask_path"))
 
 TRAIN = ManifestSpec("train", "the synthetic training set: SO(3)-uniform poses, random lights (SPEED+-like)",
-                     _RENDER_COLUMNS)
+                     _RENDER_COLUMNS, files=("image_path", "mask_path"))
 
 PREDICTION_DOMAINS = ("synthetic", "lightbox", "sunlamp")
 
@@ -304,6 +307,7 @@ MODELS = ManifestSpec(
         Column("train_seconds", pa.float64(), "s", "training wall time (this run's share when resumed)"),
     ),
     key="model",
+    files=("path",),
 )
 
 MANIFESTS: dict[str, ManifestSpec] = {

@@ -48,14 +48,18 @@ def check_relative(path: str) -> PurePosixPath:
 class Workspace:
     """A run directory ``W``; every stage reads and writes through these paths."""
 
-    def __init__(self, root: str | Path, output_fingerprints: dict[str, str] | None = None) -> None:
+    def __init__(self, root: str | Path, output_fingerprints: dict[str, str] | None = None,
+                 forced: bool = False) -> None:
         self.root = Path(root).resolve()
         self._output_fingerprints = dict(output_fingerprints or {})
+        #: the run was asked to redo its results (--force): a stage may then replace what it
+        #: would otherwise refuse to touch (export: a folder holding other files)
+        self.forced = forced
 
-    def for_run(self, output_fingerprints: dict[str, str]) -> Workspace:
+    def for_run(self, output_fingerprints: dict[str, str], forced: bool = False) -> Workspace:
         """The same workspace as a stage run sees it: writers stamp each output manifest's
-        parts with its fingerprint (docs/architecture.md section 5). Made by the runner."""
-        return Workspace(self.root, output_fingerprints)
+        parts with its fingerprint (docs/architecture.md section 1). Made by the runner."""
+        return Workspace(self.root, output_fingerprints, forced)
 
     def output_fingerprint(self, name: str) -> str:
         """The fingerprint the running stage stamps on manifest ``name``'s parts."""

@@ -7,8 +7,11 @@ field or key); 2 usage error; 130 interrupted.
 
 from __future__ import annotations
 
+import os
 import sys
+import traceback
 from dataclasses import fields
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated
 
@@ -18,6 +21,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from manifests import ManifestError, Workspace
+from manifests.lock import WorkspaceLock, holder
 from pipeline import registry, runner
 from pipeline.config import SECTION_TYPES, Config, Override, load_config, parse_override, with_overrides, write_config
 from pipeline.errors import InputError
@@ -74,18 +78,18 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
     """Run ``stages``; ``saved`` overrides go into W/config.toml, ``transient`` ones (which
     choose what a command does: render's image set, export's format) apply to this run only."""
     resolved, ws = _context(workspace, profile, config, saved)
-    ws.root.mkdir(parents=True, exist_ok=True)
-    write_config(resolved, ws.config_path)
-    resolved = with_overrides(resolved, transient)
-    if resolved.acquire.backend == "replay" and len(stages) > 1:
-        stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
-    for name in stages:
-        outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force)
-        rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
-        if outcome.action == "skipped":
-            out.print(f"[green]{name}[/]: up to date ({rows})")
-        else:
-            out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+    with WorkspaceLock(ws):
+        write_config(resolved, ws.config_path)
+        resolved = with_overrides(resolved, transient)
+        if resolved.acquire.backend == "replay" and len(stages) > 1:
+            stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
+        for name in stages:
+            outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force)
+            rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
+            if outcome.action == "skipped":
+                out.print(f"[green]{name}[/]: up to date ({rows})")
+            else:
+                out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
     if stages and stages[-1] == "report":
         out.print(f"report: {ws.root / 'report' / 'index.html'}")
     return ws
@@ -224,16 +228,54 @@ def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     table = Table(title=escape(f"{ws.root} (profile {resolved.profile})"))
     for column in ("stage", "state", "rows", "detail"):
         table.add_column(column)
-    colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim"}
+    colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim", "damaged": "bold red"}
     for entry in registry.STAGES:
         state = runner.status(entry, resolved, ws)
         rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
         table.add_row(entry.name, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(state.detail))
     out.print(table)
+    busy = holder(ws)
+    if busy:
+        out.print(escape(f"in use by {busy}: states may change while it runs"))
+
+
+@app.command("verify")
+def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+                   set_: SetOption = None) -> None:
+    """Check a whole workspace: every completed manifest against its completion marker, and
+    every image, mask and model against the size and hash recorded when it was written.
+    Exit 1 when anything is damaged, naming the stage to redo."""
+    resolved, ws = _context(workspace, profile, config, _parsed(set_))
+    findings = runner.verify(resolved, ws, registry.STAGES)
+    table = Table(title=escape(f"{ws.root}: integrity"))
+    for column in ("stage", "manifest", "state", "detail"):
+        table.add_column(column)
+    for finding in findings:
+        detail = "; ".join(finding.problems[:3]) + (f" (and {len(finding.problems) - 3} more)"
+                                                    if len(finding.problems) > 3 else "")
+        table.add_row(finding.stage, finding.manifest, "[green]intact[/]" if not finding.problems
+                      else "[bold red]damaged[/]", escape(detail))
+    out.print(table)
+    damaged = sorted({f.stage for f in findings if f.problems}, key=registry.STAGE_NAMES.index)
+    if damaged:
+        raise InputError(f"{ws.root}: damaged results; redo {', '.join(damaged)} with --force "
+                         f"(`speedplus {damaged[0]} -w {ws.root} --force`, then `speedplus run`)")
+    out.print(f"{len(findings)} completed manifests intact" if findings else "nothing completed yet")
+
+
+def _crash_log(error: BaseException) -> Path:
+    """Where an unexpected error's traceback goes (the message names it)."""
+    folder = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "crashes"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"crash-{datetime.now(UTC):%Y%m%dT%H%M%S}-{os.getpid()}.log"
+    path.write_text(f"speedplus {' '.join(sys.argv[1:])}\n\n"
+                    + "".join(traceback.format_exception(type(error), error, error.__traceback__)))
+    return path
 
 
 def main() -> None:
-    """Console-script entry point: maps errors to exit codes with one clear message."""
+    """Console-script entry point: maps errors to exit codes with one clear message; an
+    unexpected error is one line too, with its traceback in a crash log."""
     try:
         app()
     except (InputError, ManifestError) as error:
@@ -242,6 +284,11 @@ def main() -> None:
     except KeyboardInterrupt:
         err.print("[yellow]interrupted[/]: finished parts are kept; rerun the same command to resume")
         sys.exit(130)
+    except Exception as error:  # noqa: BLE001 - the last line of defence: never a traceback
+        log = _crash_log(error)
+        err.print(f"[bold red]error:[/] unexpected {escape(type(error).__name__)}: {escape(str(error))[:300]} "
+                  f"(a bug of speedplus; the traceback is in {escape(str(log))})", highlight=False)
+        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -19,9 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow.parquet as pq
+from pyarrow import ArrowInvalid
 
 from manifests import (
     SCHEMA_VERSION,
+    ManifestError,
     Workspace,
     list_parts,
     part_fingerprints,
@@ -31,7 +33,9 @@ from manifests import (
     write_success,
 )
 from manifests import clear as clear_manifest
-from manifests.io import copy_atomic
+from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
+from manifests.io import copy_atomic, write_table_file
+from manifests.schema import MANIFESTS
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.registry import StageEntry
@@ -67,14 +71,21 @@ def fingerprint(stage: StageEntry, config: Config, workspace: Workspace) -> str 
 
 
 def row_count(workspace: Workspace, name: str) -> int:
-    """Rows in a manifest's parts, from Parquet footers (no data read)."""
-    return sum(pq.ParquetFile(path).metadata.num_rows for path in list_parts(workspace, name))
+    """Rows in a manifest's parts, from Parquet footers (no data read); unreadable parts
+    count none (readers and ``status`` report them)."""
+    total = 0
+    for path in list_parts(workspace, name):
+        try:
+            total += pq.ParquetFile(path).metadata.num_rows
+        except (OSError, ArrowInvalid):
+            continue
+    return total
 
 
 @dataclass(frozen=True)
 class StageStatus:
     stage: str
-    state: str  # done | partial | stale | missing
+    state: str  # done | partial | stale | missing | damaged
     rows: dict[str, int]
     detail: str
 
@@ -85,15 +96,22 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
     rows = {name: row_count(workspace, name) for name in outputs}
     current = fingerprint(stage, config, workspace)
     markers = [read_success(workspace, name) for name in outputs]
-    recorded = set().union(*(part_fingerprints(workspace, name) for name in outputs)) if outputs else set()
+    if current is not None and all(m is not None and m["fingerprint"] == current for m in markers):
+        for name, marker in zip(outputs, markers, strict=True):
+            problem = damage(list_parts(workspace, name), marker)
+            if problem is not None:
+                return StageStatus(stage.name, "damaged", rows, f"{name}: {problem}; redo with --force")
+        return StageStatus(stage.name, "done", rows, "")
+    try:
+        recorded = set().union(*(part_fingerprints(workspace, name) for name in outputs)) if outputs else set()
+    except ManifestError as error:
+        return StageStatus(stage.name, "damaged", rows, f"{error}")
     recorded |= {m["fingerprint"] for m in markers if m}
     if not recorded:
         detail = "waiting for " + ", ".join(inputs) if current is None else "not run"
         return StageStatus(stage.name, "missing", rows, detail)
     if current is None or recorded != {current}:
         return StageStatus(stage.name, "stale", rows, "made with another configuration or inputs")
-    if all(m is not None and m["fingerprint"] == current for m in markers):
-        return StageStatus(stage.name, "done", rows, "")
     return StageStatus(stage.name, "partial", rows, "interrupted; rerun to resume")
 
 
@@ -114,24 +132,34 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         missing = [name for name in inputs if read_success(workspace, name) is None]
         raise StageError(f"stage {stage.name!r} needs the complete manifest(s) {', '.join(missing)} in "
                          f"{workspace.root}; run the stage(s) before it first (or `speedplus run`)")
+    for name in inputs:  # before anything is discarded: a damaged input stops the stage
+        problem = damage(list_parts(workspace, name), read_success(workspace, name))
+        if problem is not None:
+            raise StageError(f"stage {stage.name!r} needs manifest {name}, which is damaged ({problem}); redo "
+                             "the stage that writes it with --force (speedplus status names it)")
     state = status(stage, config, workspace)
     if state.state == "done" and not force:
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
-    force = force or (state.state == "stale" and stage.replace_stale)
-    if state.state == "stale" and not force:
+    replacing = state.state == "stale" and stage.replace_stale
+    if state.state == "stale" and not (force or replacing):
         raise StageError(
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
             "made with another configuration or other inputs; rerun with --force to discard them")
-    if force:
+    if state.state == "damaged" and not force:
+        raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
+    if force or replacing:
         for name in outputs:
             clear_manifest(workspace, name)
-    resumed = not force and any(state.rows.values())
+    resumed = not (force or replacing) and any(state.rows.values())
     for name in outputs:
+        recover(workspace.manifest_dir(name))
         remove_temporaries(workspace, name)
+        # this run's rows are checked against this run's marker, never a previous one's
+        workspace.success_path(name).unlink(missing_ok=True)
     run = stage.function()
     workspace.root.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    run(config, workspace.for_run({name: current for name in outputs}))
+    run(config, workspace.for_run({name: current for name in outputs}, forced=force))
     seconds = time.perf_counter() - started
     rows = {name: row_count(workspace, name) for name in outputs}
     for name in outputs:
@@ -144,8 +172,46 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             "seconds": round(seconds, 3),
             "resumed": resumed,
             "completed_at": datetime.now(UTC).isoformat(timespec="seconds"),
+            **_complete(workspace, name, current),
         })
     return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
+
+
+def _complete(workspace: Workspace, name: str, current: str) -> dict[str, Any]:
+    """Compact a finished manifest into key order and record its parts and files for the
+    marker (``manifests.integrity``): same inputs, same bytes, whatever order the rows came in."""
+    if name not in MANIFESTS:  # a completion marker without rows (report)
+        return {}
+    spec = MANIFESTS[name]
+    table = read_manifest(workspace, name)
+    stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
+    directory = workspace.manifest_dir(name)
+    if directory.is_dir():
+        compact(directory, table.replace_schema_metadata(stamped), spec.key, write_table_file)
+    return {"parts": part_records(list_parts(workspace, name)),
+            "files": file_records(workspace, spec, table.to_pylist())}
+
+
+@dataclass(frozen=True)
+class Finding:
+    stage: str
+    manifest: str
+    problems: list[str]
+
+
+def verify(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...]) -> list[Finding]:
+    """Every completed manifest against its marker, and every file it recorded against its
+    size and hash; one finding per manifest (no problems: intact)."""
+    findings = []
+    for stage in stages:
+        for name in stage.resolved(config).outputs:
+            marker = read_success(workspace, name)
+            if marker is None:
+                continue
+            problem = damage(list_parts(workspace, name), marker)
+            findings.append(Finding(stage.name, name, ([problem] if problem else [])
+                                    + damaged_files(workspace, marker)))
+    return findings
 
 
 def publish_model(workspace: Workspace, name: str, destination: Path) -> dict[str, Any]:

@@ -24,12 +24,15 @@ class IngestError(InputError):
 
 
 def read_text(path: Path) -> str:
+    """UTF-8 text; a byte-order mark (spreadsheets write one) is dropped."""
     try:
-        return path.read_text()
+        return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise IngestError(path, "file not found") from None
-    except UnicodeDecodeError:
-        raise IngestError(path, "not a text file") from None
+    except UnicodeDecodeError as error:
+        raise IngestError(path, f"not UTF-8 text (byte {error.start})") from None
+    except OSError as error:
+        raise IngestError(path, f"unreadable ({error.strerror})") from None
 
 
 def read_csv(path: Path, required: list[str]) -> list[tuple[int, dict[str, str]]]:

@@ -7,18 +7,23 @@ resumes with the images it lacks; the annotation files are written last, from ev
 
 from __future__ import annotations
 
+import json
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.io import write_json_atomic
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common.sidecars import calibrated_camera
 from stages.export import formats
+
+#: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files)
+EXPORT_MARK = ".speedplus-export.json"
 
 
 def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
@@ -40,9 +45,28 @@ def inside_export(file: str, label: dict[str, Any]) -> PurePosixPath:
                          "export folder; relabel with a plain label.filename_template") from None
 
 
+def claim(out: Path, workspace: Workspace, export_format: str) -> None:
+    """Make ``out`` this workspace's export folder: it must be empty, or an export of this
+    workspace in this format (a resumed or repeated export), or ``--force`` was given."""
+    mark = out / EXPORT_MARK
+    ours = {"workspace": str(workspace.root), "format": export_format}
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: export.out is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()) and not workspace.forced:
+        try:
+            theirs = json.loads(mark.read_text())
+        except (OSError, ValueError):
+            theirs = None
+        if theirs != ours:
+            raise InputError(f"{out}: not empty and not a {export_format} export of {workspace.root}; choose an "
+                             "empty folder, or rerun with --force to write into it anyway")
+    write_json_atomic(mark, ours)
+
+
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Copy every label's image missing from the manifest, then write the annotation files."""
     out, name = out_dir(config, workspace), f"export_{config.export.format}"
+    claim(out, workspace, config.export.format)
     labels = sorted(read_manifest(workspace, "labels").to_pylist(), key=lambda r: r["sample_id"])
     images = {r["sample_id"]: r["image_path"] for r in read_manifest(workspace, "captures").to_pylist()}
     camera = calibrated_camera(workspace)

@@ -90,3 +90,33 @@ def test_corrupted_manifest_exits_1_naming_file_row_and_column(tmp_path):
 def test_every_stage_has_a_command(command):
     result = speedplus(command, "--help")
     assert result.returncode == 0 and "--workspace" in result.stdout and "--force" in result.stdout
+
+
+def test_an_unexpected_error_is_one_line_and_a_crash_log(monkeypatch, tmp_path, capsys):
+    from pipeline import cli
+
+    def broken() -> None:
+        raise ZeroDivisionError("a bug [in brackets]")
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(cli, "app", broken)
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    assert exited.value.code == 1
+    stderr = capsys.readouterr().err
+    message = " ".join(stderr.split())
+    assert "unexpected ZeroDivisionError: a bug [in brackets]" in message and "Traceback" not in message
+    (log,) = (tmp_path / "speedplus" / "crashes").iterdir()
+    assert str(log) in "".join(stderr.split()) and "Traceback" in log.read_text() and "ZeroDivisionError" in log.read_text()
+
+
+def test_export_refuses_a_folder_holding_other_files(smoke_labelled, tmp_path):
+    out = tmp_path / "thesis"
+    out.mkdir()
+    (out / "chapter1.tex").write_text("mine")
+    refused = speedplus("export", "-w", str(smoke_labelled.root), "--out", str(out))
+    assert refused.returncode == 1 and "not empty" in refused.stderr and "--force" in refused.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["chapter1.tex"]
+    forced = speedplus("export", "-w", str(smoke_labelled.root), "--out", str(out), "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert (out / "chapter1.tex").read_text() == "mine" and (out / "camera.json").is_file()
