@@ -107,7 +107,8 @@ def test_an_unexpected_error_is_one_line_and_a_crash_log(monkeypatch, tmp_path, 
     message = " ".join(stderr.split())
     assert "unexpected ZeroDivisionError: a bug [in brackets]" in message and "Traceback" not in message
     (log,) = (tmp_path / "speedplus" / "crashes").iterdir()
-    assert str(log) in "".join(stderr.split()) and "Traceback" in log.read_text() and "ZeroDivisionError" in log.read_text()
+    assert str(log) in "".join(stderr.split())
+    assert "Traceback" in log.read_text() and "ZeroDivisionError" in log.read_text()
 
 
 def test_export_refuses_a_folder_holding_other_files(smoke_labelled, tmp_path):
