@@ -116,10 +116,14 @@ def charuco_board(spec: PatternSpec) -> cv2.aruco.CharucoBoard:
 
 
 def board_pattern(testbed: TestbedConfig) -> PatternSpec:
-    """The ChArUco board fixed on the model's solar panel."""
-    return PatternSpec("charuco", tuple(testbed.board_squares), testbed.board_square_m, testbed.board_marker_m,
-                       testbed.board_dictionary, tuple(testbed.target_from_board_q),
-                       tuple(testbed.target_from_board_t_m))
+    """The ChArUco board fixed on the model's solar panel, checked by the one pattern
+    validator (a bad dictionary name is an error naming the configuration key)."""
+    return pattern_from_table({"kind": "charuco", "size": list(testbed.board_squares),
+                               "square_m": testbed.board_square_m, "marker_m": testbed.board_marker_m,
+                               "dictionary": testbed.board_dictionary,
+                               "target_from_pattern_q": list(testbed.target_from_board_q),
+                               "target_from_pattern_t": list(testbed.target_from_board_t_m)},
+                              "configuration [testbed] board_*")
 
 
 def board_image(spec: PatternSpec, px_per_m: float, margin_m: float) -> np.ndarray:

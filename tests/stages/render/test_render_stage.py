@@ -12,7 +12,7 @@ import pytest
 from manifests import Workspace, list_parts, read_manifest
 from pipeline import registry, runner
 from pipeline.config import load_config
-from tests.conftest import speedplus
+from tests.conftest import reseal, speedplus
 
 VOLATILE = ("seconds",)  # wall time: the only column allowed to differ between two runs
 
@@ -92,6 +92,7 @@ def test_bad_labels_are_rejected_with_their_reason_and_the_rest_rendered(smoke_l
     rows[0]["q_vbs2tango_true"] = [0.9, 0.1, 0.0, 0.0]
     rows[1]["r_Vo2To_vbs_true"] = [0.0, 0.0, -7.0]
     pq.write_table(pa.Table.from_pylist(rows, schema=table.schema), part)
+    reseal(ws, "labels")
     result = speedplus("render", "--workspace", str(ws.root))
     assert result.returncode == 0, result.stderr
     assert f"{bad_q} not rendered: quaternion is not unit" in result.stderr.replace("\n", " ")
