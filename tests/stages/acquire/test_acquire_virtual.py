@@ -98,6 +98,9 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
     assert got.equals(reference)
     truth = read_manifest(Workspace(ws), "truth")
     assert sorted(truth.column("sample_id").to_pylist()) == got.column("sample_id").to_pylist()
+    for name in ("captures", "truth"):  # killed and resumed: the same bytes as uninterrupted
+        assert ([p.read_bytes() for p in list_parts(Workspace(ws), name)]
+                == [p.read_bytes() for p in list_parts(smoke_workspace, name)]), name
     for name in got.column("image_path").to_pylist():  # a worker's render history changes nothing
         a = cv2.imread(str(Workspace(ws).resolve(name)), cv2.IMREAD_UNCHANGED)
         b = cv2.imread(str(smoke_workspace.resolve(name)), cv2.IMREAD_UNCHANGED)
@@ -116,3 +119,6 @@ def test_ray_engine_acquires_the_same_captures(smoke_workspace, ray_cluster, tmp
     assert got.equals(read_manifest(smoke_workspace, "captures").sort_by("sample_id"))
     for name in got.column("image_path").to_pylist():
         assert ws.resolve(name).read_bytes() == smoke_workspace.resolve(name).read_bytes(), name
+    for name in ("captures", "truth"):  # another engine, another finishing order: the same bytes
+        assert [p.read_bytes() for p in list_parts(ws, name)] == [p.read_bytes() for p in
+                                                                   list_parts(smoke_workspace, name)], name

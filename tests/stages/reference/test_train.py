@@ -7,6 +7,7 @@ import numpy as np
 import onnx
 import pytest
 
+from manifests import Workspace, read_manifest
 from pipeline.config import load_config
 from stages.common.pose_model import PoseModel
 from stages.reference.train import heatmap_targets
@@ -16,7 +17,7 @@ from tests.conftest import speedplus
 def test_recipe_runs_a_few_steps_and_exports_a_loadable_model(tmp_path):
     out = tmp_path / "model.onnx"
     result = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"),
-                       "--set", "reference.images=20", "--steps", "2", "--out", str(out))
+                       "--set", "reference.images=10", "--steps", "2", "--out", str(out))
     assert result.returncode == 0, result.stderr
     proto = onnx.load(str(out))
     assert proto.ir_version <= 13  # what onnxruntime 1.31 reads
@@ -28,8 +29,14 @@ def test_recipe_runs_a_few_steps_and_exports_a_loadable_model(tmp_path):
     (heatmaps,) = model.infer(batch)
     assert heatmaps.shape == (2, 11, recipe.input_height // 4, recipe.input_width // 4)
     card = json.loads(out.with_suffix(".json").read_text())
-    assert card["training_images"] == 18 and card["held_out"]["images"] == 2
+    assert card["training_images"] == 9 and card["held_out"]["images"] == 1
     assert "held-out synthetic" in result.stdout
+    # a stage like every other: recorded in the models manifest, and done once
+    ws = Workspace(tmp_path / "w")
+    (row,) = read_manifest(ws, "models").to_pylist()
+    assert ws.resolve(row["path"]).read_bytes() == out.read_bytes() and row["training_images"] == 9
+    again = speedplus("train-reference", "--workspace", str(ws.root), "--steps", "2", "--out", str(out))
+    assert again.returncode == 0 and "train-reference: up to date" in again.stdout, again.stderr
 
 
 def test_heatmap_targets_peak_at_the_keypoints():
