@@ -16,8 +16,10 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 
+from manifests.files import fsync_dir, write_table_file
 from manifests.schema import ManifestSpec
 from manifests.workspace import PART_TEMPLATE, Workspace
 
@@ -94,30 +96,22 @@ def recover(directory: Path) -> None:
     shutil.rmtree(staging, ignore_errors=True)
 
 
-def compact(directory: Path, table: Any, key: str, write: Any) -> None:
+def compact(directory: Path, table: pa.Table, key: str) -> None:
     """Replace the parts in ``directory`` by ``table`` sorted by ``key``, in parts of
     ``COMPACT_ROWS``, atomically: written aside, then swapped by two renames (``recover``
-    completes a swap a crash interrupted). ``write(path, table)`` writes one part."""
+    completes a swap a crash interrupted)."""
     staging, old = _staging(directory)
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     ordered = table.sort_by(key)
     for index, start in enumerate(range(0, max(ordered.num_rows, 1), COMPACT_ROWS)):
         if ordered.num_rows:
-            write(staging / PART_TEMPLATE.format(index=index), ordered.slice(start, COMPACT_ROWS))
+            write_table_file(staging / PART_TEMPLATE.format(index=index), ordered.slice(start, COMPACT_ROWS))
     for entry in directory.iterdir():  # other files (a marker of another run) stay with the manifest
         if not entry.name.startswith(("part-", ".part-")):
             shutil.copy2(entry, staging / entry.name)
-    _fsync(staging)
+    fsync_dir(staging)
     os.rename(directory, old)
     os.rename(staging, directory)
     shutil.rmtree(old)
-    _fsync(directory.parent)
-
-
-def _fsync(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    fsync_dir(directory.parent)

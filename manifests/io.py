@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from manifests.files import fsync_dir, write_json_atomic, write_table_file
 from manifests.integrity import damage
 from manifests.schema import MANIFESTS, SCHEMA_VERSION, Column, ManifestSpec
 from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
@@ -190,14 +191,6 @@ def list_parts(workspace: Workspace, name: str) -> list[Path]:
     return sorted(p for p in directory.iterdir() if _PART_RE.match(p.name))
 
 
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | Iterable[Mapping[str, Any]],
                fingerprint: str) -> Path | None:
     """Validate and atomically write one part; returns its path (None for no rows)."""
@@ -225,48 +218,8 @@ def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | 
         except FileExistsError:
             index += 1
     temporary.unlink()
-    _fsync_dir(directory)
+    fsync_dir(directory)
     return final
-
-
-def write_table_file(path: Path, table: pa.Table) -> None:
-    """One Parquet file (zstd), flushed to disk before the caller renames it into place."""
-    with open(path, "wb") as handle:
-        pq.write_table(table, handle, compression="zstd")
-        handle.flush()
-        os.fsync(handle.fileno())
-
-
-def _temporary(path: Path) -> Path:
-    """A temporary name beside ``path`` that no other process uses."""
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
-def write_json_atomic(path: Path, payload: Any) -> None:
-    """Write JSON under a temporary name and rename it: readers never see half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = _temporary(path)
-    temporary.write_text(json.dumps(payload, indent=2) + "\n")
-    os.replace(temporary, path)
-
-
-def write_bytes_atomic(path: Path, data: bytes) -> None:
-    """Write bytes under a temporary name, fsync, rename: readers never see half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = _temporary(path)
-    with open(temporary, "wb") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(temporary, path)
-
-
-def copy_atomic(source: Path, destination: Path) -> None:
-    """Copy a file under a temporary name and rename it: readers never see half a file."""
-    destination.parent.mkdir(parents=True, exist_ok=True)
-    temporary = _temporary(destination)
-    shutil.copyfile(source, temporary)
-    os.replace(temporary, destination)
 
 
 def clear(workspace: Workspace, name: str) -> None:
@@ -397,10 +350,34 @@ def write_success(workspace: Workspace, name: str, payload: Mapping[str, Any]) -
 
 
 def read_success(workspace: Workspace, name: str) -> dict[str, Any] | None:
+    """A manifest's completion marker, or None while the stage has not completed; the keys
+    readers rely on are checked, and an error names the file and the key."""
     path = workspace.success_path(name)
     if not path.exists():
         return None
+    where = workspace.display(path)
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as error:
-        raise ManifestError(workspace.display(path), f"not valid JSON ({error})") from None
+        marker = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ManifestError(where, f"not valid JSON ({error}); redo the stage that writes it with --force") from None
+
+    def fail(key: str, expected: str) -> ManifestError:
+        return ManifestError(where, f"key {key}: expected {expected}; redo the stage that writes it with --force")
+
+    if not isinstance(marker, dict):
+        raise fail("(top level)", "a JSON object")
+    if not isinstance(marker.get("fingerprint"), str):
+        raise fail("fingerprint", "a string")
+    if not isinstance(marker.get("rows"), int) or marker["rows"] < 0:
+        raise fail("rows", "a row count")
+    parts = marker.get("parts", [])
+    if not isinstance(parts, list) or not all(
+            isinstance(p, dict) and isinstance(p.get("name"), str) and _PART_RE.match(p["name"])
+            and isinstance(p.get("rows"), int) and isinstance(p.get("sha256"), str) for p in parts):
+        raise fail("parts", "a list of {name: part-NNNNN.parquet, rows, sha256}")
+    files = marker.get("files", {})
+    if not isinstance(files, dict) or not all(
+            isinstance(f, dict) and isinstance(f.get("bytes"), int) and isinstance(f.get("sha256"), str)
+            for f in files.values()):
+        raise fail("files", "an object of {bytes, sha256} by workspace path")
+    return marker

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 import traceback
 from dataclasses import fields
 from datetime import UTC, datetime
@@ -264,13 +265,20 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
 
 
 def _crash_log(error: BaseException) -> Path:
-    """Where an unexpected error's traceback goes (the message names it)."""
-    folder = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "crashes"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"crash-{datetime.now(UTC):%Y%m%dT%H%M%S}-{os.getpid()}.log"
-    path.write_text(f"speedplus {' '.join(sys.argv[1:])}\n\n"
-                    + "".join(traceback.format_exception(type(error), error, error.__traceback__)))
-    return path
+    """Where an unexpected error's traceback goes (the message names it): the user's cache,
+    else the system's temporary folder."""
+    text = (f"speedplus {' '.join(sys.argv[1:])}\n\n"
+            + "".join(traceback.format_exception(type(error), error, error.__traceback__)))
+    name = f"crash-{datetime.now(UTC):%Y%m%dT%H%M%S}-{os.getpid()}.log"
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "crashes"
+    for folder in (cache, Path(tempfile.gettempdir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / name).write_text(text)
+            return folder / name
+        except OSError:
+            continue
+    raise error
 
 
 def main() -> None:

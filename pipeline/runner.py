@@ -33,8 +33,8 @@ from manifests import (
     write_success,
 )
 from manifests import clear as clear_manifest
+from manifests.files import copy_atomic
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
-from manifests.io import copy_atomic, write_table_file
 from manifests.schema import MANIFESTS
 from pipeline.config import Config
 from pipeline.errors import InputError
@@ -187,7 +187,7 @@ def _complete(workspace: Workspace, name: str, current: str) -> dict[str, Any]:
     stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
     directory = workspace.manifest_dir(name)
     if directory.is_dir():
-        compact(directory, table.replace_schema_metadata(stamped), spec.key, write_table_file)
+        compact(directory, table.replace_schema_metadata(stamped), spec.key)
     return {"parts": part_records(list_parts(workspace, name)),
             "files": file_records(workspace, spec, table.to_pylist())}
 

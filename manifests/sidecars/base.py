@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
-from manifests.io import write_json_atomic
+from manifests.files import write_json_atomic
 from pipeline.errors import InputError
 
 T = TypeVar("T")

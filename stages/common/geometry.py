@@ -195,17 +195,6 @@ def pose_columns(prefix: str, a_from_b: ArrayLike | None) -> dict[str, Array | N
     return {f"{prefix}_q": q, f"{prefix}_t": t}
 
 
-def pose_to_json(a_from_b: ArrayLike) -> dict[str, list[float]]:
-    """``{"q": [w, x, y, z], "t": [x, y, z]}`` of a transform (the layout of W/*.json)."""
-    q, t = transform_to_qt(a_from_b)
-    return {"q": q.tolist(), "t": t.tolist()}
-
-
-def pose_from_json(entry: dict[str, list[float]]) -> Array:
-    """Inverse of ``pose_to_json``."""
-    return transform_from_qt(entry["q"], entry["t"])
-
-
 def invert(a_from_b: ArrayLike) -> Array:
     """``b_from_a`` for rigid transforms ``a_from_b`` (..., 4, 4), exact (no matrix inverse)."""
     a_from_b = np.asarray(a_from_b, dtype=np.float64)

@@ -15,7 +15,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from manifests.io import write_bytes_atomic
+from manifests.files import write_bytes_atomic
 from pipeline.errors import InputError
 
 #: file types the readers accept (by suffix, case-insensitive)
@@ -153,7 +153,7 @@ def ingest_image(source: Path, destination_png: Path) -> tuple[Path, str | None]
     written as a PNG of the same type and colour channels (an alpha channel, which no
     stage reads, is dropped and said so); anything else (EXR, float or signed TIFF) is
     copied as it is, with its own suffix. Returns (the stored file, what was converted or None)."""
-    from manifests.io import copy_atomic
+    from manifests.files import copy_atomic
 
     info = image_info(source)
     pixels = read_image(source)  # decodes every pixel: a truncated file fails here, naming it

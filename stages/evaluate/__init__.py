@@ -9,7 +9,6 @@ configuration), and prints Table 2.
 
 from __future__ import annotations
 
-import hashlib
 import time
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ from rich.console import Console
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
+from manifests.integrity import sha256
 from pipeline.config import Config
 from pipeline.progress import track
 from stages.common import geometry as g
@@ -41,7 +41,7 @@ def model_path(config: Config) -> Path:
 
 
 def _digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.exists() else "missing"
+    return sha256(path)[:16] if path.exists() else "missing"
 
 
 def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:

@@ -14,7 +14,7 @@ from typing import Any
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.io import write_json_atomic
+from manifests.files import write_json_atomic
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
 from pipeline.errors import InputError
@@ -22,8 +22,10 @@ from pipeline.progress import track
 from stages.common.sidecars import calibrated_camera
 from stages.export import formats
 
-#: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files)
+#: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
+#: {"version": EXPORT_MARK_VERSION, "workspace": W, "format": ...}, compared whole
 EXPORT_MARK = ".speedplus-export.json"
+EXPORT_MARK_VERSION = 1
 
 
 def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
@@ -49,7 +51,7 @@ def claim(out: Path, workspace: Workspace, export_format: str) -> None:
     """Make ``out`` this workspace's export folder: it must be empty, or an export of this
     workspace in this format (a resumed or repeated export), or ``--force`` was given."""
     mark = out / EXPORT_MARK
-    ours = {"workspace": str(workspace.root), "format": export_format}
+    ours = {"version": EXPORT_MARK_VERSION, "workspace": str(workspace.root), "format": export_format}
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: export.out is a file, not a folder")
     if out.is_dir() and any(out.iterdir()) and not workspace.forced:

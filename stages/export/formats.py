@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from manifests.io import copy_atomic, write_json_atomic
+from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
 from stages.common import geometry as g
 

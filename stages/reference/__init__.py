@@ -7,11 +7,10 @@ row of the ``models`` manifest. Training checkpoints after every epoch
 
 from __future__ import annotations
 
-import hashlib
-
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_manifest
+from manifests.integrity import sha256
 from pipeline.config import Config
 
 MODEL_NAME = "reference"
@@ -26,7 +25,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     card = train.run(config, workspace, path, checkpoint, tag=workspace.output_fingerprint("models"))
     held = card["held_out"]
     with open_sink(workspace, "models", 1) as sink:
-        sink.add({"model": MODEL_NAME, "path": relpath, "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        sink.add({"model": MODEL_NAME, "path": relpath, "sha256": sha256(path),
                   "training_images": card["training_images"], "held_out_images": card["held_out_images"],
                   "held_out_mean_speed_score": held["mean_speed_score"],
                   "held_out_median_rotation_error_deg": held["median_rotation_error_deg"],

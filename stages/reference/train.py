@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest
-from manifests.io import write_json_atomic
+from manifests.files import temporary_name, write_json_atomic
 from pipeline.config import Config, ReferenceConfig
 from pipeline.progress import console, track
 from stages.common import tango
@@ -99,7 +99,7 @@ def _save_checkpoint(path: Path, tag: str, state: dict[str, Any]) -> None:
     import torch
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp")
+    temporary = temporary_name(path)
     torch.save({"tag": tag, **state}, temporary)
     temporary.replace(path)
 
@@ -187,7 +187,7 @@ def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[
     import torch
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out.with_name(f".{out.name}.tmp")
+    temporary = temporary_name(out)
     dummy = torch.zeros(1, 3, recipe.input_height, recipe.input_width)
     torch.onnx.export(model, (dummy,), str(temporary), input_names=["image"], output_names=["heatmaps"],
                       dynamic_axes={"image": {0: "batch"}, "heatmaps": {0: "batch"}}, opset_version=OPSET,

@@ -15,14 +15,14 @@ from typing import Any
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.io import write_json_atomic
+from manifests.files import write_json_atomic
 from pipeline.config import Config
 from pipeline.engines import map_engine
 from pipeline.progress import console, track
 from stages.common.cameras import train_camera
+from stages.common.mitsuba_adapter import render_threads
 from stages.common.sidecars import calibrated_camera
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
-from stages.render.scene import default_threads
 from stages.render.worker import open_worker
 
 
@@ -59,7 +59,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     done = read_keys(workspace, name)
     todo = [job for job in jobs if job.sample_id not in done]
     run_config = config.run
-    threads = default_threads(run_config.workers)
+    threads = render_threads(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
     args = (camera, str(workspace.root), spp, config.render.max_depth, threads)
     rows = map_engine(run_config.engine, open_worker, args, "render", todo, workers=run_config.workers,

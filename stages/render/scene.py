@@ -22,7 +22,6 @@ from stages.common.mitsuba_adapter import (
     load_scene,
     mesh,
     rays,
-    render_threads,
     sensor,
     sensor_to_world,
     set_threads,
@@ -118,7 +117,3 @@ def ray_traced_mask(renderer: TangoRenderer, cam_from_target: np.ndarray) -> np.
     hit = first_hit_on(renderer.mi, renderer.scene, rays(renderer.mi, target_from_cam[:3, 3], directions))
     return hit.reshape(camera.height, camera.width)
 
-
-def default_threads(workers: int) -> int:
-    """Threads per renderer when ``workers`` renderers share this machine."""
-    return render_threads(workers)

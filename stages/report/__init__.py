@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
-from manifests.io import write_bytes_atomic
+from manifests.files import write_bytes_atomic
 from manifests.schema import DOMAINS, VIEWS
 from manifests.sidecars import Calibration, read_calibration
 from pipeline.config import Config

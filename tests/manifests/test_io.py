@@ -1,5 +1,7 @@
 """Manifest writer and validating reader: round trips and errors that name the culprit."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pyarrow as pa
@@ -138,3 +140,18 @@ def test_a_truncated_part_is_reported_by_name(tmp_path):
     path.write_bytes(path.read_bytes()[:50])
     with pytest.raises(ManifestError, match="part-00000.parquet: not a readable Parquet"):
         read_manifest(ws, "truth")
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[1]", "(top level)"),
+    ('{"rows": 3}', "fingerprint"),
+    ('{"fingerprint": "f", "rows": -1}', "rows"),
+    ('{"fingerprint": "f", "rows": 3, "parts": [{"name": "../x", "rows": 3, "sha256": "0"}]}', "parts"),
+    ('{"fingerprint": "f", "rows": 3, "files": {"images/a.png": {"bytes": "many"}}}', "files"),
+])
+def test_a_malformed_completion_marker_names_the_file_and_key(tmp_path, text, key):
+    ws = Workspace(tmp_path)
+    ws.success_path("truth").parent.mkdir(parents=True)
+    ws.success_path("truth").write_text(text)
+    with pytest.raises(ManifestError, match=rf"_SUCCESS.json: key {re.escape(key)}: expected"):
+        read_success(ws, "truth")

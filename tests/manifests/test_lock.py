@@ -45,5 +45,5 @@ def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path, held):
     while holder(Workspace(tmp_path)) is not None and time.monotonic() < deadline:
         time.sleep(0.05)
     with WorkspaceLock(Workspace(tmp_path), "second"):
-        assert holder(Workspace(tmp_path)) is None or "second" in holder(Workspace(tmp_path))
+        assert f"process {os.getpid()}" in holder(Workspace(tmp_path)) and "(second," in holder(Workspace(tmp_path))
     assert speedplus("plan", "--profile", "smoke", "--workspace", str(tmp_path)).returncode == 0
