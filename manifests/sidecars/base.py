@@ -98,11 +98,6 @@ class Fields:
             raise self.fail(name, "an object")
         return Fields(value, self.where, f"{self.key(name)}.")
 
-    def children(self, name: str) -> dict[str, Fields]:
-        """An object of objects, by key."""
-        parent = self.child(name)
-        return {key: parent.child(key) for key in parent.data}
-
     def number(self, name: str, *, positive: bool = False) -> float:
         value = self.raw(name)
         if (isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value)

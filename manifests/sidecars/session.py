@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.base import SidecarError, read, save
+from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
 SESSION_VERSION = 1
@@ -49,47 +49,24 @@ class Session:
                 "camera": self.camera.to_json(), "frames": self.frames, "mockup_scale": self.mockup_scale}
 
     @classmethod
-    def from_json(cls, data: Any, where: str) -> Session:
-        """Validated; errors start with ``where`` (the file) and name the key."""
-        def fail(key: str, expected: str) -> SidecarError:
-            value = data.get(key) if isinstance(data, dict) else data
-            return SidecarError(f"{where}: key {key}: expected {expected}, got {value!r}")
-
-        if not isinstance(data, dict):
-            raise SidecarError(f"{where}: expected a JSON object")
-        if data.get("version") != SESSION_VERSION:
-            raise SidecarError(f"{where}: version {data.get('version')!r}, this program reads version "
-                               f"{SESSION_VERSION}; rerun acquire with --force")
-        unknown = sorted(set(data) - {"version", "backend", "format", "source", "sources", "pattern", "camera",
-                                      "frames", "mockup_scale"})
-        if unknown:
-            raise SidecarError(f"{where}: unknown key(s) {', '.join(unknown)}")
-        if data.get("backend") not in BACKENDS:
-            raise fail("backend", " or ".join(BACKENDS))
-        if data.get("format") not in FORMATS:
-            raise fail("format", ", ".join(FORMATS))
-        sources = data.get("sources")
+    def from_fields(cls, f: Fields) -> Session:
+        """Validated; errors name the file and the key."""
+        f.only("version", "backend", "format", "source", "sources", "pattern", "camera", "frames", "mockup_scale")
+        sources = f.raw("sources")
         if not isinstance(sources, list) or not sources or sources[0] != "kuka" or not set(sources) <= set(SOURCES):
-            raise fail("sources", 'a list starting with "kuka", optionally "vicon"')
-        camera = data.get("camera")
-        if (not isinstance(camera, dict) or not all(isinstance(camera.get(k), int) and camera[k] > 0
-                                                    for k in ("width", "height"))):
-            raise fail("camera", "an object with positive integer width and height")
-        matrix, dist = camera.get("K"), camera.get("dist")
-        if matrix is not None and (not isinstance(matrix, list) or len(matrix) != 3
-                                   or not all(isinstance(r, list) and len(r) == 3 for r in matrix)):
-            raise fail("camera", "K as a 3 x 3 list, or null")
-        if dist is not None and (not isinstance(dist, list) or not all(isinstance(v, int | float) for v in dist)):
-            raise fail("camera", "dist as a list of numbers, or null")
-        pattern = data.get("pattern")
-        if pattern is not None and (not isinstance(pattern, dict) or "kind" not in pattern or "size" not in pattern):
-            raise fail("pattern", "a pattern object (kind, size, square_m, ...) or null")
-        for key, kind in (("source", str), ("frames", dict), ("mockup_scale", int | float)):
-            if data.get(key) is not None and not isinstance(data[key], kind):
-                raise fail(key, f"{getattr(kind, '__name__', 'a number')} or null")
-        return cls(data["backend"], data["format"], tuple(sources),
-                   SessionCamera(camera["width"], camera["height"], matrix, dist), pattern, data.get("source"),
-                   data.get("frames"), None if data.get("mockup_scale") is None else float(data["mockup_scale"]))
+            raise f.fail("sources", 'a list starting with "kuka", optionally "vicon"')
+        camera = f.child("camera")
+        camera.only("K", "dist", "width", "height")
+        matrix = [list(row) for row in camera.matrix("K", 3, 3)] if camera.optional("K") else None
+        dist = list(camera.vector("dist")) if camera.optional("dist") else None
+        pattern = f.child("pattern").data if f.optional("pattern") else None
+        if pattern is not None and ("kind" not in pattern or "size" not in pattern):
+            raise f.fail("pattern", "a pattern object (kind, size, square_m, ...) or null")
+        frames = f.child("frames").data if f.optional("frames") else None
+        return cls(f.text("backend", BACKENDS), f.text("format", FORMATS), tuple(sources),
+                   SessionCamera(camera.integer("width", minimum=1), camera.integer("height", minimum=1), matrix,
+                                 dist), pattern, f.text("source") if f.optional("source") else None, frames,
+                   float(f.number("mockup_scale", positive=True)) if f.optional("mockup_scale") else None)
 
 
 def write_session(workspace: Workspace, session: Session) -> None:
@@ -98,4 +75,4 @@ def write_session(workspace: Workspace, session: Session) -> None:
 
 def read_session(workspace: Workspace) -> Session:
     """``W/session.json``, validated; a SidecarError that names the file and says what to rerun."""
-    return read(workspace.session_path, SESSION_VERSION, "acquire", lambda f: Session.from_json(f.data, f.where))
+    return read(workspace.session_path, SESSION_VERSION, "acquire", Session.from_fields)

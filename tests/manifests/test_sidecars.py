@@ -43,8 +43,8 @@ def test_a_session_survives_its_file(tmp_path):
     ({"version": None}, r"version None, this program reads version 1 .*; rerun acquire with --force"),
     ({"backend": "robot"}, r"key backend: expected virtual or replay, got 'robot'"),
     ({"sources": ["vicon"]}, r"key sources: expected a list starting with \"kuka\""),
-    ({"camera": {"width": 0, "height": 10}}, r"key camera: expected an object with positive integer width"),
-    ({"mockup_scale": "half"}, r"key mockup_scale: expected a number or null, got 'half'"),
+    ({"camera": {"width": 0, "height": 10}}, r"key camera.width: expected an integer >= 1, got 0"),
+    ({"mockup_scale": "half"}, r"key mockup_scale: expected a positive number, got 'half'"),
     ({"extra": 1}, r"unknown key\(s\) extra"),
 ])
 def test_a_malformed_session_names_the_file_and_key(tmp_path, change, message):
