@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.4"
+SCHEMA_VERSION = "1.5"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -136,6 +136,8 @@ CAPTURES = ManifestSpec(
                nullable=True),
         Column("kuka_rail_m", pa.float64(), "m", "camera robot's reported rail position; null when not recorded",
                nullable=True),
+        Column("capture_time_s", pa.float64(), "s", "exposure time since the session's first capture; null when "
+               "not recorded", nullable=True),
         *pose("vicon_world_from_camrb", "motion capture, frame V; null when not tracked", nullable=True),
         *pose("vicon_world_from_targetrb", "motion capture, frame V; null when not tracked", nullable=True),
         Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body"),

@@ -16,7 +16,7 @@ from typing import Any
 from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
 from manifests.workspace import Workspace
 
-CALIBRATION_VERSION = 1
+CALIBRATION_VERSION = 2  # 2: the arms' joint compliances (arm_kinematics)
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}
@@ -87,7 +87,8 @@ class SourceCalibration:
     source: str  # "kuka" or "vicon"
     cam_from_offset: Pose  # cam_from_camee (kuka) or cam_from_camrb (vicon)
     target_from_offset_by_fixture: dict[str, Pose]  # target_from_targetee / _targetrb per fixture
-    fixture_compliance: dict[str, Any]  # estimated, why, k_rad_by_fixture ({fixture: (3,) rad} or null), tilts
+    fixture_compliance: dict[str, Any]  # estimated, why, k_rad_by_fixture ({fixture: (3,) rad} or null),
+    # anisotropy_by_fixture ({fixture: (6,)} or null), tilts
     arm_kinematics: dict[str, Any]  # estimated, why and, when estimated, stages.common.arms' Fit JSON
     sigma: SigmaRecord
     samples: int
@@ -98,6 +99,11 @@ class SourceCalibration:
     @property
     def compliance_k_rad(self) -> dict[str, tuple[float, ...]]:
         return self.fixture_compliance.get("k_rad_by_fixture") or {}
+
+    @property
+    def compliance_anisotropy(self) -> dict[str, tuple[float, ...]]:
+        """Per fixture (6,): stages.common.rwhe.fixture_tilt's D_f; empty: isotropic."""
+        return self.fixture_compliance.get("anisotropy_by_fixture") or {}
 
     def to_json(self) -> dict[str, Any]:
         z_key, x_key = OFFSET_KEYS[self.source]
@@ -127,6 +133,10 @@ class SourceCalibration:
             k = compliance.child("k_rad_by_fixture")
             for name in k.data:
                 k.vector(name, 3)
+        if compliance.optional("anisotropy_by_fixture"):
+            d = compliance.child("anisotropy_by_fixture")
+            for name in d.data:
+                d.vector(name, 6)
         kinematics = f.child("arm_kinematics")
         if kinematics.boolean("estimated"):
             count = len(kinematics.vector("parameters"))

@@ -10,7 +10,7 @@ from typing import Any
 from manifests.sidecars.base import Fields, Pose, read, save
 from manifests.workspace import Workspace
 
-TRUTH_VERSION = 1
+TRUTH_VERSION = 2  # 2: the unmodelled errors' parameters
 ARM_LENGTHS = ("a1", "a2", "b", "c1", "c2", "c3", "c4")
 POSE_KEYS = ("camera_base_error", "target_base_error", "camee_from_cam", "cam_from_camee", "camee_from_camrb",
              "cam_from_camrb", "target_from_targetrb", "vicon_world_from_world")
@@ -40,6 +40,7 @@ class TruthRecord:
     rail_scale: float
     poses: dict[str, Pose]  # every key of POSE_KEYS
     target_from_targetee: dict[str, Pose]  # per mount, before the fixture's sag
+    unmodelled: dict[str, Any]  # stages.acquire.virtual.unmodelled.Unmodelled.to_json()
 
     def to_json(self) -> dict[str, Any]:
         pose = {key: self.poses[key].to_json() for key in POSE_KEYS}
@@ -52,16 +53,17 @@ class TruthRecord:
                 "target_from_targetee": {m: p.to_json() for m, p in self.target_from_targetee.items()},
                 "camee_from_camrb": pose["camee_from_camrb"], "cam_from_camrb": pose["cam_from_camrb"],
                 "target_from_targetrb": pose["target_from_targetrb"],
-                "vicon_world_from_world": pose["vicon_world_from_world"]}
+                "vicon_world_from_world": pose["vicon_world_from_world"], "unmodelled": self.unmodelled}
 
     @classmethod
     def from_fields(cls, f: Fields) -> TruthRecord:
         f.only("version", "camera_arm", "target_arm", "camera_joint_offsets_rad", "target_joint_offsets_rad",
-               "rail_scale", "target_from_targetee", *POSE_KEYS)
+               "rail_scale", "target_from_targetee", "unmodelled", *POSE_KEYS)
         mounts = f.child("target_from_targetee")
         return cls(_arm(f, "camera_arm"), _arm(f, "target_arm"), f.vector("camera_joint_offsets_rad", 6),
                    f.vector("target_joint_offsets_rad", 6), f.number("rail_scale", positive=True),
-                   {key: f.pose(key) for key in POSE_KEYS}, {m: mounts.pose(m) for m in mounts.data})
+                   {key: f.pose(key) for key in POSE_KEYS}, {m: mounts.pose(m) for m in mounts.data},
+                   f.child("unmodelled").data)
 
 
 def write_truth(workspace: Workspace, record: TruthRecord) -> None:

@@ -8,7 +8,14 @@ metres and radians (field names end in ``_m``, ``_rad``, ``_px``; quaternions ``
 Hamilton ``(w, x, y, z)``).
 """
 
-from pipeline.config.facility import CameraConfig, RunConfig, TestbedConfig, VirtualConfig, resize_camera_matrix
+from pipeline.config.facility import (
+    UNMODELLED_SOURCES,
+    CameraConfig,
+    RunConfig,
+    TestbedConfig,
+    VirtualConfig,
+    resize_camera_matrix,
+)
 from pipeline.config.loading import (
     PROFILES,
     Override,
@@ -36,6 +43,7 @@ from pipeline.config.stages import (
 __all__ = [
     "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
     "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
-    "RenderConfig", "RunConfig", "TestbedConfig", "VirtualConfig", "load_config", "param", "parse_override",
+    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TestbedConfig", "VirtualConfig", "load_config", "param",
+    "parse_override",
     "profile_path", "resize_camera_matrix", "to_dict", "with_overrides", "write_config",
 ]

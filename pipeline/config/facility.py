@@ -11,6 +11,11 @@ import numpy as np
 
 from pipeline.config.params import param
 
+UnmodelledSource = Literal["elasticity", "backlash", "thermal", "mocap_calibration", "intrinsics_drift", "mount"]
+#: every error source of the virtual testbed that calibrate and fuse do not model
+UNMODELLED_SOURCES: tuple[UnmodelledSource, ...] = (
+    "elasticity", "backlash", "thermal", "mocap_calibration", "intrinsics_drift", "mount")
+
 
 def resize_camera_matrix(camera_matrix: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
     """K (3, 3) of an image resized by ``scale_x``, ``scale_y``. With pixel centres at integer
@@ -89,6 +94,8 @@ class TestbedConfig:
         ((1.55, 1.5, 1.25), (1.35, 1.5, 1.0)),
         "candidate positions in K where the target robot presents the model's origin", "m")
     mockup_scale: float = param(0.5, "mock-up size / real Tango size (TRON: half scale)", "1")
+    mockup_mass_kg: float = param(4.0, "weighed mass of the mock-up (the target robot's payload)", "kg")
+    camera_payload_kg: float = param(2.5, "weighed camera, lens and marker plate on the camera flange", "kg")
     camee_from_cam_q: tuple[float, float, float, float] = param(
         (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
     camee_from_cam_t_m: tuple[float, float, float] = param(
@@ -188,5 +195,69 @@ class VirtualConfig:
     ambient_radiance: float = param(2.5, "radiance of the ceiling panels used for calibration", "1")
     glare_strength: float = param(0.6, "veiling glare of the sun lamp relative to full scale at its image point",
                                   "1")
+
+    # Errors outside the calibration's model (docs/architecture.md section 5, "modelled and unmodelled errors").
+    unmodelled: tuple[UnmodelledSource, ...] = param(
+        UNMODELLED_SOURCES, "error sources outside calibrate's and fuse's model that are switched on; each draws "
+        "from its own random stream (virtual.seed, virtual.unmodelled_seed, its name), so switching one off leaves "
+        "the others' draws unchanged", "")
+    unmodelled_seed: int = param(0, "extra seed of the unmodelled error sources", "")
+    joint_stiffness_nm_per_rad: tuple[float, float, float, float, float, float] = param(
+        (5.0e5, 5.0e5, 2.5e5, 6.0e4, 6.0e4, 3.0e4),
+        "elasticity: torsional stiffness of A1-A6 (gearbox and shaft windup). Identified KR-class joints are "
+        "of order 1e6 N m/rad on a KR 240 (Dumas et al., Robotics and Computer-Integrated Manufacturing 27(4), "
+        "2011); a KR 16 carries 1/15 of its payload; A2's spring balancer is folded into A2's value", "N m/rad")
+    stiffness_spread: float = param(
+        0.25, "elasticity: 1-sigma relative spread of each true joint stiffness and link mass around its default "
+        "(and the lab's nominal link masses, stages/common/statics.py)", "1")
+    lost_motion_rad: tuple[float, float, float, float, float, float] = param(
+        (2.9e-4, 2.9e-4, 2.9e-4, 5.8e-4, 5.8e-4, 5.8e-4),
+        "backlash: gearbox lost motion (backlash plus hysteresis) of A1-A6; RV cycloidal reducers of the main "
+        "axes: 1 arcmin max (Nabtesco RV-N data sheet), wrist gears about 2 arcmin; each true value is drawn "
+        "between half and all of it", "rad")
+    backlash_preload_nm: float = param(
+        15.0, "backlash: a joint whose gravity torque exceeds this rests on its loaded flank, whatever the direction "
+        "of its last move", "N m")
+    speed_override: float = param(
+        0.2, "thermal: programmed speed override of the lab's moves (KR 16 axis speeds: 156-335 deg/s)", "1")
+    rail_speed_m_s: float = param(0.3, "thermal: rail speed at that override", "m/s")
+    settle_s: float = param(2.0, "thermal: wait after a move for vibration to decay", "s")
+    expose_s: float = param(1.5, "thermal: exposure, motion-capture averaging and image transfer", "s")
+    light_change_s: float = param(45.0, "thermal: time to change the light set-up between captures", "s")
+    thermal_rise_k: float = param(
+        5.0, "thermal: steady-state warming of the arms' structure in operation (industrial robots warm by "
+        "several kelvin and drift by a few tenths of a mm over hours: Heisel, Richter, Wurst, CIRP Annals "
+        "46(1), 1997; Gong, Yuan, Ni, Int. J. Machine Tools and Manufacture 40(14), 2000)", "K")
+    thermal_time_constant_s: float = param(3600.0, "thermal: time constant of the arms' warm-up", "s")
+    thermal_dataset_start_k: float = param(
+        3.0, "thermal: warming of the arms when the dataset session starts; calibration starts cold (0 K)", "K")
+    link_expansion_per_k: float = param(2.3e-5, "thermal: expansion of the arms' cast-aluminium links", "1/K")
+    rail_expansion_per_k: float = param(1.15e-5, "thermal: expansion of the steel rail", "1/K")
+    room_change_k: float = param(1.0, "thermal: 1-sigma room temperature change between the two sessions", "K")
+    vicon_scale_sigma: float = param(
+        3e-4, "motion capture: 1-sigma scale error of the wand calibration (0.15 mm on the 500 mm wand; Vicon "
+        "reports sub-mm volume accuracy, Merriaux et al., Sensors 17(7) 1591, 2017)", "1")
+    vicon_camera_ray_sigma_rad: float = param(
+        1.5e-4, "motion capture: 1-sigma residual pointing error of each camera after the wand calibration "
+        "(about 0.2 px of a 2048 px, 77 deg camera; Eichelberger et al., J. Biomechanics 49(10), 2016)", "rad")
+    vicon_reflection_bias_m: float = param(
+        5e-4, "motion capture: shift of a marker's image centroid towards the reflective surface it sits on, "
+        "when seen obliquely (its mirror image merges with it); 7 mm markers", "m")
+    focal_change_sigma: float = param(
+        1e-4, "camera intrinsics: 1-sigma relative focal length change between the two sessions' temperatures "
+        "(Smith and Cope, ISPRS Archives 38(5), 2010; Handel, ISPRS Archives 36(5), 2007)", "1")
+    principal_point_change_sigma_px: float = param(
+        0.3, "camera intrinsics: 1-sigma principal point shift between the two sessions, at the reference "
+        "resolution", "px")
+    mount_anisotropy: float = param(
+        0.3, "mount: 1-sigma log-ratio of the fixture's bending and torsion stiffness about its three axes "
+        "(a bracket is stiffer in one plane than the other; the first-order sag model assumes one)", "1")
+    mount_play_rad: float = param(
+        4e-4, "mount: micro-slip of the fixture's clamped joints: its tilt lags its elastic value by up to this, "
+        "against the direction the tilt last changed in (hysteresis of bolted joints: Gaul and Lenz, Acta "
+        "Mechanica 125, 1997; the width is an estimate, some 5% of the 0.5 deg sag)", "rad")
+    remount_sigma_m: float = param(5e-5, "mount: 1-sigma position change of the model when it is remounted "
+                                   "between the sessions (dowel-pinned plate)", "m")
+    remount_sigma_rad: float = param(1e-4, "mount: 1-sigma rotation change at the remount", "rad")
 
 

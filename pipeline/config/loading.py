@@ -130,8 +130,11 @@ def _check(config: Config) -> Config:
     if config.calibrate.folds < 2:
         raise ConfigError("calibrate.folds: at least 2")
     if min(config.calibrate.arm_prior_joint_rad, config.calibrate.arm_prior_length_m, config.calibrate.arm_prior_base_m,
-           config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale) <= 0:
+           config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale,
+           *config.calibrate.arm_prior_compliance_rad_per_nm) <= 0:
         raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
+    if config.calibrate.fixture_anisotropy_prior <= 0:
+        raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
     if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):
         raise ConfigError(f"calibrate.world_up: expected a unit vector, got {config.calibrate.world_up}")
     r = config.render

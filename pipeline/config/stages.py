@@ -99,6 +99,19 @@ class CalibrateConfig:
     arm_prior_base_m: float = param(2e-3, "prior 1-sigma of a robot base's surveyed position", "m")
     arm_prior_base_rad: float = param(2e-3, "prior 1-sigma of a robot base's surveyed orientation", "rad")
     arm_prior_rail_scale: float = param(1e-3, "prior 1-sigma of the rail encoder's scale error", "1")
+    joint_compliance: Literal["on", "off"] = param(
+        "on", "with the arms' kinematics, also estimate the gearbox compliance of A2, A3 and A5 under gravity "
+        "(stages/common/arms.py)", "")
+    fixture_anisotropy: Literal["on", "off"] = param(
+        "on", "with the arms' kinematics and a compliant fixture, also estimate how much stiffer the fixture is "
+        "about one axis than another (stages/common/rwhe.py fixture_tilt)", "")
+    fixture_anisotropy_prior: float = param(
+        0.5, "prior 1-sigma of each entry of a compliant fixture's anisotropy D_f (with the arms' kinematics): "
+        "a bracket can be half again as stiff about one axis as about another", "1")
+    arm_prior_compliance_rad_per_nm: tuple[float, float, float] = param(
+        (4e-6, 8e-6, 3e-5), "prior 1-sigma of the joint compliance of A2, A3 and A5 (zero mean): twice the "
+        "compliance of KR-class joints (stiffness of order 1e5-1e6 N m/rad; Dumas et al., Robotics and "
+        "Computer-Integrated Manufacturing 27(4), 2011)", "rad/(N m)")
     max_intrinsics_rms_px: float = param(
         2.0, "an estimated camera whose reprojection RMS over the kept images exceeds this is refused: corners of "
         "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see README)", "px")

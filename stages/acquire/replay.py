@@ -11,6 +11,7 @@ session.toml   format_version = 1, length_unit = "mm" | "m", angle_unit = "deg" 
 robot.csv      sample_id, session, rail, camee_x, camee_y, camee_z, camee_a, camee_b, camee_c,
                targetee_x, ..., targetee_c       (flange poses in the robot world, KUKA X Y Z A B C)
                optional column fixture: which model fixture (mount) was used (default "fixed")
+               optional column time_s: the exposure's time in seconds since the session's start
                optional columns camera_j1..camera_j6, target_j1..target_j6: the robots' encoder
                readings (axis angles A1-A6, in angle_unit; all twelve or none), which let calibrate
                calibrate the arms themselves
@@ -161,7 +162,11 @@ class SessionReplay:
                 rail = number(path, line, row, "rail")
                 check_finite(path, f"{where}, rail", np.array([rail]))
             fixture = (row.get("fixture") or "fixed").strip()
-            robot[sample_id] = {"line": line, "session": row["session"], "fixture": fixture,
+            time_s = None
+            if "time_s" in row:
+                time_s = number(path, line, row, "time_s")
+                check_finite(path, f"{where}, time_s", np.array([time_s]))
+            robot[sample_id] = {"line": line, "session": row["session"], "fixture": fixture, "time_s": time_s,
                                 "rail_m": None if rail is None else _to_metres(rail, length), **poses,
                                 **self._joints(path, line, where, row, angle)}
         if not robot:
@@ -251,7 +256,7 @@ class SessionReplay:
             **pose_columns("kuka_world_from_camee", robot["camee"]),
             **pose_columns("kuka_world_from_targetee", robot["targetee"]),
             "kuka_camera_joints_rad": robot["camera_joints_rad"], "kuka_target_joints_rad": robot["target_joints_rad"],
-            "kuka_rail_m": robot["rail_m"],
+            "kuka_rail_m": robot["rail_m"], "capture_time_s": robot["time_s"],
             **pose_columns("vicon_world_from_camrb", camera_body["pose"]),
             **pose_columns("vicon_world_from_targetrb", target_body["pose"]),
             "vicon_camrb_markers": camera_body["markers"], "vicon_targetrb_markers": target_body["markers"],

@@ -10,6 +10,7 @@ import numpy as np
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages.common import arms, rwhe
+from stages.common import geometry as g
 
 
 def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> tuple[bool, str]:
@@ -62,7 +63,10 @@ def compliance_json(solution: rwhe.Solution, up: np.ndarray | None, fixtures: li
     if not solution.compliance or up is None:
         return {"estimated": False, "why": note, "k_rad_by_fixture": None}
     k = np.stack([solution.compliance[f] for f in fixtures])
-    tilt = np.linalg.norm(np.cross(up, k), axis=1)
+    d = np.stack([solution.anisotropy[f] for f in fixtures]) if solution.anisotropy else None
+    tilt = np.linalg.norm(g.matrix_to_rotvec(rwhe.fixture_tilt(up, k, d)[:, :3, :3]), axis=1)
     return {"estimated": True, "why": note,
             "k_rad_by_fixture": {f: [float(v) for v in k_f] for f, k_f in solution.compliance.items()},
+            "anisotropy_by_fixture": ({f: [float(v) for v in d_f] for f, d_f in solution.anisotropy.items()}
+                                      if solution.anisotropy else None),
             "tilt_rad_mean": float(tilt.mean()), "tilt_rad_max": float(tilt.max())}

@@ -12,16 +12,29 @@ Model. The controller reports the nominal forward kinematics of its encoder read
 for the camera robot on its rail, and ``base_t @ E_t @ FK(arm_t + dl_t, q_t + dq_t)`` for
 the target robot, with ``E`` a small base correction (rotation vector, translation).
 Then ``B_i = camee_from_targetee`` follows from the readings, and the robots' RWHE is
-``A_i X_f = Z B_i(p) S(up_i x k_f)`` over ``p``, ``Z``, ``X_f`` (and ``k_f``). Several of
+``A_i X_f = Z B_i(p) S((I + D_f)(up_i x k_f))`` over ``p``, ``Z``, ``X_f`` (and ``k_f``,
+``D_f``: the fixture's compliance and its anisotropy, ``rwhe.fixture_tilt``, with a
+zero-mean prior ``calibrate.fixture_anisotropy_prior`` on ``D_f``). Several of
 these parameters are not separable from each other or from ``Z``/``X_f`` (A6's offset
 turns the flange like a rotation of ``Z``; A1's offset of the floor robot like a turn of
 its base about z): Gaussian priors of the lab's tolerances (``calibrate.arm_prior_*``)
 make the problem well posed (a maximum a posteriori estimate).
+
+Joint compliance. Gearboxes wind up under load: the links of A2, A3 and A5, which carry
+the arms' and payloads' weight, turn past their encoders by ``c_j tau_j(q)``. The torques
+come from the lab's nominal mass model (``stages.common.statics``, the testbed's payload
+masses); the compliances ``c_j`` are estimated with a zero-mean prior as wide as the
+arm class's values (``calibrate.arm_prior_compliance_rad_per_nm``): joint stiffness is the
+first non-geometric parameter of robot calibration (Dumas et al. 2011), and it is what
+carries the calibration from the board at 0.75 m to the dataset's arm configurations,
+where the gravity torques differ. Torques are evaluated at the nominal arm (the change
+from the corrected one is of second order).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -29,24 +42,32 @@ from scipy.optimize import least_squares
 
 from pipeline.config import CalibrateConfig, TestbedConfig
 from stages.common import geometry as g
-from stages.common import layout, rwhe
+from stages.common import layout, rwhe, tango
 from stages.common.kinematics import ArmModel, arm_model, forward
+from stages.common.statics import gravity_torques, link_masses
 
 LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
-#: parameters of the arms: joint offsets (6 + 6), link lengths (6 + 6), bases (6 + 6), rail scale
-N_ARM = 37
+#: the joints whose compliance is estimated (A2, A3, A5: those gravity loads)
+COMPLIANT_JOINTS = (1, 2, 4)
+#: parameters of the arms: joint offsets (6 + 6), link lengths (6 + 6), bases (6 + 6), rail scale,
+#: joint compliances (3 + 3)
+N_ARM = 43
+_COMPLIANCE = slice(37, 43)
 
 
 @dataclass(frozen=True)
 class Readings:
-    """Encoder readings of the captures: joints (N, 6) rad of each robot, rail (N,) m."""
+    """Encoder readings of the captures: joints (N, 6) rad of each robot, rail (N,) m, and
+    the model fixture of each (it decides where the model's weight hangs)."""
 
     camera_joints_rad: np.ndarray
     target_joints_rad: np.ndarray
     rail_m: np.ndarray
+    fixtures: tuple[str, ...] = ()
 
     def subset(self, mask: np.ndarray) -> Readings:
-        return Readings(self.camera_joints_rad[mask], self.target_joints_rad[mask], self.rail_m[mask])
+        fixtures = tuple(f for f, keep in zip(self.fixtures, mask, strict=True) if keep) if self.fixtures else ()
+        return Readings(self.camera_joints_rad[mask], self.target_joints_rad[mask], self.rail_m[mask], fixtures)
 
 
 def readings(rows: list[dict[str, Any]]) -> Readings | None:
@@ -56,14 +77,50 @@ def readings(rows: list[dict[str, Any]]) -> Readings | None:
         return None
     return Readings(np.array([r["kuka_camera_joints_rad"] for r in rows], float),
                     np.array([r["kuka_target_joints_rad"] for r in rows], float),
-                    np.array([r["kuka_rail_m"] for r in rows], float))
+                    np.array([r["kuka_rail_m"] for r in rows], float),
+                    tuple(str(r.get("fixture") or "fixed") for r in rows))
+
+
+def _model_centre_in_flange(testbed: TestbedConfig, fixture: str) -> np.ndarray:
+    """Where the model's weight acts in the target flange frame (nominal mount; a fixture
+    the layout does not know is taken as the minus_x mount)."""
+    mount = fixture if fixture in layout.MOUNT_NAMES else layout.MOUNT_NAMES[0]
+    centre = np.asarray(tango.BODY_CENTRE_M) * testbed.mockup_scale
+    return g.apply(g.invert(layout.target_from_targetee(testbed, mount)), centre[None])[0]
+
+
+@lru_cache(maxsize=32)
+def _torques(testbed: TestbedConfig, camera: bytes, target: bytes, rail: bytes, fixtures: tuple[str, ...]
+             ) -> tuple[np.ndarray, np.ndarray]:
+    arm, masses = arm_model(testbed.robot_model), link_masses(testbed.robot_model)
+    camera_joints = np.frombuffer(camera).reshape(-1, 6)
+    target_joints = np.frombuffer(target).reshape(-1, 6)
+    rail_m = np.frombuffer(rail)
+    fixtures = fixtures or ("fixed",) * len(rail_m)
+    camera_payload = 0.5 * np.asarray(testbed.camee_from_cam_t_m, float)  # camera body: halfway to the lens
+    camera_torque, target_torque = np.zeros((len(rail_m), 6)), np.zeros((len(rail_m), 6))
+    for i, (q_camera, q_target, rail_i, fixture) in enumerate(zip(camera_joints, target_joints, rail_m, fixtures,
+                                                                   strict=True)):
+        camera_torque[i] = gravity_torques(arm, masses, layout.world_from_camera_base(testbed, rail_i), q_camera,
+                                           testbed.camera_payload_kg, camera_payload)
+        target_torque[i] = gravity_torques(arm, masses, layout.world_from_target_base(testbed), q_target,
+                                           testbed.mockup_mass_kg, _model_centre_in_flange(testbed, fixture))
+    return camera_torque, target_torque
+
+
+def torques(testbed: TestbedConfig, r: Readings) -> tuple[np.ndarray, np.ndarray]:
+    """Nominal gravity torques (N, 6) N m of the camera and target robots at readings ``r``."""
+    return _torques(testbed, np.ascontiguousarray(r.camera_joints_rad, float).tobytes(),
+                    np.ascontiguousarray(r.target_joints_rad, float).tobytes(),
+                    np.ascontiguousarray(r.rail_m, float).tobytes(), tuple(r.fixtures))
 
 
 @dataclass(frozen=True)
 class ArmErrors:
     """The arms' estimated corrections (see the module docstring); zero: the nominal testbed."""
 
-    params: np.ndarray  # (N_ARM,): joint offsets (camera, target), link deltas (camera, target), bases, rail
+    params: np.ndarray  # (N_ARM,): joint offsets (camera, target), link deltas (camera, target), bases, rail,
+    # compliances of A2, A3, A5 (camera, target)
 
     def arms(self, nominal: ArmModel) -> tuple[ArmModel, ArmModel]:
         def corrected(deltas: np.ndarray) -> ArmModel:
@@ -77,7 +134,9 @@ class ArmErrors:
                 "camera_link_deltas_m": dict(zip(LENGTHS, p[12:18], strict=True)),
                 "target_link_deltas_m": dict(zip(LENGTHS, p[18:24], strict=True)),
                 "camera_base_correction": {"rotvec_rad": p[24:27], "t_m": p[27:30]},
-                "target_base_correction": {"rotvec_rad": p[30:33], "t_m": p[33:36]}, "rail_scale_error": p[36]}
+                "target_base_correction": {"rotvec_rad": p[30:33], "t_m": p[33:36]}, "rail_scale_error": p[36],
+                "camera_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[37:40], strict=True)),
+                "target_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[40:43], strict=True))}
 
     @classmethod
     def from_json(cls, entry: dict[str, Any]) -> ArmErrors:
@@ -85,7 +144,9 @@ class ArmErrors:
              *(entry["camera_link_deltas_m"][n] for n in LENGTHS), *(entry["target_link_deltas_m"][n] for n in LENGTHS),
              *entry["camera_base_correction"]["rotvec_rad"], *entry["camera_base_correction"]["t_m"],
              *entry["target_base_correction"]["rotvec_rad"], *entry["target_base_correction"]["t_m"],
-             entry["rail_scale_error"]]
+             entry["rail_scale_error"],
+             *(entry["camera_compliance_rad_per_nm"][n] for n in ("a2", "a3", "a5")),
+             *(entry["target_compliance_rad_per_nm"][n] for n in ("a2", "a3", "a5"))]
         return cls(np.array(p, float))
 
 
@@ -96,10 +157,17 @@ def flanges(testbed: TestbedConfig, errors: ArmErrors, r: Readings) -> tuple[np.
     """``world_from_camee`` and ``world_from_targetee`` (N, 4, 4) of the readings."""
     arm_camera, arm_target = errors.arms(arm_model(testbed.robot_model))
     p = errors.params
+    camera_links, target_links = r.camera_joints_rad + p[0:6], r.target_joints_rad + p[6:12]
+    if np.any(p[_COMPLIANCE]):
+        camera_torque, target_torque = torques(testbed, r)
+        compliance = np.zeros((2, 6))
+        compliance[:, COMPLIANT_JOINTS] = p[_COMPLIANCE].reshape(2, 3)
+        camera_links = camera_links + compliance[0] * camera_torque
+        target_links = target_links + compliance[1] * target_torque
     world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[36]))
-                        @ rwhe.transform_from_vector(p[24:30]) @ forward(arm_camera, r.camera_joints_rad + p[0:6]))
+                        @ rwhe.transform_from_vector(p[24:30]) @ forward(arm_camera, camera_links))
     world_from_targetee = (layout.world_from_target_base(testbed) @ rwhe.transform_from_vector(p[30:36])
-                           @ forward(arm_target, r.target_joints_rad + p[6:12]))
+                           @ forward(arm_target, target_links))
     return world_from_camee, world_from_targetee
 
 
@@ -115,14 +183,17 @@ def measurement(testbed: TestbedConfig, errors: ArmErrors, r: Readings,
 def priors(c: CalibrateConfig) -> np.ndarray:
     """1-sigma of each arm parameter before calibration (N_ARM,)."""
     base = [c.arm_prior_base_rad] * 3 + [c.arm_prior_base_m] * 3
-    return np.array([c.arm_prior_joint_rad] * 12 + [c.arm_prior_length_m] * 12 + base * 2 + [c.arm_prior_rail_scale])
+    compliance = list(c.arm_prior_compliance_rad_per_nm) * 2
+    return np.array([c.arm_prior_joint_rad] * 12 + [c.arm_prior_length_m] * 12 + base * 2 + [c.arm_prior_rail_scale]
+                    + compliance)
 
 
 def predict(testbed: TestbedConfig, params: np.ndarray, names: list[str], compliant: bool, r: Readings,
             fixtures: list[str], world_up: np.ndarray) -> np.ndarray:
     """``cam_from_target`` (N, 4, 4) of readings ``r`` from the packed parameters of ``fit``
-    (arms, then ``rwhe.pack`` of the offsets of fixtures ``names``)."""
-    offsets = rwhe.unpack(params[N_ARM:], names, compliant)
+    (arms, then ``rwhe.pack`` of the offsets of fixtures ``names``; compliant fixtures are
+    anisotropic here)."""
+    offsets = rwhe.unpack(params[N_ARM:], names, compliant, anisotropic=compliant)
     b, up = measurement(testbed, ArmErrors(params[:N_ARM]), r, world_up)
     return offsets.predict(b, fixtures, up if compliant else None)
 
@@ -179,15 +250,32 @@ def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, 
     def predicted(params: np.ndarray) -> np.ndarray:
         return predict(testbed, params, names, compliant, r, fixtures, world_up)
 
-    params = np.concatenate([NOMINAL.params, rwhe.pack(start, names, compliant)])
+    params = np.concatenate([NOMINAL.params, rwhe.pack(start, names, compliant, anisotropic=compliant)])
+    shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
+    shape = slice(N_ARM + shape.start, N_ARM + shape.stop)
+    # switched-off models stay at zero: they are not estimated, and carry no covariance
+    free = np.ones(len(params), bool)
+    free[_COMPLIANCE] = c.joint_compliance == "on"
+    free[shape] = c.fixture_anisotropy == "on"
+    prior = np.concatenate([sigma_prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
+    priored = np.concatenate([np.arange(N_ARM), np.arange(shape.start, shape.stop)])
+    prior, priored = prior[free[priored]], priored[free[priored]]
+
+    def full(q: np.ndarray) -> np.ndarray:
+        out = params.copy()
+        out[free] = q
+        return out
+
     scale = float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2)))
     for _ in range(2):
         def residuals(q: np.ndarray, scale: float = scale) -> np.ndarray:
-            return np.concatenate([((a - predicted(q))[:, :3, :] / scale).ravel(), q[:N_ARM] / sigma_prior])
+            p = full(q)
+            return np.concatenate([((a - predicted(p))[:, :3, :] / scale).ravel(), p[priored] / prior])
 
-        result = least_squares(residuals, params, method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
-        params = result.x
+        result = least_squares(residuals, params[free], method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
+        params = full(result.x)
         scale = max(float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2))), 1e-12)
-    covariance = np.linalg.pinv(result.jac.T @ result.jac)
-    offsets = rwhe.unpack(params[N_ARM:], names, compliant)
+    covariance = np.zeros((len(params), len(params)))
+    covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)
+    offsets = rwhe.unpack(params[N_ARM:], names, compliant, anisotropic=compliant)
     return Fit(offsets, ArmErrors(params[:N_ARM]), params, covariance, names, compliant)

@@ -90,9 +90,11 @@ def pixel_rays(camera: LensCamera) -> np.ndarray:
 class Lens:
     """Remaps pinhole renders (H_render, W_render[, C]) to the camera's distorted image (H, W[, C])."""
 
-    def __init__(self, camera: LensCamera, margin_px: int = 4) -> None:
+    def __init__(self, camera: LensCamera, margin_px: int = 4, geometry: RenderGeometry | None = None) -> None:
+        """``geometry``: the pinhole render to sample (default: ``render_geometry(camera)``); any
+        render with the same optical centre that covers the camera's field of view works."""
         self.camera = camera
-        self.geometry = render_geometry(camera, margin_px)
+        self.geometry = geometry or render_geometry(camera, margin_px)
         self.map_x, self.map_y = distortion_maps(camera, self.geometry)
 
     def distort(self, pinhole: np.ndarray) -> np.ndarray:

@@ -34,10 +34,26 @@ class DegenerateError(InputError):
     """The calibration data cannot determine the offsets; the message says what to add."""
 
 
-def fixture_tilt(up_targetee: np.ndarray, compliance: np.ndarray) -> np.ndarray:
+def symmetric(anisotropy: np.ndarray) -> np.ndarray:
+    """Symmetric matrices (..., 3, 3) of (..., 6) vectors (xx, yy, zz, xy, xz, yz)."""
+    d = np.asarray(anisotropy, float)
+    xx, yy, zz, xy, xz, yz = np.moveaxis(d, -1, 0)
+    return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
+
+
+def fixture_tilt(up_targetee: np.ndarray, compliance: np.ndarray, anisotropy: np.ndarray | None = None) -> np.ndarray:
     """Rotations (N, 4, 4) of compliant fixtures about the flange origin: rotation vector
-    ``up x k`` of the up directions (N, 3, unit, flange frame) and compliances (N, 3, rad)."""
-    return g.make_transform(g.rotvec_to_matrix(np.cross(up_targetee, compliance)), np.zeros(3))
+    ``(I + D) (up x k)`` of the up directions (N, 3, unit, flange frame), compliances
+    ``k`` (N, 3, rad) and, for an anisotropic fixture, ``D`` (N, 6: ``symmetric``; None: 0).
+
+    ``up x k`` is a fixture equally stiff about every axis: the gravity moment of a model
+    whose centre lies along ``k``, times one compliance. A bracket is stiffer in one plane
+    than in another: ``I + D`` is its compliance's shape (a symmetric matrix, as every
+    linear elastic compliance is)."""
+    rotvec = np.cross(up_targetee, compliance)
+    if anisotropy is not None:
+        rotvec = rotvec + np.einsum("nij,nj->ni", symmetric(anisotropy), rotvec)
+    return g.make_transform(g.rotvec_to_matrix(rotvec), np.zeros(3))
 
 
 def gravity_spread(up_targetee: np.ndarray) -> float:
@@ -50,11 +66,13 @@ def gravity_spread(up_targetee: np.ndarray) -> float:
 @dataclass(frozen=True)
 class Solution:
     """``cam_from_camee`` (Z) and ``target_from_targetee`` (X) per fixture, (4, 4) each, and
-    each compliant fixture's ``k_f`` (3,) in radians (empty: rigid fixtures)."""
+    each compliant fixture's ``k_f`` (3,) in radians (empty: rigid fixtures) and, when
+    estimated, its anisotropy ``D_f`` (6,) (``fixture_tilt``; empty: isotropic)."""
 
     z: np.ndarray
     x: dict[str, np.ndarray]
     compliance: dict[str, np.ndarray] = field(default_factory=dict)
+    anisotropy: dict[str, np.ndarray] = field(default_factory=dict)
 
     def predict(self, b: np.ndarray, fixtures: list[str], up_targetee: np.ndarray | None = None) -> np.ndarray:
         """``cam_from_target`` (N, 4, 4) = Z B_i S_i X_f^-1; ``up_targetee`` (N, 3) is needed
@@ -65,7 +83,8 @@ class Solution:
         if up_targetee is None:
             raise ValueError("a solution with compliant fixtures predicts from the up directions")
         k = np.stack([self.compliance[f] for f in fixtures])
-        return self.z @ b @ fixture_tilt(np.asarray(up_targetee, float), k) @ x_inv
+        d = np.stack([self.anisotropy[f] for f in fixtures]) if self.anisotropy else None
+        return self.z @ b @ fixture_tilt(np.asarray(up_targetee, float), k, d) @ x_inv
 
 
 def check_diversity(b: np.ndarray, fixtures: list[str], min_samples: int, min_spread_rad: float,
@@ -189,22 +208,36 @@ def transform_from_vector(vector: np.ndarray) -> np.ndarray:
     return g.make_transform(g.rotvec_to_matrix(vector[:3]), vector[3:6])
 
 
-def pack(solution: Solution, names: list[str], compliant: bool) -> np.ndarray:
+def pack(solution: Solution, names: list[str], compliant: bool, anisotropic: bool = False) -> np.ndarray:
+    """Parameter vector: Z, each X_f (rotation vector, translation), then each ``k_f`` when
+    ``compliant``, then each ``D_f`` when also ``anisotropic``."""
     parts = [g.matrix_to_rotvec(solution.z[:3, :3]), solution.z[:3, 3]]
     for name in names:
         parts += [g.matrix_to_rotvec(solution.x[name][:3, :3]), solution.x[name][:3, 3]]
     if compliant:
         parts += [solution.compliance.get(name, np.zeros(3)) for name in names]
+        if anisotropic:
+            parts += [solution.anisotropy.get(name, np.zeros(6)) for name in names]
     return np.concatenate(parts)
 
 
-def unpack(params: np.ndarray, names: list[str], compliant: bool) -> Solution:
+def anisotropy_slice(names: list[str]) -> slice:
+    """Where ``pack`` puts the ``D_f`` of an anisotropic, compliant solution."""
+    start = 6 * (1 + len(names)) + 3 * len(names)
+    return slice(start, start + 6 * len(names))
+
+
+def unpack(params: np.ndarray, names: list[str], compliant: bool, anisotropic: bool = False) -> Solution:
     def pose(k: int) -> np.ndarray:
         return transform_from_vector(params[6 * k:6 * k + 6])
 
     start = 6 * (1 + len(names))
     compliance = {name: params[start + 3 * j:start + 3 * j + 3] for j, name in enumerate(names)} if compliant else {}
-    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)}, compliance)
+    anisotropy = {}
+    if compliant and anisotropic:
+        first = anisotropy_slice(names).start
+        anisotropy = {name: params[first + 6 * j:first + 6 * j + 6] for j, name in enumerate(names)}
+    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)}, compliance, anisotropy)
 
 
 def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution,

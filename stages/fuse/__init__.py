@@ -50,6 +50,7 @@ class SourceModel:
         self.testbed = testbed
         self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
+        self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
         self.sigma = Sigma.from_record(entry.sigma)
         self.calibration_lever_sq = calibration_lever_sq
         self.world_up = np.asarray(world_up, float)
@@ -70,7 +71,8 @@ class SourceModel:
             b_arms, up_arms = arms.measurement(self.testbed, self.arms, readings, self.world_up)
             b, up = b_arms[0], up_arms[0]
         if fixture in self.compliance:
-            b = b @ fixture_tilt(up[None], self.compliance[fixture][None])[0]
+            d = self.anisotropy[fixture][None] if fixture in self.anisotropy else None
+            b = b @ fixture_tilt(up[None], self.compliance[fixture][None], d)[0]
         return self.z @ b @ g.invert(self.x[fixture])
 
     def sigma_at(self, pose: np.ndarray) -> Sigma:

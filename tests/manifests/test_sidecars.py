@@ -152,7 +152,7 @@ def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
     arm = {"name": "KR 16", "source": "datasheet", "a1": 0.26, "a2": -0.035, "b": 0.0, "c1": 0.675, "c2": 0.68,
            "c3": 0.67, "c4": 0.158, "offsets": [0.0] * 6, "signs": [1] * 6, "lower": [-3.0] * 6, "upper": [3.0] * 6}
     truth = TruthRecord(arm, arm, (0.0,) * 6, (1e-3,) * 6, 1.0001, dict.fromkeys(POSE_KEYS, POSE),
-                        {"minus_x": POSE})
+                        {"minus_x": POSE}, {"vicon_scale": 1.0003})
     write_truth(workspace, truth)
     assert read_truth(workspace) == truth
     workspace.truth_path.write_text(json.dumps(_edit(truth.to_json(), "camera_arm.a1", "long")))

@@ -13,9 +13,9 @@ from pipeline.config import Config
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, robots
 from stages.acquire.virtual.sensor import Sensor
+from stages.acquire.virtual.timeline import Moment, timeline
 from stages.acquire.virtual.truth import Truth, draw_truth
 from stages.common import geometry as g
-from stages.common import layout
 from stages.common.geometry import pose_columns
 from stages.common.image_io import write_png_atomic
 from stages.common.kinematics import link_points
@@ -30,14 +30,28 @@ class VirtualTestbed:
     def __init__(self, config: Config, workspace: Workspace) -> None:
         self.config, self.workspace = config, workspace
         self.truth: Truth = draw_truth(config)
-        self.sensor = Sensor(config.camera, config.virtual)
+        cameras = self.truth.unmodelled.camera_by_session
+        self.sensor = Sensor(cameras["calibration"], config.virtual)
+        # the dataset session's camera may have drifted: same pinhole render, another lens map
+        self.sensors = {"calibration": self.sensor,
+                        "dataset": Sensor(cameras["dataset"], config.virtual, self.sensor.geometry)}
         self._scene = None
+        self._moments: dict[str, Moment] | None = None
         self.camera_markers_rb = g.apply(g.invert(self.truth.camee_from_camrb),
                                          np.asarray(config.virtual.camera_markers_m))
         self.target_markers_rb = g.apply(g.invert(self.truth.target_from_targetrb), mocap.target_markers(config))
+        self.target_normals_target = mocap.target_marker_normals(config)
+        u = self.truth.unmodelled
+        self.mocap_errors = mocap.SystemErrors(u.vicon_scale, u.vicon_camera_errors, u.vicon_reflection_bias_m)
 
     def samples(self) -> list[dict[str, Any]]:
         return read_manifest(self.workspace, "plan").to_pylist()
+
+    def moment(self, sample: dict[str, Any]) -> Moment:
+        """The capture's place in its session's timeline (computed once from the plan)."""
+        if self._moments is None:
+            self._moments = timeline(self.config, self.samples(), self.truth.unmodelled.start_direction)
+        return self._moments[sample["sample_id"]]
 
     def session(self) -> Session:
         camera = self.config.camera
@@ -55,13 +69,8 @@ class VirtualTestbed:
         return self._scene
 
     def _link_segments(self, state: robots.RobotState) -> np.ndarray:
-        truth, testbed = self.truth, self.config.testbed
-        camera_base = layout.world_from_camera_base(testbed, state.rail_m * truth.rail_scale) @ truth.camera_base_error
-        target_base = layout.world_from_target_base(testbed) @ truth.target_base_error
-        camera_points = g.apply(camera_base, link_points(truth.camera_arm,
-                                                         state.camera_joints_rad + truth.camera_joint_offsets_rad))
-        target_points = g.apply(target_base, link_points(truth.target_arm,
-                                                         state.target_joints_rad + truth.target_joint_offsets_rad))
+        camera_points = g.apply(state.world_from_camera_base, link_points(state.camera_arm, state.camera_link_rad))
+        target_points = g.apply(state.world_from_target_base, link_points(state.target_arm, state.target_link_rad))
         return np.concatenate([np.stack([p[:-1], p[1:]], axis=1) for p in (camera_points, target_points)])
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:
@@ -69,17 +78,20 @@ class VirtualTestbed:
         sample_id, session = sample["sample_id"], sample["session"]
         index = int(sample_id[3:])
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
-        state = robots.move(config, truth, sample, rng)
+        moment = self.moment(sample)
+        state = robots.move(config, truth, sample, rng, moment)
         segments = self._link_segments(state)
         camera_body = mocap.observe(config, rng, self.camera_markers_rb,
                                     state.world_from_camee @ truth.camee_from_camrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target)
+                                    truth.vicon_world_from_world, segments, state.world_from_target,
+                                    errors=self.mocap_errors)
+        target_normals = self.target_normals_target @ state.world_from_target[:3, :3].T
         target_body = mocap.observe(config, rng, self.target_markers_rb,
                                     state.world_from_target @ truth.target_from_targetrb,
                                     truth.vicon_world_from_world, segments, state.world_from_target,
-                                    config.virtual.vicon_model_noise_factor)
-        image = self.photograph(state, sample["light"], list(sample["light_boxes"]), session == "calibration",
-                                rng, seed=SESSION_CODES[session] * 1_000_000 + index)
+                                    config.virtual.vicon_model_noise_factor, self.mocap_errors, target_normals)
+        image = self.photograph(state, session, sample["light"], list(sample["light_boxes"]), rng,
+                                seed=SESSION_CODES[session] * 1_000_000 + index)
         image_path = self.workspace.image_relpath(session, sample_id)
         write_png_atomic(self.workspace.resolve(image_path), image)
         cam_from_target = g.invert(state.world_from_cam) @ state.world_from_target
@@ -89,7 +101,7 @@ class VirtualTestbed:
             **pose_columns("kuka_world_from_camee", state.kuka_world_from_camee),
             **pose_columns("kuka_world_from_targetee", state.kuka_world_from_targetee),
             "kuka_camera_joints_rad": state.camera_joints_rad, "kuka_target_joints_rad": state.target_joints_rad,
-            "kuka_rail_m": state.rail_m,
+            "kuka_rail_m": state.rail_m, "capture_time_s": moment.time_s,
             **pose_columns("vicon_world_from_camrb", camera_body.vicon_world_from_rb),
             **pose_columns("vicon_world_from_targetrb", target_body.vicon_world_from_rb),
             "vicon_camrb_markers": camera_body.markers, "vicon_targetrb_markers": target_body.markers,
@@ -104,19 +116,20 @@ class VirtualTestbed:
         }
         return CaptureRecord(captures, truth_row)
 
-    def photograph(self, state: robots.RobotState, light: str, boxes: list[int], show_board: bool,
+    def photograph(self, state: robots.RobotState, session: str, light: str, boxes: list[int],
                    rng: np.random.Generator, seed: int) -> np.ndarray:
-        """The 8-bit image the camera takes at the true poses."""
-        config = self.config
-        radiance = self.sensor.distort(self.scene.render(state.world_from_cam, state.world_from_target, light,
-                                                         boxes, show_board, seed))
+        """The 8-bit image the camera takes at the true poses, with the session's intrinsics
+        (the board is up during the calibration session only)."""
+        config, sensor = self.config, self.sensors[session]
+        radiance = sensor.distort(self.scene.render(state.world_from_cam, state.world_from_target, light,
+                                                    boxes, session == "calibration", seed))
         glare = None
         if light == "sunlamp":
             lamp_cam = g.apply(g.invert(state.world_from_cam), np.asarray(config.testbed.sun_lamp_position_m)[None])[0]
-            glare = self.sensor.glare(lamp_cam)
+            glare = sensor.glare(lamp_cam)
         exposure = {"lightbox": config.virtual.exposure_lightbox, "sunlamp": config.virtual.exposure_sunlamp,
                     "ambient": config.virtual.exposure_ambient}[light]
-        return self.sensor.expose(radiance, exposure, rng, glare)
+        return sensor.expose(radiance, exposure, rng, glare)
 
     def silhouette(self, sample: dict[str, Any]) -> np.ndarray:
         """The mock-up's silhouette (H, W) bool in the capture of a plan row: the scene's
@@ -124,6 +137,7 @@ class VirtualTestbed:
         config, truth = self.config, self.truth
         session, index = sample["session"], int(sample["sample_id"][3:])
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
-        state = robots.move(config, truth, sample, rng)  # the same draws as capture()
-        coverage = self.sensor.distort(self.scene.silhouette(state.world_from_cam, state.world_from_target))
+        state = robots.move(config, truth, sample, rng, self.moment(sample))  # the same draws as capture()
+        coverage = self.sensors[session].distort(self.scene.silhouette(state.world_from_cam,
+                                                                        state.world_from_target))
         return coverage >= 0.5

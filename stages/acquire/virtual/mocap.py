@@ -8,6 +8,12 @@ mislabelled marker. The pose of a rigid body is the least-squares fit (Kabsch) o
 marker model to the observed markers; with fewer than 3 markers it is not tracked.
 All positions here are in the robot world K; reported poses are in the motion-capture
 world V.
+
+The system's own calibration errs (``SystemErrors``, unmodelled by calibrate): each
+camera's rays are turned by a small residual rotation, so a marker is triangulated where
+the turned rays of the cameras that see it meet; a marker on the mock-up's reflective
+skin appears shifted towards the surface in oblique views (its mirror image merges with
+it); and the wand calibration's scale error scales every position in V.
 """
 
 from __future__ import annotations
@@ -22,6 +28,20 @@ from stages.common import tango
 
 MIN_CAMERAS = 2
 MIN_MARKERS = 3
+
+
+@dataclass(frozen=True)
+class SystemErrors:
+    """The wand calibration's scale (reported / true), each camera's ray rotation (12, 3)
+    rotation vectors (rad), and the centroid shift of markers on reflective skin (m)."""
+
+    scale: float
+    camera_rotvecs: np.ndarray
+    reflection_bias_m: float
+
+    @property
+    def none(self) -> bool:
+        return self.scale == 1.0 and not np.any(self.camera_rotvecs) and self.reflection_bias_m == 0.0
 
 
 @dataclass(frozen=True)
@@ -93,6 +113,41 @@ def target_markers(config: Config) -> np.ndarray:
     return markers
 
 
+def target_marker_normals(config: Config) -> np.ndarray:
+    """(M, 3) outward normals in T of the body faces the model's markers sit on."""
+    rel = np.asarray(config.virtual.target_markers_rel, float)
+    axis = np.argmax(np.abs(rel), axis=1)
+    normals = np.zeros_like(rel)
+    normals[np.arange(len(rel)), axis] = np.sign(rel[np.arange(len(rel)), axis])
+    return normals
+
+
+def triangulate(cameras: np.ndarray, seen: np.ndarray, markers_world: np.ndarray, errors: SystemErrors,
+                normals_world: np.ndarray | None) -> np.ndarray:
+    """(M, 3) where the system puts markers (M, 3) seen by ``seen`` (cameras, M): the
+    least-squares meeting point of each seeing camera's ray, turned by that camera's
+    error, through the marker's apparent centroid. Markers seen by fewer than two cameras
+    keep their true position (they are not used)."""
+    rotations = g.rotvec_to_matrix(errors.camera_rotvecs)  # (C, 3, 3)
+    out = markers_world.copy()
+    for m in np.flatnonzero(seen.sum(axis=0) >= MIN_CAMERAS):
+        system, rhs = np.zeros((3, 3)), np.zeros(3)
+        for c in np.flatnonzero(seen[:, m]):
+            apparent = markers_world[m]
+            ray = apparent - cameras[c]
+            if normals_world is not None and errors.reflection_bias_m:
+                view = ray / np.linalg.norm(ray)
+                normal = normals_world[m]
+                apparent = apparent - errors.reflection_bias_m * (normal - (normal @ view) * view)
+            direction = rotations[c] @ (apparent - cameras[c])
+            direction /= np.linalg.norm(direction)
+            projector = np.eye(3) - np.outer(direction, direction)
+            system += projector
+            rhs += projector @ cameras[c]
+        out[m] = np.linalg.solve(system, rhs)
+    return out
+
+
 def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndarray,
                world_from_target: np.ndarray) -> np.ndarray:
     """(cameras, markers) boolean: which camera sees which marker."""
@@ -127,14 +182,20 @@ def kabsch(model: np.ndarray, observed: np.ndarray) -> np.ndarray:
 
 def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, world_from_rb: np.ndarray,
             vicon_world_from_world: np.ndarray, link_segments: np.ndarray,
-            world_from_target: np.ndarray, noise_factor: float = 1.0) -> RigidBodyObservation:
+            world_from_target: np.ndarray, noise_factor: float = 1.0, errors: SystemErrors | None = None,
+            normals_world: np.ndarray | None = None) -> RigidBodyObservation:
     """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``;
-    ``noise_factor`` scales the marker noise (markers on reflective surfaces)."""
+    ``noise_factor`` scales the marker noise (markers on reflective surfaces); ``errors``
+    of the system's calibration, and the markers' surface normals (M, 3) in K when they sit
+    on reflective skin."""
     v = config.virtual
     markers_world = g.apply(world_from_rb, markers_rb)
-    cameras_seeing = visibility(config, markers_world, link_segments, world_from_target).sum(axis=0)
+    seen = visibility(config, markers_world, link_segments, world_from_target)
+    cameras_seeing = seen.sum(axis=0)
     counted = cameras_seeing >= MIN_CAMERAS
     sigma = noise_factor * v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))
+    if errors is not None and not errors.none:
+        markers_world = triangulate(camera_positions(config), seen, markers_world, errors, normals_world)
     noisy = markers_world + rng.normal(size=markers_world.shape) * sigma[:, None]
     ghost = bool(rng.uniform() < v.vicon_ghost_rate)
     visible = np.flatnonzero(counted)
@@ -144,5 +205,8 @@ def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, wo
         victim = rng.choice(visible)
         direction = rng.normal(size=3)
         noisy[victim] += rng.uniform(*v.vicon_ghost_offset_m) * direction / np.linalg.norm(direction)
-    world_from_rb_measured = kabsch(markers_rb[visible], noisy[visible])
-    return RigidBodyObservation(vicon_world_from_world @ world_from_rb_measured, int(len(visible)), ghost)
+    if errors is None or errors.scale == 1.0:
+        world_from_rb_measured = kabsch(markers_rb[visible], noisy[visible])
+        return RigidBodyObservation(vicon_world_from_world @ world_from_rb_measured, int(len(visible)), ghost)
+    reported = errors.scale * g.apply(vicon_world_from_world, noisy[visible])  # scaled about V's origin
+    return RigidBodyObservation(kabsch(markers_rb[visible], reported), int(len(visible)), ghost)

@@ -24,9 +24,9 @@ def lens_camera(camera: CameraConfig) -> LensCamera:
 class Sensor:
     """The camera after the lens: distortion, glare, exposure, noise, 8-bit output."""
 
-    def __init__(self, camera: CameraConfig, virtual: VirtualConfig) -> None:
+    def __init__(self, camera: CameraConfig, virtual: VirtualConfig, geometry: RenderGeometry | None = None) -> None:
         self.camera, self.virtual = camera, virtual
-        self.lens = Lens(lens_camera(camera))
+        self.lens = Lens(lens_camera(camera), geometry=geometry)
         self.geometry = self.lens.geometry
 
     def distort(self, pinhole: np.ndarray) -> np.ndarray:

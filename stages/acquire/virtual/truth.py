@@ -3,7 +3,8 @@
 Drawn once from ``virtual.seed`` (so every worker process agrees on it) and written to
 ``W/truth.json``: the true arm dimensions and joint zero offsets, the true robot bases,
 the rail scale, the true camera and model fixtures, the motion-capture rigid bodies and
-the motion-capture world frame.
+the motion-capture world frame, and the errors outside the calibration's model
+(``unmodelled.py``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 
 from manifests.sidecars import TruthRecord
 from pipeline.config import Config
+from stages.acquire.virtual.unmodelled import Unmodelled, draw_unmodelled
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.kinematics import ArmModel, arm_model
@@ -38,6 +40,7 @@ class Truth:
     camee_from_camrb: np.ndarray  # camera rigid body (markers) in the camera flange frame
     target_from_targetrb: np.ndarray  # model rigid body in T
     vicon_world_from_world: np.ndarray
+    unmodelled: Unmodelled
 
     def to_record(self) -> TruthRecord:
         """The stored form (``W/truth.json``), with the inverse offsets the estimates name."""
@@ -50,7 +53,7 @@ class Truth:
         return TruthRecord(asdict(self.camera_arm), asdict(self.target_arm),
                            tuple(self.camera_joint_offsets_rad.tolist()), tuple(self.target_joint_offsets_rad.tolist()),
                            float(self.rail_scale), {key: record(pose) for key, pose in poses.items()},
-                           {m: record(t) for m, t in self.target_from_targetee.items()})
+                           {m: record(t) for m, t in self.target_from_targetee.items()}, self.unmodelled.to_json())
 
 
 def _small_transform(rng: np.random.Generator, sigma_m: float, sigma_rad: float) -> np.ndarray:
@@ -88,4 +91,5 @@ def draw_truth(config: Config) -> Truth:
         camee_from_camrb=camee_from_camrb,
         target_from_targetrb=target_from_targetrb,
         vicon_world_from_world=g.transform_from_qt(v.vicon_world_from_world_q, v.vicon_world_from_world_t_m),
+        unmodelled=draw_unmodelled(config),
     )

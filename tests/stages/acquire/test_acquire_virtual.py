@@ -39,6 +39,11 @@ def test_captures_truth_and_images(smoke_workspace):
     assert {"cam_from_camee", "target_from_targetee", "cam_from_camrb", "target_from_targetrb"} <= set(hidden)
     session = json.loads(ws.session_path.read_text())
     assert session["sources"] == ["kuka", "vicon"] and session["pattern"]["kind"] == "charuco"
+    # each session's captures carry their exposure times, in plan order, from 0
+    for name in ("calibration", "dataset"):
+        times = [r["capture_time_s"] for r in sorted(captures, key=lambda r: r["sample_id"]) if r["session"] == name]
+        assert times[0] == 0.0 and all(b > a for a, b in zip(times, times[1:], strict=False))
+    assert set(hidden["unmodelled"]["camera_by_session"]) == {"calibration", "dataset"}
 
 
 def test_images_show_the_board_where_the_truth_puts_it(smoke_workspace):

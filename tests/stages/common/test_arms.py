@@ -20,7 +20,7 @@ def true_errors(rng):
     """Arm errors of the size the virtual testbed draws (docs/architecture.md section 5)."""
     return arms.ArmErrors(np.concatenate([rng.normal(0, 6e-4, 12), rng.normal(0, 3e-4, 12), rng.normal(0, 2e-4, 3),
                                           rng.normal(0, 5e-4, 3), rng.normal(0, 2e-4, 3), rng.normal(0, 5e-4, 3),
-                                          rng.normal(0, 1e-4, 1)]))
+                                          rng.normal(0, 1e-4, 1), rng.normal(0, [2e-6, 4e-6, 1.7e-5] * 2)]))
 
 
 def captures(testbed, errors, readings, z, x, k, fixtures, world_up):
@@ -61,7 +61,7 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     assert covariances.shape == (40, 6, 6)
     np.testing.assert_array_equal(covariances, np.swapaxes(covariances, -1, -2))
     assert np.linalg.eigvalsh(covariances).min() > -1e-18
-    assert np.sqrt(np.trace(covariances, axis1=1, axis2=2)).max() < 1e-5
+    assert np.sqrt(np.trace(covariances, axis1=1, axis2=2)).max() < 1e-4  # priors bound what the data do not
     # the nominal arms' solution does not carry over
     b_rigid, up_rigid = arms.measurement(testbed, arms.NOMINAL, others, world_up)
     rigid = start.predict(b_rigid, other_fixtures, up_rigid)
