@@ -72,7 +72,9 @@ METRICS = {"in_sample": METRIC, "cross_validated": METRIC, "truth": None}
 def source(name: str, kinematics: dict) -> SourceCalibration:
     return SourceCalibration(name, POSE, {"minus_x": POSE, "plus_x": Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.1))},
                              {"estimated": True, "why": "spread", "k_rad_by_fixture": {"minus_x": [0.0, 1e-3, 0.0],
-                                                                                     "plus_x": [1e-3, 0.0, 0.0]}},
+                                                                                     "plus_x": [1e-3, 0.0, 0.0]},
+                              "anisotropy_by_fixture": {"minus_x": [0.1, -0.2, 0.0, 0.05, 0.0, 0.0],
+                                                        "plus_x": [0.0] * 6}},
                              kinematics, SigmaRecord((1e-5, 2e-5, 3e-5), 1e-4, 5e-5), 60, ("cal000003",), METRICS)
 
 
@@ -93,7 +95,7 @@ def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(
     write_calibration(workspace, CALIBRATION)
     assert read_calibration(workspace) == CALIBRATION
     stored = json.loads(workspace.calibration_path.read_text())
-    assert stored["version"] == 1
+    assert stored["version"] == 2
     assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
     assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
     # the first fixture's offset stands for the source's target offset
@@ -114,7 +116,9 @@ def _edit(data: dict, path: str, value) -> dict:
 
 
 @pytest.mark.parametrize("path, value, message", [
-    ("version", KeyError, r"version None, this program reads version 1 .*rerun calibrate with --force"),
+    ("version", KeyError, r"version None, this program reads version 2 .*rerun calibrate with --force"),
+    ("kuka.fixture_compliance.anisotropy_by_fixture.minus_x", [0.1, 0.2],
+     "key kuka.fixture_compliance.anisotropy_by_fixture.minus_x: expected"),
     ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),
     ("kuka.cam_from_camee", KeyError, r"key kuka.cam_from_camee missing"),
     ("intrinsics.K", [[1, 0, 0], [0, 1, 0]], r"key intrinsics.K: expected a 3 x 3 list"),

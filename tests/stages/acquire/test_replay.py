@@ -238,6 +238,21 @@ def test_recorded_encoder_readings_replay_in_radians(tmp_path):
         np.testing.assert_allclose(got["kuka_camera_joints_rad"], np.radians(joints[:6]), atol=1e-12)
         np.testing.assert_allclose(got["kuka_target_joints_rad"], np.radians(joints[6:]), atol=1e-12)
         assert got["kuka_rail_m"] == pytest.approx(row["rail"])
+        assert got["capture_time_s"] is None  # not recorded
+
+
+def test_recorded_capture_times_replay_and_bad_ones_name_the_line(tmp_path):
+    rows = recorded_rows()
+    source = write_session(tmp_path / "session", rows)
+    times = np.arange(len(rows)) * 7.5
+    add_joint_columns(source / "robot.csv", times[:, None], ["time_s"])
+    captures = {r["sample_id"]: r for r in read_manifest(acquire(source, tmp_path), "captures").to_pylist()}
+    assert [captures[r["sample_id"]]["capture_time_s"] for r in rows] == times.tolist()
+    lines = (source / "robot.csv").read_text().splitlines()
+    lines[3] = lines[3].rsplit(",", 1)[0] + ",soon"
+    (source / "robot.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(IngestError, match="robot.csv.*line 4.*time_s"):
+        SessionReplay(source, Workspace(tmp_path / "w2"))
 
 
 def test_a_partial_set_of_encoder_columns_is_refused(tmp_path):

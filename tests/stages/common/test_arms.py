@@ -23,10 +23,10 @@ def true_errors(rng):
                                           rng.normal(0, 1e-4, 1), rng.normal(0, [2e-6, 4e-6, 1.7e-5] * 2)]))
 
 
-def captures(testbed, errors, readings, z, x, k, fixtures, world_up):
-    """PnP poses A (N, 4, 4) the true arms and compliant fixtures would give."""
+def captures(testbed, errors, readings, z, x, k, fixtures, world_up, anisotropy=None):
+    """PnP poses A (N, 4, 4) the true arms and compliant (anisotropic) fixtures would give."""
     b, up = arms.measurement(testbed, errors, readings, world_up)
-    return rwhe.Solution(z, x, k).predict(b, fixtures, up)
+    return rwhe.Solution(z, x, k, anisotropy or {}).predict(b, fixtures, up)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -40,7 +40,8 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     k = {"minus_x": np.array([-6e-4, 9e-4, 0.011]), "plus_x": np.array([1e-3, -7e-4, 0.010])}
     readings = random_readings(rng, 60)
     fixtures = ["minus_x", "plus_x"] * 30
-    a = captures(testbed, errors, readings, z, x, k, fixtures, world_up)
+    d = {"minus_x": np.array([0.3, -0.2, 0.1, 0.15, 0.0, -0.1]), "plus_x": np.array([-0.25, 0.2, 0.0, 0.1, 0.2, 0.0])}
+    a = captures(testbed, errors, readings, z, x, k, fixtures, world_up, d)
 
     # the nominal arms' solution is the start, as in the calibrate stage
     b_nominal, up_nominal = arms.measurement(testbed, arms.NOMINAL, readings, world_up)
@@ -50,7 +51,7 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
 
     others = random_readings(rng, 40)  # other arm configurations: what the dataset session does
     other_fixtures = ["plus_x", "minus_x"] * 20
-    expected = captures(testbed, errors, others, z, x, k, other_fixtures, world_up)
+    expected = captures(testbed, errors, others, z, x, k, other_fixtures, world_up, d)
     b_fitted, up_fitted = arms.measurement(testbed, fitted, others, world_up)
     predicted = solution.predict(b_fitted, other_fixtures, up_fitted)
     assert np.abs(predicted[:, :3, 3] - expected[:, :3, 3]).max() < 1e-6

@@ -157,3 +157,22 @@ def test_gravity_spread_sees_a_fixed_attitude_as_zero():
     assert rwhe.gravity_spread(about_one_axis) < 0.05  # a tilt about one axis moves up along one curve
     scattered = rng.normal(size=(20, 3)) * 0.3 + [0, 0, 1]
     assert rwhe.gravity_spread(scattered / np.linalg.norm(scattered, axis=1, keepdims=True)) > 0.15
+
+
+def test_an_anisotropic_fixture_tilts_by_its_compliance_shape():
+    """D = 0 is the isotropic fixture; otherwise the tilt is (I + D)(up x k), D symmetric."""
+    rng = np.random.default_rng(5)
+    up = rng.normal(size=(7, 3))
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    k = rng.normal(0, 0.01, (7, 3))
+    np.testing.assert_array_equal(rwhe.fixture_tilt(up, k, np.zeros((7, 6))), rwhe.fixture_tilt(up, k))
+    d = rng.normal(0, 0.3, (7, 6))
+    shape = rwhe.symmetric(d)
+    np.testing.assert_array_equal(shape, np.swapaxes(shape, -1, -2))
+    tilt = g.matrix_to_rotvec(rwhe.fixture_tilt(up, k, d)[:, :3, :3])
+    expected = np.einsum("nij,nj->ni", np.eye(3) + shape, np.cross(up, k))
+    np.testing.assert_allclose(tilt, expected, atol=1e-12)
+    solution = rwhe.Solution(np.eye(4), {"a": np.eye(4), "b": np.eye(4)}, {"a": k[0], "b": k[1]},
+                             {"a": d[0], "b": d[1]})
+    again = rwhe.unpack(rwhe.pack(solution, ["a", "b"], True, True), ["a", "b"], True, True)
+    np.testing.assert_allclose(again.anisotropy["b"], d[1])
