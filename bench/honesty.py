@@ -78,8 +78,9 @@ def dataset(ws: Workspace) -> dict[str, Any]:
     truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}
     labels = {r["sample_id"]: r for r in read_manifest(ws, "labels").to_pylist()}
     scale = read_session(ws).mockup_scale
-    out: dict[str, list] = {"rotation": [], "position": [], "kuka": [], "vicon": [], "fused": [], "both_fused": [],
-                            "axis_error": [], "axis_sigma": []}
+    keys = ("rotation", "position", "kuka", "vicon", "fused", "both_fused", "both_kuka", "both_kuka_error",
+            "both_vicon_error", "axis_error", "axis_sigma")
+    out: dict[str, list] = {key: [] for key in keys}
     for pose in read_manifest(ws, "poses").to_pylist():
         row = truth[pose["sample_id"]]
         true = g.transform_from_qt(row["cam_from_target_q"], row["cam_from_target_t"])
@@ -98,9 +99,9 @@ def dataset(ws: Workspace) -> dict[str, Any]:
             vicon = g.transform_from_qt(pose["vicon_cam_from_target_q"], pose["vicon_cam_from_target_t"])
             out["vicon"].append(np.linalg.norm(vicon[:3, 3] - true[:3, 3]))
             out["both_fused"].append(out["fused"][-1])
-            out.setdefault("both_kuka", []).append(out["kuka"][-1])
-            out.setdefault("both_kuka_error", []).append(kuka[:3, 3] - true[:3, 3])
-            out.setdefault("both_vicon_error", []).append(vicon[:3, 3] - true[:3, 3])
+            out["both_kuka"].append(out["kuka"][-1])
+            out["both_kuka_error"].append(kuka[:3, 3] - true[:3, 3])
+            out["both_vicon_error"].append(vicon[:3, 3] - true[:3, 3])
     return {key: np.array(value) for key, value in out.items()}
 
 
