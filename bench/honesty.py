@@ -33,6 +33,7 @@ from bench.common import report
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_calibration, read_session
 from stages.common import geometry as g
+from stages.common.patterns import pattern_from_table
 from stages.common.tables import PAPER
 
 AXES = "xyz"
@@ -62,6 +63,45 @@ def table1_ratios(ws: Workspace) -> dict[str, float]:
         for index, (key, scale) in enumerate((("E_T_m", 1000), ("E_R_rad", np.degrees(1)), ("E_p_px", to_paper_px))):
             out[f"{source} {key[:3]}"] = metric[key][0] * scale / PAPER[source][index][0]
     return out
+
+
+def board_error_geometry(ws: Workspace, source: str) -> dict[str, float]:
+    """Where a source's in-sample error puts the board (against PnP), at TRON's 1920 px:
+    E_p per mm of E_T (as Table 1 would give it), E_p per mm of board-centre error, the
+    share of that error along the boresight (depth barely moves a pixel), and E_p left
+    when only the rotation about the board centre errs.
+    The same camera at the same distance turns lateral errors into the same pixels, so the
+    px-per-mm ratio says whether two facilities' errors point the same way."""
+    session = read_session(ws)
+    spec = pattern_from_table(session.pattern, str(ws.session_path))
+    points = np.asarray(spec.object_points(), float)
+    centre = points.mean(axis=0)
+    camera_matrix = np.array(session.camera.camera_matrix, float)
+    to_paper_px = 1920 / session.camera.width
+
+    def rms_px(pose: np.ndarray, reference: np.ndarray) -> float:
+        moved = g.project(pose, points, camera_matrix, np.zeros(5))
+        return float(np.sqrt(np.mean(np.sum((moved - g.project(reference, points, camera_matrix, np.zeros(5))) ** 2,
+                                            axis=1))) * to_paper_px)
+
+    e_p, centre_mm, depth_mm, rotation_px = [], [], [], []
+    for row in read_manifest(ws, "calibration_samples").to_pylist():
+        if not row["used"] or row[f"{source}_cam_from_target_q"] is None:
+            continue
+        pnp = g.transform_from_qt(row["cam_from_target_cal_q"], row["cam_from_target_cal_t"])
+        estimate = g.transform_from_qt(row[f"{source}_cam_from_target_q"], row[f"{source}_cam_from_target_t"])
+        shift = (g.apply(estimate, centre[None]) - g.apply(pnp, centre[None]))[0]
+        rotated = estimate.copy()
+        rotated[:3, 3] = pnp[:3, 3] + (pnp[:3, :3] - estimate[:3, :3]) @ centre  # board centre held at PnP's
+        e_p.append(rms_px(estimate, pnp))
+        centre_mm.append(np.linalg.norm(shift) * 1000)
+        depth_mm.append(abs(shift[2]) * 1000)
+        rotation_px.append(rms_px(rotated, pnp))
+    metric = getattr(read_calibration(ws), source).metrics["in_sample"]
+    return {"px_per_mm": float(metric["E_p_px"][0] * to_paper_px / (metric["E_T_m"][0] * 1000)),
+            "centre_px_per_mm": float(np.mean(e_p) / np.mean(centre_mm)),
+            "depth_share": float(np.mean(depth_mm) / np.mean(centre_mm)),
+            "rotation_px": float(np.mean(rotation_px))}
 
 
 def calibration_samples(ws: Workspace) -> dict[str, float]:
@@ -121,10 +161,15 @@ def facility_row(seed: int, ours: Workspace, papers: Workspace) -> tuple[dict[st
     under = (data["rotation"] < SPEEDPLUS_ROTATION_RAD) & (data["position"] < SPEEDPLUS_TRANSLATION)
     ratios = table1_ratios(papers)
     samples = calibration_samples(ours)
+    board = board_error_geometry(papers, "kuka")
     row = {
         "seed": seed,
         "(a) paper's Table 1 ratios, min-max": f"{min(ratios.values()):.2f}-{max(ratios.values()):.2f}",
         "(a) within 2x": "yes" if all(0.5 <= r <= 2 for r in ratios.values()) else "no",
+        "(a) paper's KUKA-only: E_p / E_T (px per mm; TRON 2.13)": board["px_per_mm"],
+        "(a) paper's KUKA-only: E_p per mm of board-centre error": board["centre_px_per_mm"],
+        "(a) paper's KUKA-only: board error along the boresight": board["depth_share"],
+        "(a) paper's KUKA-only: E_p of the rotation about the board centre alone (px)": board["rotation_px"],
         "(b) mean E_T label (mm)": float(np.mean(data["fused"]) * 1000),
         "(b) mean E_R label (deg)": float(np.degrees(data["rotation"].mean())),
         "(b) under SPEED+ thresholds": float(under.mean()),
