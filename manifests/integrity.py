@@ -97,20 +97,21 @@ def recover(directory: Path) -> None:
 
 
 def compact(directory: Path, table: pa.Table, key: str) -> None:
-    """Replace the parts in ``directory`` by ``table`` sorted by ``key``, in parts of
+    """Replace the parts in ``directory`` (created if missing) by ``table`` sorted by ``key``, in parts of
     ``COMPACT_ROWS``, atomically: written aside, then swapped by two renames (``recover``
     completes a swap a crash interrupted)."""
     staging, old = _staging(directory)
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     ordered = table.sort_by(key)
+    # a manifest without rows keeps one empty part: readers still find a dataset with its schema
     for index, start in enumerate(range(0, max(ordered.num_rows, 1), COMPACT_ROWS)):
-        if ordered.num_rows:
-            write_table_file(staging / PART_TEMPLATE.format(index=index), ordered.slice(start, COMPACT_ROWS))
+        write_table_file(staging / PART_TEMPLATE.format(index=index), ordered.slice(start, COMPACT_ROWS))
     for entry in directory.iterdir():  # other files (a marker of another run) stay with the manifest
         if not entry.name.startswith(("part-", ".part-")):
             shutil.copy2(entry, staging / entry.name)
     fsync_dir(staging)
+    directory.mkdir(parents=True, exist_ok=True)
     os.rename(directory, old)
     os.rename(staging, directory)
     shutil.rmtree(old)

@@ -1,9 +1,10 @@
 """Atomic part writer, validating reader and completion markers of manifests.
 
-A manifest is a directory of Parquet parts. Each part is written under a temporary name
-(``.part-NNNNN.parquet.<pid>.tmp``, hidden from Parquet dataset readers), fsynced, linked
-to its final name (a link never replaces an existing part) and the directory fsynced: a
-crash leaves either a whole part or an ignorable temporary file. Every part records the
+A manifest is a directory of Parquet parts and nothing else, so that every Parquet reader
+(pandas, pyarrow.dataset, polars, DuckDB) reads the folder as it is. Each part is written
+under a temporary name in ``W/manifests/_state/staging/<name>/``, fsynced, linked to its
+final name (a link never replaces an existing part) and the directory fsynced: a crash
+leaves either a whole part or a temporary file outside the folder. Every part records the
 fingerprint of the stage run that wrote it, so a resumed run can refuse to mix results
 made under another configuration. A completed manifest is compacted and checked against
 its marker (``manifests.integrity``).
@@ -203,9 +204,11 @@ def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | 
     table = table.replace_schema_metadata({**spec.schema().metadata, b"speedplus.fingerprint": fingerprint.encode()})
     directory = workspace.manifest_dir(spec.name)
     directory.mkdir(parents=True, exist_ok=True)
+    staging = workspace.staging_dir(spec.name)
+    staging.mkdir(parents=True, exist_ok=True)
     existing = [int(_PART_RE.match(p.name).group(1)) for p in list_parts(workspace, spec.name)]
     index = max(existing, default=-1) + 1
-    temporary = directory / f".part-{index:05d}.parquet.{os.getpid()}.tmp"
+    temporary = staging / f"part-{index:05d}.parquet.{os.getpid()}.tmp"
     write_table_file(temporary, table)
     _parts_written_in_process += 1
     if os.environ.get(_FAULT_ENV) == str(_parts_written_in_process):
@@ -229,10 +232,10 @@ def clear(workspace: Workspace, name: str) -> None:
 
 def remove_temporaries(workspace: Workspace, name: str) -> int:
     """Delete temporary files left by an interrupted writer; returns how many."""
-    directory = workspace.manifest_dir(name)
-    if not directory.is_dir():
+    staging = workspace.staging_dir(name)
+    if not staging.is_dir():
         return 0
-    stale = [p for p in directory.iterdir() if p.name.startswith(".part-") and p.name.endswith(".tmp")]
+    stale = [p for p in staging.iterdir() if p.name.endswith(".tmp")]
     for path in stale:
         path.unlink()
     return len(stale)
@@ -312,6 +315,7 @@ def read_manifest(workspace: Workspace, name: str | ManifestSpec, *, validate: b
     """
     spec = spec_for(name)
     parts = list_parts(workspace, spec.name)
+    check_layout(workspace, spec.name)
     marker = read_success(workspace, spec.name)
     problem = damage(parts, marker) if marker is not None else None
     if problem is not None:
@@ -345,6 +349,16 @@ def read_keys(workspace: Workspace, name: str | ManifestSpec) -> set[str]:
 
 
 # ------------------------------------------------------------------------- success marker
+def check_layout(workspace: Workspace, name: str) -> None:
+    """Refuse a manifest written before schema 1.6, whose marker sat inside its folder."""
+    legacy = workspace.legacy_success_path(name)
+    if legacy.exists():
+        raise ManifestError(workspace.display(legacy), f"written by an older version of this program (schema before "
+                            f"{SCHEMA_VERSION}: the completion marker sat inside the data folder, which polars and "
+                            "DuckDB cannot read); redo the stage that writes it with --force, or start a new "
+                            "workspace")
+
+
 def write_success(workspace: Workspace, name: str, payload: Mapping[str, Any]) -> None:
     write_json_atomic(workspace.success_path(name), dict(sorted(payload.items())))
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.5"
+SCHEMA_VERSION = "1.6"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -285,14 +285,19 @@ SCORES = ManifestSpec(
 )
 
 _EXPORT_COLUMNS = (
+    Column("export_id", pa.string(), "", "<set>/<sample_id>: one exported image", kind="value"),
     _sample_id(),
-    Column("domain", pa.string(), "", "testbed light set-up", kind="enum", allowed=DOMAINS),
+    Column("set", pa.string(), "", "which images: the labelled testbed captures, their twins or the training set",
+           kind="enum", allowed=("testbed", "twins", "train")),
+    Column("domain", pa.string(), "", "testbed light set-up, or synthetic for the training set", kind="enum",
+           allowed=(*DOMAINS, "synthetic")),
     Column("file", pa.string(), "", "the exported image, relative to the export folder (never leaves it)",
            kind="path"),
-    Column("source_image", pa.string(), "", "the testbed image it copies, relative to W", kind="path"),
+    Column("source_image", pa.string(), "", "the workspace image it was made from, relative to W", kind="path"),
 )
-EXPORT_SPEEDPLUS = ManifestSpec("export_speedplus", "images written by export --format speedplus", _EXPORT_COLUMNS)
-EXPORT_BOP = ManifestSpec("export_bop", "images written by export --format bop", _EXPORT_COLUMNS)
+EXPORT_SPEEDPLUS = ManifestSpec("export_speedplus", "images written by export --format speedplus", _EXPORT_COLUMNS,
+                                key="export_id")
+EXPORT_BOP = ManifestSpec("export_bop", "images written by export --format bop", _EXPORT_COLUMNS, key="export_id")
 
 MODELS = ManifestSpec(
     "models",

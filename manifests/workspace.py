@@ -2,8 +2,10 @@
 
 ```
 W/config.toml                                  resolved configuration
-W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest
-W/manifests/<name>/_SUCCESS.json               completion marker (fingerprint, rows, timings)
+W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest: parts only, so that
+                                               any Parquet reader takes the folder (polars, DuckDB)
+W/manifests/_state/<name>.json                 completion marker (fingerprint, rows, parts, files)
+W/manifests/_state/staging/<name>/             parts being written (linked into <name>/ when whole)
 W/images/{calibration,dataset}/<sample_id>.png testbed captures
 W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/ beside them)
 W/models/<name>.onnx, <name>.json              trained models and their cards
@@ -26,7 +28,10 @@ CALIBRATION_FILE = "calibration.json"
 FUSION_FILE = "fusion.json"
 MANIFESTS_DIR = "manifests"
 PART_TEMPLATE = "part-{index:05d}.parquet"
-SUCCESS_FILE = "_SUCCESS.json"
+STATE_DIR = "_state"
+#: where schema versions before 1.6 kept the completion marker: inside the data folder,
+#: which polars and DuckDB refuse to read as a Parquet dataset
+LEGACY_SUCCESS_FILE = "_SUCCESS.json"
 IMAGE_TEMPLATE = "images/{session}/{sample_id}.png"
 RENDER_TEMPLATE = "renders/{set}/{sample_id}.png"
 MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
@@ -100,7 +105,16 @@ class Workspace:
         return self.root / MANIFESTS_DIR / name
 
     def success_path(self, name: str) -> Path:
-        return self.manifest_dir(name) / SUCCESS_FILE
+        """Completion marker of manifest ``name``, outside its data folder."""
+        return self.root / MANIFESTS_DIR / STATE_DIR / f"{name}.json"
+
+    def legacy_success_path(self, name: str) -> Path:
+        return self.manifest_dir(name) / LEGACY_SUCCESS_FILE
+
+    def staging_dir(self, name: str) -> Path:
+        """Where parts of ``name`` are written before they are linked into its folder (the
+        same filesystem, so the link is atomic); nothing half-written is ever in the folder."""
+        return self.root / MANIFESTS_DIR / STATE_DIR / "staging" / name
 
     def image_relpath(self, session: str, sample_id: str) -> str:
         return IMAGE_TEMPLATE.format(session=session, sample_id=sample_id)

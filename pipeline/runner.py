@@ -185,9 +185,7 @@ def _complete(workspace: Workspace, name: str, current: str) -> dict[str, Any]:
     spec = MANIFESTS[name]
     table = read_manifest(workspace, name)
     stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
-    directory = workspace.manifest_dir(name)
-    if directory.is_dir():
-        compact(directory, table.replace_schema_metadata(stamped), spec.key)
+    compact(workspace.manifest_dir(name), table.replace_schema_metadata(stamped), spec.key)
     return {"parts": part_records(list_parts(workspace, name)),
             "files": file_records(workspace, spec, table.to_pylist())}
 

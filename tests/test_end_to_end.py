@@ -117,3 +117,23 @@ def test_any_model_following_the_contract_can_be_scored(finished, tmp_path):
     bad = speedplus("evaluate", "--workspace", str(copy.root), "--model", str(tmp_path / "unlabelled.onnx"),
                     "--force")
     assert bad.returncode == 1 and "speedplus.output" in bad.stderr and "unlabelled.onnx" in bad.stderr
+
+
+def test_every_manifest_folder_is_read_by_every_parquet_reader(finished):
+    """What ML teams do: hand the folder to their own library, unchanged."""
+    import duckdb
+    import pandas as pd
+    import polars as pl
+    import pyarrow.dataset as ds
+
+    from manifests.schema import MANIFESTS
+
+    ws, _ = finished
+    folders = sorted(p for p in (ws.root / "manifests").iterdir() if p.is_dir() and p.name in MANIFESTS)
+    assert {p.name for p in folders} >= {"plan", "captures", "poses", "labels", "renders", "predictions", "scores"}
+    for folder in folders:
+        rows = read_manifest(ws, folder.name).num_rows
+        assert len(pd.read_parquet(folder)) == rows, folder.name
+        assert ds.dataset(folder, format="parquet").count_rows() == rows, folder.name
+        assert pl.read_parquet(folder).height == rows, folder.name
+        assert duckdb.sql(f"select count(*) from read_parquet('{folder}/*')").fetchall()[0][0] == rows, folder.name

@@ -121,6 +121,10 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
     if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
         raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
+    if not 0.0 <= config.export.validation_fraction <= 1.0:
+        raise ConfigError("export.validation_fraction: expected a share in [0, 1]")
+    if not config.export.sets or len(set(config.export.sets)) != len(config.export.sets):
+        raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
     if config.run.workers < 1 or config.run.worker_max_tasks < 1:

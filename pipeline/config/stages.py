@@ -9,6 +9,8 @@ from typing import Literal
 from manifests.schema import DOMAINS, MOUNTS
 from pipeline.config.params import param
 
+ExportSet = Literal["testbed", "twins", "train"]
+
 
 @dataclass(frozen=True)
 class PlanConfig:
@@ -220,5 +222,11 @@ class ExportConfig:
     format: Literal["speedplus", "bop"] = param(
         "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read) or bop (bop_toolkit's scenes)", "")
     out: str = param("", "export folder; empty: W/export", "")
+    sets: tuple[ExportSet, ...] = param(
+        ("testbed", "twins"), "image sets exported: testbed (the labelled captures), twins (their synthetic twins, "
+        "from render) and train (the synthetic training set, from render --set train)", "")
+    validation_fraction: float = param(
+        0.2, "share of the training set in SPEED+'s synthetic/validation.json (SPEED+: 0.2), chosen by a hash of "
+        "each sample_id: the same image stays on its side whatever else is rendered", "1")
 
 

@@ -1,8 +1,10 @@
-"""The export stage: the labels and their testbed images as a SPEED+ dataset (the Stanford
-devkits) or BOP scenes (bop_toolkit), in ``export.out`` (default ``W/export``).
+"""The export stage: the labelled testbed images, their synthetic twins and the training set
+as a SPEED+ dataset (the Stanford devkits; ``stages.export.speedplus``) or a BOP dataset
+(bop_toolkit; ``stages.export.bop``), in ``export.out`` (default ``W/export``).
 
-Every image copied is a row of the ``export_<format>`` manifest, so an interrupted export
-resumes with the images it lacks; the annotation files are written last, from every label.
+Every image written is a row of the ``export_<format>`` manifest (key ``<set>/<sample_id>``),
+so an interrupted export resumes with the images it lacks; the annotation files are
+written last, from every item.
 """
 
 from __future__ import annotations
@@ -14,13 +16,16 @@ from typing import Any
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.files import write_json_atomic
+from manifests.files import copy_atomic, write_json_atomic
+from manifests.schema import DOMAINS
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
+from stages.common.cameras import train_camera
+from stages.common.lens import LensCamera
 from stages.common.sidecars import calibrated_camera
-from stages.export import formats
+from stages.export import bop, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
 #: {"version": EXPORT_MARK_VERSION, "workspace": W, "format": ...}, compared whole
@@ -31,19 +36,21 @@ EXPORT_MARK_VERSION = 1
 def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
     """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
     (pipeline/registry.py): one manifest per format, so both exports can coexist."""
-    return ("labels", "captures"), ("export", "camera"), {}, (f"export_{config.export.format}",)
+    inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}
+    needed = tuple(dict.fromkeys(name for chosen in config.export.sets for name in inputs[chosen]))
+    return needed, ("export", "camera", "render"), {}, (f"export_{config.export.format}",)
 
 
 def out_dir(config: Config, workspace: Workspace) -> Path:
     return Path(config.export.out).resolve() if config.export.out else workspace.root / "export"
 
 
-def inside_export(file: str, label: dict[str, Any]) -> PurePosixPath:
+def inside_export(file: str, item: dict[str, Any]) -> PurePosixPath:
     """``file`` (from the labels' filename) as a path that stays inside the export folder."""
     try:
         return check_relative(file)
     except PathEscapeError:
-        raise InputError(f"labels: sample {label['sample_id']}: filename {label['filename']!r} would leave the "
+        raise InputError(f"labels: sample {item['sample_id']}: filename {item['filename']!r} would leave the "
                          "export folder; relabel with a plain label.filename_template") from None
 
 
@@ -65,30 +72,81 @@ def claim(out: Path, workspace: Workspace, export_format: str) -> None:
     write_json_atomic(mark, ours)
 
 
+def items(config: Config, workspace: Workspace) -> list[dict[str, Any]]:
+    """Every image to export, in export_id order: export_id, sample_id, set, domain,
+    filename, source (W-relative), the pose (q_vbs2tango_true, r_Vo2To_vbs_true, full
+    scale) and, for BOP, scene_id and im_id."""
+    out: list[dict[str, Any]] = []
+    labels = sorted(read_manifest(workspace, "labels").to_pylist(), key=lambda r: r["sample_id"]) \
+        if {"testbed", "twins"} & set(config.export.sets) else []
+    sources: dict[str, dict[str, str]] = {}
+    if "testbed" in config.export.sets:
+        sources["testbed"] = {r["sample_id"]: r["image_path"] for r in read_manifest(workspace, "captures").to_pylist()}
+    if "twins" in config.export.sets:
+        sources["twins"] = {r["sample_id"]: r["image_path"] for r in read_manifest(workspace, "renders").to_pylist()}
+    for export_set in ("testbed", "twins"):
+        if export_set not in sources:
+            continue
+        index = dict.fromkeys(DOMAINS, 0)
+        for label in labels:
+            source = sources[export_set].get(label["sample_id"])
+            if source is None:  # a twin that could not be rendered (render's manifest says why)
+                continue
+            scene_id, im_id = bop.place(export_set, label["domain"], index[label["domain"]])
+            index[label["domain"]] += 1
+            out.append({"set": export_set, "sample_id": label["sample_id"], "domain": label["domain"],
+                        "filename": label["filename"], "source": source, "scene_id": scene_id, "im_id": im_id,
+                        "q_vbs2tango_true": label["q_vbs2tango_true"], "r_Vo2To_vbs_true": label["r_Vo2To_vbs_true"]})
+    if "train" in config.export.sets:
+        train = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
+        for index, row in enumerate(train):
+            scene_id, im_id = bop.place("train", "synthetic", index)
+            out.append({"set": "train", "sample_id": row["sample_id"], "domain": "synthetic",
+                        "filename": f"{row['sample_id']}.png", "source": row["image_path"], "scene_id": scene_id,
+                        "im_id": im_id, "q_vbs2tango_true": row["q_vbs2tango_true"],
+                        "r_Vo2To_vbs_true": row["r_Vo2To_vbs_true"]})
+    for item in out:
+        item["export_id"] = f"{item['set']}/{item['sample_id']}"
+    return sorted(out, key=lambda item: item["export_id"])
+
+
+def cameras(config: Config, workspace: Workspace) -> dict[str, LensCamera]:
+    """The camera of each exported set: the calibrated one for the testbed and the twins
+    (render draws them with it), the training camera for the training set."""
+    out = {}
+    if {"testbed", "twins"} & set(config.export.sets):
+        out["testbed"] = out["twins"] = calibrated_camera(workspace)
+    if "train" in config.export.sets:
+        out["train"] = train_camera(config)
+    return out
+
+
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    """Copy every label's image missing from the manifest, then write the annotation files."""
+    """Write every item missing from the manifest, then the annotation files."""
     out, name = out_dir(config, workspace), f"export_{config.export.format}"
     claim(out, workspace, config.export.format)
-    labels = sorted(read_manifest(workspace, "labels").to_pylist(), key=lambda r: r["sample_id"])
-    images = {r["sample_id"]: r["image_path"] for r in read_manifest(workspace, "captures").to_pylist()}
-    camera = calibrated_camera(workspace)
-    ids = formats.bop_image_ids(labels)
+    chosen, by_set = items(config, workspace), cameras(config, workspace)
+    if config.export.format == "speedplus" and "train" in by_set:
+        speedplus.check_one_camera(by_set["testbed"] if "testbed" in by_set else by_set["train"], by_set["train"])
     done = read_keys(workspace, name)
-    todo = [row for row in labels if row["sample_id"] not in done]
+    todo = [item for item in chosen if item["export_id"] not in done]
+    surfaces = bop.TangoSurfaces() if config.export.format == "bop" and todo else None
     with open_sink(workspace, name, config.run.part_rows) as sink:
-        for row in track(todo, len(todo), "export"):
+        for item in track(todo, len(todo), "export"):
+            source = workspace.resolve(item["source"])
             if config.export.format == "speedplus":
-                file = formats.speedplus_image(row)
+                file = speedplus.image_file(item["set"], item["domain"], item["filename"])
+                copy_atomic(source, out / inside_export(file, item))
             else:
-                file = formats.bop_image(row, ids[row["sample_id"]])
-            formats.copy_image(workspace.resolve(images[row["sample_id"]]), out / inside_export(file, row))
-            sink.add({"sample_id": row["sample_id"], "domain": row["domain"], "file": file,
-                      "source_image": images[row["sample_id"]]})
+                file = bop.write_image(out, item, source, by_set[item["set"]], surfaces)
+            sink.add({"export_id": item["export_id"], "sample_id": item["sample_id"], "set": item["set"],
+                      "domain": item["domain"], "file": file, "source_image": item["source"]})
     if config.export.format == "speedplus":
-        pitch = config.camera.pixel_pitch_m * config.camera.reference_width_px / camera.width
-        counts = formats.write_speedplus(out, labels, formats.camera_json(camera.camera_matrix, camera.dist,
-                                                                          camera.width, camera.height, pitch))
+        labels_camera = by_set.get("testbed") or by_set["train"]
+        pitch = config.camera.pixel_pitch_m * config.camera.reference_width_px / labels_camera.width
+        counts = speedplus.write_annotations(out, chosen, speedplus.camera_json(labels_camera, pitch),
+                                             config.export.validation_fraction)
     else:
-        counts = formats.write_bop(out, labels, camera.camera_matrix)
-    print(f"export: {', '.join(f'{v} {k}' for k, v in counts.items())} labels ({config.export.format}) in {out}")
+        counts = bop.write_annotations(out, chosen, by_set)
+    print(f"export: {', '.join(f'{v} in {k}' for k, v in counts.items())} ({config.export.format}) in {out}")
     return read_manifest(workspace, name)

@@ -125,13 +125,23 @@ def test_keys_must_be_unique_across_parts(tmp_path):
         read_manifest(ws, "truth")
 
 
-def test_temporary_files_are_invisible_and_removable(tmp_path):
+def test_half_written_parts_stay_outside_the_folder_and_are_removable(tmp_path):
     ws = Workspace(tmp_path)
     write_part(ws, "truth", truth_rows(2), "fp")
-    (ws.manifest_dir("truth") / ".part-00001.parquet.tmp").write_bytes(b"half a file")
+    write_success(ws, "truth", {"fingerprint": "fp", "rows": 2})
+    # what a writer killed mid-part leaves
+    (ws.staging_dir("truth") / "part-00001.parquet.123.tmp").write_bytes(b"half a file")
+    assert sorted(p.name for p in ws.manifest_dir("truth").iterdir()) == ["part-00000.parquet"]
     assert read_manifest(ws, "truth").num_rows == 2
-    assert pd.read_parquet(ws.manifest_dir("truth")).shape[0] == 2
     assert remove_temporaries(ws, "truth") == 1
+
+
+def test_a_workspace_of_an_older_layout_is_refused_with_the_reason(tmp_path):
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(2), "fp")
+    ws.legacy_success_path("truth").write_text('{"fingerprint": "fp", "rows": 2}')
+    with pytest.raises(ManifestError, match=r"truth/_SUCCESS.json: written by an older version.*--force"):
+        read_manifest(ws, "truth")
 
 
 def test_a_truncated_part_is_reported_by_name(tmp_path):
@@ -153,5 +163,5 @@ def test_a_malformed_completion_marker_names_the_file_and_key(tmp_path, text, ke
     ws = Workspace(tmp_path)
     ws.success_path("truth").parent.mkdir(parents=True)
     ws.success_path("truth").write_text(text)
-    with pytest.raises(ManifestError, match=rf"_SUCCESS.json: key {re.escape(key)}: expected"):
+    with pytest.raises(ManifestError, match=rf"_state/truth.json: key {re.escape(key)}: expected"):
         read_success(ws, "truth")

@@ -1,0 +1,100 @@
+"""Per-pixel geometry of the Tango model by ray casting: which part each pixel centre sees,
+at what depth, with which surface normal and at which point of the body.
+
+One ray per output pixel centre, cast through the camera's own model (a pinhole ``K`` for
+undistorted images, or the lens's distortion for the 8-bit renders and captures), so the
+maps are exact at every pixel: no film, filter, sampling noise or resampling is involved,
+and ids and coordinates are never interpolated across an edge. Used by render (the EXR
+ground truth of every synthetic image), acquire (depth and masks at the true pose) and
+export (BOP masks at the label's pose).
+
+Conventions (docs/architecture.md section 5): ``cam_from_target`` (4, 4) maps Tango body
+coordinates (T, full scale, metres) into the OpenCV camera frame (x right, y down, z along
+the boresight); depth is z in that frame, not the distance along the ray.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from stages.common import geometry as g
+from stages.common.lens import LensCamera, pixel_rays
+from stages.common.mitsuba_adapter import load_mitsuba, load_scene, mesh, rays
+from stages.common.tango_mesh import tango_parts
+
+#: part index of every pixel (uint8); documented in the README's "Per-pixel ground truth"
+PART_IDS = {"background": 0, "sides": 1, "solar_panel": 2, "rear_panel": 3, "antennas": 4}
+
+
+@dataclass(frozen=True)
+class SurfaceMaps:
+    """What each pixel centre sees; every array (H, W[, 3]) float32, NaN where ``part`` is 0.
+
+    depth_m: z of the hit in the camera frame (m). normal_cam: unit geometric normal in the
+    camera frame, turned towards the camera. body_m: the hit in Tango body coordinates (m).
+    part: ``PART_IDS`` index (uint8).
+    """
+
+    depth_m: np.ndarray
+    normal_cam: np.ndarray
+    body_m: np.ndarray
+    part: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.part > 0
+
+
+def pinhole_rays(camera_matrix: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Unit directions (H * W, 3), camera frame, through every pixel centre of an
+    undistorted image with intrinsics ``camera_matrix`` (3, 3), row-major."""
+    us, vs = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+    pixels = np.stack([us.ravel(), vs.ravel(), np.ones(us.size)], 1)
+    directions = pixels @ np.linalg.inv(np.asarray(camera_matrix, float)).T
+    return directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+class TangoSurfaces:
+    """The model's triangles (``stages.common.tango_mesh``) in a geometry-only Mitsuba scene."""
+
+    def __init__(self) -> None:
+        self.mi = mi = load_mitsuba()
+        bsdf = mi.load_dict({"type": "diffuse"})
+        objects: dict[str, Any] = {"type": "scene"}
+        for name, part in tango_parts().items():
+            objects[f"tango_{name}"] = mesh(mi, f"tango_{name}", part.vertices, part.faces, part.uv, bsdf)
+        self.scene = load_scene(mi, objects)
+        self._ids = [(shape, PART_IDS[shape.id().removeprefix("tango_")]) for shape in self.scene.shapes()]
+
+    def cast(self, cam_from_target: np.ndarray, directions_cam: np.ndarray, shape: tuple[int, int]) -> SurfaceMaps:
+        """Maps of ``shape`` (H, W) from unit ray directions (H * W, 3) in the camera frame."""
+        mi = self.mi
+        target_from_cam = g.invert(np.asarray(cam_from_target, float))
+        directions = directions_cam @ target_from_cam[:3, :3].T
+        hit = self.scene.ray_intersect(rays(mi, target_from_cam[:3, 3], directions))
+        valid = np.array(hit.is_valid(), dtype=bool)
+        part = np.zeros(len(valid), np.uint8)
+        for shape_ptr, index in self._ids:
+            part[np.array(hit.is_valid() & (hit.shape == mi.ShapePtr(shape_ptr)), dtype=bool)] = index
+        body = np.stack([np.array(hit.p[i], dtype=np.float64) for i in range(3)], 1)
+        normal = np.stack([np.array(hit.n[i], dtype=np.float64) for i in range(3)], 1)
+        camera_points = g.apply(cam_from_target, body)
+        normal_cam = normal @ np.asarray(cam_from_target, float)[:3, :3].T
+        normal_cam *= np.where(np.sum(normal_cam * directions_cam, axis=1, keepdims=True) > 0, -1.0, 1.0)
+        depth = camera_points[:, 2]
+        body[~valid], normal_cam[~valid], depth[~valid] = np.nan, np.nan, np.nan
+        height, width = shape
+        return SurfaceMaps(depth.reshape(height, width).astype(np.float32),
+                           normal_cam.reshape(height, width, 3).astype(np.float32),
+                           body.reshape(height, width, 3).astype(np.float32), part.reshape(height, width))
+
+    def pinhole(self, cam_from_target: np.ndarray, camera_matrix: np.ndarray, width: int, height: int) -> SurfaceMaps:
+        """Maps of an undistorted ``width x height`` image with intrinsics ``camera_matrix``."""
+        return self.cast(cam_from_target, pinhole_rays(camera_matrix, width, height), (height, width))
+
+    def through_lens(self, cam_from_target: np.ndarray, camera: LensCamera) -> SurfaceMaps:
+        """Maps of the camera's distorted image (the pixels of its renders and captures)."""
+        return self.cast(cam_from_target, pixel_rays(camera), (camera.height, camera.width))
