@@ -52,6 +52,6 @@ def twin_overlap(config: Config, workspace: Workspace, *, at_truth: bool = True)
             job = RenderJob(sample_id, "twin", tuple(true_row["cam_from_target_q"]),
                             tuple(np.asarray(true_row["cam_from_target_t"]) / scale), (0.0, 0.0, -1.0), 1.0, False,
                             render["seed"])
-            row["iou_truth"] = iou(worker.image(job)[1], silhouette)
+            row["iou_truth"] = iou(worker.surfaces.through_lens(job.cam_from_target(), worker.camera).mask, silhouette)
         rows.append(row)
     return rows

@@ -158,7 +158,10 @@ TRUTH = ManifestSpec(
         Column("fixture_sag_rad", pa.float64(), "rad", "tilt of the model fixture under the model's weight"),
         Column("vicon_camrb_ghost", pa.bool_(), "", "a ghost or mislabelled marker entered the camera body fit"),
         Column("vicon_targetrb_ghost", pa.bool_(), "", "a ghost or mislabelled marker entered the model body fit"),
+        Column("maps_path", pa.string(), "", "EXR of the mock-up's depth (m) and part ids at the true pose "
+               "(stages/common/ground_truth.py); dataset captures only", kind="path", nullable=True),
     ),
+    files=("maps_path",),
 )
 
 CALIBRATION_SAMPLES = ManifestSpec(
@@ -217,6 +220,9 @@ _RENDER_COLUMNS = (
     Column("set", pa.string(), "", "twin of a label or training image", kind="enum", allowed=("twin", "train")),
     Column("image_path", pa.string(), "", "8-bit RGB PNG relative to the workspace", kind="path"),
     Column("mask_path", pa.string(), "", "8-bit mask PNG (255: the target covers the pixel centre)", kind="path"),
+    Column("ground_truth_path", pa.string(), "", "EXR of per-pixel depth, normals, body coordinates, part index and "
+           "linear radiance (stages/common/ground_truth.py); null when render.ground_truth is off", kind="path",
+           nullable=True),
     Column("q_vbs2tango_true", QUAT, "1", "rotation of cam_from_target, Hamilton (w, x, y, z)", kind="quaternion"),
     Column("r_Vo2To_vbs_true", VEC3, "m", "translation of cam_from_target, full scale"),
     Column("light_dir_cam", VEC3, "1", "unit direction from the target towards the light, camera frame"),
@@ -232,10 +238,10 @@ _RENDER_COLUMNS = (
 )
 
 RENDERS = ManifestSpec("renders", "synthetic twins of the labelled testbed captures (same pose, aligned light)",
-                       _RENDER_COLUMNS, files=("image_path", "mask_path"))
+                       _RENDER_COLUMNS, files=("image_path", "mask_path", "ground_truth_path"))
 
 TRAIN = ManifestSpec("train", "the synthetic training set: SO(3)-uniform poses, random lights (SPEED+-like)",
-                     _RENDER_COLUMNS, files=("image_path", "mask_path"))
+                     _RENDER_COLUMNS, files=("image_path", "mask_path", "ground_truth_path"))
 
 PREDICTION_DOMAINS = ("synthetic", "lightbox", "sunlamp")
 

@@ -7,7 +7,8 @@ W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest: par
 W/manifests/_state/<name>.json                 completion marker (fingerprint, rows, parts, files)
 W/manifests/_state/staging/<name>/             parts being written (linked into <name>/ when whole)
 W/images/{calibration,dataset}/<sample_id>.png testbed captures
-W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/ beside them)
+W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/, ground_truth/<id>.exr beside them)
+W/truth/<sample_id>.exr                        virtual testbed: depth and part ids at the true pose
 W/models/<name>.onnx, <name>.json              trained models and their cards
 W/session.json  W/calibration.json  W/fusion.json  W/truth.json     typed sidecars (manifests.sidecars)
 W/report/index.html  W/export/
@@ -35,6 +36,8 @@ LEGACY_SUCCESS_FILE = "_SUCCESS.json"
 IMAGE_TEMPLATE = "images/{session}/{sample_id}.png"
 RENDER_TEMPLATE = "renders/{set}/{sample_id}.png"
 MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
+GROUND_TRUTH_TEMPLATE = "renders/{set}/ground_truth/{sample_id}.exr"
+TRUTH_MAPS_TEMPLATE = "truth/{sample_id}.exr"
 MODEL_TEMPLATE = "models/{name}.onnx"
 
 

@@ -182,6 +182,9 @@ class RenderConfig:
     margin_px: float = param(
         10.0, "training images: the target's bounding sphere stays this far inside the image when it fits", "px")
     train_spp: int = param(16, "training images: samples per pixel", "count")
+    ground_truth: bool = param(
+        True, "write each image's per-pixel ground truth (depth, normals, body coordinates, part index, linear "
+        "radiance) as one EXR beside it (stages/common/ground_truth.py); off: PNG and mask only", "")
 
 
 @dataclass(frozen=True)

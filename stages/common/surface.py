@@ -58,16 +58,21 @@ def pinhole_rays(camera_matrix: np.ndarray, width: int, height: int) -> np.ndarr
 
 
 class TangoSurfaces:
-    """The model's triangles (``stages.common.tango_mesh``) in a geometry-only Mitsuba scene."""
+    """Ray casts against the model's triangles (``stages.common.tango_mesh``): those of a
+    scene that already holds them as shapes ``tango_<part>`` (a renderer's, in the Tango
+    frame), else of a geometry-only scene of their own."""
 
-    def __init__(self) -> None:
+    def __init__(self, scene: Any = None) -> None:
         self.mi = mi = load_mitsuba()
-        bsdf = mi.load_dict({"type": "diffuse"})
-        objects: dict[str, Any] = {"type": "scene"}
-        for name, part in tango_parts().items():
-            objects[f"tango_{name}"] = mesh(mi, f"tango_{name}", part.vertices, part.faces, part.uv, bsdf)
-        self.scene = load_scene(mi, objects)
-        self._ids = [(shape, PART_IDS[shape.id().removeprefix("tango_")]) for shape in self.scene.shapes()]
+        if scene is None:
+            bsdf = mi.load_dict({"type": "diffuse"})
+            objects: dict[str, Any] = {"type": "scene"}
+            for name, part in tango_parts().items():
+                objects[f"tango_{name}"] = mesh(mi, f"tango_{name}", part.vertices, part.faces, part.uv, bsdf)
+            scene = load_scene(mi, objects)
+        self.scene = scene
+        self._ids = [(shape, PART_IDS[shape.id().removeprefix("tango_")]) for shape in scene.shapes()
+                     if shape.id().startswith("tango_")]
 
     def cast(self, cam_from_target: np.ndarray, directions_cam: np.ndarray, shape: tuple[int, int]) -> SurfaceMaps:
         """Maps of ``shape`` (H, W) from unit ray directions (H * W, 3) in the camera frame."""
@@ -75,10 +80,10 @@ class TangoSurfaces:
         target_from_cam = g.invert(np.asarray(cam_from_target, float))
         directions = directions_cam @ target_from_cam[:3, :3].T
         hit = self.scene.ray_intersect(rays(mi, target_from_cam[:3, 3], directions))
-        valid = np.array(hit.is_valid(), dtype=bool)
-        part = np.zeros(len(valid), np.uint8)
+        part = np.zeros(len(directions), np.uint8)
         for shape_ptr, index in self._ids:
             part[np.array(hit.is_valid() & (hit.shape == mi.ShapePtr(shape_ptr)), dtype=bool)] = index
+        valid = part > 0  # another shape of the scene (none in the renderers') is not the model
         body = np.stack([np.array(hit.p[i], dtype=np.float64) for i in range(3)], 1)
         normal = np.stack([np.array(hit.n[i], dtype=np.float64) for i in range(3)], 1)
         camera_points = g.apply(cam_from_target, body)

@@ -30,7 +30,7 @@ def output_name(config: Config) -> str:
     return "renders" if config.render.set == "twin" else "train"
 
 
-TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance")
+TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance", "ground_truth")
 
 
 def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
@@ -61,7 +61,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     run_config = config.run
     threads = render_threads(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
-    args = (camera, str(workspace.root), spp, config.render.max_depth, threads)
+    args = (camera, str(workspace.root), spp, config.render.max_depth, threads, config.render.ground_truth)
     rows = map_engine(run_config.engine, open_worker, args, "render", todo, workers=run_config.workers,
                       max_tasks=run_config.worker_max_tasks, ray_address=run_config.ray_address)
     with open_sink(workspace, name, run_config.part_rows) as sink:

@@ -16,7 +16,7 @@ import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
 from manifests.sidecars import read_calibration
-from manifests.workspace import MASK_TEMPLATE, RENDER_TEMPLATE
+from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
 from stages.common import geometry as g
 from stages.common import tango
@@ -47,6 +47,10 @@ class RenderJob:
     @property
     def mask_path(self) -> str:
         return MASK_TEMPLATE.format(set=SET_DIRECTORIES[self.set], sample_id=self.sample_id)
+
+    @property
+    def ground_truth_path(self) -> str:
+        return GROUND_TRUTH_TEMPLATE.format(set=SET_DIRECTORIES[self.set], sample_id=self.sample_id)
 
     def cam_from_target(self) -> np.ndarray:
         return g.transform_from_qt(self.q_vbs2tango_true, self.r_Vo2To_vbs_true)

@@ -1,5 +1,10 @@
-"""A render worker: turns a ``RenderJob`` into an 8-bit RGB PNG, a mask PNG and a
-``renders`` row. One per process (local engine) or Ray actor; the scene loads once.
+"""A render worker: turns a ``RenderJob`` into an 8-bit RGB PNG, a mask PNG, the per-pixel
+ground truth (``stages.common.ground_truth``) and a ``renders`` row. One per process
+(local engine) or Ray actor; the scene loads once.
+
+The mask and the ground truth are ray-cast at the output pixel centres through the lens
+(``stages.common.surface``) in the render's own scene: exact per pixel, where remapping a
+rendered AOV image would blend ids and coordinates across edges.
 
 Tone mapping is fixed (linear radiance x ``EXPOSURE``, sRGB curve, 8 bits) so that an
 image's brightness follows its light, as in SPEED+'s synthetic images.
@@ -14,9 +19,10 @@ import numpy as np
 
 from manifests import Workspace
 from stages.common import geometry as g
-from stages.common import tango
+from stages.common import ground_truth, tango
 from stages.common.image_io import write_png_atomic
 from stages.common.lens import LensCamera
+from stages.common.surface import TangoSurfaces
 from stages.render.earth import earth_background
 from stages.render.jobs import RenderJob
 from stages.render.scene import TangoRenderer
@@ -42,34 +48,46 @@ def mask_bbox(mask: np.ndarray) -> np.ndarray:
 class RenderWorker:
     """Renders jobs of one camera into the workspace at ``root``."""
 
-    def __init__(self, camera: LensCamera, root: str, spp: int, max_depth: int, threads: int) -> None:
+    def __init__(self, camera: LensCamera, root: str, spp: int, max_depth: int, threads: int,
+                 with_ground_truth: bool = True) -> None:
         self.camera, self.workspace, self.spp = camera, Workspace(root), spp
         self.renderer = TangoRenderer(camera, spp=spp, max_depth=max_depth, threads=threads)
+        self.surfaces = TangoSurfaces(self.renderer.scene)
+        self.with_ground_truth = with_ground_truth
 
-    def image(self, job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
-        """The 8-bit BGR image (H, W, 3) and mask (H, W) of a job, without writing them."""
+    def radiance(self, job: RenderJob) -> np.ndarray:
+        """Linear radiance (H, W, 3) of a job: the render, over the Earth when it has one."""
         light = np.asarray(job.light_dir_cam, float)
         rgba = self.renderer.render(job.cam_from_target(), light, job.irradiance, job.seed)
         rgb, alpha = rgba[..., :3], np.clip(rgba[..., 3:], 0.0, 1.0)
         if job.earth:
             background = earth_background(self.camera, light, job.irradiance, np.random.default_rng(job.seed))
             rgb = rgb + (1.0 - alpha) * background  # the render's rgb is premultiplied by coverage
-        image = to_srgb8(rgb * EXPOSURE)[..., ::-1]
-        mask = alpha[..., 0] >= 0.5
-        return np.ascontiguousarray(image), mask
+        return rgb
 
     def render(self, job: RenderJob) -> dict[str, Any]:
-        """Render, write both PNGs atomically, and return the job's ``renders`` row; or, when
-        the target covers no pixel, ``{"sample_id", "rejected": reason}`` and no files."""
+        """Render, write the PNGs and the ground truth atomically, and return the job's
+        ``renders`` row; or, when the target covers no pixel centre, ``{"sample_id",
+        "rejected": reason}`` and no files."""
         started = time.perf_counter()
-        image, mask = self.image(job)
+        radiance = self.radiance(job)
+        maps = self.surfaces.through_lens(job.cam_from_target(), self.camera)
+        mask = maps.mask
         if not mask.any():
             return {"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"}
-        write_png_atomic(self.workspace.resolve(job.image_path), image)
+        write_png_atomic(self.workspace.resolve(job.image_path),
+                         np.ascontiguousarray(to_srgb8(radiance * EXPOSURE)[..., ::-1]))
         write_png_atomic(self.workspace.resolve(job.mask_path), mask.astype(np.uint8) * 255)
+        ground_truth_path = None
+        if self.with_ground_truth:
+            ground_truth_path = job.ground_truth_path
+            channels = ground_truth.channels_of(maps, radiance, ground_truth.RADIANCE + ground_truth.GEOMETRY)
+            ground_truth.write(self.workspace.resolve(ground_truth_path), channels, self.camera,
+                               job.cam_from_target())
         keypoints = g.project(job.cam_from_target(), tango.KEYPOINTS_M, self.camera.camera_matrix, self.camera.dist)
         return {
             "sample_id": job.sample_id, "set": job.set, "image_path": job.image_path, "mask_path": job.mask_path,
+            "ground_truth_path": ground_truth_path,
             "q_vbs2tango_true": list(job.q_vbs2tango_true), "r_Vo2To_vbs_true": list(job.r_Vo2To_vbs_true),
             "light_dir_cam": list(job.light_dir_cam), "irradiance": job.irradiance, "earth": job.earth,
             "keypoints_px": keypoints, "bbox_px": mask_bbox(mask),
@@ -78,6 +96,7 @@ class RenderWorker:
         }
 
 
-def open_worker(camera: LensCamera, root: str, spp: int, max_depth: int, threads: int) -> RenderWorker:
+def open_worker(camera: LensCamera, root: str, spp: int, max_depth: int, threads: int,
+                with_ground_truth: bool = True) -> RenderWorker:
     """Picklable factory for the engines."""
-    return RenderWorker(camera, root, spp, max_depth, threads)
+    return RenderWorker(camera, root, spp, max_depth, threads, with_ground_truth)

@@ -21,7 +21,7 @@ def truth_rows(n, start=0):
     return [{"sample_id": f"img{start + i:06d}", "cam_from_target_q": q[i], "cam_from_target_t": [0.1, 0.0, 4.0 + i],
              "world_from_camee_q": [1.0, 0, 0, 0], "world_from_camee_t": [5.0, 1.5, 2.0],
              "world_from_targetee_q": q[i], "world_from_targetee_t": [1.0, 1.5, 1.0], "fixture_sag_rad": 0.003,
-             "vicon_camrb_ghost": False, "vicon_targetrb_ghost": i == 1}
+             "vicon_camrb_ghost": False, "vicon_targetrb_ghost": i == 1, "maps_path": None}
             for i in range(n)]
 
 

@@ -9,13 +9,15 @@ import numpy as np
 
 from manifests import Workspace, read_manifest
 from manifests.sidecars import Session, SessionCamera
+from manifests.workspace import TRUTH_MAPS_TEMPLATE
 from pipeline.config import Config
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, robots
-from stages.acquire.virtual.sensor import Sensor
+from stages.acquire.virtual.sensor import Sensor, lens_camera
 from stages.acquire.virtual.timeline import Moment, timeline
 from stages.acquire.virtual.truth import Truth, draw_truth
 from stages.common import geometry as g
+from stages.common import ground_truth
 from stages.common.geometry import pose_columns
 from stages.common.image_io import write_png_atomic
 from stages.common.kinematics import link_points
@@ -36,6 +38,7 @@ class VirtualTestbed:
         self.sensors = {"calibration": self.sensor,
                         "dataset": Sensor(cameras["dataset"], config.virtual, self.sensor.geometry)}
         self._scene = None
+        self._surfaces = None
         self._moments: dict[str, Moment] | None = None
         self.camera_markers_rb = g.apply(g.invert(self.truth.camee_from_camrb),
                                          np.asarray(config.virtual.camera_markers_m))
@@ -95,6 +98,7 @@ class VirtualTestbed:
         image_path = self.workspace.image_relpath(session, sample_id)
         write_png_atomic(self.workspace.resolve(image_path), image)
         cam_from_target = g.invert(state.world_from_cam) @ state.world_from_target
+        maps_path = self.write_truth_maps(sample_id, session, cam_from_target) if session == "dataset" else None
         captures = {
             "sample_id": sample_id, "session": session, "fixture": sample["mount"], "image_path": image_path,
             "source_image": None, "image_conversion": None,
@@ -113,8 +117,27 @@ class VirtualTestbed:
             **pose_columns("world_from_targetee", state.world_from_targetee),
             "fixture_sag_rad": state.sag_rad,
             "vicon_camrb_ghost": camera_body.ghost, "vicon_targetrb_ghost": target_body.ghost,
+            "maps_path": maps_path,
         }
         return CaptureRecord(captures, truth_row)
+
+    def write_truth_maps(self, sample_id: str, session: str, cam_from_target: np.ndarray) -> str:
+        """Depth and part ids of the mock-up at its TRUE pose, through the session's true
+        lens (``stages.common.ground_truth``), for evaluation only; returns the W path."""
+        from stages.common.surface import TangoSurfaces
+
+        if self._surfaces is None:
+            self._surfaces = TangoSurfaces()
+        scale = self.config.testbed.mockup_scale
+        full_scale = cam_from_target.copy()
+        full_scale[:3, 3] /= scale  # the mesh is the full-scale Tango; the mock-up is it scaled
+        camera = lens_camera(self.sensors[session].camera)
+        maps = self._surfaces.through_lens(full_scale, camera)
+        relpath = TRUTH_MAPS_TEMPLATE.format(sample_id=sample_id)
+        ground_truth.write(self.workspace.resolve(relpath), ground_truth.channels_of(maps, None, ground_truth.TRUTH,
+                                                                                      scale),
+                           camera, cam_from_target, scale)
+        return relpath
 
     def photograph(self, state: robots.RobotState, session: str, light: str, boxes: list[int],
                    rng: np.random.Generator, seed: int) -> np.ndarray:

@@ -90,6 +90,36 @@ def test_model_is_in_frame_and_visible_in_every_dataset_capture(smoke_workspace)
         assert np.percentile(inside, 99) > 3 * max(np.median(image), 1)  # something lit is there
 
 
+def test_truth_maps_are_the_mock_up_at_its_true_pose(smoke_workspace):
+    """Depth and part ids at the TRUE pose for every dataset capture: the mock-up's
+    silhouette in the testbed scene itself, at the mock-up's depth."""
+    from pipeline.config import load_config
+    from stages.acquire.virtual import VirtualTestbed
+    from stages.common import ground_truth
+    from stages.common.tango_mesh import tango_parts
+
+    ws = smoke_workspace
+    testbed = VirtualTestbed(load_config(None, ws.config_path), ws)
+    plan = {r["sample_id"]: r for r in read_manifest(ws, "plan").to_pylist()}
+    truth = read_manifest(ws, "truth").to_pylist()
+    assert {r["sample_id"] for r in truth if r["maps_path"]} == {
+        r["sample_id"] for r in read_manifest(ws, "captures").to_pylist() if r["session"] == "dataset"}
+    scale = json.loads(ws.session_path.read_text())["mockup_scale"]
+    for row in (r for r in truth if r["maps_path"]):
+        maps = ground_truth.read(ws.resolve(row["maps_path"]))
+        cam_from_target = g.transform_from_qt(row["cam_from_target_q"], row["cam_from_target_t"])
+        np.testing.assert_allclose(maps.cam_from_target, cam_from_target, atol=1e-12)
+        assert maps.length_scale == scale
+        on = maps.channels["part"] > 0
+        silhouette = testbed.silhouette(plan[row["sample_id"]])
+        assert (on & silhouette).sum() / (on | silhouette).sum() > 0.9  # the scene's model, seen by its lens
+        vertices = np.concatenate([part.vertices for part in tango_parts().values()])
+        corners_z = g.apply(cam_from_target, vertices * scale)[:, 2]
+        depth = maps.channels["Z"][on]
+        assert depth.min() >= corners_z.min() - 1e-3 and depth.max() <= corners_z.max() + 1e-3
+        assert np.isnan(maps.channels["Z"][~on]).all()
+
+
 def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_workspace, tmp_path):
     reference = read_manifest(smoke_workspace, "captures").sort_by("sample_id")
     ws = tmp_path / "killed"

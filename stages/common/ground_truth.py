@@ -1,0 +1,149 @@
+"""Per-pixel ground truth as one multi-channel OpenEXR file per image (read and written
+through OpenImageIO); the format is defined here, once, and checked on read.
+
+Channels (float32, one value per output pixel of the image it belongs to, in that image's
+distorted geometry; NaN where the model is not hit):
+
+=========================  ============================================================
+``R``, ``G``, ``B``        linear HDR radiance of the render (the 8-bit PNG is its tone
+                           map); synthetic images only
+``Z``                      depth: z of the surface in the OpenCV camera frame, metres
+``N.X``, ``N.Y``, ``N.Z``  unit surface normal in the camera frame, towards the camera
+``P.X``, ``P.Y``, ``P.Z``  the surface point in Tango body coordinates, metres
+``part``                   ``stages.common.surface.PART_IDS``: 0 background, 1 sides,
+                           2 solar panel, 3 rear panel, 4 antennas (exact small integers)
+=========================  ============================================================
+
+The testbed's truth maps (virtual backend, for evaluation only) hold ``Z`` and ``part``
+at the mock-up's true pose and scale. Header: ``speedplus:ground_truth`` (JSON: version,
+camera_matrix (3, 3) px, dist (5,) OpenCV, cam_from_target (4, 4) m, length_scale, part
+ids). OpenEXR's own ``worldToCamera`` is not written: its camera looks along -z, not
+OpenCV's +z, and a second convention for the same pose would invite mistakes.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from manifests.files import temporary_name
+from pipeline.errors import InputError
+from stages.common.lens import LensCamera
+from stages.common.surface import PART_IDS, SurfaceMaps
+
+VERSION = 1
+HEADER_KEY = "speedplus:ground_truth"
+RADIANCE = ("R", "G", "B")
+GEOMETRY = ("Z", "N.X", "N.Y", "N.Z", "P.X", "P.Y", "P.Z", "part")
+TRUTH = ("Z", "part")
+
+
+class GroundTruthError(InputError):
+    """An unreadable or malformed ground-truth file; the message names the file and key."""
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """A read file: ``channels`` {name: (H, W) float32} and the header's camera and pose."""
+
+    channels: dict[str, np.ndarray]
+    camera: LensCamera
+    cam_from_target: np.ndarray
+    length_scale: float
+
+    def stack(self, names: tuple[str, ...]) -> np.ndarray:
+        """(H, W, len(names)) of the named channels."""
+        return np.stack([self.channels[name] for name in names], axis=-1)
+
+
+def channels_of(maps: SurfaceMaps, radiance: np.ndarray | None, names: tuple[str, ...],
+                length_scale: float = 1.0) -> dict[str, np.ndarray]:
+    """The named channels from ray-cast maps (full scale) and an optional (H, W, 3) linear
+    radiance; ``length_scale`` turns the full-scale model's lengths into the scene's
+    (the testbed's half-scale mock-up)."""
+    source = {"Z": maps.depth_m * length_scale, "part": maps.part.astype(np.float32)}
+    for axis, name in enumerate("XYZ"):
+        source[f"N.{name}"] = maps.normal_cam[..., axis]
+        source[f"P.{name}"] = maps.body_m[..., axis] * length_scale
+    if radiance is not None:
+        for axis, name in enumerate(RADIANCE):
+            source[name] = radiance[..., axis]
+    return {name: np.asarray(source[name], np.float32) for name in names}
+
+
+def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
+          length_scale: float = 1.0) -> None:
+    """Write the channels (ZIP-compressed) and the header atomically."""
+    import OpenImageIO as oiio  # noqa: N813 - the library's own documented alias
+
+    names = tuple(channels)
+    height, width = next(iter(channels.values())).shape
+    spec = oiio.ImageSpec(width, height, len(names), "float")
+    spec.channelnames = names
+    spec.attribute("compression", "zip")
+    header = {"version": VERSION, "camera_matrix": np.asarray(camera.camera_matrix, float).tolist(),
+              "dist": [float(v) for v in camera.dist], "cam_from_target": np.asarray(cam_from_target, float).tolist(),
+              "length_scale": float(length_scale), "part_ids": PART_IDS}
+    spec.attribute(HEADER_KEY, json.dumps(header))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = temporary_name(path).with_suffix(".exr")  # OpenImageIO picks the format by suffix
+    output = oiio.ImageOutput.create(str(temporary))
+    if output is None or not output.open(str(temporary), spec):
+        raise OSError(f"{path}: cannot write an EXR ({oiio.geterror()})")
+    pixels = np.ascontiguousarray(np.stack([channels[name] for name in names], axis=-1), np.float32)
+    ok = output.write_image(pixels)
+    output.close()
+    if not ok:
+        raise OSError(f"{path}: cannot write an EXR ({output.geterror()})")
+    temporary.replace(path)
+
+
+def _header(path: Path, text: Any) -> dict[str, Any]:
+    def fail(key: str, expected: str) -> GroundTruthError:
+        return GroundTruthError(f"{path}: header {HEADER_KEY}, key {key}: expected {expected}")
+
+    try:
+        header = json.loads(text) if isinstance(text, str) else None
+    except ValueError:
+        header = None
+    if not isinstance(header, dict):
+        raise fail("(top level)", "a JSON object; not a SPEED+ builder ground-truth file")
+    if header.get("version") != VERSION:
+        raise fail("version", f"{VERSION} (this program's); rerun the stage that wrote it with --force")
+    for key, shape in (("camera_matrix", (3, 3)), ("dist", (5,)), ("cam_from_target", (4, 4))):
+        value = np.asarray(header.get(key, []), dtype=object)
+        if value.shape != shape or not all(isinstance(v, (int, float)) for v in value.ravel()):
+            raise fail(key, f"numbers of shape {shape}")
+    if not isinstance(header.get("length_scale"), (int, float)) or header["length_scale"] <= 0:
+        raise fail("length_scale", "a positive number")
+    return header
+
+
+def read(path: Path, required: tuple[str, ...] = TRUTH) -> GroundTruth:
+    """Read and check a ground-truth file: its header and the ``required`` channels."""
+    import OpenImageIO as oiio  # noqa: N813 - the library's own documented alias
+
+    image_input = oiio.ImageInput.open(str(path))
+    if image_input is None:
+        raise GroundTruthError(f"{path}: not a readable EXR ({oiio.geterror().strip() or 'missing'})")
+    try:
+        spec = image_input.spec()
+        header = _header(path, spec.getattribute(HEADER_KEY))
+        names = tuple(spec.channelnames)
+        missing = [name for name in required if name not in names]
+        if missing:
+            raise GroundTruthError(f"{path}: channel {missing[0]} missing (has {', '.join(names)})")
+        pixels = image_input.read_image(0, 0, 0, len(names), "float")
+        if pixels is None or image_input.has_error:
+            raise GroundTruthError(f"{path}: truncated or corrupt EXR ({image_input.geterror().strip()})")
+    finally:
+        image_input.close()
+    pixels = np.asarray(pixels, np.float32).reshape(spec.height, spec.width, len(names))
+    camera = LensCamera(np.array(header["camera_matrix"], float), np.array(header["dist"], float), spec.width,
+                        spec.height)
+    return GroundTruth({name: pixels[..., i] for i, name in enumerate(names)}, camera,
+                       np.array(header["cam_from_target"], float), float(header["length_scale"]))

@@ -1,0 +1,159 @@
+"""Per-pixel ground truth of the synthetic images: geometry that agrees with the pose and
+the lens, ids that mean their parts, radiance that is the PNG before tone mapping, and a
+reader that names what is wrong."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.config import load_config
+from stages.common import geometry as g
+from stages.common import ground_truth
+from stages.common.cameras import train_camera
+from stages.common.ground_truth import GroundTruthError
+from stages.common.tango import KEYPOINTS_M
+from stages.common.tango_mesh import tango_parts
+from stages.render.jobs import train_jobs
+from stages.render.worker import EXPOSURE, RenderWorker, to_srgb8
+
+ALL = ground_truth.RADIANCE + ground_truth.GEOMETRY
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """Six training images of the default camera (960 x 600), with their ground truth."""
+    root = tmp_path_factory.mktemp("ground_truth")
+    config = load_config("default", None, ["render.train_spp=4"])
+    camera = train_camera(config)
+    worker = RenderWorker(camera, str(root), 4, config.render.max_depth, 2)
+    rows = [worker.render(job) for job in train_jobs(config)[:6]]
+    rows = [row for row in rows if "rejected" not in row]
+    assert len(rows) == 6
+    return root, camera, rows, [ground_truth.read(root / row["ground_truth_path"], ALL) for row in rows]
+
+
+def test_the_header_holds_the_camera_and_the_pose(rendered):
+    _, camera, rows, files = rendered
+    for row, file in zip(rows, files, strict=True):
+        pose = g.transform_from_qt(row["q_vbs2tango_true"], row["r_Vo2To_vbs_true"])
+        np.testing.assert_allclose(file.cam_from_target, pose, atol=1e-12)
+        np.testing.assert_allclose(file.camera.camera_matrix, camera.camera_matrix)
+        np.testing.assert_allclose(file.camera.dist, camera.dist)
+        assert (file.camera.width, file.camera.height) == (camera.width, camera.height) == (row["width"],
+                                                                                            row["height"])
+
+
+def test_body_coordinates_project_back_to_their_pixel_through_the_lens(rendered):
+    _, camera, _, files = rendered
+    for file in files:
+        on = file.channels["part"] > 0
+        ys, xs = np.nonzero(on)
+        body = file.stack(("P.X", "P.Y", "P.Z"))[on].astype(float)
+        projected = g.project(file.cam_from_target, body, camera.camera_matrix, camera.dist)
+        assert np.abs(projected - np.stack([xs, ys], 1)).max() < 0.5
+        # depth is z of the same point in the camera frame
+        np.testing.assert_allclose(file.channels["Z"][on], g.apply(file.cam_from_target, body)[:, 2], atol=1e-5)
+        assert np.isnan(file.channels["Z"][~on]).all() and np.isnan(body).sum() == 0
+
+
+def body_faces():
+    """(normal (3,), corner indices) of the body's six faces in the Tango frame."""
+    faces = []
+    for name in ("solar_panel", "rear_panel", "sides"):
+        part = tango_parts()[name]
+        for a, b, c in part.vertices[part.faces]:
+            normal = np.cross(b - a, c - a)
+            corners = [i for i, k in enumerate(KEYPOINTS_M[:8]) if abs(np.dot(k - a, normal)) < 1e-9]
+            faces.append((normal / np.linalg.norm(normal), corners))
+    return faces
+
+
+def test_depth_and_normals_at_each_visible_corner_give_its_depth(rendered):
+    """The body is convex: a corner is visible when a face through it faces the camera.
+    The plane of the pixel nearest the corner (its depth and normal) meets the corner's ray
+    at the corner's depth."""
+    _, camera, _, files = rendered
+    faces, checked = body_faces(), 0
+    for file in files:
+        rotation, position = file.cam_from_target[:3, :3], file.cam_from_target[:3, 3]
+        camera_in_target = -rotation.T @ position
+        projected = g.project(file.cam_from_target, KEYPOINTS_M[:8], camera.camera_matrix, camera.dist)
+        depth_of_corner = g.apply(file.cam_from_target, KEYPOINTS_M[:8])[:, 2]
+        for index, (u, v) in enumerate(projected):
+            visible = any(index in corners and np.dot(normal, camera_in_target - KEYPOINTS_M[index]) > 1e-6
+                          for normal, corners in faces)
+            x, y = int(round(u)), int(round(v))
+            if not visible or not (0 <= x < camera.width and 0 <= y < camera.height):
+                continue
+            if file.channels["part"][y, x] not in (1, 2, 3):
+                continue  # the pixel centre is off the silhouette or on an antenna in front
+            point = np.array([file.channels[f"P.{a}"][y, x] for a in "XYZ"], float)
+            normal = np.array([file.channels[f"N.{a}"][y, x] for a in "XYZ"], float)
+            surface_cam = rotation @ point + position
+            ray = np.linalg.solve(camera.camera_matrix, [*cv2.undistortPointsIter(
+                np.array([[[u, v]]]), camera.camera_matrix, camera.dist, None, camera.camera_matrix,
+                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)).ravel(), 1.0])
+            depth = np.dot(normal, surface_cam) / np.dot(normal, ray) * ray[2]
+            assert abs(file.channels["Z"][y, x] - surface_cam[2]) < 1e-4
+            assert abs(depth - depth_of_corner[index]) < 1e-3, (index, depth, depth_of_corner[index])
+            checked += 1
+    assert checked >= 2 * len(files)
+
+
+def test_part_ids_mean_their_parts_and_match_the_mask(rendered):
+    root, _, rows, files = rendered
+    panel_normal = {2: np.array([0, 0, 1.0]), 3: np.array([0, 0, -1.0])}  # solar panel +z, rear panel -z
+    for row, file in zip(rows, files, strict=True):
+        part = file.channels["part"]
+        assert set(np.unique(part)) <= {0, 1, 2, 3, 4} and (part == np.round(part)).all()
+        mask = cv2.imread(str(root / row["mask_path"]), cv2.IMREAD_UNCHANGED) > 0
+        assert ((part > 0) == mask).all()
+        normals = file.stack(("N.X", "N.Y", "N.Z"))
+        for index, normal in panel_normal.items():
+            if (part == index).any():
+                np.testing.assert_allclose(normals[part == index], np.broadcast_to(
+                    file.cam_from_target[:3, :3] @ normal, normals[part == index].shape), atol=1e-4)
+
+
+def test_radiance_is_the_png_before_its_tone_map(rendered):
+    root, _, rows, files = rendered
+    for row, file in zip(rows, files, strict=True):
+        png = cv2.imread(str(root / row["image_path"]), cv2.IMREAD_COLOR)
+        tone_mapped = to_srgb8(file.stack(ground_truth.RADIANCE) * EXPOSURE)[..., ::-1]
+        assert (tone_mapped == png).all()
+        assert np.isfinite(file.stack(ground_truth.RADIANCE)).all()
+
+
+def test_the_switch_turns_the_ground_truth_off(tmp_path):
+    config = load_config("smoke", None, ["render.train_spp=2"])
+    worker = RenderWorker(train_camera(config), str(tmp_path), 2, config.render.max_depth, 2, False)
+    row = worker.render(train_jobs(config)[0])
+    assert row["ground_truth_path"] is None and not list(tmp_path.rglob("*.exr"))
+
+
+def test_a_bad_file_is_an_error_naming_file_and_key(rendered, tmp_path):
+    root, camera, rows, files = rendered
+    path = root / rows[0]["ground_truth_path"]
+    with pytest.raises(GroundTruthError, match=r"channel nope missing"):
+        ground_truth.read(path, ("Z", "nope"))
+    truncated = tmp_path / "truncated.exr"
+    truncated.write_bytes(path.read_bytes()[:2000])
+    with pytest.raises(GroundTruthError, match="truncated.exr"):
+        ground_truth.read(truncated)
+    channels = {name: files[0].channels[name] for name in ground_truth.TRUTH}
+    for header, key in ((json.dumps({"version": 99}), "version"), ("not json", "top level")):
+        other = tmp_path / f"{key.replace(' ', '_')}.exr"
+        ground_truth.write(other, channels, camera, files[0].cam_from_target)
+        _rewrite_header(other, header)
+        with pytest.raises(GroundTruthError, match=rf"{other.name}: header speedplus:ground_truth, key \(?{key}"):
+            ground_truth.read(other)
+
+
+def _rewrite_header(path, text):
+    import OpenImageIO as oiio  # noqa: N813
+
+    source = oiio.ImageBuf(str(path))
+    source.specmod().attribute(ground_truth.HEADER_KEY, text)
+    assert source.write(str(path))
