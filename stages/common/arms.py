@@ -272,7 +272,7 @@ def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, 
             p = full(q)
             return np.concatenate([((a - predicted(p))[:, :3, :] / scale).ravel(), p[priored] / prior])
 
-        result = least_squares(residuals, params[free], method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
+        result = least_squares(residuals, params[free], method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10)
         params = full(result.x)
         scale = max(float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2))), 1e-12)
     covariance = np.zeros((len(params), len(params)))

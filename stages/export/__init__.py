@@ -38,7 +38,9 @@ def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str,
     (pipeline/registry.py): one manifest per format, so both exports can coexist."""
     inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}
     needed = tuple(dict.fromkeys(name for chosen in config.export.sets for name in inputs[chosen]))
-    return needed, ("export", "camera", "render"), {}, (f"export_{config.export.format}",)
+    # of the render section, only what sizes the training camera matters here
+    extra = {"train_resolution_scale": config.render.train_resolution_scale} if "train" in config.export.sets else {}
+    return needed, ("export", "camera"), extra, (f"export_{config.export.format}",)
 
 
 def out_dir(config: Config, workspace: Workspace) -> Path:
