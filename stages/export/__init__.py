@@ -92,7 +92,9 @@ def items(config: Config, workspace: Workspace) -> list[dict[str, Any]]:
         index = dict.fromkeys(DOMAINS, 0)
         for label in labels:
             source = sources[export_set].get(label["sample_id"])
-            if source is None:  # a twin that could not be rendered (render's manifest says why)
+            if source is None and export_set == "testbed":
+                raise InputError(f"labels: sample {label['sample_id']} has no row in the captures manifest")
+            if source is None:  # a twin that could not be rendered (render's rejected.json says why)
                 continue
             scene_id, im_id = bop.place(export_set, label["domain"], index[label["domain"]])
             index[label["domain"]] += 1

@@ -33,6 +33,7 @@ import numpy as np
 
 from manifests.files import write_bytes_atomic, write_json_atomic
 from manifests.schema import DOMAINS
+from pipeline.errors import InputError
 from stages.common import geometry as g
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
 from stages.common.lens import LensCamera
@@ -70,10 +71,10 @@ def _undistort_maps(k: tuple[float, ...], dist: tuple[float, ...], width: int, h
                                        cv2.CV_32FC1)
 
 
-def undistort(image: np.ndarray, camera: LensCamera, nearest: bool = False) -> np.ndarray:
+def undistort(image: np.ndarray, camera: LensCamera) -> np.ndarray:
     """The image as an ideal pinhole with the same ``K`` would have taken it (H, W[, C])."""
     maps = _undistort_maps(tuple(camera.camera_matrix.ravel()), tuple(camera.dist), camera.width, camera.height)
-    return cv2.remap(image, *maps, cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
 def write_image(out: Path, item: dict[str, Any], source: Path, camera: LensCamera, surfaces: TangoSurfaces) -> str:
@@ -166,7 +167,11 @@ def gt_info(out: Path, item: dict[str, Any], camera_matrix: np.ndarray, vertices
     """scene_gt_info entry from the written mask (and depth): bbox_obj from the projected
     model (may reach outside the image, as BOP's), the rest from the silhouette."""
     folder = out / scene_dir(item["set"], item["scene_id"])
-    mask = cv2.imread(str(folder / "mask" / f"{item['im_id']:06d}_000000.png"), cv2.IMREAD_GRAYSCALE) > 0
+    mask_path = folder / "mask" / f"{item['im_id']:06d}_000000.png"
+    written = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+    if written is None:  # recorded in the manifest, since removed from the export folder
+        raise InputError(f"{mask_path}: missing or unreadable; rerun the export with --force")
+    mask = written > 0
     depth_path = folder / "depth" / f"{item['im_id']:06d}.png"
     valid = mask & (cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED) > 0) if depth_path.exists() else mask & False
     pose = cam_from_model_mm(item["q_vbs2tango_true"], item["r_Vo2To_vbs_true"])
