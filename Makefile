@@ -4,15 +4,22 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+RUN_STAMP := $(VENV)/.installed-run
 PROFILE ?= default
 WORKSPACE ?= data/$(PROFILE)
 
 .PHONY: setup dataset test bench lint clean
 
+# setup: everything the tests need (dev tools, the [cluster] extra: Ray); `make dataset`
+# installs only what a local run needs.
 setup: $(STAMP)
 
+$(STAMP): $(RUN_STAMP)
+	$(BIN)/pip install --quiet -e '.[dev,cluster]'
+	touch $(STAMP)
+
 # Mitsuba's fast llvm variant needs libLLVM >= 16; Debian 12 ships 14/15 by default.
-$(STAMP): pyproject.toml
+$(RUN_STAMP): pyproject.toml
 	@if [ "$$(id -u)" = "0" ] && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
 		echo "installing Debian libllvm19 for Mitsuba's llvm variant"; \
 		(apt-get install -y libllvm19 >/dev/null 2>&1 || \
@@ -25,10 +32,10 @@ $(STAMP): pyproject.toml
 	fi
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
-	touch $(STAMP)
+	$(BIN)/pip install --quiet -e .
+	touch $(RUN_STAMP)
 
-dataset: setup
+dataset: $(RUN_STAMP)
 	$(BIN)/speedplus run --profile $(PROFILE) --workspace $(WORKSPACE)
 	$(BIN)/speedplus export --workspace $(WORKSPACE) --format speedplus --out $(WORKSPACE)/export
 	@echo "report:  $(WORKSPACE)/report/index.html"

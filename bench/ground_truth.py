@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
+from manifests import Workspace
 from pipeline.config import load_config
+from pipeline.engines import store
 from stages.common.cameras import train_camera
 from stages.common.mitsuba_adapter import render_threads
 from stages.render.jobs import train_jobs
@@ -30,7 +32,7 @@ def main(count: str = "8") -> None:
     rows = []
     for label, spp in (("training image", config.render.train_spp), ("twin", config.render.spp)):
         with tempfile.TemporaryDirectory() as root:
-            workers = {on: RenderWorker(train_camera(config), root, spp, config.render.max_depth, render_threads(1), on)
+            workers = {on: RenderWorker(train_camera(config), spp, config.render.max_depth, render_threads(1), on)
                        for on in (False, True)}
             for worker in workers.values():  # compile the kernels before timing
                 worker.render(jobs[0])
@@ -39,7 +41,7 @@ def main(count: str = "8") -> None:
             for job in jobs[1:]:
                 for on in (False, True):
                     started = time.perf_counter()
-                    row = workers[on].render(job)
+                    row = store(Workspace(root), workers[on].render(job))
                     seconds[on].append(time.perf_counter() - started)
                     if on and row.get("ground_truth_path"):
                         sizes.append((Path(root) / row["ground_truth_path"]).stat().st_size / 1e6)

@@ -38,7 +38,7 @@ def twin_overlap(config: Config, workspace: Workspace, *, at_truth: bool = True)
     truth = {row["sample_id"]: row for row in read_manifest(workspace, "truth").to_pylist()}
     labels = {row["sample_id"]: row for row in read_manifest(workspace, "labels").to_pylist()}
     scale = mockup_scale(config, workspace)
-    worker = RenderWorker(calibrated_camera(workspace), str(workspace.root), 16, 1, 2) if at_truth else None
+    worker = RenderWorker(calibrated_camera(workspace), 16, 1, 2) if at_truth else None
     rows = []
     for render in read_manifest(workspace, "renders").to_pylist():
         sample_id = render["sample_id"]

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import multiprocessing
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -38,39 +37,35 @@ def _rss_mb() -> float:
 def _seconds_per_image(profile: str, count: int) -> tuple[float, float]:
     config = load_config(profile, overrides=[f"render.train_count={count + 1}"])
     jobs = train_jobs(config)
-    with tempfile.TemporaryDirectory() as root:
-        started = time.perf_counter()
-        worker = open_worker(train_camera(config), root, config.render.spp, config.render.max_depth,
-                             render_threads(1))
-        worker.render(jobs[0])  # scene load and kernel compilation
-        first = time.perf_counter() - started
-        started = time.perf_counter()
-        for job in jobs[1:]:
-            worker.render(job)
-        return first, (time.perf_counter() - started) / count
+    started = time.perf_counter()
+    worker = open_worker(train_camera(config), config.render.spp, config.render.max_depth, render_threads(1))
+    worker.render(jobs[0])  # scene load and kernel compilation
+    first = time.perf_counter() - started
+    started = time.perf_counter()
+    for job in jobs[1:]:
+        worker.render(job)
+    return first, (time.perf_counter() - started) / count
 
 
 def _throughput(workers: int, count: int, threads: int) -> float:
     config = load_config("default", overrides=[f"render.train_count={count}"])
     jobs = train_jobs(config)
-    with tempfile.TemporaryDirectory() as root:
-        args = (train_camera(config), root, config.render.spp, config.render.max_depth, threads)
-        started = time.perf_counter()
-        for _ in map_local(open_worker, args, "render", jobs, workers=workers, max_tasks=1000):
-            pass
-        return count / (time.perf_counter() - started) * 60
+    args = (train_camera(config), config.render.spp, config.render.max_depth, threads)
+    started = time.perf_counter()
+    for _ in map_local(open_worker, args, "render", jobs, workers=workers, max_tasks=1000):
+        pass
+    return count / (time.perf_counter() - started) * 60
 
 
 def _memory_child(renders: int, queue: multiprocessing.Queue) -> None:
     config = load_config("default", overrides=[f"render.train_count={renders}", "render.spp=16"])
-    with tempfile.TemporaryDirectory() as root:
-        worker = open_worker(train_camera(config), root, 16, config.render.max_depth, render_threads(1))
-        samples = []
-        for index, job in enumerate(train_jobs(config), start=1):
-            worker.render(job)
-            if index in (1, 50, 100, 150, 200) or index == renders:
-                samples.append((index, _rss_mb()))
-        queue.put(samples)
+    worker = open_worker(train_camera(config), 16, config.render.max_depth, render_threads(1))
+    samples = []
+    for index, job in enumerate(train_jobs(config), start=1):
+        worker.render(job)
+        if index in (1, 50, 100, 150, 200) or index == renders:
+            samples.append((index, _rss_mb()))
+    queue.put(samples)
 
 
 def speed() -> None:

@@ -51,6 +51,16 @@ class ManifestError(Exception):
             where.append(f"column {column!r}")
         super().__init__(", ".join(where) + ": " + message)
         self.source, self.row, self.column = source, row, column
+        self._arguments = (source, message, row, column, sample_id)
+
+    def __reduce__(self) -> tuple[Any, ...]:  # crosses process boundaries (engines)
+        source, message, row, column, sample_id = self._arguments
+        return _manifest_error, (source, message, row, column, sample_id)
+
+
+def _manifest_error(source: str, message: str, row: int | None, column: str | None,
+                    sample_id: str | None) -> ManifestError:
+    return ManifestError(source, message, row=row, column=column, sample_id=sample_id)
 
 
 def spec_for(name_or_spec: str | ManifestSpec) -> ManifestSpec:

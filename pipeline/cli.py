@@ -57,6 +57,17 @@ ConfigOption = Annotated[
 SetOption = Annotated[
     list[str] | None, typer.Option("--set", "-s", help="override one key: section.key=value (repeatable)")]
 ForceOption = Annotated[bool, typer.Option("--force", help="discard this stage's existing results and redo them")]
+EngineOption = Annotated[str | None, typer.Option("--engine", help=key_help("run.engine") + "; this run only")]
+RayAddressOption = Annotated[str | None, typer.Option("--ray-address",
+                                                      help=key_help("run.ray_address") + "; this run only")]
+WorkersOption = Annotated[int | None, typer.Option("--workers", help=key_help("run.workers") + "; this run only")]
+
+
+def _engine(engine: str | None, ray_address: str | None, workers: int | None) -> list[Override]:
+    """The engine flags, which every stage command takes, as overrides of this run only."""
+    chosen = [("run.engine", engine, "--engine"), ("run.ray_address", ray_address, "--ray-address"),
+              ("run.workers", workers, "--workers")]
+    return [Override.of(key, value, flag) for key, value, flag in chosen if value is not None]
 
 
 def _context(workspace: Path | None, profile: str | None, config: Path | None,
@@ -77,7 +88,11 @@ def _parsed(texts: list[str] | None) -> list[Override]:
 def _run(stages: list[str], workspace: Path | None, profile: str | None, config: Path | None,
          saved: list[Override], force: bool, transient: list[Override] = ()) -> Workspace:
     """Run ``stages``; ``saved`` overrides go into W/config.toml, ``transient`` ones (which
-    choose what a command does: render's image set, export's format) apply to this run only."""
+    choose what a command does: render's image set, export's format) apply to this run only,
+    and so do those of the ``run`` section (how to execute, never what: engine, workers),
+    wherever they come from. A run section in a --config file is the way to keep one."""
+    transient = [*transient, *(o for o in saved if o.section == "run")]
+    saved = [o for o in saved if o.section != "run"]
     resolved, ws = _context(workspace, profile, config, saved)
     with WorkspaceLock(ws):
         write_config(resolved, ws.config_path)
@@ -98,8 +113,9 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
 
 def _stage_command(entry: registry.StageEntry) -> None:
     def command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-                set_: SetOption = None, force: ForceOption = False) -> None:
-        _run([entry.name], workspace, profile, config, _parsed(set_), force)
+                set_: SetOption = None, force: ForceOption = False, engine: EngineOption = None,
+                ray_address: RayAddressOption = None, workers: WorkersOption = None) -> None:
+        _run([entry.name], workspace, profile, config, _parsed(set_), force, _engine(engine, ray_address, workers))
 
     command.__doc__ = f"Run the {entry.name} stage: {entry.summary}."
     app.command(entry.name)(command)
@@ -117,6 +133,7 @@ def acquire_command(
     backend: Annotated[str | None, typer.Option("--backend", help=key_help("acquire.backend"))] = None,
     format_: Annotated[str | None, typer.Option("--format", help=key_help("acquire.format"))] = None,
     source: Annotated[Path | None, typer.Option("--source", help=key_help("acquire.source"))] = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the acquire stage: drive the testbed (virtual) or ingest a recorded session (replay)."""
     overrides = _parsed(set_)
@@ -126,7 +143,7 @@ def acquire_command(
         overrides.append(Override.of("acquire.format", format_, "--format"))
     if source is not None:
         overrides.append(Override.of("acquire.source", str(source.resolve()), "--source"))
-    _run(["acquire"], workspace, profile, config, overrides, force)
+    _run(["acquire"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
 
 
 @app.command("render")
@@ -137,19 +154,14 @@ def render_command(
         "section.key=value to override one key (repeatable)")] = None,
     force: ForceOption = False,
     count: Annotated[int | None, typer.Option("--count", help=key_help("render.train_count"))] = None,
-    engine: Annotated[str | None, typer.Option("--engine", help=key_help("run.engine"))] = None,
-    ray_address: Annotated[str | None, typer.Option("--ray-address", help=key_help("run.ray_address"))] = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the render stage: Mitsuba 3 twins of the labels, or the training set."""
     overrides = _parsed([value for value in set_ or [] if "=" in value])
     transient = [Override.of("render.set", value, "--set") for value in set_ or [] if "=" not in value]
     if count is not None:
         overrides.append(Override.of("render.train_count", count, "--count"))
-    if engine is not None:
-        transient.append(Override.of("run.engine", engine, "--engine"))
-    if ray_address is not None:
-        transient.append(Override.of("run.ray_address", ray_address, "--ray-address"))
-    _run(["render"], workspace, profile, config, overrides, force, transient)
+    _run(["render"], workspace, profile, config, overrides, force, [*transient, *_engine(engine, ray_address, workers)])
 
 
 @app.command("evaluate")
@@ -157,12 +169,13 @@ def evaluate_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
     model: Annotated[Path | None, typer.Option("--model", help=key_help("evaluate.model"))] = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the evaluate stage: score an ONNX model on the twins and the testbed images (Table 2)."""
     overrides = _parsed(set_)
     if model is not None:
         overrides.append(Override.of("evaluate.model", str(model.resolve()), "--model"))
-    _run(["evaluate"], workspace, profile, config, overrides, force)
+    _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
 
 
 @app.command("export")
@@ -171,13 +184,14 @@ def export_command(
     set_: SetOption = None, force: ForceOption = False,
     format_: Annotated[str, typer.Option("--format", help=key_help("export.format"))] = "speedplus",
     out_dir: Annotated[Path | None, typer.Option("--out", help=key_help("export.out"))] = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the export stage: the labels and their images as a SPEED+ (or BOP) dataset. The
     format and folder are saved in W/config.toml, so `status` reports this export."""
     overrides = [*_parsed(set_), Override.of("export.format", format_, "--format")]
     if out_dir is not None:
         overrides.append(Override.of("export.out", str(out_dir.resolve()), "--out"))
-    _run(["export"], workspace, profile, config, overrides, force)
+    _run(["export"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
 
 
 @app.command("train-reference")
@@ -187,6 +201,7 @@ def train_reference_command(
     model_path: Annotated[Path, typer.Option("--out", help="where a copy of the ONNX model goes (and its card, "
                                                            ".json)")] = Path("models/reference.onnx"),
     steps: Annotated[int | None, typer.Option("--steps", help=key_help("reference.max_steps"))] = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the train-reference stage: render the synthetic training set its recipe asks for
     (section [reference]), train the reference keypoint CNN on it, export it to ONNX with
@@ -198,6 +213,7 @@ def train_reference_command(
                  Override.of("render.train_resolution_scale", recipe.resolution_scale, "reference.resolution_scale")]
     if steps is not None:
         transient.append(Override.of("reference.max_steps", steps, "--steps"))
+    transient += _engine(engine, ray_address, workers)
     ws = _run(["render", "train-reference"], workspace, profile, config, overrides, force, transient)
     row = runner.publish_model(ws, "reference", model_path)
     out.print(f"{model_path}: trained on {row['training_images']} images in {row['train_seconds']:.0f} s; "
@@ -211,6 +227,7 @@ def run_command(
     set_: SetOption = None, force: ForceOption = False,
     until: Annotated[str | None, typer.Option("--until", help="last stage to run: " + ", ".join(registry.CHAIN))]
     = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the stages of the chain in order, skipping those already up to date."""
     names = list(registry.CHAIN)
@@ -218,7 +235,7 @@ def run_command(
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, _parsed(set_), force)
+    _run(names, workspace, profile, config, _parsed(set_), force, _engine(engine, ray_address, workers))
 
 
 @app.command("status")

@@ -18,6 +18,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 from pyarrow import ArrowInvalid
 
@@ -38,6 +39,7 @@ from manifests.integrity import compact, damage, damaged_files, file_records, pa
 from manifests.schema import MANIFESTS
 from pipeline.config import Config
 from pipeline.errors import InputError
+from pipeline.progress import console
 from pipeline.registry import StageEntry
 
 
@@ -156,6 +158,8 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         remove_temporaries(workspace, name)
         # this run's rows are checked against this run's marker, never a previous one's
         workspace.success_path(name).unlink(missing_ok=True)
+        if resumed:
+            _forget_rows_without_files(workspace, name, current)
     run = stage.function()
     workspace.root.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -175,6 +179,27 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             **_complete(workspace, name, current),
         })
     return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
+
+
+def _forget_rows_without_files(workspace: Workspace, name: str, current: str) -> None:
+    """A resumed stage redoes the rows whose files are gone (deleted, or never arrived),
+    instead of completing a manifest that names files it does not have."""
+    spec = MANIFESTS.get(name)
+    if spec is None or not spec.files or not list_parts(workspace, name):
+        return
+    table = read_manifest(workspace, name)
+    missing = []
+    for row in table.select([spec.key, *spec.files]).to_pylist():
+        gone = [row[c] for c in spec.files if row[c] and not workspace.resolve(row[c]).is_file()]
+        if gone:
+            missing.append((row[spec.key], gone[0]))
+    if not missing:
+        return
+    keep = pa.array([key not in {m[0] for m in missing} for key in table.column(spec.key).to_pylist()])
+    stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
+    compact(workspace.manifest_dir(name), table.filter(keep).replace_schema_metadata(stamped), spec.key)
+    console.print(f"[yellow]{name}: {len(missing)} row(s) name files that are missing ({missing[0][1]}"
+                  f"{', ...' if len(missing) > 1 else ''}); they are redone[/]")
 
 
 def _complete(workspace: Workspace, name: str, current: str) -> dict[str, Any]:

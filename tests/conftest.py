@@ -37,16 +37,6 @@ def smoke_labelled(tmp_path_factory):
     return Workspace(root)
 
 
-@pytest.fixture(scope="session")
-def ray_cluster():
-    """One local Ray cluster for the whole session (ray.init takes seconds)."""
-    import ray
-
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray
-    ray.shutdown()
-
-
 def reseal(workspace, name):
     """Record a manifest's current parts in its completion marker, as if the stage had
     written them: for tests of what readers make of bad content (not of damage)."""

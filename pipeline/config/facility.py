@@ -34,13 +34,20 @@ class RunConfig:
     """How stages execute (not part of any stage fingerprint: it never changes results)."""
 
     part_rows: int = param(16, "rows per Parquet part; a crash loses at most one part of work", "rows")
-    workers: int = param(2, "worker processes of the local engine (spawned; each loads its renderer once)", "count")
+    workers: int = param(
+        2, "workers of the engine: local processes (each loads its renderer once), or Ray actors (at most "
+        "this many; 0: as many as the cluster's free CPUs allow)", "count")
     worker_max_tasks: int = param(
         60, "samples a worker processes before it is replaced (bounds the renderer's memory growth)", "count")
     engine: Literal["local", "ray"] = param(
-        "local", "where render runs its samples: local (spawned processes) or ray (a Ray "
-        "cluster, one renderer actor per worker); same seed, same pixels", "")
-    ray_address: str = param("", "Ray cluster to join (e.g. ray://host:10001); empty: start a local one", "")
+        "local", "where acquire (virtual), render and evaluate run their samples: local (spawned processes) or "
+        "ray (a Ray cluster, one actor per worker, no shared filesystem needed); same seed, same bytes", "")
+    ray_address: str = param(
+        "", "Ray cluster to join (auto, or host:6379 of its head node); empty: start a local one", "")
+    worker_cpus: int = param(1, "CPUs each Ray worker reserves; its renderer uses that many threads", "count")
+    start_timeout_s: float = param(
+        600.0, "how long a Ray worker may take to start (placement, code upload, Mitsuba) before the engine "
+        "gives up on it", "s")
 
 
 @dataclass(frozen=True)

@@ -127,8 +127,12 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
-    if config.run.workers < 1 or config.run.worker_max_tasks < 1:
-        raise ConfigError("run.workers/worker_max_tasks: must be at least 1")
+    if config.run.workers < 0:
+        raise ConfigError("run.workers: expected a count, or 0 for as many as there are CPUs")
+    if config.run.worker_max_tasks < 1 or config.run.worker_cpus < 1:
+        raise ConfigError("run.worker_max_tasks/worker_cpus: must be at least 1")
+    if not config.run.start_timeout_s > 0:
+        raise ConfigError("run.start_timeout_s: expected a positive number of seconds")
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
         raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
     if config.calibrate.folds < 2:

@@ -17,18 +17,20 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.sidecars import write_session, write_truth
 from pipeline.config import Config
-from pipeline.engines import map_engine
+from pipeline.engines import Produced, store
 from pipeline.progress import track
 from stages.acquire.backend import Testbed
+from stages.common.engine import map_config
 
 
-def open_testbed(config: Config, root: str) -> Testbed:
-    """The configured backend for the workspace at ``root`` (a picklable factory)."""
+def open_testbed(config: Config, root: str, plan: list[dict[str, Any]] | None = None) -> Testbed:
+    """The configured backend for the workspace at ``root`` (a picklable factory). The
+    virtual testbed's workers get the ``plan`` rows with it: they never read the workspace."""
     workspace = Workspace(root)
     if config.acquire.backend == "virtual":
         from stages.acquire.virtual import VirtualTestbed
 
-        return VirtualTestbed(config, workspace)
+        return VirtualTestbed(config, workspace, plan)
     if config.acquire.format in ("handeye", "tabb"):
         from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
         from stages.acquire.tabb import tabb_dataset
@@ -78,14 +80,16 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     todo = [s for s in samples
             if s["sample_id"] not in have_captures or (with_truth and s["sample_id"] not in have_truth)]
     part_rows = config.run.part_rows
-    workers = config.run.workers if with_truth else 1
-    engine = config.run.engine if with_truth else "local"  # replays read files: no cluster needed
-    records = map_engine(engine, open_testbed, (config, str(workspace.root)), "capture", todo, workers=workers,
-                         max_tasks=config.run.worker_max_tasks, ray_address=config.run.ray_address)
+    if with_truth:
+        records = map_config(config, open_testbed, (config, str(workspace.root), samples), "capture", todo,
+                             renders=True)
+    else:  # a replay reads its session's files where they are: no cluster needed
+        records = (testbed.capture(sample) for sample in todo)
     with open_sink(workspace, "captures", part_rows) as captures:
         truth = open_sink(workspace, "truth", part_rows) if with_truth else None
         try:
-            for record in track(records, len(todo), f"acquire ({config.acquire.backend})"):
+            for produced in track(records, len(todo), f"acquire ({config.acquire.backend})"):
+                record = store(workspace, Produced(produced, produced.files))
                 if record.captures["sample_id"] not in have_captures:
                     captures.add(record.captures)
                 if truth is not None and record.truth["sample_id"] not in have_truth:

@@ -21,6 +21,10 @@ class IngestError(InputError):
 
     def __init__(self, path: Path | str, message: str) -> None:
         super().__init__(f"{path}: {message}")
+        self.path, self.message = str(path), message
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:  # crosses process boundaries (engines)
+        return type(self), (self.path, self.message)
 
 
 def read_text(path: Path) -> str:

@@ -75,6 +75,17 @@ def channels_of(maps: SurfaceMaps, radiance: np.ndarray | None, names: tuple[str
     return {name: np.asarray(source[name], np.float32) for name in names}
 
 
+def encode(channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
+           length_scale: float = 1.0) -> bytes:
+    """The EXR file ``write`` makes, as bytes (for a worker whose driver writes its files)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="speedplus-exr-") as folder:
+        path = Path(folder) / "ground_truth.exr"
+        write(path, channels, camera, cam_from_target, length_scale)
+        return path.read_bytes()
+
+
 def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
           length_scale: float = 1.0) -> None:
     """Write the channels (ZIP-compressed) and the header atomically."""
@@ -85,6 +96,7 @@ def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_f
     spec = oiio.ImageSpec(width, height, len(names), "float")
     spec.channelnames = names
     spec.attribute("compression", "zip")
+    spec.attribute("DateTime", "")  # OpenImageIO would stamp the time: same inputs, same bytes
     header = {"version": VERSION, "camera_matrix": np.asarray(camera.camera_matrix, float).tolist(),
               "dist": [float(v) for v in camera.dist], "cam_from_target": np.asarray(cam_from_target, float).tolist(),
               "length_scale": float(length_scale), "part_ids": PART_IDS}

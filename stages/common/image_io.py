@@ -27,6 +27,10 @@ class ImageReadError(InputError):
 
     def __init__(self, path: Path | str, message: str) -> None:
         super().__init__(f"{path}: {message}")
+        self.path, self.message = str(path), message
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:  # crosses process boundaries (engines)
+        return type(self), (self.path, self.message)
 
 
 @dataclass(frozen=True)
@@ -139,12 +143,32 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint((values - low) / (high - low) * 255.0), 0, 255).astype(np.uint8)
 
 
-def write_png_atomic(path: Path, image: np.ndarray) -> None:
-    """Write ``image`` (H, W) or (H, W, 3) BGR, uint8 or uint16, as a PNG at ``path``."""
+def encode_png(image: np.ndarray) -> bytes:
+    """The PNG file of ``image`` (H, W) or (H, W, 3) BGR, uint8 or uint16."""
     ok, encoded = cv2.imencode(".png", image)
     if not ok:
-        raise OSError(f"could not encode {path}")
-    write_bytes_atomic(path, encoded.tobytes())
+        raise OSError(f"could not encode a {image.dtype} image of shape {image.shape} as PNG")
+    return encoded.tobytes()
+
+
+def write_png_atomic(path: Path, image: np.ndarray) -> None:
+    """Write ``image`` (H, W) or (H, W, 3) BGR, uint8 or uint16, as a PNG at ``path``."""
+    write_bytes_atomic(path, encode_png(image))
+
+
+def decode_image(data: bytes, name: str, mode: Literal["gray", "bgr", "unchanged"] = "unchanged") -> np.ndarray:
+    """``read_image`` of a file's bytes (sent to a worker that cannot see the file);
+    ``name`` (its workspace path) gives the format by its suffix and names it in errors."""
+    import tempfile
+
+    suffix = Path(name).suffix.lower()
+    with tempfile.TemporaryDirectory(prefix="speedplus-image-") as folder:
+        path = Path(folder) / f"image{suffix}"
+        path.write_bytes(data)
+        try:
+            return read_image(path, mode)
+        except ImageReadError as error:
+            raise ImageReadError(name, str(error).split(": ", 1)[-1]) from None
 
 
 def ingest_image(source: Path, destination_png: Path) -> tuple[Path, str | None]:

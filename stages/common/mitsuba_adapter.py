@@ -25,33 +25,45 @@ OPENCV_FROM_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
 _CACHE_LOCKS: list[int] = []
+#: cache slots per host: more renderers than this on one host compile into temporary caches
+CACHE_SLOTS = 256
+#: the variant every renderer should use; a Ray worker that would use another is refused
+PREFERRED_VARIANT = "llvm_ad_rgb"
 
 
 def private_kernel_cache() -> None:
     """Give this process a Dr.Jit kernel cache of its own (before Dr.Jit is imported).
 
     Worker processes compiling at the same time never write one cache file at once: each
-    takes the first free cache slot (an flock held for its lifetime, released even when it
-    is killed) and reuses it in later runs.
+    takes the first free cache slot of its host (an flock held for its lifetime, released
+    even when it is killed) and reuses it in later runs. Slots are kept per host name, as
+    many cluster nodes may share one home directory (where flock is not to be trusted across
+    hosts); a process that finds no free slot compiles into a temporary cache of its own.
     """
     if "DRJIT_CACHE_DIR" in os.environ:
         return
     import fcntl
+    import socket
+    import tempfile
     from pathlib import Path
 
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "drjit"
-    for slot in range(256):
-        directory = base / f"slot-{slot}"
-        directory.mkdir(parents=True, exist_ok=True)
-        handle = os.open(directory / ".lock", os.O_CREAT | os.O_RDWR)
+    for slot in range(CACHE_SLOTS):
+        directory = base / socket.gethostname() / f"slot-{slot}"
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            handle = os.open(directory / ".lock", os.O_CREAT | os.O_RDWR)
+        except OSError:
+            break  # a read-only or full home: fall through to a private cache
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        except OSError:
             os.close(handle)
             continue
         _CACHE_LOCKS.append(handle)
         os.environ["DRJIT_CACHE_DIR"] = str(directory)
         return
+    os.environ["DRJIT_CACHE_DIR"] = tempfile.mkdtemp(prefix="speedplus-drjit-")
 
 
 def load_mitsuba() -> Any:
@@ -65,7 +77,7 @@ def load_mitsuba() -> Any:
                 os.environ["DRJIT_LIBLLVM_PATH"] = candidate
                 break
     try:
-        mi.set_variant("llvm_ad_rgb")
+        mi.set_variant(PREFERRED_VARIANT)
     except Exception as error:  # noqa: BLE001 - any failure of the LLVM backend means: fall back
         warnings.warn(f"Mitsuba llvm_ad_rgb unavailable ({error}); rendering with the slow scalar_rgb variant. "
                       "Install Debian libllvm19 (make setup does, as root).", RuntimeWarning, stacklevel=2)
@@ -78,11 +90,19 @@ def render_threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
+def variant(mi: Any) -> dict[str, str]:
+    """What a render worker reports to the engine (``pipeline.engines.cluster``)."""
+    return {"mitsuba_variant": mi.variant()}
+
+
 def set_threads(threads: int) -> None:
-    """Dr.Jit's thread count for this process (fixed per engine: part of what makes pixels reproducible)."""
+    """Dr.Jit's thread count for this process: ``threads``, or in a Ray worker the CPUs Ray
+    reserved for it (the pixels do not depend on it: measured bit-identical with 1 and 2)."""
     import drjit as dr
 
-    dr.set_thread_count(max(1, threads))
+    from pipeline.engines import worker_cpus
+
+    dr.set_thread_count(max(1, worker_cpus(threads)))
 
 
 def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, rfilter: Literal["box", "gaussian"],

@@ -125,17 +125,20 @@ class PoseModel:
     label's box, for ``oracle_box`` crops) into the model's input, ``infer`` runs a batch;
     evaluate turns the outputs into poses (``decode_heatmaps``, ``pose_from_keypoints``)."""
 
-    def __init__(self, path: Path, threads: int = 1) -> None:
+    def __init__(self, path: Path | bytes, threads: int = 1, name: str = "") -> None:
+        """``path``: the model file, or its bytes (a worker that cannot see the file) with
+        ``name`` to call it in messages."""
         import onnxruntime as ort
 
-        source = str(path)
-        if not Path(path).exists():
+        source = (name or "model") if isinstance(path, bytes) else str(path)
+        if not isinstance(path, bytes) and not Path(path).exists():
             raise InputError(f"{source}: model file not found")
         options = ort.SessionOptions()
         options.intra_op_num_threads = max(1, threads)
         options.inter_op_num_threads = 1
         try:
-            self.session = ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(path if isinstance(path, bytes) else source, options,
+                                                providers=["CPUExecutionProvider"])
         except Exception as error:  # noqa: BLE001 - onnxruntime raises several types for unreadable models
             raise InputError(f"{source}: not a loadable ONNX model ({error})") from None
         self.contract = parse_contract(self.session.get_modelmeta().custom_metadata_map, source)

@@ -9,11 +9,10 @@ configuration), and prints Table 2.
 
 from __future__ import annotations
 
-import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
 from rich.console import Console
 
@@ -22,11 +21,11 @@ from manifests import clear as clear_manifest
 from manifests.integrity import sha256
 from pipeline.config import Config
 from pipeline.progress import track
-from stages.common import geometry as g
-from stages.common.image_io import read_image, to_uint8
-from stages.common.pose_model import PoseModel, decode_heatmaps, pose_from_keypoints
-from stages.common.scores import score
+from stages.common.engine import map_config
+from stages.common.image_io import ImageReadError
+from stages.common.pose_model import PoseModel
 from stages.common.sidecars import calibrated_camera
+from stages.evaluate.scorer import open_scorer
 from stages.evaluate.table import print_table2, summarise
 
 REPOSITORY = Path(__file__).resolve().parents[2]
@@ -67,68 +66,43 @@ def _items(workspace: Workspace) -> list[dict[str, Any]]:
     return items
 
 
-def predict(model: PoseModel, workspace: Workspace, items: list[dict[str, Any]], camera_matrix: np.ndarray,
-            dist: np.ndarray, reprojection_fraction: float) -> list[dict[str, Any]]:
-    """Prediction rows for a batch of items."""
-    started = time.perf_counter()
-    tensors, image_from_input, widths = [], [], []
-    for item in items:
-        path = workspace.resolve(item["image_path"])
-        image = to_uint8(read_image(path, "bgr"))  # 16-bit and float captures scaled by their range
-        tensor, affine = model.preprocess(image, np.asarray(item["box"]))
-        tensors.append(tensor)
-        image_from_input.append(affine)
-        widths.append(image.shape[1])
-    outputs = model.infer(np.stack(tensors))
-    contract = model.contract
-    if contract.output == "pose":
-        poses = list(zip(outputs[0], outputs[1], strict=True))
-    else:
-        if contract.output == "heatmaps":
-            points, _ = decode_heatmaps(outputs[0], contract.width, contract.height)
-        else:
-            points = np.asarray(outputs[0], float)
-        poses = []
-        for keypoints, affine, width in zip(points, image_from_input, widths, strict=True):
-            in_image = keypoints @ affine[:2, :2].T + affine[:2, 2]
-            poses.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
-                                             reprojection_fraction * width))
-    seconds = (time.perf_counter() - started) / len(items)
-    rows = []
-    for item, pose in zip(items, poses, strict=True):
-        found = pose is not None and bool(np.all(np.isfinite(pose[0])) and np.all(np.isfinite(pose[1]))
-                                          and np.linalg.norm(pose[0]) > 0)
-        if found:
-            q = g.quat_normalize(pose[0])
-            t = np.asarray(pose[1], float)
-            numbers = {k: float(v) for k, v in score(q, t, item["q_true"], item["t_true"]).items()}
-        else:
-            q = t = None
-            numbers = {"err_q_rad": float(np.pi), "err_t_norm": 1.0}
-            numbers |= {"score_speed": np.pi + 1.0, "score_speedplus": np.pi + 1.0}
-        rows.append({"prediction_id": f"{item['domain']}:{item['sample_id']}", "sample_id": item["sample_id"],
-                     "domain": item["domain"], "view": item["view"], "light": item["light"], "crop": contract.crop,
-                     "pose_found": found, "q_pred": q, "t_pred": t, **numbers, "seconds": seconds})
-    return rows
+def _with_images(workspace: Workspace) -> Callable[[list[dict[str, Any]]], list[dict[str, Any]]]:
+    """Attach each image's bytes to its item, in the driver, just before the batch is sent."""
+    def prepare(batch: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        out = []
+        for item in batch:
+            path = workspace.resolve(item["image_path"])
+            try:
+                data = path.read_bytes()
+            except OSError as error:
+                raise ImageReadError(workspace.display(path), f"missing or unreadable image ({error.strerror})") \
+                    from None
+            out.append({**item, "image_bytes": data})
+        return out
+
+    return prepare
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Score every image missing from ``predictions``, then rewrite the ``scores`` summary."""
     path = model_path(config)
-    model = PoseModel(path, threads=config.evaluate.threads)
+    contract = PoseModel(path, threads=1).contract  # a bad model fails here, naming its file
     camera = calibrated_camera(workspace)
     done = read_keys(workspace, "predictions")
     items = [item for item in _items(workspace) if f"{item['domain']}:{item['sample_id']}" not in done]
     batch = config.evaluate.batch_size
+    # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
     batches = [items[i:i + batch] for i in range(0, len(items), batch)]
+    args = (path.read_bytes(), str(path), config.evaluate.threads, camera.camera_matrix, camera.dist,
+            config.evaluate.ransac_fraction)
+    results = map_config(config, open_scorer, args, "score", batches, renders=False, prepare=_with_images(workspace))
     with open_sink(workspace, "predictions", config.run.part_rows) as sink:
-        for chunk in track(batches, len(batches), f"evaluate {path.name} (batches of {batch})"):
-            for row in predict(model, workspace, chunk, camera.camera_matrix, camera.dist,
-                               config.evaluate.ransac_fraction):
+        for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, {config.run.engine})"):
+            for row in rows:
                 sink.add(row)
     predictions = read_manifest(workspace, "predictions")
     table = summarise(predictions.to_pylist())
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
     write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
-    Console().print(print_table2(table, path.name, model.contract.crop))  # results: standard output
+    Console().print(print_table2(table, path.name, contract.crop))  # results: standard output
     return predictions

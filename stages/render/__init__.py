@@ -17,9 +17,10 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.files import write_json_atomic
 from pipeline.config import Config
-from pipeline.engines import map_engine
+from pipeline.engines import store
 from pipeline.progress import console, track
 from stages.common.cameras import train_camera
+from stages.common.engine import map_config
 from stages.common.mitsuba_adapter import render_threads
 from stages.common.sidecars import calibrated_camera
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
@@ -61,11 +62,11 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     run_config = config.run
     threads = render_threads(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
-    args = (camera, str(workspace.root), spp, config.render.max_depth, threads, config.render.ground_truth)
-    rows = map_engine(run_config.engine, open_worker, args, "render", todo, workers=run_config.workers,
-                      max_tasks=run_config.worker_max_tasks, ray_address=run_config.ray_address)
+    args = (camera, spp, config.render.max_depth, threads, config.render.ground_truth)
+    produced = map_config(config, open_worker, args, "render", todo, renders=True)
     with open_sink(workspace, name, run_config.part_rows) as sink:
-        for row in track(rows, len(todo), f"render {config.render.set} ({run_config.engine})"):
+        for output in track(produced, len(todo), f"render {config.render.set} ({run_config.engine})"):
+            row = store(workspace, output)
             if "rejected" in row:
                 rejected.append({"sample_id": row["sample_id"], "reason": row["rejected"]})
             else:

@@ -1,6 +1,7 @@
 """A render worker: turns a ``RenderJob`` into an 8-bit RGB PNG, a mask PNG, the per-pixel
 ground truth (``stages.common.ground_truth``) and a ``renders`` row. One per process
-(local engine) or Ray actor; the scene loads once.
+(local engine) or Ray actor; the scene loads once. It never touches the workspace: the
+files go back to the driver with the row (``pipeline.engines.Produced``).
 
 The mask and the ground truth are ray-cast at the output pixel centres through the lens
 (``stages.common.surface``) in the render's own scene: exact per pixel, where remapping a
@@ -13,15 +14,15 @@ image's brightness follows its light, as in SPEED+'s synthetic images.
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 
-from manifests import Workspace
+from pipeline.engines import Produced
 from stages.common import geometry as g
 from stages.common import ground_truth, tango
-from stages.common.image_io import write_png_atomic
+from stages.common.image_io import encode_png
 from stages.common.lens import LensCamera
+from stages.common.mitsuba_adapter import variant
 from stages.common.surface import TangoSurfaces
 from stages.render.earth import earth_background
 from stages.render.jobs import RenderJob
@@ -46,14 +47,17 @@ def mask_bbox(mask: np.ndarray) -> np.ndarray:
 
 
 class RenderWorker:
-    """Renders jobs of one camera into the workspace at ``root``."""
+    """Renders jobs of one camera."""
 
-    def __init__(self, camera: LensCamera, root: str, spp: int, max_depth: int, threads: int,
+    def __init__(self, camera: LensCamera, spp: int, max_depth: int, threads: int,
                  with_ground_truth: bool = True) -> None:
-        self.camera, self.workspace, self.spp = camera, Workspace(root), spp
+        self.camera, self.spp = camera, spp
         self.renderer = TangoRenderer(camera, spp=spp, max_depth=max_depth, threads=threads)
         self.surfaces = TangoSurfaces(self.renderer.scene)
         self.with_ground_truth = with_ground_truth
+
+    def describe(self) -> dict[str, str]:
+        return variant(self.renderer.mi)
 
     def radiance(self, job: RenderJob) -> np.ndarray:
         """Linear radiance (H, W, 3) of a job: the render, over the Earth when it has one."""
@@ -65,27 +69,24 @@ class RenderWorker:
             rgb = rgb + (1.0 - alpha) * background  # the render's rgb is premultiplied by coverage
         return rgb
 
-    def render(self, job: RenderJob) -> dict[str, Any]:
-        """Render, write the PNGs and the ground truth atomically, and return the job's
-        ``renders`` row; or, when the target covers no pixel centre, ``{"sample_id",
-        "rejected": reason}`` and no files."""
+    def render(self, job: RenderJob) -> Produced:
+        """Render; the job's ``renders`` row with its PNGs and ground truth, or, when the
+        target covers no pixel centre, ``{"sample_id", "rejected": reason}`` and no files."""
         started = time.perf_counter()
         radiance = self.radiance(job)
         maps = self.surfaces.through_lens(job.cam_from_target(), self.camera)
         mask = maps.mask
         if not mask.any():
-            return {"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"}
-        write_png_atomic(self.workspace.resolve(job.image_path),
-                         np.ascontiguousarray(to_srgb8(radiance * EXPOSURE)[..., ::-1]))
-        write_png_atomic(self.workspace.resolve(job.mask_path), mask.astype(np.uint8) * 255)
+            return Produced({"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"})
+        files = {job.image_path: encode_png(np.ascontiguousarray(to_srgb8(radiance * EXPOSURE)[..., ::-1])),
+                 job.mask_path: encode_png(mask.astype(np.uint8) * 255)}
         ground_truth_path = None
         if self.with_ground_truth:
             ground_truth_path = job.ground_truth_path
             channels = ground_truth.channels_of(maps, radiance, ground_truth.RADIANCE + ground_truth.GEOMETRY)
-            ground_truth.write(self.workspace.resolve(ground_truth_path), channels, self.camera,
-                               job.cam_from_target())
+            files[ground_truth_path] = ground_truth.encode(channels, self.camera, job.cam_from_target())
         keypoints = g.project(job.cam_from_target(), tango.KEYPOINTS_M, self.camera.camera_matrix, self.camera.dist)
-        return {
+        return Produced({
             "sample_id": job.sample_id, "set": job.set, "image_path": job.image_path, "mask_path": job.mask_path,
             "ground_truth_path": ground_truth_path,
             "q_vbs2tango_true": list(job.q_vbs2tango_true), "r_Vo2To_vbs_true": list(job.r_Vo2To_vbs_true),
@@ -93,10 +94,10 @@ class RenderWorker:
             "keypoints_px": keypoints, "bbox_px": mask_bbox(mask),
             "width": self.camera.width, "height": self.camera.height,
             "seed": job.seed, "spp": self.spp, "seconds": time.perf_counter() - started,
-        }
+        }, files)
 
 
-def open_worker(camera: LensCamera, root: str, spp: int, max_depth: int, threads: int,
+def open_worker(camera: LensCamera, spp: int, max_depth: int, threads: int,
                 with_ground_truth: bool = True) -> RenderWorker:
     """Picklable factory for the engines."""
-    return RenderWorker(camera, root, spp, max_depth, threads, with_ground_truth)
+    return RenderWorker(camera, spp, max_depth, threads, with_ground_truth)

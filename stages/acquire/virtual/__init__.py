@@ -19,8 +19,9 @@ from stages.acquire.virtual.truth import Truth, draw_truth
 from stages.common import geometry as g
 from stages.common import ground_truth
 from stages.common.geometry import pose_columns
-from stages.common.image_io import write_png_atomic
+from stages.common.image_io import encode_png
 from stages.common.kinematics import link_points
+from stages.common.mitsuba_adapter import variant
 from stages.common.patterns import board_pattern
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
@@ -29,8 +30,8 @@ SESSION_CODES = {"calibration": 0, "dataset": 1}
 class VirtualTestbed:
     """Implements ``stages.acquire.backend.Testbed``; the renderer loads on first capture."""
 
-    def __init__(self, config: Config, workspace: Workspace) -> None:
-        self.config, self.workspace = config, workspace
+    def __init__(self, config: Config, workspace: Workspace, plan: list[dict[str, Any]] | None = None) -> None:
+        self.config, self.workspace, self._plan = config, workspace, plan
         self.truth: Truth = draw_truth(config)
         cameras = self.truth.unmodelled.camera_by_session
         self.sensor = Sensor(cameras["calibration"], config.virtual)
@@ -48,7 +49,13 @@ class VirtualTestbed:
         self.mocap_errors = mocap.SystemErrors(u.vicon_scale, u.vicon_camera_errors, u.vicon_reflection_bias_m)
 
     def samples(self) -> list[dict[str, Any]]:
-        return read_manifest(self.workspace, "plan").to_pylist()
+        if self._plan is None:
+            self._plan = read_manifest(self.workspace, "plan").to_pylist()
+        return self._plan
+
+    def describe(self) -> dict[str, str]:
+        """What a worker reports to the engine: the variant its camera renders with."""
+        return variant(self.scene.mi)
 
     def moment(self, sample: dict[str, Any]) -> Moment:
         """The capture's place in its session's timeline (computed once from the plan)."""
@@ -96,9 +103,12 @@ class VirtualTestbed:
         image = self.photograph(state, session, sample["light"], list(sample["light_boxes"]), rng,
                                 seed=SESSION_CODES[session] * 1_000_000 + index)
         image_path = self.workspace.image_relpath(session, sample_id)
-        write_png_atomic(self.workspace.resolve(image_path), image)
+        files = {image_path: encode_png(image)}
         cam_from_target = g.invert(state.world_from_cam) @ state.world_from_target
-        maps_path = self.write_truth_maps(sample_id, session, cam_from_target) if session == "dataset" else None
+        maps_path = None
+        if session == "dataset":
+            maps_path = TRUTH_MAPS_TEMPLATE.format(sample_id=sample_id)
+            files[maps_path] = self.truth_maps(session, cam_from_target)
         captures = {
             "sample_id": sample_id, "session": session, "fixture": sample["mount"], "image_path": image_path,
             "source_image": None, "image_conversion": None,
@@ -119,11 +129,11 @@ class VirtualTestbed:
             "vicon_camrb_ghost": camera_body.ghost, "vicon_targetrb_ghost": target_body.ghost,
             "maps_path": maps_path,
         }
-        return CaptureRecord(captures, truth_row)
+        return CaptureRecord(captures, truth_row, files)
 
-    def write_truth_maps(self, sample_id: str, session: str, cam_from_target: np.ndarray) -> str:
+    def truth_maps(self, session: str, cam_from_target: np.ndarray) -> bytes:
         """Depth and part ids of the mock-up at its TRUE pose, through the session's true
-        lens (``stages.common.ground_truth``), for evaluation only; returns the W path."""
+        lens (``stages.common.ground_truth``), for evaluation only: the EXR file's bytes."""
         from stages.common.surface import TangoSurfaces
 
         if self._surfaces is None:
@@ -133,11 +143,8 @@ class VirtualTestbed:
         full_scale[:3, 3] /= scale  # the mesh is the full-scale Tango; the mock-up is it scaled
         camera = lens_camera(self.sensors[session].camera)
         maps = self._surfaces.through_lens(full_scale, camera)
-        relpath = TRUTH_MAPS_TEMPLATE.format(sample_id=sample_id)
-        ground_truth.write(self.workspace.resolve(relpath), ground_truth.channels_of(maps, None, ground_truth.TRUTH,
-                                                                                      scale),
-                           camera, cam_from_target, scale)
-        return relpath
+        return ground_truth.encode(ground_truth.channels_of(maps, None, ground_truth.TRUTH, scale), camera,
+                                   cam_from_target, scale)
 
     def photograph(self, state: robots.RobotState, session: str, light: str, boxes: list[int],
                    rng: np.random.Generator, seed: int) -> np.ndarray:

@@ -140,20 +140,3 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
         a = cv2.imread(str(Workspace(ws).resolve(name)), cv2.IMREAD_UNCHANGED)
         b = cv2.imread(str(smoke_workspace.resolve(name)), cv2.IMREAD_UNCHANGED)
         assert np.array_equal(a, b), name
-
-
-def test_ray_engine_acquires_the_same_captures(smoke_workspace, ray_cluster, tmp_path):
-    from pipeline import registry, runner
-    from pipeline.config import load_config
-
-    ws = Workspace(tmp_path / "ray")
-    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws.root)).returncode == 0
-    config = load_config(None, ws.config_path, ["run.engine=ray"])
-    runner.run_stage(registry.stage("acquire"), config, ws)
-    got = read_manifest(ws, "captures").sort_by("sample_id")
-    assert got.equals(read_manifest(smoke_workspace, "captures").sort_by("sample_id"))
-    for name in got.column("image_path").to_pylist():
-        assert ws.resolve(name).read_bytes() == smoke_workspace.resolve(name).read_bytes(), name
-    for name in ("captures", "truth"):  # another engine, another finishing order: the same bytes
-        assert [p.read_bytes() for p in list_parts(ws, name)] == [p.read_bytes() for p in
-                                                                   list_parts(smoke_workspace, name)], name

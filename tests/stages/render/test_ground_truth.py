@@ -8,7 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
+from manifests import Workspace
 from pipeline.config import load_config
+from pipeline.engines import store
 from stages.common import geometry as g
 from stages.common import ground_truth
 from stages.common.cameras import train_camera
@@ -27,8 +29,8 @@ def rendered(tmp_path_factory):
     root = tmp_path_factory.mktemp("ground_truth")
     config = load_config("default", None, ["render.train_spp=4"])
     camera = train_camera(config)
-    worker = RenderWorker(camera, str(root), 4, config.render.max_depth, 2)
-    rows = [worker.render(job) for job in train_jobs(config)[:6]]
+    worker = RenderWorker(camera, 4, config.render.max_depth, 2)
+    rows = [store(Workspace(root), worker.render(job)) for job in train_jobs(config)[:6]]
     rows = [row for row in rows if "rejected" not in row]
     assert len(rows) == 6
     return root, camera, rows, [ground_truth.read(root / row["ground_truth_path"], ALL) for row in rows]
@@ -128,9 +130,9 @@ def test_radiance_is_the_png_before_its_tone_map(rendered):
 
 def test_the_switch_turns_the_ground_truth_off(tmp_path):
     config = load_config("smoke", None, ["render.train_spp=2"])
-    worker = RenderWorker(train_camera(config), str(tmp_path), 2, config.render.max_depth, 2, False)
-    row = worker.render(train_jobs(config)[0])
-    assert row["ground_truth_path"] is None and not list(tmp_path.rglob("*.exr"))
+    worker = RenderWorker(train_camera(config), 2, config.render.max_depth, 2, False)
+    produced = worker.render(train_jobs(config)[0])
+    assert produced.value["ground_truth_path"] is None and not any(p.endswith(".exr") for p in produced.files)
 
 
 def test_a_bad_file_is_an_error_naming_file_and_key(rendered, tmp_path):

@@ -84,10 +84,13 @@ def test_job_pose_round_trip():
 def test_a_target_outside_the_image_is_rejected_not_written(tmp_path):
     from stages.render.worker import RenderWorker
 
-    worker = RenderWorker(lens_camera(load_config("smoke").camera), str(tmp_path), 4, 2, 2)
+    worker = RenderWorker(lens_camera(load_config("smoke").camera), 4, 2, 2)
     job = RenderJob("img000001", "twin", (1.0, 0.0, 0.0, 0.0), (40.0, 0.0, 8.0), (0.0, 0.0, -1.0), 3.0, False, 1)
-    assert worker.render(job) == {"sample_id": "img000001", "rejected": "the target covers no pixel of the image"}
-    assert not (tmp_path / job.image_path).exists() and not (tmp_path / job.mask_path).exists()
+    outside = worker.render(job)
+    assert outside.value == {"sample_id": "img000001", "rejected": "the target covers no pixel of the image"}
+    assert outside.files == {}
     inside = worker.render(RenderJob("img000002", "twin", (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 8.0), (0.0, 0.0, -1.0),
                                      3.0, False, 1))
-    assert (tmp_path / inside["image_path"]).exists() and inside["bbox_px"][2] > inside["bbox_px"][0]
+    row = inside.value
+    assert {row["image_path"], row["mask_path"], row["ground_truth_path"]} == set(inside.files)
+    assert row["bbox_px"][2] > row["bbox_px"][0]

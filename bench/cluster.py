@@ -1,0 +1,125 @@
+"""The Ray engine's scaling and the paper profile's cost model.
+
+    python -m bench cluster [TRAIN_IMAGES]      (default 24)
+
+1. Cost model: CPU-seconds per capture (virtual testbed) and per twin at each profile's
+   resolution, one process with one thread (what one Ray worker of one CPU does).
+2. Scaling: the same stage (rendering TRAIN_IMAGES default-profile training images) on a
+   one-node Ray cluster of one CPU and on two nodes of one CPU each, the second in its own
+   mount namespace without the workspace (this machine has two cores); efficiency =
+   T(1 node) / (2 x T(2 nodes)).
+3. Projection: the paper profile's CPU-seconds (its captures, twins and training images at
+   the measured costs) over N nodes of C cores at the measured efficiency.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.common import report
+from manifests import Workspace
+from pipeline.config import Override, load_config, with_overrides
+from pipeline.engines.local_cluster import ENV, LocalCluster
+from stages.acquire.virtual.sensor import lens_camera
+from stages.common.cameras import train_camera
+from stages.common.lens import LensCamera
+from stages.plan import plan_sample, sample_ids
+from stages.render.jobs import RenderJob
+from stages.render.worker import RenderWorker
+
+PROFILES = ("smoke", "default", "paper")
+
+
+def _capture_seconds(profile: str, count: int) -> float:
+    """CPU-seconds of one capture (after the first: scene load and JIT excluded)."""
+    from stages.acquire.virtual import VirtualTestbed
+
+    config = load_config(profile)
+    items = [item for item in sample_ids(config) if item[0] == "dataset"][: count + 1]
+    plans = [plan_sample(config, *item) for item in items]
+    with tempfile.TemporaryDirectory() as directory:
+        testbed = VirtualTestbed(config, Workspace(directory), plans)
+        testbed.capture(plans[0])
+        started = time.process_time()
+        for plan in plans[1:]:
+            testbed.capture(plan)
+        return (time.process_time() - started) / count
+
+
+def _render_seconds(camera: LensCamera, spp: int, max_depth: int, count: int) -> float:
+    """CPU-seconds of one synthetic image (the target 4-8 m away, full scale), ground truth included."""
+    worker = RenderWorker(camera, spp, max_depth, 1)
+    jobs = []
+    for i in range(count + 1):
+        q = np.array([0.9, 0.1 * i, 0.3, 0.1])
+        jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q / np.linalg.norm(q)), (0.1 * i, -0.2, 4.0 + i),
+                              (0.3, 0.2, -0.9), 3.0, False, i))
+    worker.render(jobs[0])
+    started = time.process_time()
+    for job in jobs[1:]:
+        worker.render(job)
+    return (time.process_time() - started) / count
+
+
+def _render_on(cluster: LocalCluster, root: Path, images: int) -> float:
+    """Wall seconds of `speedplus render --set train` on the cluster (a fresh workspace)."""
+    command = [sys.executable, "-m", "pipeline.cli", "render", "--profile", "default", "--workspace", str(root),
+               "--set", "train", "--count", str(images), "--engine", "ray", "--ray-address", cluster.address,
+               "--workers", "0"]
+    started = time.perf_counter()
+    result = subprocess.run(command, capture_output=True, text=True, env={**os.environ, **ENV})
+    if result.returncode != 0:
+        raise RuntimeError(result.stderr[-2000:])
+    return time.perf_counter() - started
+
+
+def main(images: str = "24") -> None:
+    count = int(images)
+    costs = []
+    for profile in PROFILES:
+        config = load_config(profile)
+        samples = len(sample_ids(config))
+        per_capture = _capture_seconds(profile, 1 if profile == "paper" else 3)
+        renders = 2 if profile == "paper" else 4
+        per_twin = _render_seconds(lens_camera(config.camera), config.render.spp, config.render.max_depth, renders)
+        training = with_overrides(config, [Override.of("render.train_resolution_scale",
+                                                       config.reference.resolution_scale, "bench")])
+        per_image = _render_seconds(train_camera(training), config.render.train_spp, config.render.max_depth, renders)
+        dataset = sum(1 for item in sample_ids(config) if item[0] == "dataset")
+        cpu_seconds = samples * per_capture + dataset * per_twin + config.reference.images * per_image
+        costs.append({"profile": profile, "image": f"{config.camera.width_px}x{config.camera.height_px}",
+                      "CPU-s per capture": per_capture, "CPU-s per twin": per_twin,
+                      "CPU-s per training image": per_image, "captures": samples, "twins (at most)": dataset,
+                      "training images": config.reference.images, "CPU-s in all": cpu_seconds})
+    report("cluster_costs", "cost model: CPU-seconds per item, one worker of one CPU", costs)
+
+    with tempfile.TemporaryDirectory() as base:
+        hidden = Path(base) / "hidden"
+        with LocalCluster(head_cpus=1) as cluster:
+            one = _render_on(cluster, hidden / "one", count)
+            cluster.add_node(1, hidden)
+            two = _render_on(cluster, hidden / "two", count)
+    efficiency = one / (2 * two)
+    scaling = [{"cluster": "1 node x 1 CPU", "images": count, "wall s": one, "images per s": count / one},
+               {"cluster": "2 nodes x 1 CPU (no shared workspace)", "images": count, "wall s": two,
+                "images per s": count / two},
+               {"cluster": "efficiency T1 / (2 T2)", "images": count, "wall s": efficiency, "images per s": "-"}]
+    report("cluster_scaling", "Ray engine: one node against two (default training images, incl. start-up)",
+           scaling)
+
+    paper = next(row for row in costs if row["profile"] == "paper")
+    projection = []
+    for nodes in (1, 4, 16, 64):
+        for cores in (16,):
+            wall = paper["CPU-s in all"] / (nodes * cores * efficiency)
+            projection.append({"nodes x cores": f"{nodes} x {cores}", "paper profile wall (min)": wall / 60,
+                               "assumes efficiency": efficiency})
+    report("cluster_projection", "paper profile: projected wall time (CPU-seconds / (nodes x cores x efficiency))",
+           projection, {"efficiency": efficiency, "paper_cpu_seconds": paper["CPU-s in all"]})

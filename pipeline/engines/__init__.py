@@ -1,0 +1,87 @@
+"""Execution engines: map a per-sample method over samples, in this process, in spawned
+local processes (``local``) or on a Ray cluster (``cluster``) (docs/architecture.md section 10).
+
+Workers never touch the workspace. A per-sample call returns ``Produced``: the value for
+the driver (a manifest row, a record) and the bytes of the files it made, by workspace
+path. The driver writes them (``store``) before the row, each atomically, so any cluster
+works without a shared filesystem, an interrupted stage never leaves a row without its
+files, and the bytes do not depend on the engine, the worker count or the finishing order.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any, Literal
+
+from manifests import Workspace
+from manifests.files import write_bytes_atomic
+from pipeline.engines.local import map_local
+from pipeline.errors import InputError
+
+#: set in a Ray worker to the CPUs Ray reserved for it: its renderer uses that many threads
+WORKER_CPUS_ENV = "SPEEDPLUS_WORKER_CPUS"
+
+#: distributions whose versions decide the bytes a worker makes: every worker must match the
+#: driver (this repository's own code ships with the job)
+PINNED_DISTRIBUTIONS = ("mitsuba", "drjit", "numpy", "opencv-contrib-python-headless",
+                        "onnxruntime", "OpenImageIO")
+
+__all__ = ["EngineError", "Produced", "environment", "map_engine", "map_local", "store", "worker_cpus"]
+
+
+class EngineError(InputError):
+    """The cluster cannot run the stage (unreachable, no free CPU, a worker that would make
+    other bytes, a sample that keeps killing its worker); exit code 1, with what to do."""
+
+
+@dataclass(frozen=True)
+class Produced:
+    """What one per-sample call returns: ``value`` for the driver and ``files`` it made
+    (workspace-relative path -> bytes), which the driver writes."""
+
+    value: Any
+    files: dict[str, bytes] = field(default_factory=dict)
+
+
+def store(workspace: Workspace, produced: Produced) -> Any:
+    """Write ``produced``'s files into the workspace (each atomically; a path that would
+    leave it is refused) and return its value, which may then be recorded."""
+    for relpath, data in produced.files.items():
+        write_bytes_atomic(workspace.resolve(relpath), data)
+    return produced.value
+
+
+def environment() -> dict[str, str]:
+    """Python and the versions of ``PINNED_DISTRIBUTIONS`` in this process."""
+    versions = {"python": platform.python_version()}
+    for name in PINNED_DISTRIBUTIONS:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+def worker_cpus(default: int) -> int:
+    """The CPUs reserved for this worker by the cluster, else ``default``."""
+    value = os.environ.get(WORKER_CPUS_ENV, "")
+    return int(value) if value.isdigit() and int(value) > 0 else default
+
+
+def map_engine(engine: Literal["local", "ray"], factory: Callable[..., Any], args: tuple[Any, ...], method: str,
+               items: list[Any], *, workers: int, max_tasks: int, ray_address: str = "", worker_cpus: int = 1,
+               prepare: Callable[[Any], Any] | None = None, expect: dict[str, str] | None = None,
+               start_timeout_s: float = 600.0) -> Iterator[Any]:
+    """``factory(*args).<method>(prepare(item))`` for every item, as results complete, on
+    ``map_local`` or ``cluster.map_ray`` (``expect``: what each Ray worker's ``describe``
+    must report, beyond the driver's ``environment``)."""
+    if engine == "ray":
+        from pipeline.engines.cluster import map_ray
+
+        return map_ray(factory, args, method, items, workers=workers, max_tasks=max_tasks, address=ray_address,
+                       worker_cpus=worker_cpus, prepare=prepare, expect=expect, start_timeout_s=start_timeout_s)
+    return map_local(factory, args, method, items, workers=workers, max_tasks=max_tasks, prepare=prepare)

@@ -1,0 +1,154 @@
+"""The Ray engine on a two-node cluster without a shared filesystem (issue 15).
+
+The head node and the driver see the workspace; the second node runs in its own mount
+namespace with an empty tmpfs over the workspace, so a worker that read or wrote the
+workspace itself would fail or lose files there. acquire, render and evaluate must make
+the bytes of a local run, and must survive a killed worker and a killed node.
+"""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from manifests import Workspace, list_parts
+from pipeline.engines.local_cluster import ENV, LocalCluster, free_port
+from tests.conftest import speedplus
+
+VOLATILE = ("seconds",)
+
+pytestmark = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("unshare") is None,
+                                reason="a node in its own mount namespace needs root and unshare")
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory):
+    """Where the cluster's workspaces live (hidden from the second node), and a local
+    reference: the smoke workspace rendered and evaluated by the local engine."""
+    base = tmp_path_factory.mktemp("cluster")
+    return base / "hidden", base / "local"
+
+
+@pytest.fixture(scope="module")
+def local_reference(smoke_labelled, places):
+    _, local = places
+    shutil.copytree(smoke_labelled.root, local, ignore=shutil.ignore_patterns("renders", "predictions", "scores"))
+    for command in ("render", "evaluate"):
+        result = speedplus(command, "--workspace", str(local))
+        assert result.returncode == 0, result.stderr
+    return Workspace(local)
+
+
+@pytest.fixture(scope="module")
+def cluster(places):
+    hidden, _ = places
+    with LocalCluster(head_cpus=1) as running:
+        running.hidden = hidden
+        running.second = running.add_node(1, hidden)
+        yield running
+
+
+def _copy(smoke_labelled: Workspace, hidden: Path, name: str) -> Workspace:
+    root = hidden / name
+    shutil.copytree(smoke_labelled.root, root, ignore=shutil.ignore_patterns("renders", "predictions", "scores"))
+    return Workspace(root)
+
+
+def _on(cluster: LocalCluster, *args: str):
+    return speedplus(*args, "--engine", "ray", "--ray-address", cluster.address, env=ENV, timeout=600)
+
+
+def _same(a: Workspace, b: Workspace, name: str, file_columns: tuple[str, ...]) -> None:
+    got, want = (pq.read_table(ws.manifest_dir(name)) for ws in (a, b))
+    volatile = [c for c in VOLATILE if c in got.column_names]
+    assert got.drop_columns(volatile).equals(want.drop_columns(volatile)), name
+    if not volatile:  # another engine, another finishing order: the same manifest bytes
+        assert [p.read_bytes() for p in list_parts(a, name)] == [p.read_bytes() for p in list_parts(b, name)], name
+    for column in file_columns:
+        for relpath in got.column(column).to_pylist():
+            if relpath:
+                assert a.resolve(relpath).read_bytes() == b.resolve(relpath).read_bytes(), relpath
+
+
+def test_two_nodes_without_a_shared_filesystem_make_the_bytes_of_a_local_run(cluster, local_reference,
+                                                                              smoke_labelled):
+    ws = _copy(smoke_labelled, cluster.hidden, "w")  # the second node sees an empty tmpfs there
+    rendered = _on(cluster, "render", "--workspace", str(ws.root))
+    assert rendered.returncode == 0, rendered.stderr
+    nodes = {line.split(" (node ")[1].split(",")[0] for line in rendered.stderr.splitlines()
+             if line.startswith("ray worker on")}
+    assert len(nodes) == 2, rendered.stderr  # both nodes worked, and said with which variant
+    assert "mitsuba_variant" in rendered.stderr
+    _same(ws, local_reference, "renders", ("image_path", "mask_path", "ground_truth_path"))
+    evaluated = _on(cluster, "evaluate", "--workspace", str(ws.root))
+    assert evaluated.returncode == 0, evaluated.stderr
+    _same(ws, local_reference, "predictions", ())
+    acquired = _on(cluster, "acquire", "--workspace", str(ws.root), "--force")
+    assert acquired.returncode == 0, acquired.stderr
+    _same(ws, smoke_labelled, "captures", ("image_path",))
+    _same(ws, smoke_labelled, "truth", ("maps_path",))
+    run = tomllib.loads((ws.root / "config.toml").read_text())["run"]
+    assert (run["engine"], run["ray_address"]) == ("local", "")  # the flags were for this run only
+
+
+def _busy_workers() -> list[int]:
+    result = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True)
+    return [int(line.split()[0]) for line in result.stdout.splitlines() if line.split()[1:2] == ["ray::Worker.call"]]
+
+
+def _acquire_and_interrupt(cluster: LocalCluster, ws: Workspace, interrupt) -> subprocess.CompletedProcess:
+    """Acquire on the cluster; once two workers are busy, ``interrupt()``; then wait."""
+    command = [sys.executable, "-m", "pipeline.cli", "acquire", "--workspace", str(ws.root), "--force",
+               "--engine", "ray", "--ray-address", cluster.address]
+    process = subprocess.Popen(command, env={**os.environ, "COLUMNS": "200", **ENV}, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while len(_busy_workers()) < 2:
+        assert time.monotonic() < deadline and process.poll() is None, "the workers never got busy"
+        time.sleep(0.2)
+    time.sleep(2.0)  # mid-stage: some captures done, some in flight
+    interrupt()
+    stdout, stderr = process.communicate(timeout=600)
+    return subprocess.CompletedProcess(command, process.returncode, stdout, stderr)
+
+
+def test_a_killed_worker_and_a_killed_node_leave_a_complete_identical_result(cluster, smoke_labelled):
+    ws = _copy(smoke_labelled, cluster.hidden, "killed")
+    result = _acquire_and_interrupt(cluster, ws, lambda: os.kill(_busy_workers()[0], signal.SIGKILL))
+    assert result.returncode == 0, result.stderr
+    assert "a worker died" in result.stderr
+    _same(ws, smoke_labelled, "captures", ("image_path",))
+    _same(ws, smoke_labelled, "truth", ("maps_path",))
+
+    result = _acquire_and_interrupt(cluster, ws, lambda: cluster.kill_node(cluster.second))
+    if result.returncode != 0:  # at most one resume
+        assert "error:" in result.stderr and "Traceback" not in result.stderr
+        result = _on(cluster, "acquire", "--workspace", str(ws.root))
+    assert result.returncode == 0, result.stderr
+    _same(ws, smoke_labelled, "captures", ("image_path",))
+    _same(ws, smoke_labelled, "truth", ("maps_path",))
+
+
+def test_more_workers_than_free_cpus_never_hang(cluster, smoke_labelled, local_reference):
+    if cluster.cpus < 2:
+        cluster.second = cluster.add_node(1, cluster.hidden)
+    ws = _copy(smoke_labelled, cluster.hidden, "oversubscribed")
+    result = _on(cluster, "render", "--workspace", str(ws.root), "--workers", "6")
+    assert result.returncode == 0, result.stderr
+    assert "ray: 2 worker(s)" in result.stderr
+    _same(ws, local_reference, "renders", ("image_path", "mask_path", "ground_truth_path"))
+
+
+def test_an_unreachable_cluster_is_an_error_not_a_traceback(smoke_labelled, tmp_path):
+    ws = _copy(smoke_labelled, tmp_path, "nowhere")
+    result = speedplus("render", "--workspace", str(ws.root), "--engine", "ray", "--ray-address",
+                       f"127.0.0.1:{free_port()}", env=ENV, timeout=300)
+    assert result.returncode == 1
+    assert "error: cannot join the Ray cluster" in result.stderr and "Traceback" not in result.stderr

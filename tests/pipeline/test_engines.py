@@ -1,0 +1,66 @@
+"""The engines' contract without a cluster: the local pool, the driver's file writes and
+the checks a Ray worker's report goes through (tests/pipeline/test_cluster.py runs Ray)."""
+
+import pickle
+
+import pytest
+
+from manifests import Workspace
+from manifests.workspace import PathEscapeError
+from pipeline.engines import Produced, environment, map_local, store
+from pipeline.engines.cluster import _refusal
+
+
+class Squares:
+    """A worker context: squares numbers and 'writes' one file per item."""
+
+    def __init__(self, offset: int) -> None:
+        self.offset = offset
+
+    def work(self, item: int) -> Produced:
+        return Produced({"item": item, "value": item * item + self.offset}, {f"out/{item}.txt": str(item).encode()})
+
+
+def test_every_item_once_whatever_the_workers(tmp_path):
+    for workers in (1, 2):
+        got = sorted(p.value["value"] for p in map_local(Squares, (1,), "work", list(range(7)), workers=workers,
+                                                         max_tasks=2))
+        assert got == [i * i + 1 for i in range(7)]
+
+
+def test_prepare_runs_in_the_driver_before_each_item_is_sent():
+    sent = []
+
+    def prepare(item: int) -> int:
+        sent.append(item)
+        return item + 10
+
+    got = sorted(p.value["item"] for p in map_local(Squares, (0,), "work", [1, 2, 3], workers=2, max_tasks=10,
+                                                    prepare=prepare))
+    assert got == [11, 12, 13] and sorted(sent) == [1, 2, 3]
+
+
+def test_the_driver_writes_the_files_inside_the_workspace_only(tmp_path):
+    ws = Workspace(tmp_path / "w")
+    value = store(ws, Produced({"a": 1}, {"images/x.png": b"png"}))
+    assert value == {"a": 1} and (ws.root / "images" / "x.png").read_bytes() == b"png"
+    with pytest.raises(PathEscapeError):
+        store(ws, Produced({}, {"../outside.png": b"no"}))
+    assert not (tmp_path / "outside.png").exists()
+
+
+def test_a_worker_with_another_variant_or_versions_is_refused():
+    expected = {**environment(), "mitsuba_variant": "llvm_ad_rgb"}
+    report = {**expected, "host": "node7", "node": "abc123"}
+    assert _refusal(report, expected) is None
+    message = _refusal({**report, "mitsuba_variant": "scalar_rgb", "numpy": "1.0"}, expected)
+    assert "node7" in message and "scalar_rgb" in message and "numpy '1.0'" in message and "libllvm19" in message
+
+
+def test_errors_cross_process_boundaries_with_their_message():
+    from manifests import ManifestError
+    from stages.common.image_io import ImageReadError
+
+    for error in (ManifestError("a.parquet", "bad", row=2, column="q"), ImageReadError("images/x.png", "truncated")):
+        again = pickle.loads(pickle.dumps(error))
+        assert type(again) is type(error) and str(again) == str(error)
