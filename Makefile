@@ -24,7 +24,7 @@ $(RUN_STAMP): pyproject.toml
 		echo "installing Debian libllvm19 for Mitsuba's llvm variant"; \
 		(apt-get install -y libllvm19 >/dev/null 2>&1 || \
 		 (apt-get update >/dev/null && apt-get install -y libllvm19 >/dev/null)) || \
-		echo "warning: libllvm19 not installed; rendering falls back to the slow scalar variant"; \
+		echo "warning: libllvm19 not installed; rendering (acquire, render) will refuse to run"; \
 	fi
 	@if [ "$$(id -u)" = "0" ] && ! command -v chromium >/dev/null; then \
 		echo "installing Debian chromium (the report test renders the HTML page headless)"; \

@@ -74,14 +74,15 @@ def worker_cpus(default: int) -> int:
 
 def map_engine(engine: Literal["local", "ray"], factory: Callable[..., Any], args: tuple[Any, ...], method: str,
                items: list[Any], *, workers: int, max_tasks: int, ray_address: str = "", worker_cpus: int = 1,
-               prepare: Callable[[Any], Any] | None = None, expect: dict[str, str] | None = None,
-               start_timeout_s: float = 600.0) -> Iterator[Any]:
+               prepare: Callable[[Any], Any] | None = None, probe: Callable[[], dict[str, str]] | None = None,
+               expect: dict[str, str] | None = None, start_timeout_s: float = 600.0) -> Iterator[Any]:
     """``factory(*args).<method>(prepare(item))`` for every item, as results complete, on
-    ``map_local`` or ``cluster.map_ray`` (``expect``: what each Ray worker's ``describe``
-    must report, beyond the driver's ``environment``)."""
+    ``map_local`` or ``cluster.map_ray`` (each Ray worker runs ``probe`` first; its report
+    must match the driver's ``environment`` and ``expect``)."""
     if engine == "ray":
         from pipeline.engines.cluster import map_ray
 
         return map_ray(factory, args, method, items, workers=workers, max_tasks=max_tasks, address=ray_address,
-                       worker_cpus=worker_cpus, prepare=prepare, expect=expect, start_timeout_s=start_timeout_s)
+                       worker_cpus=worker_cpus, prepare=prepare, probe=probe, expect=expect,
+                       start_timeout_s=start_timeout_s)
     return map_local(factory, args, method, items, workers=workers, max_tasks=max_tasks, prepare=prepare)

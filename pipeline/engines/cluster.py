@@ -87,20 +87,29 @@ def connect(address: str, cpus: int) -> None:
 def _actor_class(ray: Any) -> Any:
     @ray.remote
     class Worker:
-        """Holds one context; reports where it runs and with what."""
+        """Reports where it runs and with what (``describe``), then holds one context, built
+        on its first item: a node that cannot make the driver's bytes is refused before."""
 
-        def __init__(self, packed: tuple[Callable[..., Any], tuple[Any, ...]]) -> None:
-            factory, args = packed
+        def __init__(self, packed: tuple[Callable[..., Any], tuple[Any, ...], Callable[[], dict[str, str]] | None]
+                     ) -> None:
+            self.factory, self.args, self.probe = packed
             cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1)
             os.environ[WORKER_CPUS_ENV] = str(max(1, int(round(cpus))))
-            self.context = factory(*args)
+            self.context: Any = None
 
         def describe(self) -> dict[str, Any]:
-            own = self.context.describe() if hasattr(self.context, "describe") else {}
-            return {"host": socket.gethostname(), "node": ray.get_runtime_context().get_node_id()[:12],
-                    "pid": os.getpid(), "cpus": int(os.environ[WORKER_CPUS_ENV]), **environment(), **own}
+            report = {"host": socket.gethostname(), "node": ray.get_runtime_context().get_node_id()[:12],
+                      "pid": os.getpid(), "cpus": int(os.environ[WORKER_CPUS_ENV]), **environment()}
+            if self.probe is not None:
+                try:
+                    report.update(self.probe())
+                except Exception as error:  # noqa: BLE001 - reported to the driver, which refuses the node
+                    report["probe_error"] = " ".join(str(error).split())[:300]
+            return report
 
         def call(self, method: str, item: Any) -> Any:
+            if self.context is None:
+                self.context = self.factory(*self.args)
             return getattr(self.context, method)(item)
 
     return Worker
@@ -120,6 +129,8 @@ class _Slot:
 def _refusal(report: dict[str, Any], expected: dict[str, str]) -> str | None:
     wrong = [f"{key} {report.get(key)!r} (driver: {value!r})" for key, value in expected.items()
              if report.get(key) != value]
+    if "probe_error" in report:
+        wrong.insert(0, report["probe_error"])
     if not wrong:
         return None
     return (f"refusing the Ray worker on {report.get('host')} (node {report.get('node')}): {', '.join(wrong)}; "
@@ -135,17 +146,19 @@ def _cause(error: Exception) -> Exception:
 
 def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, items: list[Any], *,
             workers: int, max_tasks: int, address: str = "", worker_cpus: int = 1,
-            prepare: Callable[[Any], Any] | None = None, expect: dict[str, str] | None = None,
-            start_timeout_s: float = 600.0) -> Iterator[Any]:
+            prepare: Callable[[Any], Any] | None = None, probe: Callable[[], dict[str, str]] | None = None,
+            expect: dict[str, str] | None = None, start_timeout_s: float = 600.0) -> Iterator[Any]:
     """Like ``map_local`` on a Ray cluster, with at most ``workers`` actors of ``worker_cpus``
-    CPUs each (``workers`` 0: as many as the free CPUs allow). See the module docstring."""
+    CPUs each (``workers`` 0: as many as the free CPUs allow). Each actor runs ``probe``
+    first; its report must match the driver's ``environment`` and ``expect``. See the
+    module docstring."""
     if not items:
         return
     ray = _ray()
     from ray import exceptions as ray_errors
 
     prepare = prepare or (lambda item: item)
-    connect(address, workers * worker_cpus)
+    connect(address, workers * worker_cpus or os.cpu_count() or 1)
     free = int(ray.available_resources().get("CPU", 0) // worker_cpus)
     size = min(workers or len(items), len(items), free)
     if size < 1:
@@ -153,7 +166,7 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
                           f"(free: {ray.available_resources().get('CPU', 0):g}); wait for other jobs or add nodes")
     expected = {**environment(), **(expect or {})}
     worker_class = _actor_class(ray).options(num_cpus=worker_cpus, max_restarts=0)
-    factory_ref = ray.put((factory, args))  # one copy in the object store for every actor
+    factory_ref = ray.put((factory, args, probe))  # one copy in the object store for every actor
 
     def start() -> _Slot:
         actor = worker_class.remote(factory_ref)
@@ -161,6 +174,7 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
 
     queue = list(reversed(range(len(items))))
     attempts = [0] * len(items)
+    start_errors: list[str] = []
     slots = [start() for _ in range(size)]
     owner: dict[Any, tuple[_Slot, int]] = {}  # task ref -> (slot, item index)
     console.print(f"ray: {size} worker(s) of {worker_cpus} CPU(s) for {len(items)} items")
@@ -185,8 +199,9 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
                 elif time.monotonic() - slot.started > start_timeout_s:
                     retire(slot, replace=False)  # unschedulable now (the cluster shrank, or is busy)
             if not slots:
-                raise EngineError(f"no Ray worker could start within {start_timeout_s:.0f} s ({len(queue)} items "
-                                  "left); the cluster has no free CPU or its nodes cannot start the workers")
+                why = (f"the last one failed: {start_errors[-1]}" if start_errors else
+                       f"none was placed within {start_timeout_s:.0f} s: the cluster has no free CPU")
+                raise EngineError(f"no Ray worker could start ({len(queue)} items left); {why}")
             waiting = list(owner) + [s.ready_ref for s in slots if not s.ready]
             ready_refs, _ = ray.wait(waiting, num_returns=1, timeout=1.0)
             for ref in ready_refs:
@@ -194,16 +209,17 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
                 if starting is not None:
                     try:
                         report = ray.get(ref)
-                    except ray_errors.RayError:
+                    except ray_errors.RayError as error:
+                        start_errors.append(" ".join(str(_cause(error)).split())[:300])
                         retire(starting, replace=False)  # died while starting: its node is gone
                         continue
                     refusal = _refusal(report, expected)
                     if refusal:
                         raise EngineError(refusal)
                     starting.ready = True
+                    facts = [f"{report['cpus']} CPU(s)", *(f"{key} {report[key]}" for key in expect or {})]
                     console.print(f"ray worker on {report['host']} (node {report['node']}, pid {report['pid']}): "
-                                  f"{report['cpus']} CPU(s), " + ", ".join(
-                                      f"{key} {report[key]}" for key in (expect or {})))
+                                  + ", ".join(facts), soft_wrap=True)
                     continue
                 slot, index = owner.pop(ref)
                 slot.in_flight.discard(ref)

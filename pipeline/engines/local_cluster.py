@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import signal
 import socket
 import subprocess
@@ -62,15 +63,18 @@ class LocalCluster:
             time.sleep(0.5)
         self.cpus += cpus
 
-    def add_node(self, cpus: int = 1, hidden: Path | None = None) -> subprocess.Popen:
+    def add_node(self, cpus: int = 1, hidden: Path | None = None, env: dict[str, str] | None = None
+                 ) -> subprocess.Popen:
         """Start a node; with ``hidden``, in its own mount namespace where that folder is an
-        empty tmpfs (the node cannot see what the driver writes there)."""
-        start = f"{RAY} start --address={self.address} --num-cpus={cpus} --block"
+        empty tmpfs (the node cannot see what the driver writes there); ``env``: variables
+        its workers inherit (a node set up differently)."""
+        start = " ".join(["exec", "env", *(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items()), RAY, "start",
+                          f"--address={self.address}", f"--num-cpus={cpus}", "--block"])
         if hidden is None:
-            node = self._start(["sh", "-c", f"exec {start}"])
+            node = self._start(["sh", "-c", start])
         else:
             Path(hidden).mkdir(parents=True, exist_ok=True)
-            script = f"mount -t tmpfs speedplus-hidden {hidden} && exec {start}"
+            script = f"mount -t tmpfs speedplus-hidden {hidden} && {start}"
             node = self._start(["unshare", "--mount", "--propagation", "private", "sh", "-c", script])
         self.nodes.append(node)
         self._wait_for_cpus(cpus)

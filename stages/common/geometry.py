@@ -66,14 +66,12 @@ def quat_to_matrix(q: ArrayLike) -> Array:
     q = np.asarray(q, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
+    # filled in place rather than stacked: this sits in the calibration's inner loop
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return out
 
 
 def matrix_to_quat(rotation: ArrayLike) -> Array:
@@ -154,13 +152,11 @@ def axis_angle_matrix(axis: str, angle: ArrayLike) -> Array:
     """Elementary rotation about ``"x"``, ``"y"`` or ``"z"`` by angle(s) (...) in radians."""
     angle = np.asarray(angle, dtype=np.float64)
     c, s = np.cos(angle), np.sin(angle)
-    one, zero = np.ones_like(angle), np.zeros_like(angle)
-    rows = {
-        "x": [[one, zero, zero], [zero, c, -s], [zero, s, c]],
-        "y": [[c, zero, s], [zero, one, zero], [-s, zero, c]],
-        "z": [[c, -s, zero], [s, c, zero], [zero, zero, one]],
-    }[axis]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    i, j = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]  # the plane it turns: j = i + 1 cyclically
+    out = np.zeros(angle.shape + (3, 3))
+    out[..., 3 - i - j, 3 - i - j] = 1.0
+    out[..., i, i], out[..., i, j], out[..., j, i], out[..., j, j] = c, -s, s, c
+    return out
 
 
 # ------------------------------------------------------------------------------ transforms

@@ -10,11 +10,12 @@ Mitsuba is imported here lazily, so that stages which never render never load it
 from __future__ import annotations
 
 import os
-import warnings
+import socket
 from typing import Any, Literal
 
 import numpy as np
 
+from pipeline.errors import InputError
 from stages.common.lens import RenderGeometry
 
 #: Mitsuba's camera frame in OpenCV's (``opencv_from_mitsuba``): both look along +z, but
@@ -67,7 +68,9 @@ def private_kernel_cache() -> None:
 
 
 def load_mitsuba() -> Any:
-    """Mitsuba with the fast LLVM variant, or ``scalar_rgb`` (about 25x slower) with a warning."""
+    """Mitsuba with the LLVM variant. Without a usable libLLVM it is an error saying what to
+    install: the scenes here are built from arrays, which ``scalar_rgb`` cannot load (and it
+    would render about 25x slower, with other noise)."""
     private_kernel_cache()
     import mitsuba as mi
 
@@ -78,10 +81,10 @@ def load_mitsuba() -> Any:
                 break
     try:
         mi.set_variant(PREFERRED_VARIANT)
-    except Exception as error:  # noqa: BLE001 - any failure of the LLVM backend means: fall back
-        warnings.warn(f"Mitsuba llvm_ad_rgb unavailable ({error}); rendering with the slow scalar_rgb variant. "
-                      "Install Debian libllvm19 (make setup does, as root).", RuntimeWarning, stacklevel=2)
-        mi.set_variant("scalar_rgb")
+    except Exception as error:  # noqa: BLE001 - any failure of the LLVM backend means the same
+        raise InputError(f"Mitsuba's {PREFERRED_VARIANT} variant is unavailable on {socket.gethostname()} "
+                         f"({' '.join(str(error).split())[:200]}); install Debian libllvm19 (make setup does, as "
+                         "root) or point DRJIT_LIBLLVM_PATH at a libLLVM >= 16") from None
     return mi
 
 
@@ -90,9 +93,9 @@ def render_threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
-def variant(mi: Any) -> dict[str, str]:
-    """What a render worker reports to the engine (``pipeline.engines.cluster``)."""
-    return {"mitsuba_variant": mi.variant()}
+def mitsuba_variant() -> dict[str, str]:
+    """What a render worker reports to the engine before it takes an item (``pipeline.engines.cluster``)."""
+    return {"mitsuba_variant": load_mitsuba().variant()}
 
 
 def set_threads(threads: int) -> None:

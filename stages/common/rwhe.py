@@ -77,7 +77,8 @@ class Solution:
     def predict(self, b: np.ndarray, fixtures: list[str], up_targetee: np.ndarray | None = None) -> np.ndarray:
         """``cam_from_target`` (N, 4, 4) = Z B_i S_i X_f^-1; ``up_targetee`` (N, 3) is needed
         when the solution has compliant fixtures."""
-        x_inv = np.stack([g.invert(self.x[f]) for f in fixtures])
+        inverses = {f: g.invert(self.x[f]) for f in set(fixtures)}
+        x_inv = np.stack([inverses[f] for f in fixtures])
         if not self.compliance:
             return self.z @ b @ x_inv
         if up_targetee is None:
@@ -228,8 +229,11 @@ def anisotropy_slice(names: list[str]) -> slice:
 
 
 def unpack(params: np.ndarray, names: list[str], compliant: bool, anisotropic: bool = False) -> Solution:
+    vectors = params[:6 * (1 + len(names))].reshape(-1, 6)
+    poses = g.make_transform(g.rotvec_to_matrix(vectors[:, :3]), vectors[:, 3:])  # at once: an inner loop
+
     def pose(k: int) -> np.ndarray:
-        return transform_from_vector(params[6 * k:6 * k + 6])
+        return poses[k]
 
     start = 6 * (1 + len(names))
     compliance = {name: params[start + 3 * j:start + 3 * j + 3] for j, name in enumerate(names)} if compliant else {}

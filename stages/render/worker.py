@@ -22,7 +22,6 @@ from stages.common import geometry as g
 from stages.common import ground_truth, tango
 from stages.common.image_io import encode_png
 from stages.common.lens import LensCamera
-from stages.common.mitsuba_adapter import variant
 from stages.common.surface import TangoSurfaces
 from stages.render.earth import earth_background
 from stages.render.jobs import RenderJob
@@ -55,9 +54,6 @@ class RenderWorker:
         self.renderer = TangoRenderer(camera, spp=spp, max_depth=max_depth, threads=threads)
         self.surfaces = TangoSurfaces(self.renderer.scene)
         self.with_ground_truth = with_ground_truth
-
-    def describe(self) -> dict[str, str]:
-        return variant(self.renderer.mi)
 
     def radiance(self, job: RenderJob) -> np.ndarray:
         """Linear radiance (H, W, 3) of a job: the render, over the Earth when it has one."""

@@ -77,23 +77,20 @@ def _same(a: Workspace, b: Workspace, name: str, file_columns: tuple[str, ...]) 
                 assert a.resolve(relpath).read_bytes() == b.resolve(relpath).read_bytes(), relpath
 
 
-def test_two_nodes_without_a_shared_filesystem_make_the_bytes_of_a_local_run(cluster, local_reference,
-                                                                              smoke_labelled):
-    ws = _copy(smoke_labelled, cluster.hidden, "w")  # the second node sees an empty tmpfs there
-    rendered = _on(cluster, "render", "--workspace", str(ws.root))
-    assert rendered.returncode == 0, rendered.stderr
-    nodes = {line.split(" (node ")[1].split(",")[0] for line in rendered.stderr.splitlines()
-             if line.startswith("ray worker on")}
-    assert len(nodes) == 2, rendered.stderr  # both nodes worked, and said with which variant
-    assert "mitsuba_variant" in rendered.stderr
+def test_speedplus_run_on_two_nodes_without_a_shared_filesystem_makes_the_bytes_of_a_local_run(
+        cluster, local_reference, smoke_labelled):
+    root = cluster.hidden / "run"  # the second node sees an empty tmpfs there
+    result = _on(cluster, "run", "--profile", "smoke", "--workspace", str(root))
+    assert result.returncode == 0, result.stderr
+    reports = [line for line in result.stderr.splitlines() if line.startswith("ray worker on")]
+    assert len({line.split(" (node ")[1].split(",")[0] for line in reports}) == 2, result.stderr  # both nodes
+    assert sum("mitsuba_variant llvm_ad_rgb" in line for line in reports) >= 4, result.stderr  # acquire, render
+    ws = Workspace(root)
+    for name, files in (("captures", ("image_path",)), ("truth", ("maps_path",)), ("calibration_samples", ()),
+                        ("poses", ()), ("labels", ())):
+        _same(ws, smoke_labelled, name, files)
     _same(ws, local_reference, "renders", ("image_path", "mask_path", "ground_truth_path"))
-    evaluated = _on(cluster, "evaluate", "--workspace", str(ws.root))
-    assert evaluated.returncode == 0, evaluated.stderr
     _same(ws, local_reference, "predictions", ())
-    acquired = _on(cluster, "acquire", "--workspace", str(ws.root), "--force")
-    assert acquired.returncode == 0, acquired.stderr
-    _same(ws, smoke_labelled, "captures", ("image_path",))
-    _same(ws, smoke_labelled, "truth", ("maps_path",))
     run = tomllib.loads((ws.root / "config.toml").read_text())["run"]
     assert (run["engine"], run["ray_address"]) == ("local", "")  # the flags were for this run only
 
@@ -152,3 +149,15 @@ def test_an_unreachable_cluster_is_an_error_not_a_traceback(smoke_labelled, tmp_
                        f"127.0.0.1:{free_port()}", env=ENV, timeout=300)
     assert result.returncode == 1
     assert "error: cannot join the Ray cluster" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_node_that_would_render_with_another_variant_is_refused(smoke_labelled, tmp_path):
+    ws = _copy(smoke_labelled, tmp_path, "scalar")
+    with LocalCluster(head_cpus=0) as other:  # the only worker runs on the misconfigured node
+        other.add_node(1, env={"DRJIT_LIBLLVM_PATH": "/nonexistent/libLLVM.so"})  # no LLVM there
+        result = _on(other, "render", "--workspace", str(ws.root))
+    assert result.returncode == 1, result.stderr
+    message = " ".join(result.stderr.split())
+    assert "refusing the Ray worker" in message and "llvm_ad_rgb variant is unavailable" in message
+    assert "libllvm19" in message
+    assert "Traceback" not in result.stderr

@@ -21,7 +21,6 @@ from stages.common import ground_truth
 from stages.common.geometry import pose_columns
 from stages.common.image_io import encode_png
 from stages.common.kinematics import link_points
-from stages.common.mitsuba_adapter import variant
 from stages.common.patterns import board_pattern
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
@@ -52,10 +51,6 @@ class VirtualTestbed:
         if self._plan is None:
             self._plan = read_manifest(self.workspace, "plan").to_pylist()
         return self._plan
-
-    def describe(self) -> dict[str, str]:
-        """What a worker reports to the engine: the variant its camera renders with."""
-        return variant(self.scene.mi)
 
     def moment(self, sample: dict[str, Any]) -> Moment:
         """The capture's place in its session's timeline (computed once from the plan)."""
