@@ -9,11 +9,11 @@ context (a loaded renderer, an ONNX Runtime session), fed from a work queue.
   the driver writes them atomically. A sample that kills ``MAX_ATTEMPTS`` workers, an
   actor that does not start within ``start_timeout_s`` with none left, or any other Ray
   failure ends the stage with ``EngineError`` (exit 1), keeping every finished row.
-- **Same bytes everywhere**: each actor reports its node, the versions of what makes bytes
-  and its context's own facts (Mitsuba's variant); one that differs from the driver is refused.
+- **Same bytes everywhere**: each actor first reports its node, the versions of what makes
+  bytes and what its stage probes (Mitsuba loads its llvm variant); one that differs from
+  the driver is refused before it takes an item, naming the node.
 - **Code ships with the job** when joining an existing cluster (``runtime_env``
-  ``working_dir``): nodes need the dependencies (the ``[cluster]`` extra, or the image the
-  README names), not this repository.
+  ``working_dir``): nodes need the dependencies (the ``[cluster]`` extra), not this repository.
 """
 
 from __future__ import annotations
@@ -134,8 +134,8 @@ def _refusal(report: dict[str, Any], expected: dict[str, str]) -> str | None:
     if not wrong:
         return None
     return (f"refusing the Ray worker on {report.get('host')} (node {report.get('node')}): {', '.join(wrong)}; "
-            "install the same versions there (pip install -e '.[cluster]'; Debian libllvm19 for Mitsuba's llvm "
-            "variant) or run the README's container image")
+            "install the driver's versions there (pip install -e '.[cluster]' from the same checkout; Debian "
+            "libllvm19 for Mitsuba's llvm variant)")
 
 
 def _cause(error: Exception) -> Exception:

@@ -3,6 +3,7 @@
 import os
 import subprocess
 import sys
+import tomllib
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -23,8 +24,12 @@ def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
     assert "plan: ran" in first.stdout
     assert read_manifest(Workspace(ws), "plan").num_rows == 24
     assert (ws / "config.toml").exists() and 'profile = "smoke"' in (ws / "config.toml").read_text()
-    second = speedplus("plan", "--workspace", str(ws))  # the workspace's config.toml is used
+    # the engine flags and run.* choose how this command runs: never saved, never a new fingerprint
+    second = speedplus("plan", "--workspace", str(ws), "--workers", "3", "--engine", "local", "--set",
+                       "run.part_rows=7")
     assert second.returncode == 0 and "up to date" in second.stdout
+    saved = tomllib.loads((ws / "config.toml").read_text())["run"]
+    assert (saved["workers"], saved["part_rows"]) == (2, 4)
     status = speedplus("status", "--workspace", str(ws))
     assert status.returncode == 0
     line = next(line for line in status.stdout.splitlines() if "plan" in line and "plan 24" in line)
