@@ -1,6 +1,7 @@
 """Shared, expensive fixtures: run once per test session."""
 
 import os
+import shutil
 import subprocess
 import sys
 
@@ -17,6 +18,17 @@ def default_acquisition(tmp_path_factory):
     result = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "--profile", "default", "--workspace",
                              str(root), "--until", "acquire"], capture_output=True, text=True,
                             env={**os.environ, "COLUMNS": "200"}, timeout=1800)
+    assert result.returncode == 0, result.stderr
+    return Workspace(root)
+
+
+@pytest.fixture(scope="session")
+def default_labelled(default_acquisition, tmp_path_factory):
+    """``default_acquisition`` calibrated, fused and labelled with the default configuration
+    (read only: copy it to change it)."""
+    root = tmp_path_factory.mktemp("default_labelled") / "w"
+    shutil.copytree(default_acquisition.root, root)
+    result = speedplus("run", "--workspace", str(root), "--until", "label")
     assert result.returncode == 0, result.stderr
     return Workspace(root)
 

@@ -88,8 +88,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     with open_sink(workspace, "captures", part_rows) as captures:
         truth = open_sink(workspace, "truth", part_rows) if with_truth else None
         try:
-            for produced in track(records, len(todo), f"acquire ({config.acquire.backend})"):
-                record = store(workspace, Produced(produced, produced.files))
+            for record in track(records, len(todo), f"acquire ({config.acquire.backend})"):
+                store(workspace, Produced(record, record.files))  # the image before its row
                 if record.captures["sample_id"] not in have_captures:
                     captures.add(record.captures)
                 if truth is not None and record.truth["sample_id"] not in have_truth:

@@ -151,13 +151,15 @@ def test_an_unreachable_cluster_is_an_error_not_a_traceback(smoke_labelled, tmp_
     assert "error: cannot join the Ray cluster" in result.stderr and "Traceback" not in result.stderr
 
 
-def test_a_node_that_would_render_with_another_variant_is_refused(smoke_labelled, tmp_path):
-    ws = _copy(smoke_labelled, tmp_path, "scalar")
-    with LocalCluster(head_cpus=0) as other:  # the only worker runs on the misconfigured node
-        other.add_node(1, env={"DRJIT_LIBLLVM_PATH": "/nonexistent/libLLVM.so"})  # no LLVM there
-        result = _on(other, "render", "--workspace", str(ws.root))
+def test_a_node_that_would_render_with_another_variant_is_refused(cluster, smoke_labelled):
+    ws = _copy(smoke_labelled, cluster.hidden, "scalar")
+    bad = cluster.add_node(1, env={"DRJIT_LIBLLVM_PATH": "/nonexistent/libLLVM.so"})  # no LLVM on that node
+    try:  # 40 images keep the good workers busy well past the bad one's report
+        result = _on(cluster, "render", "--workspace", str(ws.root), "--set", "train", "--count", "40",
+                     "--workers", "0")
+    finally:
+        cluster.kill_node(bad)
     assert result.returncode == 1, result.stderr
     message = " ".join(result.stderr.split())
     assert "refusing the Ray worker" in message and "llvm_ad_rgb variant is unavailable" in message
-    assert "libllvm19" in message
-    assert "Traceback" not in result.stderr
+    assert "libllvm19" in message and "Traceback" not in message

@@ -30,8 +30,8 @@ def labelled_copy(default_acquisition, root, *settings):
 
 
 @pytest.fixture(scope="module")
-def labelled(default_acquisition, tmp_path_factory):
-    return labelled_copy(default_acquisition, tmp_path_factory.mktemp("accuracy") / "w")
+def labelled(default_labelled):
+    return default_labelled
 
 
 @pytest.fixture(scope="module")
