@@ -33,6 +33,17 @@ def default_labelled(default_acquisition, tmp_path_factory):
     return Workspace(root)
 
 
+@pytest.fixture(scope="session")
+def smoke_finished(smoke_labelled, tmp_path_factory):
+    """A copy of ``smoke_labelled`` after the rest of the chain (render, evaluate, report)
+    with the local engine, and the run's standard output (read only: copy it to change it)."""
+    root = tmp_path_factory.mktemp("e2e") / "w"
+    shutil.copytree(smoke_labelled.root, root)
+    result = speedplus("run", "--workspace", str(root))
+    assert result.returncode == 0, result.stderr
+    return Workspace(root), result.stdout
+
+
 def speedplus(*args, env=None, timeout=1800):
     """Run the CLI in a fresh process (as users do)."""
     return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,

@@ -17,12 +17,8 @@ REPOSITORY = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def finished(smoke_labelled, tmp_path_factory):
-    root = tmp_path_factory.mktemp("e2e") / "w"
-    shutil.copytree(smoke_labelled.root, root)
-    result = speedplus("run", "--workspace", str(root))
-    assert result.returncode == 0, result.stderr
-    return Workspace(root), result.stdout
+def finished(smoke_finished):
+    return smoke_finished
 
 
 def test_every_stage_is_done(finished):

@@ -1,6 +1,7 @@
 """The speedplus command end to end, in subprocesses, as a user runs it."""
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -36,10 +37,14 @@ def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
     assert "done" in line
 
 
-def test_run_until_stops_there_and_a_rerun_skips_what_is_done(tmp_path):
-    result = speedplus("run", "--profile", "smoke", "--workspace", str(tmp_path / "w"), "--until", "fuse")
-    assert result.returncode == 0 and "fuse: ran" in result.stdout and "label" not in result.stdout
-    again = speedplus("run", "--workspace", str(tmp_path / "w"), "--until", "fuse")
+def test_run_until_stops_there_and_a_rerun_skips_what_is_done(smoke_labelled, tmp_path):
+    root = tmp_path / "w"
+    after_fuse = ("poses", "poses.json", "labels", "labels.json", "renders*", "predictions*", "scores*", "export*")
+    shutil.copytree(smoke_labelled.root, root, ignore=shutil.ignore_patterns(*after_fuse))
+    result = speedplus("run", "--workspace", str(root), "--until", "fuse")
+    assert result.returncode == 0 and "fuse: ran" in result.stdout and "label" not in result.stdout, result.stderr
+    assert "plan: up to date" in result.stdout and "calibrate: up to date" in result.stdout
+    again = speedplus("run", "--workspace", str(root), "--until", "fuse")
     assert again.returncode == 0 and again.stdout.count("up to date") == 4
 
 

@@ -37,13 +37,8 @@ def places(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def local_reference(smoke_labelled, places):
-    _, local = places
-    shutil.copytree(smoke_labelled.root, local, ignore=shutil.ignore_patterns("renders", "predictions", "scores"))
-    for command in ("render", "evaluate"):
-        result = speedplus(command, "--workspace", str(local))
-        assert result.returncode == 0, result.stderr
-    return Workspace(local)
+def local_reference(smoke_finished):
+    return smoke_finished[0]
 
 
 @pytest.fixture(scope="module")
@@ -77,11 +72,33 @@ def _same(a: Workspace, b: Workspace, name: str, file_columns: tuple[str, ...]) 
                 assert a.resolve(relpath).read_bytes() == b.resolve(relpath).read_bytes(), relpath
 
 
-def test_speedplus_run_on_two_nodes_without_a_shared_filesystem_makes_the_bytes_of_a_local_run(
+def _busy_workers() -> list[int]:
+    result = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True)
+    return [int(line.split()[0]) for line in result.stdout.splitlines() if line.split()[1:2] == ["ray::Worker.call"]]
+
+
+def _interrupted(cluster: LocalCluster, interrupt, *args: str) -> subprocess.CompletedProcess:
+    """A command on the cluster; once two workers are busy, ``interrupt()``; then wait."""
+    command = [sys.executable, "-m", "pipeline.cli", *args, "--engine", "ray", "--ray-address", cluster.address]
+    process = subprocess.Popen(command, env={**os.environ, "COLUMNS": "200", **ENV}, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while len(_busy_workers()) < 2:
+        assert time.monotonic() < deadline and process.poll() is None, "the workers never got busy"
+        time.sleep(0.2)
+    time.sleep(2.0)  # mid-stage: some captures done, some in flight
+    interrupt()
+    stdout, stderr = process.communicate(timeout=600)
+    return subprocess.CompletedProcess(command, process.returncode, stdout, stderr)
+
+
+def test_speedplus_run_on_two_nodes_without_a_shared_filesystem_survives_a_killed_worker_with_the_local_bytes(
         cluster, local_reference, smoke_labelled):
     root = cluster.hidden / "run"  # the second node sees an empty tmpfs there
-    result = _on(cluster, "run", "--profile", "smoke", "--workspace", str(root))
+    result = _interrupted(cluster, lambda: os.kill(_busy_workers()[0], signal.SIGKILL),  # during acquire
+                          "run", "--profile", "smoke", "--workspace", str(root))
     assert result.returncode == 0, result.stderr
+    assert "a worker died" in result.stderr
     reports = [line for line in result.stderr.splitlines() if line.startswith("ray worker on")]
     assert len({line.split(" (node ")[1].split(",")[0] for line in reports}) == 2, result.stderr  # both nodes
     assert sum("mitsuba_variant llvm_ad_rgb" in line for line in reports) >= 4, result.stderr  # acquire, render
@@ -95,36 +112,10 @@ def test_speedplus_run_on_two_nodes_without_a_shared_filesystem_makes_the_bytes_
     assert (run["engine"], run["ray_address"]) == ("local", "")  # the flags were for this run only
 
 
-def _busy_workers() -> list[int]:
-    result = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True)
-    return [int(line.split()[0]) for line in result.stdout.splitlines() if line.split()[1:2] == ["ray::Worker.call"]]
-
-
-def _acquire_and_interrupt(cluster: LocalCluster, ws: Workspace, interrupt) -> subprocess.CompletedProcess:
-    """Acquire on the cluster; once two workers are busy, ``interrupt()``; then wait."""
-    command = [sys.executable, "-m", "pipeline.cli", "acquire", "--workspace", str(ws.root), "--force",
-               "--engine", "ray", "--ray-address", cluster.address]
-    process = subprocess.Popen(command, env={**os.environ, "COLUMNS": "200", **ENV}, text=True,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 120
-    while len(_busy_workers()) < 2:
-        assert time.monotonic() < deadline and process.poll() is None, "the workers never got busy"
-        time.sleep(0.2)
-    time.sleep(2.0)  # mid-stage: some captures done, some in flight
-    interrupt()
-    stdout, stderr = process.communicate(timeout=600)
-    return subprocess.CompletedProcess(command, process.returncode, stdout, stderr)
-
-
-def test_a_killed_worker_and_a_killed_node_leave_a_complete_identical_result(cluster, smoke_labelled):
+def test_a_killed_node_leaves_a_complete_identical_result(cluster, smoke_labelled):
     ws = _copy(smoke_labelled, cluster.hidden, "killed")
-    result = _acquire_and_interrupt(cluster, ws, lambda: os.kill(_busy_workers()[0], signal.SIGKILL))
-    assert result.returncode == 0, result.stderr
-    assert "a worker died" in result.stderr
-    _same(ws, smoke_labelled, "captures", ("image_path",))
-    _same(ws, smoke_labelled, "truth", ("maps_path",))
-
-    result = _acquire_and_interrupt(cluster, ws, lambda: cluster.kill_node(cluster.second))
+    result = _interrupted(cluster, lambda: cluster.kill_node(cluster.second), "acquire", "--workspace",
+                          str(ws.root), "--force")
     if result.returncode != 0:  # at most one resume
         assert "error:" in result.stderr and "Traceback" not in result.stderr
         result = _on(cluster, "acquire", "--workspace", str(ws.root))
