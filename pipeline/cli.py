@@ -97,6 +97,10 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
     with WorkspaceLock(ws):
         write_config(resolved, ws.config_path)
         resolved = with_overrides(resolved, transient)
+        if resolved.run.engine == "ray" and resolved.run.ray_address:
+            from pipeline.engines.cluster import reachable
+
+            reachable(resolved.run.ray_address)  # before --force discards anything
         if resolved.acquire.backend == "replay" and len(stages) > 1:
             stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
         for name in stages:

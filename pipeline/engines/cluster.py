@@ -49,7 +49,7 @@ def runtime_env() -> dict[str, Any]:
     return {"working_dir": str(REPOSITORY), "excludes": SHIPPING_EXCLUDES}
 
 
-def _reachable(address: str) -> None:
+def reachable(address: str) -> None:
     """Fail fast on a ``host:port`` nothing listens at (Ray itself keeps retrying for minutes)."""
     host, _, port = address.rpartition(":")
     if not host or "://" in address or not port.isdigit():
@@ -73,7 +73,7 @@ def connect(address: str, cpus: int) -> None:
         raise EngineError(f"--ray-address {address}: Ray Client addresses are not supported (the driver writes "
                           "the workspace, so it runs beside the cluster); run the command on a node of the cluster "
                           "with --ray-address auto, or give the head's host:6379")
-    _reachable(address)
+    reachable(address)
     try:
         if address:
             ray.init(address=address, log_to_driver=False, runtime_env=runtime_env())

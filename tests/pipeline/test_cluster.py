@@ -134,12 +134,14 @@ def test_more_workers_than_free_cpus_never_hang(cluster, smoke_labelled, local_r
     _same(ws, local_reference, "renders", ("image_path", "mask_path", "ground_truth_path"))
 
 
-def test_an_unreachable_cluster_is_an_error_not_a_traceback(smoke_labelled, tmp_path):
-    ws = _copy(smoke_labelled, tmp_path, "nowhere")
-    result = speedplus("render", "--workspace", str(ws.root), "--engine", "ray", "--ray-address",
+def test_an_unreachable_cluster_is_an_error_before_anything_is_discarded(local_reference, tmp_path):
+    shutil.copytree(local_reference.root, tmp_path / "nowhere")
+    ws = Workspace(tmp_path / "nowhere")
+    result = speedplus("render", "--workspace", str(ws.root), "--force", "--engine", "ray", "--ray-address",
                        f"127.0.0.1:{free_port()}", env=ENV, timeout=300)
     assert result.returncode == 1
     assert "error: cannot join the Ray cluster" in result.stderr and "Traceback" not in result.stderr
+    assert pq.read_table(ws.manifest_dir("renders")).num_rows == 8  # --force discarded nothing
 
 
 def test_a_node_that_would_render_with_another_variant_is_refused(cluster, smoke_labelled):
