@@ -195,7 +195,8 @@ def _forget_rows_without_files(workspace: Workspace, name: str, current: str) ->
             missing.append((row[spec.key], gone[0]))
     if not missing:
         return
-    keep = pa.array([key not in {m[0] for m in missing} for key in table.column(spec.key).to_pylist()])
+    lost = {key for key, _ in missing}
+    keep = pa.array([key not in lost for key in table.column(spec.key).to_pylist()])
     stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
     compact(workspace.manifest_dir(name), table.filter(keep).replace_schema_metadata(stamped), spec.key)
     console.print(f"[yellow]{name}: {len(missing)} row(s) name files that are missing ({missing[0][1]}"
