@@ -60,8 +60,9 @@ def _render_seconds(camera: LensCamera, spp: int, max_depth: int, count: int) ->
     jobs = []
     for i in range(count + 1):
         q = np.array([0.9, 0.1 * i, 0.3, 0.1])
+        light = np.array([0.3, 0.2, -0.9])
         jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q / np.linalg.norm(q)), (0.1 * i, -0.2, 4.0 + i),
-                              (0.3, 0.2, -0.9), 3.0, False, i))
+                              tuple(light / np.linalg.norm(light)), 3.0, False, i))
     worker.render(jobs[0])
     started = time.process_time()
     for job in jobs[1:]:

@@ -30,7 +30,7 @@ WORKER_CPUS_ENV = "SPEEDPLUS_WORKER_CPUS"
 PINNED_DISTRIBUTIONS = ("mitsuba", "drjit", "numpy", "opencv-contrib-python-headless",
                         "onnxruntime", "OpenImageIO")
 
-__all__ = ["EngineError", "Produced", "environment", "map_engine", "map_local", "store", "worker_cpus"]
+__all__ = ["EngineError", "Produced", "environment", "map_engine", "map_local", "reserved_cpus", "store"]
 
 
 class EngineError(InputError):
@@ -66,7 +66,7 @@ def environment() -> dict[str, str]:
     return versions
 
 
-def worker_cpus(default: int) -> int:
+def reserved_cpus(default: int) -> int:
     """The CPUs reserved for this worker by the cluster, else ``default``."""
     value = os.environ.get(WORKER_CPUS_ENV, "")
     return int(value) if value.isdigit() and int(value) > 0 else default

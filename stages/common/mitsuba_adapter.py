@@ -89,8 +89,10 @@ def load_mitsuba() -> Any:
 
 
 def render_threads(workers: int) -> int:
-    """Dr.Jit threads per renderer when ``workers`` renderers share this machine's cores."""
-    return max(1, (os.cpu_count() or 1) // max(1, workers))
+    """Dr.Jit threads per renderer when ``workers`` renderers share this machine's cores
+    (``workers`` 0: one renderer a core, as the engines read it)."""
+    cores = os.cpu_count() or 1
+    return max(1, cores // (workers or cores))
 
 
 def mitsuba_variant() -> dict[str, str]:
@@ -103,9 +105,9 @@ def set_threads(threads: int) -> None:
     reserved for it (the pixels do not depend on it: measured bit-identical with 1 and 2)."""
     import drjit as dr
 
-    from pipeline.engines import worker_cpus
+    from pipeline.engines import reserved_cpus
 
-    dr.set_thread_count(max(1, worker_cpus(threads)))
+    dr.set_thread_count(max(1, reserved_cpus(threads)))
 
 
 def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, rfilter: Literal["box", "gaussian"],
