@@ -41,13 +41,18 @@ def part_records(parts: list[Path]) -> list[dict[str, Any]]:
 
 
 def file_records(workspace: Workspace, spec: ManifestSpec, rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Size and SHA-256 of every existing workspace file the rows name in ``spec.files``."""
+    """Size and SHA-256 of every existing workspace file the rows name in ``spec.files`` (for
+    a file a worker uploaded to the store: what it reported, its size checked by the driver)."""
     out = {}
     for row in rows:
         for column in spec.files:
             relpath = row.get(column)
             if relpath and relpath not in out:
-                path = workspace.resolve(relpath)
+                stored = workspace.stored_record(relpath)  # a worker wrote it to the store directly
+                if stored is not None:
+                    out[relpath] = {"bytes": stored["bytes"], "sha256": stored["sha256"]}
+                    continue
+                path = workspace.fetch(relpath)
                 if path.is_file():
                     out[relpath] = {"bytes": path.stat().st_size, "sha256": sha256(path)}
     return out
@@ -74,7 +79,7 @@ def damaged_files(workspace: Workspace, marker: dict[str, Any]) -> list[str]:
     """The recorded files that are missing or differ in size or content, as messages."""
     problems = []
     for relpath, record in sorted(marker.get("files", {}).items()):
-        path = workspace.resolve(relpath)
+        path = workspace.fetch(relpath)
         if not path.is_file():
             problems.append(f"{relpath} is missing")
         elif path.stat().st_size != record["bytes"] or sha256(path) != record["sha256"]:

@@ -4,7 +4,8 @@
 ``flock`` belongs to the open file, so the kernel releases it when the holder exits or is
 killed: a lock left by a dead process is simply free, and the next writer takes it over.
 The file says who holds it (PID, host, command, since when), for the message a second
-writer gets. Readers (``status``, ``verify``) never take it.
+writer gets. Readers (``status``, ``verify``) never take it. A workspace on object storage
+also takes its store's lease (``manifests.lease``): one writer across machines.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import sys
 from datetime import UTC, datetime
 from types import TracebackType
 
+from manifests.lease import Lease
+from manifests.lease import holder as lease_holder
 from manifests.workspace import Workspace
 from pipeline.errors import InputError
 
@@ -35,6 +38,7 @@ class WorkspaceLock:
         self.path = workspace.root / LOCK_FILE
         self.command = command or " ".join(os.path.basename(a) if i == 0 else a for i, a in enumerate(sys.argv))
         self.handle: int | None = None
+        self.lease = Lease(workspace.copy.remote, self.command) if workspace.copy is not None else None
 
     def __enter__(self) -> WorkspaceLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -51,10 +55,19 @@ class WorkspaceLock:
         os.pwrite(handle, json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "command": self.command,
                                       "since": datetime.now(UTC).isoformat(timespec="seconds")}).encode(), 0)
         self.handle = handle
+        if self.lease is not None:
+            try:
+                self.lease.__enter__()
+            except BaseException:
+                self.lease = None
+                self.__exit__(None, None, None)
+                raise
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  traceback: TracebackType | None) -> None:
+        if self.lease is not None:
+            self.lease.__exit__(kind, error, traceback)
         if self.handle is not None:
             os.ftruncate(self.handle, 0)
             fcntl.flock(self.handle, fcntl.LOCK_UN)
@@ -72,6 +85,8 @@ def _holder(handle: int) -> str:
 
 def holder(workspace: Workspace) -> str | None:
     """Who writes the workspace now, or None (for ``status``; takes nothing)."""
+    if workspace.copy is not None:
+        return lease_holder(workspace.copy.remote)
     path = workspace.root / LOCK_FILE
     try:
         handle = os.open(path, os.O_RDONLY)

@@ -19,8 +19,12 @@ Paths stored in manifests are relative to ``W`` and may never leave it.
 from __future__ import annotations
 
 from pathlib import Path, PurePosixPath
+from typing import TYPE_CHECKING, Any
 
 from pipeline.errors import InputError
+
+if TYPE_CHECKING:
+    from manifests.remote import Remote, RemoteCopy
 
 CONFIG_FILE = "config.toml"
 SESSION_FILE = "session.json"
@@ -54,20 +58,55 @@ def check_relative(path: str) -> PurePosixPath:
 
 
 class Workspace:
-    """A run directory ``W``; every stage reads and writes through these paths."""
+    """A run directory ``W``; every stage reads and writes through these paths. A workspace
+    on object storage is a local working copy at ``root`` of the store (``copy``,
+    ``manifests.remote``): stages read files through ``fetch``, which downloads them on demand."""
 
     def __init__(self, root: str | Path, output_fingerprints: dict[str, str] | None = None,
-                 forced: bool = False) -> None:
+                 forced: bool = False, copy: RemoteCopy | None = None) -> None:
         self.root = Path(root).resolve()
         self._output_fingerprints = dict(output_fingerprints or {})
         #: the run was asked to redo its results (--force): a stage may then replace what it
         #: would otherwise refuse to touch (export: a folder holding other files)
         self.forced = forced
+        self.copy = copy
 
     def for_run(self, output_fingerprints: dict[str, str], forced: bool = False) -> Workspace:
         """The same workspace as a stage run sees it: writers stamp each output manifest's
         parts with its fingerprint (docs/architecture.md section 1). Made by the runner."""
-        return Workspace(self.root, output_fingerprints, forced)
+        return Workspace(self.root, output_fingerprints, forced, self.copy)
+
+    @property
+    def remote(self) -> Remote | None:
+        """The store this workspace lives in (workers write there directly), or None."""
+        return self.copy.remote if self.copy is not None else None
+
+    @property
+    def location(self) -> str:
+        """The workspace as the user named it: its path, or its store URI."""
+        return self.copy.remote.display() if self.copy is not None else str(self.root)
+
+    def fetch(self, relpath: str) -> Path:
+        """The local path of a manifest path, to read: fetched from the store when only it
+        has the file (a missing file stays missing; readers report it)."""
+        if self.copy is not None:
+            return self.copy.fetch(relpath)
+        return self.resolve(relpath)
+
+    def has_file(self, relpath: str) -> bool:
+        """Whether the file a manifest names exists (here, or in the store)."""
+        if self.copy is not None:
+            return self.copy.has(relpath)
+        return self.resolve(relpath).is_file()
+
+    def stored_record(self, relpath: str) -> dict[str, Any] | None:
+        """``{"bytes", "sha256"}`` of a file a worker wrote straight to the store, or None."""
+        return self.copy.record(relpath) if self.copy is not None else None
+
+    def sync(self) -> None:
+        """Push the working copy to its store (after a stage completes); nothing locally."""
+        if self.copy is not None:
+            self.copy.push()
 
     def output_fingerprint(self, name: str) -> str:
         """The fingerprint the running stage stamps on manifest ``name``'s parts."""
@@ -78,7 +117,7 @@ class Workspace:
                                "pipeline.runner.run_stage") from None
 
     def __repr__(self) -> str:
-        return f"Workspace({str(self.root)!r})"
+        return f"Workspace({self.location!r})"
 
     @property
     def config_path(self) -> Path:
@@ -130,7 +169,10 @@ class Workspace:
         return self.root / check_relative(relpath)
 
     def display(self, path: Path) -> str:
-        """A path as users should read it in messages: relative to the workspace's parent."""
+        """A path as users should read it in messages: relative to the workspace's parent
+        (in the store: its URI)."""
+        if self.copy is not None and path.is_relative_to(self.root):
+            return f"{self.location}/{path.relative_to(self.root).as_posix()}"
         try:
             return str(path.relative_to(self.root.parent))
         except ValueError:

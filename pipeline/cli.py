@@ -7,10 +7,12 @@ field or key); 2 usage error; 130 interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import tempfile
 import traceback
+from collections.abc import Iterator
 from dataclasses import fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -23,6 +25,8 @@ from rich.table import Table
 
 from manifests import ManifestError, Workspace
 from manifests.lock import WorkspaceLock, holder
+from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
+from manifests.workspace import CONFIG_FILE
 from pipeline import registry, runner
 from pipeline.config import SECTION_TYPES, Config, Override, load_config, parse_override, with_overrides, write_config
 from pipeline.errors import InputError
@@ -49,7 +53,8 @@ def key_help(dotted: str) -> str:
 
 
 WorkspaceOption = Annotated[
-    Path | None, typer.Option("--workspace", "-w", help="run directory W (default: data/<profile>)")]
+    str | None, typer.Option("--workspace", "-w", help="run directory W, or a workspace on object storage: "
+                             "s3://bucket/prefix, gs://bucket/prefix (default: data/<profile>)")]
 ProfileOption = Annotated[
     str | None, typer.Option("--profile", "-p", help="smoke | default | paper (default: W/config.toml, else default)")]
 ConfigOption = Annotated[
@@ -70,22 +75,71 @@ def _engine(engine: str | None, ray_address: str | None, workers: int | None) ->
     return [Override.of(key, value, flag) for key, value, flag in chosen if value is not None]
 
 
-def _context(workspace: Path | None, profile: str | None, config: Path | None,
+def _workspace(location: str, root: Path | None = None) -> Workspace:
+    """The workspace a ``--workspace`` names: a local folder, or a working copy (this
+    machine's, or ``root``) of one on object storage."""
+    if not is_remote(location):
+        return Workspace(location)
+    remote = Remote(location)
+    root = root or working_copy_for(remote)
+    return Workspace(root, copy=RemoteCopy(remote, root))
+
+
+def _context(workspace: str | None, profile: str | None, config: Path | None,
              overrides: list[Override]) -> tuple[Config, Workspace]:
     """Resolve the configuration: explicit options win; else the workspace's config.toml."""
-    if workspace is not None and profile is None and config is None:
-        existing = Workspace(workspace).config_path
-        if existing.exists():
-            config = existing
-    resolved = load_config(profile, config, overrides)
-    return resolved, Workspace(workspace or Path("data") / resolved.profile)
+    ws = _workspace(workspace) if workspace is not None else None
+    with tempfile.TemporaryDirectory(prefix="speedplus-config-") as folder:
+        if ws is not None and profile is None and config is None:
+            existing = ws.config_path
+            if ws.copy is not None:  # the store's, not what this machine last saw
+                existing = Path(folder) / CONFIG_FILE
+                data = ws.copy.remote.read(CONFIG_FILE)
+                if data is not None:
+                    existing.write_bytes(data)
+            if existing.exists():
+                config = existing
+        resolved = load_config(profile, config, overrides)
+    return resolved, ws or Workspace(Path("data") / resolved.profile)
+
+
+@contextlib.contextmanager
+def _writing(ws: Workspace) -> Iterator[Workspace]:
+    """Hold the workspace's lock; on object storage, pull first and push at the end, however
+    the command ends (rows finished before an error or Ctrl-C reach the store)."""
+    with WorkspaceLock(ws):
+        if ws.copy is None:
+            yield ws
+            return
+        ws.copy.pull()
+        try:
+            yield ws
+        except BaseException:
+            try:
+                ws.copy.push()
+            except InputError as error:
+                err.print(f"[yellow]warning:[/] {escape(str(error))}", highlight=False)
+            raise
+        ws.copy.push()
+
+
+@contextlib.contextmanager
+def _reading(ws: Workspace) -> Iterator[Workspace]:
+    """A workspace to read without the lock: on object storage, a fresh temporary copy."""
+    if ws.copy is None:
+        yield ws
+        return
+    with tempfile.TemporaryDirectory(prefix="speedplus-read-") as folder:
+        copy = _workspace(ws.copy.remote.uri, Path(folder))
+        copy.copy.pull()
+        yield copy
 
 
 def _parsed(texts: list[str] | None) -> list[Override]:
     return [parse_override(text) for text in texts or []]
 
 
-def _run(stages: list[str], workspace: Path | None, profile: str | None, config: Path | None,
+def _run(stages: list[str], workspace: str | None, profile: str | None, config: Path | None,
          saved: list[Override], force: bool, transient: list[Override] = ()) -> Workspace:
     """Run ``stages``; ``saved`` overrides go into W/config.toml, ``transient`` ones (which
     choose what a command does: render's image set, export's format) apply to this run only,
@@ -94,7 +148,7 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
     transient = [*transient, *(o for o in saved if o.section == "run")]
     saved = [o for o in saved if o.section != "run"]
     resolved, ws = _context(workspace, profile, config, saved)
-    with WorkspaceLock(ws):
+    with _writing(ws):
         write_config(resolved, ws.config_path)
         resolved = with_overrides(resolved, transient)
         if resolved.run.engine == "ray" and resolved.run.ray_address:
@@ -111,7 +165,7 @@ def _run(stages: list[str], workspace: Path | None, profile: str | None, config:
             else:
                 out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
     if stages and stages[-1] == "report":
-        out.print(f"report: {ws.root / 'report' / 'index.html'}")
+        out.print(f"report: {ws.location}/report/index.html")
     return ws
 
 
@@ -246,8 +300,13 @@ def run_command(
 def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
                    set_: SetOption = None) -> None:
     """List every stage as done / partial / stale / missing, with row counts."""
-    resolved, ws = _context(workspace, profile, config, _parsed(set_))
-    table = Table(title=escape(f"{ws.root} (profile {resolved.profile})"))
+    resolved, located = _context(workspace, profile, config, _parsed(set_))
+    with _reading(located) as ws:
+        _print_status(resolved, ws)
+
+
+def _print_status(resolved: Config, ws: Workspace) -> None:
+    table = Table(title=escape(f"{ws.location} (profile {resolved.profile})"))
     for column in ("stage", "state", "rows", "detail"):
         table.add_column(column)
     colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim", "damaged": "bold red"}
@@ -267,9 +326,10 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     """Check a whole workspace: every completed manifest against its completion marker, and
     every image, mask and model against the size and hash recorded when it was written.
     Exit 1 when anything is damaged, naming the stage to redo."""
-    resolved, ws = _context(workspace, profile, config, _parsed(set_))
-    findings = runner.verify(resolved, ws, registry.STAGES)
-    table = Table(title=escape(f"{ws.root}: integrity"))
+    resolved, located = _context(workspace, profile, config, _parsed(set_))
+    with _reading(located) as ws:
+        findings = runner.verify(resolved, ws, registry.STAGES)
+    table = Table(title=escape(f"{ws.location}: integrity"))
     for column in ("stage", "manifest", "state", "detail"):
         table.add_column(column)
     for finding in findings:
@@ -280,8 +340,8 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     out.print(table)
     damaged = sorted({f.stage for f in findings if f.problems}, key=registry.STAGE_NAMES.index)
     if damaged:
-        raise InputError(f"{ws.root}: damaged results; redo {', '.join(damaged)} with --force "
-                         f"(`speedplus {damaged[0]} -w {ws.root} --force`, then `speedplus run`)")
+        raise InputError(f"{ws.location}: damaged results; redo {', '.join(damaged)} with --force "
+                         f"(`speedplus {damaged[0]} -w {ws.location} --force`, then `speedplus run`)")
     out.print(f"{len(findings)} completed manifests intact" if findings else "nothing completed yet")
 
 

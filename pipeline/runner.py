@@ -178,6 +178,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             "completed_at": datetime.now(UTC).isoformat(timespec="seconds"),
             **_complete(workspace, name, current),
         })
+    workspace.sync()  # a workspace on object storage: the store gets the stage's results now
     return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
 
 
@@ -190,7 +191,7 @@ def _forget_rows_without_files(workspace: Workspace, name: str, current: str) ->
     table = read_manifest(workspace, name)
     missing = []
     for row in table.select([spec.key, *spec.files]).to_pylist():
-        gone = [row[c] for c in spec.files if row[c] and not workspace.resolve(row[c]).is_file()]
+        gone = [row[c] for c in spec.files if row[c] and not workspace.has_file(row[c])]
         if gone:
             missing.append((row[spec.key], gone[0]))
     if not missing:
@@ -245,7 +246,8 @@ def publish_model(workspace: Workspace, name: str, destination: Path) -> dict[st
     if name not in rows:
         raise StageError(f"{workspace.display(workspace.manifest_dir('models'))}: no model {name!r}; run "
                          "train-reference first")
-    source = workspace.resolve(rows[name]["path"])
+    source = workspace.fetch(rows[name]["path"])
+    workspace.fetch(rows[name]["path"].removesuffix(".onnx") + ".json")
     copy_atomic(source, destination)
     copy_atomic(source.with_suffix(".json"), destination.with_suffix(".json"))
     return rows[name]

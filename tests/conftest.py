@@ -72,3 +72,61 @@ def reseal(workspace, name):
     marker = json.loads(path.read_text())
     marker["parts"] = part_records(list_parts(workspace, name))
     path.write_text(json.dumps(marker))
+
+
+class ObjectStore:
+    """An S3-protocol server (moto) on 127.0.0.1 for this test session; ``uri(prefix)`` names a
+    workspace in its bucket, endpoint and credentials included, so every process (CLI, Ray
+    workers) reaches it without environment variables."""
+
+    BUCKET = "speedplus-tests"
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+
+    def uri(self, prefix: str) -> str:
+        return (f"s3://test:test@{self.BUCKET}/{prefix}?endpoint_override=127.0.0.1:{self.port}&scheme=http"
+                "&region=us-east-1")
+
+    def client(self):
+        import boto3
+
+        return boto3.client("s3", endpoint_url=f"http://127.0.0.1:{self.port}", aws_access_key_id="test",
+                            aws_secret_access_key="test", region_name="us-east-1")
+
+    def keys(self, prefix: str) -> dict[str, bytes]:
+        """Every object under ``prefix`` (key relative to it -> bytes)."""
+        client, out = self.client(), {}
+        for page in client.get_paginator("list_objects_v2").paginate(Bucket=self.BUCKET, Prefix=prefix + "/"):
+            for entry in page.get("Contents", []):
+                key = entry["Key"]
+                if key.endswith("/"):  # a folder marker pyarrow leaves
+                    continue
+                out[key[len(prefix) + 1:]] = client.get_object(Bucket=self.BUCKET, Key=key)["Body"].read()
+        return out
+
+
+@pytest.fixture(scope="session")
+def object_store():
+    """moto's S3 server on a free loopback port, with one bucket; stopped at the end."""
+    import socket
+    import time
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            break
+        except OSError:
+            assert server.poll() is None and time.monotonic() < deadline, "moto server did not start"
+            time.sleep(0.2)
+    store = ObjectStore(port)
+    store.client().create_bucket(Bucket=ObjectStore.BUCKET)
+    yield store
+    server.terminate()
+    server.wait(timeout=30)

@@ -6,10 +6,13 @@ the driver (a manifest row, a record) and the bytes of the files it made, by wor
 path. The driver writes them (``store``) before the row, each atomically, so any cluster
 works without a shared filesystem, an interrupted stage never leaves a row without its
 files, and the bytes do not depend on the engine, the worker count or the finishing order.
+When the workspace lives on object storage, Ray workers upload their files themselves
+(``upload``) and return their sizes and hashes, which the driver checks (``store``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import platform
 from collections.abc import Callable, Iterator
@@ -19,6 +22,7 @@ from typing import Any, Literal
 
 from manifests import Workspace
 from manifests.files import write_bytes_atomic
+from manifests.remote import Remote, StoredFile
 from pipeline.engines.local import map_local
 from pipeline.errors import InputError
 
@@ -30,7 +34,7 @@ WORKER_CPUS_ENV = "SPEEDPLUS_WORKER_CPUS"
 PINNED_DISTRIBUTIONS = ("mitsuba", "drjit", "numpy", "opencv-contrib-python-headless",
                         "onnxruntime", "OpenImageIO")
 
-__all__ = ["EngineError", "Produced", "environment", "map_engine", "map_local", "reserved_cpus", "store"]
+__all__ = ["EngineError", "Produced", "environment", "map_engine", "map_local", "reserved_cpus", "store", "upload"]
 
 
 class EngineError(InputError):
@@ -44,15 +48,33 @@ class Produced:
     (workspace-relative path -> bytes), which the driver writes."""
 
     value: Any
-    files: dict[str, bytes] = field(default_factory=dict)
+    files: dict[str, bytes | StoredFile] = field(default_factory=dict)
 
 
 def store(workspace: Workspace, produced: Produced) -> Any:
     """Write ``produced``'s files into the workspace (each atomically; a path that would
-    leave it is refused) and return its value, which may then be recorded."""
+    leave it is refused), or check those a worker uploaded to the workspace's store, and
+    return its value, which may then be recorded."""
     for relpath, data in produced.files.items():
-        write_bytes_atomic(workspace.resolve(relpath), data)
+        if isinstance(data, StoredFile):
+            if workspace.copy is None:
+                raise EngineError(f"{relpath}: a worker uploaded it to object storage, but {workspace.location} is "
+                                  "a local workspace")
+            workspace.copy.accept(relpath, data)
+        else:
+            write_bytes_atomic(workspace.resolve(relpath), data)
     return produced.value
+
+
+def upload(result: Any, remote: Remote) -> Any:
+    """``result`` (a dataclass with ``files``: path -> bytes) with its files uploaded to
+    ``remote`` and replaced by their sizes and hashes: what a worker sends back instead of
+    the bytes when the workspace lives on object storage."""
+    files = getattr(result, "files", None)
+    if not files or not dataclasses.is_dataclass(result):
+        return result
+    return dataclasses.replace(result, files={relpath: remote.put(relpath, data) if isinstance(data, bytes) else data
+                                              for relpath, data in files.items()})
 
 
 def environment() -> dict[str, str]:
@@ -75,14 +97,16 @@ def reserved_cpus(default: int) -> int:
 def map_engine(engine: Literal["local", "ray"], factory: Callable[..., Any], args: tuple[Any, ...], method: str,
                items: list[Any], *, workers: int, max_tasks: int, ray_address: str = "", worker_cpus: int = 1,
                prepare: Callable[[Any], Any] | None = None, probe: Callable[[], dict[str, str]] | None = None,
-               expect: dict[str, str] | None = None, start_timeout_s: float = 600.0) -> Iterator[Any]:
+               expect: dict[str, str] | None = None, start_timeout_s: float = 600.0,
+               remote: Remote | None = None) -> Iterator[Any]:
     """``factory(*args).<method>(prepare(item))`` for every item, as results complete, on
     ``map_local`` or ``cluster.map_ray`` (each Ray worker runs ``probe`` first; its report
-    must match the driver's ``environment`` and ``expect``)."""
+    must match the driver's ``environment`` and ``expect``; with ``remote``, it uploads its
+    results' files there itself)."""
     if engine == "ray":
         from pipeline.engines.cluster import map_ray
 
         return map_ray(factory, args, method, items, workers=workers, max_tasks=max_tasks, address=ray_address,
                        worker_cpus=worker_cpus, prepare=prepare, probe=probe, expect=expect,
-                       start_timeout_s=start_timeout_s)
+                       start_timeout_s=start_timeout_s, remote=remote)
     return map_local(factory, args, method, items, workers=workers, max_tasks=max_tasks, prepare=prepare)

@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from pipeline.engines import WORKER_CPUS_ENV, EngineError, environment
+from pipeline.engines import WORKER_CPUS_ENV, EngineError, environment, upload
 from pipeline.progress import console
 
 #: a sample is tried on at most this many workers before the stage gives up on it
@@ -90,9 +90,9 @@ def _actor_class(ray: Any) -> Any:
         """Reports where it runs and with what (``describe``), then holds one context, built
         on its first item: a node that cannot make the driver's bytes is refused before."""
 
-        def __init__(self, packed: tuple[Callable[..., Any], tuple[Any, ...], Callable[[], dict[str, str]] | None]
-                     ) -> None:
-            self.factory, self.args, self.probe = packed
+        def __init__(self, packed: tuple[Callable[..., Any], tuple[Any, ...], Callable[[], dict[str, str]] | None,
+                                         Any]) -> None:
+            self.factory, self.args, self.probe, self.remote = packed
             cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1)
             os.environ[WORKER_CPUS_ENV] = str(max(1, int(round(cpus))))
             self.context: Any = None
@@ -110,7 +110,8 @@ def _actor_class(ray: Any) -> Any:
         def call(self, method: str, item: Any) -> Any:
             if self.context is None:
                 self.context = self.factory(*self.args)
-            return getattr(self.context, method)(item)
+            result = getattr(self.context, method)(item)
+            return upload(result, self.remote) if self.remote is not None else result
 
     return Worker
 
@@ -147,11 +148,13 @@ def _cause(error: Exception) -> Exception:
 def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, items: list[Any], *,
             workers: int, max_tasks: int, address: str = "", worker_cpus: int = 1,
             prepare: Callable[[Any], Any] | None = None, probe: Callable[[], dict[str, str]] | None = None,
-            expect: dict[str, str] | None = None, start_timeout_s: float = 600.0) -> Iterator[Any]:
+            expect: dict[str, str] | None = None, start_timeout_s: float = 600.0,
+            remote: Any = None) -> Iterator[Any]:
     """Like ``map_local`` on a Ray cluster, with at most ``workers`` actors of ``worker_cpus``
     CPUs each (``workers`` 0: as many as the free CPUs allow). Each actor runs ``probe``
-    first; its report must match the driver's ``environment`` and ``expect``. See the
-    module docstring."""
+    first; its report must match the driver's ``environment`` and ``expect``. With
+    ``remote`` (``manifests.remote.Remote``), actors upload their results' files there and
+    return sizes and hashes. See the module docstring."""
     if not items:
         return
     ray = _ray()
@@ -166,7 +169,7 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
                           f"(free: {ray.available_resources().get('CPU', 0):g}); wait for other jobs or add nodes")
     expected = {**environment(), **(expect or {})}
     worker_class = _actor_class(ray).options(num_cpus=worker_cpus, max_restarts=0)
-    factory_ref = ray.put((factory, args, probe))  # one copy in the object store for every actor
+    factory_ref = ray.put((factory, args, probe, remote))  # one copy in the object store for every actor
 
     def start() -> _Slot:
         actor = worker_class.remote(factory_ref)

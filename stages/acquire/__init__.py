@@ -82,7 +82,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     part_rows = config.run.part_rows
     if with_truth:
         records = map_config(config, open_testbed, (config, str(workspace.root), samples), "capture", todo,
-                             renders=True)
+                             renders=True, remote=workspace.remote)
     else:  # a replay reads its session's files where they are: no cluster needed
         records = (testbed.capture(sample) for sample in todo)
     with open_sink(workspace, "captures", part_rows) as captures:

@@ -69,7 +69,7 @@ def detect_all(workspace: Workspace, captures: list[dict], spec: PatternSpec, mi
     the printed board goes on beyond (``extra["board_continues"]``)."""
     observations = []
     for row in track(captures, len(captures), "detect pattern"):
-        image = read_image(workspace.resolve(row["image_path"]), "gray")
+        image = read_image(workspace.fetch(row["image_path"]), "gray")
         pixels, ids = detect(image, spec)
         observation = Observation(row["sample_id"], ids, pixels, np.zeros((0, 3)))
         relabel(observation, spec, ids)

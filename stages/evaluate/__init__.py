@@ -71,7 +71,7 @@ def _with_images(workspace: Workspace) -> Callable[[list[dict[str, Any]]], list[
     def prepare(batch: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out = []
         for item in batch:
-            path = workspace.resolve(item["image_path"])
+            path = workspace.fetch(item["image_path"])
             try:
                 data = path.read_bytes()
             except OSError as error:

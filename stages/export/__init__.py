@@ -60,7 +60,7 @@ def claim(out: Path, workspace: Workspace, export_format: str) -> None:
     """Make ``out`` this workspace's export folder: it must be empty, or an export of this
     workspace in this format (a resumed or repeated export), or ``--force`` was given."""
     mark = out / EXPORT_MARK
-    ours = {"version": EXPORT_MARK_VERSION, "workspace": str(workspace.root), "format": export_format}
+    ours = {"version": EXPORT_MARK_VERSION, "workspace": workspace.location, "format": export_format}
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: export.out is a file, not a folder")
     if out.is_dir() and any(out.iterdir()) and not workspace.forced:
@@ -69,7 +69,7 @@ def claim(out: Path, workspace: Workspace, export_format: str) -> None:
         except (OSError, ValueError):
             theirs = None
         if theirs != ours:
-            raise InputError(f"{out}: not empty and not a {export_format} export of {workspace.root}; choose an "
+            raise InputError(f"{out}: not empty and not a {export_format} export of {workspace.location}; choose an "
                              "empty folder, or rerun with --force to write into it anyway")
     write_json_atomic(mark, ours)
 
@@ -137,7 +137,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     surfaces = bop.TangoSurfaces() if config.export.format == "bop" and todo else None
     with open_sink(workspace, name, config.run.part_rows) as sink:
         for item in track(todo, len(todo), "export"):
-            source = workspace.resolve(item["source"])
+            source = workspace.fetch(item["source"])
             if config.export.format == "speedplus":
                 file = speedplus.image_file(item["set"], item["domain"], item["filename"])
                 copy_atomic(source, out / inside_export(file, item))

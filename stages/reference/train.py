@@ -65,7 +65,7 @@ def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str
     keypoints = np.empty((len(rows), len(tango.KEYPOINTS_M), 2))
     maps = np.empty((len(rows), 3, 3))
     for index, row in enumerate(track(rows, len(rows), "load training images")):
-        image = to_uint8(read_image(workspace.resolve(row["image_path"]), "bgr"))
+        image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
         images[index], maps[index] = prepare(image, terms, keypoint_box(row["keypoints_px"]))
         input_from_image = np.linalg.inv(maps[index])
         keypoints[index] = np.asarray(row["keypoints_px"]) @ input_from_image[:2, :2].T + input_from_image[:2, 2]

@@ -63,7 +63,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     threads = render_threads(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
     args = (camera, spp, config.render.max_depth, threads, config.render.ground_truth)
-    produced = map_config(config, open_worker, args, "render", todo, renders=True)
+    produced = map_config(config, open_worker, args, "render", todo, renders=True, remote=workspace.remote)
     with open_sink(workspace, name, run_config.part_rows) as sink:
         for output in track(produced, len(todo), f"render {config.render.set} ({run_config.engine})"):
             row = store(workspace, output)

@@ -124,13 +124,13 @@ def run(config: Config, workspace: Workspace) -> None:
     overlays, pairs = [], []
     for label in chosen:
         sample_id = label["sample_id"]
-        capture = to_uint8(read_image(workspace.resolve(captures[sample_id]["image_path"]), "bgr"))
+        capture = to_uint8(read_image(workspace.fetch(captures[sample_id]["image_path"]), "bgr"))
         name = _write_png(thumb_dir / f"overlay_{sample_id}.png",
                           figures.thumbnail(figures.overlay(capture, label, camera.camera_matrix, camera.dist)))
         overlays.append(f'<figure><img src="thumbs/{name}" alt="wireframe of {sample_id}"><figcaption>{sample_id}: '
                         f'{label["view"]}, {label["domain"]}, {label["label_source"]}</figcaption></figure>')
         if sample_id in renders:
-            twin = to_uint8(read_image(workspace.resolve(renders[sample_id]["image_path"]), "bgr"))
+            twin = to_uint8(read_image(workspace.fetch(renders[sample_id]["image_path"]), "bgr"))
             pair = np.hstack([figures.thumbnail(twin), figures.thumbnail(figures.brighten(capture))])
             name = _write_png(thumb_dir / f"pair_{sample_id}.png", pair)
             synthetic, testbed = score_of.get(("synthetic", sample_id)), score_of.get((label["domain"], sample_id))
@@ -153,8 +153,9 @@ def run(config: Config, workspace: Workspace) -> None:
         ("Provenance", provenance(config, workspace)),
     ]
     body = "".join(f"<section><h2>{html.escape(title)}</h2>{content}</section>" for title, content in sections)
+    name = workspace.location.rsplit("/", 1)[-1]
     page = f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>SPEED+ builder report: {html.escape(workspace.root.name)}</title>
+<html lang="en"><head><meta charset="utf-8"><title>SPEED+ builder report: {html.escape(name)}</title>
 <style>
 body {{ font-family: sans-serif; margin: 2em auto; max-width: 1200px; color: #222; background: #fff; }}
 h1 {{ border-bottom: 2px solid #444; }} h2 {{ margin-top: 1.6em; color: #334; }}
@@ -163,7 +164,7 @@ th {{ background: #eef; }} img {{ max-width: 100%; }}
 .grid {{ display: flex; flex-wrap: wrap; gap: 10px; }} figure {{ margin: 0; }}
 figcaption {{ font-size: 0.85em; color: #555; }} pre {{ font-size: 0.8em; background: #f6f6f6; padding: 1em; }}
 </style></head><body>
-<h1>SPEED+ builder report: {html.escape(str(workspace.root))}</h1>
+<h1>SPEED+ builder report: {html.escape(workspace.location)}</h1>
 <p>Profile {html.escape(config.profile)}, model {html.escape(Path(config.evaluate.model).name)}; {len(labels)}
 labels, {len(renders)} twins, {len(predictions)} scored images.</p>
 {body}
