@@ -6,6 +6,10 @@ workspace itself would fail or lose files there. acquire, render and evaluate mu
 the bytes of a local run, and must survive a killed worker and a killed node.
 """
 
+import glob
+import hashlib
+import io
+import json
 import os
 import shutil
 import signal
@@ -19,6 +23,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import Workspace, list_parts
+from manifests.remote import Remote, RemoteCopy
 from pipeline.engines.local_cluster import ENV, LocalCluster, free_port
 from tests.conftest import speedplus
 
@@ -56,8 +61,8 @@ def _copy(smoke_labelled: Workspace, hidden: Path, name: str) -> Workspace:
     return Workspace(root)
 
 
-def _on(cluster: LocalCluster, *args: str):
-    return speedplus(*args, "--engine", "ray", "--ray-address", cluster.address, env=ENV, timeout=600)
+def _on(cluster: LocalCluster, *args: str, env: dict[str, str] | None = None):
+    return speedplus(*args, "--engine", "ray", "--ray-address", cluster.address, env=env or ENV, timeout=600)
 
 
 def _same(a: Workspace, b: Workspace, name: str, file_columns: tuple[str, ...]) -> None:
@@ -124,14 +129,35 @@ def test_a_killed_node_leaves_a_complete_identical_result(cluster, smoke_labelle
     _same(ws, smoke_labelled, "truth", ("maps_path",))
 
 
-def test_more_workers_than_free_cpus_never_hang(cluster, smoke_labelled, local_reference):
+def test_more_workers_than_free_cpus_never_hang_and_write_to_object_storage_directly(
+        cluster, smoke_labelled, local_reference, object_store, tmp_path):
+    """render with 6 workers asked on 2 CPUs, the workspace in an S3 store: the workers upload
+    their images themselves (the driver's working copy never holds them), the driver checks
+    them, and evaluate on the cluster reads them back: the bytes of a local run."""
     if cluster.cpus < 2:
         cluster.second = cluster.add_node(1, cluster.hidden)
-    ws = _copy(smoke_labelled, cluster.hidden, "oversubscribed")
-    result = _on(cluster, "render", "--workspace", str(ws.root), "--workers", "6")
+    uri = object_store.uri("cluster")
+    seed = _copy(smoke_labelled, cluster.hidden, "seed")
+    RemoteCopy(Remote(uri), seed.root).push()  # the labelled workspace, put in the store
+    driver = {**ENV, "SPEEDPLUS_WORKSPACE_CACHE": str(tmp_path / "driver")}
+    result = speedplus("render", "--workspace", uri, "--workers", "6", "--engine", "ray", "--ray-address",
+                       cluster.address, env=driver, timeout=600)
     assert result.returncode == 0, result.stderr
     assert "ray: 2 worker(s)" in result.stderr
-    _same(ws, local_reference, "renders", ("image_path", "mask_path", "ground_truth_path"))
+    assert not glob.glob(str(tmp_path / "driver" / "*" / "renders" / "twins" / "*.png"))  # never sent to the driver
+    result = _on(cluster, "evaluate", "--workspace", uri, env=driver)
+    assert result.returncode == 0, result.stderr
+    stored = object_store.keys("cluster")
+    for name, files in (("renders", ("image_path", "mask_path", "ground_truth_path")), ("predictions", ())):
+        got, want = pq.read_table(io.BytesIO(stored[f"manifests/{name}/part-00000.parquet"])), \
+            pq.read_table(local_reference.manifest_dir(name))
+        assert got.drop_columns([c for c in VOLATILE if c in got.column_names]).equals(
+            want.drop_columns([c for c in VOLATILE if c in want.column_names])), name
+        for column in files:
+            for relpath in got.column(column).to_pylist():
+                assert stored[relpath] == local_reference.resolve(relpath).read_bytes(), relpath
+    marker = json.loads(stored["manifests/_state/renders.json"])
+    assert all(marker["files"][r]["sha256"] == hashlib.sha256(stored[r]).hexdigest() for r in marker["files"])
 
 
 def test_an_unreachable_cluster_is_an_error_before_anything_is_discarded(local_reference, tmp_path):
