@@ -4,7 +4,7 @@ import importlib
 import sys
 
 BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "budget", "unmodelled", "render",
-              "cluster", "ground_truth", "evaluate", "identity")
+              "cluster", "storage", "ground_truth", "evaluate", "identity")
 ON_REQUEST = ("identity",)  # needs arguments (an earlier commit); not part of `python -m bench`
 
 if __name__ == "__main__":
