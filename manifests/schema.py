@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.6"
+SCHEMA_VERSION = "1.7"
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -258,7 +258,15 @@ PREDICTIONS = ManifestSpec(
                kind="enum", allowed=LIGHTS),
         Column("crop", pa.string(), "", "full image, or oracle box from the label", kind="enum",
                allowed=("full", "oracle_box")),
-        Column("pose_found", pa.bool_(), "", "the model's output gave a pose (else scored as the worst case)"),
+        Column("pose_found", pa.bool_(), "", "the model's output gave a pose (else scored as the worst case: "
+               "only non-finite outputs)"),
+        Column("pnp_method", pa.string(), "", "how the pose was found: EPnP in RANSAC, EPnP on all points "
+               "(no consensus), the model's own pose output, or none", kind="enum",
+               allowed=("ransac", "all_points", "direct", "none")),
+        Column("pnp_inliers", pa.int32(), "count", "keypoints within the RANSAC threshold of the pose (keypoint "
+               "models)", nullable=True),
+        Column("reprojection_rms_px", pa.float64(), "px", "reprojection RMS of every finite keypoint at the pose "
+               "(keypoint models)", nullable=True),
         Column("q_pred", QUAT, "1", "predicted rotation of cam_from_target", nullable=True, kind="quaternion"),
         Column("t_pred", VEC3, "m", "predicted translation of cam_from_target, full scale", nullable=True),
         Column("err_q_rad", pa.float64(), "rad", "2 arccos |<q_pred, q_true>| (pi when no pose)"),

@@ -31,6 +31,9 @@ def test_every_stage_is_done(finished):
     predictions = read_manifest(ws, "predictions").to_pylist()
     assert {p["domain"] for p in predictions} == {"synthetic", "lightbox", "sunlamp"}
     assert len(predictions) == 16  # 8 testbed images and their 8 twins
+    # a keypoint model's finite outputs always give a pose, with what PnP made of them
+    assert all(p["pose_found"] and p["pnp_method"] in ("ransac", "all_points") for p in predictions)
+    assert all(0 <= p["pnp_inliers"] <= 11 and np.isfinite(p["reprojection_rms_px"]) for p in predictions)
     scores = {row["group"]: row for row in read_manifest(ws, "scores").to_pylist()}
     assert scores["synthetic/all/all"]["count"] == 8 and scores["testbed/all/all"]["count"] == 8
 

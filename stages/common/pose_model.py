@@ -23,7 +23,9 @@ key                        value
 =========================  ==============================================================
 
 Keypoint outputs become poses by EPnP inside RANSAC, then Levenberg-Marquardt refinement
-on the inliers, with the label camera (intrinsics and distortion).
+on the inliers, with the label camera (intrinsics and distortion); without a consensus, by
+EPnP on every point and a confidence-weighted refinement (``pose_from_keypoints``): finite
+outputs always give a pose.
 """
 
 from __future__ import annotations
@@ -223,28 +225,94 @@ def decode_heatmaps(heatmaps: np.ndarray, width: int, height: int) -> tuple[np.n
     return points, peak
 
 
+#: how a prediction's pose was found: EPnP inside RANSAC, EPnP on all points (RANSAC found no
+#: consensus), given by the model itself (``speedplus.output=pose``), or not at all
+PNP_METHODS = ("ransac", "all_points", "direct", "none")
+
+
+@dataclass(frozen=True)
+class PnPSolution:
+    """A pose recovered from keypoints: ``q`` (4,) and ``t`` (3,) [m] of cam_from_target,
+    ``method`` (``PNP_METHODS``), the keypoints within the RANSAC threshold of it
+    (``inliers``) and the reprojection RMS over every finite keypoint (``rms_px``)."""
+
+    q: np.ndarray
+    t: np.ndarray
+    method: str
+    inliers: int
+    rms_px: float
+
+
+def _plausible(tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray) -> bool:
+    """In front of the camera and at least a couple of pixels across (degenerate solutions
+    at huge distances explain collapsed keypoints perfectly)."""
+    radius = float(np.max(np.linalg.norm(object_points - object_points.mean(axis=0), axis=1)))
+    return bool(np.all(np.isfinite(tvec)) and tvec[2] > 0 and np.linalg.norm(tvec) <= camera_matrix[0][0] * radius)
+
+
+def _residuals(object_points: np.ndarray, image_points: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+               rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """(K,) reprojection distances [px]."""
+    projected = cv2.projectPoints(object_points, rvec, tvec, camera_matrix, dist)[0][:, 0]
+    return np.linalg.norm(projected - image_points, axis=1)
+
+
+def _weighted_lm(object_points: np.ndarray, image_points: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+                 rvec: np.ndarray, tvec: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt on the reprojection errors, each weighted by its keypoint's
+    confidence (OpenCV's refinement has no weights)."""
+    from scipy.optimize import least_squares
+
+    root = np.sqrt(weights)[:, None]
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        projected = cv2.projectPoints(object_points, x[:3], x[3:], camera_matrix, dist)[0][:, 0]
+        return ((projected - image_points) * root).ravel()
+
+    start = np.concatenate([rvec.ravel(), tvec.ravel()])
+    solution = least_squares(residual, start, method="lm", max_nfev=200)
+    x = solution.x if np.all(np.isfinite(solution.x)) else start
+    return x[:3].reshape(3, 1), x[3:].reshape(3, 1)
+
+
 def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
-                        dist: np.ndarray, reprojection_px: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """(q (4,), t (3,) m) of cam_from_target from K image points (K, 2) and body points
-    (K, 3): EPnP in RANSAC, then LM on the inliers. None when no pose is found, or when
-    the target would be under 2 pixels across."""
-    object_points = np.ascontiguousarray(keypoints_m, np.float64)
-    image_points = np.ascontiguousarray(keypoints_px, np.float64)
+                        dist: np.ndarray, reprojection_px: float,
+                        confidence: np.ndarray | None = None) -> PnPSolution | None:
+    """The pose of cam_from_target from K image points (K, 2) [px] and body points (K, 3)
+    [m], with the label camera: EPnP inside RANSAC (threshold ``reprojection_px``), then LM
+    on the inliers; when RANSAC finds no plausible consensus, EPnP on every point, then LM
+    with each residual weighted by its keypoint's ``confidence`` (K,) (heatmap peaks).
+    None only when fewer than 4 keypoints are finite: finite outputs always give a pose."""
+    image_points = np.asarray(keypoints_px, np.float64).reshape(-1, 2)
+    finite = np.all(np.isfinite(image_points), axis=1)
+    if finite.sum() < 4:
+        return None
+    object_points = np.ascontiguousarray(np.asarray(keypoints_m, np.float64)[finite])
+    image_points = np.ascontiguousarray(image_points[finite])
+    weights = np.ones(len(image_points)) if confidence is None else np.asarray(confidence, float)[finite]
+    weights = np.clip(np.nan_to_num(weights, nan=0.0, posinf=1.0, neginf=0.0), 1e-3, None)
+    method = "ransac"
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
         object_points, image_points, camera_matrix, dist, flags=cv2.SOLVEPNP_EPNP,
         reprojectionError=reprojection_px, iterationsCount=200, confidence=0.999)
-    if not ok or inliers is None or len(inliers) < 4:
-        return None
-    chosen = inliers[:, 0]
-    rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], camera_matrix, dist, rvec, tvec)
-    # a target smaller than a couple of pixels has no measurable pose (degenerate solutions
-    # at huge distances explain collapsed keypoints perfectly)
-    radius = float(np.max(np.linalg.norm(object_points - object_points.mean(axis=0), axis=1)))
-    farthest = camera_matrix[0][0] * radius
-    if not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0 or np.linalg.norm(tvec) > farthest:
-        return None
-    cam_from_target = g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0])
-    return g.transform_to_qt(cam_from_target)
+    if ok and inliers is not None and len(inliers) >= 4:
+        chosen = inliers[:, 0]
+        rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], camera_matrix, dist, rvec,
+                                          tvec)
+        ok = _plausible(tvec[:, 0], object_points, camera_matrix)
+    else:
+        ok = False
+    if not ok:
+        method = "all_points"
+        ok, rvec, tvec = cv2.solvePnP(object_points, image_points, camera_matrix, dist, flags=cv2.SOLVEPNP_EPNP)
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            ok, rvec, tvec = cv2.solvePnP(object_points, image_points, camera_matrix, dist, flags=cv2.SOLVEPNP_SQPNP)
+        rvec, tvec = _weighted_lm(object_points, image_points, camera_matrix, dist, np.asarray(rvec, float),
+                                  np.asarray(tvec, float), weights)
+    residuals = _residuals(object_points, image_points, camera_matrix, dist, rvec, tvec)
+    q, t = g.transform_to_qt(g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0]))
+    return PnPSolution(q, t, method, int(np.sum(residuals <= reprojection_px)),
+                       float(np.sqrt(np.mean(residuals ** 2))))
 
 
 def describe(model: PoseModel) -> dict[str, Any]:

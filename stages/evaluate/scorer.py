@@ -11,7 +11,7 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common.image_io import decode_image, to_uint8
-from stages.common.pose_model import PoseModel, decode_heatmaps, pose_from_keypoints
+from stages.common.pose_model import PnPSolution, PoseModel, decode_heatmaps, pose_from_keypoints
 from stages.common.scores import score
 
 
@@ -50,32 +50,38 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
         widths.append(image.shape[1])
     outputs = model.infer(np.stack(tensors))
     contract = model.contract
+    solutions: list[PnPSolution | None] = []
     if contract.output == "pose":
-        poses = list(zip(outputs[0], outputs[1], strict=True))
+        for q, t in zip(outputs[0], outputs[1], strict=True):
+            direct = bool(np.all(np.isfinite(q)) and np.all(np.isfinite(t)) and np.linalg.norm(q) > 0)
+            solutions.append(PnPSolution(g.quat_normalize(q), np.asarray(t, float), "direct", 0, float("nan"))
+                             if direct else None)
     else:
         if contract.output == "heatmaps":
-            points, _ = decode_heatmaps(outputs[0], contract.width, contract.height)
+            points, confidences = decode_heatmaps(outputs[0], contract.width, contract.height)
         else:
             points = np.asarray(outputs[0], float)
-        poses = []
-        for keypoints, affine, width in zip(points, image_from_input, widths, strict=True):
+            confidences = np.ones(points.shape[:2])
+        for keypoints, confidence, affine, width in zip(points, confidences, image_from_input, widths, strict=True):
             in_image = keypoints @ affine[:2, :2].T + affine[:2, 2]
-            poses.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
-                                             reprojection_fraction * width))
+            solutions.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
+                                                 reprojection_fraction * width, confidence))
     seconds = (time.perf_counter() - started) / len(items)
     rows = []
-    for item, pose in zip(items, poses, strict=True):
-        found = pose is not None and bool(np.all(np.isfinite(pose[0])) and np.all(np.isfinite(pose[1]))
-                                          and np.linalg.norm(pose[0]) > 0)
+    for item, solution in zip(items, solutions, strict=True):
+        found = solution is not None
         if found:
-            q = g.quat_normalize(pose[0])
-            t = np.asarray(pose[1], float)
+            q, t = solution.q, solution.t
             numbers = {k: float(v) for k, v in score(q, t, item["q_true"], item["t_true"]).items()}
         else:
             q = t = None
             numbers = {"err_q_rad": float(np.pi), "err_t_norm": 1.0}
             numbers |= {"score_speed": np.pi + 1.0, "score_speedplus": np.pi + 1.0}
+        keypoint_pose = found and solution.method != "direct"
         rows.append({"prediction_id": f"{item['domain']}:{item['sample_id']}", "sample_id": item["sample_id"],
                      "domain": item["domain"], "view": item["view"], "light": item["light"], "crop": contract.crop,
-                     "pose_found": found, "q_pred": q, "t_pred": t, **numbers, "seconds": seconds})
+                     "pose_found": found, "pnp_method": solution.method if found else "none",
+                     "pnp_inliers": solution.inliers if keypoint_pose else None,
+                     "reprojection_rms_px": solution.rms_px if keypoint_pose else None,
+                     "q_pred": q, "t_pred": t, **numbers, "seconds": seconds})
     return rows

@@ -45,14 +45,17 @@ def print_table2(scores: Any, model_name: str, crop: str) -> Table:
     oracle = " (oracle crop)" if crop == "oracle_box" else ""
     table = Table(title=f"Table 2: mean SPEED score of {model_name}{oracle} on twins and testbed images")
     for column in ("configuration (view, light)", "images", "synthetic", "testbed", "synthetic SPEED+",
-                   "testbed SPEED+"):
+                   "testbed SPEED+", "no pose (syn / test)"):
         table.add_column(column)
 
     def cell(row: dict[str, Any] | None, key: str) -> str:
         return "-" if row is None else f"{row[key]:.4f}"
 
+    def no_pose(row: dict[str, Any] | None) -> str:
+        return "-" if row is None else f"{100 * (1 - row['pose_found_share']):.0f}%"
+
     for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist()):
         table.add_row(configuration, str(count), cell(synthetic, "mean_score_speed"),
                       cell(testbed, "mean_score_speed"), cell(synthetic, "mean_score_speedplus"),
-                      cell(testbed, "mean_score_speedplus"))
+                      cell(testbed, "mean_score_speedplus"), f"{no_pose(synthetic)} / {no_pose(testbed)}")
     return table

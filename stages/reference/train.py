@@ -213,14 +213,16 @@ def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.n
     errors = []
     for first in range(0, len(data["images"]), 32):
         batch = normalise(data["images"][first:first + 32].astype(np.float32) / 255.0, model.contract)
-        points, _ = decode_heatmaps(model.infer(batch)[0], model.contract.width, model.contract.height)
-        for row, keypoints, image_from_input in zip(data["rows"][first:first + 32], points,
-                                                    data["maps"][first:first + 32], strict=True):
+        points, confidences = decode_heatmaps(model.infer(batch)[0], model.contract.width, model.contract.height)
+        for row, keypoints, confidence, image_from_input in zip(data["rows"][first:first + 32], points, confidences,
+                                                                data["maps"][first:first + 32], strict=True):
             in_image = keypoints @ image_from_input[:2, :2].T + image_from_input[:2, 2]
-            pose = pose_from_keypoints(in_image, tango.KEYPOINTS_M, camera_matrix, dist,
-                                       reprojection_px=0.01 * row["width"])
-            q, t = pose if pose is not None else (np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, 1.0]))
-            errors.append(score(q, t, row["q_vbs2tango_true"], row["r_Vo2To_vbs_true"]))
+            solution = pose_from_keypoints(in_image, tango.KEYPOINTS_M, camera_matrix, dist,
+                                           reprojection_px=0.01 * row["width"], confidence=confidence)
+            if solution is None:  # non-finite outputs: the worst case, as evaluate scores it
+                errors.append({"err_q_rad": np.pi, "err_t_norm": 1.0, "score_speed": np.pi + 1.0})
+                continue
+            errors.append(score(solution.q, solution.t, row["q_vbs2tango_true"], row["r_Vo2To_vbs_true"]))
     err_q = np.degrees([e["err_q_rad"] for e in errors])
     return {"images": len(errors), "mean_speed_score": float(np.mean([e["score_speed"] for e in errors])),
             "median_rotation_error_deg": float(np.median(err_q)), "mean_rotation_error_deg": float(np.mean(err_q)),

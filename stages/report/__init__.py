@@ -51,12 +51,19 @@ def _cell(row: dict[str, Any] | None, key: str) -> str:
 def table2(scores: list[dict[str, Any]], crop: str) -> str:
     rows = [[configuration, count, _cell(synthetic, "mean_score_speed"), _cell(testbed, "mean_score_speed"),
              _cell(synthetic, "mean_score_speedplus"), _cell(testbed, "mean_score_speedplus"),
-             _cell(synthetic, "median_err_q_deg"), _cell(testbed, "median_err_q_deg")]
+             _cell(synthetic, "median_err_q_deg"), _cell(testbed, "median_err_q_deg"),
+             _no_pose(synthetic), _no_pose(testbed)]
             for configuration, count, synthetic, testbed in tables.table2_groups(scores)]
     note = " (oracle crop: boxes from the labels)" if crop == "oracle_box" else ""
-    return "<p>Mean scores" + note + "</p>" + _table(
+    return ("<p>Mean scores" + note + "; an image without a pose (non-finite model output) scores the worst case, "
+            "pi + 1</p>") + _table(
         ["configuration (view, light)", "images", "synthetic SPEED", "testbed SPEED", "synthetic SPEED+",
-         "testbed SPEED+", "synthetic median e_q [deg]", "testbed median e_q [deg]"], rows)
+         "testbed SPEED+", "synthetic median e_q [deg]", "testbed median e_q [deg]", "synthetic no pose",
+         "testbed no pose"], rows)
+
+
+def _no_pose(row: dict[str, Any] | None) -> str:
+    return "-" if row is None else f"{100 * (1 - row['pose_found_share']):.0f}%"
 
 
 def rejection_table(poses: list[dict[str, Any]], labels: list[dict[str, Any]]) -> str:

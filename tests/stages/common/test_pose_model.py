@@ -66,13 +66,49 @@ def test_pose_from_keypoints_recovers_the_pose_despite_outliers():
         cam_from_target = g.transform_from_qt(q, [0.3, -0.2, 8.0])
         pixels = g.project(cam_from_target, tango.KEYPOINTS_M, K, DIST)
         pixels[[2, 7]] += rng.uniform(30, 60, (2, 2))  # two wild keypoints
-        q_found, t_found = pose_from_keypoints(pixels, tango.KEYPOINTS_M, K, DIST, reprojection_px=3.0)
-        assert g.quat_angular_distance(q_found, q) < 1e-6
-        np.testing.assert_allclose(t_found, [0.3, -0.2, 8.0], atol=1e-5)
+        solution = pose_from_keypoints(pixels, tango.KEYPOINTS_M, K, DIST, reprojection_px=3.0)
+        assert solution.method == "ransac" and solution.inliers == 9
+        assert g.quat_angular_distance(solution.q, q) < 1e-6
+        np.testing.assert_allclose(solution.t, [0.3, -0.2, 8.0], atol=1e-5)
+        # the RMS covers every keypoint: the two wild ones dominate it
+        assert 30 / np.sqrt(11) < solution.rms_px < 90 / np.sqrt(11) * np.sqrt(2)
 
 
-def test_no_pose_from_garbage():
-    assert pose_from_keypoints(np.zeros((11, 2)), tango.KEYPOINTS_M, K, DIST, reprojection_px=3.0) is None
+def test_finite_keypoints_always_give_a_pose():
+    rng = np.random.default_rng(2)
+    cases = [np.zeros((11, 2)), np.full((11, 2), 479.5), np.column_stack([np.linspace(0, 900, 11), np.full(11, 300)]),
+             rng.uniform(-1e5, 1e5, (11, 2))]
+    cases += [rng.uniform(0, 960, (11, 2)) for _ in range(20)]
+    for pixels in cases:
+        solution = pose_from_keypoints(pixels, tango.KEYPOINTS_M, K, DIST, reprojection_px=3.0,
+                                       confidence=rng.uniform(0, 1, 11))
+        assert solution is not None
+        assert np.all(np.isfinite(solution.q)) and np.all(np.isfinite(solution.t)) and np.isfinite(solution.rms_px)
+        assert abs(np.linalg.norm(solution.q) - 1) < 1e-9 and 0 <= solution.inliers <= 11
+    nan = np.zeros((11, 2))
+    nan[:8] = np.nan  # only three finite keypoints: nothing to solve
+    assert pose_from_keypoints(nan, tango.KEYPOINTS_M, K, DIST, reprojection_px=3.0) is None
+    nan[3] = (400.0, 300.0)  # four: a pose
+    assert pose_from_keypoints(nan, tango.KEYPOINTS_M, K, DIST, reprojection_px=3.0) is not None
+
+
+def test_without_a_consensus_every_point_counts_by_its_confidence():
+    rng = np.random.default_rng(3)
+    errors = {"uniform": [], "weighted": []}
+    for q in g.random_quats(rng, 8):
+        cam_from_target = g.transform_from_qt(q, [0.1, 0.2, 7.0])
+        pixels = g.project(cam_from_target, tango.KEYPOINTS_M, K, DIST) + rng.normal(0, 4.0, (11, 2))
+        wild = rng.choice(11, 3, replace=False)
+        pixels[wild] += rng.uniform(40, 80, (3, 2))
+        confidence = np.full(11, 0.9)
+        confidence[wild] = 0.05  # the heatmaps were unsure there
+        for name, weights in (("uniform", None), ("weighted", confidence)):
+            solution = pose_from_keypoints(pixels, tango.KEYPOINTS_M, K, DIST, reprojection_px=0.5,
+                                           confidence=weights)
+            assert solution.method == "all_points"  # noise of 4 px: no consensus within 0.5 px
+            errors[name].append(g.quat_angular_distance(solution.q, q))
+    assert np.median(errors["weighted"]) < 0.5 * np.median(errors["uniform"])
+    assert np.degrees(np.median(errors["weighted"])) < 3.0
 
 
 def test_prepare_maps_pixels_both_ways():
