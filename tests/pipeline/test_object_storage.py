@@ -48,7 +48,9 @@ def test_a_run_on_object_storage_interrupted_resumed_elsewhere_and_finished_has_
     # machine a: Ctrl-C in the middle of acquire; the rows finished so far reach the store
     process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "--profile", "smoke", "--workspace", uri,
                                 "--until", "acquire"], env={**os.environ, **a}, start_new_session=True,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               # a shell's background job ignores SIGINT, and Python keeps that
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while len(glob.glob(str(tmp_path / "a" / "*" / "images" / "*" / "*.png"))) < 6:
         assert process.poll() is None and time.monotonic() < deadline, process.stderr.read()
