@@ -249,15 +249,19 @@ PREDICTIONS = ManifestSpec(
     "predictions",
     "model predictions and SPEED / SPEED+ scores, one row per image (twin or testbed capture)",
     (
-        Column("prediction_id", pa.string(), "", "<domain>:<sample_id>"),
+        Column("prediction_id", pa.string(), "", "<model>:<crop>:<domain>:<sample_id>"),
+        Column("model", pa.string(), "", "the model's name: its file name without .onnx"),
         _sample_id(),
         Column("domain", pa.string(), "", "image domain: synthetic twin or testbed light", kind="enum",
                allowed=PREDICTION_DOMAINS),
         Column("view", pa.string(), "", "visible face", kind="enum", allowed=VIEWS),
         Column("light", pa.string(), "", "light set-up of the sample (the twin's light is aligned with it)",
                kind="enum", allowed=LIGHTS),
-        Column("crop", pa.string(), "", "full image, or oracle box from the label", kind="enum",
-               allowed=("full", "oracle_box")),
+        Column("crop", pa.string(), "", "full image, oracle box from the label, or self: the model's own crop (a "
+               "pass on the whole image, then passes around what it found)", kind="enum",
+               allowed=("full", "oracle_box", "self")),
+        Column("box_iou", pa.float64(), "1", "self crop: intersection over union of the box the model found with "
+               "the label's box", nullable=True),
         Column("pose_found", pa.bool_(), "", "the model's output gave a pose (else scored as the worst case: "
                "only non-finite outputs)"),
         Column("pnp_method", pa.string(), "", "how the pose was found: EPnP in RANSAC, EPnP on all points "
@@ -282,7 +286,10 @@ SCORES = ManifestSpec(
     "scores",
     "the paper's Table 2: mean scores per domain and configuration (view x light)",
     (
-        Column("group", pa.string(), "", "<domain>/<view>/<light>, 'all' for every value"),
+        Column("group", pa.string(), "", "<model>/<crop>/<domain>/<view>/<light>, 'all' for every value"),
+        Column("model", pa.string(), "", "the model's name"),
+        Column("crop", pa.string(), "", "full, oracle_box or self (see predictions)", kind="enum",
+               allowed=("full", "oracle_box", "self")),
         Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
                allowed=("synthetic", "testbed")),
         Column("view", pa.string(), "", "visible face or all", kind="enum", allowed=(*VIEWS, "all")),

@@ -226,13 +226,14 @@ def render_command(
 def evaluate_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    model: Annotated[Path | None, typer.Option("--model", help=key_help("evaluate.model"))] = None,
+    model: Annotated[list[Path] | None, typer.Option("--model", help="score this ONNX model instead of "
+                                                         "evaluate.models (repeatable)")] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the evaluate stage: score an ONNX model on the twins and the testbed images (Table 2)."""
     overrides = _parsed(set_)
     if model is not None:
-        overrides.append(Override.of("evaluate.model", str(model.resolve()), "--model"))
+        overrides.append(Override.of("evaluate.models", [str(path.resolve()) for path in model], "--model"))
     _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
 
 
@@ -256,14 +257,15 @@ def export_command(
 def train_reference_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    model_path: Annotated[Path, typer.Option("--out", help="where a copy of the ONNX model goes (and its card, "
-                                                           ".json)")] = Path("models/reference.onnx"),
+    out_dir: Annotated[Path, typer.Option("--out", help="folder that gets a copy of each ONNX model and its card "
+                                                        "(.json)")] = Path("models"),
     steps: Annotated[int | None, typer.Option("--steps", help=key_help("reference.max_steps"))] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the train-reference stage: render the synthetic training set its recipe asks for
-    (section [reference]), train the reference keypoint CNN on it, export it to ONNX with
-    the evaluation contract (W/models/reference.onnx), and copy it to --out."""
+    (section [reference]), train the reference keypoint CNNs on it (reference.variants: plain
+    and augmented), export them to ONNX with the evaluation contract (W/models/<name>.onnx),
+    and copy them to --out."""
     overrides = _parsed(set_)
     recipe = _context(workspace, profile, config, overrides)[0].reference
     transient = [Override.of("render.set", "train", "train-reference"),
@@ -273,10 +275,11 @@ def train_reference_command(
         transient.append(Override.of("reference.max_steps", steps, "--steps"))
     transient += _engine(engine, ray_address, workers)
     ws = _run(["render", "train-reference"], workspace, profile, config, overrides, force, transient)
-    row = runner.publish_model(ws, "reference", model_path)
-    out.print(f"{model_path}: trained on {row['training_images']} images in {row['train_seconds']:.0f} s; "
-              f"held-out synthetic: mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation error "
-              f"{row['held_out_median_rotation_error_deg']:.2f} deg")
+    for name in runner.model_names(ws):
+        row = runner.publish_model(ws, name, out_dir / f"{name}.onnx")
+        out.print(f"{out_dir / name}.onnx: trained on {row['training_images']} images in {row['train_seconds']:.0f} "
+                  f"s; held-out synthetic: mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation "
+                  f"error {row['held_out_median_rotation_error_deg']:.2f} deg")
 
 
 @app.command("run")

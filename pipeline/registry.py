@@ -81,8 +81,9 @@ STAGES: tuple[StageEntry, ...] = (
     StageEntry("export", "the labels and images as a SPEED+ or BOP dataset", "stages.export:run",
                ("labels", "captures"), ("export_speedplus",), ("export", "camera"),
                resolve="stages.export:resolve", chained=False, replace_stale=True),
-    StageEntry("train-reference", "train the reference keypoint CNN on the synthetic training set and export ONNX "
-               "(W/models/reference.onnx)", "stages.reference:run",
+    StageEntry("train-reference", "train the reference keypoint CNNs (plain and augmented) on the synthetic "
+               "training set and export ONNX (W/models/reference.onnx, reference_augmented.onnx)",
+               "stages.reference:run",
                ("train",), ("models",), ("reference",), chained=False),
 )
 STAGE_NAMES = tuple(stage.name for stage in STAGES)

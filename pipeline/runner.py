@@ -239,6 +239,11 @@ def verify(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...])
     return findings
 
 
+def model_names(workspace: Workspace) -> list[str]:
+    """The models of the ``models`` manifest, by name."""
+    return sorted(read_manifest(workspace, "models").column("model").to_pylist())
+
+
 def publish_model(workspace: Workspace, name: str, destination: Path) -> dict[str, Any]:
     """Copy model ``name`` (``W/models/<name>.onnx`` and its card) to ``destination``,
     atomically; returns its ``models`` row."""

@@ -30,12 +30,18 @@ def test_every_stage_is_done(finished):
         assert " done " in line, line
     predictions = read_manifest(ws, "predictions").to_pylist()
     assert {p["domain"] for p in predictions} == {"synthetic", "lightbox", "sunlamp"}
-    assert len(predictions) == 16  # 8 testbed images and their 8 twins
+    # 8 testbed images and their 8 twins, by 2 models (plain, augmented), each on 2 crops (oracle, self)
+    assert len(predictions) == 64
+    assert {(p["model"], p["crop"]) for p in predictions} == {
+        (m, c) for m in ("reference", "reference_augmented") for c in ("oracle_box", "self")}
     # a keypoint model's finite outputs always give a pose, with what PnP made of them
     assert all(p["pose_found"] and p["pnp_method"] in ("ransac", "all_points") for p in predictions)
     assert all(0 <= p["pnp_inliers"] <= 11 and np.isfinite(p["reprojection_rms_px"]) for p in predictions)
+    assert all((p["box_iou"] is None) == (p["crop"] != "self") for p in predictions)
     scores = {row["group"]: row for row in read_manifest(ws, "scores").to_pylist()}
-    assert scores["synthetic/all/all"]["count"] == 8 and scores["testbed/all/all"]["count"] == 8
+    for model in ("reference", "reference_augmented"):
+        assert scores[f"{model}/oracle_box/synthetic/all/all"]["count"] == 8
+        assert scores[f"{model}/self/testbed/all/all"]["count"] == 8
 
 
 def test_report_references_only_existing_files(finished):
@@ -107,9 +113,9 @@ def test_any_model_following_the_contract_can_be_scored(finished, tmp_path):
     constant_keypoint_model(tmp_path / "mine.onnx", contract)
     result = speedplus("evaluate", "--workspace", str(copy.root), "--model", str(tmp_path / "mine.onnx"), "--force")
     assert result.returncode == 0, result.stderr
-    assert "Table 2: mean SPEED score of mine.onnx" in result.stdout
+    assert "Table 2: mean SPEED score of mine" in result.stdout
     predictions = read_manifest(copy, "predictions").to_pylist()
-    assert len(predictions) == 16 and {p["crop"] for p in predictions} == {"full"}
+    assert len(predictions) == 16 and {(p["model"], p["crop"]) for p in predictions} == {("mine", "full")}
     assert all(p["score_speed"] > 0 for p in predictions)  # a constant answer is wrong everywhere
     del contract["speedplus.output"]
     constant_keypoint_model(tmp_path / "unlabelled.onnx", contract)

@@ -10,6 +10,9 @@ from manifests.schema import DOMAINS, MOUNTS
 from pipeline.config.params import param
 
 ExportSet = Literal["testbed", "twins", "train"]
+#: the reference models: ``plain`` (photometric jitter) and ``augmented`` (the robust recipe of
+#: stages/reference/augment.py), named reference and reference_augmented
+ReferenceVariant = Literal["plain", "augmented"]
 
 
 @dataclass(frozen=True)
@@ -196,10 +199,17 @@ class ReferenceConfig:
     input_width: int = param(192, "network input width (the crop around the target is resized to it)", "px")
     input_height: int = param(192, "network input height", "px")
     width: int = param(16, "channels of the network's first layer (the others are multiples)", "count")
-    epochs: int = param(45, "passes over the training images", "count")
+    epochs: int = param(25, "passes over the training images", "count")
     batch_size: int = param(32, "images per optimiser step", "count")
     learning_rate: float = param(2e-3, "Adam's initial learning rate (cosine decay to 2% of it)", "1")
     heatmap_sigma: float = param(1.0, "standard deviation of the target Gaussians, in heatmap pixels", "px")
+    heatmap_stride: Literal[2, 4] = param(2, "input pixels per heatmap pixel (2: heatmaps of half the input's "
+                                          "resolution, 4: a quarter)", "px")
+    wide_crops: float = param(0.3, "share of training crops taken wide (the box 1.2 to 6 times larger, shifted): "
+                              "the model also finds a small target, as the self crop's first pass needs", "1")
+    variants: tuple[ReferenceVariant, ...] = param(
+        ("plain", "augmented"), "models to train: plain (photometric jitter: models/reference.onnx) and augmented "
+        "(style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx)", "")
     seed: int = param(0, "seed of initialisation, shuffling and augmentation", "")
     threads: int = param(2, "torch threads", "count")
     max_steps: int = param(0, "stop after this many optimiser steps (a quick check of the recipe); 0: the "
@@ -210,8 +220,12 @@ class ReferenceConfig:
 class EvaluateConfig:
     """The evaluate stage: an ONNX model scored on twins and testbed images."""
 
-    model: str = param("models/reference.onnx", "ONNX model following the contract of stages/common/pose_model.py; "
-                       "relative paths: from the current directory, else from the repository", "")
+    models: tuple[str, ...] = param(
+        ("models/reference.onnx", "models/reference_augmented.onnx"), "ONNX models following the contract of "
+        "stages/common/pose_model.py, each scored on every image; relative paths: from the current directory, else "
+        "from the repository", "")
+    self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: a coarse pass on "
+                            "the whole image, then the keypoint pass around what it found", "")
     batch_size: int = param(16, "images per inference call", "count")
     threads: int = param(2, "ONNX Runtime intra-op threads", "count")
     ransac_fraction: float = param(

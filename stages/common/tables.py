@@ -74,14 +74,15 @@ def print_table(calibration: Calibration) -> None:
                         + ", ".join(f"{label} {same[name][kind]['E_T_m'][0] * 1000:.4f} mm" for name, label in COLUMNS))
 
 
-def table2_groups(scores: list[dict[str, Any]]) -> list[tuple[str, int, dict[str, Any] | None,
-                                                              dict[str, Any] | None]]:
-    """Table 2's rows: (configuration "view, light", images, synthetic row, testbed row) of
-    the ``scores`` rows, for every view x light present and then "all, all"."""
+def table2_groups(scores: list[dict[str, Any]], model: str, crop: str) -> list[tuple[str, int, dict[str, Any] | None,
+                                                                                  dict[str, Any] | None]]:
+    """Table 2's rows of one model and crop: (configuration "view, light", images, synthetic
+    row, testbed row) of the ``scores`` rows, for every view x light present, then "all, all"."""
     by_group = {row["group"]: row for row in scores}
     out = []
     for view, light in [*product(VIEWS, TESTBED), ("all", "all")]:
-        synthetic, testbed = by_group.get(f"synthetic/{view}/{light}"), by_group.get(f"testbed/{view}/{light}")
+        synthetic = by_group.get(f"{model}/{crop}/synthetic/{view}/{light}")
+        testbed = by_group.get(f"{model}/{crop}/testbed/{view}/{light}")
         if synthetic is None and testbed is None:
             continue
         out.append((f"{view}, {light}", (testbed or synthetic)["count"], synthetic, testbed))

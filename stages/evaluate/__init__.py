@@ -1,10 +1,12 @@
-"""The evaluate stage: score an ONNX pose model on pairs of synthetic twins and testbed
+"""The evaluate stage: score ONNX pose models on pairs of synthetic twins and testbed
 captures that share their labels (the paper's Table 2 and Figure 12).
 
 Every labelled capture is one ``lightbox`` or ``sunlamp`` image; its twin is one
-``synthetic`` image. Both are scored against the label with the label camera. Writes the
-``predictions`` manifest (per image) and the ``scores`` manifest (per domain and
-configuration), and prints Table 2.
+``synthetic`` image. Both are scored against the label with the label camera, by every
+model of ``evaluate.models`` (by default the plain and the augmented reference models), and
+for a model of oracle crops also on its own crop (``self``). Writes the ``predictions``
+manifest (per model, crop and image) and the ``scores`` manifest (per model, crop, domain
+and configuration), and prints Table 2 for each.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from manifests.integrity import sha256
 from pipeline.config import Config
+from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common.engine import map_config
 from stages.common.image_io import ImageReadError
@@ -31,12 +34,17 @@ from stages.evaluate.table import print_table2, summarise
 REPOSITORY = Path(__file__).resolve().parents[2]
 
 
-def model_path(config: Config) -> Path:
-    """``evaluate.model``: absolute, relative to the current directory, or to the repository."""
-    path = Path(config.evaluate.model).expanduser()
-    if path.is_absolute() or path.exists():
-        return path.resolve()
-    return (REPOSITORY / path).resolve()
+def model_paths(config: Config) -> list[Path]:
+    """``evaluate.models``: absolute, relative to the current directory, or to the repository."""
+    paths = []
+    for text in config.evaluate.models:
+        path = Path(text).expanduser()
+        paths.append(path.resolve() if path.is_absolute() or path.exists() else (REPOSITORY / path).resolve())
+    names = [path.stem for path in paths]
+    if not paths or len(set(names)) != len(names):
+        raise InputError(f"evaluate.models {list(config.evaluate.models)}: give at least one model, each with its "
+                         "own file name (a model is named by it in predictions and scores)")
+    return paths
 
 
 def _digest(path: Path) -> str:
@@ -45,9 +53,9 @@ def _digest(path: Path) -> str:
 
 def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
     """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
-    (pipeline/registry.py): the model is fingerprinted by its bytes."""
-    path = model_path(config)
-    return ("labels", "renders", "captures"), ("evaluate",), {"model_digest": _digest(path)}, ("predictions", "scores")
+    (pipeline/registry.py): the models are fingerprinted by their bytes."""
+    digests = {path.stem: _digest(path) for path in model_paths(config)}
+    return ("labels", "renders", "captures"), ("evaluate",), {"model_digests": digests}, ("predictions", "scores")
 
 
 def _items(workspace: Workspace) -> list[dict[str, Any]]:
@@ -84,25 +92,34 @@ def _with_images(workspace: Workspace) -> Callable[[list[dict[str, Any]]], list[
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    """Score every image missing from ``predictions``, then rewrite the ``scores`` summary."""
-    path = model_path(config)
-    contract = PoseModel(path, threads=1).contract  # a bad model fails here, naming its file
+    """Score every (model, crop, image) missing from ``predictions``, then rewrite the
+    ``scores`` summary."""
     camera = calibrated_camera(workspace)
     done = read_keys(workspace, "predictions")
-    items = [item for item in _items(workspace) if f"{item['domain']}:{item['sample_id']}" not in done]
+    images = _items(workspace)
     batch = config.evaluate.batch_size
-    # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
-    batches = [items[i:i + batch] for i in range(0, len(items), batch)]
-    args = (path.read_bytes(), str(path), config.evaluate.threads, camera.camera_matrix, camera.dist,
-            config.evaluate.ransac_fraction)
-    results = map_config(config, open_scorer, args, "score", batches, renders=False, prepare=_with_images(workspace))
+    shown = []
     with open_sink(workspace, "predictions", config.run.part_rows) as sink:
-        for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, {config.run.engine})"):
-            for row in rows:
-                sink.add(row)
+        for path in model_paths(config):
+            contract = PoseModel(path, threads=1).contract  # a bad model fails here, naming its file
+            crops = [contract.crop] + (["self"] if contract.crop == "oracle_box" and config.evaluate.self_crop else [])
+            shown += [(path.stem, crop) for crop in crops]
+            items = [{**item, "model": path.stem, "crop": crop} for crop in crops for item in images
+                     if f"{path.stem}:{crop}:{item['domain']}:{item['sample_id']}" not in done]
+            # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
+            batches = [items[i:i + batch] for i in range(0, len(items), batch)]
+            args = (path.read_bytes(), str(path), config.evaluate.threads, camera.camera_matrix, camera.dist,
+                    config.evaluate.ransac_fraction)
+            results = map_config(config, open_scorer, args, "score", batches, renders=False,
+                                 prepare=_with_images(workspace))
+            for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, "
+                                                     f"{config.run.engine})"):
+                for row in rows:
+                    sink.add(row)
     predictions = read_manifest(workspace, "predictions")
     table = summarise(predictions.to_pylist())
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
     write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
-    Console().print(print_table2(table, path.name, contract.crop))  # results: standard output
+    for model, crop in shown:  # results: standard output
+        Console().print(print_table2(table, model, crop))
     return predictions

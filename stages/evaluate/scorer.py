@@ -37,51 +37,103 @@ def open_scorer(model: bytes, name: str, threads: int, camera_matrix: np.ndarray
     return Scorer(model, name, threads, camera_matrix, dist, reprojection_fraction)
 
 
-def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.ndarray, dist: np.ndarray,
-            reprojection_fraction: float) -> list[dict[str, Any]]:
-    """Prediction rows for a batch of items."""
-    started = time.perf_counter()
-    tensors, image_from_input, widths = [], [], []
-    for item in items:
-        image = to_uint8(decode_image(item["image_bytes"], item["image_path"], "bgr"))  # 16-bit, float: by range
-        tensor, affine = model.preprocess(image, np.asarray(item["box"]))
-        tensors.append(tensor)
-        image_from_input.append(affine)
-        widths.append(image.shape[1])
-    outputs = model.infer(np.stack(tensors))
+#: passes of the self crop: the whole image, then twice around what the previous pass found
+SELF_PASSES = 3
+
+
+def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boxes (x_min, y_min, x_max, y_max) [px]."""
+    width = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    height = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = width * height
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
+           dist: np.ndarray, reprojection_fraction: float) -> tuple[list[PnPSolution | None], list[np.ndarray]]:
+    """One pass of the model on crops around ``boxes`` (the contract's crop): the poses, and
+    the keypoints (K, 2) in image pixels."""
     contract = model.contract
-    solutions: list[PnPSolution | None] = []
+    tensors, affines = [], []
+    for image, box in zip(images, boxes, strict=True):
+        tensor, affine = model.preprocess(image, box)
+        tensors.append(tensor)
+        affines.append(affine)
+    outputs = model.infer(np.stack(tensors))
     if contract.output == "pose":
+        solutions = []
         for q, t in zip(outputs[0], outputs[1], strict=True):
             direct = bool(np.all(np.isfinite(q)) and np.all(np.isfinite(t)) and np.linalg.norm(q) > 0)
             solutions.append(PnPSolution(g.quat_normalize(q), np.asarray(t, float), "direct", 0, float("nan"))
                              if direct else None)
+        return solutions, [np.full((len(contract.keypoints_m), 2), np.nan)] * len(images)
+    if contract.output == "heatmaps":
+        points, confidences = decode_heatmaps(outputs[0], contract.width, contract.height)
     else:
-        if contract.output == "heatmaps":
-            points, confidences = decode_heatmaps(outputs[0], contract.width, contract.height)
-        else:
-            points = np.asarray(outputs[0], float)
-            confidences = np.ones(points.shape[:2])
-        for keypoints, confidence, affine, width in zip(points, confidences, image_from_input, widths, strict=True):
-            in_image = keypoints @ affine[:2, :2].T + affine[:2, 2]
-            solutions.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
-                                                 reprojection_fraction * width, confidence))
+        points = np.asarray(outputs[0], float)
+        confidences = np.ones(points.shape[:2])
+    solutions, in_images = [], []
+    for keypoints, confidence, affine, image in zip(points, confidences, affines, images, strict=True):
+        in_image = keypoints @ affine[:2, :2].T + affine[:2, 2]
+        in_images.append(in_image)
+        solutions.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
+                                             reprojection_fraction * image.shape[1], confidence))
+    return solutions, in_images
+
+
+def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.ndarray, camera_matrix: np.ndarray,
+               dist: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The box a pass found: the model's keypoints reprojected at its pose (robust to a few
+    wild keypoints), else the finite keypoints themselves, else the whole image."""
+    if solution is not None and solution.t[2] > 0:
+        points = g.project(g.transform_from_qt(solution.q, solution.t), model.contract.keypoints_m, camera_matrix,
+                           dist)
+    else:
+        points = keypoints[np.all(np.isfinite(keypoints), axis=1)]
+    if len(points) == 0 or not np.all(np.isfinite(points)):
+        return np.array([0.0, 0.0, width - 1.0, height - 1.0])
+    box = np.concatenate([points.min(axis=0), points.max(axis=0)])
+    # a crop stays near the image, however wild the pass was
+    return np.clip(box, [-width, -height, -width, -height], [2 * width, 2 * height, 2 * width, 2 * height])
+
+
+def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.ndarray, dist: np.ndarray,
+            reprojection_fraction: float) -> list[dict[str, Any]]:
+    """Prediction rows for a batch of items, each scored with its ``crop``: the contract's
+    (``full``, or ``oracle_box`` from the label's box), or ``self``: the model's own crop, a
+    pass on the whole image then ``SELF_PASSES - 1`` passes around what the last one found."""
+    started = time.perf_counter()
+    images = [to_uint8(decode_image(item["image_bytes"], item["image_path"], "bgr")) for item in items]
+    labelled = [np.asarray(item["box"], float) for item in items]
+    crops = [item.get("crop", model.contract.crop) for item in items]
+    boxes = [np.array([0.0, 0.0, image.shape[1] - 1.0, image.shape[0] - 1.0]) if crop == "self" else box
+             for image, box, crop in zip(images, labelled, crops, strict=True)]
+    passes = SELF_PASSES if "self" in crops else 1
+    for index in range(passes):
+        solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, reprojection_fraction)
+        if index < passes - 1:
+            boxes = [_found_box(model, solution, points, camera_matrix, dist, image.shape[1], image.shape[0])
+                     if crop == "self" else box
+                     for solution, points, image, crop, box in zip(solutions, keypoints, images, crops, boxes,
+                                                                    strict=True)]
     seconds = (time.perf_counter() - started) / len(items)
     rows = []
-    for item, solution in zip(items, solutions, strict=True):
+    for item, solution, crop, box, label_box in zip(items, solutions, crops, boxes, labelled, strict=True):
         found = solution is not None
         if found:
-            q, t = solution.q, solution.t
-            numbers = {k: float(v) for k, v in score(q, t, item["q_true"], item["t_true"]).items()}
+            numbers = {k: float(v) for k, v in score(solution.q, solution.t, item["q_true"], item["t_true"]).items()}
         else:
-            q = t = None
             numbers = {"err_q_rad": float(np.pi), "err_t_norm": 1.0}
             numbers |= {"score_speed": np.pi + 1.0, "score_speedplus": np.pi + 1.0}
         keypoint_pose = found and solution.method != "direct"
-        rows.append({"prediction_id": f"{item['domain']}:{item['sample_id']}", "sample_id": item["sample_id"],
-                     "domain": item["domain"], "view": item["view"], "light": item["light"], "crop": contract.crop,
+        rows.append({"prediction_id": f"{item['model']}:{crop}:{item['domain']}:{item['sample_id']}",
+                     "model": item["model"], "sample_id": item["sample_id"], "domain": item["domain"],
+                     "view": item["view"], "light": item["light"], "crop": crop,
+                     "box_iou": _box_iou(box, label_box) if crop == "self" else None,
                      "pose_found": found, "pnp_method": solution.method if found else "none",
                      "pnp_inliers": solution.inliers if keypoint_pose else None,
                      "reprojection_rms_px": solution.rms_px if keypoint_pose else None,
-                     "q_pred": q, "t_pred": t, **numbers, "seconds": seconds})
+                     "q_pred": solution.q if found else None, "t_pred": solution.t if found else None,
+                     **numbers, "seconds": seconds})
     return rows

@@ -13,14 +13,17 @@ from manifests.schema import SCORES, VIEWS
 from stages.common.tables import TESTBED, table2_groups
 
 
-def _group(rows: list[dict[str, Any]], domain: str, view: str, light: str) -> dict[str, Any] | None:
-    chosen = [r for r in rows if (r["domain"] == "synthetic") == (domain == "synthetic")
+def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view: str,
+           light: str) -> dict[str, Any] | None:
+    chosen = [r for r in rows if r["model"] == model and r["crop"] == crop
+              and (r["domain"] == "synthetic") == (domain == "synthetic")
               and view in ("all", r["view"]) and light in ("all", r["light"])]
     if not chosen:
         return None
     err_q = np.degrees([r["err_q_rad"] for r in chosen])
-    return {"group": f"{domain}/{view}/{light}", "domain": domain, "view": view, "light": light,
-            "count": len(chosen), "pose_found_share": float(np.mean([r["pose_found"] for r in chosen])),
+    return {"group": f"{model}/{crop}/{domain}/{view}/{light}", "model": model, "crop": crop, "domain": domain,
+            "view": view, "light": light, "count": len(chosen),
+            "pose_found_share": float(np.mean([r["pose_found"] for r in chosen])),
             "mean_score_speed": float(np.mean([r["score_speed"] for r in chosen])),
             "mean_score_speedplus": float(np.mean([r["score_speedplus"] for r in chosen])),
             "mean_err_q_deg": float(err_q.mean()), "median_err_q_deg": float(np.median(err_q)),
@@ -28,22 +31,24 @@ def _group(rows: list[dict[str, Any]], domain: str, view: str, light: str) -> di
 
 
 def summarise(predictions: list[dict[str, Any]]) -> Any:
-    """The ``scores`` table: every (domain, view, light) combination present, and 'all'.
-    Means over the predictions in ``prediction_id`` order: the order rows were written in
-    (which follows acquire's workers) must not reach the last bits."""
+    """The ``scores`` table: for every model and crop, every (domain, view, light)
+    combination present, and 'all'. Means over the predictions in ``prediction_id`` order:
+    the order rows were written in (which follows the workers) must not reach the last bits."""
     predictions = sorted(predictions, key=lambda r: r["prediction_id"])
     rows = []
-    for domain, view, light in product(("synthetic", "testbed"), (*VIEWS, "all"), (*TESTBED, "all")):
-        group = _group(predictions, domain, view, light)
-        if group is not None:
-            rows.append(group)
+    for model, crop in sorted({(r["model"], r["crop"]) for r in predictions}):
+        for domain, view, light in product(("synthetic", "testbed"), (*VIEWS, "all"), (*TESTBED, "all")):
+            group = _group(predictions, model, crop, domain, view, light)
+            if group is not None:
+                rows.append(group)
     return to_table(rows, SCORES)
 
 
-def print_table2(scores: Any, model_name: str, crop: str) -> Table:
-    """Configuration (view, light) x {synthetic, testbed}: mean SPEED (and SPEED+) scores."""
-    oracle = " (oracle crop)" if crop == "oracle_box" else ""
-    table = Table(title=f"Table 2: mean SPEED score of {model_name}{oracle} on twins and testbed images")
+def print_table2(scores: Any, model: str, crop: str) -> Table:
+    """Configuration (view, light) x {synthetic, testbed}: mean SPEED (and SPEED+) scores of
+    one model and crop."""
+    how = {"oracle_box": " (oracle crop: boxes from the labels)", "self": " (its own crop)"}.get(crop, "")
+    table = Table(title=f"Table 2: mean SPEED score of {model}{how} on twins and testbed images")
     for column in ("configuration (view, light)", "images", "synthetic", "testbed", "synthetic SPEED+",
                    "testbed SPEED+", "no pose (syn / test)"):
         table.add_column(column)
@@ -54,7 +59,7 @@ def print_table2(scores: Any, model_name: str, crop: str) -> Table:
     def no_pose(row: dict[str, Any] | None) -> str:
         return "-" if row is None else f"{100 * (1 - row['pose_found_share']):.0f}%"
 
-    for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist()):
+    for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist(), model, crop):
         table.add_row(configuration, str(count), cell(synthetic, "mean_score_speed"),
                       cell(testbed, "mean_score_speed"), cell(synthetic, "mean_score_speedplus"),
                       cell(testbed, "mean_score_speedplus"), f"{no_pose(synthetic)} / {no_pose(testbed)}")

@@ -1,8 +1,9 @@
 """The reference keypoint CNN: a small encoder-decoder that outputs one heatmap per Tango
-keypoint at a quarter of the input resolution (torch; imported only by training).
+keypoint at half (``stride`` 2) or a quarter (4) of the input resolution (torch; imported
+only by training).
 
-Input (N, 3, 192, 192) normalised RGB; output (N, 11, 48, 48). About 0.2 G multiply-adds
-per image: small enough to train on two CPU cores in under half an hour.
+Input (N, 3, 192, 192) normalised RGB; output (N, 11, 96, 96) or (N, 11, 48, 48). About
+0.2 G multiply-adds per image at stride 4: small enough to train on two CPU cores.
 """
 
 from __future__ import annotations
@@ -30,22 +31,30 @@ class _Residual(nn.Module):
 class KeypointNet(nn.Module):
     """Heatmaps (N, K, H/4, W/4) of K keypoints for images (N, 3, H, W)."""
 
-    def __init__(self, keypoints: int = 11, width: int = 16) -> None:
+    def __init__(self, keypoints: int = 11, width: int = 16, stride: int = 4) -> None:
         super().__init__()
         c1, c2, c3, c4 = width, 2 * width, 3 * width, 4 * width
-        self.stem = nn.Sequential(_conv(3, c1, 2), _conv(c1, c2, 2))                         # 1/4
+        self.stride = stride
+        self.first = _conv(3, c1, 2)                                                         # 1/2
+        self.stem = _conv(c1, c2, 2)                                                         # 1/4
         self.down1 = nn.Sequential(_conv(c2, c3, 2), _Residual(c3), _Residual(c3))           # 1/8
         self.down2 = nn.Sequential(_conv(c3, c4, 2), _Residual(c4, 2), _Residual(c4, 4))     # 1/16
         self.up1 = _conv(c4 + c3, c3)
         self.up2 = _conv(c3 + c2, c2)
-        self.head = nn.Conv2d(c2, keypoints, 1)
+        # stride 2: one more level back to half resolution, with the first layer's features
+        self.up3 = _conv(c2 + c1, c1) if stride == 2 else None
+        self.head = nn.Conv2d(c1 if stride == 2 else c2, keypoints, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        quarter = self.stem(x)
+        half = self.first(x)
+        quarter = self.stem(half)
         eighth = self.down1(quarter)
         sixteenth = self.down2(eighth)
         up = nn.functional.interpolate(sixteenth, size=eighth.shape[-2:], mode="bilinear", align_corners=False)
         up = self.up1(torch.cat([up, eighth], 1))
         up = nn.functional.interpolate(up, size=quarter.shape[-2:], mode="bilinear", align_corners=False)
         up = self.up2(torch.cat([up, quarter], 1))
+        if self.up3 is not None:
+            up = nn.functional.interpolate(up, size=half.shape[-2:], mode="bilinear", align_corners=False)
+            up = self.up3(torch.cat([up, half], 1))
         return self.head(up)

@@ -5,9 +5,10 @@ score it on held-out synthetic images through ONNX Runtime (never through torch)
 Data: every image is cropped and resized exactly as ``evaluate`` will crop testbed images
 and twins (``stages.common.pose_model.prepare``, crop ``oracle_box``: a square around the
 keypoints' box, so scores are those of the pose network given a perfect detector, as the
-report says); targets are Gaussian heatmaps at the keypoints' projections. Augmentation:
-brightness, contrast and gamma jitter and sensor-like noise, nothing geometric (the
-keypoints' identities depend on the image's handedness).
+report says); targets are Gaussian heatmaps at the keypoints' projections, at half
+(``heatmap_stride`` 2) or a quarter of the input's resolution. Augmentation
+(``stages.reference.augment``): photometric jitter for the plain model, the robust recipe
+for the augmented one; nothing geometric.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 from manifests import Workspace, read_manifest
 from manifests.files import temporary_name, write_json_atomic
 from pipeline.config import Config, ReferenceConfig
+from pipeline.config.stages import ReferenceVariant
 from pipeline.progress import console, track
 from stages.common import tango
 from stages.common.image_io import read_image, to_uint8
@@ -37,10 +39,13 @@ from stages.common.pose_model import (
     prepare,
 )
 from stages.common.scores import score
+from stages.reference.augment import augment
 
 MEAN = (0.485, 0.456, 0.406)
 STD = (0.229, 0.224, 0.225)
-STRIDE = 4
+#: model name of each variant (W/models/<name>.onnx) and its augmentation
+VARIANTS: dict[str, tuple[str, str]] = {"plain": ("reference", "photometric"),
+                                        "augmented": ("reference_augmented", "robust")}
 
 
 def contract(recipe: ReferenceConfig) -> ModelContract:
@@ -54,45 +59,57 @@ def keypoint_box(keypoints_px: np.ndarray) -> np.ndarray:
     return np.concatenate([keypoints_px.min(axis=0), keypoints_px.max(axis=0)])
 
 
+def wide_box(box: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A box around ``box`` (x_min, y_min, x_max, y_max) 1.2 to 6 times its size, shifted at
+    random with ``box`` inside: crops in which the target is small and anywhere, as in the
+    self crop's first pass over a whole image."""
+    centre, half = (box[:2] + box[2:]) / 2, np.maximum((box[2:] - box[:2]) / 2, 4.0)
+    scale = rng.uniform(1.2, 6.0)
+    shifted = centre + rng.uniform(-1, 1, 2) * (scale - 1) * half
+    return np.concatenate([shifted - scale * half.max(), shifted + scale * half.max()])
+
+
 def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str, np.ndarray]:
-    """Inputs (N, H, W, 3) uint8 RGB cropped and resized as ``evaluate`` will, keypoints
-    (N, 11, 2) in input pixels, the input-to-image maps (N, 3, 3) and the manifest rows."""
+    """Inputs (N, H, W, 3) uint8 RGB cropped and resized as ``evaluate`` will, the target's
+    masks (N, H, W) uint8 cropped alike, keypoints (N, 11, 2) in input pixels, the
+    input-to-image maps (N, 3, 3) and the manifest rows; and a wide crop of each image
+    (``wide_box``: ``wide_images``, ``wide_masks``, ``wide_keypoints``)."""
     rows = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
     if not rows:
         raise ValueError(f"{workspace.manifest_dir('train')}: no training images; run render --set train")
     terms = contract(recipe)
-    images = np.empty((len(rows), recipe.input_height, recipe.input_width, 3), np.uint8)
-    keypoints = np.empty((len(rows), len(tango.KEYPOINTS_M), 2))
-    maps = np.empty((len(rows), 3, 3))
+    rng = np.random.default_rng(recipe.seed + 1)
+    shape = (len(rows), recipe.input_height, recipe.input_width)
+    out = {"images": np.empty((*shape, 3), np.uint8), "masks": np.empty(shape, np.uint8),
+           "keypoints": np.empty((len(rows), len(tango.KEYPOINTS_M), 2)), "maps": np.empty((len(rows), 3, 3)),
+           "wide_images": np.empty((*shape, 3), np.uint8), "wide_masks": np.empty(shape, np.uint8),
+           "wide_keypoints": np.empty((len(rows), len(tango.KEYPOINTS_M), 2))}
     for index, row in enumerate(track(rows, len(rows), "load training images")):
         image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
-        images[index], maps[index] = prepare(image, terms, keypoint_box(row["keypoints_px"]))
-        input_from_image = np.linalg.inv(maps[index])
-        keypoints[index] = np.asarray(row["keypoints_px"]) @ input_from_image[:2, :2].T + input_from_image[:2, 2]
-    return {"images": images, "keypoints": keypoints, "maps": maps, "rows": np.array(rows, dtype=object)}
+        mask = to_uint8(read_image(workspace.fetch(row["mask_path"]), "bgr"))
+        box = keypoint_box(row["keypoints_px"])
+        for prefix, crop_box in (("", box), ("wide_", wide_box(box, rng))):
+            out[f"{prefix}images"][index], image_from_input = prepare(image, terms, crop_box)
+            out[f"{prefix}masks"][index] = prepare(mask, terms, crop_box)[0][..., 0]
+            input_from_image = np.linalg.inv(image_from_input)
+            out[f"{prefix}keypoints"][index] = (np.asarray(row["keypoints_px"]) @ input_from_image[:2, :2].T
+                                                + input_from_image[:2, 2])
+            if not prefix:
+                out["maps"][index] = image_from_input
+    return {**out, "rows": np.array(rows, dtype=object)}
 
 
-def heatmap_targets(keypoints: np.ndarray, height: int, width: int, sigma: float) -> np.ndarray:
-    """Gaussian heatmaps (N, K, h, w) float32 at input-pixel keypoints (N, K, 2); zero for
-    keypoints outside the image."""
-    h, w = height // STRIDE, width // STRIDE
-    centres = (keypoints + 0.5) / STRIDE - 0.5  # input pixels -> heatmap pixels (centres aligned)
+def heatmap_targets(keypoints: np.ndarray, height: int, width: int, sigma: float, stride: int) -> np.ndarray:
+    """Gaussian heatmaps (N, K, height / stride, width / stride) float32 at input-pixel
+    keypoints (N, K, 2); zero for keypoints outside the image."""
+    h, w = height // stride, width // stride
+    centres = (keypoints + 0.5) / stride - 0.5  # input pixels -> heatmap pixels (centres aligned)
     ys, xs = np.arange(h, dtype=np.float32), np.arange(w, dtype=np.float32)
     gx = np.exp(-((xs[None, None, :] - centres[..., 0:1]) ** 2) / (2 * sigma**2))
     gy = np.exp(-((ys[None, None, :] - centres[..., 1:2]) ** 2) / (2 * sigma**2))
     inside = ((centres[..., 0] > -0.5) & (centres[..., 0] < w - 0.5) & (centres[..., 1] > -0.5)
               & (centres[..., 1] < h - 0.5))
     return (gy[..., :, None] * gx[..., None, :] * inside[..., None, None]).astype(np.float32)
-
-
-def _augment(images: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    x = images.astype(np.float32) / 255.0
-    n = len(x)
-    gain = rng.uniform(0.6, 1.6, (n, 1, 1, 1)).astype(np.float32)
-    gamma = rng.uniform(0.7, 1.4, (n, 1, 1, 1)).astype(np.float32)
-    offset = rng.uniform(-0.03, 0.05, (n, 1, 1, 1)).astype(np.float32)
-    noise = rng.normal(0.0, 1.0, x.shape).astype(np.float32) * rng.uniform(0.0, 0.04, (n, 1, 1, 1)).astype(np.float32)
-    return np.clip(np.power(np.clip(x * gain, 0, 1), gamma) + offset + noise, 0.0, 1.0)
 
 
 def _save_checkpoint(path: Path, tag: str, state: dict[str, Any]) -> None:
@@ -118,8 +135,8 @@ def _load_checkpoint(path: Path | None, tag: str) -> dict[str, Any] | None:
     return state if state.get("tag") == tag else None
 
 
-def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, checkpoint: Path | None = None,
-          tag: str = "") -> Any:
+def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, variant: ReferenceVariant = "plain", *,
+          checkpoint: Path | None = None, tag: str = "") -> Any:
     """The trained ``KeypointNet`` (torch, eval mode) and its training log. With a
     ``checkpoint`` path, the state is saved after every epoch and a run with the same
     ``tag`` resumes from it: the random streams are restored with the weights, so a resumed
@@ -132,8 +149,11 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, checkpoint: P
     torch.manual_seed(recipe.seed)
     torch.set_num_threads(recipe.threads)
     rng = np.random.default_rng(recipe.seed)
-    model = KeypointNet(len(tango.KEYPOINTS_M), recipe.width)
-    images, keypoints = data["images"], data["keypoints"]
+    # a GPU when there is one (never required); the random streams stay on the CPU
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    model = KeypointNet(len(tango.KEYPOINTS_M), recipe.width, recipe.heatmap_stride).to(device)
+    images, masks, keypoints = data["images"], data["masks"], data["keypoints"]
+    name, augmentation = VARIANTS[variant]
     steps_per_epoch = max(1, len(images) // recipe.batch_size)
     total = recipe.epochs * steps_per_epoch if recipe.max_steps == 0 else recipe.max_steps
     optimiser = torch.optim.Adam(model.parameters(), lr=recipe.learning_rate)
@@ -142,13 +162,13 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, checkpoint: P
     log, step, started = [], 0, time.perf_counter()
     saved = _load_checkpoint(checkpoint, tag)
     if saved is not None:
-        model.load_state_dict(saved["model"])
+        model.load_state_dict({key: value.to(device) for key, value in saved["model"].items()})
         optimiser.load_state_dict(saved["optimiser"])
         schedule.load_state_dict(saved["schedule"])
         rng.bit_generator.state = saved["numpy_rng"]
         torch.set_rng_state(saved["torch_rng"])
         log, step = saved["log"], saved["step"]
-        console.print(f"train-reference: resumed at epoch {step / steps_per_epoch:.1f} from {checkpoint}")
+        console.print(f"train-reference {name}: resumed at epoch {step / steps_per_epoch:.1f} from {checkpoint}")
     model.train()
     while step < total:
         order = rng.permutation(len(images))
@@ -156,9 +176,15 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, checkpoint: P
             if step >= total:
                 break
             batch = order[first:first + recipe.batch_size]
-            x = torch.from_numpy(normalise(_augment(images[batch], rng), terms))
-            target = torch.from_numpy(heatmap_targets(keypoints[batch], recipe.input_height, recipe.input_width,
-                                                      recipe.heatmap_sigma))
+            chosen_images, chosen_masks, chosen_keypoints = images[batch], masks[batch], keypoints[batch]
+            if "wide_images" in data:  # some crops wide: the model learns to find a small target too
+                wide = (rng.random(len(batch)) < recipe.wide_crops)[:, None, None]
+                chosen_images = np.where(wide[..., None], data["wide_images"][batch], chosen_images)
+                chosen_masks = np.where(wide, data["wide_masks"][batch], chosen_masks)
+                chosen_keypoints = np.where(wide, data["wide_keypoints"][batch], chosen_keypoints)
+            x = torch.from_numpy(normalise(augment(augmentation, chosen_images, chosen_masks, rng), terms)).to(device)
+            target = torch.from_numpy(heatmap_targets(chosen_keypoints, recipe.input_height, recipe.input_width,
+                                                      recipe.heatmap_sigma, recipe.heatmap_stride)).to(device)
             output = model(x)
             # foreground pixels weigh more: most of a heatmap is background
             weight = 1.0 + 20.0 * target
@@ -171,14 +197,16 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, *, checkpoint: P
             if step % steps_per_epoch == 0 or step == total:
                 log.append({"step": step, "epoch": step / steps_per_epoch, "loss": loss.item(),
                             "seconds": time.perf_counter() - started})
-                console.print(f"train-reference: epoch {step / steps_per_epoch:.1f}/{total / steps_per_epoch:.0f} "
+                console.print(f"train-reference {name}: epoch {step / steps_per_epoch:.1f}/"
+                              f"{total / steps_per_epoch:.0f} "
                               f"loss {loss.item():.5f} ({time.perf_counter() - started:.0f} s)")
         if checkpoint is not None:  # at an epoch's end: the next epoch draws its order afresh
             _save_checkpoint(checkpoint, tag, {
-                "model": model.state_dict(), "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict(),
+                "model": {key: value.cpu() for key, value in model.state_dict().items()},
+                "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict(),
                 "numpy_rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "log": log, "step": step})
     model.eval()
-    return model, log
+    return model.cpu(), log
 
 
 def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[str, str]) -> None:
@@ -229,24 +257,31 @@ def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.n
             "median_translation_error": float(np.median([e["err_t_norm"] for e in errors]))}
 
 
-def run(config: Config, workspace: Workspace, out: Path, checkpoint: Path | None = None,
-        tag: str = "") -> dict[str, Any]:
-    """Train on the workspace's ``train`` manifest (resuming from ``checkpoint`` when it
-    carries ``tag``), export to ``out``, score held-out images; returns the model card (also
-    written beside the model as JSON)."""
+def split_held_out(data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(training, held out): the last tenth of the images, in sample_id order, is held out."""
+    held = max(1, len(data["images"]) // 10)
+    return {key: value[:-held] for key, value in data.items()}, {key: value[-held:] for key, value in data.items()}
+
+
+def run(config: Config, data: dict[str, np.ndarray], variant: ReferenceVariant, out: Path,
+        checkpoint: Path | None = None, tag: str = "") -> dict[str, Any]:
+    """Train one variant on ``load_training_set``'s data (resuming from ``checkpoint`` when
+    it carries ``tag``), export to ``out``, score the held-out images; returns the model
+    card (also written beside the model as JSON)."""
     from stages.common.cameras import train_camera
 
     recipe = config.reference
-    data = load_training_set(workspace, recipe)
-    held = max(1, len(data["images"]) // 10)
-    split = {key: value[:-held] for key, value in data.items()}, {key: value[-held:] for key, value in data.items()}
+    split = split_held_out(data)
+    held = len(split[1]["images"])
     started = time.perf_counter()
-    model, log = train(split[0], recipe, checkpoint=checkpoint, tag=tag)
+    model, log = train(split[0], recipe, variant, checkpoint=checkpoint, tag=tag)
     seconds = time.perf_counter() - started
-    export(model, recipe, out, {"speedplus.recipe": json.dumps(asdict(recipe))})
+    export(model, recipe, out, {"speedplus.recipe": json.dumps(asdict(recipe)), "speedplus.variant": variant,
+                                "speedplus.augmentation": VARIANTS[variant][1]})
     camera = train_camera(config)
     scores = held_out_scores(out, split[1], camera.camera_matrix, camera.dist)
-    card = {"model": str(out.name), "training_images": len(split[0]["images"]), "held_out_images": held,
+    card = {"model": str(out.name), "variant": variant, "augmentation": VARIANTS[variant][1],
+            "training_images": len(split[0]["images"]), "held_out_images": held,
             "train_seconds": round(seconds, 1), "recipe": asdict(recipe), "held_out": scores,
             "render": {"count": config.render.train_count, "seed": config.render.seed,
                        "resolution_scale": config.render.train_resolution_scale, "spp": config.render.train_spp},

@@ -20,10 +20,10 @@ import numpy as np
 from pipeline.engines import Produced
 from stages.common import geometry as g
 from stages.common import ground_truth, tango
+from stages.common.earth import earth_background
 from stages.common.image_io import encode_png
 from stages.common.lens import LensCamera
 from stages.common.surface import TangoSurfaces
-from stages.render.earth import earth_background
 from stages.render.jobs import RenderJob
 from stages.render.scene import TangoRenderer
 

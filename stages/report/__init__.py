@@ -48,18 +48,44 @@ def _cell(row: dict[str, Any] | None, key: str) -> str:
     return "-" if row is None else f"{row[key]:.4f}"
 
 
-def table2(scores: list[dict[str, Any]], crop: str) -> str:
-    rows = [[configuration, count, _cell(synthetic, "mean_score_speed"), _cell(testbed, "mean_score_speed"),
-             _cell(synthetic, "mean_score_speedplus"), _cell(testbed, "mean_score_speedplus"),
-             _cell(synthetic, "median_err_q_deg"), _cell(testbed, "median_err_q_deg"),
-             _no_pose(synthetic), _no_pose(testbed)]
-            for configuration, count, synthetic, testbed in tables.table2_groups(scores)]
-    note = " (oracle crop: boxes from the labels)" if crop == "oracle_box" else ""
-    return ("<p>Mean scores" + note + "; an image without a pose (non-finite model output) scores the worst case, "
-            "pi + 1</p>") + _table(
-        ["configuration (view, light)", "images", "synthetic SPEED", "testbed SPEED", "synthetic SPEED+",
-         "testbed SPEED+", "synthetic median e_q [deg]", "testbed median e_q [deg]", "synthetic no pose",
-         "testbed no pose"], rows)
+def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
+    """Table 2 of every model side by side for one crop, and how much of the domain gap (testbed
+    minus synthetic mean SPEED score) each model other than the first closes per light."""
+    rows = []
+    for configuration, count, *_ in tables.table2_groups(scores, models[0], crop):
+        view, light = configuration.split(", ")
+        cells: list[Any] = [configuration, count]
+        for model in models:
+            by_group = {row["group"]: row for row in scores}
+            synthetic = by_group.get(f"{model}/{crop}/synthetic/{view}/{light}")
+            testbed = by_group.get(f"{model}/{crop}/testbed/{view}/{light}")
+            gap = ("-" if synthetic is None or testbed is None
+                   else f"{testbed['mean_score_speed'] - synthetic['mean_score_speed']:+.4f}")
+            cells += [_cell(synthetic, "mean_score_speed"), _cell(testbed, "mean_score_speed"), gap,
+                      f"{_no_pose(synthetic)} / {_no_pose(testbed)}"]
+        rows.append(cells)
+    header = ["configuration (view, light)", "images"]
+    for model in models:
+        header += [f"{model}: synthetic", f"{model}: testbed", f"{model}: gap", f"{model}: no pose (syn / test)"]
+    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a pass on the whole "
+           "image, then passes around what it found", "full": "the whole image"}.get(crop, crop)
+    closing = []
+    by_group = {row["group"]: row for row in scores}
+    for model in models[1:]:
+        for light in ("lightbox", "sunlamp"):
+            gaps = []
+            for name in (models[0], model):
+                synthetic = by_group.get(f"{name}/{crop}/synthetic/all/{light}")
+                testbed = by_group.get(f"{name}/{crop}/testbed/all/{light}")
+                if synthetic and testbed:
+                    gaps.append(testbed["mean_score_speed"] - synthetic["mean_score_speed"])
+            if len(gaps) == 2:
+                closed = f"{100 * (gaps[0] - gaps[1]) / gaps[0]:.0f}%" if gaps[0] > 0 else "-"
+                closing.append(f"<li>{html.escape(light)}: gap {gaps[0]:.3f} ({html.escape(models[0])}) against "
+                               f"{gaps[1]:.3f} ({html.escape(model)}): {closed} of it closed</li>")
+    return (f"<p>Mean SPEED scores, {html.escape(how)}; gap: testbed minus synthetic. An image without a pose "
+            "(non-finite model output) scores the worst case, pi + 1.</p>" + _table(header, rows)
+            + (f"<ul>{''.join(closing)}</ul>" if closing else ""))
 
 
 def _no_pose(row: dict[str, Any] | None) -> str:
@@ -115,13 +141,19 @@ def run(config: Config, workspace: Workspace) -> None:
     scores = read_manifest(workspace, "scores").to_pylist()
     samples = read_manifest(workspace, "calibration_samples").to_pylist()
     camera = calibrated_camera(workspace)
-    score_of = {(row["domain"], row["sample_id"]): row for row in predictions}
 
+    models = list(dict.fromkeys(Path(text).stem for text in config.evaluate.models
+                                if any(r["model"] == Path(text).stem for r in predictions)))
+    models += sorted({r["model"] for r in predictions} - set(models))
+    crops = [c for c in ("oracle_box", "full", "self") if any(r["crop"] == c for r in predictions)]
+    # the first model on its contract's crop: the per-sample pictures
+    primary = [r for r in predictions if models and r["model"] == models[0] and crops and r["crop"] == crops[0]]
+    score_of = {(row["domain"], row["sample_id"]): row for row in primary}
     made = {
         "residuals": figures.calibration_residuals(samples, figure_dir / "calibration_residuals.png"),
         "poses": figures.pose_distribution(labels, figure_dir / "pose_distribution.png"),
-        "scores": figures.per_sample_scores(predictions, figure_dir / "per_sample_scores.png"),
-        "cdf": figures.rotation_cdf(predictions, figure_dir / "rotation_cdf.png"),
+        "scores": figures.per_sample_scores(primary, figure_dir / "per_sample_scores.png"),
+        "cdf": figures.rotation_cdf(predictions, models, figure_dir / "rotation_cdf.png"),
     }
     # a few samples of each configuration for the picture sections
     chosen: list[dict[str, Any]] = []
@@ -145,7 +177,6 @@ def run(config: Config, workspace: Workspace) -> None:
             pairs.append(f'<figure><img src="thumbs/{name}" alt="twin and capture of {sample_id}"><figcaption>'
                          f'{sample_id} ({label["view"]}, {label["domain"]}): SPEED score twin / testbed {caption}'
                          '</figcaption></figure>')
-    crop = predictions[0]["crop"] if predictions else "full"
     sections = [
         ("Table 1: calibration accuracy", f"<p>Solver: {html.escape(str(calibration.solver))}. Mean ± "
          "standard deviation over the calibration samples.</p>" + table1(calibration)),
@@ -154,8 +185,10 @@ def run(config: Config, workspace: Workspace) -> None:
         ("Motion-capture rejection and label sources", rejection_table(poses, labels)),
         ("Labels on testbed images (wireframe, brightened)", '<div class="grid">' + "".join(overlays) + "</div>"),
         ("Synthetic twins and testbed images", '<div class="grid">' + "".join(pairs) + "</div>"),
-        ("Table 2: domain gap of the model", table2(scores, crop)),
-        ("Per-sample scores", f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
+        *((f"Table 2: domain gap of the models ({crop.replace('_', ' ')})", table2(scores, models, crop))
+          for crop in crops),
+        (f"Per-sample scores ({models[0] if models else '-'})",
+         f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
         ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
         ("Provenance", provenance(config, workspace)),
     ]
@@ -172,8 +205,8 @@ th {{ background: #eef; }} img {{ max-width: 100%; }}
 figcaption {{ font-size: 0.85em; color: #555; }} pre {{ font-size: 0.8em; background: #f6f6f6; padding: 1em; }}
 </style></head><body>
 <h1>SPEED+ builder report: {html.escape(workspace.location)}</h1>
-<p>Profile {html.escape(config.profile)}, model {html.escape(Path(config.evaluate.model).name)}; {len(labels)}
-labels, {len(renders)} twins, {len(predictions)} scored images.</p>
+<p>Profile {html.escape(config.profile)}, models {html.escape(", ".join(models))}; {len(labels)}
+labels, {len(renders)} twins, {len(predictions)} predictions.</p>
 {body}
 </body></html>
 """

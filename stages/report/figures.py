@@ -87,16 +87,22 @@ def per_sample_scores(predictions: list[dict[str, Any]], path: Path) -> str:
     return _save(figure, path)
 
 
-def rotation_cdf(predictions: list[dict[str, Any]], path: Path) -> str:
-    """Cumulative distribution of the rotation error per domain."""
-    figure, axis = plt.subplots(figsize=(6, 3.6))
-    for domain, colour in DOMAIN_COLOURS.items():
-        errors = np.sort(np.degrees([r["err_q_rad"] for r in predictions if r["domain"] == domain]))
-        if len(errors):
-            axis.step(errors, np.arange(1, len(errors) + 1) / len(errors), where="post", color=colour, label=domain)
-    axis.set(xscale="log", xlabel="rotation error [deg]", ylabel="share of images", title="rotation error CDF")
-    axis.axvline(0.169, color="grey", ls=":", lw=1)
-    axis.legend()
+def rotation_cdf(predictions: list[dict[str, Any]], models: list[str], path: Path) -> str:
+    """Cumulative distribution of the rotation error per domain, one panel per model, side by
+    side: solid the contract's crop, dashed the model's own crop."""
+    models = models or ["-"]
+    figure, axes = plt.subplots(1, len(models), figsize=(6 * len(models), 3.6), squeeze=False, sharey=True)
+    for axis, model in zip(axes[0], models, strict=True):
+        for crop, style in (("oracle_box", "-"), ("full", "-"), ("self", "--")):
+            for domain, colour in DOMAIN_COLOURS.items():
+                errors = np.sort(np.degrees([r["err_q_rad"] for r in predictions if r["domain"] == domain
+                                             and r["model"] == model and r["crop"] == crop]))
+                if len(errors):
+                    axis.step(errors, np.arange(1, len(errors) + 1) / len(errors), where="post", color=colour,
+                              ls=style, label=f"{domain} ({crop.replace('_', ' ')})")
+        axis.set(xscale="log", xlabel="rotation error [deg]", ylabel="share of images", title=model)
+        axis.axvline(0.169, color="grey", ls=":", lw=1)
+        axis.legend(fontsize=7)
     return _save(figure, path)
 
 

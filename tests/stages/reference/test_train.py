@@ -14,39 +14,46 @@ from stages.reference.train import heatmap_targets
 from tests.conftest import speedplus
 
 
-def test_recipe_runs_a_few_steps_and_exports_a_loadable_model(tmp_path):
-    out = tmp_path / "model.onnx"
+def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models(tmp_path):
+    out = tmp_path / "models"
     result = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"),
                        "--set", "reference.images=10", "--steps", "2", "--out", str(out))
     assert result.returncode == 0, result.stderr
-    proto = onnx.load(str(out))
-    assert proto.ir_version <= 13  # what onnxruntime 1.31 reads
-    model = PoseModel(out)
     recipe = load_config("smoke").reference
-    assert (model.contract.width, model.contract.height) == (recipe.input_width, recipe.input_height)
-    assert model.contract.output == "heatmaps" and model.contract.crop == "oracle_box"
-    batch = np.zeros((2, 3, recipe.input_height, recipe.input_width), np.float32)
-    (heatmaps,) = model.infer(batch)
-    assert heatmaps.shape == (2, 11, recipe.input_height // 4, recipe.input_width // 4)
-    card = json.loads(out.with_suffix(".json").read_text())
-    assert card["training_images"] == 9 and card["held_out"]["images"] == 1
-    assert "held-out synthetic" in result.stdout
-    # a stage like every other: recorded in the models manifest, and done once
     ws = Workspace(tmp_path / "w")
-    (row,) = read_manifest(ws, "models").to_pylist()
-    assert ws.resolve(row["path"]).read_bytes() == out.read_bytes() and row["training_images"] == 9
+    rows = {row["model"]: row for row in read_manifest(ws, "models").to_pylist()}
+    assert set(rows) == {"reference", "reference_augmented"}
+    for name, augmentation in (("reference", "photometric"), ("reference_augmented", "robust")):
+        path = out / f"{name}.onnx"
+        proto = onnx.load(str(path))
+        assert proto.ir_version <= 13  # what onnxruntime 1.31 reads
+        assert {e.key: e.value for e in proto.metadata_props}["speedplus.augmentation"] == augmentation
+        model = PoseModel(path)
+        assert (model.contract.width, model.contract.height) == (recipe.input_width, recipe.input_height)
+        assert model.contract.output == "heatmaps" and model.contract.crop == "oracle_box"
+        batch = np.zeros((2, 3, recipe.input_height, recipe.input_width), np.float32)
+        (heatmaps,) = model.infer(batch)
+        stride = recipe.heatmap_stride
+        assert heatmaps.shape == (2, 11, recipe.input_height // stride, recipe.input_width // stride)
+        card = json.loads(path.with_suffix(".json").read_text())
+        assert card["training_images"] == 9 and card["held_out"]["images"] == 1
+        assert card["augmentation"] == augmentation
+        assert ws.resolve(rows[name]["path"]).read_bytes() == path.read_bytes()
+    assert result.stdout.count("held-out synthetic") == 2
     again = speedplus("train-reference", "--workspace", str(ws.root), "--steps", "2", "--out", str(out))
     assert again.returncode == 0 and "train-reference: up to date" in again.stdout, again.stderr
 
 
 def test_heatmap_targets_peak_at_the_keypoints():
     keypoints = np.array([[[10.0, 20.0], [100.5, 60.25], [-30.0, 5.0]]])
-    targets = heatmap_targets(keypoints, 96, 128, sigma=1.0)
-    assert targets.shape == (1, 3, 24, 32)
-    for k in range(2):
-        y, x = np.unravel_index(targets[0, k].argmax(), targets.shape[2:])
-        assert abs((x + 0.5) * 4 - 0.5 - keypoints[0, k, 0]) <= 2 and abs((y + 0.5) * 4 - 0.5 - keypoints[0, k, 1]) <= 2
-    assert targets[0, 2].max() == 0  # outside the image: no target
+    for stride in (2, 4):
+        targets = heatmap_targets(keypoints, 96, 128, sigma=1.0, stride=stride)
+        assert targets.shape == (1, 3, 96 // stride, 128 // stride)
+        for k in range(2):
+            y, x = np.unravel_index(targets[0, k].argmax(), targets.shape[2:])
+            assert abs((x + 0.5) * stride - 0.5 - keypoints[0, k, 0]) <= stride / 2
+            assert abs((y + 0.5) * stride - 0.5 - keypoints[0, k, 1]) <= stride / 2
+        assert targets[0, 2].max() == 0  # outside the image: no target
 
 
 def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(tmp_path, monkeypatch):
@@ -58,8 +65,8 @@ def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(
                      max_steps=6, threads=1)
     rng = np.random.default_rng(3)
     data = {"images": rng.integers(0, 255, (8, 64, 64, 3), dtype=np.uint8),
-            "keypoints": rng.uniform(5, 59, (8, 11, 2))}
-    reference, _ = training.train(data, recipe)
+            "masks": rng.integers(0, 255, (8, 64, 64), dtype=np.uint8), "keypoints": rng.uniform(5, 59, (8, 11, 2))}
+    reference, _ = training.train(data, recipe, "augmented")
 
     saved = training._save_checkpoint
     calls = []
@@ -73,13 +80,13 @@ def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(
     monkeypatch.setattr(training, "_save_checkpoint", crash_after_two_epochs)
     checkpoint = tmp_path / "reference.checkpoint.pt"
     with pytest.raises(KeyboardInterrupt):
-        training.train(data, recipe, checkpoint=checkpoint, tag="run-a")
+        training.train(data, recipe, "augmented", checkpoint=checkpoint, tag="run-a")
     monkeypatch.setattr(training, "_save_checkpoint", saved)
     assert torch.load(checkpoint, weights_only=False)["step"] == 4
-    resumed, log = training.train(data, recipe, checkpoint=checkpoint, tag="run-a")
+    resumed, log = training.train(data, recipe, "augmented", checkpoint=checkpoint, tag="run-a")
     assert [entry["step"] for entry in log] == [2, 4, 6]
     for name, value in reference.state_dict().items():
         assert torch.equal(value, resumed.state_dict()[name]), name
     # a checkpoint of another run (another fingerprint) is ignored, never resumed from
-    other, other_log = training.train(data, recipe, checkpoint=checkpoint, tag="run-b")
+    other, other_log = training.train(data, recipe, "augmented", checkpoint=checkpoint, tag="run-b")
     assert [entry["step"] for entry in other_log] == [2, 4, 6]

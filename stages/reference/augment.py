@@ -1,0 +1,132 @@
+"""Training-time augmentations of the reference models (numpy and OpenCV; deterministic for
+a generator state).
+
+Nothing geometric: a keypoint's identity depends on the image's handedness, so flips would
+need relabelling, and the crop already varies the target's scale and position. Two recipes:
+
+- ``photometric`` (the plain model): brightness (gain), gamma, offset and sensor noise.
+- ``robust`` (the augmented model, against the synthetic-to-real gap, after the
+  augmentations of the SPEED+ literature: style randomisation, random Earth backgrounds,
+  noise, blur, glare): each image gets, with the probabilities of ``ROBUST``,
+  a random Earth background behind the target (where the render's mask is empty), texture
+  randomisation of the target (a smooth random field multiplied into its pixels), style
+  (a random colour mixing and saturation), glare and lens flare (a bright blob with a halo,
+  a streak through it and ghosts towards the image centre), Gaussian blur, the photometric
+  jitter, and stronger noise (Gaussian and shot). Neural style transfer is not used: it
+  needs a pretrained network this project cannot download.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from stages.common.earth import albedo_map
+
+Augmentation = Literal["photometric", "robust"]
+AUGMENTATIONS: tuple[Augmentation, ...] = ("photometric", "robust")
+#: probability of each step of the robust recipe
+ROBUST = {"earth": 0.5, "texture": 0.5, "style": 0.7, "glare": 0.4, "blur": 0.5}
+
+
+def photometric(x: np.ndarray, rng: np.random.Generator, noise_max: float = 0.04) -> np.ndarray:
+    """Gain, gamma, offset and Gaussian noise on images (N, H, W, 3) float32 in [0, 1]."""
+    n = len(x)
+    gain = rng.uniform(0.6, 1.6, (n, 1, 1, 1)).astype(np.float32)
+    gamma = rng.uniform(0.7, 1.4, (n, 1, 1, 1)).astype(np.float32)
+    offset = rng.uniform(-0.03, 0.05, (n, 1, 1, 1)).astype(np.float32)
+    noise = rng.normal(0.0, 1.0, x.shape).astype(np.float32) * rng.uniform(0.0, noise_max, (n, 1, 1, 1)).astype(
+        np.float32)
+    return np.clip(np.power(np.clip(x * gain, 0, 1), gamma) + offset + noise, 0.0, 1.0)
+
+
+def _smooth_field(rng: np.random.Generator, height: int, width: int, channels: int, cells: int) -> np.ndarray:
+    coarse = rng.random((cells, cells, channels)).astype(np.float32)
+    field = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+    return field.reshape(height, width, channels)
+
+
+def earth_patch(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    """An Earth-like background (H, W, 3) float32: a window of the albedo map, lit across a
+    random terminator, below a random limb (black space above it) in half the cases."""
+    texture = albedo_map(1024)
+    size = int(rng.integers(96, 480))
+    v0 = int(rng.integers(0, texture.shape[0] - size // 2))
+    u0 = int(rng.integers(0, texture.shape[1] - size))
+    window = texture[v0:v0 + size // 2, u0:u0 + size]
+    patch = cv2.resize(window, (width, height), interpolation=cv2.INTER_LINEAR)
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
+    angle = rng.uniform(0, 2 * np.pi)
+    along = (np.cos(angle) * (xs - width / 2) + np.sin(angle) * (ys - height / 2)) / max(width, height)
+    light = np.clip(rng.uniform(0.4, 1.0) + rng.uniform(0.5, 2.5) * along, 0.0, 1.0) * rng.uniform(1.5, 4.0)
+    patch = patch * light[..., None]
+    if rng.random() < 0.5:  # the limb: a large circle whose inside is the planet
+        radius = rng.uniform(1.5, 6.0) * max(width, height)
+        centre_angle = rng.uniform(0, 2 * np.pi)
+        reach = radius + rng.uniform(-0.4, 0.4) * max(width, height)
+        cx, cy = width / 2 + reach * np.cos(centre_angle), height / 2 + reach * np.sin(centre_angle)
+        inside = np.hypot(xs - cx, ys - cy) < radius
+        patch = patch * inside[..., None]
+    return np.clip(patch, 0.0, 1.0).astype(np.float32)
+
+
+def _glare(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    """An additive glare (H, W, 1): a bright core with a halo, a streak and flare ghosts."""
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
+    cx, cy = rng.uniform(-0.2, 1.2) * width, rng.uniform(-0.2, 1.2) * height
+    core = rng.uniform(2.0, 10.0)
+    out = rng.uniform(0.5, 1.5) * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * core**2))
+    out += rng.uniform(0.1, 0.4) * np.exp(-np.hypot(xs - cx, ys - cy) / (4 * core))
+    angle = rng.uniform(0, np.pi)
+    distance = np.abs(np.sin(angle) * (xs - cx) - np.cos(angle) * (ys - cy))
+    out += rng.uniform(0.1, 0.5) * np.exp(-distance**2 / (2 * rng.uniform(0.5, 1.5) ** 2))
+    for fraction in rng.uniform(0.3, 1.7, int(rng.integers(1, 4))):  # ghosts along the line to the centre
+        gx, gy = cx + fraction * (width / 2 - cx), cy + fraction * (height / 2 - cy)
+        radius = rng.uniform(3.0, 15.0)
+        out += rng.uniform(0.05, 0.2) * (np.hypot(xs - gx, ys - gy) < radius)
+    return out[..., None].astype(np.float32)
+
+
+def robust(x: np.ndarray, masks: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The robust recipe on images (N, H, W, 3) float32 in [0, 1] with the target's masks
+    (N, H, W) float32 in [0, 1] (the render's mask, cropped as the image)."""
+    out = np.empty_like(x)
+    n, height, width = x.shape[:3]
+    for index in range(n):
+        image, alpha = x[index].copy(), masks[index][..., None]
+        if rng.random() < ROBUST["texture"]:
+            image = image * (alpha * (0.5 + _smooth_field(rng, height, width, 3, int(rng.integers(3, 12))))
+                             + (1 - alpha))
+        if rng.random() < ROBUST["earth"]:
+            image = image * alpha + earth_patch(rng, height, width) * (1 - alpha)
+        if rng.random() < ROBUST["style"]:
+            mixing = np.eye(3, dtype=np.float32) + rng.normal(0, 0.15, (3, 3)).astype(np.float32)
+            image = image @ mixing.T
+            grey = image.mean(axis=-1, keepdims=True)
+            image = grey + rng.uniform(0.3, 1.5) * (image - grey)
+        if rng.random() < ROBUST["glare"]:
+            image = image + _glare(rng, height, width) * rng.uniform(0.8, 1.0, 3).astype(np.float32)
+        if rng.random() < ROBUST["blur"]:
+            image = cv2.GaussianBlur(np.clip(image, 0, 1), (0, 0), rng.uniform(0.4, 1.6))
+        out[index] = np.clip(image, 0.0, 1.0)
+    return _sensor(out, rng)
+
+
+def _sensor(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The photometric jitter with stronger read noise, and shot noise (grows with the signal)."""
+    out = photometric(x, rng, noise_max=0.07)
+    shot = rng.uniform(0.0, 0.03, (len(x), 1, 1, 1)).astype(np.float32)
+    return np.clip(out + rng.normal(0.0, 1.0, out.shape).astype(np.float32) * shot * np.sqrt(out), 0.0, 1.0)
+
+
+def augment(kind: Augmentation, images: np.ndarray, masks: np.ndarray | None,
+            rng: np.random.Generator) -> np.ndarray:
+    """Augmented copies (N, H, W, 3) float32 in [0, 1] of images (N, H, W, 3) uint8."""
+    x = images.astype(np.float32) / 255.0
+    if kind == "photometric":
+        return photometric(x, rng)
+    if masks is None:
+        raise ValueError("the robust augmentation needs the target's masks")
+    return robust(x, masks.astype(np.float32) / 255.0, rng)
