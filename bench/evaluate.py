@@ -31,7 +31,7 @@ def main(*args: str) -> None:
     recipe = load_config("default").reference
     threads, batch, repeats = 2, 16, 5
     torch.manual_seed(0)
-    model = KeypointNet(11, recipe.width).eval()
+    model = KeypointNet(11, recipe.width, recipe.heatmap_stride).eval()
     directory = tempfile.mkdtemp()
     path = Path(directory) / "network.onnx"
     export(model, recipe, path, {})

@@ -301,6 +301,8 @@ SCORES = ManifestSpec(
         Column("mean_err_q_deg", pa.float64(), "deg", "mean rotation error"),
         Column("median_err_q_deg", pa.float64(), "deg", "median rotation error"),
         Column("mean_err_t_norm", pa.float64(), "1", "mean normalised translation error"),
+        Column("mean_box_iou", pa.float64(), "1", "self crop: mean intersection over union of the found box with "
+               "the label's box", nullable=True),
     ),
     key="group",
 )

@@ -27,7 +27,8 @@ def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view:
             "mean_score_speed": float(np.mean([r["score_speed"] for r in chosen])),
             "mean_score_speedplus": float(np.mean([r["score_speedplus"] for r in chosen])),
             "mean_err_q_deg": float(err_q.mean()), "median_err_q_deg": float(np.median(err_q)),
-            "mean_err_t_norm": float(np.mean([r["err_t_norm"] for r in chosen]))}
+            "mean_err_t_norm": float(np.mean([r["err_t_norm"] for r in chosen])),
+            "mean_box_iou": float(np.mean([r["box_iou"] for r in chosen])) if crop == "self" else None}
 
 
 def summarise(predictions: list[dict[str, Any]]) -> Any:

@@ -83,6 +83,14 @@ def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
                 closed = f"{100 * (gaps[0] - gaps[1]) / gaps[0]:.0f}%" if gaps[0] > 0 else "-"
                 closing.append(f"<li>{html.escape(light)}: gap {gaps[0]:.3f} ({html.escape(models[0])}) against "
                                f"{gaps[1]:.3f} ({html.escape(model)}): {closed} of it closed</li>")
+    if crop == "self":
+        for model in models:
+            row = by_group.get(f"{model}/{crop}/testbed/all/all")
+            twin = by_group.get(f"{model}/{crop}/synthetic/all/all")
+            if row and twin:
+                closing.append(f"<li>{html.escape(model)}: the boxes it found overlap the labels' by a mean IoU of "
+                               f"{twin['mean_box_iou']:.2f} on the twins, {row['mean_box_iou']:.2f} on the testbed "
+                               "images</li>")
     return (f"<p>Mean SPEED scores, {html.escape(how)}; gap: testbed minus synthetic. An image without a pose "
             "(non-finite model output) scores the worst case, pi + 1.</p>" + _table(header, rows)
             + (f"<ul>{''.join(closing)}</ul>" if closing else ""))
