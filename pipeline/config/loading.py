@@ -71,6 +71,10 @@ def _unknown(key: str, known: list[str]) -> ConfigError:
     return ConfigError(f"unknown configuration key {key!r}{hint}")
 
 
+#: keys older versions wrote into W/config.toml -> (the key now, how its value converts)
+RENAMED: dict[str, tuple[str, Any]] = {"evaluate.model": ("evaluate.models", lambda value: [value])}
+
+
 def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
     known_keys = [f"{s}.{f.name}" for s, t in SECTION_TYPES.items() for f in fields(t)]
     changes: dict[str, Any] = {}
@@ -87,6 +91,8 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
         coerced = {}
         for name, value in values.items():
             key = f"{section_name}.{name}"
+            if key in RENAMED and RENAMED[key][0].split(".")[1] not in values:  # written by an older version
+                name, value = RENAMED[key][0].split(".")[1], RENAMED[key][1](value)
             if name not in field_names:
                 raise ConfigError(f"{source}: " + str(_unknown(key, known_keys)))
             try:

@@ -243,7 +243,7 @@ class PnPSolution:
     rms_px: float
 
 
-def _plausible(tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray) -> bool:
+def plausible(tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray) -> bool:
     """In front of the camera and at least a couple of pixels across (degenerate solutions
     at huge distances explain collapsed keypoints perfectly)."""
     radius = float(np.max(np.linalg.norm(object_points - object_points.mean(axis=0), axis=1)))
@@ -299,7 +299,7 @@ def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camer
         chosen = inliers[:, 0]
         rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], camera_matrix, dist, rvec,
                                           tvec)
-        ok = _plausible(tvec[:, 0], object_points, camera_matrix)
+        ok = plausible(tvec[:, 0], object_points, camera_matrix)
     else:
         ok = False
     if not ok:

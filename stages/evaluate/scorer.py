@@ -11,7 +11,7 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common.image_io import decode_image, to_uint8
-from stages.common.pose_model import PnPSolution, PoseModel, decode_heatmaps, pose_from_keypoints
+from stages.common.pose_model import PnPSolution, PoseModel, decode_heatmaps, plausible, pose_from_keypoints
 from stages.common.scores import score
 
 
@@ -85,8 +85,9 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
 def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.ndarray, camera_matrix: np.ndarray,
                dist: np.ndarray, width: int, height: int) -> np.ndarray:
     """The box a pass found: the model's keypoints reprojected at its pose (robust to a few
-    wild keypoints), else the finite keypoints themselves, else the whole image."""
-    if solution is not None and solution.t[2] > 0:
+    wild keypoints) when that pose is plausible, else the finite keypoints themselves, else
+    the whole image."""
+    if solution is not None and plausible(solution.t, model.contract.keypoints_m, camera_matrix):
         points = g.project(g.transform_from_qt(solution.q, solution.t), model.contract.keypoints_m, camera_matrix,
                            dist)
     else:
