@@ -199,7 +199,7 @@ class ReferenceConfig:
     input_width: int = param(192, "network input width (the crop around the target is resized to it)", "px")
     input_height: int = param(192, "network input height", "px")
     width: int = param(16, "channels of the network's first layer (the others are multiples)", "count")
-    epochs: int = param(25, "passes over the training images", "count")
+    epochs: int = param(20, "passes over the training images", "count")
     batch_size: int = param(32, "images per optimiser step", "count")
     learning_rate: float = param(2e-3, "Adam's initial learning rate (cosine decay to 2% of it)", "1")
     heatmap_sigma: float = param(1.0, "standard deviation of the target Gaussians, in heatmap pixels", "px")
