@@ -199,13 +199,13 @@ class ReferenceConfig:
     input_width: int = param(192, "network input width (the crop around the target is resized to it)", "px")
     input_height: int = param(192, "network input height", "px")
     width: int = param(16, "channels of the network's first layer (the others are multiples)", "count")
-    epochs: int = param(20, "passes over the training images", "count")
+    epochs: int = param(45, "passes over the training images", "count")
     batch_size: int = param(32, "images per optimiser step", "count")
     learning_rate: float = param(2e-3, "Adam's initial learning rate (cosine decay to 2% of it)", "1")
     heatmap_sigma: float = param(1.0, "standard deviation of the target Gaussians, in heatmap pixels", "px")
-    heatmap_stride: Literal[2, 4] = param(2, "input pixels per heatmap pixel (2: heatmaps of half the input's "
+    heatmap_stride: Literal[2, 4] = param(4, "input pixels per heatmap pixel (2: heatmaps of half the input's "
                                           "resolution, 4: a quarter)", "px")
-    wide_crops: float = param(0.3, "share of training crops taken wide (the box 1.2 to 6 times larger, shifted): "
+    wide_crops: float = param(0.0, "share of training crops taken wide (the box 1.2 to 6 times larger, shifted): "
                               "the model also finds a small target, as the self crop's first pass needs", "1")
     variants: tuple[ReferenceVariant, ...] = param(
         ("plain", "augmented"), "models to train: plain (photometric jitter: models/reference.onnx) and augmented "
@@ -221,7 +221,7 @@ class EvaluateConfig:
     """The evaluate stage: an ONNX model scored on twins and testbed images."""
 
     models: tuple[str, ...] = param(
-        ("models/reference.onnx", "models/reference_augmented.onnx"), "ONNX models following the contract of "
+        ("models/reference.onnx",), "ONNX models following the contract of "
         "stages/common/pose_model.py, each scored on every image; relative paths: from the current directory, else "
         "from the repository", "")
     self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: a coarse pass on "
