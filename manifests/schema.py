@@ -264,7 +264,7 @@ PREDICTIONS = ManifestSpec(
                "the label's box", nullable=True),
         Column("pose_found", pa.bool_(), "", "the model's output gave a pose (else scored as the worst case: "
                "only non-finite outputs)"),
-        Column("pnp_method", pa.string(), "", "how the pose was found: EPnP in RANSAC, EPnP on all points "
+        Column("pnp_method", pa.string(), "", "how the pose was found: AP3P in RANSAC, EPnP on all points "
                "(no consensus), the model's own pose output, or none", kind="enum",
                allowed=("ransac", "all_points", "direct", "none")),
         Column("pnp_inliers", pa.int32(), "count", "keypoints within the RANSAC threshold of the pose (keypoint "

@@ -207,6 +207,8 @@ class ReferenceConfig:
                                           "resolution, 4: a quarter)", "px")
     wide_crops: float = param(0.0, "share of training crops taken wide (the box 1.2 to 6 times larger, shifted): "
                               "the model also finds a small target, as the self crop's first pass needs", "1")
+    rotation: bool = param(True, "rotate every training crop by a random angle in the image plane (with a random "
+                           "scale of 1 +- 0.15 and shift of +- 6%); off: scale and shift only", "")
     variants: tuple[ReferenceVariant, ...] = param(
         ("plain", "augmented"), "models to train: plain (photometric jitter: models/reference.onnx) and augmented "
         "(style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx)", "")

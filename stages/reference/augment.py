@@ -1,8 +1,11 @@
 """Training-time augmentations of the reference models (numpy and OpenCV; deterministic for
 a generator state).
 
-Nothing geometric: a keypoint's identity depends on the image's handedness, so flips would
-need relabelling, and the crop already varies the target's scale and position. Two recipes:
+Geometry (``geometric``, both models): a random rotation in the image plane about the
+crop's centre, a scale and a shift, applied alike to the image, the mask and the keypoints.
+Without it the first model over-fitted its 2,700 crops (8% of training keypoints more than
+5 px off, 45% of held-out ones, most on another keypoint's place). No flips: a mirror image
+changes handedness, which no pose of the body explains. Then one of two recipes:
 
 - ``photometric`` (the plain model): brightness (gain), gamma, offset and sensor noise.
 - ``robust`` (the augmented model, against the synthetic-to-real gap, after the
@@ -29,6 +32,30 @@ Augmentation = Literal["photometric", "robust"]
 AUGMENTATIONS: tuple[Augmentation, ...] = ("photometric", "robust")
 #: probability of each step of the robust recipe
 ROBUST = {"earth": 0.5, "texture": 0.5, "style": 0.7, "glare": 0.4, "blur": 0.5}
+
+
+def geometric(images: np.ndarray, masks: np.ndarray, keypoints: np.ndarray, rng: np.random.Generator,
+              rotation: bool = True, scale: float = 0.15, shift: float = 0.06,
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rotated (uniform angle), scaled (1 +- ``scale``) and shifted (+- ``shift`` of the
+    size) copies of images (N, H, W, 3) uint8, masks (N, H, W) uint8 and keypoints (N, K, 2)
+    input pixels (pixel centres at integers); what comes into view from outside is black,
+    as space is."""
+    n, height, width = images.shape[:3]
+    out_images, out_masks, out_keypoints = np.empty_like(images), np.empty_like(masks), np.empty_like(keypoints)
+    centre = np.array([(width - 1) / 2, (height - 1) / 2])
+    for index in range(n):
+        angle = rng.uniform(0.0, 360.0) if rotation else 0.0
+        zoom = rng.uniform(1 - scale, 1 + scale)
+        offset = rng.uniform(-shift, shift, 2) * (width, height)
+        warp = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), angle, zoom)
+        warp[:, 2] += offset
+        out_images[index] = cv2.warpAffine(images[index], warp, (width, height), flags=cv2.INTER_LINEAR,
+                                           borderMode=cv2.BORDER_CONSTANT)
+        out_masks[index] = cv2.warpAffine(masks[index], warp, (width, height), flags=cv2.INTER_LINEAR,
+                                          borderMode=cv2.BORDER_CONSTANT)
+        out_keypoints[index] = keypoints[index] @ warp[:, :2].T + warp[:, 2]
+    return out_images, out_masks, out_keypoints
 
 
 def photometric(x: np.ndarray, rng: np.random.Generator, noise_max: float = 0.04) -> np.ndarray:

@@ -7,8 +7,8 @@ and twins (``stages.common.pose_model.prepare``, crop ``oracle_box``: a square a
 keypoints' box, so scores are those of the pose network given a perfect detector, as the
 report says); targets are Gaussian heatmaps at the keypoints' projections, at half
 (``heatmap_stride`` 2) or a quarter of the input's resolution. Augmentation
-(``stages.reference.augment``): photometric jitter for the plain model, the robust recipe
-for the augmented one; nothing geometric.
+(``stages.reference.augment``): a random rotation, scale and shift of every crop, then
+photometric jitter for the plain model, the robust recipe for the augmented one.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from stages.common.pose_model import (
     prepare,
 )
 from stages.common.scores import score
-from stages.reference.augment import augment
+from stages.reference.augment import augment, geometric
 
 MEAN = (0.485, 0.456, 0.406)
 STD = (0.229, 0.224, 0.225)
@@ -182,6 +182,8 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, variant: Referen
                 chosen_images = np.where(wide[..., None], data["wide_images"][batch], chosen_images)
                 chosen_masks = np.where(wide, data["wide_masks"][batch], chosen_masks)
                 chosen_keypoints = np.where(wide, data["wide_keypoints"][batch], chosen_keypoints)
+            chosen_images, chosen_masks, chosen_keypoints = geometric(
+                chosen_images, chosen_masks, chosen_keypoints, rng, rotation=recipe.rotation)
             x = torch.from_numpy(normalise(augment(augmentation, chosen_images, chosen_masks, rng), terms)).to(device)
             target = torch.from_numpy(heatmap_targets(chosen_keypoints, recipe.input_height, recipe.input_width,
                                                       recipe.heatmap_sigma, recipe.heatmap_stride)).to(device)

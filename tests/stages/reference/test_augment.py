@@ -50,3 +50,24 @@ def test_earth_backgrounds_are_bright_somewhere_and_vary():
     assert all(p.shape == (48, 64, 3) and p.dtype == np.float32 for p in patches)
     assert max(p.max() for p in patches) > 0.2
     assert len({p.tobytes() for p in patches}) == 6
+
+
+def test_geometric_moves_keypoints_with_the_pixels_and_is_seeded():
+    rng = np.random.default_rng(3)
+    images = np.zeros((8, 96, 96, 3), np.uint8)
+    masks = np.zeros((8, 96, 96), np.uint8)
+    keypoints = rng.uniform(25, 70, (8, 5, 2))
+    for index in range(8):  # a bright 3x3 spot on every keypoint
+        for x, y in np.rint(keypoints[index]).astype(int):
+            images[index, y - 1:y + 2, x - 1:x + 2] = 255
+            masks[index, y - 1:y + 2, x - 1:x + 2] = 255
+        keypoints[index] = np.rint(keypoints[index])
+    out_images, out_masks, out_keypoints = aug.geometric(images, masks, keypoints, np.random.default_rng(5))
+    again = aug.geometric(images, masks, keypoints, np.random.default_rng(5))
+    assert all(np.array_equal(a, b) for a, b in zip((out_images, out_masks, out_keypoints), again, strict=True))
+    assert not np.allclose(out_keypoints, keypoints, atol=2)  # it did move them
+    for index in range(8):
+        for x, y in out_keypoints[index]:
+            if 2 <= x <= 93 and 2 <= y <= 93:  # the spot's brightest pixel is where the keypoint went
+                window = out_images[index, int(round(y)) - 2:int(round(y)) + 3, int(round(x)) - 2:int(round(x)) + 3, 0]
+                assert window.max() >= 120 and out_masks[index, int(round(y)), int(round(x))] > 60
