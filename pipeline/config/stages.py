@@ -232,6 +232,8 @@ class EvaluateConfig:
     threads: int = param(2, "ONNX Runtime intra-op threads", "count")
     ransac_fraction: float = param(
         0.01, "RANSAC inlier threshold of keypoint PnP, as a fraction of the image width", "1")
+    turns: bool = param(True, "a model whose metadata asks for it (speedplus.turns=4) sees each crop at four "
+                        "quarter turns and its heatmaps, turned back, are averaged; off: one pass", "")
 
 
 @dataclass(frozen=True)

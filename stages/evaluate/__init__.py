@@ -109,7 +109,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
             batches = [items[i:i + batch] for i in range(0, len(items), batch)]
             args = (path.read_bytes(), str(path), config.evaluate.threads, camera.camera_matrix, camera.dist,
-                    config.evaluate.ransac_fraction)
+                    config.evaluate.ransac_fraction, config.evaluate.turns)
             results = map_config(config, open_scorer, args, "score", batches, renders=False,
                                  prepare=_with_images(workspace))
             for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, "

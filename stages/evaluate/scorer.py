@@ -21,20 +21,21 @@ class Scorer:
     keypoints into poses."""
 
     def __init__(self, model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
-                 reprojection_fraction: float) -> None:
+                 reprojection_fraction: float, turns: bool = True) -> None:
         self.model = PoseModel(model, threads, name)
         self.camera_matrix, self.dist = np.asarray(camera_matrix, float), np.asarray(dist, float)
         self.reprojection_fraction = reprojection_fraction
+        self.turns = turns
 
     def score(self, items: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """``predictions`` rows of a batch, in its order."""
-        return predict(self.model, items, self.camera_matrix, self.dist, self.reprojection_fraction)
+        return predict(self.model, items, self.camera_matrix, self.dist, self.reprojection_fraction, self.turns)
 
 
 def open_scorer(model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
-                reprojection_fraction: float) -> Scorer:
+                reprojection_fraction: float, turns: bool = True) -> Scorer:
     """Picklable factory for the engines."""
-    return Scorer(model, name, threads, camera_matrix, dist, reprojection_fraction)
+    return Scorer(model, name, threads, camera_matrix, dist, reprojection_fraction, turns)
 
 
 #: passes of the self crop: the whole image, then twice around what the previous pass found
@@ -51,16 +52,18 @@ def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
-           dist: np.ndarray, reprojection_fraction: float) -> tuple[list[PnPSolution | None], list[np.ndarray]]:
-    """One pass of the model on crops around ``boxes`` (the contract's crop): the poses, and
-    the keypoints (K, 2) in image pixels."""
+           dist: np.ndarray, reprojection_fraction: float, turns: bool = True,
+           ) -> tuple[list[PnPSolution | None], list[np.ndarray]]:
+    """One pass of the model on crops around ``boxes`` (the contract's crop), its heatmaps
+    averaged over quarter turns when the model asks for it and ``turns``: the poses, and the
+    keypoints (K, 2) in image pixels."""
     contract = model.contract
     tensors, affines = [], []
     for image, box in zip(images, boxes, strict=True):
         tensor, affine = model.preprocess(image, box)
         tensors.append(tensor)
         affines.append(affine)
-    outputs = model.infer(np.stack(tensors))
+    outputs = model.infer(np.stack(tensors), turns)
     if contract.output == "pose":
         solutions = []
         for q, t in zip(outputs[0], outputs[1], strict=True):
@@ -100,7 +103,7 @@ def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.nda
 
 
 def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.ndarray, dist: np.ndarray,
-            reprojection_fraction: float) -> list[dict[str, Any]]:
+            reprojection_fraction: float, turns: bool = True) -> list[dict[str, Any]]:
     """Prediction rows for a batch of items, each scored with its ``crop``: the contract's
     (``full``, or ``oracle_box`` from the label's box), or ``self``: the model's own crop, a
     pass on the whole image then ``SELF_PASSES - 1`` passes around what the last one found."""
@@ -112,7 +115,7 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
              for image, box, crop in zip(images, labelled, crops, strict=True)]
     passes = SELF_PASSES if "self" in crops else 1
     for index in range(passes):
-        solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, reprojection_fraction)
+        solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, reprojection_fraction, turns)
         if index < passes - 1:
             boxes = [_found_box(model, solution, points, camera_matrix, dist, image.shape[1], image.shape[0])
                      if crop == "self" else box

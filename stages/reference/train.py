@@ -49,8 +49,10 @@ VARIANTS: dict[str, tuple[str, str]] = {"plain": ("reference", "photometric"),
 
 
 def contract(recipe: ReferenceConfig) -> ModelContract:
+    # trained at every rotation, a square model asks evaluate to average its quarter turns
+    turns = 4 if recipe.rotation and recipe.input_width == recipe.input_height else 1
     return ModelContract(recipe.input_width, recipe.input_height, "rgb", MEAN, STD, "heatmaps",
-                         tango.KEYPOINTS_M.copy(), "oracle_box")
+                         tango.KEYPOINTS_M.copy(), "oracle_box", turns)
 
 
 def keypoint_box(keypoints_px: np.ndarray) -> np.ndarray:

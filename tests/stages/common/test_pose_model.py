@@ -133,3 +133,50 @@ def test_prepare_maps_pixels_both_ways():
 def test_oracle_crop_needs_a_box():
     with pytest.raises(InputError, match="needs the label's box"):
         prepare(np.zeros((10, 10, 3), np.uint8), CONTRACT, None)
+
+
+def _conv_heatmap_model(path, turns: str | None) -> None:
+    """A heatmap model with random (asymmetric) 3x3 kernels and 4x4 max pooling: not
+    rotation-equivariant by itself."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    weights = np.random.default_rng(0).normal(size=(11, 3, 3, 3)).astype(np.float32)
+    nodes = [helper.make_node("Conv", ["image", "w"], ["c"], pads=[1, 1, 1, 1]),
+             helper.make_node("MaxPool", ["c"], ["heatmaps"], kernel_shape=[4, 4], strides=[4, 4])]
+    graph = helper.make_graph(nodes, "conv", [helper.make_tensor_value_info("image", TensorProto.FLOAT,
+                                                                            ["n", 3, 32, 32])],
+                              [helper.make_tensor_value_info("heatmaps", TensorProto.FLOAT, ["n", 11, 8, 8])],
+                              [helper.make_tensor("w", TensorProto.FLOAT, weights.shape, weights.ravel())])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    contract = ModelContract(32, 32, "rgb", (0.5,) * 3, (0.25,) * 3, "heatmaps", tango.KEYPOINTS_M.copy(),
+                             "oracle_box", int(turns or 1))
+    for key, value in contract.metadata().items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(model, str(path))
+
+
+def test_quarter_turns_make_heatmaps_turn_with_the_image(tmp_path):
+    from stages.common.pose_model import PoseModel
+
+    batch = np.random.default_rng(1).normal(size=(2, 3, 32, 32)).astype(np.float32)
+    turned = np.ascontiguousarray(np.rot90(batch, 1, axes=(2, 3)))
+    for turns in ("4", None):
+        _conv_heatmap_model(tmp_path / "m.onnx", turns)
+        model = PoseModel(tmp_path / "m.onnx")
+        assert model.contract.turns == int(turns or 1)
+        upright, of_turned = model.infer(batch)[0], model.infer(turned)[0]
+        equivariant = np.allclose(np.rot90(upright, 1, axes=(2, 3)), of_turned, atol=1e-4)
+        assert equivariant == (turns == "4")
+        # evaluate.turns off: one pass, whatever the model asks
+        single = model.infer(batch, turns=False)[0]
+        assert np.allclose(single, model.session.run(None, {"image": batch})[0])
+
+
+@pytest.mark.parametrize("change", [{"speedplus.turns": "3"}, {"speedplus.turns": "4", "speedplus.input_size": "64x32"},
+                                    {"speedplus.turns": "4", "speedplus.output": "keypoints"}])
+def test_quarter_turns_only_for_square_heatmap_models(change):
+    with pytest.raises(InputError, match="speedplus.turns"):
+        parse_contract({**CONTRACT.metadata(), **change}, "m.onnx")
