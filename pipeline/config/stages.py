@@ -223,7 +223,7 @@ class EvaluateConfig:
     """The evaluate stage: an ONNX model scored on twins and testbed images."""
 
     models: tuple[str, ...] = param(
-        ("models/reference.onnx",), "ONNX models following the contract of "
+        ("models/reference.onnx", "models/reference_augmented.onnx"), "ONNX models following the contract of "
         "stages/common/pose_model.py, each scored on every image; relative paths: from the current directory, else "
         "from the repository", "")
     self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: a coarse pass on "
