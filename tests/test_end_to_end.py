@@ -30,15 +30,16 @@ def test_every_stage_is_done(finished):
         assert " done " in line, line
     predictions = read_manifest(ws, "predictions").to_pylist()
     assert {p["domain"] for p in predictions} == {"synthetic", "lightbox", "sunlamp"}
-    # 8 testbed images and their 8 twins, by the shipped model on 2 crops (oracle, self)
-    assert len(predictions) == 32
-    assert {(p["model"], p["crop"]) for p in predictions} == {("reference", c) for c in ("oracle_box", "self")}
+    # 8 testbed images and their 8 twins, by the two shipped models on 2 crops (oracle, self)
+    assert len(predictions) == 64
+    assert {(p["model"], p["crop"]) for p in predictions} == {(m, c) for m in ("reference", "reference_augmented")
+                                                              for c in ("oracle_box", "self")}
     # a keypoint model's finite outputs always give a pose, with what PnP made of them
     assert all(p["pose_found"] and p["pnp_method"] in ("ransac", "all_points") for p in predictions)
     assert all(0 <= p["pnp_inliers"] <= 11 and np.isfinite(p["reprojection_rms_px"]) for p in predictions)
     assert all((p["box_iou"] is None) == (p["crop"] != "self") for p in predictions)
     scores = {row["group"]: row for row in read_manifest(ws, "scores").to_pylist()}
-    for model in ("reference",):
+    for model in ("reference", "reference_augmented"):
         assert scores[f"{model}/oracle_box/synthetic/all/all"]["count"] == 8
         assert scores[f"{model}/self/testbed/all/all"]["count"] == 8
 

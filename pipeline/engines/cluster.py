@@ -30,6 +30,8 @@ from pipeline.progress import console
 
 #: a sample is tried on at most this many workers before the stage gives up on it
 MAX_ATTEMPTS = 3
+#: seconds to wait for a free CPU before saying the cluster has none
+FREE_CPU_WAIT_S = 15.0
 REPOSITORY = Path(__file__).resolve().parents[2]
 #: what the job's working_dir leaves behind (workspaces, environments, caches)
 SHIPPING_EXCLUDES = [".git", ".venv", "data", "**/__pycache__", "*.egg-info", ".pytest_cache", ".ruff_cache",
@@ -163,6 +165,13 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
     prepare = prepare or (lambda item: item)
     connect(address, workers * worker_cpus or os.cpu_count() or 1)
     free = int(ray.available_resources().get("CPU", 0) // worker_cpus)
+    waited = 0.0
+    # ray.kill is asynchronous: the actors of the map just before (the previous model of
+    # evaluate) give their CPUs back a moment after they are killed
+    while free < 1 and waited < FREE_CPU_WAIT_S:
+        time.sleep(0.25)
+        waited += 0.25
+        free = int(ray.available_resources().get("CPU", 0) // worker_cpus)
     size = min(workers or len(items), len(items), free)
     if size < 1:
         raise EngineError(f"the Ray cluster has no free CPU for a worker of {worker_cpus} CPU(s) "
