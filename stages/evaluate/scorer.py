@@ -154,7 +154,8 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
     boxes = [(_search(model, image) if searchable else np.array([0.0, 0.0, image.shape[1] - 1.0,
                                                                         image.shape[0] - 1.0]))
              if crop == "self" else box for image, box, crop in zip(images, labelled, crops, strict=True)]
-    passes = SELF_PASSES - 1 if "self" in crops else 1
+    # the search is the self crop's first pass; without it, the first is on the whole image
+    passes = (SELF_PASSES - 1 if searchable else SELF_PASSES) if "self" in crops else 1
     for index in range(passes):
         solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, reprojection_fraction, turns)
         if index < passes - 1:
