@@ -154,6 +154,7 @@ class PoseModel:
                                                 providers=["CPUExecutionProvider"])
         except Exception as error:  # noqa: BLE001 - onnxruntime raises several types for unreadable models
             raise InputError(f"{source}: not a loadable ONNX model ({error})") from None
+        self.source = source
         self.contract = parse_contract(self.session.get_modelmeta().custom_metadata_map, source)
         inputs = self.session.get_inputs()
         expected = [3 if self.contract.channels == "rgb" else 1, self.contract.height, self.contract.width]
@@ -181,7 +182,11 @@ class PoseModel:
         total = None
         for k in range(self.contract.turns):
             turned = np.ascontiguousarray(np.rot90(batch, k, axes=(2, 3)))
-            heatmaps = np.rot90(self.session.run(None, {self.input_name: turned})[0], -k, axes=(2, 3))
+            heatmaps = self.session.run(None, {self.input_name: turned})[0]
+            if heatmaps.ndim != 4 or heatmaps.shape[2] != heatmaps.shape[3]:
+                raise InputError(f"{self.source}: speedplus.turns=4 needs square heatmaps (N, K, h, h), "
+                                 f"got {heatmaps.shape}")
+            heatmaps = np.rot90(heatmaps, -k, axes=(2, 3))
             total = heatmaps.copy() if total is None else total + heatmaps
         return [np.ascontiguousarray(total / self.contract.turns)]
 
@@ -224,6 +229,17 @@ def prepare(image_bgr: np.ndarray, contract: ModelContract, box: np.ndarray | No
     image_from_input = np.array([[scale_x, 0, x0 + 0.5 * scale_x - 0.5], [0, scale_y, y0 + 0.5 * scale_y - 0.5],
                                  [0, 0, 1.0]])
     return np.ascontiguousarray(pixels), image_from_input
+
+
+def points_box(points_px: np.ndarray) -> np.ndarray:
+    """x_min, y_min, x_max, y_max [px] of points (K, 2): the labels' box definition."""
+    points_px = np.asarray(points_px, float)
+    return np.concatenate([points_px.min(axis=0), points_px.max(axis=0)])
+
+
+def apply_affine(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (..., 2) through a (3, 3) affine map (e.g. ``prepare``'s image_from_input)."""
+    return np.asarray(points, float) @ affine[:2, :2].T + affine[:2, 2]
 
 
 def normalise(pixels: np.ndarray, contract: ModelContract) -> np.ndarray:

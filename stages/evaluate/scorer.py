@@ -11,7 +11,15 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common.image_io import decode_image, to_uint8
-from stages.common.pose_model import PnPSolution, PoseModel, decode_heatmaps, plausible, pose_from_keypoints
+from stages.common.pose_model import (
+    PnPSolution,
+    PoseModel,
+    apply_affine,
+    decode_heatmaps,
+    plausible,
+    points_box,
+    pose_from_keypoints,
+)
 from stages.common.scores import score
 
 
@@ -85,8 +93,7 @@ def _search(model: PoseModel, image: np.ndarray) -> np.ndarray:
     heatmaps = model.infer(np.stack(tensors), turns=False)[0]
     points, confidences = decode_heatmaps(heatmaps, model.contract.width, model.contract.height)
     best = int(np.argmax(confidences.mean(axis=1)))
-    in_image = points[best] @ affines[best][:2, :2].T + affines[best][:2, 2]
-    return np.concatenate([in_image.min(axis=0), in_image.max(axis=0)])
+    return points_box(apply_affine(affines[best], points[best]))
 
 
 def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
@@ -116,7 +123,7 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
         confidences = np.ones(points.shape[:2])
     solutions, in_images = [], []
     for keypoints, confidence, affine, image in zip(points, confidences, affines, images, strict=True):
-        in_image = keypoints @ affine[:2, :2].T + affine[:2, 2]
+        in_image = apply_affine(affine, keypoints)
         in_images.append(in_image)
         solutions.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
                                              reprojection_fraction * image.shape[1], confidence))
@@ -135,7 +142,7 @@ def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.nda
         points = keypoints[np.all(np.isfinite(keypoints), axis=1)]
     if len(points) == 0 or not np.all(np.isfinite(points)):
         return np.array([0.0, 0.0, width - 1.0, height - 1.0])
-    box = np.concatenate([points.min(axis=0), points.max(axis=0)])
+    box = points_box(points)
     # a crop stays near the image, however wild the pass was
     return np.clip(box, [-width, -height, -width, -height], [2 * width, 2 * height, 2 * width, 2 * height])
 

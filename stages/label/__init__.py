@@ -20,6 +20,7 @@ from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common import geometry as g
 from stages.common import tango
+from stages.common.pose_model import points_box
 from stages.common.sidecars import calibrated_camera, mockup_scale
 
 
@@ -44,7 +45,7 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
         "sigma_t_m": np.asarray(pose["sigma_t_m"]) / scale,
         "sigma_r_rad": pose["sigma_r_rad"],
         "keypoints_px": keypoints,
-        "bbox_px": np.concatenate([keypoints.min(axis=0), keypoints.max(axis=0)]),
+        "bbox_px": points_box(keypoints),
     }
 
 

@@ -34,7 +34,9 @@ from stages.common.pose_model import (
     OPSET,
     ModelContract,
     PoseModel,
+    apply_affine,
     normalise,
+    points_box,
     pose_from_keypoints,
     prepare,
 )
@@ -53,12 +55,6 @@ def contract(recipe: ReferenceConfig) -> ModelContract:
     turns = 4 if recipe.rotation and recipe.input_width == recipe.input_height else 1
     return ModelContract(recipe.input_width, recipe.input_height, "rgb", MEAN, STD, "heatmaps",
                          tango.KEYPOINTS_M.copy(), "oracle_box", turns)
-
-
-def keypoint_box(keypoints_px: np.ndarray) -> np.ndarray:
-    """x_min, y_min, x_max, y_max of projected keypoints: the labels' box definition."""
-    keypoints_px = np.asarray(keypoints_px, float)
-    return np.concatenate([keypoints_px.min(axis=0), keypoints_px.max(axis=0)])
 
 
 def wide_box(box: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -89,13 +85,12 @@ def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str
     for index, row in enumerate(track(rows, len(rows), "load training images")):
         image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
         mask = to_uint8(read_image(workspace.fetch(row["mask_path"]), "bgr"))
-        box = keypoint_box(row["keypoints_px"])
+        box = points_box(row["keypoints_px"])
         for prefix, crop_box in (("", box), ("wide_", wide_box(box, rng))):
             out[f"{prefix}images"][index], image_from_input = prepare(image, terms, crop_box)
             out[f"{prefix}masks"][index] = prepare(mask, terms, crop_box)[0][..., 0]
             input_from_image = np.linalg.inv(image_from_input)
-            out[f"{prefix}keypoints"][index] = (np.asarray(row["keypoints_px"]) @ input_from_image[:2, :2].T
-                                                + input_from_image[:2, 2])
+            out[f"{prefix}keypoints"][index] = apply_affine(input_from_image, row["keypoints_px"])
             if not prefix:
                 out["maps"][index] = image_from_input
     return {**out, "rows": np.array(rows, dtype=object)}
@@ -248,7 +243,7 @@ def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.n
         points, confidences = decode_heatmaps(model.infer(batch)[0], model.contract.width, model.contract.height)
         for row, keypoints, confidence, image_from_input in zip(data["rows"][first:first + 32], points, confidences,
                                                                 data["maps"][first:first + 32], strict=True):
-            in_image = keypoints @ image_from_input[:2, :2].T + image_from_input[:2, 2]
+            in_image = apply_affine(image_from_input, keypoints)
             solution = pose_from_keypoints(in_image, tango.KEYPOINTS_M, camera_matrix, dist,
                                            reprojection_px=0.01 * row["width"], confidence=confidence)
             if solution is None:  # non-finite outputs: the worst case, as evaluate scores it

@@ -135,7 +135,7 @@ def test_oracle_crop_needs_a_box():
         prepare(np.zeros((10, 10, 3), np.uint8), CONTRACT, None)
 
 
-def _conv_heatmap_model(path, turns: str | None) -> None:
+def _conv_heatmap_model(path, turns: str | None, pool: tuple[int, int] = (4, 4)) -> None:
     """A heatmap model with random (asymmetric) 3x3 kernels and 4x4 max pooling: not
     rotation-equivariant by itself."""
     import onnx
@@ -143,10 +143,11 @@ def _conv_heatmap_model(path, turns: str | None) -> None:
 
     weights = np.random.default_rng(0).normal(size=(11, 3, 3, 3)).astype(np.float32)
     nodes = [helper.make_node("Conv", ["image", "w"], ["c"], pads=[1, 1, 1, 1]),
-             helper.make_node("MaxPool", ["c"], ["heatmaps"], kernel_shape=[4, 4], strides=[4, 4])]
+             helper.make_node("MaxPool", ["c"], ["heatmaps"], kernel_shape=list(pool), strides=list(pool))]
     graph = helper.make_graph(nodes, "conv", [helper.make_tensor_value_info("image", TensorProto.FLOAT,
                                                                             ["n", 3, 32, 32])],
-                              [helper.make_tensor_value_info("heatmaps", TensorProto.FLOAT, ["n", 11, 8, 8])],
+                              [helper.make_tensor_value_info("heatmaps", TensorProto.FLOAT,
+                                                             ["n", 11, 32 // pool[0], 32 // pool[1]])],
                               [helper.make_tensor("w", TensorProto.FLOAT, weights.shape, weights.ravel())])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
@@ -180,3 +181,12 @@ def test_quarter_turns_make_heatmaps_turn_with_the_image(tmp_path):
 def test_quarter_turns_only_for_square_heatmap_models(change):
     with pytest.raises(InputError, match="speedplus.turns"):
         parse_contract({**CONTRACT.metadata(), **change}, "m.onnx")
+
+
+def test_quarter_turns_of_non_square_heatmaps_are_an_error_naming_the_model(tmp_path):
+    from stages.common.pose_model import PoseModel
+
+    _conv_heatmap_model(tmp_path / "wide.onnx", "4", pool=(4, 8))
+    model = PoseModel(tmp_path / "wide.onnx")
+    with pytest.raises(InputError, match=r"wide\.onnx: speedplus.turns=4 needs square heatmaps"):
+        model.infer(np.zeros((1, 3, 32, 32), np.float32))
