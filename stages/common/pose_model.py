@@ -29,7 +29,8 @@ key                        value
 Keypoint outputs become poses by AP3P inside RANSAC, then Levenberg-Marquardt refinement
 on the inliers, with the label camera (intrinsics and distortion); without a consensus, by
 EPnP on every point and a confidence-weighted refinement (``pose_from_keypoints``): finite
-outputs always give a pose.
+outputs always give a pose. Heatmap outputs keep several peaks per keypoint
+(``heatmap_pnp``), falling back to this on their highest peaks.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ OPSET = 17
 IR_VERSION = 8  # onnxruntime 1.31 reads IR versions up to 13
 #: keypoints that must agree with a RANSAC pose for it to stand
 MIN_CONSENSUS = 5
+#: an oracle_box crop is a square of this many times the box's larger side
+CROP_MARGIN = 1.25
 
 
 @dataclass(frozen=True)
@@ -206,7 +209,7 @@ def crop_window(contract: ModelContract, width: int, height: int, box: np.ndarra
     if box is None or not np.all(np.isfinite(box)):
         raise InputError("speedplus.crop=oracle_box needs the label's box")
     centre = (np.asarray(box[:2], float) + np.asarray(box[2:], float)) / 2
-    side = int(np.ceil(1.25 * max(box[2] - box[0], box[3] - box[1], 8.0)))
+    side = int(np.ceil(CROP_MARGIN * max(box[2] - box[0], box[3] - box[1], 8.0)))
     x0, y0 = (int(round(c - (side - 1) / 2)) for c in centre)
     return x0, y0, side, side
 
@@ -289,6 +292,17 @@ def plausible(tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.nda
     return bool(np.all(np.isfinite(tvec)) and tvec[2] > 0 and np.linalg.norm(tvec) <= camera_matrix[0][0] * radius)
 
 
+def spans(rvec: np.ndarray, tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray,
+          dist: np.ndarray, extent_px: tuple[float, float] | None) -> bool:
+    """Whether the object's points at a pose span (least, most) pixels in the image (the
+    larger of the x and y extents); always true without ``extent_px``."""
+    if extent_px is None:
+        return True
+    projected = cv2.projectPoints(object_points, rvec, tvec, camera_matrix, dist)[0][:, 0]
+    span = (projected.max(axis=0) - projected.min(axis=0)).max()
+    return bool(extent_px[0] <= span <= extent_px[1])
+
+
 def _residuals(object_points: np.ndarray, image_points: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
                rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     """(K,) reprojection distances [px]."""
@@ -315,12 +329,13 @@ def _weighted_lm(object_points: np.ndarray, image_points: np.ndarray, camera_mat
 
 
 def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
-                        dist: np.ndarray, reprojection_px: float,
-                        confidence: np.ndarray | None = None) -> PnPSolution | None:
+                        dist: np.ndarray, reprojection_px: float, confidence: np.ndarray | None = None,
+                        extent_px: tuple[float, float] | None = None) -> PnPSolution | None:
     """The pose of cam_from_target from K image points (K, 2) [px] and body points (K, 3)
     [m], with the label camera: AP3P inside RANSAC (threshold ``reprojection_px``), then LM
-    on the inliers; when RANSAC finds no plausible consensus, EPnP on every point, then LM
-    with each residual weighted by its keypoint's ``confidence`` (K,) (heatmap peaks).
+    on the inliers; when RANSAC finds no plausible consensus (in front of the camera and,
+    given ``extent_px``, spanning it: ``spans``), EPnP on every point, then LM with each
+    residual weighted by its keypoint's ``confidence`` (K,) (heatmap peaks).
     None only when fewer than 4 keypoints are finite: finite outputs always give a pose."""
     image_points = np.asarray(keypoints_px, np.float64).reshape(-1, 2)
     finite = np.all(np.isfinite(image_points), axis=1)
@@ -342,7 +357,8 @@ def pose_from_keypoints(keypoints_px: np.ndarray, keypoints_m: np.ndarray, camer
         chosen = inliers[:, 0]
         rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], camera_matrix, dist, rvec,
                                           tvec)
-        ok = plausible(tvec[:, 0], object_points, camera_matrix)
+        ok = plausible(tvec[:, 0], object_points, camera_matrix) and spans(rvec, tvec, object_points, camera_matrix,
+                                                                           dist, extent_px)
     else:
         ok = False
     if not ok:

@@ -10,8 +10,10 @@ from typing import Any
 import numpy as np
 
 from stages.common import geometry as g
+from stages.common.heatmap_pnp import poses_from_heatmaps
 from stages.common.image_io import decode_image, to_uint8
 from stages.common.pose_model import (
+    CROP_MARGIN,
     PnPSolution,
     PoseModel,
     apply_affine,
@@ -84,10 +86,10 @@ def _search(model: PoseModel, image: np.ndarray) -> np.ndarray:
     is where the target is, and the box those keypoints span is what the pass found."""
     height, width = image.shape[:2]
     windows = search_windows(width, height)
-    # the oracle crop is 1.25 times the box: a box of 1/1.25 of a window crops that window
+    # the oracle crop is CROP_MARGIN times the box: a box of 1/CROP_MARGIN of a window crops that window
     centres = [(w[:2] + w[2:]) / 2 for w in windows]
-    boxes = [np.concatenate([c - (w[2] - w[0]) / 2.5, c + (w[2] - w[0]) / 2.5]) for c, w in zip(centres, windows,
-                                                                                             strict=True)]
+    boxes = [np.concatenate([c - (w[2] - w[0]) / (2 * CROP_MARGIN), c + (w[2] - w[0]) / (2 * CROP_MARGIN)])
+             for c, w in zip(centres, windows, strict=True)]
     tensors, affines = zip(*(model.preprocess(image, box) for box in boxes), strict=True)
     # one pass a window, never the quarter turns: this only has to say where the target is
     heatmaps = model.infer(np.stack(tensors), turns=False)[0]
@@ -117,10 +119,11 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
                              if direct else None)
         return solutions, [np.full((len(contract.keypoints_m), 2), np.nan)] * len(images)
     if contract.output == "heatmaps":
-        points, confidences = decode_heatmaps(outputs[0], contract.width, contract.height)
-    else:
-        points = np.asarray(outputs[0], float)
-        confidences = np.ones(points.shape[:2])
+        solutions, in_images = poses_from_heatmaps(outputs[0], affines, contract, camera_matrix, dist,
+                                                   [reprojection_fraction * image.shape[1] for image in images])
+        return solutions, list(in_images)
+    points = np.asarray(outputs[0], float)
+    confidences = np.ones(points.shape[:2])
     solutions, in_images = [], []
     for keypoints, confidence, affine, image in zip(points, confidences, affines, images, strict=True):
         in_image = apply_affine(affine, keypoints)

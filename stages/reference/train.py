@@ -28,6 +28,7 @@ from pipeline.config import Config, ReferenceConfig
 from pipeline.config.stages import ReferenceVariant
 from pipeline.progress import console, track
 from stages.common import tango
+from stages.common.heatmap_pnp import poses_from_heatmaps
 from stages.common.image_io import read_image, to_uint8
 from stages.common.pose_model import (
     IR_VERSION,
@@ -37,7 +38,6 @@ from stages.common.pose_model import (
     apply_affine,
     normalise,
     points_box,
-    pose_from_keypoints,
     prepare,
 )
 from stages.common.scores import score
@@ -234,18 +234,14 @@ def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[
 def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.ndarray,
                     dist: np.ndarray) -> dict[str, float]:
     """SPEED scores of the exported model on prepared images, through ONNX Runtime and PnP."""
-    from stages.common.pose_model import decode_heatmaps
-
     model = PoseModel(path, threads=2)
     errors = []
     for first in range(0, len(data["images"]), 32):
         batch = normalise(data["images"][first:first + 32].astype(np.float32) / 255.0, model.contract)
-        points, confidences = decode_heatmaps(model.infer(batch)[0], model.contract.width, model.contract.height)
-        for row, keypoints, confidence, image_from_input in zip(data["rows"][first:first + 32], points, confidences,
-                                                                data["maps"][first:first + 32], strict=True):
-            in_image = apply_affine(image_from_input, keypoints)
-            solution = pose_from_keypoints(in_image, tango.KEYPOINTS_M, camera_matrix, dist,
-                                           reprojection_px=0.01 * row["width"], confidence=confidence)
+        rows = data["rows"][first:first + 32]
+        solutions, _ = poses_from_heatmaps(model.infer(batch)[0], list(data["maps"][first:first + 32]), model.contract,
+                                           camera_matrix, dist, [0.01 * row["width"] for row in rows])
+        for row, solution in zip(rows, solutions, strict=True):
             if solution is None:  # non-finite outputs: the worst case, as evaluate scores it
                 errors.append({"err_q_rad": np.pi, "err_t_norm": 1.0, "score_speed": np.pi + 1.0})
                 continue

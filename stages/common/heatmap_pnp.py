@@ -1,0 +1,194 @@
+"""Poses from heatmaps that keep more than their highest peak.
+
+A keypoint's heatmap on a nearly symmetric body often has two peaks: the keypoint and its
+mirror (a left corner where the right one is). Taking each heatmap's highest peak and
+then RANSAC over keypoints (``pose_model.pose_from_keypoints``) cannot recover when the
+wrong peak is higher; here every keypoint keeps up to ``CANDIDATES`` peaks, RANSAC draws a
+candidate per keypoint, and a pose is worth the heatmap values of the candidates it
+explains (within the reprojection threshold), so the geometry decides between a peak and
+its mirror. A pose must also be of the size the crop says the target is: an oracle (or
+self) crop is ``CROP_MARGIN`` times the target's box, so a pose whose keypoints span less
+than half or more than 1.5 times that box is not the target (it explains clustered peaks
+from far away).
+
+Measured on the plain reference model's 300 held-out renders (oracle crop, four turns),
+with these constants chosen before looking: mean SPEED score 0.27 -> 0.11, poses off by
+more than 10 deg 16% -> 9%, median rotation error 0.84 -> 0.96 deg.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from stages.common import geometry as g
+from stages.common.pose_model import (
+    CROP_MARGIN,
+    MIN_CONSENSUS,
+    ModelContract,
+    PnPSolution,
+    _parabola_offset,
+    apply_affine,
+    plausible,
+    pose_from_keypoints,
+    spans,
+)
+
+#: peaks kept per keypoint heatmap, highest first
+CANDIDATES = 3
+#: a peak below this fraction of its heatmap's highest is not a candidate
+RELATIVE_PEAK = 0.2
+#: RANSAC samples; each draws 4 keypoints, each its highest peak or (half the time) another
+ITERATIONS = 500
+#: the span of a pose's keypoints, as a fraction of the target box the crop implies
+EXTENT_RANGE = (0.5, 1.5)
+
+
+def decode_candidates(heatmaps: np.ndarray, width: int, height: int,
+                      count: int = CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
+    """Peaks of heatmaps (N, K, h, w): points (N, K, count, 2) in input pixels (a W x H
+    input; NaN where a heatmap has fewer peaks) and their values (N, K, count) (0 there),
+    highest first. A peak is a 3x3 local maximum of at least ``RELATIVE_PEAK`` of its
+    heatmap's highest, refined by a parabola in x and in y; the first is ``decode_heatmaps``'s."""
+    n, k, h, w = heatmaps.shape
+    padded = np.pad(heatmaps, ((0, 0), (0, 0), (1, 1), (1, 1)), constant_values=-np.inf)
+    neighbours = np.stack([padded[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                           for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)])
+    highest = heatmaps.reshape(n, k, -1).max(axis=-1)
+    # ties (flat tops) keep one: a peak is >= every neighbour and > those before it in scan order
+    earlier = neighbours[:4]
+    peak = (heatmaps >= neighbours.max(axis=0)) & (heatmaps > earlier.max(axis=0))
+    peak &= (heatmaps >= RELATIVE_PEAK * highest[..., None, None]) | (heatmaps == highest[..., None, None])
+    values = np.where(peak, heatmaps, -np.inf).reshape(n, k, -1)
+    order = np.argsort(-values, axis=-1, kind="stable")[..., :count]
+    top = np.take_along_axis(values, order, axis=-1)
+    ys, xs = np.divmod(order, w)
+    i, j = np.meshgrid(np.arange(n), np.arange(k), indexing="ij")
+    i, j = i[..., None], j[..., None]
+    mid = heatmaps[i, j, ys, xs]
+    left, right = heatmaps[i, j, ys, np.maximum(xs - 1, 0)], heatmaps[i, j, ys, np.minimum(xs + 1, w - 1)]
+    up, down = heatmaps[i, j, np.maximum(ys - 1, 0), xs], heatmaps[i, j, np.minimum(ys + 1, h - 1), xs]
+    x = xs + _parabola_offset(left, mid, right) * ((xs > 0) & (xs < w - 1))
+    y = ys + _parabola_offset(up, mid, down) * ((ys > 0) & (ys < h - 1))
+    points = np.stack([(x + 0.5) * width / w - 0.5, (y + 0.5) * height / h - 0.5], axis=-1)
+    found = np.isfinite(top)
+    return np.where(found[..., None], points, np.nan), np.where(found, top, 0.0)
+
+
+def target_extent(image_from_input: np.ndarray, input_width: int) -> tuple[float, float]:
+    """(least, most) span [px] of the target's keypoints in an oracle-type crop mapped to the
+    image by ``image_from_input`` (3, 3): the crop is ``CROP_MARGIN`` times the target's box."""
+    box_side = abs(image_from_input[0, 0]) * input_width / CROP_MARGIN
+    return EXTENT_RANGE[0] * box_side, EXTENT_RANGE[1] * box_side
+
+
+def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoints_m: np.ndarray,
+                         camera_matrix: np.ndarray, dist: np.ndarray, reprojection_px: float,
+                         extent_px: tuple[float, float] | None = None, seed: int = 0) -> PnPSolution | None:
+    """The pose of cam_from_target from each keypoint's candidate image points (K, C, 2)
+    [px] (NaN: none) with their heatmap values (K, C), body points (K, 3) [m] and the label
+    camera: the RANSAC pose whose explained candidates have the most heatmap value, among
+    poses in front of the camera whose keypoints span ``extent_px`` (least, most) [px]; then
+    Levenberg-Marquardt on the explained candidates. Without such a pose (at least
+    ``MIN_CONSENSUS`` keypoints explained): ``pose_from_keypoints`` on the highest peaks
+    (whose RANSAC pose must span ``extent_px`` too).
+    Deterministic for ``seed``, whatever was computed before."""
+    candidates_px = np.asarray(candidates_px, np.float64)
+    values = np.asarray(values, np.float64)
+    keypoints_m = np.ascontiguousarray(keypoints_m, np.float64)
+    usable = np.all(np.isfinite(candidates_px), axis=-1) & np.isfinite(values)
+    counts = usable.sum(axis=1)
+    present = np.flatnonzero(counts > 0)
+    best = None
+    if len(present) >= 4:
+        rng = np.random.default_rng(seed)
+        poses = []
+        for _ in range(ITERATIONS):
+            chosen = rng.choice(present, 4, replace=False)
+            picks = [0 if counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, counts[kp])) for kp in chosen]
+            points = np.ascontiguousarray([candidates_px[kp, c] for kp, c in zip(chosen, picks, strict=True)])
+            ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], points, camera_matrix, dist, flags=cv2.SOLVEPNP_AP3P)
+            if ok and plausible(tvec[:, 0], keypoints_m, camera_matrix):
+                poses.append((rvec, tvec))
+        best = _best_supported(poses, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
+                               reprojection_px, extent_px)
+    if best is None:
+        return pose_from_keypoints(candidates_px[:, 0], keypoints_m, camera_matrix, dist, reprojection_px, values[:, 0],
+                                   extent_px)
+    rvec, tvec = best
+    for _ in range(2):  # refine on what the pose explains, then once more on what the refined pose explains
+        explained, points = _explained(rvec, tvec, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
+                                       reprojection_px)
+        if explained.sum() < 4:
+            break
+        refined = cv2.solvePnPRefineLM(keypoints_m[explained], np.ascontiguousarray(points[explained]),
+                                       camera_matrix, dist, rvec.copy(), tvec.copy())
+        # a few explained points can pull the refinement off to a body far away: keep the sample's pose then
+        if not _acceptable(*refined, keypoints_m, camera_matrix, dist, extent_px):
+            break
+        rvec, tvec = refined
+    projected = cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
+    highest = candidates_px[:, 0]
+    finite = np.all(np.isfinite(highest), axis=1)
+    residuals = np.linalg.norm(projected[finite] - highest[finite], axis=1)
+    explained, _ = _explained(rvec, tvec, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
+                              reprojection_px)
+    q, t = g.transform_to_qt(g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0]))
+    return PnPSolution(q, t, "ransac", int(explained.sum()), float(np.sqrt(np.mean(residuals ** 2))))
+
+
+def _acceptable(rvec: np.ndarray, tvec: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
+                dist: np.ndarray, extent_px: tuple[float, float] | None) -> bool:
+    """Finite, in front of the camera and spanning ``extent_px`` (when given)."""
+    return bool(np.all(np.isfinite(rvec)) and plausible(tvec[:, 0], keypoints_m, camera_matrix)
+                and spans(rvec, tvec, keypoints_m, camera_matrix, dist, extent_px))
+
+
+def _explained(rvec: np.ndarray, tvec: np.ndarray, candidates_px: np.ndarray, values: np.ndarray,
+               usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+               reprojection_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which keypoints (K,) have a candidate within the threshold of the pose's projection,
+    and for each the most valuable such candidate (K, 2) [px]."""
+    projected = cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
+    near = usable & (np.linalg.norm(candidates_px - projected[:, None], axis=-1) <= reprojection_px)
+    pick = np.argmax(np.where(near, values, -np.inf), axis=1)
+    return near.any(axis=1), candidates_px[np.arange(len(pick)), pick]
+
+
+def _best_supported(poses: list[tuple[np.ndarray, np.ndarray]], candidates_px: np.ndarray, values: np.ndarray,
+                    usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+                    reprojection_px: float, extent_px: tuple[float, float] | None,
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pose of ``poses`` whose explained candidates have the most heatmap value (the
+    first on ties), among those of the right span explaining ``MIN_CONSENSUS`` keypoints."""
+    if not poses:
+        return None
+    projected = np.stack([cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
+                          for rvec, tvec in poses])  # (P, K, 2)
+    distance = np.linalg.norm(candidates_px[None] - projected[:, :, None], axis=-1)  # (P, K, C)
+    near = usable[None] & (distance <= reprojection_px)
+    support = np.where(near, values[None], -np.inf).max(axis=-1)  # (P, K)
+    support = np.where(np.isfinite(support), support, 0.0)
+    total = np.where(near.any(axis=-1).sum(axis=-1) >= MIN_CONSENSUS, support.sum(axis=-1), -np.inf)
+    if extent_px is not None:
+        span = (projected.max(axis=1) - projected.min(axis=1)).max(axis=-1)
+        total = np.where((span >= extent_px[0]) & (span <= extent_px[1]), total, -np.inf)
+    index = int(np.argmax(total))
+    return poses[index] if np.isfinite(total[index]) else None
+
+
+def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray], contract: ModelContract,
+                        camera_matrix: np.ndarray, dist: np.ndarray,
+                        reprojection_px: list[float]) -> tuple[list[PnPSolution | None], np.ndarray]:
+    """Poses of a batch of heatmaps (N, K, h, w) of crops mapped to their images by
+    ``image_from_inputs`` (N of (3, 3)), each with its RANSAC threshold [px]; and the
+    highest peaks (N, K, 2) in image pixels. The span bound applies to oracle-type crops."""
+    candidates, values = decode_candidates(heatmaps, contract.width, contract.height)
+    solutions, highest = [], []
+    for points, value, affine, threshold in zip(candidates, values, image_from_inputs, reprojection_px, strict=True):
+        in_image = apply_affine(affine, points)
+        highest.append(in_image[:, 0])
+        extent = target_extent(affine, contract.width) if contract.crop == "oracle_box" else None
+        solutions.append(pose_from_candidates(in_image, value, contract.keypoints_m, camera_matrix, dist, threshold,
+                                              extent))
+    return solutions, np.array(highest).reshape(len(candidates), -1, 2)

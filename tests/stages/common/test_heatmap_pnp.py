@@ -1,0 +1,133 @@
+"""Poses from several peaks per heatmap: the geometry chooses between a peak and its mirror."""
+
+import cv2
+import numpy as np
+
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.heatmap_pnp import (
+    RELATIVE_PEAK,
+    decode_candidates,
+    pose_from_candidates,
+    poses_from_heatmaps,
+    target_extent,
+)
+from stages.common.pose_model import CROP_MARGIN, ModelContract, decode_heatmaps, pose_from_keypoints
+
+K = np.array([[1494.3, 0, 479.5], [0, 1494.2, 299.5], [0, 0, 1.0]])
+DIST = np.array([-0.2238, 0.5141, -0.000665, -0.000214, -0.1312])
+CONTRACT = ModelContract(192, 192, "rgb", (0.5, 0.5, 0.5), (0.25, 0.25, 0.25), "heatmaps", tango.KEYPOINTS_M.copy(),
+                         "oracle_box")
+
+
+def gaussians(centres: np.ndarray, heights: np.ndarray, size: int = 48) -> np.ndarray:
+    """Heatmaps (..., size, size): a sum of Gaussians (sigma 1) at centres (..., P, 2) of heights (..., P)."""
+    ys, xs = np.mgrid[0:size, 0:size]
+    d2 = (xs - centres[..., 0, None, None]) ** 2 + (ys - centres[..., 1, None, None]) ** 2
+    return (heights[..., None, None] * np.exp(-d2 / 2.0)).sum(axis=-3).astype(np.float32)
+
+
+def test_candidates_are_the_peaks_highest_first_with_sub_pixel_positions():
+    rng = np.random.default_rng(0)
+    centres = np.stack([rng.uniform(4, 14, (3, 11, 2)), rng.uniform(30, 43, (3, 11, 2)),
+                        rng.uniform(4, 43, (3, 11, 2)) * [1, 0] + [0, 24]], axis=2)  # (3, 11, 3, 2), apart
+    heights = np.broadcast_to([1.0, 0.6, 0.5 * RELATIVE_PEAK], (3, 11, 3))
+    heatmaps = gaussians(centres, heights)
+    points, values = decode_candidates(heatmaps, 192, 192)
+    assert points.shape == (3, 11, 3, 2) and values.shape == (3, 11, 3)
+    np.testing.assert_allclose(points[:, :, :2], (centres[:, :, :2] + 0.5) * 4 - 0.5, atol=0.35)
+    assert np.all(values[:, :, 0] > values[:, :, 1]) and np.all(values[:, :, 1] > 0.45)
+    # a peak under RELATIVE_PEAK of the highest is no candidate
+    assert np.all(np.isnan(points[:, :, 2])) and np.all(values[:, :, 2] == 0)
+    # the first candidate is what decode_heatmaps gives
+    first, confidence = decode_heatmaps(heatmaps, 192, 192)
+    np.testing.assert_array_equal(points[:, :, 0], first)
+    np.testing.assert_array_equal(values[:, :, 0], confidence)
+
+
+def test_a_flat_or_non_finite_heatmap_has_one_candidate_or_none():
+    heatmaps = np.zeros((1, 2, 8, 8), np.float32)
+    heatmaps[0, 1] = np.nan
+    points, values = decode_candidates(heatmaps, 32, 32)
+    assert np.all(np.isfinite(points[0, 0, 0])) and np.all(np.isnan(points[0, 0, 1:]))
+    assert np.all(np.isnan(points[0, 1]))
+
+
+def mirrored_case(rng: np.random.Generator):
+    """Candidates where 7 of 11 highest peaks agree on a wrong pose and the true keypoints
+    are their second peaks: what a view of a nearly symmetric body looks like."""
+    q_true = g.random_quats(rng, 1)[0]
+    true_pixels = g.project(g.transform_from_qt(q_true, [0.2, -0.1, 7.0]), tango.KEYPOINTS_M, K, DIST)
+    q_wrong = g.quat_multiply(q_true, g.matrix_to_quat(g.axis_angle_matrix("z", np.radians(35))))
+    wrong_pixels = g.project(g.transform_from_qt(q_wrong, [0.2, -0.1, 7.0]), tango.KEYPOINTS_M, K, DIST)
+    candidates = np.full((11, 2, 2), np.nan)
+    values = np.zeros((11, 2))
+    fooled = rng.choice(11, 7, replace=False)
+    for keypoint in range(11):
+        if keypoint in fooled:
+            candidates[keypoint] = wrong_pixels[keypoint], true_pixels[keypoint]
+            values[keypoint] = 1.0, 0.6
+        else:
+            candidates[keypoint, 0], values[keypoint, 0] = true_pixels[keypoint], 0.9
+    return q_true, candidates, values
+
+
+def test_a_pose_explaining_second_peaks_too_wins_over_the_highest_peaks_consensus():
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        q_true, candidates, values = mirrored_case(rng)
+        highest_only = pose_from_keypoints(candidates[:, 0], tango.KEYPOINTS_M, K, DIST, 3.0, values[:, 0])
+        assert g.quat_angular_distance(highest_only.q, q_true) > np.radians(20)  # fooled
+        solution = pose_from_candidates(candidates, values, tango.KEYPOINTS_M, K, DIST, 3.0)
+        assert solution.method == "ransac" and solution.inliers == 11
+        assert g.quat_angular_distance(solution.q, q_true) < 1e-6
+        np.testing.assert_allclose(solution.t, [0.2, -0.1, 7.0], atol=1e-5)
+
+
+def test_the_same_candidates_give_the_same_bytes_whatever_ran_before():
+    q_true, candidates, values = mirrored_case(np.random.default_rng(5))
+    first = pose_from_candidates(candidates, values, tango.KEYPOINTS_M, K, DIST, 3.0)
+    np.random.seed(9)
+    cv2.setRNGSeed(9)
+    np.random.default_rng().random(100)
+    second = pose_from_candidates(candidates, values, tango.KEYPOINTS_M, K, DIST, 3.0)
+    assert first.q.tobytes() == second.q.tobytes() and first.t.tobytes() == second.t.tobytes()
+
+
+def test_a_pose_of_the_wrong_size_for_the_crop_is_refused_and_finite_candidates_always_give_a_pose():
+    rng = np.random.default_rng(6)
+    span_of = []
+    for _ in range(30):
+        candidates = rng.uniform(300, 660, (11, 3, 2))
+        candidates[rng.uniform(size=(11, 3)) < 0.3] = np.nan
+        candidates[:, 0] = rng.uniform(300, 660, (11, 2))  # every keypoint has its highest peak
+        values = np.where(np.isnan(candidates[..., 0]), 0.0, rng.uniform(0.1, 1.0, (11, 3)))
+        extent = (180.0, 540.0)
+        solution = pose_from_candidates(candidates, values, tango.KEYPOINTS_M, K, DIST, 20.0, extent)
+        assert solution is not None and np.all(np.isfinite(solution.q)) and np.all(np.isfinite(solution.t))
+        if solution.method == "ransac":
+            pixels = g.project(g.transform_from_qt(solution.q, solution.t), tango.KEYPOINTS_M, K, DIST)
+            span_of.append((pixels.max(axis=0) - pixels.min(axis=0)).max())
+    # neither the chosen sample nor its refinement leaves the span
+    assert span_of and all(180 - 1e-6 <= span <= 540 + 1e-6 for span in span_of), sorted(span_of)
+
+
+def test_heatmaps_of_a_crop_give_the_pose_in_the_image():
+    rng = np.random.default_rng(7)
+    for q in g.random_quats(rng, 3):
+        cam_from_target = g.transform_from_qt(q, [0.1, 0.05, 8.0])
+        pixels = g.project(cam_from_target, tango.KEYPOINTS_M, K, DIST)
+        box = np.concatenate([pixels.min(axis=0), pixels.max(axis=0)])
+        side = CROP_MARGIN * (box[2:] - box[:2]).max()
+        corner = (box[:2] + box[2:]) / 2 - side / 2
+        scale = side / 192
+        image_from_input = np.array([[scale, 0, corner[0] + 0.5 * scale - 0.5],
+                                     [0, scale, corner[1] + 0.5 * scale - 0.5], [0, 0, 1.0]])
+        in_input = (pixels - image_from_input[:2, 2]) / scale
+        heatmaps = gaussians(((in_input + 0.5) / 4 - 0.5)[:, None], np.ones((11, 1)))[None]
+        least, most = target_extent(image_from_input, 192)
+        assert least < (box[2:] - box[:2]).max() < most
+        solutions, highest = poses_from_heatmaps(heatmaps, [image_from_input], CONTRACT, K, DIST, [9.6])
+        np.testing.assert_allclose(highest[0], pixels, atol=0.35 * 4 * scale)
+        assert np.degrees(g.quat_angular_distance(solutions[0].q, q)) < 1.0
+        assert solutions[0].inliers == 11
