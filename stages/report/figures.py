@@ -88,21 +88,36 @@ def per_sample_scores(predictions: list[dict[str, Any]], path: Path) -> str:
 
 
 def rotation_cdf(predictions: list[dict[str, Any]], models: list[str], path: Path) -> str:
-    """Cumulative distribution of the rotation error per domain, one panel per model, side by
-    side: solid the contract's crop, dashed the model's own crop."""
+    """Cumulative distributions of the rotation error: one panel per view x light
+    configuration (columns) and crop (rows: the contract's, then the model's own), every
+    model in each panel (a colour each), solid on testbed images and dashed on their twins,
+    so the gap each model leaves is read side by side for light boxes and sun lamp."""
     models = models or ["-"]
-    figure, axes = plt.subplots(1, len(models), figsize=(6 * len(models), 3.6), squeeze=False, sharey=True)
-    for axis, model in zip(axes[0], models, strict=True):
-        for crop, style in (("oracle_box", "-"), ("full", "-"), ("self", "--")):
-            for domain, colour in DOMAIN_COLOURS.items():
-                errors = np.sort(np.degrees([r["err_q_rad"] for r in predictions if r["domain"] == domain
-                                             and r["model"] == model and r["crop"] == crop]))
-                if len(errors):
-                    axis.step(errors, np.arange(1, len(errors) + 1) / len(errors), where="post", color=colour,
-                              ls=style, label=f"{domain} ({crop.replace('_', ' ')})")
-        axis.set(xscale="log", xlabel="rotation error [deg]", ylabel="share of images", title=model)
-        axis.axvline(0.169, color="grey", ls=":", lw=1)
-        axis.legend(fontsize=7)
+    configurations = sorted({(r["view"], r["light"]) for r in predictions}, key=str) or [("-", "-")]
+    crops = [c for c in ("oracle_box", "full", "self") if any(r["crop"] == c for r in predictions)] or ["-"]
+    figure, axes = plt.subplots(len(crops), len(configurations), figsize=(4.2 * len(configurations),
+                                3.4 * len(crops)), squeeze=False, sharex=True, sharey=True)
+    colours = plt.get_cmap("tab10")
+    for row, crop in enumerate(crops):
+        for column, (view, light) in enumerate(configurations):
+            axis = axes[row][column]
+            for index, model in enumerate(models):
+                for testbed, style in ((True, "-"), (False, "--")):
+                    errors = np.sort(np.degrees([r["err_q_rad"] for r in predictions if r["model"] == model
+                                                 and r["crop"] == crop and (r["view"], r["light"]) == (view, light)
+                                                 and (r["domain"] != "synthetic") == testbed]))
+                    if len(errors):
+                        axis.step(errors, np.arange(1, len(errors) + 1) / len(errors), where="post",
+                                  color=colours(index % 10), ls=style,
+                                  label=f"{model}: {'testbed' if testbed else 'twins'}")
+            axis.set(xscale="log", title=f"{view}, {light} ({crop.replace('_', ' ')})")
+            axis.axvline(0.169, color="grey", ls=":", lw=1)
+            if row == len(crops) - 1:
+                axis.set_xlabel("rotation error [deg]")
+            if column == 0:
+                axis.set_ylabel("share of images")
+            if row == 0 and column == 0:
+                axis.legend(fontsize=7)
     return _save(figure, path)
 
 
