@@ -268,9 +268,9 @@ PREDICTIONS = ManifestSpec(
                "(no consensus), the model's own pose output, or none", kind="enum",
                allowed=("ransac", "all_points", "direct", "none")),
         Column("pnp_inliers", pa.int32(), "count", "keypoints within the RANSAC threshold of the pose (keypoint "
-               "models)", nullable=True),
+               "models; of a heatmap model, a keypoint is there when one of its peaks is)", nullable=True),
         Column("reprojection_rms_px", pa.float64(), "px", "reprojection RMS of every finite keypoint at the pose "
-               "(keypoint models)", nullable=True),
+               "(keypoint models; of a heatmap model, each keypoint at its nearest peak)", nullable=True),
         Column("q_pred", QUAT, "1", "predicted rotation of cam_from_target", nullable=True, kind="quaternion"),
         Column("t_pred", VEC3, "m", "predicted translation of cam_from_target, full scale", nullable=True),
         Column("err_q_rad", pa.float64(), "rad", "2 arccos |<q_pred, q_true>| (pi when no pose)"),

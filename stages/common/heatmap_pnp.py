@@ -89,7 +89,8 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     [px] (NaN: none) with their heatmap values (K, C), body points (K, 3) [m] and the label
     camera: the RANSAC pose whose explained candidates have the most heatmap value, among
     poses in front of the camera whose keypoints span ``extent_px`` (least, most) [px]; then
-    Levenberg-Marquardt on the explained candidates. Without such a pose (at least
+    Levenberg-Marquardt on the explained candidates; ``rms_px`` over every keypoint with a
+    peak, each at its nearest. Without such a pose (at least
     ``MIN_CONSENSUS`` keypoints explained): ``pose_from_keypoints`` on the highest peaks
     (whose RANSAC pose must span ``extent_px`` too).
     Deterministic for ``seed``, whatever was computed before."""
@@ -127,10 +128,11 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
         if not _acceptable(*refined, keypoints_m, camera_matrix, dist, extent_px):
             break
         rvec, tvec = refined
+    # the RMS of each keypoint's residual to its nearest peak: a pose that took a second peak
+    # is judged by that peak, not by the mirror it rejected
     projected = cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
-    highest = candidates_px[:, 0]
-    finite = np.all(np.isfinite(highest), axis=1)
-    residuals = np.linalg.norm(projected[finite] - highest[finite], axis=1)
+    distance = np.where(usable, np.linalg.norm(candidates_px - projected[:, None], axis=-1), np.inf)
+    residuals = distance.min(axis=1)[usable.any(axis=1)]
     explained, _ = _explained(rvec, tvec, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
                               reprojection_px)
     q, t = g.transform_to_qt(g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0]))
