@@ -194,3 +194,20 @@ def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray
         solutions.append(pose_from_candidates(in_image, value, contract.keypoints_m, camera_matrix, dist, threshold,
                                               extent))
     return solutions, np.array(highest).reshape(len(candidates), -1, 2)
+
+
+def explained_value(solution: PnPSolution | None, heatmaps: np.ndarray, image_from_input: np.ndarray,
+                    contract: ModelContract, camera_matrix: np.ndarray, dist: np.ndarray,
+                    reprojection_px: float) -> float:
+    """The heatmap value (K, h, w) a pose explains: over keypoints, the most valuable peak
+    within ``reprojection_px`` of its projection (0 without a pose)."""
+    if solution is None:
+        return 0.0
+    candidates, values = decode_candidates(heatmaps[None], contract.width, contract.height)
+    in_image = apply_affine(image_from_input, candidates[0])
+    usable = np.all(np.isfinite(in_image), axis=-1)
+    rvec = cv2.Rodrigues(g.quat_to_matrix(solution.q))[0]
+    projected = cv2.projectPoints(contract.keypoints_m, rvec, np.asarray(solution.t, float).reshape(3, 1),
+                                  camera_matrix, dist)[0][:, 0]
+    near = usable & (np.linalg.norm(in_image - projected[:, None], axis=-1) <= reprojection_px)
+    return float(np.where(near, values[0], 0.0).max(axis=1).sum())

@@ -10,14 +10,13 @@ from typing import Any
 import numpy as np
 
 from stages.common import geometry as g
-from stages.common.heatmap_pnp import poses_from_heatmaps
+from stages.common.heatmap_pnp import explained_value, poses_from_heatmaps
 from stages.common.image_io import decode_image, to_uint8
 from stages.common.pose_model import (
     CROP_MARGIN,
     PnPSolution,
     PoseModel,
     apply_affine,
-    decode_heatmaps,
     plausible,
     points_box,
     pose_from_keypoints,
@@ -54,6 +53,8 @@ SELF_PASSES = 3
 #: overlap by half. A model of oracle crops sees a target of the size it was trained on in
 #: one of them (a whole-image pass alone found boxes of IoU 0.16 on the default profile)
 SEARCH_SIDES = (1.0, 0.67, 0.45, 0.3, 0.2)
+#: windows of the search whose poses are compared (the most confident ones)
+SEARCH_FINALISTS = 5
 
 
 def search_windows(width: int, height: int) -> list[np.ndarray]:
@@ -80,10 +81,13 @@ def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(inter / union) if union > 0 else 0.0
 
 
-def _search(model: PoseModel, image: np.ndarray) -> np.ndarray:
+def _search(model: PoseModel, image: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+            reprojection_px: float) -> np.ndarray:
     """The box of the self crop's first pass: the model on every window of
-    ``search_windows``; the window whose keypoints are most confident (mean heatmap peak)
-    is where the target is, and the box those keypoints span is what the pass found."""
+    ``search_windows``; of the ``SEARCH_FINALISTS`` windows whose keypoints are most
+    confident (mean heatmap peak), the one whose pose (of the size the window implies)
+    explains the most heatmap value is where the target is, and the keypoints reprojected at
+    that pose span the box the pass found."""
     height, width = image.shape[:2]
     windows = search_windows(width, height)
     # the oracle crop is CROP_MARGIN times the box: a box of 1/CROP_MARGIN of a window crops that window
@@ -93,9 +97,14 @@ def _search(model: PoseModel, image: np.ndarray) -> np.ndarray:
     tensors, affines = zip(*(model.preprocess(image, box) for box in boxes), strict=True)
     # one pass a window, never the quarter turns: this only has to say where the target is
     heatmaps = model.infer(np.stack(tensors), turns=False)[0]
-    points, confidences = decode_heatmaps(heatmaps, model.contract.width, model.contract.height)
-    best = int(np.argmax(confidences.mean(axis=1)))
-    return points_box(apply_affine(affines[best], points[best]))
+    confidence = heatmaps.reshape(*heatmaps.shape[:2], -1).max(axis=-1).mean(axis=1)
+    finalists = np.argsort(-confidence, kind="stable")[:SEARCH_FINALISTS]
+    solutions, peaks = poses_from_heatmaps(heatmaps[finalists], [affines[i] for i in finalists], model.contract,
+                                           camera_matrix, dist, [reprojection_px] * len(finalists))
+    values = [explained_value(solution, heatmaps[i], affines[i], model.contract, camera_matrix, dist,
+                              reprojection_px) for solution, i in zip(solutions, finalists, strict=True)]
+    best = int(np.argmax(values))  # the first, most confident, on ties
+    return _found_box(model, solutions[best], peaks[best], camera_matrix, dist, width, height)
 
 
 def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
@@ -161,9 +170,10 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
     labelled = [np.asarray(item["box"], float) for item in items]
     crops = [item.get("crop", model.contract.crop) for item in items]
     searchable = model.contract.crop == "oracle_box" and model.contract.output == "heatmaps"
-    boxes = [(_search(model, image) if searchable else np.array([0.0, 0.0, image.shape[1] - 1.0,
-                                                                        image.shape[0] - 1.0]))
-             if crop == "self" else box for image, box, crop in zip(images, labelled, crops, strict=True)]
+    whole = [np.array([0.0, 0.0, image.shape[1] - 1.0, image.shape[0] - 1.0]) for image in images]
+    boxes = [(_search(model, image, camera_matrix, dist, reprojection_fraction * image.shape[1]) if searchable
+              else everything) if crop == "self" else box
+             for image, box, crop, everything in zip(images, labelled, crops, whole, strict=True)]
     # the search is the self crop's first pass; without it, the first is on the whole image
     passes = (SELF_PASSES - 1 if searchable else SELF_PASSES) if "self" in crops else 1
     for index in range(passes):

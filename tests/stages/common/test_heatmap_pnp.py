@@ -1,5 +1,7 @@
 """Poses from several peaks per heatmap: the geometry chooses between a peak and its mirror."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 
@@ -8,6 +10,7 @@ from stages.common import tango
 from stages.common.heatmap_pnp import (
     RELATIVE_PEAK,
     decode_candidates,
+    explained_value,
     pose_from_candidates,
     poses_from_heatmaps,
     target_extent,
@@ -131,3 +134,9 @@ def test_heatmaps_of_a_crop_give_the_pose_in_the_image():
         np.testing.assert_allclose(highest[0], pixels, atol=0.35 * 4 * scale)
         assert np.degrees(g.quat_angular_distance(solutions[0].q, q)) < 1.0
         assert solutions[0].inliers == 11
+        # what the self crop's search ranks windows by: the peaks a pose explains
+        explained = explained_value(solutions[0], heatmaps[0], image_from_input, CONTRACT, K, DIST, 9.6)
+        assert 11 * 0.75 < explained <= 11.0
+        turned = dataclasses.replace(solutions[0], q=g.quat_multiply(solutions[0].q, [np.cos(0.5), np.sin(0.5), 0, 0]))
+        assert explained_value(turned, heatmaps[0], image_from_input, CONTRACT, K, DIST, 9.6) < 0.5 * explained
+        assert explained_value(None, heatmaps[0], image_from_input, CONTRACT, K, DIST, 9.6) == 0.0
