@@ -12,8 +12,9 @@ than half or more than 1.5 times that box is not the target (it explains cluster
 from far away).
 
 Measured on the plain reference model's 300 held-out renders (oracle crop, four turns),
-with these constants chosen before looking: mean SPEED score 0.27 -> 0.11, poses off by
-more than 10 deg 16% -> 9%, median rotation error 0.84 -> 0.96 deg.
+with these constants chosen before looking: mean SPEED score 0.27 -> 0.12, poses off by
+more than 10 deg 16% -> 10%, median rotation error 0.84 -> 0.87 deg (README, "The
+reference models").
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ from stages.common.pose_model import (
     MIN_CONSENSUS,
     ModelContract,
     PnPSolution,
-    _parabola_offset,
     apply_affine,
+    parabola_offset,
     plausible,
     pose_from_keypoints,
     spans,
@@ -68,8 +69,8 @@ def decode_candidates(heatmaps: np.ndarray, width: int, height: int,
     mid = heatmaps[i, j, ys, xs]
     left, right = heatmaps[i, j, ys, np.maximum(xs - 1, 0)], heatmaps[i, j, ys, np.minimum(xs + 1, w - 1)]
     up, down = heatmaps[i, j, np.maximum(ys - 1, 0), xs], heatmaps[i, j, np.minimum(ys + 1, h - 1), xs]
-    x = xs + _parabola_offset(left, mid, right) * ((xs > 0) & (xs < w - 1))
-    y = ys + _parabola_offset(up, mid, down) * ((ys > 0) & (ys < h - 1))
+    x = xs + parabola_offset(left, mid, right) * ((xs > 0) & (xs < w - 1))
+    y = ys + parabola_offset(up, mid, down) * ((ys > 0) & (ys < h - 1))
     points = np.stack([(x + 0.5) * width / w - 0.5, (y + 0.5) * height / h - 0.5], axis=-1)
     found = np.isfinite(top)
     return np.where(found[..., None], points, np.nan), np.where(found, top, 0.0)
@@ -90,10 +91,9 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     camera: the RANSAC pose whose explained candidates have the most heatmap value, among
     poses in front of the camera whose keypoints span ``extent_px`` (least, most) [px]; then
     Levenberg-Marquardt on the explained candidates; ``rms_px`` over every keypoint with a
-    peak, each at its nearest. Without such a pose (at least
-    ``MIN_CONSENSUS`` keypoints explained): ``pose_from_keypoints`` on the highest peaks
-    (whose RANSAC pose must span ``extent_px`` too).
-    Deterministic for ``seed``, whatever was computed before."""
+    peak, each at its nearest. Without such a pose (at least ``MIN_CONSENSUS`` keypoints
+    explained): ``pose_from_keypoints`` on the highest peaks (whose RANSAC pose must span
+    ``extent_px`` too). Deterministic for ``seed``, whatever was computed before."""
     candidates_px = np.asarray(candidates_px, np.float64)
     values = np.asarray(values, np.float64)
     keypoints_m = np.ascontiguousarray(keypoints_m, np.float64)
