@@ -4,7 +4,7 @@ import importlib
 import sys
 
 BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "budget", "unmodelled", "render",
-              "cluster", "storage", "ground_truth", "evaluate", "identity", "model_cards")
+              "cluster", "storage", "ground_truth", "evaluate", "pnp", "identity", "model_cards")
 ON_REQUEST = ("identity", "model_cards")  # need arguments; not part of `python -m bench`
 
 if __name__ == "__main__":

@@ -39,8 +39,12 @@ from stages.common.pose_model import (
 CANDIDATES = 3
 #: a peak below this fraction of its heatmap's highest is not a candidate
 RELATIVE_PEAK = 0.2
-#: RANSAC samples; each draws 4 keypoints, each its highest peak or (half the time) another
+#: RANSAC samples at most; each draws 4 keypoints, each its highest peak or (half the time) another
 ITERATIONS = 500
+#: RANSAC samples are drawn by chunks of this many, and stop once ``CONFIDENCE`` is reached
+CHUNK = 50
+#: probability that some sample drew only peaks of the best pose (standard adaptive RANSAC)
+CONFIDENCE = 0.999
 #: the span of a pose's keypoints, as a fraction of the target box the crop implies
 EXTENT_RANGE = (0.5, 1.5)
 
@@ -103,16 +107,24 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     best = None
     if len(present) >= 4:
         rng = np.random.default_rng(seed)
-        poses = []
-        for _ in range(ITERATIONS):
-            chosen = rng.choice(present, 4, replace=False)
-            picks = [0 if counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, counts[kp])) for kp in chosen]
-            points = np.ascontiguousarray([candidates_px[kp, c] for kp, c in zip(chosen, picks, strict=True)])
-            ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], points, camera_matrix, dist, flags=cv2.SOLVEPNP_AP3P)
-            if ok and plausible(tvec[:, 0], keypoints_m, camera_matrix):
-                poses.append((rvec, tvec))
-        best = _best_supported(poses, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
-                               reprojection_px, extent_px)
+        poses: list[tuple[np.ndarray, np.ndarray]] = []
+        needed = ITERATIONS
+        while len(poses) < needed and len(poses) < ITERATIONS:
+            # samples by chunk; after each, as many as give CONFIDENCE of one sample of the best pose's peaks
+            for _ in range(CHUNK):
+                chosen = rng.choice(present, 4, replace=False)
+                picks = [0 if counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, counts[kp]))
+                         for kp in chosen]
+                points = np.ascontiguousarray([candidates_px[kp, c] for kp, c in zip(chosen, picks, strict=True)])
+                ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], points, camera_matrix, dist,
+                                              flags=cv2.SOLVEPNP_AP3P)
+                # an unusable sample still counts: the schedule depends on the draws alone
+                poses.append((rvec, tvec) if ok and plausible(tvec[:, 0], keypoints_m, camera_matrix) else None)
+            best = _best_supported([p for p in poses if p is not None], candidates_px, values, usable, keypoints_m,
+                                   camera_matrix, dist, reprojection_px, extent_px)
+            if best is not None:
+                needed = _samples_needed(*best, candidates_px, values, usable, counts, keypoints_m, camera_matrix,
+                                         dist, reprojection_px)
     if best is None:
         return pose_from_keypoints(candidates_px[:, 0], keypoints_m, camera_matrix, dist, reprojection_px, values[:, 0],
                                    extent_px)
@@ -137,6 +149,25 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
                               reprojection_px)
     q, t = g.transform_to_qt(g.make_transform(cv2.Rodrigues(rvec)[0], tvec[:, 0]))
     return PnPSolution(q, t, "ransac", int(explained.sum()), float(np.sqrt(np.mean(residuals ** 2))))
+
+
+def _samples_needed(rvec: np.ndarray, tvec: np.ndarray, candidates_px: np.ndarray, values: np.ndarray,
+                    usable: np.ndarray, counts: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
+                    dist: np.ndarray, reprojection_px: float) -> int:
+    """Samples that draw, with probability ``CONFIDENCE``, at least once 4 keypoints each
+    with the peak the pose explains it by (each keypoint drawn alike, its highest peak half
+    the time)."""
+    projected = cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
+    near = usable & (np.linalg.norm(candidates_px - projected[:, None], axis=-1) <= reprojection_px)
+    pick = np.argmax(np.where(near, values, -np.inf), axis=1)
+    chance = np.where(counts == 1, 1.0, np.where(pick == 0, 0.5, 0.5 / np.maximum(counts - 1, 1)))
+    per_keypoint = np.where(near.any(axis=1), chance, 0.0)[counts > 0]
+    good = float(np.mean(per_keypoint)) ** 4
+    if good >= 1.0:
+        return CHUNK
+    if good <= 0.0:
+        return ITERATIONS
+    return int(np.ceil(np.log(1 - CONFIDENCE) / np.log(1 - good)))
 
 
 def _acceptable(rvec: np.ndarray, tvec: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray,
