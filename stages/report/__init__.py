@@ -67,8 +67,8 @@ def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
     header = ["configuration (view, light)", "images"]
     for model in models:
         header += [f"{model}: synthetic", f"{model}: testbed", f"{model}: gap", f"{model}: no pose (syn / test)"]
-    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a pass on the whole "
-           "image, then passes around what it found", "full": "the whole image"}.get(crop, crop)
+    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a search over windows "
+           "of the whole image, then passes around what it found", "full": "the whole image"}.get(crop, crop)
     closing = []
     by_group = {row["group"]: row for row in scores}
     for model in models[1:]:
