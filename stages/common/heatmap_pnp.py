@@ -29,7 +29,7 @@ from stages.common.pose_model import (
     ModelContract,
     PnPSolution,
     apply_affine,
-    parabola_offset,
+    peak_positions,
     plausible,
     pose_from_keypoints,
     spans,
@@ -68,14 +68,7 @@ def decode_candidates(heatmaps: np.ndarray, width: int, height: int,
     order = np.argsort(-values, axis=-1, kind="stable")[..., :count]
     top = np.take_along_axis(values, order, axis=-1)
     ys, xs = np.divmod(order, w)
-    i, j = np.meshgrid(np.arange(n), np.arange(k), indexing="ij")
-    i, j = i[..., None], j[..., None]
-    mid = heatmaps[i, j, ys, xs]
-    left, right = heatmaps[i, j, ys, np.maximum(xs - 1, 0)], heatmaps[i, j, ys, np.minimum(xs + 1, w - 1)]
-    up, down = heatmaps[i, j, np.maximum(ys - 1, 0), xs], heatmaps[i, j, np.minimum(ys + 1, h - 1), xs]
-    x = xs + parabola_offset(left, mid, right) * ((xs > 0) & (xs < w - 1))
-    y = ys + parabola_offset(up, mid, down) * ((ys > 0) & (ys < h - 1))
-    points = np.stack([(x + 0.5) * width / w - 0.5, (y + 0.5) * height / h - 0.5], axis=-1)
+    points, _ = peak_positions(heatmaps, ys, xs, width, height)
     found = np.isfinite(top)
     return np.where(found[..., None], points, np.nan), np.where(found, top, 0.0)
 

@@ -194,7 +194,7 @@ class PoseModel:
         return [np.ascontiguousarray(total / self.contract.turns)]
 
 
-def parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def _parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Sub-pixel position of a peak from its value and its two neighbours, in [-0.5, 0.5]."""
     curvature = lo - 2 * mid + hi
     safe = np.where(np.abs(curvature) > 1e-12, curvature, -1.0)
@@ -255,14 +255,23 @@ def decode_heatmaps(heatmaps: np.ndarray, width: int, height: int) -> tuple[np.n
     """Keypoints (N, K, 2) in input pixels and confidences (N, K) from heatmaps (N, K, h, w):
     the peak, refined by a parabola through its neighbours in x and in y."""
     n, k, h, w = heatmaps.shape
-    index = heatmaps.reshape(n, k, -1).argmax(axis=-1)
-    ys, xs = np.divmod(index, w)
-    i, j = np.meshgrid(np.arange(n), np.arange(k), indexing="ij")
+    ys, xs = np.divmod(heatmaps.reshape(n, k, -1).argmax(axis=-1), w)
+    return peak_positions(heatmaps, ys, xs, width, height)
+
+
+def peak_positions(heatmaps: np.ndarray, ys: np.ndarray, xs: np.ndarray, width: int,
+                   height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Input-pixel positions (N, K, ..., 2) and values (N, K, ...) of heatmap pixels (ys, xs)
+    (N, K, ...) of heatmaps (N, K, h, w) (a W x H input), each refined by a parabola through
+    its neighbours in x and in y (not at the border)."""
+    n, k, h, w = heatmaps.shape
+    trailing = (1,) * (ys.ndim - 2)
+    i, j = np.arange(n).reshape(n, 1, *trailing), np.arange(k).reshape(1, k, *trailing)
     peak = heatmaps[i, j, ys, xs]
     left, right = heatmaps[i, j, ys, np.maximum(xs - 1, 0)], heatmaps[i, j, ys, np.minimum(xs + 1, w - 1)]
     up, down = heatmaps[i, j, np.maximum(ys - 1, 0), xs], heatmaps[i, j, np.minimum(ys + 1, h - 1), xs]
-    x = xs + parabola_offset(left, peak, right) * ((xs > 0) & (xs < w - 1))
-    y = ys + parabola_offset(up, peak, down) * ((ys > 0) & (ys < h - 1))
+    x = xs + _parabola_offset(left, peak, right) * ((xs > 0) & (xs < w - 1))
+    y = ys + _parabola_offset(up, peak, down) * ((ys > 0) & (ys < h - 1))
     points = np.stack([(x + 0.5) * width / w - 0.5, (y + 0.5) * height / h - 0.5], axis=-1)
     return points, peak
 
