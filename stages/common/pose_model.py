@@ -181,7 +181,7 @@ class PoseModel:
         mean keeps what they agree on (held-out synthetic images, the reference model:
         poses off by more than 10 deg 20% -> 16%, mean SPEED score 0.53 -> 0.27)."""
         if not turns or self.contract.turns == 1:
-            return self.session.run(None, {self.input_name: batch})
+            return self._checked(self.session.run(None, {self.input_name: batch}))
         total = None
         for k in range(self.contract.turns):
             turned = np.ascontiguousarray(np.rot90(batch, k, axes=(2, 3)))
@@ -191,7 +191,20 @@ class PoseModel:
                                  f"got {heatmaps.shape}")
             heatmaps = np.rot90(heatmaps, -k, axes=(2, 3))
             total = heatmaps.copy() if total is None else total + heatmaps
-        return [np.ascontiguousarray(total / self.contract.turns)]
+        return self._checked([np.ascontiguousarray(total / self.contract.turns)])
+
+    def _checked(self, outputs: list[np.ndarray]) -> list[np.ndarray]:
+        """``outputs`` when their first is of the contract's shape: a model whose heatmaps or
+        keypoints disagree with its keypoint list is an error naming it, not a traceback."""
+        count = len(self.contract.keypoints_m)
+        first = np.asarray(outputs[0])
+        expected = {"heatmaps": f"(N, {count}, h, w)", "keypoints": f"(N, {count}, 2)"}.get(self.contract.output)
+        fits = {"heatmaps": first.ndim == 4 and first.shape[1] == count and min(first.shape[2:], default=0) > 0,
+                "keypoints": first.ndim == 3 and first.shape[1:] == (count, 2)}.get(self.contract.output, True)
+        if not fits:
+            raise InputError(f"{self.source}: speedplus.output={self.contract.output} needs {expected} for its "
+                             f"{count} keypoints, got {first.shape}")
+        return outputs
 
 
 def _parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndarray:

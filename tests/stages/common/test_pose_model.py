@@ -135,7 +135,7 @@ def test_oracle_crop_needs_a_box():
         prepare(np.zeros((10, 10, 3), np.uint8), CONTRACT, None)
 
 
-def _conv_heatmap_model(path, turns: str | None, pool: tuple[int, int] = (4, 4)) -> None:
+def _conv_heatmap_model(path, turns: str | None, pool: tuple[int, int] = (4, 4), keypoints_m=tango.KEYPOINTS_M) -> None:
     """A heatmap model with random (asymmetric) 3x3 kernels and 4x4 max pooling: not
     rotation-equivariant by itself."""
     import onnx
@@ -151,7 +151,7 @@ def _conv_heatmap_model(path, turns: str | None, pool: tuple[int, int] = (4, 4))
                               [helper.make_tensor("w", TensorProto.FLOAT, weights.shape, weights.ravel())])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
-    contract = ModelContract(32, 32, "rgb", (0.5,) * 3, (0.25,) * 3, "heatmaps", tango.KEYPOINTS_M.copy(),
+    contract = ModelContract(32, 32, "rgb", (0.5,) * 3, (0.25,) * 3, "heatmaps", np.array(keypoints_m, float),
                              "oracle_box", int(turns or 1))
     for key, value in contract.metadata().items():
         entry = model.metadata_props.add()
@@ -189,4 +189,14 @@ def test_quarter_turns_of_non_square_heatmaps_are_an_error_naming_the_model(tmp_
     _conv_heatmap_model(tmp_path / "wide.onnx", "4", pool=(4, 8))
     model = PoseModel(tmp_path / "wide.onnx")
     with pytest.raises(InputError, match=r"wide\.onnx: speedplus.turns=4 needs square heatmaps"):
+        model.infer(np.zeros((1, 3, 32, 32), np.float32))
+
+
+@pytest.mark.parametrize("turns", ["4", None])
+def test_heatmaps_of_another_keypoint_count_are_an_error_naming_the_model(tmp_path, turns):
+    from stages.common.pose_model import PoseModel
+
+    _conv_heatmap_model(tmp_path / "five.onnx", turns, keypoints_m=tango.KEYPOINTS_M[:5])  # 11 heatmaps
+    model = PoseModel(tmp_path / "five.onnx")
+    with pytest.raises(InputError, match=r"five\.onnx: speedplus.output=heatmaps needs \(N, 5, h, w\)"):
         model.infer(np.zeros((1, 3, 32, 32), np.float32))
