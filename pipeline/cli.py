@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import sys
 import tempfile
 import traceback
@@ -26,9 +27,19 @@ from rich.table import Table
 from manifests import ManifestError, Workspace
 from manifests.lock import WorkspaceLock, holder
 from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
+from manifests.snapshot import Snapshot
 from manifests.workspace import CONFIG_FILE
 from pipeline import registry, runner
-from pipeline.config import SECTION_TYPES, Config, Override, load_config, parse_override, with_overrides, write_config
+from pipeline.config import (
+    SECTION_TYPES,
+    Config,
+    Override,
+    layered,
+    load_config,
+    parse_override,
+    with_overrides,
+    write_config,
+)
 from pipeline.errors import InputError
 
 app = typer.Typer(
@@ -86,21 +97,30 @@ def _workspace(location: str, root: Path | None = None) -> Workspace:
 
 
 def _context(workspace: str | None, profile: str | None, config: Path | None,
-             overrides: list[Override]) -> tuple[Config, Workspace]:
-    """Resolve the configuration: explicit options win; else the workspace's config.toml."""
-    ws = _workspace(workspace) if workspace is not None else None
+             overrides: list[Override]) -> tuple[Config, Workspace, str | None]:
+    """The command's configuration, layered on the workspace's saved one
+    (``pipeline.config.layered``: saved or profile, then --config, then --set), its
+    workspace, and the profile an explicit --profile switched from (None: no switch)."""
+    if workspace is None:
+        named = profile or (load_config(None, config).profile if config is not None else "default")
+        workspace = str(Path("data") / named)
+    ws = _workspace(workspace)
     with tempfile.TemporaryDirectory(prefix="speedplus-config-") as folder:
-        if ws is not None and profile is None and config is None:
-            existing = ws.config_path
-            if ws.copy is not None:  # the store's, not what this machine last saw
-                existing = Path(folder) / CONFIG_FILE
-                data = ws.copy.remote.read(CONFIG_FILE)
-                if data is not None:
-                    existing.write_bytes(data)
-            if existing.exists():
-                config = existing
-        resolved = load_config(profile, config, overrides)
-    return resolved, ws or Workspace(Path("data") / resolved.profile)
+        saved = ws.config_path
+        if ws.copy is not None:  # the store's, not what this machine last saw
+            saved = Path(folder) / CONFIG_FILE
+            data = ws.copy.remote.read(CONFIG_FILE)
+            if data is not None:
+                saved.write_bytes(data)
+        resolved, switched_from = layered(saved, profile, config, overrides)
+    return resolved, ws, switched_from
+
+
+def _exists(ws: Workspace) -> bool:
+    """Whether a workspace has been started (its saved configuration exists)."""
+    if ws.copy is not None:
+        return ws.copy.remote.read(CONFIG_FILE) is not None
+    return ws.config_path.is_file()
 
 
 @contextlib.contextmanager
@@ -140,33 +160,65 @@ def _parsed(texts: list[str] | None) -> list[Override]:
 
 
 def _run(stages: list[str], workspace: str | None, profile: str | None, config: Path | None,
-         saved: list[Override], force: bool, transient: list[Override] = ()) -> Workspace:
+         saved: list[Override], force: bool, transient: list[Override] = (),
+         redo: tuple[str, ...] = ()) -> Workspace:
     """Run ``stages``; ``saved`` overrides go into W/config.toml, ``transient`` ones (which
-    choose what a command does: render's image set, export's format) apply to this run only,
-    and so do those of the ``run`` section (how to execute, never what: engine, workers),
-    wherever they come from. A run section in a --config file is the way to keep one."""
+    choose what a command does: render's image set) apply to this run only, and so do those
+    of the ``run`` section (how to execute, never what: engine, workers), wherever they come
+    from. A run section in a --config file is the way to keep one.
+
+    The workspace changes only when the command succeeds: W/config.toml is written at the
+    end, and a refused or failed command puts back every manifest, marker, JSON file and
+    recorded file as it found them (``manifests.snapshot``). Ctrl-C keeps the rows done."""
     transient = [*transient, *(o for o in saved if o.section == "run")]
     saved = [o for o in saved if o.section != "run"]
-    resolved, ws = _context(workspace, profile, config, saved)
+    resolved, ws, switched_from = _context(workspace, profile, config, saved)
+    existed = ws.root.exists()
     with _writing(ws):
-        write_config(resolved, ws.config_path)
-        resolved = with_overrides(resolved, transient)
-        if resolved.run.engine == "ray" and resolved.run.ray_address:
-            from pipeline.engines.cluster import reachable
-
-            reachable(resolved.run.ray_address)  # before --force discards anything
-        if resolved.acquire.backend == "replay" and len(stages) > 1:
-            stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
-        for name in stages:
-            outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force)
-            rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
-            if outcome.action == "skipped":
-                out.print(f"[green]{name}[/]: up to date ({rows})")
+        snapshot = Snapshot(ws).take()
+        started: list[str] = []
+        try:
+            _run_stages(stages, resolved, with_overrides(resolved, transient), ws, force, switched_from, started,
+                        redo)
+            write_config(resolved, ws.config_path)
+        except KeyboardInterrupt:
+            if started:  # rows made under this configuration are kept: save it, so that they resume
+                write_config(resolved, ws.config_path)
+                snapshot.drop()
             else:
-                out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+                snapshot.restore()
+            raise
+        except BaseException:
+            snapshot.restore()
+            raise
+        snapshot.drop()
+    if not existed and not _exists(ws) and ws.copy is None:
+        shutil.rmtree(ws.root, ignore_errors=True)  # refused before anything was made: no empty workspace left
     if stages and stages[-1] == "report":
         out.print(f"report: {ws.location}/report/index.html")
     return ws
+
+
+def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspace, force: bool,
+                switched_from: str | None, started: list[str], redo: tuple[str, ...]) -> None:
+    if resolved.run.engine == "ray" and resolved.run.ray_address:
+        from pipeline.engines.cluster import reachable
+
+        reachable(resolved.run.ray_address)  # before --force discards anything
+    if resolved.acquire.backend == "replay" and len(stages) > 1:
+        stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
+    if switched_from is not None:
+        plan = runner.redo_plan(resolved, ws, registry.STAGES)
+        listed = "; ".join(f"{name} ({why})" for name, why in plan) or "none"
+        out.print(escape(f"profile {switched_from} -> {saved.profile}: stages to redo: {listed}"), highlight=False)
+    for name in stages:
+        outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force,
+                                   on_start=lambda name=name: started.append(name), redo=redo)
+        rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
+        if outcome.action == "skipped":
+            out.print(f"[green]{name}[/]: up to date ({rows})")
+        else:
+            out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
 
 
 def _stage_command(entry: registry.StageEntry) -> None:
@@ -226,15 +278,22 @@ def render_command(
 def evaluate_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    model: Annotated[list[Path] | None, typer.Option("--model", help="score this ONNX model instead of "
-                                                         "evaluate.models (repeatable)")] = None,
+    model: Annotated[list[Path] | None, typer.Option(
+        "--model", help="add this ONNX model to evaluate.models and score it beside the others, whose results "
+        "are kept; with --force, redo only it (repeatable)")] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the evaluate stage: score an ONNX model on the twins and the testbed images (Table 2)."""
     overrides = _parsed(set_)
+    redo: tuple[str, ...] = ()
     if model is not None:
-        overrides.append(Override.of("evaluate.models", [str(path.resolve()) for path in model], "--model"))
-    _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
+        current = _context(workspace, profile, config, overrides)[0].evaluate.models
+        added = [str(path.expanduser().resolve()) for path in model]
+        names = {Path(path).stem for path in added}
+        kept = [path for path in current if Path(path).stem not in names]
+        overrides.append(Override.of("evaluate.models", [*kept, *added], "--model"))
+        redo = tuple(sorted(names)) if force else ()
+    _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers), redo)
 
 
 @app.command("export")
@@ -303,9 +362,16 @@ def run_command(
 def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
                    set_: SetOption = None) -> None:
     """List every stage as done / partial / stale / missing, with row counts."""
-    resolved, located = _context(workspace, profile, config, _parsed(set_))
+    resolved, located, _ = _context(workspace, profile, config, _parsed(set_))
+    _must_exist(located)
     with _reading(located) as ws:
         _print_status(resolved, ws)
+
+
+def _must_exist(ws: Workspace) -> None:
+    if not _exists(ws):
+        raise InputError(f"{ws.location}: no such workspace (no {CONFIG_FILE}); start one with `speedplus run "
+                         f"--workspace {ws.location}`")
 
 
 def _print_status(resolved: Config, ws: Workspace) -> None:
@@ -329,7 +395,8 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     """Check a whole workspace: every completed manifest against its completion marker, and
     every image, mask and model against the size and hash recorded when it was written.
     Exit 1 when anything is damaged, naming the stage to redo."""
-    resolved, located = _context(workspace, profile, config, _parsed(set_))
+    resolved, located, _ = _context(workspace, profile, config, _parsed(set_))
+    _must_exist(located)
     with _reading(located) as ws:
         findings = runner.verify(resolved, ws, registry.STAGES)
     table = Table(title=escape(f"{ws.location}: integrity"))

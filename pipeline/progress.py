@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from typing import TypeVar
 
 from rich.console import Console
@@ -32,12 +32,37 @@ class _RateColumn(ProgressColumn):
         return Text("-/s" if speed is None else f"{speed:.1f}/s")
 
 
-def track(items: Iterable[T], total: int, description: str) -> Iterator[T]:
-    """Iterate ``items`` showing ``description``, n/total, a bar, rate, elapsed and ETA."""
+class _Tally:
+    """Rows the running stage's loops still have to produce (for the message on Ctrl-C)."""
+
+    pending: int | None = None
+
+
+def reset() -> None:
+    """Forget the previous stage's loops (the runner calls it before each stage)."""
+    _Tally.pending = None
+
+
+def remaining() -> int | None:
+    """Rows the current stage's tracked loops had not produced yet, or None if it tracked none."""
+    return _Tally.pending
+
+
+def track(items: Iterable[T], total: int, description: str, rows: Sequence[int] | None = None) -> Iterator[T]:
+    """Iterate ``items`` showing ``description``, n/total, a bar, rate, elapsed and ETA.
+    ``rows``: the output rows each item makes (default one each), for ``remaining``."""
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), _RateColumn(),
                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
+    weights = list(rows) if rows is not None else [1] * total
+    _Tally.pending = (_Tally.pending or 0) + sum(weights)
     with Progress(*columns, console=console, transient=False, disable=total == 0 or not sys.stderr) as progress:
         task = progress.add_task(description, total=total)
-        for item in items:
+        for index, item in enumerate(items):
             yield item
+            _Tally.pending -= weights[index] if index < len(weights) else 0
             progress.advance(task)
+
+
+def note(message: str) -> None:
+    """One line of progress (a step without a per-item loop), on standard error."""
+    console.print(f"[dim]{message}[/]", highlight=False)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pipeline.config import Config
@@ -28,6 +28,13 @@ class Resolved:
     sections: tuple[str, ...]
     extra: dict[str, Any]
     outputs: tuple[str, ...]
+    #: results kept per member (evaluate: per model): name -> digest. Members are added
+    #: without redoing the others; their digests are not in the fingerprint but in the markers
+    members: dict[str, str] = field(default_factory=dict)
+    #: the configuration key that lists the members (left out of the fingerprint) and the
+    #: output column that names a row's member
+    member_key: str | None = None
+    member_column: str | None = None
 
 
 @dataclass(frozen=True)
@@ -38,7 +45,10 @@ class StageEntry:
     inputs: tuple[str, ...]  # manifests whose completion markers it needs
     outputs: tuple[str, ...]  # manifests it writes (the runner writes their completion markers)
     sections: tuple[str, ...]  # configuration sections in its fingerprint
-    resolve: str | None = None  # "module:function": (config) -> (inputs, sections, extra, outputs)
+    resolve: str | None = None  # "module:function": (config) -> Resolved (or its first four fields)
+    #: "module:function" taking (config): checks what the stage reads from outside the
+    #: workspace (evaluate: every model against its contract) before anything is discarded
+    preflight: str | None = None
     chained: bool = True  # a step of `speedplus run`
     #: results made with another configuration are replaced without --force (they only
     #: record copies made elsewhere: an export to another folder or in another format)
@@ -47,7 +57,16 @@ class StageEntry:
     def resolved(self, config: Config) -> Resolved:
         if self.resolve is None:
             return Resolved(self.inputs, self.sections, {}, self.outputs)
-        return Resolved(*_load(self.resolve)(config))
+        resolved = _load(self.resolve)(config)
+        if isinstance(resolved, dict):  # a stage cannot import this module: it names the fields
+            return Resolved(**resolved)
+        return Resolved(*resolved)
+
+    def check(self, config: Config) -> None:
+        """The stage's own checks of its inputs from outside the workspace (a model file),
+        before the runner changes anything."""
+        if self.preflight is not None:
+            _load(self.preflight)(config)
 
     def function(self) -> Callable[..., Any]:
         return _load(self.run)
@@ -75,7 +94,8 @@ STAGES: tuple[StageEntry, ...] = (
                "stages.render:run", ("labels",), ("renders",), ("render", "testbed"),
                resolve="stages.render:resolve"),
     StageEntry("evaluate", "ONNX model scores on twins and testbed images (Table 2)", "stages.evaluate:run",
-               ("renders", "labels"), ("predictions", "scores"), ("evaluate",), resolve="stages.evaluate:resolve"),
+               ("renders", "labels"), ("predictions", "scores"), ("evaluate",), resolve="stages.evaluate:resolve",
+               preflight="stages.evaluate:check_models"),
     StageEntry("report", "static HTML report (W/report/index.html)", "stages.report:run",
                ("labels", "renders", "predictions", "scores"), ("report",), ()),
     StageEntry("export", "the labels and images as a SPEED+ or BOP dataset", "stages.export:run",

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from importlib import metadata
@@ -37,6 +38,7 @@ from manifests import clear as clear_manifest
 from manifests.files import copy_atomic
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
 from manifests.schema import MANIFESTS
+from pipeline import progress
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import console
@@ -52,8 +54,9 @@ def _section_dict(config: Config, name: str) -> dict[str, Any]:
     return {f.name: getattr(section, f.name) for f in fields(section)}
 
 
-def fingerprint(stage: StageEntry, config: Config, workspace: Workspace) -> str | None:
-    """Hex digest of the stage's inputs, or None while an input manifest is incomplete."""
+def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace) -> dict[str, Any] | None:
+    """What the stage's fingerprint hashes (recorded in its markers, so that ``status`` can say
+    why results are stale), or None while an input manifest is incomplete."""
     resolved = stage.resolved(config)
     inputs = {}
     for name in resolved.inputs:
@@ -61,15 +64,65 @@ def fingerprint(stage: StageEntry, config: Config, workspace: Workspace) -> str 
         if marker is None:
             return None
         inputs[name] = {"fingerprint": marker["fingerprint"], "rows": marker["rows"]}
-    payload = {
+    sections = {name: _section_dict(config, name) for name in resolved.sections}
+    if resolved.member_key is not None:  # members are tracked one by one (markers' "members")
+        section, key = resolved.member_key.split(".")
+        sections[section].pop(key)
+    return json.loads(json.dumps({
         "stage": stage.name,
         "schema_version": SCHEMA_VERSION,
-        "config": {name: _section_dict(config, name) for name in resolved.sections},
+        "config": sections,
         "inputs": inputs,
         "extra": resolved.extra,
-    }
-    text = json.dumps(payload, sort_keys=True, default=list)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    }, sort_keys=True, default=list))
+
+
+def _digest(payload: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def fingerprint(stage: StageEntry, config: Config, workspace: Workspace) -> str | None:
+    """Hex digest of the stage's inputs, or None while an input manifest is incomplete."""
+    payload = fingerprint_payload(stage, config, workspace)
+    return None if payload is None else _digest(payload)
+
+
+def _flat(value: Any, prefix: str) -> dict[str, Any]:
+    if isinstance(value, dict):
+        out: dict[str, Any] = {}
+        for key, item in value.items():
+            out.update(_flat(item, f"{prefix}.{key}" if prefix else str(key)))
+        return out
+    return {prefix: value}
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def differences(recorded: dict[str, Any] | None, current: dict[str, Any] | None, most: int = 4) -> str:
+    """Why results made under ``recorded`` are not those of ``current`` (two fingerprint
+    payloads): the configuration keys that changed (old -> new) and the inputs whose marker
+    changed; a short sentence for ``status`` and for the refusal."""
+    if recorded is None:
+        return "made with another configuration or inputs (which keys was not recorded)"
+    if current is None:
+        return "an input manifest is incomplete: " + "waiting for it to be redone"
+    said = []
+    # a stage's extra content holds configuration too (render's keys of one image set)
+    old = {**_flat(recorded.get("config", {}), ""), **_flat(recorded.get("extra", {}), "")}
+    new = {**_flat(current.get("config", {}), ""), **_flat(current.get("extra", {}), "")}
+    keys = sorted(k for k in old.keys() | new.keys() if old.get(k, "absent") != new.get(k, "absent"))
+    said += [f"{key} {_short(old.get(key, 'absent'))} -> {_short(new.get(key, 'absent'))}" for key in keys[:most]]
+    if len(keys) > most:
+        said.append(f"and {len(keys) - most} more key(s)")
+    old_in, new_in = recorded.get("inputs", {}), current.get("inputs", {})
+    said += [f"input {name} was redone" for name in sorted(old_in.keys() | new_in.keys())
+             if old_in.get(name) != new_in.get(name)]
+    if recorded.get("schema_version") != current.get("schema_version"):
+        said.append(f"schema {recorded.get('schema_version')} -> {current.get('schema_version')}")
+    return "; ".join(said) or "made with another configuration or inputs"
 
 
 def row_count(workspace: Workspace, name: str) -> int:
@@ -90,6 +143,8 @@ class StageStatus:
     state: str  # done | partial | stale | missing | damaged
     rows: dict[str, int]
     detail: str
+    #: stale only because members changed (evaluate: a model's file): redone one by one
+    members_changed: tuple[str, ...] = ()
 
 
 def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStatus:
@@ -103,7 +158,7 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
             problem = damage(list_parts(workspace, name), marker)
             if problem is not None:
                 return StageStatus(stage.name, "damaged", rows, f"{name}: {problem}; redo with --force")
-        return StageStatus(stage.name, "done", rows, "")
+        return _member_status(stage.name, resolved.members, markers, rows)
     try:
         recorded = set().union(*(part_fingerprints(workspace, name) for name in outputs)) if outputs else set()
     except ManifestError as error:
@@ -113,8 +168,25 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
         detail = "waiting for " + ", ".join(inputs) if current is None else "not run"
         return StageStatus(stage.name, "missing", rows, detail)
     if current is None or recorded != {current}:
-        return StageStatus(stage.name, "stale", rows, "made with another configuration or inputs")
+        made = next((m.get("made_with") for m in markers if m and m.get("fingerprint") != current), None)
+        return StageStatus(stage.name, "stale", rows,
+                           differences(made, fingerprint_payload(stage, config, workspace)))
     return StageStatus(stage.name, "partial", rows, "interrupted; rerun to resume")
+
+
+def _member_status(name: str, members: dict[str, str], markers: list[dict[str, Any] | None],
+                   rows: dict[str, int]) -> StageStatus:
+    """Done, unless a member (evaluate: a model) is new (partial: it is added) or changed
+    (stale: ``--force`` with its name redoes it alone)."""
+    scored = markers[0].get("members", {}) if markers and markers[0] else {}
+    changed = sorted(m for m, digest in members.items() if m in scored and scored[m] != digest)
+    if changed:
+        return StageStatus(name, "stale", rows, f"{', '.join(changed)} changed since scored (another file's bytes); "
+                                                "redo it alone with --force and its --model", tuple(changed))
+    new = sorted(m for m in members if m not in scored)
+    if new:
+        return StageStatus(name, "partial", rows, f"{', '.join(new)} not scored yet; rerun to add it")
+    return StageStatus(name, "done", rows, "")
 
 
 @dataclass(frozen=True)
@@ -125,11 +197,27 @@ class StageOutcome:
     seconds: float
 
 
-def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False) -> StageOutcome:
-    """Run (or resume, or skip) one stage; see the module docstring."""
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during a stage: what it kept (the CLI's one line, exit 130)."""
+
+    def __init__(self, stage: str, kept: int, total: int | None) -> None:
+        super().__init__(stage)
+        self.stage, self.kept, self.total = stage, kept, total
+
+    def __str__(self) -> str:
+        of = f" of {self.total}" if self.total is not None else ""
+        return f"interrupted: {self.kept}{of} rows kept ({self.stage}); run the same command to resume"
+
+
+def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False,
+              on_start: Callable[[], None] | None = None, redo: tuple[str, ...] = ()) -> StageOutcome:
+    """Run (or resume, or skip) one stage; see the module docstring. ``on_start`` is called
+    once every check has passed, just before anything in the workspace changes. ``redo``
+    with ``force``: redo only these members (evaluate's models) and keep the others'."""
     resolved = stage.resolved(config)
     inputs, outputs = resolved.inputs, resolved.outputs
-    current = fingerprint(stage, config, workspace)
+    made_with = fingerprint_payload(stage, config, workspace)
+    current = None if made_with is None else _digest(made_with)
     if current is None:
         missing = [name for name in inputs if read_success(workspace, name) is None]
         raise StageError(f"stage {stage.name!r} needs the complete manifest(s) {', '.join(missing)} in "
@@ -139,16 +227,33 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         if problem is not None:
             raise StageError(f"stage {stage.name!r} needs manifest {name}, which is damaged ({problem}); redo "
                              "the stage that writes it with --force (speedplus status names it)")
+    stage.check(config)
+    unknown = sorted(set(redo) - set(resolved.members))
+    if unknown:
+        raise StageError(f"stage {stage.name!r}: nothing named {', '.join(unknown)} to redo (members: "
+                         f"{', '.join(sorted(resolved.members)) or 'none'})")
     state = status(stage, config, workspace)
     if state.state == "done" and not force:
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
+    if force and redo and state.state in ("done", "partial", "stale") and _only_members_differ(state, resolved):
+        # --force with named members (evaluate --model): redo those, keep every other one's rows
+        if set(state.members_changed) - set(redo):
+            raise StageError(f"stage {stage.name!r}: {', '.join(sorted(set(state.members_changed) - set(redo)))} "
+                             "changed since scored as well; name it with --model too, or --force alone redoes all")
+        force, state = False, StageStatus(state.stage, "partial", state.rows, state.detail)
+        forget = set(redo)
+    else:
+        forget = set()
     replacing = state.state == "stale" and stage.replace_stale
     if state.state == "stale" and not (force or replacing):
         raise StageError(
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
-            "made with another configuration or other inputs; rerun with --force to discard them")
+            f"made with another configuration or other inputs ({state.detail}); rerun with --force to discard them")
     if state.state == "damaged" and not force:
         raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
+    previous = None if force else read_success(workspace, outputs[0]) if outputs else None
+    if on_start is not None:
+        on_start()
     if force or replacing:
         for name in outputs:
             clear_manifest(workspace, name)
@@ -160,14 +265,24 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         workspace.success_path(name).unlink(missing_ok=True)
         if resumed:
             _forget_rows_without_files(workspace, name, current)
+            if forget and resolved.member_column is not None:
+                _forget_members(workspace, name, current, resolved.member_column, forget)
     run = stage.function()
     workspace.root.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    run(config, workspace.for_run({name: current for name in outputs}, forced=force))
+    progress.reset()
+    try:
+        run(config, workspace.for_run({name: current for name in outputs}, forced=force))
+    except KeyboardInterrupt:
+        kept = row_count(workspace, outputs[0]) if outputs else 0
+        remaining = progress.remaining()
+        raise Interrupted(stage.name, kept, None if remaining is None else kept + remaining) from None
     seconds = time.perf_counter() - started
     rows = {name: row_count(workspace, name) for name in outputs}
+    members = {**(previous or {}).get("members", {}), **resolved.members} if resolved.members else None
     for name in outputs:
         write_success(workspace, name, {
+            **({"members": dict(sorted(members.items()))} if members else {}),
             "stage": stage.name,
             "fingerprint": current,
             "rows": rows[name],
@@ -176,10 +291,27 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             "seconds": round(seconds, 3),
             "resumed": resumed,
             "completed_at": datetime.now(UTC).isoformat(timespec="seconds"),
+            "made_with": made_with,
             **_complete(workspace, name, current),
         })
     workspace.sync()  # a workspace on object storage: the store gets the stage's results now
     return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
+
+
+def _only_members_differ(state: StageStatus, resolved: Any) -> bool:
+    """Whether the results are current but for members: a member-wise redo keeps the rest."""
+    return bool(resolved.members) and (state.state != "stale" or bool(state.members_changed))
+
+
+def _forget_members(workspace: Workspace, name: str, current: str, column: str, members: set[str]) -> None:
+    """Drop the rows of ``members`` (``--force`` naming them) before the stage redoes them."""
+    spec = MANIFESTS.get(name)
+    if spec is None or not list_parts(workspace, name) or column not in spec.schema().names:
+        return
+    table = read_manifest(workspace, name)
+    keep = pa.array([value not in members for value in table.column(column).to_pylist()])
+    stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
+    compact(workspace.manifest_dir(name), table.filter(keep).replace_schema_metadata(stamped), spec.key)
 
 
 def _forget_rows_without_files(workspace: Workspace, name: str, current: str) -> None:
@@ -215,6 +347,25 @@ def _complete(workspace: Workspace, name: str, current: str) -> dict[str, Any]:
     compact(workspace.manifest_dir(name), table.replace_schema_metadata(stamped), spec.key)
     return {"parts": part_records(list_parts(workspace, name)),
             "files": file_records(workspace, spec, table.to_pylist())}
+
+
+def redo_plan(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...]) -> list[tuple[str, str]]:
+    """The chained stages ``config`` would redo in ``workspace``, each with why: its own
+    results are not current, or an input is made by a stage redone before it."""
+    redone: dict[str, str] = {}
+    plan = []
+    for stage in (s for s in stages if s.chained):
+        resolved = stage.resolved(config)
+        upstream = [name for name in resolved.inputs if name in redone]
+        state = status(stage, config, workspace)
+        if upstream:
+            plan.append((stage.name, f"its input {upstream[0]} is redone by {redone[upstream[0]]}"))
+        elif state.state != "done":
+            plan.append((stage.name, state.detail if state.state == "stale" else state.state))
+        else:
+            continue
+        redone.update({name: stage.name for name in resolved.outputs})
+    return plan
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,11 @@
 """Typed configuration: one frozen dataclass per section, every field documented with its unit
 (``facility``: execution, camera, testbed, virtual testbed; ``stages``: one section per stage).
 
-Resolution order: dataclass defaults, then the profile shipped in ``pipeline/profiles``
-(``smoke``, ``default``, ``paper``), then ``--config FILE``, then ``--set section.key=value``.
-The resolved configuration is written to ``W/config.toml``. Units follow docs/architecture.md section 3:
+Resolution order (``loading.layered``): the workspace's saved ``W/config.toml``, or for a new
+workspace (or an explicit ``--profile`` switch) the dataclass defaults and the profile shipped in
+``pipeline/profiles`` (``smoke``, ``default``, ``paper``); then ``--config FILE`` (its keys only);
+then ``--set section.key=value``. The resolved configuration is written to ``W/config.toml``
+when a command succeeds. Units follow docs/architecture.md section 3:
 metres and radians (field names end in ``_m``, ``_rad``, ``_px``; quaternions ``_q`` are
 Hamilton ``(w, x, y, z)``).
 """
@@ -19,6 +21,7 @@ from pipeline.config.facility import (
 from pipeline.config.loading import (
     PROFILES,
     Override,
+    layered,
     load_config,
     parse_override,
     profile_path,
@@ -43,7 +46,7 @@ from pipeline.config.stages import (
 __all__ = [
     "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
     "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
-    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TestbedConfig", "VirtualConfig", "load_config", "param",
-    "parse_override",
+    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TestbedConfig", "VirtualConfig", "layered", "load_config",
+    "param", "parse_override",
     "profile_path", "resize_camera_matrix", "to_dict", "with_overrides", "write_config",
 ]

@@ -253,6 +253,40 @@ def load_config(profile: str | None = None, config_file: str | Path | None = Non
     return with_overrides(config, [parse_override(o) if isinstance(o, str) else o for o in overrides])
 
 
+def layered(saved: Path | None, profile: str | None = None, config_file: str | Path | None = None,
+            overrides: Sequence[Override] = ()) -> tuple[Config, str | None]:
+    """A command's configuration, lowest precedence first (the README, "Configuration"):
+
+    1. the workspace's saved ``W/config.toml`` (``saved``, when it exists), else the profile
+       (``profile``, else the ``profile`` key of ``config_file``, else ``default``);
+    2. ``config_file`` (``--config``): only the keys it holds;
+    3. ``overrides`` (``--set`` and the command's options), in order.
+
+    A ``profile`` other than the saved one switches profile explicitly: the saved values are
+    dropped and the new profile is the base. Returns the configuration and, on a switch, the
+    profile it switched from. A ``--config`` file naming another profile than the saved one
+    is refused: switching is ``--profile``'s job.
+    """
+    data = _read_toml(Path(config_file), str(config_file)) if config_file is not None else {}
+    named = data.get("profile")
+    if named is not None and (not isinstance(named, str) or named not in PROFILES):
+        raise ConfigError(f"{config_file}: key profile: expected one of {', '.join(PROFILES)}, got {named!r}")
+    switched_from = None
+    if saved is not None and saved.is_file():
+        saved_profile = _read_toml(saved, str(saved)).get("profile", "default")
+        if profile is not None and profile != saved_profile:
+            switched_from, base = saved_profile, load_config(profile)
+        else:
+            if named is not None and named != saved_profile and profile is None:
+                raise ConfigError(f"{config_file}: key profile: {named!r}, but the workspace was made with profile "
+                                  f"{saved_profile!r} ({saved}); switch profile with --profile {named}")
+            base = load_config(None, saved)
+    else:
+        base = load_config(profile or named or "default")
+    config = _apply(base, data, str(config_file)) if data else base
+    return with_overrides(config, overrides), switched_from
+
+
 def to_dict(config: Config) -> dict[str, Any]:
     """Plain TOML-able dictionary (tuples become lists)."""
     def plain(value: Any) -> Any:

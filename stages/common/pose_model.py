@@ -165,6 +165,8 @@ class PoseModel:
             raise InputError(f"{source}: input {[(i.name, i.shape) for i in inputs]} does not match the metadata; "
                              f"expected one input (N, {expected[0]}, {expected[1]}, {expected[2]})")
         self.input_name = inputs[0].name
+        #: a model exported without dynamic axes takes batches of exactly this size (None: any)
+        self.fixed_batch = inputs[0].shape[0] if isinstance(inputs[0].shape[0], int) else None
         outputs = self.session.get_outputs()
         if self.contract.output == "pose" and len(outputs) != 2:
             raise InputError(f"{source}: speedplus.output=pose needs two outputs (q, t), got {len(outputs)}")
@@ -181,17 +183,45 @@ class PoseModel:
         mean keeps what they agree on (held-out synthetic images, the reference model:
         poses off by more than 10 deg 20% -> 16%, mean SPEED score 0.53 -> 0.27)."""
         if not turns or self.contract.turns == 1:
-            return self._checked(self.session.run(None, {self.input_name: batch}))
+            return self._checked(self._run(batch))
         total = None
         for k in range(self.contract.turns):
             turned = np.ascontiguousarray(np.rot90(batch, k, axes=(2, 3)))
-            heatmaps = self.session.run(None, {self.input_name: turned})[0]
+            heatmaps = self._run(turned)[0]
             if heatmaps.ndim != 4 or heatmaps.shape[2] != heatmaps.shape[3]:
                 raise InputError(f"{self.source}: speedplus.turns=4 needs square heatmaps (N, K, h, h), "
                                  f"got {heatmaps.shape}")
             heatmaps = np.rot90(heatmaps, -k, axes=(2, 3))
             total = heatmaps.copy() if total is None else total + heatmaps
         return self._checked([np.ascontiguousarray(total / self.contract.turns)])
+
+    def _run(self, batch: np.ndarray) -> list[np.ndarray]:
+        """The session's outputs for (N, C, H, W): a model of a fixed batch size gets chunks of
+        that size, the last padded with copies of its first image and the padding dropped."""
+        size = self.fixed_batch
+        if size is None or len(batch) == size:
+            return self.session.run(None, {self.input_name: batch})
+        chunks = []
+        for start in range(0, len(batch), size):
+            chunk = batch[start:start + size]
+            real = len(chunk)
+            if real < size:
+                chunk = np.concatenate([chunk, np.repeat(chunk[:1], size - real, axis=0)])
+            chunks.append([np.asarray(output)[:real] for output in self.session.run(None, {self.input_name: chunk})])
+        return [np.concatenate([chunk[k] for chunk in chunks]) for k in range(len(chunks[0]))]
+
+    def check(self) -> None:
+        """Run one blank input through the model: its outputs must fit the contract (an
+        InputError naming the file and what is wrong, before evaluate discards anything)."""
+        channels = 3 if self.contract.channels == "rgb" else 1
+        blank = np.zeros((self.fixed_batch or 1, channels, self.contract.height, self.contract.width), np.float32)
+        try:
+            self.infer(blank)
+        except InputError:
+            raise
+        except Exception as error:  # noqa: BLE001 - onnxruntime's failures have many types
+            raise InputError(f"{self.source}: the model fails on an input of its declared shape "
+                             f"({' '.join(str(error).split())[:300]})") from None
 
     def _checked(self, outputs: list[np.ndarray]) -> list[np.ndarray]:
         """``outputs`` when their first is of the contract's shape: a model whose heatmaps or

@@ -51,11 +51,22 @@ def _digest(path: Path) -> str:
     return sha256(path)[:16] if path.exists() else "missing"
 
 
-def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
-    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
-    (pipeline/registry.py): the models are fingerprinted by their bytes."""
-    digests = {path.stem: _digest(path) for path in model_paths(config)}
-    return ("labels", "renders", "captures"), ("evaluate",), {"model_digests": digests}, ("predictions", "scores")
+def resolve(config: Config) -> dict[str, Any]:
+    """Inputs, configuration sections, outputs and members of this stage (pipeline/registry.py):
+    each model is a member, known by its file's bytes, so that a model is added (or one
+    redone) without redoing the others."""
+    return {"inputs": ("labels", "renders", "captures"), "sections": ("evaluate",), "extra": {},
+            "outputs": ("predictions", "scores"),
+            "members": {path.stem: _digest(path) for path in model_paths(config)},
+            "member_key": "evaluate.models", "member_column": "model"}
+
+
+def check_models(config: Config) -> None:
+    """Every model of ``evaluate.models`` opens and answers an input of its contract's shape;
+    else an InputError naming the file and what is wrong (the runner calls this before it
+    discards or writes anything)."""
+    for path in model_paths(config):
+        PoseModel(path, threads=1).check()
 
 
 def _items(workspace: Workspace) -> list[dict[str, Any]]:
@@ -113,13 +124,15 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             results = map_config(config, open_scorer, args, "score", batches, renders=False,
                                  prepare=_with_images(workspace))
             for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, "
-                                                     f"{config.run.engine})"):
+                                                     f"{config.run.engine})", rows=[len(b) for b in batches]):
                 for row in rows:
                     sink.add(row)
     predictions = read_manifest(workspace, "predictions")
     table = summarise(predictions.to_pylist())
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
     write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
+    scored = sorted(set(zip(table.column("model").to_pylist(), table.column("crop").to_pylist(), strict=True)))
+    shown += [pair for pair in scored if pair not in shown]  # every model scored here, also earlier ones
     for model, crop in shown:  # results: standard output
         Console().print(print_table2(table, model, crop))
     return predictions

@@ -82,7 +82,7 @@ def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str
            "keypoints": np.empty((len(rows), len(tango.KEYPOINTS_M), 2)), "maps": np.empty((len(rows), 3, 3)),
            "wide_images": np.empty((*shape, 3), np.uint8), "wide_masks": np.empty(shape, np.uint8),
            "wide_keypoints": np.empty((len(rows), len(tango.KEYPOINTS_M), 2))}
-    for index, row in enumerate(track(rows, len(rows), "load training images")):
+    for index, row in enumerate(track(rows, len(rows), "load training images", rows=[0] * len(rows))):
         image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
         mask = to_uint8(read_image(workspace.fetch(row["mask_path"]), "bgr"))
         box = points_box(row["keypoints_px"])

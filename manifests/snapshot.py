@@ -1,0 +1,114 @@
+"""A command's undo record (docs/architecture.md section 4): the workspace's record as it
+was before a command changed it, so that a refused or failed command leaves
+``W/config.toml``, every manifest, every completion marker, every JSON file and every file
+a marker names (images, masks, models) byte for byte as it found them.
+
+```
+W/.snapshot/manifests/...     the manifests folder (parts hard-linked, markers copied)
+W/.snapshot/files/<relpath>   config.toml, the JSON files, report/, and each file a marker names
+W/.snapshot/present.json      the top-level files that existed (others are removed on restore)
+```
+
+Parts and media are hard links: every writer replaces files by rename (``manifests.files``),
+never in place, so a link keeps the old bytes at no cost. Small text files are copied. The
+folder's name starts with a dot: a workspace on object storage never syncs it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+from manifests.workspace import CONFIG_FILE, MANIFESTS_DIR, STATE_DIR, Workspace
+
+SNAPSHOT_DIR = ".snapshot"
+#: top-level files a command may write beside the manifests (the typed JSON files, the report)
+RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*")
+
+
+def _recorded_files(workspace: Workspace) -> set[str]:
+    """Workspace-relative paths of the files the completion markers name."""
+    state = workspace.root / MANIFESTS_DIR / STATE_DIR
+    names: set[str] = set()
+    for marker in state.glob("*.json"):
+        try:
+            names |= set(json.loads(marker.read_text()).get("files", {}))
+        except (OSError, ValueError, AttributeError):
+            continue  # a damaged marker: `status` and `verify` report it
+    return names
+
+
+def _keep(source: Path, destination: Path) -> None:
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    if source.suffix in (".json", ".toml", ".html"):
+        shutil.copy2(source, destination)
+    else:
+        try:
+            os.link(source, destination)
+        except OSError:  # another filesystem, or links refused: a copy keeps the bytes too
+            shutil.copy2(source, destination)
+
+
+class Snapshot:
+    """The record of ``workspace`` taken by ``take``; ``restore`` puts it back, ``drop``
+    forgets it. Only one command holds the workspace (``manifests.lock``), so one snapshot."""
+
+    def __init__(self, workspace: Workspace) -> None:
+        self.workspace = workspace
+        self.folder = workspace.root / SNAPSHOT_DIR
+
+    def take(self) -> Snapshot:
+        root = self.workspace.root
+        shutil.rmtree(self.folder, ignore_errors=True)  # a previous command's, killed before it ended
+        self.folder.mkdir(parents=True)
+        manifests = root / MANIFESTS_DIR
+        if manifests.is_dir():
+            for path in manifests.rglob("*"):
+                if path.is_file() and "staging" not in path.relative_to(manifests).parts:
+                    _keep(path, self.folder / MANIFESTS_DIR / path.relative_to(manifests))
+        present = {p.relative_to(root).as_posix() for pattern in RECORD_GLOBS for p in root.glob(pattern)
+                   if p.is_file()}
+        for relpath in sorted(present | _recorded_files(self.workspace)):
+            path = root / relpath
+            if path.is_file() and not relpath.startswith(SNAPSHOT_DIR):
+                _keep(path, self.folder / "files" / relpath)
+        (self.folder / "present.json").write_text(json.dumps(sorted(present)))
+        return self
+
+    def restore(self) -> None:
+        """The workspace's record as ``take`` found it (files made since that nobody named
+        before are left alone, except the top-level ones the record globs cover)."""
+        root = self.workspace.root
+        before = set(json.loads((self.folder / "present.json").read_text()))
+        for pattern in RECORD_GLOBS:
+            for path in root.glob(pattern):
+                relpath = path.relative_to(root).as_posix()
+                if path.is_file() and relpath not in before:
+                    path.unlink()
+        manifests = root / MANIFESTS_DIR
+        if manifests.is_dir():
+            for path in sorted(manifests.iterdir()):
+                if path.name != STATE_DIR:
+                    shutil.rmtree(path)
+            for path in (manifests / STATE_DIR).glob("*.json"):
+                path.unlink()
+        saved = self.folder / MANIFESTS_DIR
+        if saved.is_dir():
+            for path in sorted(saved.rglob("*")):
+                if path.is_file():
+                    target = manifests / path.relative_to(saved)
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(path, target)
+        files = self.folder / "files"
+        if files.is_dir():
+            for path in sorted(files.rglob("*")):
+                if path.is_file():
+                    target = root / path.relative_to(files)
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(path, target)
+        self.drop()
+
+    def drop(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
