@@ -181,13 +181,13 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
             _run_stages(stages, resolved, with_overrides(resolved, transient), ws, force, switched_from, started,
                         redo)
             write_config(resolved, ws.config_path)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as interrupt:
             if started:  # rows made under this configuration are kept: save it, so that they resume
                 write_config(resolved, ws.config_path)
                 snapshot.drop()
             else:
                 snapshot.restore()
-            raise
+            _interrupted(interrupt, force)
         except BaseException:
             snapshot.restore()
             raise
@@ -197,6 +197,16 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     if stages and stages[-1] == "report":
         out.print(f"report: {ws.location}/report/index.html")
     return ws
+
+
+def _interrupted(interrupt: KeyboardInterrupt, force: bool) -> None:
+    """One line and exit 130 (click would otherwise swallow the interrupt without a word)."""
+    said = str(interrupt) if isinstance(interrupt, runner.Interrupted) else \
+        "interrupted: nothing was changed; run the same command to start again"
+    if force and isinstance(interrupt, runner.Interrupted):
+        said = said.replace("run the same command to resume", "run it again without --force to resume")
+    err.print(f"[yellow]{escape(said)}[/]", highlight=False)
+    raise typer.Exit(130)
 
 
 def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspace, force: bool,
@@ -441,7 +451,7 @@ def main() -> None:
         err.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False)
         sys.exit(1)
     except KeyboardInterrupt:
-        err.print("[yellow]interrupted[/]: finished parts are kept; rerun the same command to resume")
+        err.print("[yellow]interrupted[/]")
         sys.exit(130)
     except Exception as error:  # noqa: BLE001 - the last line of defence: never a traceback
         log = _crash_log(error)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -28,6 +29,9 @@ def _exit_with_parent(parent: int) -> None:
 
 def _initialise(factory: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
     global _context
+    # Ctrl-C reaches the whole process group: the driver stops the pool and says what was
+    # kept; a worker's KeyboardInterrupt traceback would only bury that line
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     _context = factory(*args)
 

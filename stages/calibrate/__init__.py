@@ -14,6 +14,7 @@ import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
 from manifests.sidecars import SOURCES, Calibration, SourceCalibration, read_session, write_calibration
+from pipeline import progress
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages.calibrate import observations as obs
@@ -90,12 +91,15 @@ def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[st
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
                    used: list[obs.Observation], intrinsics: obs.Intrinsics,
-                   up: np.ndarray | None = None, readings: arms.Readings | None = None) -> np.ndarray:
+                   up: np.ndarray | None = None, readings: arms.Readings | None = None,
+                   label: str = "calibrate") -> np.ndarray:
     """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets (and arms, with
     ``readings``) fitted without it."""
     folds = np.random.default_rng(config.calibrate.seed).permutation(len(a)) % config.calibrate.folds
     predicted = np.zeros_like(a)
     for fold in range(config.calibrate.folds):
+        progress.note(f"  {label}: cross-validation fold {fold + 1} of {config.calibrate.folds}"
+                      f"{' (offsets and arms)' if readings is not None else ''}")
         test, train = folds == fold, folds != fold
         train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
         solution = solve(config, a[train], b[train], train_fixtures,
@@ -211,6 +215,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             up = up if compliant else None
             readings = arms.readings([by_id[o.sample_id] for o in used])
             kinematic, arm_note = arm_decision(config, readings)
+        progress.note(f"calibrate {source}: robust solve on {len(used)} samples")
         solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics, up)
         screening.check_inliers(source, int(inliers.sum()), len(inliers))
         for o, inlier in zip(used, inliers, strict=True):
@@ -223,13 +228,14 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         fitted = None
         if kinematic:
             readings = readings.subset(inliers)
-            cross = cross_validate(config, a, b, fixtures, used, intrinsics, up, readings)
+            cross = cross_validate(config, a, b, fixtures, used, intrinsics, up, readings, f"calibrate {source}")
+            progress.note(f"calibrate {source}: the arms' fit on all {len(used)} samples")
             fitted = arms.fit(config.testbed, config.calibrate, a, readings, fixtures, solution, up is not None)
             solution = fitted.offsets
             b, up_arms = arms.measurement(config.testbed, fitted.errors, readings, config.calibrate.world_up)
             up = None if up is None else up_arms
         else:
-            cross = cross_validate(config, a, b, fixtures, used, intrinsics, up)
+            cross = cross_validate(config, a, b, fixtures, used, intrinsics, up, label=f"calibrate {source}")
         predicted = solution.predict(b, fixtures, up)
         cross_metrics = metrics(cross, a, used, intrinsics)
         screening.check_result(f"{source}", cross_metrics, intrinsics, config.calibrate)

@@ -85,6 +85,9 @@ def load_mitsuba() -> Any:
         raise InputError(f"Mitsuba's {PREFERRED_VARIANT} variant is unavailable on {socket.gethostname()} "
                          f"({' '.join(str(error).split())[:200]}); install Debian libllvm19 (make setup does, as "
                          "root) or point DRJIT_LIBLLVM_PATH at a libLLVM >= 16") from None
+    # Mitsuba's own warnings ("Received interrupt signal, winding down" on Ctrl-C) are not a
+    # user's business: the runner says what was kept; errors still surface as exceptions
+    mi.set_log_level(mi.LogLevel.Error)
     return mi
 
 
