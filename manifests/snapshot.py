@@ -77,10 +77,14 @@ class Snapshot:
         (self.folder / "present.json").write_text(json.dumps(sorted(present)))
         return self
 
-    def restore(self) -> None:
+    def restore(self, keep_new: tuple[str, ...] = ()) -> None:
         """The workspace's record as ``take`` found it (files made since that nobody named
-        before are left alone, except the top-level ones the record globs cover)."""
+        before are left alone, except the top-level ones the record globs cover).
+        ``keep_new``: manifests to leave as they are now where the snapshot had none of
+        them (a refusal's diagnostics: nothing of the user's is replaced by them)."""
         root = self.workspace.root
+        saved = self.folder / MANIFESTS_DIR
+        kept = {name for name in keep_new if not (saved / name).is_dir()}
         before = set(json.loads((self.folder / "present.json").read_text()))
         for pattern in RECORD_GLOBS:
             for path in root.glob(pattern):
@@ -90,11 +94,10 @@ class Snapshot:
         manifests = root / MANIFESTS_DIR
         if manifests.is_dir():
             for path in sorted(manifests.iterdir()):
-                if path.name != STATE_DIR:
+                if path.name != STATE_DIR and path.name not in kept:
                     shutil.rmtree(path)
             for path in (manifests / STATE_DIR).glob("*.json"):
                 path.unlink()
-        saved = self.folder / MANIFESTS_DIR
         if saved.is_dir():
             for path in sorted(saved.rglob("*")):
                 if path.is_file():

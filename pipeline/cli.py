@@ -40,7 +40,7 @@ from pipeline.config import (
     with_overrides,
     write_config,
 )
-from pipeline.errors import InputError
+from pipeline.errors import InputError, RefusalError
 
 app = typer.Typer(
     name="speedplus",
@@ -188,8 +188,8 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
             else:
                 snapshot.restore()
             _interrupted(interrupt, force)
-        except BaseException:
-            snapshot.restore()
+        except BaseException as error:
+            snapshot.restore(error.keep if isinstance(error, RefusalError) else ())
             raise
         snapshot.drop()
     if not existed and not _exists(ws) and ws.copy is None:

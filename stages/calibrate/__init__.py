@@ -13,10 +13,11 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from manifests import clear as clear_manifest
 from manifests.sidecars import SOURCES, Calibration, SourceCalibration, read_session, write_calibration
 from pipeline import progress
 from pipeline.config import Config
-from pipeline.errors import InputError
+from pipeline.errors import InputError, RefusalError
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json
@@ -79,14 +80,60 @@ def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[st
         residual_t = np.linalg.norm(predicted[:, :3, 3] - a[:, :3, 3], axis=1)
         residual_r = g.angular_distance(predicted[:, :3, :3], a[:, :3, :3])
         new_keep = np.ones(len(a), dtype=bool)
+        excess = np.zeros(len(a))
         for residual in (residual_t, residual_r):
             median = np.median(residual[keep])
-            mad = 1.4826 * np.median(np.abs(residual[keep] - median))
-            new_keep &= residual <= median + config.calibrate.outlier_k * max(mad, 1e-12)
+            limit = median + config.calibrate.outlier_k * max(1.4826 * np.median(np.abs(residual[keep] - median)),
+                                                              1e-12)
+            new_keep &= residual <= limit
+            excess = np.maximum(excess, residual / limit)
+        new_keep = _determinate(config, b, fixtures, new_keep, excess)
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
     return solution, keep
+
+
+def _determinate(config: Config, b: np.ndarray, fixtures: list[str], keep: np.ndarray,
+                 excess: np.ndarray) -> np.ndarray:
+    """``keep``, with flagged samples taken back (the least flagged first) until the kept
+    ones determine the offsets: in a set of one orientation on a grid plus a few tilted
+    views, the tilted ones carry the rotations, and a poor first solve fits them worst;
+    rejecting them would leave nothing to calibrate from."""
+    limits = config.calibrate
+    keep = keep.copy()
+    chosen = [f for f, k in zip(fixtures, keep, strict=True) if k]
+    for index in np.argsort(np.where(keep, np.inf, excess), kind="stable"):
+        if rwhe.diversity_problem(b[keep], chosen, limits.min_samples, limits.min_rotation_spread_rad) is None:
+            break
+        if not keep[index]:
+            keep[index] = True
+            chosen = [f for f, k in zip(fixtures, keep, strict=True) if k]
+    return keep
+
+
+def folds_of(config: Config, b: np.ndarray) -> np.ndarray:
+    """Each sample's cross-validation fold (N,): samples of one orientation (within 1 deg)
+    are dealt round the folds together, larger groups first, so that every training set
+    keeps views of every orientation group it can (a grid of positions in one orientation
+    plus a few tilted views: each tilted view in its own fold). A set of distinct
+    orientations gets the plain seeded shuffle."""
+    rank = np.random.default_rng(config.calibrate.seed).permutation(len(b))
+    groups: list[list[int]] = []
+    for i in np.argsort(rank, kind="stable"):
+        for group in groups:
+            if g.angular_distance(b[group[0], :3, :3][None], b[i, :3, :3][None])[0] < np.radians(1.0):
+                group.append(int(i))
+                break
+        else:
+            groups.append([int(i)])
+    folds = np.zeros(len(b), dtype=int)
+    position = 0
+    for group in sorted(groups, key=len, reverse=True):  # stable: ties keep the shuffled order
+        for i in group:
+            folds[i] = position % config.calibrate.folds
+            position += 1
+    return folds
 
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
@@ -95,7 +142,7 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
                    label: str = "calibrate") -> np.ndarray:
     """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets (and arms, with
     ``readings``) fitted without it."""
-    folds = np.random.default_rng(config.calibrate.seed).permutation(len(a)) % config.calibrate.folds
+    folds = folds_of(config, b)
     predicted = np.zeros_like(a)
     for fold in range(config.calibrate.folds):
         progress.note(f"  {label}: cross-validation fold {fold + 1} of {config.calibrate.folds}"
@@ -168,6 +215,53 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         if unknown:
             raise InputError(f"captures: sample(s) {', '.join(unknown[:5])} are not in the plan")
     observations = obs.detect_all(workspace, captures, spec, config.calibrate.min_corners)
+    by_id = {r["sample_id"]: r for r in captures}
+    try:
+        calibration, predictions = _calibrate(config, workspace, session, spec, by_id, observations)
+    except InputError as error:  # refused: the images' reasons are still what the user needs
+        _write_samples(config, workspace, observations, by_id, {})
+        raise RefusalError(f"{error}{_dropped(observations)}", keep=("calibration_samples",)) from None
+    write_calibration(workspace, calibration)
+    _write_samples(config, workspace, observations, by_id, predictions)
+    print_table(calibration)
+    return read_manifest(workspace, "calibration_samples")
+
+
+def _dropped(observations: list[obs.Observation], most: int = 10) -> str:
+    """The images screening dropped, with why, for the refusal's message (up to ``most``)."""
+    dropped = [o for o in observations if o.reason is not None]
+    if not dropped:
+        return "; screening dropped no image"
+    listed = "; ".join(f"{o.sample_id}: {o.reason}" for o in dropped[:most])
+    more = f" and {len(dropped) - most} more" if len(dropped) > most else ""
+    return (f"; screening dropped {len(dropped)} of {len(observations)} images ({listed}{more}); every image's "
+            "reason is in the calibration_samples manifest")
+
+
+def _write_samples(config: Config, workspace: Workspace, observations: list[obs.Observation],
+                   by_id: dict[str, dict[str, Any]], predictions: dict[str, dict[str, np.ndarray]]) -> None:
+    """One ``calibration_samples`` row per capture, each unusable one with its reason; the
+    manifest is rewritten whole (a calibration is all or nothing)."""
+    clear_manifest(workspace, "calibration_samples")
+    with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:
+        for o in observations:
+            reason = o.reason
+            flagged = [s for s in SOURCES if o.extra.get(f"{s}_outlier")]
+            if reason is None and flagged:
+                reason = "outlier of " + " and ".join(flagged) + " (excluded from that source's calibration)"
+            row = {"sample_id": o.sample_id, "fixture": by_id[o.sample_id]["fixture"], "corners": len(o.ids),
+                   "used": o.cam_from_target is not None, "reason": reason, "pnp_rms_px": o.rms_px}
+            for prefix, pose in (("cam_from_target_cal", o.cam_from_target),
+                                 ("kuka_cam_from_target", predictions.get("kuka", {}).get(o.sample_id)),
+                                 ("vicon_cam_from_target", predictions.get("vicon", {}).get(o.sample_id))):
+                row.update(g.pose_columns(prefix, pose))
+            sink.add(row)
+
+
+def _calibrate(config: Config, workspace: Workspace, session: Any, spec: Any, by_id: dict[str, dict[str, Any]],
+               observations: list[obs.Observation]) -> tuple[Calibration, dict[str, dict[str, np.ndarray]]]:
+    """Intrinsics, screening, and the offsets of every source with Table 1's figures."""
+    captures = list(by_id.values())
     camera = session.camera
     fixed = config.calibrate.intrinsics == "fixed" or (config.calibrate.intrinsics == "auto" and camera.camera_matrix)
     if fixed:
@@ -180,7 +274,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                                              k=config.calibrate.outlier_k)
         screening.check_intrinsics(intrinsics, observations, spec, config.calibrate)
     obs.solve_pnp(observations, intrinsics)
-    by_id = {r["sample_id"]: r for r in captures}
     robot_b = {r["sample_id"]: measurement(r, "kuka") for r in captures}
     fixture_of = {r["sample_id"]: r["fixture"] for r in captures}
     posed = [o.sample_id for o in observations if o.cam_from_target is not None]
@@ -298,23 +391,5 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         {"method": config.calibrate.solver, "folds": config.calibrate.folds, "pattern": spec.to_json(),
          "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
         {"backend": session.backend, "sources": list(session.sources)}, checks)
-    write_calibration(workspace, calibration)
+    return calibration, predictions
 
-    with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:
-        done = read_keys(workspace, "calibration_samples")
-        for o in observations:
-            if o.sample_id in done:
-                continue
-            reason = o.reason
-            flagged = [s for s in SOURCES if o.extra.get(f"{s}_outlier")]
-            if reason is None and flagged:
-                reason = "outlier of " + " and ".join(flagged) + " (excluded from that source's calibration)"
-            row = {"sample_id": o.sample_id, "fixture": by_id[o.sample_id]["fixture"], "corners": len(o.ids),
-                   "used": o.cam_from_target is not None, "reason": reason, "pnp_rms_px": o.rms_px}
-            for prefix, pose in (("cam_from_target_cal", o.cam_from_target),
-                                 ("kuka_cam_from_target", predictions.get("kuka", {}).get(o.sample_id)),
-                                 ("vicon_cam_from_target", predictions.get("vicon", {}).get(o.sample_id))):
-                row.update(g.pose_columns(prefix, pose))
-            sink.add(row)
-    print_table(calibration)
-    return read_manifest(workspace, "calibration_samples")

@@ -88,24 +88,31 @@ class Solution:
         return self.z @ b @ fixture_tilt(np.asarray(up_targetee, float), k, d) @ x_inv
 
 
+def diversity_problem(b: np.ndarray, fixtures: list[str], min_samples: int, min_spread_rad: float) -> str | None:
+    """Why the samples cannot determine the offsets (too few of them, or rotations about
+    one axis only, which leave the translations along it free), or None."""
+    if len(b) < min_samples:
+        return f"{len(b)} usable calibration samples, at least {min_samples} needed; capture more calibration poses"
+    for fixture in sorted(set(fixtures)):
+        chosen = b[[i for i, f in enumerate(fixtures) if f == fixture]]
+        if len(chosen) < 3:
+            return f"fixture {fixture!r} has {len(chosen)} samples, at least 3 needed"
+        relative = g.matrix_to_rotvec(np.swapaxes(chosen[0, :3, :3], -1, -2) @ chosen[:, :3, :3])
+        spread = np.linalg.svd(relative - relative.mean(axis=0), compute_uv=False) / np.sqrt(len(chosen))
+        if spread[1] < min_spread_rad:
+            return (f"the rotations of fixture {fixture!r} vary about one axis only (second principal spread "
+                    f"{np.degrees(spread[1]):.2f} deg < {np.degrees(min_spread_rad):.2f} deg); add captures with the "
+                    "target tilted about other axes")
+    return None
+
+
 def check_diversity(b: np.ndarray, fixtures: list[str], min_samples: int, min_spread_rad: float,
                     label: str) -> None:
     """Refuse data that cannot determine the offsets: too few samples, or rotations that
     do not span at least two independent axes."""
-    if len(b) < min_samples:
-        raise DegenerateError(f"{label}: {len(b)} usable calibration samples, at least {min_samples} needed; "
-                              "capture more calibration poses")
-    for fixture in sorted(set(fixtures)):
-        chosen = b[[i for i, f in enumerate(fixtures) if f == fixture]]
-        if len(chosen) < 3:
-            raise DegenerateError(f"{label}: fixture {fixture!r} has {len(chosen)} samples, at least 3 needed")
-        relative = g.matrix_to_rotvec(np.swapaxes(chosen[0, :3, :3], -1, -2) @ chosen[:, :3, :3])
-        spread = np.linalg.svd(relative - relative.mean(axis=0), compute_uv=False) / np.sqrt(len(chosen))
-        if spread[1] < min_spread_rad:
-            raise DegenerateError(
-                f"{label}: the rotations of fixture {fixture!r} vary about one axis only (second principal spread "
-                f"{np.degrees(spread[1]):.2f} deg < {np.degrees(min_spread_rad):.2f} deg); add captures with the "
-                "target tilted about other axes")
+    problem = diversity_problem(b, fixtures, min_samples, min_spread_rad)
+    if problem is not None:
+        raise DegenerateError(f"{label}: {problem}")
 
 
 def shah(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
@@ -158,16 +165,45 @@ def procrustes(alphas: np.ndarray, betas: np.ndarray) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
 
 
+def translation_directions(a: np.ndarray, b: np.ndarray, fixtures: list[str], max_rad: float,
+                           min_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Translations (K, 3) of the camera's and the robot's motions ``A_i A_j^-1`` and
+    ``B_i B_j^-1`` over pairs i < j on one fixture that barely turn (at most ``max_rad``)
+    but move at least ``min_m``. For a motion without rotation ``A_i A_j^-1 = Z B_i B_j^-1
+    Z^-1`` gives ``t_A = R_Z t_B`` exactly (with a turn of angle theta, up to theta |t_Z|):
+    a set of one orientation on a grid of positions fixes R_Z by its translations alone."""
+    alphas, betas = [], []
+    for i in range(len(a)):
+        for j in range(i + 1, len(a)):
+            if fixtures[i] != fixtures[j]:
+                continue
+            motion_b = b[i] @ g.invert(b[j])
+            if np.linalg.norm(g.matrix_to_rotvec(motion_b[:3, :3])) <= max_rad and \
+                    np.linalg.norm(motion_b[:3, 3]) >= min_m:
+                alphas.append((a[i] @ g.invert(a[j]))[:3, 3])
+                betas.append(motion_b[:3, 3])
+    return np.array(alphas).reshape(-1, 3), np.array(betas).reshape(-1, 3)
+
+
 def park(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Solution:
     """Linear rotation estimate from motion pairs (Park and Martin 1994), the fallback start:
     ``A_i A_j^-1 = Z B_i B_j^-1 Z^-1`` gives ``log(R_Ai R_Aj^T) = R_Z log(R_Bi R_Bj^T)`` for
-    captures on one fixture; R_Z by orthogonal Procrustes, each R_X as the chordal mean of
-    ``R_Ai^T R_Z R_Bi``, then the translations as in ``shah``."""
+    captures on one fixture, and for pairs that do not turn ``t_A = R_Z t_B``
+    (``translation_directions``); R_Z by orthogonal Procrustes on both kinds of direction,
+    each R_X as the chordal mean of ``R_Ai^T R_Z R_Bi``, then the translations as in ``shah``.
+
+    Rotation vectors weigh by their angle (rad), translations by their length (m): an
+    axis's direction error is about sigma / length either way, and with PnP's typical
+    1e-3 rad and 3e-4 m a metre of travel is worth at least a radian of turn, so turns
+    dominate where a set has them and travel fixes the axes they leave free."""
     names = sorted(set(fixtures))
     alphas, betas = motion_rotations(a, b, fixtures, 1e-3, np.radians(170.0))
-    if len(alphas) < 2:
-        raise DegenerateError("the robot's motions have too few usable rotations to estimate the offsets")
-    rz = procrustes(alphas, betas)
+    moves_a, moves_b = translation_directions(a, b, fixtures, np.radians(0.5), 0.01)
+    directions_a, directions_b = np.concatenate([alphas, moves_a]), np.concatenate([betas, moves_b])
+    if len(directions_a) < 2 or np.linalg.matrix_rank(directions_b, tol=1e-3 * np.abs(directions_b).max()) < 2:
+        raise DegenerateError("the robot's motions have too few usable rotations or translations to estimate the "
+                              "offsets")
+    rz = procrustes(directions_a, directions_b)
     rotations = [rz]
     for name in names:
         chosen = [i for i, f in enumerate(fixtures) if f == name]
