@@ -174,6 +174,19 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     saved = [o for o in saved if o.section != "run"]
     resolved, ws, switched_from = _context(workspace, profile, config, saved)
     existed = ws.root.exists()
+    try:
+        _transaction(stages, resolved, transient, ws, force, switched_from, redo)
+    finally:
+        if not existed and not _exists(ws) and ws.copy is None:
+            shutil.rmtree(ws.root, ignore_errors=True)  # refused before anything was made: no empty folder left
+    if stages and stages[-1] == "report":
+        out.print(f"report: {ws.location}/report/index.html")
+    return ws
+
+
+def _transaction(stages: list[str], resolved: Config, transient: list[Override], ws: Workspace, force: bool,
+                 switched_from: str | None, redo: tuple[str, ...]) -> None:
+    """The stages under the workspace's lock, with the undo record of ``manifests.snapshot``."""
     with _writing(ws):
         snapshot = Snapshot(ws).take()
         started: list[str] = []
@@ -192,11 +205,6 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
             snapshot.restore(error.keep if isinstance(error, RefusalError) else ())
             raise
         snapshot.drop()
-    if not existed and not _exists(ws) and ws.copy is None:
-        shutil.rmtree(ws.root, ignore_errors=True)  # refused before anything was made: no empty workspace left
-    if stages and stages[-1] == "report":
-        out.print(f"report: {ws.location}/report/index.html")
-    return ws
 
 
 def _interrupted(interrupt: KeyboardInterrupt, force: bool) -> None:

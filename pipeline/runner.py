@@ -171,7 +171,8 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
         made = next((m.get("made_with") for m in markers if m and m.get("fingerprint") != current), None)
         return StageStatus(stage.name, "stale", rows,
                            differences(made, fingerprint_payload(stage, config, workspace)))
-    return StageStatus(stage.name, "partial", rows, "incomplete (interrupted, or refused: see its message); rerun to resume")
+    return StageStatus(stage.name, "partial", rows,
+                       "incomplete (interrupted, or refused: see its message); rerun to resume")
 
 
 def _member_status(name: str, members: dict[str, str], markers: list[dict[str, Any] | None],

@@ -1,0 +1,181 @@
+"""A command changes the workspace only when it succeeds (issue: bring your own model, data
+and settings): refused and failed commands leave every byte as they found it, settings
+layer on the saved configuration, stale results say why, models are added beside the
+shipped ones, and Ctrl-C says what it kept."""
+
+import hashlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tomllib
+
+import numpy as np
+import pytest
+
+from manifests import Workspace, read_manifest
+from tests.conftest import speedplus
+
+REPOSITORY = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def digest(root):
+    """One hash of every file of a workspace (its lock file aside: it says who held it)."""
+    total = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.is_file() and p.name != ".lock"):
+        total.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes())
+    return total.hexdigest()
+
+
+@pytest.fixture
+def finished(smoke_finished, tmp_path):
+    """A writable copy of the finished smoke workspace."""
+    root = tmp_path / "w"
+    shutil.copytree(smoke_finished[0].root, root)
+    return root
+
+
+#: per command, a setting that makes its results stale (so that it is refused without --force)
+REFUSED = {
+    "plan": ["--set", "plan.n_dataset=9"],
+    "acquire": ["--set", "virtual.seed=99"],
+    "calibrate": ["--set", "calibrate.folds=3"],
+    "fuse": ["--set", "fuse.rejection_k=2.5"],
+    "label": ["--set", "label.filename_template=x{sample_id}.jpg"],
+    "render": ["--set", "render.spp=3"],
+    "evaluate": ["--set", "evaluate.batch_size=3"],
+    "run": ["--set", "plan.n_dataset=9"],
+}
+
+
+@pytest.mark.parametrize("command", sorted(REFUSED))
+def test_a_refused_command_leaves_every_byte_as_it_was(finished, command):
+    before = digest(finished)
+    result = speedplus(command, "--workspace", str(finished), *REFUSED[command])
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "--force" in result.stderr
+    assert digest(finished) == before
+
+
+def test_a_stage_that_fails_puts_back_what_force_discarded(finished):
+    before = digest(finished)
+    # absurdly tight limits: the solve runs, then the result is refused after --force cleared the old one
+    result = speedplus("calibrate", "--workspace", str(finished), "--force", "--set",
+                       "calibrate.max_rotation_error_rad=1e-9")
+    assert result.returncode == 1 and "calibration refused" in result.stderr
+    assert digest(finished) == before
+    assert speedplus("status", "--workspace", str(finished)).stdout.count("done") >= 8
+
+
+def test_config_file_and_set_layer_on_the_saved_configuration(finished, tmp_path):
+    tweak = tmp_path / "tweak.toml"
+    tweak.write_text("[render]\nspp = 32\n")
+    refused = speedplus("render", "--workspace", str(finished), "--config", str(tweak))
+    # the smoke workspace stays smoke: only render.spp differs, and the refusal names it
+    assert refused.returncode == 1 and "render.spp 64 -> 32" in " ".join(refused.stderr.split())
+    status = speedplus("status", "--workspace", str(finished), "--config", str(tweak))
+    line = next(line for line in status.stdout.splitlines() if line.startswith("│ render"))
+    assert "stale" in line and "render.spp 64 -> 32" in line
+    assert all(state in status.stdout for state in ("plan", "done"))
+    done = speedplus("render", "--workspace", str(finished), "--config", str(tweak), "--force")
+    assert done.returncode == 0, done.stderr
+    saved = tomllib.loads((finished / "config.toml").read_text())
+    assert saved["profile"] == "smoke" and saved["render"]["spp"] == 32 and saved["camera"]["width_px"] == 320
+
+
+def test_switching_profile_is_explicit_and_names_the_stages_to_redo(finished, tmp_path):
+    before = digest(finished)
+    other = tmp_path / "other.toml"
+    other.write_text('profile = "default"\n')
+    named = speedplus("plan", "--workspace", str(finished), "--config", str(other))
+    assert named.returncode == 1 and "--profile default" in " ".join(named.stderr.split())
+    switched = speedplus("plan", "--workspace", str(finished), "--profile", "default")
+    said = " ".join(switched.stdout.split())
+    assert switched.returncode == 1
+    assert "profile smoke -> default: stages to redo: plan (camera.height_px 200 -> 600" in said
+    assert "acquire (its input plan is redone by plan)" in said and "evaluate (its input labels" in said
+    assert digest(finished) == before
+
+
+def test_status_and_verify_refuse_a_missing_workspace(tmp_path):
+    for command in ("status", "verify"):
+        result = speedplus(command, "--workspace", str(tmp_path / "nowhere"))
+        assert result.returncode == 1 and "nowhere: no such workspace" in result.stderr
+    assert not (tmp_path / "nowhere").exists()
+
+
+def test_a_refused_command_on_a_new_folder_leaves_no_folder(tmp_path):
+    result = speedplus("calibrate", "--workspace", str(tmp_path / "new"))
+    assert result.returncode == 1 and "needs the complete manifest" in " ".join(result.stderr.split())
+    assert not (tmp_path / "new").exists()
+
+
+def fixed_batch_copy(source, destination, batch):
+    """The model with its batch axis fixed to ``batch`` (torch.onnx.export without dynamic axes)."""
+    import onnx
+
+    model = onnx.load(source)
+    for value in [*model.graph.input, *model.graph.output]:
+        dim = value.type.tensor_type.shape.dim[0]
+        dim.Clear()
+        dim.dim_value = batch
+    onnx.save(model, destination)
+
+
+def test_a_model_is_added_beside_the_others_and_redone_alone(finished, tmp_path):
+    missing = speedplus("evaluate", "--workspace", str(finished), "--model", str(tmp_path / "mine.onnx"), "--force")
+    assert missing.returncode == 1 and "mine.onnx: model file not found" in missing.stderr
+    before = read_manifest(Workspace(finished), "predictions").to_pylist()
+    broken = tmp_path / "broken.onnx"
+    broken.write_bytes(b"not a model")
+    bad = speedplus("evaluate", "--workspace", str(finished), "--model", str(broken))
+    assert bad.returncode == 1 and "broken.onnx: not a loadable ONNX model" in bad.stderr
+    mine = tmp_path / "mine.onnx"
+    fixed_batch_copy(os.path.join(REPOSITORY, "models", "reference.onnx"), mine, 1)
+    added = speedplus("evaluate", "--workspace", str(finished), "--model", str(mine))
+    assert added.returncode == 0, added.stderr
+    assert "Table 2: mean SPEED score of mine" in added.stdout and "of reference_augmented" in added.stdout
+    after = read_manifest(Workspace(finished), "predictions").to_pylist()
+    kept = [row for row in after if row["model"] != "mine"]
+    strip = lambda rows: sorted((r["prediction_id"], r["q_pred"], r["t_pred"]) for r in rows)  # noqa: E731
+    assert strip(kept) == strip(before)  # the shipped models' predictions are untouched
+    ours = {(r["crop"], r["domain"], r["sample_id"]): r["score_speed"] for r in after if r["model"] == "mine"}
+    theirs = {(r["crop"], r["domain"], r["sample_id"]): r["score_speed"] for r in after if r["model"] == "reference"}
+    assert ours.keys() == theirs.keys()  # fed one image at a time, the same weights score the same
+    np.testing.assert_allclose([ours[k] for k in ours], [theirs[k] for k in ours], atol=1e-6)
+    models = set(read_manifest(Workspace(finished), "scores").column("model").to_pylist())
+    assert models == {"reference", "reference_augmented", "mine"}
+    assert "up to date" in speedplus("evaluate", "--workspace", str(finished)).stdout
+    redone = speedplus("evaluate", "--workspace", str(finished), "--model", str(mine), "--force")
+    assert redone.returncode == 0, redone.stderr
+    again = read_manifest(Workspace(finished), "predictions").to_pylist()
+    assert strip([r for r in again if r["model"] != "mine"]) == strip(before)
+
+
+def interrupt_after(seconds, *args):
+    """Run the CLI in its own process group and press Ctrl-C after ``seconds``."""
+    process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               env={**os.environ, "COLUMNS": "200"},
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        out, err = process.communicate(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGINT)
+        out, err = process.communicate(timeout=120)
+    return process.returncode, out, err
+
+
+def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_path):
+    ws = tmp_path / "w"
+    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws)).returncode == 0
+    code, _, err = interrupt_after(8, "acquire", "--workspace", str(ws))
+    assert code == 130, err
+    lines = [line for line in err.splitlines() if line.startswith("interrupted")]
+    assert len(lines) == 1 and lines[0].endswith("of 24 rows kept (acquire); run the same command to resume")
+    kept = int(lines[0].split()[1])
+    assert 0 < kept < 24
+    assert "Traceback" not in err and "winding down" not in err
+    resumed = speedplus("acquire", "--workspace", str(ws))
+    assert resumed.returncode == 0 and "acquire: resumed" in resumed.stdout
