@@ -86,8 +86,9 @@ def write(folder: Path, n_grid: int = 11, tilted: int = 4, robot_noise: tuple[fl
     (folder / "poses.txt").write_text("\n".join(lines) + "\n")
     k = ", ".join("[" + ", ".join(f"{v:g}" for v in row) + "]" for row in CAMERA)
     (folder / "dataset.toml").write_text(
-        "format_version = 1\n[robot]\nfile = \"poses.txt\"\nlayout = \"rowmajor4x4\"\ntransform = \"base_from_flange\"\n"
-        "length_unit = \"m\"\n[setup]\ncamera_on = \"flange\"\n[images]\nglob = \"images/*.png\"\n"
+        "format_version = 1\n[robot]\nfile = \"poses.txt\"\nlayout = \"rowmajor4x4\"\n"
+        "transform = \"base_from_flange\"\nlength_unit = \"m\"\n[setup]\ncamera_on = \"flange\"\n"
+        "[images]\nglob = \"images/*.png\"\n"
         f"[pattern]\nkind = \"chessboard\"\nsize = [{SIZE[0]}, {SIZE[1]}]\nsquare_m = {SQUARE_M}\n"
         f"[camera]\nwidth = {WIDTH}\nheight = {HEIGHT}\nK = [{k}]\ndist = [0, 0, 0, 0, 0]\n")
     return {"cam_from_flange": CAM_FROM_FLANGE, "cam_from_board": np.stack(truth)}
