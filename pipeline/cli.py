@@ -167,9 +167,10 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     of the ``run`` section (how to execute, never what: engine, workers), wherever they come
     from. A run section in a --config file is the way to keep one.
 
-    The workspace changes only when the command succeeds: W/config.toml is written at the
-    end, and a refused or failed command puts back every manifest, marker, JSON file and
-    recorded file as it found them (``manifests.snapshot``). Ctrl-C keeps the rows done."""
+    The workspace changes only when the command succeeds: W/config.toml is written when
+    the first stage starts changing anything, and a refused or failed command puts back
+    every manifest, marker, JSON file and recorded file as it found them
+    (``manifests.snapshot``). Ctrl-C keeps the rows done."""
     transient = [*transient, *(o for o in saved if o.section == "run")]
     saved = [o for o in saved if o.section != "run"]
     resolved, ws, switched_from = _context(workspace, profile, config, saved)
@@ -229,9 +230,16 @@ def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspac
         plan = runner.redo_plan(resolved, ws, registry.STAGES)
         listed = "; ".join(f"{name} ({why})" for name, why in plan) or "none"
         out.print(escape(f"profile {switched_from} -> {saved.profile}: stages to redo: {listed}"), highlight=False)
+    def starting(name: str) -> None:
+        # saved before the first stage changes anything: rows a killed command leaves resume
+        # under the configuration they were made with (a failure puts the old file back)
+        if not started:
+            write_config(saved, ws.config_path)
+        started.append(name)
+
     for name in stages:
         outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force,
-                                   on_start=lambda name=name: started.append(name), redo=redo)
+                                   on_start=lambda name=name: starting(name), redo=redo)
         rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
         if outcome.action == "skipped":
             out.print(f"[green]{name}[/]: up to date ({rows})")
@@ -387,8 +395,10 @@ def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
 
 
 def _must_exist(ws: Workspace) -> None:
-    if not _exists(ws):
-        raise InputError(f"{ws.location}: no such workspace (no {CONFIG_FILE}); start one with `speedplus run "
+    """A folder (a workspace its first command is still starting counts), or a store with a
+    saved configuration."""
+    if not (ws.root.is_dir() if ws.copy is None else _exists(ws)):
+        raise InputError(f"{ws.location}: no such workspace; start one with `speedplus run "
                          f"--workspace {ws.location}`")
 
 
