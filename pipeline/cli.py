@@ -395,9 +395,9 @@ def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
 
 
 def _must_exist(ws: Workspace) -> None:
-    """A folder (a workspace its first command is still starting counts), or a store with a
-    saved configuration."""
-    if not (ws.root.is_dir() if ws.copy is None else _exists(ws)):
+    """A folder, or a store prefix holding anything (a workspace its first command is still
+    starting counts: its lock or lease is there)."""
+    if not (ws.root.is_dir() if ws.copy is None else bool(ws.copy.remote.listing())):
         raise InputError(f"{ws.location}: no such workspace; start one with `speedplus run "
                          f"--workspace {ws.location}`")
 
