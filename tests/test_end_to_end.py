@@ -114,9 +114,12 @@ def test_any_model_following_the_contract_can_be_scored(finished, tmp_path):
     result = speedplus("evaluate", "--workspace", str(copy.root), "--model", str(tmp_path / "mine.onnx"), "--force")
     assert result.returncode == 0, result.stderr
     assert "Table 2: mean SPEED score of mine" in result.stdout
-    predictions = read_manifest(copy, "predictions").to_pylist()
+    everything = read_manifest(copy, "predictions").to_pylist()
+    predictions = [p for p in everything if p["model"] == "mine"]
     assert len(predictions) == 16 and {(p["model"], p["crop"]) for p in predictions} == {("mine", "full")}
     assert all(p["score_speed"] > 0 for p in predictions)  # a constant answer is wrong everywhere
+    # added beside the shipped models, whose predictions are kept (--force redoes only the one named)
+    assert {p["model"] for p in everything} == {"mine", "reference", "reference_augmented"}
     del contract["speedplus.output"]
     constant_keypoint_model(tmp_path / "unlabelled.onnx", contract)
     bad = speedplus("evaluate", "--workspace", str(copy.root), "--model", str(tmp_path / "unlabelled.onnx"),
