@@ -149,6 +149,10 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
                       f"{' (offsets and arms)' if readings is not None else ''}")
         test, train = folds == fold, folds != fold
         train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
+        problem = rwhe.diversity_problem(b[train], train_fixtures, 3, config.calibrate.min_rotation_spread_rad)
+        if problem is not None:  # its error is then an extrapolation: say so, it is real
+            progress.note(f"  {label}: fold {fold + 1}'s training samples do not determine the offsets ({problem}); "
+                          "its cross-validated error measures that")
         solution = solve(config, a[train], b[train], train_fixtures,
                          [o for o, keep in zip(used, train, strict=True) if keep], intrinsics, _subset(up, train))
         test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]

@@ -50,37 +50,41 @@ def render(cam_from_board: np.ndarray, texture: np.ndarray) -> np.ndarray:
     return cv2.GaussianBlur(image, (0, 0), 0.7)
 
 
-def views(n_grid: int = 11, tilted: int = 4) -> list[np.ndarray]:
+def views(n_grid: int = 11, tilted: int = 4, tilt_rad: float = 0.35) -> list[np.ndarray]:
     """``cam_from_board`` of each view: ``n_grid`` in one orientation over a grid of positions
     (the camera square to the board, 0.45-0.55 m away), then ``tilted`` views turned by
-    about 20 deg about the board's x and y axes."""
+    ``tilt_rad`` about the board's x and y axes, both ways."""
     centre = np.array([(SIZE[0] - 1) * SQUARE_M / 2, (SIZE[1] - 1) * SQUARE_M / 2, 0.0])
     facing = g.rotvec_to_matrix([0.0, 0.0, 0.1])
     out = []
     offsets = [(dx, dy) for dy in (-0.04, 0.0, 0.04) for dx in (-0.06, -0.02, 0.02, 0.06)][:n_grid]
     for k, (dx, dy) in enumerate(offsets):
         out.append(g.make_transform(facing, facing @ -centre + [dx, dy, 0.45 + 0.05 * (k % 3)]))
-    for rotvec in ([0.35, 0.0, 0.1], [-0.35, 0.0, 0.1], [0.0, 0.35, 0.1], [0.0, -0.35, 0.1])[:tilted]:
+    for rotvec in ([tilt_rad, 0.0, 0.1], [-tilt_rad, 0.0, 0.1], [0.0, tilt_rad, 0.1], [0.0, -tilt_rad, 0.1])[:tilted]:
         rotation = g.rotvec_to_matrix(rotvec)
         out.append(g.make_transform(rotation, rotation @ -centre + [0.0, 0.0, 0.5]))
     return out
 
 
 def write(folder: Path, n_grid: int = 11, tilted: int = 4, robot_noise: tuple[float, float] = (0.0, 0.0),
-          seed: int = 0) -> dict[str, np.ndarray]:
+          seed: int = 0, tilt_rad: float = 0.35, sag_rad: float = 0.0) -> dict[str, np.ndarray]:
     """The hand-eye folder; returns the truth (``cam_from_flange``, ``cam_from_board`` per view).
-    ``robot_noise``: sigmas of the pose file's position (m) and angle (rad) per axis."""
+    ``robot_noise``: sigmas of the pose file's position (m) and angle (rad) per axis;
+    ``sag_rad``: an error the robot does not report in the tilted views only (a bracket
+    that sags when the flange tilts), which makes them the worst fitted."""
     rng = np.random.default_rng(seed)
     images = folder / "images"
     images.mkdir(parents=True)
     texture = board_texture()
     lines, truth = [], []
-    for k, cam_from_board in enumerate(views(n_grid, tilted)):
+    for k, cam_from_board in enumerate(views(n_grid, tilted, tilt_rad)):
         cv2.imwrite(str(images / f"view{k:02d}.png"), render(cam_from_board, texture))
         base_from_flange = BASE_FROM_BOARD @ g.invert(cam_from_board) @ CAM_FROM_FLANGE
         error = g.make_transform(g.rotvec_to_matrix(rng.normal(scale=robot_noise[1], size=3)),
                                  rng.normal(scale=robot_noise[0], size=3))
         base_from_flange = base_from_flange @ error
+        if k >= n_grid:
+            base_from_flange = base_from_flange @ g.make_transform(g.rotvec_to_matrix([sag_rad, 0.0, 0.0]), np.zeros(3))
         lines.append(" ".join(f"{v:.12g}" for v in base_from_flange.ravel()))
         truth.append(cam_from_board)
     (folder / "poses.txt").write_text("\n".join(lines) + "\n")
