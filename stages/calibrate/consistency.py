@@ -26,6 +26,10 @@ from stages.common.rwhe import motion_rotations, procrustes
 MIN_PITCH_ANGLE_RAD = np.radians(10.0)
 #: near a half turn a rotation vector's sign is ambiguous, and so are its axis and pitch
 MAX_AXIS_ANGLE_RAD = np.radians(170.0)
+#: pairs that turn less than this keep the length of their translation to within
+#: angle x |t_Z| (0.5 deg, 0.2 m: 1.7 mm, under the 10 mm pitch floor)
+MAX_STILL_ANGLE_RAD = np.radians(0.5)
+MIN_TRAVEL_M = 0.01
 
 
 def screw(motions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -45,16 +49,22 @@ class Pairs:
     pitch_a: np.ndarray
     pitch_b: np.ndarray
     valid: np.ndarray  # bool: i != j, same fixture
+    #: length (m) of each motion's translation: for a pair that does not turn,
+    #: ``t_A = R_Z t_B`` keeps it (a grid of positions in one orientation has mostly such pairs)
+    travel_a: np.ndarray | None = None
+    travel_b: np.ndarray | None = None
 
     @classmethod
     def of(cls, a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Pairs:
         inv_a = np.stack([g.invert(m) for m in a])
         inv_b = np.stack([g.invert(m) for m in b])
-        angle_a, pitch_a = screw(a[:, None] @ inv_a[None])
-        angle_b, pitch_b = screw(b[:, None] @ inv_b[None])
+        motion_a, motion_b = a[:, None] @ inv_a[None], b[:, None] @ inv_b[None]
+        angle_a, pitch_a = screw(motion_a)
+        angle_b, pitch_b = screw(motion_b)
         names = np.array(fixtures)
         valid = (names[:, None] == names[None]) & ~np.eye(len(a), dtype=bool)
-        return cls(angle_a, angle_b, pitch_a, pitch_b, valid)
+        return cls(angle_a, angle_b, pitch_a, pitch_b, valid, np.linalg.norm(motion_a[..., :3, 3], axis=-1),
+                   np.linalg.norm(motion_b[..., :3, 3], axis=-1))
 
     def angle_scores(self) -> np.ndarray:
         """Per image (N,): median |angle mismatch| (rad) over its pairs."""
@@ -69,15 +79,38 @@ class Pairs:
         """Per image (N,): median |pitch mismatch| (m) over its pairs with an axis."""
         return _row_medians(np.where(self.axis_pairs(), np.abs(self.pitch_a - self.pitch_b), np.nan))
 
+    def travel_pairs(self) -> np.ndarray:
+        """(N, N) bool: valid pairs that barely turn (at most ``MAX_STILL_ANGLE_RAD``) but
+        move at least ``MIN_TRAVEL_M``: their translations have one length for both."""
+        if self.travel_b is None:
+            return np.zeros_like(self.valid)
+        return self.valid & (self.angle_b <= MAX_STILL_ANGLE_RAD) & (self.travel_b >= MIN_TRAVEL_M)
+
+    def travel_scores(self) -> np.ndarray:
+        """Per image (N,): median |travel mismatch| (m) over its pairs that do not turn."""
+        if self.travel_a is None or self.travel_b is None:
+            return np.full(len(self.valid), np.nan)
+        # at least 3 such pairs: one or two say as much about the other image as about this one
+        return _row_medians(np.where(self.travel_pairs(), np.abs(self.travel_a - self.travel_b), np.nan), 3)
+
     def scale(self, keep: np.ndarray) -> tuple[float | None, float]:
-        """Least-squares ratio of camera to robot pitches over the kept images' pairs, and
-        the RMS robot pitch it rests on (m); None when the pitches are too small to tell."""
-        usable = self.axis_pairs() & keep[:, None] & keep[None]
-        pitch_a, pitch_b = self.pitch_a[usable], self.pitch_b[usable]
-        spread = float(np.sqrt(np.mean(pitch_b**2))) if pitch_b.size else 0.0
-        if pitch_b.size < 6 or spread < 0.02:
+        """Ratio of camera to robot lengths, the median over the kept images' pairs of the
+        ratio of their pitches (pairs that turn, robot pitch at least 1 cm) and of their
+        travels (pairs that do not): a median, so that one image paired with a wrong pose
+        does not pass for a scale. Also the RMS robot length it rests on (m); None when the
+        lengths are too small to tell."""
+        axis = self.axis_pairs() & keep[:, None] & keep[None] & (np.abs(self.pitch_b) >= MIN_TRAVEL_M)
+        ratios = [self.pitch_a[axis] / self.pitch_b[axis]]
+        lengths = [self.pitch_b[axis]]
+        if self.travel_a is not None and self.travel_b is not None:
+            still = self.travel_pairs() & keep[:, None] & keep[None]
+            ratios.append(self.travel_a[still] / self.travel_b[still])
+            lengths.append(self.travel_b[still])
+        ratio, length = np.concatenate(ratios), np.concatenate(lengths)
+        spread = float(np.sqrt(np.mean(length**2))) if length.size else 0.0
+        if length.size < 6 or spread < 0.02:
             return None, spread
-        return float(np.sum(pitch_a * pitch_b) / np.sum(pitch_b**2)), spread
+        return float(np.median(ratio)), spread
 
 
 def rotation_fit(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> float:
@@ -92,11 +125,11 @@ def rotation_fit(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> float:
     return float(np.median(np.linalg.norm(alphas - betas @ rotation.T, axis=1)))
 
 
-def _row_medians(values: np.ndarray) -> np.ndarray:
+def _row_medians(values: np.ndarray, min_count: int = 1) -> np.ndarray:
     out = np.full(len(values), np.nan)
     for i, row in enumerate(values):
         row = row[np.isfinite(row)]
-        if row.size:
+        if row.size >= min_count:
             out[i] = np.median(row)
     return out
 

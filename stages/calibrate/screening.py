@@ -149,7 +149,9 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
                 [f"[pattern] square_m = {spec.square_m:g} m, but the images suggest {spec.square_m / scale:.4g} m "
                  "(a printer's scaling?)", f"robot lengths in another unit than {length_hint}"])
     pitch_bad, pitch_limit = robust_flags(pitch, limits.motion_pitch_floor_m, limits.outlier_k)
-    bad = angle_bad | pitch_bad
+    travel = pairs.travel_scores()
+    travel_bad, travel_limit = robust_flags(travel, limits.motion_pitch_floor_m, limits.outlier_k)
+    bad = angle_bad | pitch_bad | travel_bad
     if bad.sum() > 0.5 * len(used):
         flagged = [o.sample_id for o, flag in zip(used, bad, strict=True) if flag]
         _refuse(f"{len(flagged)} of {len(used)} images ({named(flagged)}) disagree with the robot's motion "
@@ -157,17 +159,20 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
                 f"{1000 * np.nanmedian(pitch):.1f} mm)", observations, spec,
                 ["images and poses paired in another order (the N-th image must belong to the N-th pose)",
                  "a chessboard whose corner order flips or mirrors between images"])
-    for o, a_score, p_score, flag in zip(used, angle, pitch, bad, strict=True):
+    for o, a_score, p_score, t_score, flag in zip(used, angle, pitch, travel, bad, strict=True):
         if flag:
+            still = "" if not np.isfinite(t_score) else (f", travels without turning by {1000 * t_score:.1f} mm "
+                                                         f"(limit {1000 * travel_limit:.1f})")
             o.reason = (f"disagrees with the robot's motion: rotation angles differ by {np.degrees(a_score):.2f} deg "
                         f"(limit {np.degrees(angle_limit):.2f}), pitches by {1000 * p_score:.1f} mm (limit "
-                        f"{1000 * pitch_limit:.1f}), median over its pairs")
+                        f"{1000 * pitch_limit:.1f}){still}, median over its pairs")
             o.cam_from_target = None
     return {"checked": len(used), "rejected": [o.sample_id for o, flag in zip(used, bad, strict=True) if flag],
             "rotation_fit_rad": straight, "rotation_fit_inverted_rad": inverted,
             "angle_mismatch_rad_median": float(np.nanmedian(angle)),
             "pitch_mismatch_m_median": float(np.nanmedian(pitch)),
-            "pitch_scale": scale, "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit}
+            "pitch_scale": scale, "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit,
+            "travel_limit_m": travel_limit}
 
 
 def check_inliers(name: str, inliers: int, total: int) -> None:

@@ -144,3 +144,24 @@ def test_tilted_views_fitted_worst_are_not_all_rejected(tmp_path):
     assert len(tilted - set(saved["outliers"])) >= 2  # enough tilted views to turn about two axes
     z = g.transform_from_qt(saved["cam_from_camee"]["q"], saved["cam_from_camee"]["t"])
     assert np.linalg.norm(z[:3, 3] - board_set.CAM_FROM_FLANGE[:3, 3]) < 3e-3
+
+
+def test_one_grid_view_with_a_wrong_pose_is_rejected_not_taken_for_a_scale(tmp_path):
+    """Its pose 2 cm off: the pairs that do not turn keep their travel's length for the
+    other 10 grid views, so that view alone is rejected, with the reason. Before, the
+    least-squares pitch ratio took it for a printer's scaling of the whole set (1.031)."""
+    board_set.write(tmp_path / "recording", robot_noise=(3e-4, 2e-4), seed=1)
+    poses = (tmp_path / "recording" / "poses.txt").read_text().splitlines()
+    wrong = np.array(poses[3].split(), float).reshape(4, 4)
+    wrong[0, 3] += 0.02
+    poses[3] = " ".join(f"{v:.12g}" for v in wrong.ravel())
+    (tmp_path / "recording" / "poses.txt").write_text("\n".join(poses) + "\n")
+    ws = tmp_path / "w"
+    assert speedplus("acquire", "--workspace", str(ws), "--backend", "replay", "--format", "handeye", "--source",
+                     str(tmp_path / "recording")).returncode == 0
+    result = speedplus("calibrate", "--workspace", str(ws))
+    assert result.returncode == 0, result.stderr
+    screened = json.loads((ws / "calibration.json").read_text())["screening"]["motions"]
+    assert screened["rejected"] == ["cal000003"] and abs(screened["pitch_scale"] - 1) < 0.005
+    rows = {row["sample_id"]: row for row in read_manifest(Workspace(ws), "calibration_samples").to_pylist()}
+    assert "travels without turning by" in rows["cal000003"]["reason"]
