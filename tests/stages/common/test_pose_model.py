@@ -200,3 +200,34 @@ def test_heatmaps_of_another_keypoint_count_are_an_error_naming_the_model(tmp_pa
     model = PoseModel(tmp_path / "five.onnx")
     with pytest.raises(InputError, match=r"five\.onnx: speedplus.output=heatmaps needs \(N, 5, h, w\)"):
         model.infer(np.zeros((1, 3, 32, 32), np.float32))
+
+
+@pytest.mark.parametrize("fixed", [1, 4])
+def test_a_model_of_a_fixed_batch_size_gets_batches_of_that_size(tmp_path, fixed):
+    """torch.onnx.export without dynamic axes fixes the batch: 6 images go in chunks of
+    ``fixed``, the last padded, and give what the model of any batch size gives."""
+    import onnx
+
+    from stages.common.pose_model import PoseModel
+
+    _conv_heatmap_model(tmp_path / "any.onnx", None)
+    model = onnx.load(tmp_path / "any.onnx")
+    for value in [*model.graph.input, *model.graph.output]:
+        value.type.tensor_type.shape.dim[0].Clear()
+        value.type.tensor_type.shape.dim[0].dim_value = fixed
+    onnx.save(model, tmp_path / "fixed.onnx")
+    batch = np.random.default_rng(2).normal(size=(6, 3, 32, 32)).astype(np.float32)
+    with pytest.raises(Exception, match="Got: 6 Expected: " + str(fixed)):  # what a plain session does
+        PoseModel(tmp_path / "fixed.onnx").session.run(None, {"image": batch})
+    chunked = PoseModel(tmp_path / "fixed.onnx")
+    assert chunked.fixed_batch == fixed
+    np.testing.assert_allclose(chunked.infer(batch)[0], PoseModel(tmp_path / "any.onnx").infer(batch)[0], atol=1e-5)
+    chunked.check()  # a blank input of the contract's shape passes
+
+
+def test_a_model_failing_on_its_own_input_shape_is_an_input_error(tmp_path):
+    from stages.common.pose_model import PoseModel
+
+    _conv_heatmap_model(tmp_path / "five.onnx", None, keypoints_m=tango.KEYPOINTS_M[:5])  # 11 heatmaps
+    with pytest.raises(InputError, match=r"five\.onnx: speedplus.output=heatmaps needs"):
+        PoseModel(tmp_path / "five.onnx").check()
