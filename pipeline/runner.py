@@ -236,15 +236,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     state = status(stage, config, workspace)
     if state.state == "done" and not force:
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
-    if force and redo and state.state in ("done", "partial", "stale") and _only_members_differ(state, resolved):
-        # --force with named members (evaluate --model): redo those, keep every other one's rows
-        if set(state.members_changed) - set(redo):
-            raise StageError(f"stage {stage.name!r}: {', '.join(sorted(set(state.members_changed) - set(redo)))} "
-                             "changed since scored as well; name it with --model too, or --force alone redoes all")
-        force, state = False, StageStatus(state.stage, "partial", state.rows, state.detail)
-        forget = set(redo)
-    else:
-        forget = set()
+    force, state, forget = _member_redo(stage.name, state, resolved, force, redo)
     replacing = state.state == "stale" and stage.replace_stale
     if state.state == "stale" and not (force or replacing):
         raise StageError(
@@ -281,6 +273,28 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     seconds = time.perf_counter() - started
     rows = {name: row_count(workspace, name) for name in outputs}
     members = {**(previous or {}).get("members", {}), **resolved.members} if resolved.members else None
+    _write_markers(stage, workspace, outputs, current, made_with, rows, members, seconds, resumed)
+    workspace.sync()  # a workspace on object storage: the store gets the stage's results now
+    return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
+
+
+def _member_redo(name: str, state: StageStatus, resolved: Any, force: bool,
+                 redo: tuple[str, ...]) -> tuple[bool, StageStatus, set[str]]:
+    """``--force`` with named members (evaluate --model) redoes those and keeps every other
+    one's rows: the run becomes a resume that first forgets them. Returns (force, state,
+    the members to forget)."""
+    if not (force and redo and state.state in ("done", "partial", "stale") and _only_members_differ(state, resolved)):
+        return force, state, set()
+    if set(state.members_changed) - set(redo):
+        raise StageError(f"stage {name!r}: {', '.join(sorted(set(state.members_changed) - set(redo)))} changed "
+                         "since scored as well; name it with --model too, or --force alone redoes all")
+    return False, StageStatus(state.stage, "partial", state.rows, state.detail), set(redo)
+
+
+def _write_markers(stage: StageEntry, workspace: Workspace, outputs: tuple[str, ...], current: str,
+                   made_with: dict[str, Any], rows: dict[str, int], members: dict[str, str] | None,
+                   seconds: float, resumed: bool) -> None:
+    """Each output's completion marker (docs/architecture.md section 4), after compaction."""
     for name in outputs:
         write_success(workspace, name, {
             **({"members": dict(sorted(members.items()))} if members else {}),
@@ -295,8 +309,6 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             "made_with": made_with,
             **_complete(workspace, name, current),
         })
-    workspace.sync()  # a workspace on object storage: the store gets the stage's results now
-    return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
 
 
 def _only_members_differ(state: StageStatus, resolved: Any) -> bool:
