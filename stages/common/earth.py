@@ -91,18 +91,6 @@ def _bilinear(texture: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return top * (1 - fv) + bottom * fv
 
 
-_RAYS: dict[tuple, np.ndarray] = {}
-
-
-def _camera_rays(camera: LensCamera) -> np.ndarray:
-    """Unit ray directions (H * W, 3) of every pixel centre through the lens (cached)."""
-    key = (camera.width, camera.height, np.asarray(camera.camera_matrix).tobytes(), np.asarray(camera.dist).tobytes())
-    if key not in _RAYS:
-        _RAYS.clear()
-        _RAYS[key] = pixel_rays(camera)
-    return _RAYS[key]
-
-
 def earth_background(camera: LensCamera, light_dir_cam: np.ndarray, irradiance: float,
                      rng: np.random.Generator) -> np.ndarray:
     """Linear radiance (H, W, 3) of the Earth seen by ``camera``, lit from ``light_dir_cam``
@@ -114,7 +102,7 @@ def earth_background(camera: LensCamera, light_dir_cam: np.ndarray, irradiance: 
     nadir /= np.linalg.norm(nadir)
     spin = np.linalg.qr(rng.normal(size=(3, 3)))[0]  # which part of the planet is below
     centre = nadir * (EARTH_RADIUS_M + altitude)
-    rays = _camera_rays(camera)
+    rays = pixel_rays(camera)  # cached per camera
     along = rays @ centre
     miss_sq = along**2 - (centre @ centre - EARTH_RADIUS_M**2)
     hit = (miss_sq > 0) & (along > 0)
