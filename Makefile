@@ -10,11 +10,15 @@ WORKSPACE ?= data/$(PROFILE)
 
 .PHONY: setup dataset test bench lint clean
 
-# setup: everything the tests need (dev tools, the [cluster] extra: Ray); `make dataset`
-# installs only what a local run needs.
+# setup: everything the tests need (dev tools, the [cluster] extra: Ray, Debian chromium for
+# the report test); `make dataset` installs only what a local run needs (libllvm19, the package).
 setup: $(STAMP)
 
 $(STAMP): $(RUN_STAMP)
+	@if [ "$$(id -u)" = "0" ] && ! command -v chromium >/dev/null; then \
+		echo "installing Debian chromium (the report test renders the HTML page headless)"; \
+		apt-get install -y chromium >/dev/null 2>&1 || echo "warning: chromium not installed; the report test fails"; \
+	fi
 	$(BIN)/pip install --quiet -e '.[dev,cluster]'
 	touch $(STAMP)
 
@@ -25,10 +29,6 @@ $(RUN_STAMP): pyproject.toml
 		(apt-get install -y libllvm19 >/dev/null 2>&1 || \
 		 (apt-get update >/dev/null && apt-get install -y libllvm19 >/dev/null)) || \
 		echo "warning: libllvm19 not installed; rendering (acquire, render) will refuse to run"; \
-	fi
-	@if [ "$$(id -u)" = "0" ] && ! command -v chromium >/dev/null; then \
-		echo "installing Debian chromium (the report test renders the HTML page headless)"; \
-		apt-get install -y chromium >/dev/null 2>&1 || echo "warning: chromium not installed; the report test fails"; \
 	fi
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
@@ -43,7 +43,7 @@ dataset: $(RUN_STAMP)
 
 test: setup
 	$(BIN)/ruff check pipeline stages manifests tests bench
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 bench: setup
 	$(BIN)/python -m bench
