@@ -12,6 +12,7 @@ W/truth/<sample_id>.exr                        virtual testbed: depth and part i
 W/models/<name>.onnx, <name>.json              trained models and their cards
 W/session.json  W/calibration.json  W/fusion.json  W/truth.json     typed sidecars (manifests.sidecars)
 W/report/index.html  W/export/
+W/.snapshot/                                   a writing command's undo record (manifests.snapshot)
 ```
 Paths stored in manifests are relative to ``W`` and may never leave it.
 """
