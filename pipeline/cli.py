@@ -178,7 +178,7 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     try:
         _transaction(stages, resolved, transient, ws, force, switched_from, redo)
     finally:
-        if not existed and not _exists(ws) and ws.copy is None:
+        if ws.copy is None and not existed and not _exists(ws):
             shutil.rmtree(ws.root, ignore_errors=True)  # refused before anything was made: no empty folder left
     if stages and stages[-1] == "report":
         out.print(f"report: {ws.location}/report/index.html")
