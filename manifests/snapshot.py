@@ -60,6 +60,7 @@ class Snapshot:
         self.folder = workspace.root / SNAPSHOT_DIR
 
     def take(self) -> Snapshot:
+        """Record the manifests, the markers, the top-level files and every file a marker names."""
         root = self.workspace.root
         shutil.rmtree(self.folder, ignore_errors=True)  # a previous command's, killed before it ended
         self.folder.mkdir(parents=True)
@@ -95,7 +96,7 @@ class Snapshot:
         if manifests.is_dir():
             for path in sorted(manifests.iterdir()):
                 if path.name != STATE_DIR and path.name not in kept:
-                    shutil.rmtree(path)
+                    shutil.rmtree(path) if path.is_dir() else path.unlink()
             for path in (manifests / STATE_DIR).glob("*.json"):
                 path.unlink()
         if saved.is_dir():
