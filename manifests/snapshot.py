@@ -21,7 +21,7 @@ import os
 import shutil
 from pathlib import Path
 
-from manifests.workspace import CONFIG_FILE, MANIFESTS_DIR, STATE_DIR, Workspace
+from manifests.workspace import CONFIG_FILE, MANIFESTS_DIR, STATE_DIR, PathEscapeError, Workspace, check_relative
 
 SNAPSHOT_DIR = ".snapshot"
 #: top-level files a command may write beside the manifests (the typed JSON files, the report)
@@ -29,15 +29,32 @@ RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*")
 
 
 def _recorded_files(workspace: Workspace) -> set[str]:
-    """Workspace-relative paths of the files the completion markers name."""
+    """Workspace-relative paths of the files the completion markers name (a path that would
+    leave the workspace is no file of it: never linked, never written back)."""
     state = workspace.root / MANIFESTS_DIR / STATE_DIR
     names: set[str] = set()
     for marker in state.glob("*.json"):
         try:
-            names |= set(json.loads(marker.read_text()).get("files", {}))
+            recorded = json.loads(marker.read_text()).get("files", {})
         except (OSError, ValueError, AttributeError):
             continue  # a damaged marker: `status` and `verify` report it
+        for relpath in recorded if isinstance(recorded, dict) else ():
+            try:
+                names.add(check_relative(relpath).as_posix())
+            except (PathEscapeError, TypeError):
+                continue
     return names
+
+
+def _move_back(saved: Path, target_root: Path) -> None:
+    """Every file under ``saved`` to the same relative path under ``target_root``."""
+    if not saved.is_dir():
+        return
+    for path in sorted(saved.rglob("*")):
+        if path.is_file():
+            target = target_root / path.relative_to(saved)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(path, target)
 
 
 def _keep(source: Path, destination: Path) -> None:
@@ -96,22 +113,14 @@ class Snapshot:
         if manifests.is_dir():
             for path in sorted(manifests.iterdir()):
                 if path.name != STATE_DIR and path.name not in kept:
-                    shutil.rmtree(path) if path.is_dir() else path.unlink()
+                    if path.is_dir():
+                        shutil.rmtree(path)
+                    else:
+                        path.unlink()
             for path in (manifests / STATE_DIR).glob("*.json"):
                 path.unlink()
-        if saved.is_dir():
-            for path in sorted(saved.rglob("*")):
-                if path.is_file():
-                    target = manifests / path.relative_to(saved)
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(path, target)
-        files = self.folder / "files"
-        if files.is_dir():
-            for path in sorted(files.rglob("*")):
-                if path.is_file():
-                    target = root / path.relative_to(files)
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(path, target)
+        _move_back(saved, manifests)
+        _move_back(self.folder / "files", root)
         self.drop()
 
     def drop(self) -> None:

@@ -315,8 +315,12 @@ def evaluate_command(
     if model is not None:
         current = _context(workspace, profile, config, overrides)[0].evaluate.models
         added = [str(path.expanduser().resolve()) for path in model]
-        names = {Path(path).stem for path in added}
+        by_name = {Path(path).stem: path for path in added}
+        names = set(by_name)
         kept = [path for path in current if Path(path).stem not in names]
+        for path in sorted(set(current) - set(kept) - set(added)):  # another file under a scored model's name
+            out.print(escape(f"evaluate.models: {Path(path).stem} is now {by_name[Path(path).stem]} (was {path}): "
+                             "a model is named by its file name"), highlight=False)
         overrides.append(Override.of("evaluate.models", [*kept, *added], "--model"))
         redo = tuple(sorted(names)) if force else ()
     _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers), redo)

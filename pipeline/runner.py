@@ -101,14 +101,14 @@ def _short(value: Any) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def differences(recorded: dict[str, Any] | None, current: dict[str, Any] | None, most: int = 4) -> str:
+def differences(recorded: Any, current: dict[str, Any] | None, most: int = 4) -> str:
     """Why results made under ``recorded`` are not those of ``current`` (two fingerprint
     payloads): the configuration keys that changed (old -> new) and the inputs whose marker
     changed; a short sentence for ``status`` and for the refusal."""
-    if recorded is None:
+    if not isinstance(recorded, dict):  # a marker of an older version, or hand-edited
         return "made with another configuration or inputs (which keys was not recorded)"
     if current is None:
-        return "an input manifest is incomplete: " + "waiting for it to be redone"
+        return "an input manifest is incomplete: waiting for it to be redone"
     said = []
     # a stage's extra content holds configuration too (render's keys of one image set)
     old = {**_flat(recorded.get("config", {}), ""), **_flat(recorded.get("extra", {}), "")}

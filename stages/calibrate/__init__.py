@@ -14,7 +14,7 @@ import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
 from manifests import clear as clear_manifest
-from manifests.sidecars import SOURCES, Calibration, SourceCalibration, read_session, write_calibration
+from manifests.sidecars import SOURCES, Calibration, Session, SourceCalibration, read_session, write_calibration
 from pipeline import progress
 from pipeline.config import Config
 from pipeline.errors import InputError, RefusalError
@@ -24,7 +24,7 @@ from stages.calibrate.robots import arm_decision, compliance_decision, complianc
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
-from stages.common.patterns import pattern_from_table
+from stages.common.patterns import PatternSpec, pattern_from_table
 from stages.common.sidecars import record
 from stages.common.sources import measurement, up_targetee
 from stages.common.tables import print_table
@@ -262,8 +262,9 @@ def _write_samples(config: Config, workspace: Workspace, observations: list[obs.
             sink.add(row)
 
 
-def _calibrate(config: Config, workspace: Workspace, session: Any, spec: Any, by_id: dict[str, dict[str, Any]],
-               observations: list[obs.Observation]) -> tuple[Calibration, dict[str, dict[str, np.ndarray]]]:
+def _calibrate(config: Config, workspace: Workspace, session: Session, spec: PatternSpec,
+               by_id: dict[str, dict[str, Any]], observations: list[obs.Observation]
+               ) -> tuple[Calibration, dict[str, dict[str, np.ndarray]]]:
     """Intrinsics, screening, and the offsets of every source with Table 1's figures."""
     captures = list(by_id.values())
     camera = session.camera

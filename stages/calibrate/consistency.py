@@ -51,8 +51,8 @@ class Pairs:
     valid: np.ndarray  # bool: i != j, same fixture
     #: length (m) of each motion's translation: for a pair that does not turn,
     #: ``t_A = R_Z t_B`` keeps it (a grid of positions in one orientation has mostly such pairs)
-    travel_a: np.ndarray | None = None
-    travel_b: np.ndarray | None = None
+    travel_a: np.ndarray
+    travel_b: np.ndarray
 
     @classmethod
     def of(cls, a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> Pairs:
@@ -82,14 +82,10 @@ class Pairs:
     def travel_pairs(self) -> np.ndarray:
         """(N, N) bool: valid pairs that barely turn (at most ``MAX_STILL_ANGLE_RAD``) but
         move at least ``MIN_TRAVEL_M``: their translations have one length for both."""
-        if self.travel_b is None:
-            return np.zeros_like(self.valid)
         return self.valid & (self.angle_b <= MAX_STILL_ANGLE_RAD) & (self.travel_b >= MIN_TRAVEL_M)
 
     def travel_scores(self) -> np.ndarray:
         """Per image (N,): median |travel mismatch| (m) over its pairs that do not turn."""
-        if self.travel_a is None or self.travel_b is None:
-            return np.full(len(self.valid), np.nan)
         # at least 3 such pairs: one or two say as much about the other image as about this one
         return _row_medians(np.where(self.travel_pairs(), np.abs(self.travel_a - self.travel_b), np.nan), 3)
 
@@ -100,13 +96,9 @@ class Pairs:
         does not pass for a scale. Also the RMS robot length it rests on (m); None when the
         lengths are too small to tell."""
         axis = self.axis_pairs() & keep[:, None] & keep[None] & (np.abs(self.pitch_b) >= MIN_TRAVEL_M)
-        ratios = [self.pitch_a[axis] / self.pitch_b[axis]]
-        lengths = [self.pitch_b[axis]]
-        if self.travel_a is not None and self.travel_b is not None:
-            still = self.travel_pairs() & keep[:, None] & keep[None]
-            ratios.append(self.travel_a[still] / self.travel_b[still])
-            lengths.append(self.travel_b[still])
-        ratio, length = np.concatenate(ratios), np.concatenate(lengths)
+        still = self.travel_pairs() & keep[:, None] & keep[None]
+        ratio = np.concatenate([self.pitch_a[axis] / self.pitch_b[axis], self.travel_a[still] / self.travel_b[still]])
+        length = np.concatenate([self.pitch_b[axis], self.travel_b[still]])
         spread = float(np.sqrt(np.mean(length**2))) if length.size else 0.0
         if length.size < 6 or spread < 0.02:
             return None, spread

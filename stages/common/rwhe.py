@@ -148,15 +148,17 @@ def motion_rotations(a: np.ndarray, b: np.ndarray, fixtures: list[str], min_rad:
     and ``log(R_Bi R_Bj^T)`` over pairs i < j on one fixture whose robot turn lies in
     [min_rad, max_rad] (near a half turn the axis's sign is ambiguous)."""
     alphas, betas = [], []
-    for i in range(len(a)):
-        for j in range(i + 1, len(a)):
-            if fixtures[i] != fixtures[j]:
-                continue
-            beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
-            if min_rad <= np.linalg.norm(beta) <= max_rad:
-                alphas.append(g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T))
-                betas.append(beta)
+    for i, j in _fixture_pairs(fixtures):
+        beta = g.matrix_to_rotvec(b[i, :3, :3] @ b[j, :3, :3].T)
+        if min_rad <= np.linalg.norm(beta) <= max_rad:
+            alphas.append(g.matrix_to_rotvec(a[i, :3, :3] @ a[j, :3, :3].T))
+            betas.append(beta)
     return np.array(alphas).reshape(-1, 3), np.array(betas).reshape(-1, 3)
+
+
+def _fixture_pairs(fixtures: list[str]) -> list[tuple[int, int]]:
+    """Index pairs i < j of captures on one fixture (their motions share the offsets)."""
+    return [(i, j) for i in range(len(fixtures)) for j in range(i + 1, len(fixtures)) if fixtures[i] == fixtures[j]]
 
 
 def procrustes(alphas: np.ndarray, betas: np.ndarray) -> np.ndarray:
@@ -173,15 +175,11 @@ def translation_directions(a: np.ndarray, b: np.ndarray, fixtures: list[str], ma
     Z^-1`` gives ``t_A = R_Z t_B`` exactly (with a turn of angle theta, up to theta |t_Z|):
     a set of one orientation on a grid of positions fixes R_Z by its translations alone."""
     alphas, betas = [], []
-    for i in range(len(a)):
-        for j in range(i + 1, len(a)):
-            if fixtures[i] != fixtures[j]:
-                continue
-            motion_b = b[i] @ g.invert(b[j])
-            if np.linalg.norm(g.matrix_to_rotvec(motion_b[:3, :3])) <= max_rad and \
-                    np.linalg.norm(motion_b[:3, 3]) >= min_m:
-                alphas.append((a[i] @ g.invert(a[j]))[:3, 3])
-                betas.append(motion_b[:3, 3])
+    for i, j in _fixture_pairs(fixtures):
+        motion_b = b[i] @ g.invert(b[j])
+        if np.linalg.norm(g.matrix_to_rotvec(motion_b[:3, :3])) <= max_rad and np.linalg.norm(motion_b[:3, 3]) >= min_m:
+            alphas.append((a[i] @ g.invert(a[j]))[:3, 3])
+            betas.append(motion_b[:3, 3])
     return np.array(alphas).reshape(-1, 3), np.array(betas).reshape(-1, 3)
 
 

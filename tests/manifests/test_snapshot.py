@@ -67,3 +67,16 @@ def test_a_new_workspace_is_emptied_of_what_the_command_wrote(tmp_path):
     (root / "config.toml").write_text("")
     snapshot.restore()
     assert digest(root) == {}
+
+
+def test_a_marker_naming_a_path_outside_the_workspace_is_never_linked_or_written_back(tmp_path):
+    outside = tmp_path / "outside.txt"
+    outside.write_text("not the workspace's")
+    ws = workspace(tmp_path / "w")
+    marker = {"fingerprint": "f", "rows": 1, "files": {"../outside.txt": {"bytes": 19}, "/etc/hostname": {}}}
+    (ws.root / "manifests" / "_state" / "plan.json").write_text(json.dumps(marker))
+    snapshot = Snapshot(ws).take()
+    assert not any("outside" in p.name for p in (ws.root / SNAPSHOT_DIR).rglob("*"))
+    outside.write_text("changed since")
+    snapshot.restore()
+    assert outside.read_text() == "changed since"

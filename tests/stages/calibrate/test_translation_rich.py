@@ -84,10 +84,7 @@ def recorded(tmp_path_factory):
     """The rendered grid-plus-tilts recording, acquired (replay) into a workspace."""
     root = tmp_path_factory.mktemp("grid")
     truth = board_set.write(root / "recording", robot_noise=(3e-4, 2e-4))
-    acquired = speedplus("acquire", "--workspace", str(root / "w"), "--backend", "replay", "--format", "handeye",
-                         "--source", str(root / "recording"))
-    assert acquired.returncode == 0, acquired.stderr
-    return root / "w", truth
+    return acquired(root / "recording", root / "w"), truth
 
 
 @pytest.mark.parametrize("seed", [0, 3])
@@ -108,17 +105,26 @@ def test_a_grid_recording_with_a_few_tilted_views_calibrates_to_the_truth(record
     assert len(samples) == 15 and all(row["used"] for row in samples)
 
 
+def moved_pose(recording, index, base_from_flange_change):
+    """The recording with pose ``index`` (base_from_flange) changed: a pose that is not its image's."""
+    poses = (recording / "poses.txt").read_text().splitlines()
+    pose = np.array(poses[index].split(), float).reshape(4, 4)
+    poses[index] = " ".join(f"{v:.12g}" for v in base_from_flange_change(pose).ravel())
+    (recording / "poses.txt").write_text("\n".join(poses) + "\n")
+
+
+def acquired(recording, ws):
+    result = speedplus("acquire", "--workspace", str(ws), "--backend", "replay", "--format", "handeye", "--source",
+                       str(recording))
+    assert result.returncode == 0, result.stderr
+    return ws
+
+
 def test_a_refused_set_still_says_which_images_were_dropped_and_why(tmp_path):
     board_set.write(tmp_path / "recording", tilted=2)  # turns about one axis only
-    poses = (tmp_path / "recording" / "poses.txt").read_text().splitlines()
-    moved = g.transform_from_qt([1, 0, 0, 0], [0, 0, 0])
-    moved[:3, :3] = g.rotvec_to_matrix([0.0, 0.3, 0.0])
-    wrong = np.array(poses[4].split(), float).reshape(4, 4) @ moved  # one pose that is not the image's
-    poses[4] = " ".join(f"{v:.12g}" for v in wrong.ravel())
-    (tmp_path / "recording" / "poses.txt").write_text("\n".join(poses) + "\n")
-    ws = tmp_path / "w"
-    assert speedplus("acquire", "--workspace", str(ws), "--backend", "replay", "--format", "handeye", "--source",
-                     str(tmp_path / "recording")).returncode == 0
+    turned = g.make_transform(g.rotvec_to_matrix([0.0, 0.3, 0.0]), np.zeros(3))
+    moved_pose(tmp_path / "recording", 4, lambda pose: pose @ turned)
+    ws = acquired(tmp_path / "recording", tmp_path / "w")
     result = speedplus("calibrate", "--workspace", str(ws))
     said = " ".join(result.stderr.split())
     assert result.returncode == 1 and "vary about one axis only" in said
@@ -134,9 +140,7 @@ def test_tilted_views_fitted_worst_are_not_all_rejected(tmp_path):
     orientation, which fit a camera offset 213 mm from the truth with a cross-validated
     E_T of 0.44 mm; the offsets must stay determined and near the truth."""
     board_set.write(tmp_path / "recording", robot_noise=(3e-4, 2e-4), seed=1, sag_rad=0.005)
-    ws = tmp_path / "w"
-    assert speedplus("acquire", "--workspace", str(ws), "--backend", "replay", "--format", "handeye", "--source",
-                     str(tmp_path / "recording")).returncode == 0
+    ws = acquired(tmp_path / "recording", tmp_path / "w")
     result = speedplus("calibrate", "--workspace", str(ws))
     assert result.returncode == 0, result.stderr
     saved = json.loads((ws / "calibration.json").read_text())["kuka"]
@@ -151,14 +155,8 @@ def test_one_grid_view_with_a_wrong_pose_is_rejected_not_taken_for_a_scale(tmp_p
     other 10 grid views, so that view alone is rejected, with the reason. Before, the
     least-squares pitch ratio took it for a printer's scaling of the whole set (1.031)."""
     board_set.write(tmp_path / "recording", robot_noise=(3e-4, 2e-4), seed=1)
-    poses = (tmp_path / "recording" / "poses.txt").read_text().splitlines()
-    wrong = np.array(poses[3].split(), float).reshape(4, 4)
-    wrong[0, 3] += 0.02
-    poses[3] = " ".join(f"{v:.12g}" for v in wrong.ravel())
-    (tmp_path / "recording" / "poses.txt").write_text("\n".join(poses) + "\n")
-    ws = tmp_path / "w"
-    assert speedplus("acquire", "--workspace", str(ws), "--backend", "replay", "--format", "handeye", "--source",
-                     str(tmp_path / "recording")).returncode == 0
+    moved_pose(tmp_path / "recording", 3, lambda pose: g.make_transform(np.eye(3), [0.02, 0.0, 0.0]) @ pose)
+    ws = acquired(tmp_path / "recording", tmp_path / "w")
     result = speedplus("calibrate", "--workspace", str(ws))
     assert result.returncode == 0, result.stderr
     screened = json.loads((ws / "calibration.json").read_text())["screening"]["motions"]

@@ -231,3 +231,34 @@ def test_a_model_failing_on_its_own_input_shape_is_an_input_error(tmp_path):
     _conv_heatmap_model(tmp_path / "five.onnx", None, keypoints_m=tango.KEYPOINTS_M[:5])  # 11 heatmaps
     with pytest.raises(InputError, match=r"five\.onnx: speedplus.output=heatmaps needs"):
         PoseModel(tmp_path / "five.onnx").check()
+
+
+@pytest.mark.parametrize("exported_batch", [1, 3])
+def test_a_plain_torch_export_of_a_fixed_batch_scores_as_torch_computes(tmp_path, exported_batch):
+    """What a user does: ``torch.onnx.export`` without dynamic axes (the batch is the dummy's),
+    then the contract's metadata. Five images go through in batches of the export's size,
+    and give torch's own heatmaps."""
+    import onnx
+    import torch
+
+    from stages.common.pose_model import PoseModel
+
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 11, 3, padding=1), torch.nn.MaxPool2d(4)).eval()
+    path = tmp_path / "theirs.onnx"
+    torch.onnx.export(net, (torch.zeros(exported_batch, 3, 32, 32),), str(path), input_names=["image"],
+                      output_names=["heatmaps"], opset_version=17, dynamo=False)
+    proto = onnx.load(str(path))
+    proto.ir_version = min(proto.ir_version, 10)  # what onnxruntime reads
+    contract = ModelContract(32, 32, "rgb", (0.5,) * 3, (0.25,) * 3, "heatmaps", tango.KEYPOINTS_M.copy(), "full")
+    for key, value in contract.metadata().items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(proto, str(path))
+    model = PoseModel(path)
+    assert model.fixed_batch == exported_batch
+    model.check()
+    batch = np.random.default_rng(3).normal(size=(5, 3, 32, 32)).astype(np.float32)
+    with torch.no_grad():
+        expected = net(torch.from_numpy(batch)).numpy()
+    np.testing.assert_allclose(model.infer(batch)[0], expected, atol=1e-5)
