@@ -33,6 +33,7 @@ from the corrected one is of second order).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
@@ -155,19 +156,26 @@ NOMINAL = ArmErrors(np.zeros(N_ARM))
 
 def flanges(testbed: TestbedConfig, errors: ArmErrors, r: Readings) -> tuple[np.ndarray, np.ndarray]:
     """``world_from_camee`` and ``world_from_targetee`` (N, 4, 4) of the readings."""
-    arm_camera, arm_target = errors.arms(arm_model(testbed.robot_model))
-    p = errors.params
-    camera_links, target_links = r.camera_joints_rad + p[0:6], r.target_joints_rad + p[6:12]
-    if np.any(p[_COMPLIANCE]):
+    world_from_camee, world_from_targetee = _flanges(testbed, errors.params[None], r)
+    return world_from_camee[0], world_from_targetee[0]
+
+
+def _flanges(testbed: TestbedConfig, p: np.ndarray, r: Readings) -> tuple[np.ndarray, np.ndarray]:
+    """``flanges`` (K, N, 4, 4) of a batch of arm parameters (K, N_ARM) at once."""
+    nominal = arm_model(testbed.robot_model)
+    camera_links = r.camera_joints_rad + p[:, None, 0:6]
+    target_links = r.target_joints_rad + p[:, None, 6:12]
+    if np.any(p[:, _COMPLIANCE]):
         camera_torque, target_torque = torques(testbed, r)
-        compliance = np.zeros((2, 6))
-        compliance[:, COMPLIANT_JOINTS] = p[_COMPLIANCE].reshape(2, 3)
-        camera_links = camera_links + compliance[0] * camera_torque
-        target_links = target_links + compliance[1] * target_torque
-    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[36]))
-                        @ rwhe.transform_from_vector(p[24:30]) @ forward(arm_camera, camera_links))
-    world_from_targetee = (layout.world_from_target_base(testbed) @ rwhe.transform_from_vector(p[30:36])
-                           @ forward(arm_target, target_links))
+        compliance = np.zeros((len(p), 2, 6))
+        compliance[:, :, COMPLIANT_JOINTS] = p[:, _COMPLIANCE].reshape(-1, 2, 3)
+        camera_links = camera_links + compliance[:, None, 0] * camera_torque
+        target_links = target_links + compliance[:, None, 1] * target_torque
+    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[:, 36:37]))
+                        @ rwhe.transform_from_vector(p[:, None, 24:30])
+                        @ forward(nominal, camera_links, p[:, None, 12:18]))
+    world_from_targetee = (layout.world_from_target_base(testbed) @ rwhe.transform_from_vector(p[:, None, 30:36])
+                           @ forward(nominal, target_links, p[:, None, 18:24]))
     return world_from_camee, world_from_targetee
 
 
@@ -193,9 +201,27 @@ def predict(testbed: TestbedConfig, params: np.ndarray, names: list[str], compli
     """``cam_from_target`` (N, 4, 4) of readings ``r`` from the packed parameters of ``fit``
     (arms, then ``rwhe.pack`` of the offsets of fixtures ``names``; compliant fixtures are
     anisotropic here)."""
-    offsets = rwhe.unpack(params[N_ARM:], names, compliant, anisotropic=compliant)
-    b, up = measurement(testbed, ArmErrors(params[:N_ARM]), r, world_up)
-    return offsets.predict(b, fixtures, up if compliant else None)
+    return predict_batch(testbed, np.asarray(params, float)[None], names, compliant, r, fixtures, world_up)[0]
+
+
+def predict_batch(testbed: TestbedConfig, params: np.ndarray, names: list[str], compliant: bool, r: Readings,
+                  fixtures: list[str], world_up: np.ndarray) -> np.ndarray:
+    """``predict`` (K, N, 4, 4) of a batch of packed parameters (K, P) in one evaluation."""
+    world_from_camee, world_from_targetee = _flanges(testbed, params[:, :N_ARM], r)
+    up = np.einsum("knji,j->kni", world_from_targetee[..., :3, :3], np.asarray(world_up, float))
+    b = g.invert(world_from_camee) @ world_from_targetee
+    return rwhe.predict_packed(params[:, N_ARM:], names, compliant, compliant, b, fixtures, up if compliant else None)
+
+
+def _forward_differences(function: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
+    """The Jacobian (M, P) of a batched residual function ((K, P) -> (K, M)) at ``x`` (P,)
+    by forward differences, with the steps of SciPy's ``2-point`` scheme (relative
+    sqrt(eps), rounded to a representable difference), every step evaluated in one batch."""
+    step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+    batch = np.repeat(x[None], len(x) + 1, axis=0)
+    batch[1 + np.arange(len(x)), np.arange(len(x))] = x + step
+    values = function(batch)
+    return ((values[1:] - values[0]) / ((x + step) - x)[:, None]).T
 
 
 @dataclass(frozen=True)
@@ -222,14 +248,14 @@ def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings,
     calibration's, they grow."""
     params, covariance = np.asarray(entry["parameters"]), np.asarray(entry["covariance"])
     names, compliant = list(entry["fixtures"]), bool(entry["compliant"])
-    centre = predict(testbed, params, names, compliant, r, fixtures, world_up)
+    moved = np.repeat(params[None], len(params) + 1, axis=0)
+    moved[1 + np.arange(len(params)), np.arange(len(params))] += step
+    centre, *poses = predict_batch(testbed, moved, names, compliant, r, fixtures, world_up)  # every step at once
+    poses = np.stack(poses)  # (P, N, 4, 4)
     jacobian = np.zeros((len(fixtures), 6, len(params)))
-    for k in range(len(params)):
-        moved = params.copy()
-        moved[k] += step
-        poses = predict(testbed, moved, names, compliant, r, fixtures, world_up)
-        jacobian[:, :3, k] = g.matrix_to_rotvec(poses[:, :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)) / step
-        jacobian[:, 3:, k] = (poses[:, :3, 3] - centre[:, :3, 3]) / step
+    jacobian[:, :3] = np.moveaxis(g.matrix_to_rotvec(poses[..., :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)),
+                                  0, -1) / step
+    jacobian[:, 3:] = np.moveaxis(poses[..., :3, 3] - centre[:, :3, 3], 0, -1) / step
     propagated = jacobian @ covariance @ np.swapaxes(jacobian, -1, -2)
     return 0.5 * (propagated + np.swapaxes(propagated, -1, -2))  # exactly symmetric despite rounding
 
@@ -262,18 +288,21 @@ def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, 
     prior, priored = prior[free[priored]], priored[free[priored]]
 
     def full(q: np.ndarray) -> np.ndarray:
-        out = params.copy()
-        out[free] = q
+        out = np.repeat(params[None], len(q), axis=0)
+        out[:, free] = q
         return out
 
     scale = float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2)))
     for _ in range(2):
         def residuals(q: np.ndarray, scale: float = scale) -> np.ndarray:
+            """Whitened residuals (K, M) of a batch of free parameters (K, F)."""
             p = full(q)
-            return np.concatenate([((a - predicted(p))[:, :3, :] / scale).ravel(), p[priored] / prior])
+            error = (a - predict_batch(testbed, p, names, compliant, r, fixtures, world_up))[..., :3, :] / scale
+            return np.concatenate([error.reshape(len(q), -1), p[:, priored] / prior], axis=1)
 
-        result = least_squares(residuals, params[free], method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10)
-        params = full(result.x)
+        result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
+                               xtol=1e-10, ftol=1e-10, jac=lambda q: _forward_differences(residuals, q))
+        params = full(result.x[None])[0]
         scale = max(float(np.sqrt(np.mean((a - predicted(params))[:, :3, :] ** 2))), 1e-12)
     covariance = np.zeros((len(params), len(params)))
     covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)

@@ -87,19 +87,26 @@ def _wrist_frame(theta1: Array, theta23: Array) -> Array:
     return axis_angle_matrix("z", theta1) @ axis_angle_matrix("y", theta23)
 
 
-def forward(arm: ArmModel, joints: ArrayLike) -> Array:
-    """``base_from_flange`` (..., 4, 4) for joints (..., 6) in radians (KUKA convention)."""
+def forward(arm: ArmModel, joints: ArrayLike, length_deltas: ArrayLike | None = None) -> Array:
+    """``base_from_flange`` (..., 4, 4) for joints (..., 6) in radians (KUKA convention);
+    ``length_deltas`` (..., 6) m, broadcasting with the joints' batch, are added to the
+    arm's ``a1, a2, c1, c2, c3, c4`` (a batch of corrected arms evaluated at once)."""
     theta = _to_theta(arm, np.asarray(joints, dtype=np.float64))
     t1, t2, t3, t4, t5, t6 = np.moveaxis(theta, -1, 0)
-    psi3 = math.atan2(arm.a2, arm.c3)
-    k = math.hypot(arm.a2, arm.c3)
-    cx1 = arm.c2 * np.sin(t2) + k * np.sin(t2 + t3 + psi3) + arm.a1
-    cz1 = arm.c2 * np.cos(t2) + k * np.cos(t2 + t3 + psi3)
+    if length_deltas is None:
+        a1, a2, c1, c2, c3, c4 = arm.a1, arm.a2, arm.c1, arm.c2, arm.c3, arm.c4
+        psi3, k = math.atan2(a2, c3), math.hypot(a2, c3)
+    else:
+        nominal = np.array([arm.a1, arm.a2, arm.c1, arm.c2, arm.c3, arm.c4])
+        a1, a2, c1, c2, c3, c4 = np.moveaxis(nominal + np.asarray(length_deltas, np.float64), -1, 0)
+        psi3, k = np.arctan2(a2, c3), np.hypot(a2, c3)
+    cx1 = c2 * np.sin(t2) + k * np.sin(t2 + t3 + psi3) + a1
+    cz1 = c2 * np.cos(t2) + k * np.cos(t2 + t3 + psi3)
     wrist_centre = np.stack(
-        [cx1 * np.cos(t1) - arm.b * np.sin(t1), cx1 * np.sin(t1) + arm.b * np.cos(t1), cz1 + arm.c1], axis=-1)
+        [cx1 * np.cos(t1) - arm.b * np.sin(t1), cx1 * np.sin(t1) + arm.b * np.cos(t1), cz1 + c1], axis=-1)
     rotation = (_wrist_frame(t1, t2 + t3) @ axis_angle_matrix("z", t4) @ axis_angle_matrix("y", t5)
                 @ axis_angle_matrix("z", t6))
-    return make_transform(rotation, wrist_centre + arm.c4 * rotation[..., :, 2])
+    return make_transform(rotation, wrist_centre + np.asarray(c4)[..., None] * rotation[..., :, 2])
 
 
 def inverse(arm: ArmModel, base_from_flange: ArrayLike) -> Array:

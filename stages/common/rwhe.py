@@ -42,9 +42,10 @@ def symmetric(anisotropy: np.ndarray) -> np.ndarray:
 
 
 def fixture_tilt(up_targetee: np.ndarray, compliance: np.ndarray, anisotropy: np.ndarray | None = None) -> np.ndarray:
-    """Rotations (N, 4, 4) of compliant fixtures about the flange origin: rotation vector
-    ``(I + D) (up x k)`` of the up directions (N, 3, unit, flange frame), compliances
-    ``k`` (N, 3, rad) and, for an anisotropic fixture, ``D`` (N, 6: ``symmetric``; None: 0).
+    """Rotations (..., N, 4, 4) of compliant fixtures about the flange origin: rotation vector
+    ``(I + D) (up x k)`` of the up directions (..., N, 3, unit, flange frame), compliances
+    ``k`` (..., N, 3, rad) and, for an anisotropic fixture, ``D`` (..., N, 6: ``symmetric``;
+    None: 0).
 
     ``up x k`` is a fixture equally stiff about every axis: the gravity moment of a model
     whose centre lies along ``k``, times one compliance. A bracket is stiffer in one plane
@@ -52,7 +53,7 @@ def fixture_tilt(up_targetee: np.ndarray, compliance: np.ndarray, anisotropy: np
     linear elastic compliance is)."""
     rotvec = np.cross(up_targetee, compliance)
     if anisotropy is not None:
-        rotvec = rotvec + np.einsum("nij,nj->ni", symmetric(anisotropy), rotvec)
+        rotvec = rotvec + np.einsum("...ij,...j->...i", symmetric(anisotropy), rotvec)
     return g.make_transform(g.rotvec_to_matrix(rotvec), np.zeros(3))
 
 
@@ -239,8 +240,8 @@ def _with_translations(a: np.ndarray, b: np.ndarray, fixtures: list[str], names:
 
 
 def transform_from_vector(vector: np.ndarray) -> np.ndarray:
-    """(4, 4) of a packed 6-vector: rotation vector (rad), then translation (m)."""
-    return g.make_transform(g.rotvec_to_matrix(vector[:3]), vector[3:6])
+    """(..., 4, 4) of packed 6-vectors (..., 6): rotation vector (rad), then translation (m)."""
+    return g.make_transform(g.rotvec_to_matrix(vector[..., :3]), vector[..., 3:6])
 
 
 def pack(solution: Solution, names: list[str], compliant: bool, anisotropic: bool = False) -> np.ndarray:
@@ -276,6 +277,29 @@ def unpack(params: np.ndarray, names: list[str], compliant: bool, anisotropic: b
         first = anisotropy_slice(names).start
         anisotropy = {name: params[first + 6 * j:first + 6 * j + 6] for j, name in enumerate(names)}
     return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)}, compliance, anisotropy)
+
+
+def predict_packed(params: np.ndarray, names: list[str], compliant: bool, anisotropic: bool, b: np.ndarray,
+                   fixtures: list[str], up_targetee: np.ndarray | None = None) -> np.ndarray:
+    """``Solution.predict`` of ``unpack`` for a batch of packed parameters (K, Q) at once:
+    ``cam_from_target`` (K, N, 4, 4) from ``b`` (K, N, 4, 4) and, when ``compliant``, the
+    up directions (K, N, 3). A finite-difference Jacobian evaluates every step in one call."""
+    count = len(names)
+    index = np.array([names.index(f) for f in fixtures])
+    poses = transform_from_vector(params[:, :6 * (1 + count)].reshape(len(params), -1, 6))  # (K, 1 + F, 4, 4)
+    x_inv = g.invert(poses[:, 1 + index])
+    cam_from_targetee = poses[:, :1] @ b
+    if not compliant:
+        return cam_from_targetee @ x_inv
+    if up_targetee is None:
+        raise ValueError("a solution with compliant fixtures predicts from the up directions")
+    start = 6 * (1 + count)
+    k = params[:, start:start + 3 * count].reshape(len(params), count, 3)[:, index]
+    d = None
+    if anisotropic:
+        first = anisotropy_slice(names).start
+        d = params[:, first:first + 6 * count].reshape(len(params), count, 6)[:, index]
+    return cam_from_targetee @ fixture_tilt(np.asarray(up_targetee, float), k, d) @ x_inv
 
 
 def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution,

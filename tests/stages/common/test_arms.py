@@ -79,3 +79,33 @@ def test_readings_need_every_capture_to_have_them():
     assert arms.readings([row, row]).rail_m.tolist() == [2.0, 2.0]
     assert arms.readings([row, {**row, "kuka_rail_m": None}]) is None
     assert arms.readings([]) is None
+
+
+def test_a_batch_of_parameters_predicts_each_exactly_and_differences_as_scipy_does():
+    """The fit's Jacobian evaluates every finite-difference step in one batch: each batch
+    row is the single prediction bit for bit, and the columns are SciPy's ``2-point``."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    rng = np.random.default_rng(3)
+    config = load_config("default")
+    testbed, world_up = config.testbed, np.array(config.calibrate.world_up)
+    readings = random_readings(rng, 12)
+    names, fixtures = ["minus_x", "plus_x"], ["minus_x", "plus_x"] * 6
+    size = arms.N_ARM + len(rwhe.pack(rwhe.Solution(np.eye(4), {f: np.eye(4) for f in names},
+                                                    {f: np.zeros(3) for f in names},
+                                                    {f: np.zeros(6) for f in names}), names, True, True))
+    batch = np.concatenate([true_errors(rng).params[None].repeat(4, 0), rng.normal(0, 0.05, (4, size - arms.N_ARM))],
+                           axis=1)
+    batch[1, :arms.N_ARM] = 0.0  # a nominal arm in the batch: the compliance branch is the batch's
+    together = arms.predict_batch(testbed, batch, names, True, readings, fixtures, world_up)
+    for params, predicted in zip(batch, together, strict=True):
+        np.testing.assert_array_equal(predicted, arms.predict(testbed, params, names, True, readings, fixtures,
+                                                              world_up))
+
+    def residuals(params):
+        return arms.predict_batch(testbed, params, names, True, readings, fixtures, world_up)[..., :3, :].reshape(
+            len(params), -1)
+
+    x = batch[0]
+    np.testing.assert_array_equal(arms._forward_differences(residuals, x),
+                                  approx_derivative(lambda p: residuals(p[None])[0], x, method="2-point"))
