@@ -82,8 +82,13 @@ def outputs(root: Path) -> dict[str, str]:
     }
 
 
+def worktree_env(code: Path) -> dict[str, str]:
+    """The environment that runs ``code``'s pipeline (its packages first on the path)."""
+    return {**os.environ, "PYTHONPATH": str(code), "COLUMNS": "200"}
+
+
 def _run_default(code: Path, workspace: Path) -> None:
-    env = {**os.environ, "PYTHONPATH": str(code), "COLUMNS": "200"}
+    env = worktree_env(code)
     subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); from pipeline.cli import main;"
                     " sys.argv = ['speedplus'] + sys.argv[2:]; main()", str(code), "run", "--profile", "default",
                     "--workspace", str(workspace)], check=True, cwd=code, env=env)

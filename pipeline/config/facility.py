@@ -189,6 +189,9 @@ class VirtualConfig:
         "model markers as fractions of the half extents of the body box about its centre (6 markers)", "1")
     spp: int = param(16, "Mitsuba samples per pixel of a capture", "count")
     max_depth: int = param(4, "Mitsuba path length (4: direct light and two interreflections)", "count")
+    rr_depth: int = param(
+        1, "path length from which Mitsuba's Russian roulette may end a path (unbiased: a survivor's weight is "
+        "divided by its survival chance); paths that reach the black curtains carry almost nothing", "count")
     full_well_e: float = param(32513.0, "sensor full-well capacity (Sony IMX174 of the Grasshopper3 GS3-U3-23S6M)",
                                "e-")
     read_noise_e: float = param(6.8, "sensor read noise (IMX174, EMVA 1288 data)", "e-")

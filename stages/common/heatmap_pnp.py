@@ -100,10 +100,13 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     best = None
     if len(present) >= 4:
         rng = np.random.default_rng(seed)
-        poses: list[tuple[np.ndarray, np.ndarray]] = []
+        poses: list[tuple[np.ndarray, np.ndarray] | None] = []
+        valid: list[tuple[np.ndarray, np.ndarray]] = []
+        totals: list[np.ndarray] = []  # each valid pose's support, scored once: the chunks only add poses
         needed = ITERATIONS
         while len(poses) < needed and len(poses) < ITERATIONS:
             # samples by chunk; after each, as many as give CONFIDENCE of one sample of the best pose's peaks
+            chunk_start = len(poses)
             for _ in range(CHUNK):
                 chosen = rng.choice(present, 4, replace=False)
                 picks = [0 if counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, counts[kp]))
@@ -113,8 +116,11 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
                                               flags=cv2.SOLVEPNP_AP3P)
                 # an unusable sample still counts: the schedule depends on the draws alone
                 poses.append((rvec, tvec) if ok and plausible(tvec[:, 0], keypoints_m, camera_matrix) else None)
-            best = _best_supported([p for p in poses if p is not None], candidates_px, values, usable, keypoints_m,
-                                   camera_matrix, dist, reprojection_px, extent_px)
+            added = [p for p in poses[chunk_start:] if p is not None]
+            valid += added
+            totals.append(_support(added, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
+                                   reprojection_px, extent_px))
+            best = _best_supported(valid, np.concatenate(totals))
             if best is not None:
                 needed = _samples_needed(*best, candidates_px, values, usable, counts, keypoints_m, camera_matrix,
                                          dist, reprojection_px)
@@ -181,14 +187,13 @@ def _explained(rvec: np.ndarray, tvec: np.ndarray, candidates_px: np.ndarray, va
     return near.any(axis=1), candidates_px[np.arange(len(pick)), pick]
 
 
-def _best_supported(poses: list[tuple[np.ndarray, np.ndarray]], candidates_px: np.ndarray, values: np.ndarray,
-                    usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
-                    reprojection_px: float, extent_px: tuple[float, float] | None,
-                    ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The pose of ``poses`` whose explained candidates have the most heatmap value (the
-    first on ties), among those of the right span explaining ``MIN_CONSENSUS`` keypoints."""
+def _support(poses: list[tuple[np.ndarray, np.ndarray]], candidates_px: np.ndarray, values: np.ndarray,
+             usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+             reprojection_px: float, extent_px: tuple[float, float] | None) -> np.ndarray:
+    """Each pose's worth (P,): the heatmap value of the candidates it explains, -inf for a
+    pose of the wrong span or explaining fewer than ``MIN_CONSENSUS`` keypoints."""
     if not poses:
-        return None
+        return np.zeros(0)
     projected = np.stack([cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
                           for rvec, tvec in poses])  # (P, K, 2)
     distance = np.linalg.norm(candidates_px[None] - projected[:, :, None], axis=-1)  # (P, K, C)
@@ -199,8 +204,17 @@ def _best_supported(poses: list[tuple[np.ndarray, np.ndarray]], candidates_px: n
     if extent_px is not None:
         span = (projected.max(axis=1) - projected.min(axis=1)).max(axis=-1)
         total = np.where((span >= extent_px[0]) & (span <= extent_px[1]), total, -np.inf)
-    index = int(np.argmax(total))
-    return poses[index] if np.isfinite(total[index]) else None
+    return total
+
+
+def _best_supported(poses: list[tuple[np.ndarray, np.ndarray]], totals: np.ndarray,
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pose of ``poses`` of the highest ``_support`` ``totals`` (the first on ties), if any
+    is acceptable."""
+    if not poses:
+        return None
+    index = int(np.argmax(totals))
+    return poses[index] if np.isfinite(totals[index]) else None
 
 
 def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray], contract: ModelContract,

@@ -61,7 +61,8 @@ class TestbedScene:
 
         objects: dict[str, Any] = {
             "type": "scene",
-            "integrator": {"type": "path", "max_depth": self.config.virtual.max_depth},
+            "integrator": {"type": "path", "max_depth": self.config.virtual.max_depth,
+                           "rr_depth": self.config.virtual.rr_depth},
             "sensor": sensor(mi, geometry, far_clip_m=30.0, rfilter="gaussian", pixel_format="rgb"),
         }
         objects.update(self._room(mi))
