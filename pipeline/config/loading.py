@@ -139,6 +139,8 @@ def _check(config: Config) -> Config:
         raise ConfigError("run.worker_max_tasks/worker_cpus: must be at least 1")
     if not config.run.start_timeout_s > 0:
         raise ConfigError("run.start_timeout_s: expected a positive number of seconds")
+    if min(config.virtual.spp, config.virtual.max_depth, config.virtual.rr_depth) < 1:
+        raise ConfigError("virtual.spp/max_depth/rr_depth: at least 1")
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
         raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
     if config.calibrate.folds < 2:

@@ -69,6 +69,7 @@ def test_overrides_are_typed():
         ("plan.dataset_range_m=[9, 7]", "plan.dataset_range_m: expected 0 < min <= max"),
         ("camera.width_px=1000", "does not have the aspect"),
         ("plan.lights=['moon']", "plan.lights"),
+        ("virtual.rr_depth=0", "virtual.spp/max_depth/rr_depth"),
         ("plan", "expected section.key=value"),
     ],
 )
