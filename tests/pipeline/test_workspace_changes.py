@@ -159,24 +159,29 @@ def test_a_model_is_added_beside_the_others_and_redone_alone(finished, tmp_path)
     assert strip([r for r in again if r["model"] != "mine"]) == strip(before)
 
 
-def interrupt_after(seconds, *args):
-    """Run the CLI in its own process group and press Ctrl-C after ``seconds``."""
+def interrupt_when(ready, *args, timeout=300):
+    """Run the CLI in its own process group and press Ctrl-C once ``ready()`` holds."""
+    import time
+
     process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, start_new_session=True,
                                env={**os.environ, "COLUMNS": "200"},
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    try:
-        out, err = process.communicate(timeout=seconds)
-    except subprocess.TimeoutExpired:
+    deadline = time.monotonic() + timeout
+    while process.poll() is None and not ready() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    if process.poll() is None:
         os.killpg(process.pid, signal.SIGINT)
-        out, err = process.communicate(timeout=120)
+    out, err = process.communicate(timeout=120)
     return process.returncode, out, err
 
 
 def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_path):
     ws = tmp_path / "w"
-    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws)).returncode == 0
-    code, _, err = interrupt_after(8, "acquire", "--workspace", str(ws))
+    # slower captures (64 spp) so that the press falls between the first captures and the last
+    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws), "--set", "virtual.spp=64").returncode == 0
+    code, _, err = interrupt_when(lambda: len(list((ws / "images").rglob("*.png"))) >= 2, "acquire", "--workspace",
+                                  str(ws))
     assert code == 130, err
     lines = [line for line in err.splitlines() if line.startswith("interrupted")]
     assert len(lines) == 1 and lines[0].endswith("of 24 rows kept (acquire); run the same command to resume")
