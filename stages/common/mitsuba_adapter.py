@@ -103,6 +103,17 @@ def mitsuba_variant() -> dict[str, str]:
     return {"mitsuba_variant": load_mitsuba().variant()}
 
 
+def set_one_thread() -> None:
+    """One Dr.Jit thread for this process, whatever the engine reserved: the testbed's
+    Gaussian reconstruction filter splats each sample onto neighbouring pixels by atomic
+    adds, whose order, with several threads, changes the last bit of a few pixels (seen as
+    1-2 pixels of 8-bit captures one level apart between 1 and 2 threads, enough to move a
+    detected corner). Run as many workers as cores instead."""
+    import drjit as dr
+
+    dr.set_thread_count(1)
+
+
 def set_threads(threads: int) -> None:
     """Dr.Jit's thread count for this process: ``threads``, or in a Ray worker the CPUs Ray
     reserved for it (the pixels do not depend on it: measured bit-identical with 1 and 2)."""

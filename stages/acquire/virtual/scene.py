@@ -21,11 +21,10 @@ from stages.common.mitsuba_adapter import (
     load_mitsuba,
     load_scene,
     mesh,
-    render_threads,
     sensor,
     sensor_pixel_rays,
     sensor_to_world,
-    set_threads,
+    set_one_thread,
     transform,
 )
 from stages.common.patterns import board_image, board_pattern
@@ -51,8 +50,7 @@ class TestbedScene:
 
     def __init__(self, config: Config, geometry: RenderGeometry) -> None:
         self.mi = mi = load_mitsuba()
-        # the local engine runs run.workers renderers side by side: share the cores between them
-        set_threads(render_threads(config.run.workers))
+        set_one_thread()  # the same bytes whatever the workers (mitsuba_adapter.set_one_thread)
         self.config, self.geometry = config, geometry
         testbed, virtual = config.testbed, config.virtual
         rng = np.random.default_rng([virtual.seed, 0x7E57])
