@@ -29,6 +29,8 @@ from stages.common.pose_model import (
     ModelContract,
     PnPSolution,
     apply_affine,
+    farthest_plausible_m,
+    in_reach,
     peak_positions,
     plausible,
     pose_from_keypoints,
@@ -100,6 +102,7 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     best = None
     if len(present) >= 4:
         rng = np.random.default_rng(seed)
+        peak_counts, farthest = counts.tolist(), farthest_plausible_m(keypoints_m, camera_matrix)
         poses: list[tuple[np.ndarray, np.ndarray] | None] = []
         valid: list[tuple[np.ndarray, np.ndarray]] = []
         totals: list[np.ndarray] = []  # each valid pose's support, scored once: the chunks only add poses
@@ -109,13 +112,12 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
             chunk_start = len(poses)
             for _ in range(CHUNK):
                 chosen = rng.choice(present, 4, replace=False)
-                picks = [0 if counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, counts[kp]))
-                         for kp in chosen]
-                points = np.ascontiguousarray([candidates_px[kp, c] for kp, c in zip(chosen, picks, strict=True)])
-                ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], points, camera_matrix, dist,
+                picks = [0 if peak_counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, peak_counts[kp]))
+                         for kp in chosen.tolist()]
+                ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], candidates_px[chosen, picks], camera_matrix, dist,
                                               flags=cv2.SOLVEPNP_AP3P)
                 # an unusable sample still counts: the schedule depends on the draws alone
-                poses.append((rvec, tvec) if ok and plausible(tvec[:, 0], keypoints_m, camera_matrix) else None)
+                poses.append((rvec, tvec) if ok and in_reach(tvec[:, 0], farthest) else None)
             added = [p for p in poses[chunk_start:] if p is not None]
             valid += added
             totals.append(_support(added, candidates_px, values, usable, keypoints_m, camera_matrix, dist,

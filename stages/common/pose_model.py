@@ -340,8 +340,19 @@ class PnPSolution:
 def plausible(tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray) -> bool:
     """In front of the camera and at least a couple of pixels across (degenerate solutions
     at huge distances explain collapsed keypoints perfectly)."""
+    return in_reach(tvec, farthest_plausible_m(object_points, camera_matrix))
+
+
+def farthest_plausible_m(object_points: np.ndarray, camera_matrix: np.ndarray) -> float:
+    """The distance [m] beyond which the object (K, 3) [m] would be under a couple of pixels
+    across (``plausible``): computed once, for RANSAC's many samples."""
     radius = float(np.max(np.linalg.norm(object_points - object_points.mean(axis=0), axis=1)))
-    return bool(np.all(np.isfinite(tvec)) and tvec[2] > 0 and np.linalg.norm(tvec) <= camera_matrix[0][0] * radius)
+    return camera_matrix[0][0] * radius
+
+
+def in_reach(tvec: np.ndarray, farthest_m: float) -> bool:
+    """``plausible`` for a translation (3,) [m] and the object's ``farthest_plausible_m``."""
+    return bool(np.all(np.isfinite(tvec)) and tvec[2] > 0 and np.linalg.norm(tvec) <= farthest_m)
 
 
 def spans(rvec: np.ndarray, tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray,
