@@ -1,6 +1,7 @@
 """The Ray engine's scaling and the paper profile's cost model.
 
     python -m bench cluster [TRAIN_IMAGES]      (default 24)
+    python -m bench cluster costs               (the cost model alone)
 
 1. Cost model: CPU-seconds per capture (virtual testbed) and per twin at each profile's
    resolution, one process with one thread (what one Ray worker of one CPU does).
@@ -83,7 +84,6 @@ def _render_on(cluster: LocalCluster, root: Path, images: int) -> float:
 
 
 def main(images: str = "24") -> None:
-    count = int(images)
     costs = []
     for profile in PROFILES:
         config = load_config(profile)
@@ -101,6 +101,9 @@ def main(images: str = "24") -> None:
                       "CPU-s per training image": per_image, "captures": samples, "twins (at most)": dataset,
                       "training images": config.reference.images, "CPU-s in all": cpu_seconds})
     report("cluster_costs", "cost model: CPU-seconds per item, one worker of one CPU", costs)
+    if images == "costs":
+        return
+    count = int(images)
 
     small = 4
     with tempfile.TemporaryDirectory() as base:

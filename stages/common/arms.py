@@ -34,7 +34,7 @@ from the corrected one is of second order).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 from pipeline.config import CalibrateConfig, TestbedConfig
 from stages.common import geometry as g
 from stages.common import layout, rwhe, tango
-from stages.common.kinematics import ArmModel, arm_model, forward
+from stages.common.kinematics import arm_model, forward
 from stages.common.statics import gravity_torques, link_masses
 
 LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
@@ -122,12 +122,6 @@ class ArmErrors:
 
     params: np.ndarray  # (N_ARM,): joint offsets (camera, target), link deltas (camera, target), bases, rail,
     # compliances of A2, A3, A5 (camera, target)
-
-    def arms(self, nominal: ArmModel) -> tuple[ArmModel, ArmModel]:
-        def corrected(deltas: np.ndarray) -> ArmModel:
-            return replace(nominal, **{name: getattr(nominal, name) + float(d) for name, d in zip(LENGTHS, deltas,
-                                                                                               strict=True)})
-        return corrected(self.params[12:18]), corrected(self.params[18:24])
 
     def to_json(self) -> dict[str, Any]:
         p = [float(v) for v in self.params]
