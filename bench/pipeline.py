@@ -25,6 +25,8 @@ import pyarrow.parquet as pq
 from bench.common import report
 from bench.identity import REPO, worktree_env
 
+#: what a run leaves under ROOT (and a rerun replaces)
+_OWN = ("before", "after", "tree")
 _STAGE_TIME = re.compile(r"^(\w+): ran in ([0-9.]+) s", re.MULTILINE)
 
 
@@ -66,10 +68,19 @@ def main(*args: str) -> None:
     ref, options = args[0], dict(zip(args[1::2], args[2::2], strict=True))
     profile = options.get("--profile", "default")
     root = Path(options.get("--root", REPO / "data" / "bench_pipeline")).resolve()
-    shutil.rmtree(root, ignore_errors=True)
-    root.mkdir(parents=True)
+    # only this benchmark's own earlier results are replaced, never a folder of something else
+    strangers = sorted(p.name for p in root.iterdir() if p.name not in _OWN) if root.is_dir() else []
+    if root.exists() and (not root.is_dir() or strangers):
+        sys.exit(f"{root}: holds {', '.join(strangers) or 'a file'}, not only this benchmark's "
+                 f"{', '.join(_OWN)}; give an empty or new --root")
+    for name in _OWN:
+        shutil.rmtree(root / name, ignore_errors=True)
+    root.mkdir(parents=True, exist_ok=True)
     tree = root / "tree"
-    subprocess.run(["git", "worktree", "add", "--detach", str(tree), ref], cwd=REPO, check=True, capture_output=True)
+    added = subprocess.run(["git", "worktree", "add", "--detach", str(tree), ref], cwd=REPO, capture_output=True,
+                           text=True)
+    if added.returncode != 0:
+        sys.exit(f"cannot check out {ref!r}: {added.stderr.strip()}")
     try:
         before = timed_run(tree, profile, root / "before")
     finally:

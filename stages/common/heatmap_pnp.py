@@ -103,22 +103,21 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     if len(present) >= 4:
         rng = np.random.default_rng(seed)
         peak_counts, farthest = counts.tolist(), farthest_plausible_m(keypoints_m, camera_matrix)
-        poses: list[tuple[np.ndarray, np.ndarray] | None] = []
         valid: list[tuple[np.ndarray, np.ndarray]] = []
         totals: list[np.ndarray] = []  # each valid pose's support, scored once: the chunks only add poses
-        needed = ITERATIONS
-        while len(poses) < needed and len(poses) < ITERATIONS:
+        drawn, needed = 0, ITERATIONS
+        while drawn < needed and drawn < ITERATIONS:
             # samples by chunk; after each, as many as give CONFIDENCE of one sample of the best pose's peaks
-            chunk_start = len(poses)
+            added = []
             for _ in range(CHUNK):
                 chosen = rng.choice(present, 4, replace=False)
                 picks = [0 if peak_counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, peak_counts[kp]))
                          for kp in chosen.tolist()]
                 ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], candidates_px[chosen, picks], camera_matrix, dist,
                                               flags=cv2.SOLVEPNP_AP3P)
-                # an unusable sample still counts: the schedule depends on the draws alone
-                poses.append((rvec, tvec) if ok and in_reach(tvec[:, 0], farthest) else None)
-            added = [p for p in poses[chunk_start:] if p is not None]
+                drawn += 1  # an unusable sample still counts: the schedule depends on the draws alone
+                if ok and in_reach(tvec[:, 0], farthest):
+                    added.append((rvec, tvec))
             valid += added
             totals.append(_support(added, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
                                    reprojection_px, extent_px))

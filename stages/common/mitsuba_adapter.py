@@ -116,7 +116,8 @@ def set_one_thread() -> None:
 
 def set_threads(threads: int) -> None:
     """Dr.Jit's thread count for this process: ``threads``, or in a Ray worker the CPUs Ray
-    reserved for it (the pixels do not depend on it: measured bit-identical with 1 and 2)."""
+    reserved for it. For the box-filtered twins the pixels do not depend on it (measured
+    bit-identical with 1 and 2); the testbed's Gaussian filter does (``set_one_thread``)."""
     import drjit as dr
 
     from pipeline.engines import reserved_cpus

@@ -101,6 +101,10 @@ def test_a_batch_of_parameters_predicts_each_exactly_and_differences_as_scipy_do
     for params, predicted in zip(batch, together, strict=True):
         np.testing.assert_array_equal(predicted, arms.predict(testbed, params, names, True, readings, fixtures,
                                                               world_up))
+        # and the packed offsets predict as the unpacked solution does
+        b, up = arms.measurement(testbed, arms.ArmErrors(params[:arms.N_ARM]), readings, world_up)
+        solution = rwhe.unpack(params[arms.N_ARM:], names, True, anisotropic=True)
+        np.testing.assert_allclose(predicted, solution.predict(b, fixtures, up), rtol=0, atol=1e-12)
 
     def residuals(params):
         return arms.predict_batch(testbed, params, names, True, readings, fixtures, world_up)[..., :3, :].reshape(
