@@ -18,9 +18,8 @@ import numpy as np
 from bench.common import report
 from manifests import Workspace
 from pipeline.config import load_config
-from pipeline.engines import store
+from pipeline.engines import store, threads_per_worker
 from stages.common.cameras import train_camera
-from stages.common.mitsuba_adapter import render_threads
 from stages.render.jobs import train_jobs
 from stages.render.worker import RenderWorker
 
@@ -32,7 +31,7 @@ def main(count: str = "8") -> None:
     rows = []
     for label, spp in (("training image", config.render.train_spp), ("twin", config.render.spp)):
         with tempfile.TemporaryDirectory() as root:
-            workers = {on: RenderWorker(train_camera(config), spp, config.render.max_depth, render_threads(1), on)
+            workers = {on: RenderWorker(train_camera(config), spp, config.render.max_depth, threads_per_worker(1), on)
                        for on in (False, True)}
             for worker in workers.values():  # compile the kernels before timing
                 worker.render(jobs[0])

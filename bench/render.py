@@ -20,9 +20,8 @@ import numpy as np
 from bench.common import report
 from manifests import Workspace
 from pipeline.config import load_config
-from pipeline.engines import map_local
+from pipeline.engines import map_local, threads_per_worker
 from stages.common.cameras import train_camera
-from stages.common.mitsuba_adapter import render_threads
 from stages.render.jobs import train_jobs
 from stages.render.worker import open_worker
 
@@ -38,7 +37,7 @@ def _seconds_per_image(profile: str, count: int) -> tuple[float, float]:
     config = load_config(profile, overrides=[f"render.train_count={count + 1}"])
     jobs = train_jobs(config)
     started = time.perf_counter()
-    worker = open_worker(train_camera(config), config.render.spp, config.render.max_depth, render_threads(1))
+    worker = open_worker(train_camera(config), config.render.spp, config.render.max_depth, threads_per_worker(1))
     worker.render(jobs[0])  # scene load and kernel compilation
     first = time.perf_counter() - started
     started = time.perf_counter()
@@ -59,7 +58,7 @@ def _throughput(workers: int, count: int, threads: int) -> float:
 
 def _memory_child(renders: int, queue: multiprocessing.Queue) -> None:
     config = load_config("default", overrides=[f"render.train_count={renders}", "render.spp=16"])
-    worker = open_worker(train_camera(config), 16, config.render.max_depth, render_threads(1))
+    worker = open_worker(train_camera(config), 16, config.render.max_depth, threads_per_worker(1))
     samples = []
     for index, job in enumerate(train_jobs(config), start=1):
         worker.render(job)
@@ -79,13 +78,13 @@ def speed() -> None:
         rows.append({"what": f"first image incl. scene load and JIT, {profile}", "value": first})
     count = 24
     one, two = _throughput(1, count, threads=1), _throughput(2, count, threads=1)
-    both = _throughput(1, count, threads=render_threads(1))
+    both = _throughput(1, count, threads=threads_per_worker(1))
     rows.append({"what": f"images per minute, 1 worker x 1 thread ({count} default images, incl. start-up)",
                  "value": one})
     rows.append({"what": f"images per minute, 2 workers x 1 thread ({count} default images, incl. start-up)",
                  "value": two})
     rows.append({"what": "scaling efficiency of worker processes, 2 vs 1", "value": two / one / 2})
-    rows.append({"what": f"images per minute, 1 worker x {render_threads(1)} threads (Dr.Jit's own parallelism)",
+    rows.append({"what": f"images per minute, 1 worker x {threads_per_worker(1)} threads (Dr.Jit's own parallelism)",
                  "value": both})
     context = multiprocessing.get_context("spawn")
     queue = context.Queue()

@@ -229,7 +229,8 @@ class EvaluateConfig:
     self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: a coarse pass on "
                             "the whole image, then the keypoint pass around what it found", "")
     batch_size: int = param(16, "images per inference call", "count")
-    threads: int = param(2, "ONNX Runtime intra-op threads", "count")
+    threads: int = param(0, "ONNX Runtime intra-op threads of each worker; 0: the worker's share of the cores (CPUs "
+                         "/ run.workers; on Ray, the CPUs reserved for it). The scores do not depend on it", "count")
     ransac_fraction: float = param(
         0.01, "RANSAC inlier threshold of keypoint PnP, as a fraction of the image width", "1")
     turns: bool = param(True, "a model whose metadata asks for it (speedplus.turns=4) sees each crop at four "

@@ -102,26 +102,19 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     best = None
     if len(present) >= 4:
         rng = np.random.default_rng(seed)
-        peak_counts, farthest = counts.tolist(), farthest_plausible_m(keypoints_m, camera_matrix)
-        valid: list[tuple[np.ndarray, np.ndarray]] = []
-        totals: list[np.ndarray] = []  # each valid pose's support, scored once: the chunks only add poses
+        farthest = farthest_plausible_m(keypoints_m, camera_matrix)
+        rotvecs, translations, totals = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
         drawn, needed = 0, ITERATIONS
         while drawn < needed and drawn < ITERATIONS:
             # samples by chunk; after each, as many as give CONFIDENCE of one sample of the best pose's peaks
-            added = []
-            for _ in range(CHUNK):
-                chosen = rng.choice(present, 4, replace=False)
-                picks = [0 if peak_counts[kp] == 1 or rng.random() < 0.5 else int(rng.integers(1, peak_counts[kp]))
-                         for kp in chosen.tolist()]
-                ok, rvec, tvec = cv2.solvePnP(keypoints_m[chosen], candidates_px[chosen, picks], camera_matrix, dist,
-                                              flags=cv2.SOLVEPNP_AP3P)
-                drawn += 1  # an unusable sample still counts: the schedule depends on the draws alone
-                if ok and in_reach(tvec[:, 0], farthest):
-                    added.append((rvec, tvec))
-            valid += added
-            totals.append(_support(added, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
-                                   reprojection_px, extent_px))
-            best = _best_supported(valid, np.concatenate(totals))
+            object_points, image_points = _draw(rng, present, counts, keypoints_m, candidates_px)
+            drawn += CHUNK  # an unusable sample still counts: the schedule depends on the draws alone
+            chunk_r, chunk_t = _ap3p(object_points, image_points, camera_matrix, dist, farthest)
+            # each valid pose's support is scored once: the chunks only add poses
+            rotvecs, translations = np.concatenate([rotvecs, chunk_r]), np.concatenate([translations, chunk_t])
+            totals = np.concatenate([totals, _support(chunk_r, chunk_t, candidates_px, values, usable, keypoints_m,
+                                                      camera_matrix, dist, reprojection_px, extent_px)])
+            best = _best_supported(rotvecs, translations, totals)
             if best is not None:
                 needed = _samples_needed(*best, candidates_px, values, usable, counts, keypoints_m, camera_matrix,
                                          dist, reprojection_px)
@@ -188,15 +181,48 @@ def _explained(rvec: np.ndarray, tvec: np.ndarray, candidates_px: np.ndarray, va
     return near.any(axis=1), candidates_px[np.arange(len(pick)), pick]
 
 
-def _support(poses: list[tuple[np.ndarray, np.ndarray]], candidates_px: np.ndarray, values: np.ndarray,
+def _draw(rng: np.random.Generator, present: np.ndarray, counts: np.ndarray, keypoints_m: np.ndarray,
+          candidates_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A chunk of RANSAC samples: body points (CHUNK, 4, 3) [m] and image points (CHUNK, 4,
+    2) [px] of 4 distinct keypoints of ``present`` each, each keypoint at its highest peak or
+    (half the time, when it has more) at one of its others, uniformly."""
+    order = np.argsort(rng.random((CHUNK, len(present))), axis=1, kind="stable")[:, :4]
+    chosen = present[order]  # (CHUNK, 4): a uniform draw of 4 distinct keypoints
+    count = counts[chosen]
+    other = rng.integers(1, np.maximum(count, 2))
+    picks = np.where((count == 1) | (rng.random((CHUNK, 4)) < 0.5), 0, other)
+    return keypoints_m[chosen], np.ascontiguousarray(candidates_px[chosen, picks])
+
+
+def _ap3p(object_points: np.ndarray, image_points: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+          farthest_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """AP3P's pose of each sample (S, 4, 3) [m] / (S, 4, 2) [px]: rotation vectors and
+    translations (P, 3) of the solved samples whose pose is plausible (``in_reach``)."""
+    rotvecs, translations = [], []
+    for body, image in zip(object_points, image_points, strict=True):
+        ok, rvec, tvec = cv2.solvePnP(body, image, camera_matrix, dist, flags=cv2.SOLVEPNP_AP3P)
+        if ok:
+            rotvecs.append(rvec[:, 0])
+            translations.append(tvec[:, 0])
+    if not rotvecs:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    rotvecs, translations = np.array(rotvecs), np.array(translations)
+    reach = in_reach(translations, farthest_m)
+    return rotvecs[reach], translations[reach]
+
+
+def _support(rotvecs: np.ndarray, translations: np.ndarray, candidates_px: np.ndarray, values: np.ndarray,
              usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
              reprojection_px: float, extent_px: tuple[float, float] | None) -> np.ndarray:
-    """Each pose's worth (P,): the heatmap value of the candidates it explains, -inf for a
-    pose of the wrong span or explaining fewer than ``MIN_CONSENSUS`` keypoints."""
-    if not poses:
+    """Each pose's worth (P,) (rotation vectors and translations (P, 3)): the heatmap value
+    of the candidates it explains, -inf for a pose of the wrong span or explaining fewer
+    than ``MIN_CONSENSUS`` keypoints."""
+    if not len(rotvecs):
         return np.zeros(0)
-    projected = np.stack([cv2.projectPoints(keypoints_m, rvec, tvec, camera_matrix, dist)[0][:, 0]
-                          for rvec, tvec in poses])  # (P, K, 2)
+    # every pose at once (cv2.projectPoints takes one): (P, K, 2)
+    rotations = g.rotvec_to_matrix(rotvecs)
+    projected = g.project_points(keypoints_m @ rotations.transpose(0, 2, 1) + translations[:, None], camera_matrix,
+                                 dist)
     distance = np.linalg.norm(candidates_px[None] - projected[:, :, None], axis=-1)  # (P, K, C)
     near = usable[None] & (distance <= reprojection_px)
     support = np.where(near, values[None], -np.inf).max(axis=-1)  # (P, K)
@@ -208,14 +234,14 @@ def _support(poses: list[tuple[np.ndarray, np.ndarray]], candidates_px: np.ndarr
     return total
 
 
-def _best_supported(poses: list[tuple[np.ndarray, np.ndarray]], totals: np.ndarray,
+def _best_supported(rotvecs: np.ndarray, translations: np.ndarray, totals: np.ndarray,
                     ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The pose of ``poses`` of the highest ``_support`` ``totals`` (the first on ties), if any
-    is acceptable."""
-    if not poses:
+    """(rvec, tvec) (3, 1) of the pose of the highest ``_support`` ``totals`` (the first on
+    ties), if any is acceptable."""
+    if not len(totals):
         return None
     index = int(np.argmax(totals))
-    return poses[index] if np.isfinite(totals[index]) else None
+    return (rotvecs[index].reshape(3, 1), translations[index].reshape(3, 1)) if np.isfinite(totals[index]) else None
 
 
 def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray], contract: ModelContract,

@@ -91,13 +91,6 @@ def load_mitsuba() -> Any:
     return mi
 
 
-def render_threads(workers: int) -> int:
-    """Dr.Jit threads per renderer when ``workers`` renderers share this machine's cores
-    (``workers`` 0: one renderer a core, as the engines read it)."""
-    cores = os.cpu_count() or 1
-    return max(1, cores // (workers or cores))
-
-
 def mitsuba_variant() -> dict[str, str]:
     """What a render worker reports to the engine before it takes an item (``pipeline.engines.cluster``)."""
     return {"mitsuba_variant": load_mitsuba().variant()}

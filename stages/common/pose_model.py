@@ -171,10 +171,14 @@ class PoseModel:
         if self.contract.output == "pose" and len(outputs) != 2:
             raise InputError(f"{source}: speedplus.output=pose needs two outputs (q, t), got {len(outputs)}")
 
-    def preprocess(self, image_bgr: np.ndarray, box: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """(C, H, W) float32 input, and the (3, 3) affine map from input pixels to image pixels."""
-        pixels, image_from_input = prepare(image_bgr, self.contract, box)
-        return normalise(pixels.astype(np.float32) / 255.0, self.contract), image_from_input
+    def preprocess(self, images_bgr: list[np.ndarray], boxes: list[np.ndarray | None],
+                   ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The (N, C, H, W) float32 input of crops of images around boxes (one each; the same
+        image may come several times), and each crop's (3, 3) affine map from input pixels to
+        image pixels. The crops are normalised together: one conversion, not N."""
+        prepared = [prepare(image, self.contract, box) for image, box in zip(images_bgr, boxes, strict=True)]
+        pixels = np.stack([crop for crop, _ in prepared])
+        return normalise_uint8(pixels, self.contract), [affine for _, affine in prepared]
 
     def infer(self, batch: np.ndarray, turns: bool = True) -> list[np.ndarray]:
         """The model's outputs for a batch (N, C, H, W); with ``turns`` and a contract of 4
@@ -262,11 +266,7 @@ def prepare(image_bgr: np.ndarray, contract: ModelContract, box: np.ndarray | No
     pixels to image pixels (pixel centres at integer coordinates in both)."""
     height, width = image_bgr.shape[:2]
     x0, y0, w, h = crop_window(contract, width, height, box)
-    if (x0, y0, w, h) == (0, 0, width, height):
-        window = image_bgr
-    else:  # an integer shift: exact pixels, black outside the image
-        window = cv2.warpAffine(image_bgr, np.array([[1.0, 0, -x0], [0, 1.0, -y0]]), (w, h), flags=cv2.INTER_NEAREST,
-                                borderMode=cv2.BORDER_CONSTANT)
+    window = _window(image_bgr, x0, y0, w, h)
     shrinking = w > contract.width or h > contract.height
     resized = cv2.resize(window, (contract.width, contract.height),
                          interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
@@ -275,6 +275,20 @@ def prepare(image_bgr: np.ndarray, contract: ModelContract, box: np.ndarray | No
     image_from_input = np.array([[scale_x, 0, x0 + 0.5 * scale_x - 0.5], [0, scale_y, y0 + 0.5 * scale_y - 0.5],
                                  [0, 0, 1.0]])
     return np.ascontiguousarray(pixels), image_from_input
+
+
+def _window(image: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """The pixels (h, w, ...) of an image's window at (x0, y0), black outside the image: a
+    view where the window is inside (an integer shift needs no resampling), else padded."""
+    height, width = image.shape[:2]
+    left, top, right, bottom = max(x0, 0), max(y0, 0), min(x0 + w, width), min(y0 + h, height)
+    if right <= left or bottom <= top:
+        return np.zeros((h, w, *image.shape[2:]), image.dtype)
+    inside = image[top:bottom, left:right]
+    if (left, top, right, bottom) == (x0, y0, x0 + w, y0 + h):
+        return inside
+    return cv2.copyMakeBorder(inside, top - y0, y0 + h - bottom, left - x0, x0 + w - right, cv2.BORDER_CONSTANT,
+                              value=0)
 
 
 def points_box(points_px: np.ndarray) -> np.ndarray:
@@ -292,6 +306,16 @@ def normalise(pixels: np.ndarray, contract: ModelContract) -> np.ndarray:
     """(..., H, W, C) values in [0, 1] -> (..., C, H, W) float32 normalised as the contract says."""
     out = (pixels - np.asarray(contract.mean, np.float32)) / np.asarray(contract.std, np.float32)
     return np.ascontiguousarray(np.moveaxis(out.astype(np.float32), -1, -3))
+
+
+def normalise_uint8(pixels: np.ndarray, contract: ModelContract) -> np.ndarray:
+    """``normalise`` of (..., H, W, C) uint8 pixels scaled to [0, 1], by a table of the 256
+    values of each channel: the same float32 values, without converting every pixel."""
+    table = normalise((np.arange(256, dtype=np.float32) / 255.0)[None, :, None], contract)[:, 0]  # (C, 256)
+    channels = pixels.shape[-1]
+    rows = pixels.reshape(-1, pixels.shape[-2], channels) if channels > 1 else pixels.reshape(-1, pixels.shape[-2])
+    looked_up = cv2.LUT(np.ascontiguousarray(rows), np.ascontiguousarray(table.T[None]))
+    return np.ascontiguousarray(np.moveaxis(looked_up.reshape(pixels.shape), -1, -3))
 
 
 def decode_heatmaps(heatmaps: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -340,7 +364,7 @@ class PnPSolution:
 def plausible(tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray) -> bool:
     """In front of the camera and at least a couple of pixels across (degenerate solutions
     at huge distances explain collapsed keypoints perfectly)."""
-    return in_reach(tvec, farthest_plausible_m(object_points, camera_matrix))
+    return bool(in_reach(np.ravel(tvec), farthest_plausible_m(object_points, camera_matrix)))
 
 
 def farthest_plausible_m(object_points: np.ndarray, camera_matrix: np.ndarray) -> float:
@@ -350,9 +374,11 @@ def farthest_plausible_m(object_points: np.ndarray, camera_matrix: np.ndarray) -
     return camera_matrix[0][0] * radius
 
 
-def in_reach(tvec: np.ndarray, farthest_m: float) -> bool:
-    """``plausible`` for a translation (3,) [m] and the object's ``farthest_plausible_m``."""
-    return bool(np.all(np.isfinite(tvec)) and tvec[2] > 0 and np.linalg.norm(tvec) <= farthest_m)
+def in_reach(tvec: np.ndarray, farthest_m: float) -> np.ndarray:
+    """``plausible`` for translations (..., 3) [m] and the object's ``farthest_plausible_m``:
+    (...) booleans (RANSAC asks it of a chunk of samples at once)."""
+    tvec = np.asarray(tvec, float)
+    return np.all(np.isfinite(tvec), axis=-1) & (tvec[..., 2] > 0) & (np.sqrt(np.sum(tvec ** 2, axis=-1)) <= farthest_m)
 
 
 def spans(rvec: np.ndarray, tvec: np.ndarray, object_points: np.ndarray, camera_matrix: np.ndarray,

@@ -22,6 +22,7 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from manifests.integrity import sha256
 from pipeline.config import Config
+from pipeline.engines import threads_per_worker
 from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common.engine import map_config
@@ -119,7 +120,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                      if f"{path.stem}:{crop}:{item['domain']}:{item['sample_id']}" not in done]
             # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
             batches = [items[i:i + batch] for i in range(0, len(items), batch)]
-            args = (path.read_bytes(), str(path), config.evaluate.threads, camera.camera_matrix, camera.dist,
+            threads = config.evaluate.threads or -threads_per_worker(config.run.workers)
+            args = (path.read_bytes(), str(path), threads, camera.camera_matrix, camera.dist,
                     config.evaluate.ransac_fraction, config.evaluate.turns)
             results = map_config(config, open_scorer, args, "score", batches, renders=False,
                                  prepare=_with_images(workspace))

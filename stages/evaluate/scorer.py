@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.engines import reserved_cpus
 from stages.common import geometry as g
 from stages.common.heatmap_pnp import explained_value, poses_from_heatmaps
 from stages.common.image_io import decode_image, to_uint8
@@ -27,11 +28,12 @@ from stages.common.scores import score
 class Scorer:
     """Scores batches of items (dicts with ``image_path``, ``image_bytes``, ``box`` and the
     label) with a model given by its bytes; the label camera (K (3, 3) px, dist (5,)) turns
-    keypoints into poses."""
+    keypoints into poses. ``threads``: ONNX Runtime's; negative: the driver's share of the
+    cores for each worker, unless this worker runs on a cluster that reserved it CPUs."""
 
     def __init__(self, model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
                  reprojection_fraction: float, turns: bool = True) -> None:
-        self.model = PoseModel(model, threads, name)
+        self.model = PoseModel(model, threads if threads > 0 else reserved_cpus(-threads), name)
         self.camera_matrix, self.dist = np.asarray(camera_matrix, float), np.asarray(dist, float)
         self.reprojection_fraction = reprojection_fraction
         self.turns = turns
@@ -94,9 +96,9 @@ def _search(model: PoseModel, image: np.ndarray, camera_matrix: np.ndarray, dist
     centres = [(w[:2] + w[2:]) / 2 for w in windows]
     boxes = [np.concatenate([c - (w[2] - w[0]) / (2 * CROP_MARGIN), c + (w[2] - w[0]) / (2 * CROP_MARGIN)])
              for c, w in zip(centres, windows, strict=True)]
-    tensors, affines = zip(*(model.preprocess(image, box) for box in boxes), strict=True)
+    tensors, affines = model.preprocess([image] * len(boxes), boxes)
     # one pass a window, never the quarter turns: this only has to say where the target is
-    heatmaps = model.infer(np.stack(tensors), turns=False)[0]
+    heatmaps = model.infer(tensors, turns=False)[0]
     confidence = heatmaps.reshape(*heatmaps.shape[:2], -1).max(axis=-1).mean(axis=1)
     finalists = np.argsort(-confidence, kind="stable")[:SEARCH_FINALISTS]
     solutions, peaks = poses_from_heatmaps(heatmaps[finalists], [affines[i] for i in finalists], model.contract,
@@ -114,12 +116,8 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
     averaged over quarter turns when the model asks for it and ``turns``: the poses, and the
     keypoints (K, 2) in image pixels."""
     contract = model.contract
-    tensors, affines = [], []
-    for image, box in zip(images, boxes, strict=True):
-        tensor, affine = model.preprocess(image, box)
-        tensors.append(tensor)
-        affines.append(affine)
-    outputs = model.infer(np.stack(tensors), turns)
+    tensors, affines = model.preprocess(images, boxes)
+    outputs = model.infer(tensors, turns)
     if contract.output == "pose":
         solutions = []
         for q, t in zip(outputs[0], outputs[1], strict=True):

@@ -17,11 +17,10 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.files import write_json_atomic
 from pipeline.config import Config
-from pipeline.engines import store
+from pipeline.engines import store, threads_per_worker
 from pipeline.progress import console, track
 from stages.common.cameras import train_camera
 from stages.common.engine import map_config
-from stages.common.mitsuba_adapter import render_threads
 from stages.common.sidecars import calibrated_camera
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
 from stages.render.worker import open_worker
@@ -60,7 +59,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     done = read_keys(workspace, name)
     todo = [job for job in jobs if job.sample_id not in done]
     run_config = config.run
-    threads = render_threads(run_config.workers)
+    threads = threads_per_worker(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
     args = (camera, spp, config.render.max_depth, threads, config.render.ground_truth)
     produced = map_config(config, open_worker, args, "render", todo, renders=True, remote=workspace.remote)

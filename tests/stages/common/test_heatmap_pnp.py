@@ -8,7 +8,10 @@ import numpy as np
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.heatmap_pnp import (
+    CHUNK,
     RELATIVE_PEAK,
+    _draw,
+    _support,
     decode_candidates,
     explained_value,
     pose_from_candidates,
@@ -140,3 +143,53 @@ def test_heatmaps_of_a_crop_give_the_pose_in_the_image():
         turned = dataclasses.replace(solutions[0], q=g.quat_multiply(solutions[0].q, [np.cos(0.5), np.sin(0.5), 0, 0]))
         assert explained_value(turned, heatmaps[0], image_from_input, CONTRACT, K, DIST, 9.6) < 0.5 * explained
         assert explained_value(None, heatmaps[0], image_from_input, CONTRACT, K, DIST, 9.6) == 0.0
+
+
+def test_ransac_draws_four_distinct_keypoints_each_at_its_highest_peak_half_the_time():
+    """The chunk's draw follows the distribution ``_samples_needed`` assumes: every
+    keypoint with a peak equally likely, four distinct ones, the highest peak of one with
+    several half the time, its others alike."""
+    rng = np.random.default_rng(3)
+    counts = np.array([3, 1, 2, 0, 3, 3, 1, 2, 0, 3, 3])
+    present = np.flatnonzero(counts > 0)
+    keypoints_m = np.arange(11 * 3, dtype=float).reshape(11, 3)
+    candidates = np.arange(11)[:, None, None] * 10.0 + np.arange(3)[None, :, None] + np.zeros((1, 1, 2))
+    chosen, picks = [], []
+    for _ in range(400):
+        body, image = _draw(rng, present, counts, keypoints_m, candidates)
+        assert body.shape == (CHUNK, 4, 3) and image.shape == (CHUNK, 4, 2)
+        keypoint = (body[..., 0] / 3).astype(int)
+        np.testing.assert_array_equal(image[..., 0] // 10, keypoint)  # each point is its keypoint's own peak
+        chosen.append(keypoint)
+        picks.append((image[..., 0] % 10).astype(int))
+    chosen, picks = np.concatenate(chosen), np.concatenate(picks)
+    assert all(len(set(row)) == 4 for row in chosen.tolist()) and set(chosen.ravel()) == set(present)
+    share = np.bincount(chosen.ravel(), minlength=11)[present] / chosen.size
+    np.testing.assert_allclose(share, 1 / len(present), rtol=0.05)
+    for keypoint, count in enumerate(counts):
+        taken = picks[chosen == keypoint]
+        if count == 1:
+            assert np.all(taken == 0)
+        elif count > 1:
+            assert np.all(taken < count)
+            np.testing.assert_allclose(np.mean(taken == 0), 0.5, atol=0.03)
+            np.testing.assert_allclose(np.bincount(taken, minlength=count)[1:] / len(taken), 0.5 / (count - 1),
+                                       atol=0.03)
+
+
+def test_support_projects_every_pose_as_opencv_does():
+    """The chunk's poses are scored at once; each one's support is what a pose projected
+    alone by cv2.projectPoints explains."""
+    rng = np.random.default_rng(4)
+    q_true, candidates, values = mirrored_case(rng)
+    usable = np.all(np.isfinite(candidates), axis=-1)
+    spread = np.geomspace(1e-4, 1e-1, 40)[:, None]  # from the truth to far off it
+    rotvecs = g.quat_to_rotvec(q_true) + rng.normal(0, 1, (40, 3)) * spread
+    translations = np.array([0.2, -0.1, 7.0]) + rng.normal(0, 1, (40, 3)) * spread
+    totals = _support(rotvecs, translations, candidates, values, usable, tango.KEYPOINTS_M, K, DIST, 3.0, None)
+    for rotvec, translation, total in zip(rotvecs, translations, totals, strict=True):
+        projected = cv2.projectPoints(tango.KEYPOINTS_M, rotvec, translation, K, DIST)[0][:, 0]
+        near = usable & (np.linalg.norm(candidates - projected[:, None], axis=-1) <= 3.0)
+        expected = np.where(near, values, 0.0).max(axis=1).sum() if near.any(axis=1).sum() >= 5 else -np.inf
+        assert total == expected or abs(total - expected) < 1e-12
+    assert 5 < np.isfinite(totals).sum() < 35  # poses near the truth explain enough keypoints, far ones not

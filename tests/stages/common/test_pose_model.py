@@ -1,5 +1,6 @@
 """The ONNX model contract, crops, heatmap decoding and pose recovery."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -10,6 +11,8 @@ from stages.common.pose_model import (
     ModelContract,
     crop_window,
     decode_heatmaps,
+    normalise,
+    normalise_uint8,
     parse_contract,
     pose_from_keypoints,
     prepare,
@@ -128,6 +131,36 @@ def test_prepare_maps_pixels_both_ways():
     assert pixels.shape == (150, 240, 1)
     np.testing.assert_allclose(image_from_input @ [-0.5, -0.5, 1], [-0.5, -0.5, 1])  # image corners agree
     np.testing.assert_allclose(image_from_input @ [239.5, 149.5, 1], [959.5, 599.5, 1])
+
+
+@pytest.mark.parametrize("box", [[400.0, 250.0, 520.0, 330.0],  # inside the image
+                                 [-60.0, 500.0, 90.0, 640.0],  # over two edges
+                                 [-900.0, -900.0, -700.0, -760.0],  # outside: black
+                                 [-100.0, -300.0, 1100.0, 900.0]])  # larger than the image
+def test_a_crop_is_the_integer_shift_of_the_image_black_outside(box):
+    """The window is cut without resampling: the pixels are those of an exact integer-shift
+    warp (what the shipped scores were computed with), then resized."""
+    image = np.random.default_rng(1).integers(0, 256, (600, 960, 3), dtype=np.uint8)
+    pixels, _ = prepare(image, CONTRACT, np.array(box))
+    x0, y0, w, h = crop_window(CONTRACT, 960, 600, np.array(box))
+    shifted = cv2.warpAffine(image, np.array([[1.0, 0, -x0], [0, 1.0, -y0]]), (w, h), flags=cv2.INTER_NEAREST,
+                             borderMode=cv2.BORDER_CONSTANT)
+    interpolation = cv2.INTER_AREA if w > 192 else cv2.INTER_LINEAR
+    np.testing.assert_array_equal(pixels, cv2.resize(shifted, (192, 192), interpolation=interpolation)[..., ::-1])
+
+
+@pytest.mark.parametrize(("shape", "mean", "std"), [((3, 17, 23, 3), (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
+                                                    ((17, 23, 3), (0.5, 0.5, 0.5), (0.25, 0.25, 0.25)),
+                                                    ((2, 9, 5, 1), (0.3,), (0.7,))])
+def test_normalising_bytes_by_table_gives_the_same_floats(shape, mean, std):
+    contract = ModelContract(shape[-2], shape[-3], "rgb" if shape[-1] == 3 else "gray", mean, std, "heatmaps",
+                             tango.KEYPOINTS_M.copy(), "full")
+    pixels = np.random.default_rng(2).integers(0, 256, shape, dtype=np.uint8)
+    pixels.flat[:2] = (0, 255)
+    expected = normalise(pixels.astype(np.float32) / 255.0, contract)
+    found = normalise_uint8(pixels, contract)
+    assert found.dtype == np.float32 and found.flags.c_contiguous and found.shape == expected.shape
+    np.testing.assert_array_equal(found, expected)
 
 
 def test_oracle_crop_needs_a_box():
