@@ -62,6 +62,15 @@ def _table2(root: Path) -> dict[str, float]:
             if r["view"] == "all" and r["light"] == "all"}
 
 
+def _crop_seconds(root: Path) -> dict[str, float]:
+    """Evaluate's mean seconds per prediction of each crop (the ``seconds`` column: a
+    batch's time over its items, in its worker)."""
+    rows = pq.read_table(root / "manifests" / "predictions", columns=["crop", "seconds"]).to_pylist()
+    crops = sorted({row["crop"] for row in rows})
+    return {f"evaluate {crop} crop [s per prediction]": sum(r["seconds"] for r in rows if r["crop"] == crop)
+            / sum(1 for r in rows if r["crop"] == crop) for crop in crops}
+
+
 def main(*args: str) -> None:
     if not args:
         sys.exit(__doc__)
@@ -90,7 +99,7 @@ def main(*args: str) -> None:
         {"what": f"{stage} [s]", "before": before.get(stage, 0.0), "after": after.get(stage, 0.0),
          "ratio": after.get(stage, 0.0) / before[stage] if before.get(stage) else float("nan")}
         for stage in before]
-    for figures in (_table1, _table2):
+    for figures in (_crop_seconds, _table1, _table2):
         old, new = figures(root / "before"), figures(root / "after")
         rows += [{"what": name, "before": old[name], "after": new.get(name, float("nan")),
                   "ratio": new.get(name, float("nan")) / old[name] if old[name] else float("nan")} for name in old]
