@@ -4,8 +4,9 @@ import importlib
 import sys
 
 BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "budget", "unmodelled", "render",
-              "cluster", "storage", "ground_truth", "evaluate", "pnp", "identity", "model_cards", "pipeline")
-ON_REQUEST = ("identity", "model_cards", "pipeline")  # need arguments; not part of `python -m bench`
+              "cluster", "storage", "ground_truth", "evaluate", "pnp", "identity", "model_cards", "pipeline",
+              "ransac_noise")
+ON_REQUEST = ("identity", "model_cards", "pipeline", "ransac_noise")  # need arguments; not part of `python -m bench`
 
 if __name__ == "__main__":
     names = sys.argv[1:2] or [name for name in BENCHMARKS if name not in ON_REQUEST]

@@ -235,6 +235,8 @@ class EvaluateConfig:
         0.01, "RANSAC inlier threshold of keypoint PnP, as a fraction of the image width", "1")
     turns: bool = param(True, "a model whose metadata asks for it (speedplus.turns=4) sees each crop at four "
                         "quarter turns and its heatmaps, turned back, are averaged; off: one pass", "")
+    ransac_seed: int = param(0, "seed of the RANSAC draws that turn heatmaps into poses: the scores of another seed "
+                             "show how much of a difference between models or runs is the draw's", "")
 
 
 @dataclass(frozen=True)

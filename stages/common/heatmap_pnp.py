@@ -246,10 +246,11 @@ def _best_supported(rotvecs: np.ndarray, translations: np.ndarray, totals: np.nd
 
 def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray], contract: ModelContract,
                         camera_matrix: np.ndarray, dist: np.ndarray,
-                        reprojection_px: list[float]) -> tuple[list[PnPSolution | None], np.ndarray]:
+                        reprojection_px: list[float], seed: int = 0) -> tuple[list[PnPSolution | None], np.ndarray]:
     """Poses of a batch of heatmaps (N, K, h, w) of crops mapped to their images by
-    ``image_from_inputs`` (N of (3, 3)), each with its RANSAC threshold [px]; and the
-    highest peaks (N, K, 2) in image pixels. The span bound applies to oracle-type crops."""
+    ``image_from_inputs`` (N of (3, 3)), each with its RANSAC threshold [px] (each RANSAC
+    seeded with ``seed``); and the highest peaks (N, K, 2) in image pixels. The span bound
+    applies to oracle-type crops."""
     candidates, values = decode_candidates(heatmaps, contract.width, contract.height)
     solutions, highest = [], []
     for points, value, affine, threshold in zip(candidates, values, image_from_inputs, reprojection_px, strict=True):
@@ -257,7 +258,7 @@ def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray
         highest.append(in_image[:, 0])
         extent = target_extent(affine, contract.width) if contract.crop == "oracle_box" else None
         solutions.append(pose_from_candidates(in_image, value, contract.keypoints_m, camera_matrix, dist, threshold,
-                                              extent))
+                                              extent, seed))
     return solutions, np.array(highest).reshape(len(candidates), -1, 2)
 
 

@@ -29,7 +29,7 @@ from stages.common.engine import map_config
 from stages.common.image_io import ImageReadError
 from stages.common.pose_model import PoseModel
 from stages.common.sidecars import calibrated_camera
-from stages.evaluate.scorer import open_scorer
+from stages.evaluate.scorer import Decoding, open_scorer
 from stages.evaluate.table import print_table2, summarise
 
 REPOSITORY = Path(__file__).resolve().parents[2]
@@ -121,8 +121,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
             batches = [items[i:i + batch] for i in range(0, len(items), batch)]
             threads = config.evaluate.threads or -threads_per_worker(config.run.workers)
-            args = (path.read_bytes(), str(path), threads, camera.camera_matrix, camera.dist,
-                    config.evaluate.ransac_fraction, config.evaluate.turns)
+            decoding = Decoding(config.evaluate.ransac_fraction, config.evaluate.turns, config.evaluate.ransac_seed)
+            args = (path.read_bytes(), str(path), threads, camera.camera_matrix, camera.dist, decoding)
             results = map_config(config, open_scorer, args, "score", batches, renders=False,
                                  prepare=_with_images(workspace))
             for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, "

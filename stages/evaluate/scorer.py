@@ -5,6 +5,7 @@ actor (``pipeline.engines``)."""
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,18 @@ from stages.common.pose_model import (
 from stages.common.scores import score
 
 
+@dataclass(frozen=True)
+class Decoding:
+    """How a model's outputs become poses (the ``evaluate`` keys of the same names)."""
+
+    #: RANSAC's inlier threshold, as a fraction of the image width
+    ransac_fraction: float
+    #: a model that asks for it sees each crop at four quarter turns
+    turns: bool = True
+    #: seed of RANSAC's draws
+    ransac_seed: int = 0
+
+
 class Scorer:
     """Scores batches of items (dicts with ``image_path``, ``image_bytes``, ``box`` and the
     label) with a model given by its bytes; the label camera (K (3, 3) px, dist (5,)) turns
@@ -32,21 +45,20 @@ class Scorer:
     cores for each worker, unless this worker runs on a cluster that reserved it CPUs."""
 
     def __init__(self, model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
-                 reprojection_fraction: float, turns: bool = True) -> None:
+                 decoding: Decoding) -> None:
         self.model = PoseModel(model, threads if threads > 0 else reserved_cpus(-threads), name)
         self.camera_matrix, self.dist = np.asarray(camera_matrix, float), np.asarray(dist, float)
-        self.reprojection_fraction = reprojection_fraction
-        self.turns = turns
+        self.decoding = decoding
 
     def score(self, items: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """``predictions`` rows of a batch, in its order."""
-        return predict(self.model, items, self.camera_matrix, self.dist, self.reprojection_fraction, self.turns)
+        return predict(self.model, items, self.camera_matrix, self.dist, self.decoding)
 
 
 def open_scorer(model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
-                reprojection_fraction: float, turns: bool = True) -> Scorer:
+                decoding: Decoding) -> Scorer:
     """Picklable factory for the engines."""
-    return Scorer(model, name, threads, camera_matrix, dist, reprojection_fraction, turns)
+    return Scorer(model, name, threads, camera_matrix, dist, decoding)
 
 
 #: passes of the self crop: the search over windows, then twice around what the previous pass found
@@ -84,13 +96,14 @@ def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _search(model: PoseModel, image: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
-            reprojection_px: float) -> np.ndarray:
+            decoding: Decoding) -> np.ndarray:
     """The box of the self crop's first pass: the model on every window of
     ``search_windows``; of the ``SEARCH_FINALISTS`` windows whose keypoints are most
     confident (mean heatmap peak), the one whose pose (of the size the window implies)
     explains the most heatmap value is where the target is, and the keypoints reprojected at
     that pose span the box the pass found."""
     height, width = image.shape[:2]
+    reprojection_px = decoding.ransac_fraction * width
     windows = search_windows(width, height)
     # the oracle crop is CROP_MARGIN times the box: a box of 1/CROP_MARGIN of a window crops that window
     centres = [(w[:2] + w[2:]) / 2 for w in windows]
@@ -102,7 +115,8 @@ def _search(model: PoseModel, image: np.ndarray, camera_matrix: np.ndarray, dist
     confidence = heatmaps.reshape(*heatmaps.shape[:2], -1).max(axis=-1).mean(axis=1)
     finalists = np.argsort(-confidence, kind="stable")[:SEARCH_FINALISTS]
     solutions, peaks = poses_from_heatmaps(heatmaps[finalists], [affines[i] for i in finalists], model.contract,
-                                           camera_matrix, dist, [reprojection_px] * len(finalists))
+                                           camera_matrix, dist, [reprojection_px] * len(finalists),
+                                           decoding.ransac_seed)
     values = [explained_value(solution, heatmaps[i], affines[i], model.contract, camera_matrix, dist,
                               reprojection_px) for solution, i in zip(solutions, finalists, strict=True)]
     best = int(np.argmax(values))  # the first, most confident, on ties
@@ -110,14 +124,13 @@ def _search(model: PoseModel, image: np.ndarray, camera_matrix: np.ndarray, dist
 
 
 def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
-           dist: np.ndarray, reprojection_fraction: float, turns: bool = True,
-           ) -> tuple[list[PnPSolution | None], list[np.ndarray]]:
+           dist: np.ndarray, decoding: Decoding) -> tuple[list[PnPSolution | None], list[np.ndarray]]:
     """One pass of the model on crops around ``boxes`` (the contract's crop), its heatmaps
     averaged over quarter turns when the model asks for it and ``turns``: the poses, and the
     keypoints (K, 2) in image pixels."""
     contract = model.contract
     tensors, affines = model.preprocess(images, boxes)
-    outputs = model.infer(tensors, turns)
+    outputs = model.infer(tensors, decoding.turns)
     if contract.output == "pose":
         solutions = []
         for q, t in zip(outputs[0], outputs[1], strict=True):
@@ -127,7 +140,8 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
         return solutions, [np.full((len(contract.keypoints_m), 2), np.nan)] * len(images)
     if contract.output == "heatmaps":
         solutions, in_images = poses_from_heatmaps(outputs[0], affines, contract, camera_matrix, dist,
-                                                   [reprojection_fraction * image.shape[1] for image in images])
+                                                   [decoding.ransac_fraction * image.shape[1] for image in images],
+                                                   decoding.ransac_seed)
         return solutions, list(in_images)
     points = np.asarray(outputs[0], float)
     confidences = np.ones(points.shape[:2])
@@ -136,7 +150,7 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
         in_image = apply_affine(affine, keypoints)
         in_images.append(in_image)
         solutions.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
-                                             reprojection_fraction * image.shape[1], confidence))
+                                             decoding.ransac_fraction * image.shape[1], confidence))
     return solutions, in_images
 
 
@@ -158,7 +172,7 @@ def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.nda
 
 
 def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.ndarray, dist: np.ndarray,
-            reprojection_fraction: float, turns: bool = True) -> list[dict[str, Any]]:
+            decoding: Decoding) -> list[dict[str, Any]]:
     """Prediction rows for a batch of items, each scored with its ``crop``: the contract's
     (``full``, or ``oracle_box`` from the label's box), or ``self``: the model's own crop, a
     search over windows of the whole image (``_search``) then ``SELF_PASSES - 1`` passes
@@ -169,13 +183,13 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
     crops = [item.get("crop", model.contract.crop) for item in items]
     searchable = model.contract.crop == "oracle_box" and model.contract.output == "heatmaps"
     whole = [np.array([0.0, 0.0, image.shape[1] - 1.0, image.shape[0] - 1.0]) for image in images]
-    boxes = [(_search(model, image, camera_matrix, dist, reprojection_fraction * image.shape[1]) if searchable
+    boxes = [(_search(model, image, camera_matrix, dist, decoding) if searchable
               else everything) if crop == "self" else box
              for image, box, crop, everything in zip(images, labelled, crops, whole, strict=True)]
     # the search is the self crop's first pass; without it, the first is on the whole image
     passes = (SELF_PASSES - 1 if searchable else SELF_PASSES) if "self" in crops else 1
     for index in range(passes):
-        solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, reprojection_fraction, turns)
+        solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, decoding)
         if index < passes - 1:
             boxes = [_found_box(model, solution, points, camera_matrix, dist, image.shape[1], image.shape[0])
                      if crop == "self" else box
