@@ -56,10 +56,15 @@ def _with_seed(workspace: Path, seed: int, scratch: Path) -> dict[tuple[str, str
 def main(*args: str) -> None:
     if not args:
         sys.exit(__doc__)
-    workspace = Path(args[0]).resolve()
-    positional = [a for i, a in enumerate(args[1:], 1) if not a.startswith("--") and args[i - 1] != "--against"]
-    options = dict(zip(args[1::2], args[2::2], strict=False))
-    seeds = [int(s) for s in positional[0].split(",")] if positional else [1, 2]
+    workspace, rest = Path(args[0]).resolve(), list(args[1:])
+    options = {}
+    if "--against" in rest:
+        at = rest.index("--against")
+        if at + 1 >= len(rest):
+            sys.exit("--against needs a workspace")
+        options["--against"] = rest.pop(at + 1)
+        rest.pop(at)
+    seeds = [int(s) for s in rest[0].split(",")] if rest else [1, 2]
     own_seed = load_config(None, workspace / "config.toml").evaluate.ransac_seed
     own = _means(workspace)
     with tempfile.TemporaryDirectory(dir=workspace.parent) as scratch:
