@@ -133,9 +133,9 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
-    if config.evaluate.threads < 0 or config.evaluate.batch_size < 1:
-        raise ConfigError("evaluate.threads/batch_size: expected a count of threads (0: the worker's share of the "
-                          "cores) and a batch size of at least 1")
+    if config.evaluate.threads < 0 or config.evaluate.batch_size < 1 or config.evaluate.ransac_seed < 0:
+        raise ConfigError("evaluate.threads/batch_size/ransac_seed: expected a count of threads (0: the worker's "
+                          "share of the cores), a batch size of at least 1 and a seed of at least 0")
     if config.run.workers < 0:
         raise ConfigError("run.workers: expected a count, or 0 for as many as there are CPUs")
     if config.run.worker_max_tasks < 1 or config.run.worker_cpus < 1:

@@ -70,6 +70,8 @@ def test_overrides_are_typed():
         ("camera.width_px=1000", "does not have the aspect"),
         ("plan.lights=['moon']", "plan.lights"),
         ("virtual.rr_depth=0", "virtual.spp/max_depth/rr_depth"),
+        ("evaluate.threads=-1", "evaluate.threads/batch_size/ransac_seed"),
+        ("evaluate.ransac_seed=-2", "evaluate.threads/batch_size/ransac_seed"),
         ("plan", "expected section.key=value"),
     ],
 )
