@@ -64,6 +64,10 @@ def main(*args: str) -> None:
             sys.exit("--against needs a workspace")
         options["--against"] = rest.pop(at + 1)
         rest.pop(at)
+    if not (workspace / "manifests" / "predictions").exists():
+        sys.exit(f"{workspace}: not an evaluated workspace (no manifests/predictions)")
+    if rest and not all(s.isdigit() for s in rest[0].split(",")):
+        sys.exit(f"SEEDS: expected comma-separated non-negative integers, got {rest[0]!r}")
     seeds = [int(s) for s in rest[0].split(",")] if rest else [1, 2]
     own_seed = load_config(None, workspace / "config.toml").evaluate.ransac_seed
     own = _means(workspace)
