@@ -64,7 +64,8 @@ def _table2(root: Path) -> dict[str, float]:
 
 def _crop_seconds(root: Path) -> dict[str, float]:
     """Evaluate's mean seconds per prediction of each crop (the ``seconds`` column: a
-    batch's time over its items, in its worker)."""
+    batch's time over its items, in its worker; a batch that holds both crops, where the
+    images of a model are not a multiple of ``evaluate.batch_size``, counts alike for both)."""
     rows = pq.read_table(root / "manifests" / "predictions", columns=["crop", "seconds"]).to_pylist()
     crops = sorted({row["crop"] for row in rows})
     return {f"evaluate {crop} crop [s per prediction]": sum(r["seconds"] for r in rows if r["crop"] == crop)

@@ -28,8 +28,8 @@ def _items(count: int) -> list[dict]:
     return items
 
 
-def _scored(path, threads: int, seed: int = 0) -> list[dict]:
-    scorer = Scorer(path.read_bytes(), "conv.onnx", threads, K, DIST, Decoding(0.01, True, seed))
+def _scored(path, threads: int) -> list[dict]:
+    scorer = Scorer(path.read_bytes(), "conv.onnx", threads, K, DIST, Decoding(0.01))
     return [{key: value for key, value in row.items() if key != "seconds"} for row in scorer.score(_items(3))]
 
 
