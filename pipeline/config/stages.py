@@ -103,7 +103,10 @@ class CalibrateConfig:
     arm_prior_length_m: float = param(2e-3, "prior 1-sigma of an arm dimension against the data sheet", "m")
     arm_prior_base_m: float = param(2e-3, "prior 1-sigma of a robot base's surveyed position", "m")
     arm_prior_base_rad: float = param(2e-3, "prior 1-sigma of a robot base's surveyed orientation", "rad")
-    arm_prior_rail_scale: float = param(1e-3, "prior 1-sigma of the rail encoder's scale error", "1")
+    arm_prior_rail_scale: float = param(
+        1e-4, "prior 1-sigma of the rail encoder's scale error: a rack's cumulative pitch error is tens of um per "
+        "metre, and steel expands 1.2e-5 per K; the calibration's 1.2 m of rail travel barely constrains it, so at "
+        "the dataset's 3-5 m this prior is most of the robots' depth sigma (docs/architecture.md section 6)", "1")
     joint_compliance: Literal["on", "off"] = param(
         "on", "with the arms' kinematics, also estimate the gearbox compliance of A2, A3 and A5 under gravity "
         "(stages/common/arms.py)", "")
@@ -151,6 +154,10 @@ class FuseConfig:
     min_scale_samples: int = param(
         10, "two-source dataset captures needed to estimate the variance factor (else the calibrated sigmas)",
         "count")
+    inconsistent_axes: Literal["fall_back", "fuse"] = param(
+        "fall_back", "on a position axis where the two sources disagree on the dataset captures beyond their "
+        "sigmas (the variance factor fails a 95% test), fall_back: keep only the source whose sigma there is "
+        "smaller, as which one is off cannot be told from two; fuse: fuse it anyway, both sigmas scaled", "")
 
 
 @dataclass(frozen=True)

@@ -12,11 +12,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import beta, chi2
 
 from manifests.sidecars import SigmaRecord
 from stages.common import geometry as g
 
 REJECTION_K = 1.96
+#: one-sided level of the test that two sources disagree on an axis beyond their sigmas
+CONSISTENCY_LEVEL = 0.95
 #: medians of chi-square variables with 1 and 3 degrees of freedom: a robust scale of a
 #: normal component (|r| / 0.6745) and of an isotropic rotation's squared angle
 _CHI2_1_MEDIAN = 0.454936
@@ -96,8 +99,26 @@ class VarianceFactor:
     def to_json(self) -> dict:
         return {"t": [float(v) for v in self.t], "r": float(self.r), "samples": self.samples}
 
+    def inconsistent(self) -> np.ndarray:
+        """Per camera axis (3,) bool: the sources disagree beyond their sigmas, i.e. the
+        factor exceeds what two consistent sources show on this many captures."""
+        if self.samples == 0:
+            return np.zeros(3, bool)
+        return self.t > consistency_bound(self.samples)
+
 
 UNIT_FACTOR = VarianceFactor(np.ones(3), 1.0, 0)
+
+
+def consistency_bound(samples: int, level: float = CONSISTENCY_LEVEL) -> float:
+    """The position factor of ``variance_factor`` that two sources whose sigmas hold exceed
+    with probability ``1 - level`` on ``samples`` captures. The factor is
+    ``sqrt(median(r^2) / median(chi2_1))`` of normalised disagreements ``r``; the sample
+    median is at most the order statistic ``k = n // 2 + 1`` (the upper of the two middle
+    ones when n is even), whose CDF value is Beta(k, n + 1 - k)."""
+    k = samples // 2 + 1
+    quantile = chi2.ppf(beta.ppf(level, k, samples + 1 - k), 1)
+    return float(np.sqrt(quantile / _CHI2_1_MEDIAN))
 
 
 def variance_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: list[Sigma]) -> VarianceFactor:

@@ -6,7 +6,10 @@ were measured at the calibration distance and arm configurations; on the dataset
 captures they grow with the lever of the line of sight, with the calibrated arms'
 parameter uncertainty propagated to each capture's configuration, and by the session's
 a posteriori variance factor: how much the two sources disagree on its own captures
-beyond what those sigmas predict (``W/fusion.json``).
+beyond what those sigmas predict (``W/fusion.json``). On an axis where that disagreement
+fails a 95% test of consistency, the source with the smaller sigma there is kept alone
+(``axis_sources``): two sources cannot tell which of them is off, and fusing would let the
+worse pull the better.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from stages.common.fusion import (
     Sigma,
     VarianceFactor,
     at_position,
+    consistency_bound,
     fuse,
     rejection_reason,
     variance_factor,
@@ -147,16 +151,55 @@ def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel
     return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
 
 
+def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, vicon: SourceModel | None,
+                 factor: VarianceFactor) -> tuple[tuple[str, str, str], str]:
+    """Per camera axis, where the labels' position comes from (``AXIS_SOURCES``), and why.
+
+    Where the two sources disagree on the dataset captures beyond their sigmas (the factor
+    fails ``VarianceFactor.inconsistent``), one of them errs beyond its sigma, and two
+    sources cannot tell which; fusing would let the worse pull the better. The source with
+    the smaller sigma on that axis (median over the two-source captures) is kept alone: the
+    calibration's ranking is the only evidence left. Its variance gains the whole excess of
+    the disagreement's variance over the predicted, since that excess may be its own."""
+    if vicon is None or config.fuse.inconsistent_axes == "fuse":
+        return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
+    both = [e for e in estimates if e.vicon is not None and np.all(np.isfinite(e.vicon))]
+    bound = consistency_bound(factor.samples) if factor.samples else np.inf
+    sources, reasons = [], []
+    for axis, name in enumerate("xyz"):
+        if not factor.inconsistent()[axis]:
+            sources.append("fused")
+            continue
+        sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m[axis] for e in both])
+        sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m[axis] for e in both])
+        sources.append("kuka" if sigma_kuka <= sigma_vicon else "vicon")
+        reasons.append(f"{name}: factor {factor.t[axis]:.3f} > {bound:.3f} (95% of consistent sources on "
+                       f"{factor.samples} captures); sigma robots {sigma_kuka * 1000:.2f} mm, motion capture "
+                       f"{sigma_vicon * 1000:.2f} mm: {sources[-1]} alone")
+    return tuple(sources), "; ".join(reasons) or "the sources agree within their sigmas on every axis"
+
+
 def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
-                 factor: VarianceFactor, rejection_k: float) -> dict[str, Any]:
-    """One ``poses`` row."""
+                 factor: VarianceFactor, rejection_k: float,
+                 sources: tuple[str, ...] = ("fused",) * 3) -> dict[str, Any]:
+    """One ``poses`` row; ``sources``: per camera axis, fused or one source alone (``axis_sources``)."""
     reason = "no motion capture in this session"
-    sigma_kuka = factor.scale(e.plus_parameters(kuka.sigma_at(e.kuka)))
+    calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
+    sigma_kuka = factor.scale(calibrated_kuka)
     if vicon is not None:
-        threshold = factor.scale(e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq)))
-        reason = rejection_reason(e.kuka, e.vicon, threshold, rejection_k)
+        predicted = e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq))
+        reason = rejection_reason(e.kuka, e.vicon, factor.scale(predicted), rejection_k)
     if reason is None:
-        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(vicon.sigma_at(e.vicon)))
+        calibrated_vicon = vicon.sigma_at(e.vicon)
+        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(calibrated_vicon))
+        # the disagreement's variance beyond the prediction may all be the kept source's own
+        excess = (factor.t**2 - 1) * predicted.t_m**2
+        t_m = sigma.t_m.copy()
+        for axis, source in enumerate(sources):
+            if source != "fused":
+                pose, alone = (e.kuka, calibrated_kuka) if source == "kuka" else (e.vicon, calibrated_vicon)
+                fused[axis, 3], t_m[axis] = pose[axis, 3], np.sqrt(alone.t_m[axis] ** 2 + excess[axis])
+        sigma = Sigma(t_m, sigma.r_rad)
     else:
         fused, sigma = e.kuka, sigma_kuka
     tracked = e.vicon is not None and np.all(np.isfinite(e.vicon))
@@ -176,13 +219,14 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     covariances = kuka.parameter_covariances(rows)
     estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
     factor, why = session_factor(config, estimates, kuka, rejection)
+    sources, axis_why = axis_sources(config, estimates, kuka, vicon, factor)
     write_fusion(workspace, FusionRecord(tuple(float(v) for v in factor.t), float(factor.r), factor.samples, why,
-                                         config.fuse.rejection_k))
+                                         config.fuse.rejection_k, sources, axis_why))
     print(f"fuse: sigma factors: position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, "
-          f"rotation {factor.r:.2f} ({why})")
+          f"rotation {factor.r:.2f} ({why}); position x, y, z: {', '.join(sources)} ({axis_why})")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]
     with open_sink(workspace, "poses", config.run.part_rows) as sink:
         for e in track(todo, len(todo), "fuse"):
-            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k))
+            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k, sources))
     return read_manifest(workspace, "poses")

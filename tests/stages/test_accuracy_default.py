@@ -114,8 +114,8 @@ def dataset_errors(ws):
 def test_dataset_labels_against_the_speedplus_thresholds(labelled, rigid):
     ours, papers = dataset_errors(labelled), dataset_errors(rigid)
     # (d) on the dataset captures motion capture is some 8x worse than the calibrated robots
-    # (README, "Accuracy"): fusion cannot gain much there, and must not lose much either
-    assert ours["fused"].mean() < 1.25 * ours["kuka"].mean() and ours["fused"].mean() < 0.3 * ours["vicon"].mean()
+    # (README, "Accuracy"): fusion cannot gain much there, and must do no harm (issue 28)
+    assert ours["fused"].mean() <= 1.01 * ours["kuka"].mean() and ours["fused"].mean() < 0.3 * ours["vicon"].mean()
     assert papers["fused"].mean() < min(papers["kuka"].mean(), papers["vicon"].mean())  # the paper's case
     # (c) the goal is every label under both thresholds; with the unmodelled errors the default
     # facility (seed 11) keeps most of them, seeds 12-15 all (README, "Accuracy")

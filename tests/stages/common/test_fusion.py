@@ -5,7 +5,17 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from stages.common import geometry as g
-from stages.common.fusion import Sigma, at_position, fuse, lever_sq, rejection_reason, sigma_between, variance_factor
+from stages.common.fusion import (
+    Sigma,
+    VarianceFactor,
+    at_position,
+    consistency_bound,
+    fuse,
+    lever_sq,
+    rejection_reason,
+    sigma_between,
+    variance_factor,
+)
 
 
 def pose(rotvec, t):
@@ -149,3 +159,20 @@ def test_variance_factor_ignores_a_minority_of_gross_outliers():
     factor = variance_factor(robots_pose, mocap_pose, [difference_sigma(sigma, sigma)] * 3000)
     # 20% contamination moves a median-based factor by a third, a mean-based one 30-fold
     assert np.all(factor.t < 1.5) and factor.r < 1.5
+
+
+@pytest.mark.parametrize("captures", [21, 44])
+def test_consistent_sources_fail_the_consistency_test_at_most_5_percent_of_the_time(captures):
+    """The bound is the 95% quantile of the factor two sources whose sigmas hold show (even
+    counts: a little above it, since the median of two middle values is taken as the upper)."""
+    rng = np.random.default_rng(captures)
+    sigma = Sigma(np.full(3, 1e-3), 1e-3)
+    flagged = []
+    for _ in range(400):
+        robots_pose, mocap_pose = noisy_pairs(rng, captures, sigma, sigma)
+        factor = variance_factor(robots_pose, mocap_pose, [difference_sigma(sigma, sigma)] * captures)
+        flagged.append(factor.inconsistent())
+    share = np.mean(flagged)
+    assert 0.02 <= share <= 0.06, share
+    assert not VarianceFactor(np.full(3, 9.0), 1.0, 0).inconsistent().any()  # nothing measured, nothing flagged
+    assert consistency_bound(captures) > consistency_bound(4 * captures) > 1.0
