@@ -183,7 +183,7 @@ def best_fusion_mm(data: dict[str, Any]) -> float:
 
 
 def facility_row(seed: int, ours: Workspace, papers: Workspace) -> tuple[dict[str, Any], dict[str, Any]]:
-    data = dataset(ours)
+    data, theirs = dataset(ours), dataset(papers)
     under = (data["rotation"] < SPEEDPLUS_ROTATION_RAD) & (data["position"] < SPEEDPLUS_TRANSLATION)
     ratios = table1_ratios(papers)
     samples = calibration_samples(ours)
@@ -194,6 +194,11 @@ def facility_row(seed: int, ours: Workspace, papers: Workspace) -> tuple[dict[st
         "held out (issue 28)": "yes" if seed in HELD_OUT_SEEDS else "no",
         "(a) paper's Table 1 ratios, min-max": f"{min(ratios.values()):.2f}-{max(ratios.values()):.2f}",
         "(a) within 2x": "yes" if all(0.5 <= r <= 2 for r in ratios.values()) else "no",
+        "(a) paper's method, cal E_T fused/kuka/vicon (mm)": "/".join(
+            f"{v:.3f}" for v in calibration_samples(papers).values()),
+        "(a) paper's method, dataset E_T fused/kuka/vicon (mm)": (f"{theirs['both_fused'].mean() * 1000:.3f}/"
+                                                                 f"{theirs['both_kuka'].mean() * 1000:.3f}/"
+                                                                 f"{theirs['vicon'].mean() * 1000:.3f}"),
         **{f"(a) {source}-only E_T, E_R, E_p / Table 1": ", ".join(f"{ratios[f'{source} {key}']:.2f}"
                                                                 for key in ("E_T", "E_R", "E_p"))
            for source in ("kuka", "vicon")},
