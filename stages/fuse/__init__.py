@@ -28,6 +28,7 @@ from pipeline.progress import track
 from stages.common import arms
 from stages.common import geometry as g
 from stages.common.fusion import (
+    CONSISTENCY_LEVEL,
     UNIT_FACTOR,
     Sigma,
     VarianceFactor,
@@ -164,18 +165,19 @@ def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, 
     if vicon is None or config.fuse.inconsistent_axes == "fuse":
         return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
     both = [e for e in estimates if e.vicon is not None and np.all(np.isfinite(e.vicon))]
-    bound = consistency_bound(factor.samples) if factor.samples else np.inf
+    inconsistent = factor.inconsistent()
     sources, reasons = [], []
     for axis, name in enumerate("xyz"):
-        if not factor.inconsistent()[axis]:
+        if not inconsistent[axis]:
             sources.append("fused")
             continue
         sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m[axis] for e in both])
         sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m[axis] for e in both])
         sources.append("kuka" if sigma_kuka <= sigma_vicon else "vicon")
-        reasons.append(f"{name}: factor {factor.t[axis]:.3f} > {bound:.3f} (95% of consistent sources on "
-                       f"{factor.samples} captures); sigma robots {sigma_kuka * 1000:.2f} mm, motion capture "
-                       f"{sigma_vicon * 1000:.2f} mm: {sources[-1]} alone")
+        reasons.append(f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
+                       f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures); "
+                       f"sigma robots {sigma_kuka * 1000:.2f} mm, motion capture {sigma_vicon * 1000:.2f} mm: "
+                       f"{sources[-1]} alone")
     return tuple(sources), "; ".join(reasons) or "the sources agree within their sigmas on every axis"
 
 
@@ -183,30 +185,29 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
                  factor: VarianceFactor, rejection_k: float,
                  sources: tuple[str, ...] = ("fused",) * 3) -> dict[str, Any]:
     """One ``poses`` row; ``sources``: per camera axis, fused or one source alone (``axis_sources``)."""
-    reason = "no motion capture in this session"
     calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
-    sigma_kuka = factor.scale(calibrated_kuka)
+    reason, excess = "no motion capture in this session", np.zeros(3)
     if vicon is not None:
         predicted = e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq))
         reason = rejection_reason(e.kuka, e.vicon, factor.scale(predicted), rejection_k)
-    if reason is None:
-        calibrated_vicon = vicon.sigma_at(e.vicon)
-        fused, sigma = fuse(e.kuka, sigma_kuka, e.vicon, factor.scale(calibrated_vicon))
         # the disagreement's variance beyond the prediction may all be the kept source's own
         excess = (factor.t**2 - 1) * predicted.t_m**2
-        t_m = sigma.t_m.copy()
-        for axis, source in enumerate(sources):
-            if source != "fused":
-                pose, alone = (e.kuka, calibrated_kuka) if source == "kuka" else (e.vicon, calibrated_vicon)
-                fused[axis, 3], t_m[axis] = pose[axis, 3], np.sqrt(alone.t_m[axis] ** 2 + excess[axis])
-        sigma = Sigma(t_m, sigma.r_rad)
+    if reason is None:
+        calibrated_vicon = vicon.sigma_at(e.vicon)
+        fused, sigma = fuse(e.kuka, factor.scale(calibrated_kuka), e.vicon, factor.scale(calibrated_vicon))
     else:
-        fused, sigma = e.kuka, sigma_kuka
+        fused, sigma = e.kuka.copy(), factor.scale(calibrated_kuka)
+    t_m = sigma.t_m.copy()
+    for axis, source in enumerate(sources):
+        if source != "fused":  # motion capture alone where it passed the rejection test, else the robots
+            mocap = source == "vicon" and reason is None
+            pose, alone = (e.vicon, calibrated_vicon) if mocap else (e.kuka, calibrated_kuka)
+            fused[axis, 3], t_m[axis] = pose[axis, 3], np.sqrt(alone.t_m[axis] ** 2 + excess[axis])
     tracked = e.vicon is not None and np.all(np.isfinite(e.vicon))
     return {"sample_id": e.row["sample_id"], **g.pose_columns("kuka_cam_from_target", e.kuka),
             **g.pose_columns("vicon_cam_from_target", e.vicon if tracked else None), "vicon_accepted": reason is None,
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
-            "sigma_t_m": sigma.t_m, "sigma_r_rad": sigma.r_rad}
+            "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad}
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
