@@ -253,11 +253,11 @@ def main(seeds: str = ",".join(str(s) for s in DEVELOPMENT_SEEDS + HELD_OUT_SEED
         rows.append(row)
         raws.append((seed, raw))
     held_out = HELD_OUT_SEEDS + LATER_SEEDS
-    groups = (("pooled, all", lambda seed: True), ("pooled, development", lambda seed: seed not in held_out),
-              ("pooled, held out", lambda seed: seed in held_out))
-    for label, member in groups:
-        chosen = [raw for seed, raw in raws if member(seed)]
-        if chosen and len(chosen) < len(raws) or label == "pooled, all":
+    groups = {"pooled, all": [raw for _, raw in raws],
+              "pooled, development": [raw for seed, raw in raws if seed not in held_out],
+              "pooled, held out": [raw for seed, raw in raws if seed in held_out]}
+    for label, chosen in groups.items():
+        if chosen and (label == "pooled, all" or len(chosen) < len(raws)):  # a group that is all is said once
             summary = pooled_row(label, [r["normalised"] for r in chosen], [r["under"] for r in chosen])
             rows.append({key: summary.get(key, "") for key in rows[0]})
     report("honesty", "acceptance over independent virtual facilities (issue 13)", rows,
