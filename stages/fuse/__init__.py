@@ -119,6 +119,11 @@ class Estimates:
     vicon: np.ndarray | None
     kuka_covariance: np.ndarray | None  # (6, 6) from the calibrated arms' parameters
 
+    @property
+    def tracked(self) -> bool:
+        """Motion capture gave a finite pose of this capture."""
+        return self.vicon is not None and bool(np.all(np.isfinite(self.vicon)))
+
     def plus_parameters(self, sigma: Sigma) -> Sigma:
         """``sigma`` with the robots' parameter uncertainty at this capture added."""
         if self.kuka_covariance is None:
@@ -143,7 +148,7 @@ def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel
         return UNIT_FACTOR, "one source: the calibrated sigmas"
     if config.fuse.sigma_scale == "calibration":
         return UNIT_FACTOR, "fuse.sigma_scale = calibration"
-    both = [e for e in estimates if e.vicon is not None and np.all(np.isfinite(e.vicon))]
+    both = [e for e in estimates if e.tracked]
     if len(both) < config.fuse.min_scale_samples:
         return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
                              f"({config.fuse.min_scale_samples}): the calibrated sigmas")
@@ -164,7 +169,7 @@ def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, 
     the disagreement's variance over the predicted, since that excess may be its own."""
     if vicon is None or config.fuse.inconsistent_axes == "fuse":
         return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
-    both = [e for e in estimates if e.vicon is not None and np.all(np.isfinite(e.vicon))]
+    both = [e for e in estimates if e.tracked]
     inconsistent = factor.inconsistent()
     sources, reasons = [], []
     for axis, name in enumerate("xyz"):
@@ -203,9 +208,8 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
             mocap = source == "vicon" and reason is None
             pose, alone = (e.vicon, calibrated_vicon) if mocap else (e.kuka, calibrated_kuka)
             fused[axis, 3], t_m[axis] = pose[axis, 3], np.sqrt(alone.t_m[axis] ** 2 + excess[axis])
-    tracked = e.vicon is not None and np.all(np.isfinite(e.vicon))
     return {"sample_id": e.row["sample_id"], **g.pose_columns("kuka_cam_from_target", e.kuka),
-            **g.pose_columns("vicon_cam_from_target", e.vicon if tracked else None), "vicon_accepted": reason is None,
+            **g.pose_columns("vicon_cam_from_target", e.vicon if e.tracked else None), "vicon_accepted": reason is None,
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
             "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad}
 
