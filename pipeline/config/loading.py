@@ -152,6 +152,8 @@ def _check(config: Config) -> Config:
            config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale,
            *config.calibrate.arm_prior_compliance_rad_per_nm) <= 0:
         raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
+    if min(*config.fuse.lost_motion_rad, config.fuse.backlash_preload_nm, config.fuse.vicon_scale_sigma) < 0:
+        raise ConfigError("fuse.lost_motion_rad/backlash_preload_nm/vicon_scale_sigma: expected values of at least 0")
     if config.calibrate.fixture_anisotropy_prior <= 0:
         raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
     if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):

@@ -158,6 +158,21 @@ class FuseConfig:
         "fall_back", "on a position axis where the two sources disagree on the dataset captures beyond their "
         "sigmas (the variance factor fails a 95% test), fall_back: keep only the source whose sigma there is "
         "smaller, as which one is off cannot be told from two; fuse: fuse it anyway, both sigmas scaled", "")
+    vicon_scale_sigma: float = param(
+        3e-4, "motion capture: 1-sigma scale error of its wand calibration (Vicon: 0.15 mm on the 500 mm wand, "
+        "sub-mm volume accuracy; Merriaux et al., Sensors 17(7) 1591, 2017). The calibration absorbs it at its "
+        "own distance; beyond it the error grows along the line of sight: 1 mm at 4 m. 0: none", "1")
+    lost_motion_rad: tuple[float, float, float, float, float, float] = param(
+        (2.9e-4, 2.9e-4, 2.9e-4, 5.8e-4, 5.8e-4, 5.8e-4),
+        "the arms' gearbox lost motion (backlash plus hysteresis) of A1-A6, as the data sheet gives it (RV "
+        "reducers of the main axes: 1 arcmin; wrist: about 2 arcmin). A joint below fuse.backlash_preload_nm "
+        "rests on the flank its last move left it on, which no calibration models: it adds (lost motion / 2)^2 "
+        "to its angle's variance, propagated to the robots' pose at each dataset capture (with calibrated "
+        "arms); 0: none", "rad")
+    backlash_preload_nm: float = param(
+        15.0, "a joint whose gravity torque (the lab's nominal mass model) exceeds this rests on its loaded flank "
+        "whatever its last move, and gains no lost-motion variance. RV reducers' lost motion is specified "
+        "within +-3% of the rated torque: 15 N m for a 500 N m main axis", "N m")
 
 
 @dataclass(frozen=True)

@@ -234,12 +234,31 @@ class Fit:
                 "parameters": [float(v) for v in self.params], "covariance": self.covariance.tolist()}
 
 
+def flank_variances(testbed: TestbedConfig, r: Readings, lost_motion_rad: tuple[float, ...],
+                    preload_nm: float) -> np.ndarray:
+    """(N, 12) variance (rad^2) of each joint's angle (camera A1-A6, then target) at
+    readings ``r`` from its gearbox's lost motion (6,) rad, both arms alike.
+
+    A joint whose nominal gravity torque exceeds ``preload_nm`` rests on its loaded flank,
+    at the same place for every capture with that load, which the joint offsets absorb:
+    none. Any other rests on the flank its last move left it on, ``+-lost / 2`` from the
+    middle, which no calibration can know for a capture: ``(lost / 2)^2``, the two-point
+    distribution's variance. At 4 m a wrist's 1 arcmin turns the line of sight by 0.6 mm,
+    five times what it does to the board at the calibration's 0.75 m."""
+    camera_torque, target_torque = torques(testbed, r)
+    free = np.abs(np.concatenate([camera_torque, target_torque], axis=1)) <= preload_nm
+    return np.where(free, np.tile((np.asarray(lost_motion_rad, float) / 2) ** 2, 2), 0.0)
+
+
 def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixtures: list[str],
-                     world_up: np.ndarray, step: float = 1e-7) -> np.ndarray:
+                     world_up: np.ndarray, joint_variance_rad2: np.ndarray | None = None,
+                     step: float = 1e-7) -> np.ndarray:
     """(N, 6, 6) covariances (rotation applied on the camera side, rad; translation, m) of
     the poses predicted for captures ``r``, propagated from the fitted parameters'
     covariance (``Fit.to_json``): where the arms' configuration differs from the
-    calibration's, they grow."""
+    calibration's, they grow. ``joint_variance_rad2`` (N, 12): each capture's own noise of
+    its joint angles (``flank_variances``), on top of the parameters' shared uncertainty;
+    the joint offsets' Jacobian columns are exactly those of the joint angles."""
     params, covariance = np.asarray(entry["parameters"]), np.asarray(entry["covariance"])
     names, compliant = list(entry["fixtures"]), bool(entry["compliant"])
     moved = np.repeat(params[None], len(params) + 1, axis=0)
@@ -251,6 +270,9 @@ def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings,
                                   0, -1) / step
     jacobian[:, 3:] = np.moveaxis(poses[..., :3, 3] - centre[:, :3, 3], 0, -1) / step
     propagated = jacobian @ covariance @ np.swapaxes(jacobian, -1, -2)
+    if joint_variance_rad2 is not None:
+        joints = jacobian[:, :, :12]  # the camera's then the target's joint offsets (``ArmErrors.params``)
+        propagated += np.einsum("nij,nj,nkj->nik", joints, joint_variance_rad2, joints)
     return 0.5 * (propagated + np.swapaxes(propagated, -1, -2))  # exactly symmetric despite rounding
 
 

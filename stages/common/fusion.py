@@ -62,6 +62,17 @@ def at_position(sigma: Sigma, t: np.ndarray, calibration_lever_sq: np.ndarray) -
     return Sigma(np.sqrt(sigma.t_m**2 + grow), sigma.r_rad, sigma.pointing_rad)
 
 
+def with_scale_error(sigma: Sigma, t: np.ndarray, calibration_distance_m: float, scale_sigma: float) -> Sigma:
+    """``sigma`` of a source whose distances err by one common scale factor (1-sigma
+    ``scale_sigma``, e.g. a motion-capture system's wand calibration), for a target at ``t``
+    (3,) in the camera frame. The calibration's offsets absorbed the error at its own
+    distance ``calibration_distance_m``; beyond it the error is ``s (|t| - d_cal)`` along the
+    line of sight, ``s t_i (1 - d_cal / |t|)`` on axis i."""
+    t = np.asarray(t, dtype=float)
+    grow = (scale_sigma * t * (1.0 - calibration_distance_m / np.linalg.norm(t))) ** 2
+    return Sigma(np.sqrt(sigma.t_m**2 + grow), sigma.r_rad, sigma.pointing_rad)
+
+
 def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:
     """The paper's variances of ``estimates`` about ``references`` (N, 4, 4): per camera axis
     ``sum (t - t_ref)^2 / (N - 1)``, and the same of the rotation angle.

@@ -21,8 +21,8 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.sidecars import FusionRecord, SourceCalibration, read_calibration, write_fusion
-from pipeline.config import Config, TestbedConfig
+from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
+from pipeline.config import Config, FuseConfig, TestbedConfig
 from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common import arms
@@ -37,6 +37,7 @@ from stages.common.fusion import (
     fuse,
     rejection_reason,
     variance_factor,
+    with_scale_error,
 )
 from stages.common.rwhe import fixture_tilt
 from stages.common.sidecars import matrix
@@ -46,8 +47,8 @@ from stages.common.sources import measurement, up_targetee
 class SourceModel:
     """One source's calibrated offsets, fixture compliance and uncertainty."""
 
-    def __init__(self, entry: SourceCalibration, calibration_lever_sq: np.ndarray, world_up: np.ndarray,
-                 testbed: TestbedConfig) -> None:
+    def __init__(self, entry: SourceCalibration, calibration: Calibration, testbed: TestbedConfig,
+                 scale_sigma: float = 0.0) -> None:
         self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
         self.arms = arms.ArmErrors.from_json(kinematics) if kinematics["estimated"] else None
@@ -57,8 +58,10 @@ class SourceModel:
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
         self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
         self.sigma = Sigma.from_record(entry.sigma)
-        self.calibration_lever_sq = calibration_lever_sq
-        self.world_up = np.asarray(world_up, float)
+        self.calibration_lever_sq = np.array(calibration.calibration_lever_sq_m2, float)
+        self.calibration_distance_m = calibration.calibration_distance_m
+        self.world_up = np.asarray(calibration.world_up, float)  # the up the compliance was fitted with
+        self.scale_sigma = scale_sigma
 
     def estimate(self, b: np.ndarray, row: dict[str, Any]) -> np.ndarray:
         """``cam_from_target`` (4, 4) of a capture from this source's measurement ``b``."""
@@ -80,32 +83,35 @@ class SourceModel:
             b = b @ fixture_tilt(up[None], self.compliance[fixture][None], d)[0]
         return self.z @ b @ g.invert(self.x[fixture])
 
-    def sigma_at(self, pose: np.ndarray) -> Sigma:
-        return at_position(self.sigma, pose[:3, 3], self.calibration_lever_sq)
+    def sigma_at(self, pose: np.ndarray, sigma: Sigma | None = None) -> Sigma:
+        """This source's sigma (or ``sigma``, measured at the calibration) grown to ``pose``:
+        the line of sight's lever, and the distances' scale error beyond the calibration's."""
+        grown = at_position(self.sigma if sigma is None else sigma, pose[:3, 3], self.calibration_lever_sq)
+        return with_scale_error(grown, pose[:3, 3], self.calibration_distance_m, self.scale_sigma)
 
-    def parameter_covariances(self, rows: list[dict[str, Any]]) -> list[np.ndarray | None]:
-        """(6, 6) covariance of each capture's pose from the calibrated arms' uncertainty
-        (None without calibrated arms); all captures at once."""
+    def parameter_covariances(self, rows: list[dict[str, Any]], fuse: FuseConfig) -> list[np.ndarray | None]:
+        """(6, 6) covariance of each capture's pose from the calibrated arms' uncertainty and
+        the joints' lost motion (``arms.flank_variances``; None without calibrated arms);
+        all captures at once."""
         if self.arms is None or not rows:
             return [None] * len(rows)
         readings = arms.readings(rows)
         if readings is None:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
+        flanks = arms.flank_variances(self.testbed, readings, fuse.lost_motion_rad, fuse.backlash_preload_nm)
         return list(arms.pose_covariances(self.testbed, self.kinematics, readings, [r["fixture"] for r in rows],
-                                          self.world_up))
+                                          self.world_up, flanks))
 
 
-def load_models(workspace: Workspace, testbed: TestbedConfig) -> tuple[SourceModel, SourceModel | None,
-                                                                      Sigma | None]:
+def load_models(workspace: Workspace, testbed: TestbedConfig,
+                vicon_scale_sigma: float) -> tuple[SourceModel, SourceModel | None, Sigma | None]:
     """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``."""
     calibration = read_calibration(workspace)
-    lever = np.array(calibration.calibration_lever_sq_m2, float)
-    world_up = np.array(calibration.world_up, float)  # the up the compliance was fitted with
-    kuka = SourceModel(calibration.kuka, lever, world_up, testbed)
+    kuka = SourceModel(calibration.kuka, calibration, testbed)
     vicon = rejection = None
     if calibration.vicon is not None:
-        vicon = SourceModel(calibration.vicon, lever, world_up, testbed)
+        vicon = SourceModel(calibration.vicon, calibration, testbed, vicon_scale_sigma)
         rejection = Sigma.from_record(calibration.rejection)
     return kuka, vicon, rejection
 
@@ -141,10 +147,10 @@ def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None,
     return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose, kuka_covariance)
 
 
-def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel,
+def session_factor(config: Config, estimates: list[Estimates], vicon: SourceModel | None,
                    rejection: Sigma | None) -> tuple[VarianceFactor, str]:
     """The variance factor of this dataset session, and why it is what it is."""
-    if rejection is None:
+    if vicon is None or rejection is None:
         return UNIT_FACTOR, "one source: the calibrated sigmas"
     if config.fuse.sigma_scale == "calibration":
         return UNIT_FACTOR, "fuse.sigma_scale = calibration"
@@ -152,7 +158,7 @@ def session_factor(config: Config, estimates: list[Estimates], kuka: SourceModel
     if len(both) < config.fuse.min_scale_samples:
         return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
                              f"({config.fuse.min_scale_samples}): the calibrated sigmas")
-    predicted = [e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq)) for e in both]
+    predicted = [e.plus_parameters(vicon.sigma_at(e.kuka, rejection)) for e in both]
     factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
     return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
 
@@ -193,7 +199,7 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
     calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
     reason, excess = "no motion capture in this session", np.zeros(3)
     if vicon is not None:
-        predicted = e.plus_parameters(at_position(rejection, e.kuka[:3, 3], kuka.calibration_lever_sq))
+        predicted = e.plus_parameters(vicon.sigma_at(e.kuka, rejection))
         reason = rejection_reason(e.kuka, e.vicon, factor.scale(predicted), rejection_k)
         # the disagreement's variance beyond the prediction may all be the kept source's own
         excess = (factor.t**2 - 1) * predicted.t_m**2
@@ -215,15 +221,15 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    kuka, vicon, rejection = load_models(workspace, config.testbed)
+    kuka, vicon, rejection = load_models(workspace, config.testbed, config.fuse.vicon_scale_sigma)
     # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
     rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
                    if r["session"] == "dataset" and r["status"] == "ok"), key=lambda r: r["sample_id"])
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
-    covariances = kuka.parameter_covariances(rows)
+    covariances = kuka.parameter_covariances(rows, config.fuse)
     estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
-    factor, why = session_factor(config, estimates, kuka, rejection)
+    factor, why = session_factor(config, estimates, vicon, rejection)
     sources, axis_why = axis_sources(config, estimates, kuka, vicon, factor)
     write_fusion(workspace, FusionRecord(tuple(float(v) for v in factor.t), float(factor.r), factor.samples, why,
                                          config.fuse.rejection_k, sources, axis_why))

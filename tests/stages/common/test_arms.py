@@ -113,3 +113,38 @@ def test_a_batch_of_parameters_predicts_each_exactly_and_differences_as_scipy_do
     x = batch[0]
     np.testing.assert_array_equal(arms._forward_differences(residuals, x),
                                   approx_derivative(lambda p: residuals(p[None])[0], x, method="2-point"))
+
+
+def test_lost_motion_covers_joints_resting_on_either_flank():
+    """A joint below the preload rests on a random flank, +-lost / 2 from where its offset
+    was fitted: the propagated covariance predicts the pose errors that gives (rms of error
+    over sigma 1 per camera axis); a joint loaded beyond the preload adds nothing."""
+    rng = np.random.default_rng(11)
+    config = load_config("default")
+    testbed, world_up = config.testbed, np.array(config.calibrate.world_up)
+    readings = random_readings(rng, 300)
+    fixtures = ["minus_x", "plus_x"] * 150
+    names = ["minus_x", "plus_x"]
+    solution = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
+    params = np.concatenate([arms.NOMINAL.params, rwhe.pack(solution, names, False, anisotropic=False)])
+    entry = arms.Fit(solution, arms.NOMINAL, params, np.zeros((len(params), len(params))), names, False).to_json()
+    lost = config.fuse.lost_motion_rad
+    variances = arms.flank_variances(testbed, readings, lost, config.fuse.backlash_preload_nm)
+    camera_torque, target_torque = arms.torques(testbed, readings)
+    loaded = np.abs(np.concatenate([camera_torque, target_torque], axis=1)) > config.fuse.backlash_preload_nm
+    assert loaded.any() and (~loaded).any()
+    assert np.all(variances[loaded] == 0)
+    np.testing.assert_allclose(variances[~loaded], np.tile((np.asarray(lost) / 2) ** 2, (300, 2))[~loaded])
+
+    flank = np.where(loaded, 0.0, rng.choice([-1.0, 1.0], (300, 12)) * np.tile(np.asarray(lost) / 2, 2))
+    turned = arms.Readings(readings.camera_joints_rad + flank[:, :6], readings.target_joints_rad + flank[:, 6:],
+                           readings.rail_m, readings.fixtures)
+    true = arms.predict(testbed, params, names, False, turned, fixtures, world_up)
+    estimate = arms.predict(testbed, params, names, False, readings, fixtures, world_up)
+    covariances = arms.pose_covariances(testbed, entry, readings, fixtures, world_up, variances)
+    error = true[:, :3, 3] - estimate[:, :3, 3]
+    assert np.sqrt(np.mean(error**2)) > 1e-4  # tenths of a mm at these reaches
+    normalised = error / np.sqrt(np.diagonal(covariances, axis1=1, axis2=2)[:, 3:])
+    np.testing.assert_allclose(np.sqrt(np.mean(normalised**2, axis=0)), 1.0, atol=0.12)
+    without = arms.pose_covariances(testbed, entry, readings, fixtures, world_up)
+    assert np.abs(without).max() == 0.0

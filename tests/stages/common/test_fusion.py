@@ -15,6 +15,7 @@ from stages.common.fusion import (
     rejection_reason,
     sigma_between,
     variance_factor,
+    with_scale_error,
 )
 
 
@@ -89,6 +90,22 @@ def test_grown_sigma_matches_the_spread_of_turned_lines_of_sight():
     predicted = at_position(Sigma(spread_near, s, s), far, lever_sq(near))
     np.testing.assert_allclose(predicted.t_m, spread_far, rtol=0.03)
 
+
+
+def test_a_scale_error_grows_along_the_line_of_sight_beyond_the_calibration():
+    """Monte Carlo: distances measured with a scale error s (1-sigma 3e-4), offsets fitted
+    at 0.75 m (which absorb s * t_cal): at t the error is s (t - t_cal) along t."""
+    rng = np.random.default_rng(4)
+    scale = rng.normal(scale=3e-4, size=20000)
+    far = np.array([0.3, -0.2, 4.0])
+    direction = far / np.linalg.norm(far)
+    errors = scale[:, None] * (far - 0.75 * direction)
+    zero = Sigma(np.zeros(3), 1e-3)
+    predicted = with_scale_error(zero, far, 0.75, 3e-4)
+    np.testing.assert_allclose(predicted.t_m, np.std(errors, axis=0), rtol=0.03)
+    assert np.allclose(with_scale_error(zero, 0.75 * direction, 0.75, 3e-4).t_m, 0.0)
+    grown = with_scale_error(Sigma(np.array([1e-3, 1e-3, 1e-3]), 1e-3), far, 0.75, 0.0)
+    assert np.array_equal(grown.t_m, [1e-3, 1e-3, 1e-3])
 
 def test_pointing_share_tells_camera_turns_from_target_turns():
     rng = np.random.default_rng(1)

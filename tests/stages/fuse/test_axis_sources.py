@@ -24,8 +24,8 @@ class Calibrated:
     sigma: Sigma
     calibration_lever_sq: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
 
-    def sigma_at(self, pose: np.ndarray) -> Sigma:
-        return self.sigma
+    def sigma_at(self, pose: np.ndarray, sigma: Sigma | None = None) -> Sigma:
+        return self.sigma if sigma is None else sigma
 
 
 def session(seed: int, kuka_true_mm, vicon_true_mm):
@@ -50,7 +50,7 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back"):
     vicon = Calibrated(Sigma(np.array([3.5e-3, 3.5e-3, 0.9e-3]), 1e-3))
     rejection = Sigma(np.hypot(kuka.sigma.t_m, vicon.sigma.t_m), float(np.hypot(1e-4, 1e-3)))
     truths, estimates = session(seed, kuka_true_mm, vicon_true_mm)
-    factor, _ = session_factor(config, estimates, kuka, rejection)
+    factor, _ = session_factor(config, estimates, vicon, rejection)
     sources, _ = axis_sources(config, estimates, kuka, vicon, factor)
     rows = [fuse_capture(e, kuka, vicon, rejection, factor, 1.96, sources) for e in estimates]
     true_t = np.stack([t[:3, 3] for t in truths])
