@@ -447,6 +447,38 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     out.print(f"{len(findings)} completed manifests intact" if findings else "nothing completed yet")
 
 
+@app.command("target")
+def target_command(folder: Annotated[Path, typer.Argument(help="a target folder: target.toml beside its mesh")]
+                   ) -> None:
+    """Check a target folder and print what the pipeline takes from it: its parts, its size
+    at full scale and as the mock-up, its keypoints (declared, or chosen on the mesh) and
+    its views. Exit 1 naming the file and key when it cannot be used."""
+    from stages.common.target import load_target  # the shared layer: meshes load only here
+
+    target = load_target(folder)
+    table = Table(title=escape(f"target {target.name} ({folder})"))
+    for column in ("what", "value"):
+        table.add_column(column)
+    vertices = sum(len(p.vertices) for p in target.parts.values())
+    triangles = sum(len(p.faces) for p in target.parts.values())
+    rows = [("parts", ", ".join(f"{name} ({target.looks[name].synthetic} / {target.looks[name].mockup})"
+                                if name in target.looks else name for name in target.parts)),
+            ("mesh", f"{vertices} vertices, {triangles} triangles"),
+            ("diameter", f"{target.diameter_m:.4g} m full scale, {target.diameter_m * target.mockup_scale:.4g} m "
+                         f"mock-up (scale {target.mockup_scale:g}, {target.mockup_mass_kg:g} kg)"),
+            ("body centre", f"({', '.join(f'{v:.4f}' for v in target.centre_m)}) m; bounding sphere "
+                            f"{target.radius_m:.4g} m"),
+            ("keypoints", f"{len(target.keypoints_m)}, "
+                          + ("chosen on the mesh (farthest corners of its convex hull)" if target.keypoints_chosen
+                             else "declared")),
+            ("views", f"{target.view_names[0]} / {target.view_names[1]}: the camera's side of the plane "
+                      f"through the centre normal to ({', '.join(f'{v:.3f}' for v in target.view_axis)})"),
+            ("digest", target.digest[:16])]
+    for what, value in rows:
+        table.add_row(what, escape(value))
+    out.print(table)
+
+
 def _crash_log(error: BaseException) -> Path:
     """Where an unexpected error's traceback goes (the message names it): the user's cache,
     else the system's temporary folder."""

@@ -9,24 +9,13 @@ Coordinates: Tango body frame T, full scale, metres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from stages.common.tango import KEYPOINTS_M, SOLAR_PANEL_Z_M
+from stages.common.target import MeshPart
 
 ANTENNA_RADIUS_M = 0.008
 _ANTENNA_SIDES = 10
-
-
-@dataclass(frozen=True)
-class MeshPart:
-    """Triangles of one part: vertices (V, 3) m, faces (F, 3) int, uv (V, 2) in [0, 1]."""
-
-    name: str
-    vertices: np.ndarray
-    faces: np.ndarray
-    uv: np.ndarray
 
 
 def _quad(corners: np.ndarray, name: str) -> MeshPart:

@@ -25,6 +25,8 @@ from pipeline.progress import track
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.sidecars import calibrated_camera
+from stages.common.target import load_target
+from stages.common.targets import builtin_folder
 from stages.export import bop, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
@@ -150,6 +152,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         pitch = config.camera.pixel_pitch_m * config.camera.reference_width_px / labels_camera.width
         counts = speedplus.write_annotations(out, chosen, speedplus.camera_json(labels_camera, pitch),
                                              config.export.validation_fraction)
+        target = load_target(builtin_folder())  # the target every stage builds today (issue 29)
+        speedplus.write_keypoints(out, target.name, target.keypoints_m)
     else:
         counts = bop.write_annotations(out, chosen, by_set)
     print(f"export: {', '.join(f'{v} in {k}' for k, v in counts.items())} ({config.export.format}) in {out}")

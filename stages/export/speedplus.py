@@ -7,6 +7,10 @@
     OUT/sunlamp/images/<filename>         OUT/sunlamp/test.json    testbed captures (sun lamp)
     OUT/twins/images/<filename>           OUT/twins/test.json      their synthetic twins (same filenames)
     OUT/synthetic/images/<sample_id>.png  OUT/synthetic/train.json, validation.json   the training set
+    OUT/tangoPoints.mat                   the target's 3-D keypoints as the devkits load them:
+                                          ``tango3Dpoints``, 3 x N, metres, body frame (that
+                                          name whatever the target: the loaders' contract)
+    OUT/keypoints.json                    the same points: {version, target, unit, frame, points}
 
 Every json is ``[{filename, q_vbs2tango_true, r_Vo2To_vbs_true}]``. The devkit projects
 body points with ``[quat2dcm(q).T | r]``; ``quat2dcm(q).T`` is the Hamilton rotation
@@ -20,12 +24,13 @@ devkit to project both right, which ``check_one_camera`` makes sure of.
 from __future__ import annotations
 
 import hashlib
+import io
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manifests.files import write_json_atomic
+from manifests.files import write_bytes_atomic, write_json_atomic
 from pipeline.errors import InputError
 from stages.common.lens import LensCamera
 
@@ -78,6 +83,26 @@ def is_validation(sample_id: str, fraction: float) -> bool:
 def _entry(row: dict[str, Any], filename: str) -> dict[str, Any]:
     return {"filename": filename, "q_vbs2tango_true": [float(v) for v in row["q_vbs2tango_true"]],
             "r_Vo2To_vbs_true": [float(v) for v in row["r_Vo2To_vbs_true"]]}
+
+
+KEYPOINTS_VERSION = 1
+#: the text of a MAT-file's 116-byte header; SciPy's carries the time, and the same export
+#: must give the same bytes
+_MAT_HEADER = b"MATLAB 5.0 MAT-file, written by SPEED+ builder"
+
+
+def write_keypoints(out: Path, target_name: str, keypoints_m: np.ndarray) -> None:
+    """``tangoPoints.mat`` and ``keypoints.json`` of the target's keypoints (K, 3), metres,
+    body frame (the labels' frame)."""
+    from scipy.io import savemat
+
+    buffer = io.BytesIO()
+    savemat(buffer, {"tango3Dpoints": np.asarray(keypoints_m, float).T})
+    data = buffer.getvalue()
+    write_bytes_atomic(out / "tangoPoints.mat", _MAT_HEADER.ljust(116) + data[116:])
+    write_json_atomic(out / "keypoints.json", {"version": KEYPOINTS_VERSION, "target": target_name, "unit": "m",
+                                               "frame": "the body frame of the labels (q_vbs2tango_true)",
+                                               "points": np.asarray(keypoints_m, float).tolist()})
 
 
 def write_annotations(out: Path, items: list[dict[str, Any]], camera: dict[str, Any],

@@ -4,11 +4,12 @@ domain and split, images under <domain>/images."""
 import json
 
 import numpy as np
+from scipy.io import loadmat
 
 from manifests import read_manifest
 from pipeline.config import load_config
 from stages.common.tango import KEYPOINTS_M
-from stages.export.speedplus import is_validation
+from stages.export.speedplus import is_validation, write_keypoints
 
 
 def quat2dcm(q):
@@ -41,9 +42,19 @@ def devkit_project(q, r, camera, points):
     return np.stack([k[0, 0] * xd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
 
 
+def devkit_keypoints(out):
+    """The devkits' loader: ``loadmat(tangoPoints.mat)['tango3Dpoints']``, 3 x N."""
+    points = loadmat(str(out / "tangoPoints.mat"))["tango3Dpoints"]
+    assert points.shape[0] == 3
+    return points.T
+
+
 def test_every_domain_and_split_projects_like_the_devkit(exported, rendered):
     out = exported["speedplus"]
     camera = json.loads((out / "camera.json").read_text())
+    keypoints = devkit_keypoints(out)
+    np.testing.assert_array_equal(keypoints, KEYPOINTS_M)
+    assert json.loads((out / "keypoints.json").read_text())["points"] == KEYPOINTS_M.tolist()
     assert {"Nu", "Nv", "ppx", "ppy", "fx", "fy", "ccx", "ccy", "cameraMatrix", "distCoeffs"} <= set(camera)
     labels = {r["filename"]: r for r in read_manifest(rendered, "labels").to_pylist()}
     twins = {r["sample_id"]: r for r in read_manifest(rendered, "renders").to_pylist()}
@@ -61,7 +72,7 @@ def test_every_domain_and_split_projects_like_the_devkit(exported, rendered):
             for entry in json.loads(path.read_text()):
                 assert (out / domain / "images" / entry["filename"]).is_file()
                 row = expected[domain][entry["filename"]]
-                projected = devkit_project(entry["q_vbs2tango_true"], entry["r_Vo2To_vbs_true"], camera, KEYPOINTS_M)
+                projected = devkit_project(entry["q_vbs2tango_true"], entry["r_Vo2To_vbs_true"], camera, keypoints)
                 # the twins and the training set were rendered with this camera: the same keypoints
                 np.testing.assert_allclose(projected, row["keypoints_px"], atol=1e-4)
                 seen[domain] += 1
@@ -81,3 +92,13 @@ def test_the_validation_split_is_deterministic_and_of_the_configured_share(expor
     share = np.mean([is_validation(s, 0.2) for s in ids])
     assert abs(share - 0.2) < 0.01  # a hash split: the configured share, not a fixed count
     assert not any(is_validation(s, 0.0) for s in ids[:100]) and all(is_validation(s, 1.0) for s in ids[:100])
+
+
+def test_the_keypoint_files_are_the_same_bytes_each_time(tmp_path):
+    """SciPy stamps a MAT-file's header with the time; the export does not."""
+    points = np.random.default_rng(2).normal(size=(7, 3))
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        write_keypoints(tmp_path / name, "boulder", points)
+    assert (tmp_path / "a" / "tangoPoints.mat").read_bytes() == (tmp_path / "b" / "tangoPoints.mat").read_bytes()
+    np.testing.assert_array_equal(devkit_keypoints(tmp_path / "a"), points)

@@ -1,0 +1,242 @@
+"""A target folder: the object a lab mounts, as ``DIR/target.toml`` beside its mesh
+(docs/architecture.md section 7). Format version 1; every error names the file and the
+key (or the line and column of a TOML syntax error).
+
+    DIR/target.toml
+    format_version = 1
+    name = "cubesat6u"            # [a-z0-9_-]+
+    mesh = "cubesat6u.glb"        # relative to DIR: glTF/GLB, OBJ (+MTL), PLY or STL
+    length_unit = "m"             # or "mm": the mesh and every length in this file
+    [frame]                       # optional: the body frame the labels use, from the mesh's
+    body_from_mesh_q = [1, 0, 0, 0]   # (w, x, y, z)
+    body_from_mesh_t = [0, 0, 0]      # length_unit
+    centre = [0, 0, 0.16]         # optional, body frame: the body centre (default: the
+                                  # centre of the mesh's bounding box)
+    [keypoints]                   # optional; absent: chosen on the mesh (stages.common.target)
+    points = [[x, y, z], ...]     # body frame, length_unit; at least 4
+    [views]                       # optional: the camera's side of the plane through the
+    axis = [0, 0, 1]              # body centre normal to axis names the view
+    names = ["top", "bottom"]     # (positive side, negative side)
+    [mockup]
+    scale = 0.5                   # mock-up size / real size
+    mass_kg = 4.0
+    [looks]                       # optional, per mesh part: a preset of LOOK_PRESETS, or
+    sides = "gold_mli"            # {synthetic = ..., mockup = ...} for two different ones
+    antennas = { synthetic = "aluminium", mockup = "white_paint" }
+
+Each preset has an ideal version for the rendered twin and a mock-up version for the
+testbed (crinkled foil, printed cells, brushed metal): their difference is the domain gap.
+A part without a look renders with the mesh's own colours on the twin and white paint on
+the mock-up.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import tomli_w
+
+from manifests.files import write_bytes_atomic
+from manifests.sidecars.base import Fields, Pose, SidecarError
+
+TARGET_FILE = "target.toml"
+TARGET_FORMAT_VERSION = 1
+#: metres per unit
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+#: the looks a part can take (stages.common.target documents each)
+LOOK_PRESETS = ("gold_mli", "solar_cells", "aluminium", "white_paint", "black_paint", "rock")
+NAME_PATTERN = re.compile(r"[a-z0-9_-]+")
+MIN_KEYPOINTS = 4
+IDENTITY = Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+class TargetError(SidecarError):
+    """A target folder that cannot be used as it is."""
+
+
+@dataclass(frozen=True)
+class Look:
+    """A part's look (``LOOK_PRESETS``): the preset whose ideal version the synthetic twin
+    takes, and the one whose mock-up version the testbed's model takes."""
+
+    synthetic: str
+    mockup: str
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """``target.toml`` as written: lengths in ``length_unit``, not yet applied to the mesh."""
+
+    name: str
+    mesh: str
+    length_unit: str
+    mockup_scale: float
+    mockup_mass_kg: float
+    body_from_mesh: Pose = IDENTITY
+    centre: tuple[float, float, float] | None = None
+    keypoints: tuple[tuple[float, float, float], ...] | None = None
+    view_axis: tuple[float, float, float] | None = None
+    view_names: tuple[str, str] | None = None
+    looks: dict[str, Look] = field(default_factory=dict)
+
+    @property
+    def metres(self) -> float:
+        return LENGTH_UNITS[self.length_unit]
+
+    def to_toml(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"format_version": TARGET_FORMAT_VERSION, "name": self.name, "mesh": self.mesh,
+                               "length_unit": self.length_unit}
+        frame: dict[str, Any] = {}
+        if self.body_from_mesh != IDENTITY:
+            frame = {"body_from_mesh_q": list(self.body_from_mesh.q), "body_from_mesh_t": list(self.body_from_mesh.t)}
+        if self.centre is not None:
+            frame["centre"] = list(self.centre)
+        if frame:
+            out["frame"] = frame
+        if self.keypoints is not None:
+            out["keypoints"] = {"points": [list(p) for p in self.keypoints]}
+        if self.view_axis is not None and self.view_names is not None:
+            out["views"] = {"axis": list(self.view_axis), "names": list(self.view_names)}
+        out["mockup"] = {"scale": self.mockup_scale, "mass_kg": self.mockup_mass_kg}
+        if self.looks:
+            out["looks"] = {part: look.synthetic if look.synthetic == look.mockup else
+                            {"synthetic": look.synthetic, "mockup": look.mockup}
+                            for part, look in sorted(self.looks.items())}
+        return out
+
+
+def mesh_path(directory: Path, spec: TargetSpec) -> Path:
+    """The mesh file, checked to stay inside ``directory`` (no absolute path, no ``..``, no
+    link out of it)."""
+    where = directory / TARGET_FILE
+    relative = PurePosixPath(spec.mesh)
+    if relative.is_absolute() or ".." in relative.parts or "\\" in spec.mesh or not relative.parts:
+        raise TargetError(f"{where}: key mesh: expected a path inside {directory}, got {spec.mesh!r}")
+    path = directory / relative
+    if not path.resolve().is_relative_to(directory.resolve()):
+        raise TargetError(f"{where}: key mesh: {spec.mesh!r} leads out of {directory}")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise TargetError(f"{where}: key mesh: expected a {', '.join(MESH_SUFFIXES)} file, got {spec.mesh!r}")
+    if not path.is_file():
+        raise TargetError(f"{where}: key mesh: {path} does not exist")
+    return path
+
+
+def read_target_spec(directory: Path) -> TargetSpec:
+    """``DIR/target.toml``, validated (not the mesh: ``stages.common.target.load_target``)."""
+    path = Path(directory) / TARGET_FILE
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise TargetError(f"{path}: missing; a target folder holds target.toml beside its mesh") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise TargetError(f"{path}: not valid TOML ({error})") from None
+    try:
+        return _parse(Fields(data, str(path), ""), Path(directory))
+    except TargetError:
+        raise
+    except SidecarError as error:  # the walker's: the same message, as a target's error
+        raise TargetError(str(error)) from None
+
+
+def _parse(f: Fields, directory: Path) -> TargetSpec:
+    data = f.data
+    f.only("format_version", "name", "mesh", "length_unit", "frame", "keypoints", "views", "mockup", "looks")
+    if data.get("format_version") != TARGET_FORMAT_VERSION:
+        raise f.fail("format_version", f"{TARGET_FORMAT_VERSION} (this program reads version {TARGET_FORMAT_VERSION})")
+    name = f.text("name")
+    if not NAME_PATTERN.fullmatch(name):
+        raise f.fail("name", "a name of a-z, 0-9, _ and -")
+    spec = TargetSpec(name, f.text("mesh"), f.text("length_unit", tuple(LENGTH_UNITS)), *_mockup(f),
+                      *_frame(f), _keypoints(f), *_views(f), _looks(f))
+    mesh_path(directory, spec)
+    return spec
+
+
+def write_target_spec(directory: Path, spec: TargetSpec) -> None:
+    write_bytes_atomic(Path(directory) / TARGET_FILE, to_text(spec.to_toml()).encode())
+
+
+def to_text(document: dict[str, Any]) -> str:
+    """TOML as a person writes it: a table per section, a keypoint per line (``tomllib``
+    reads it back to ``document``)."""
+    def value(v: Any) -> str:
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
+        if isinstance(v, list):
+            if v and isinstance(v[0], list):
+                return "[\n" + "".join(f"    {value(x)},\n" for x in v) + "]"
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return tomli_w.dumps({"v": v})[4:].strip()
+
+    lines = [f"{k} = {value(v)}" for k, v in document.items() if not isinstance(v, dict)]
+    for section, table in ((k, v) for k, v in document.items() if isinstance(v, dict)):
+        lines += ["", f"[{section}]", *(f"{k} = {value(v)}" for k, v in table.items())]
+    return "\n".join(lines) + "\n"
+
+
+def _mockup(f: Fields) -> tuple[float, float]:
+    mockup = f.child("mockup")
+    mockup.only("scale", "mass_kg")
+    return mockup.number("scale", positive=True), mockup.number("mass_kg", positive=True)
+
+
+def _frame(f: Fields) -> tuple[Pose, tuple[float, float, float] | None]:
+    if not f.optional("frame"):
+        return IDENTITY, None
+    frame = f.child("frame")
+    frame.only("body_from_mesh_q", "body_from_mesh_t", "centre")
+    q = frame.vector("body_from_mesh_q", 4) if frame.optional("body_from_mesh_q") else IDENTITY.q
+    if abs(math.sqrt(sum(v * v for v in q)) - 1.0) > 1e-6:
+        raise frame.fail("body_from_mesh_q", "a unit quaternion (w, x, y, z)")
+    t = frame.vector("body_from_mesh_t", 3) if frame.optional("body_from_mesh_t") else IDENTITY.t
+    centre = frame.vector("centre", 3) if frame.optional("centre") else None
+    return Pose(tuple(map(float, q)), tuple(map(float, t))), centre
+
+
+def _keypoints(f: Fields) -> tuple[tuple[float, float, float], ...] | None:
+    if not f.optional("keypoints"):
+        return None
+    keypoints = f.child("keypoints")
+    keypoints.only("points")
+    points = keypoints.raw("points")
+    if not isinstance(points, list) or len(points) < MIN_KEYPOINTS:
+        raise keypoints.fail("points", f"a list of at least {MIN_KEYPOINTS} [x, y, z] points")
+    inner = Fields({str(i): p for i, p in enumerate(points)}, keypoints.where, "keypoints.points.")
+    return tuple(tuple(map(float, inner.vector(str(i), 3))) for i in range(len(points)))
+
+
+def _views(f: Fields) -> tuple[tuple[float, float, float] | None, tuple[str, str] | None]:
+    if not f.optional("views"):
+        return None, None
+    views = f.child("views")
+    views.only("axis", "names")
+    axis = views.vector("axis", 3)
+    if math.sqrt(sum(v * v for v in axis)) < 1e-9:
+        raise views.fail("axis", "a non-zero direction")
+    names = views.raw("names")
+    if (not isinstance(names, list) or len(names) != 2 or not all(isinstance(n, str) for n in names)
+            or names[0] == names[1] or not all(NAME_PATTERN.fullmatch(n) for n in names)):
+        raise views.fail("names", "two different names of a-z, 0-9, _ and - (positive side first)")
+    return tuple(map(float, axis)), (names[0], names[1])
+
+
+def _looks(f: Fields) -> dict[str, Look]:
+    if not f.optional("looks"):
+        return {}
+    looks = f.child("looks")
+    out = {}
+    for part, value in looks.data.items():
+        if isinstance(value, str):
+            out[part] = Look(*(looks.text(part, LOOK_PRESETS),) * 2)
+            continue
+        entry = looks.child(part)
+        entry.only("synthetic", "mockup")
+        out[part] = Look(entry.text("synthetic", LOOK_PRESETS), entry.text("mockup", LOOK_PRESETS))
+    return out

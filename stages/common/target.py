@@ -1,0 +1,209 @@
+"""The target: the object a lab mounts on its testbed and the dataset is of, loaded from a
+target folder (``manifests.target``: ``DIR/target.toml`` beside its mesh).
+
+Conventions (docs/architecture.md section 7): the body frame is the labels' frame; lengths
+here are full scale, metres; the mock-up is the same shape scaled by ``mockup_scale``. The
+mesh's lengths are converted with the folder's ``length_unit`` and moved into the body
+frame with ``[frame] body_from_mesh``. A mesh file of several named parts (glTF nodes, PLY
+and STL: one part named after the file) keeps them apart, so that renderers can give each
+part its look.
+
+Derived here, so that every stage agrees:
+- ``centre_m``: the declared ``[frame] centre``, else the centre of the mesh's bounding box;
+- ``radius_m``: the sphere about it that holds every vertex (plan keeps it in view);
+- ``diameter_m``: the largest distance between two vertices (BOP's ``diameter``);
+- keypoints, when the folder declares none: ``CHOSEN_KEYPOINTS`` corners of the mesh's
+  convex hull by farthest-point sampling, starting from the one farthest from the centre
+  (spread over the object, on its silhouette from many sides; ties by vertex order);
+- views, when the folder declares none: the side of the plane through the centre normal
+  to the body's z axis, ``plus_z`` / ``minus_z``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from manifests.target import (
+    TARGET_FILE,
+    Look,
+    TargetError,
+    TargetSpec,
+    mesh_path,
+    read_target_spec,
+)
+from stages.common import geometry as g
+
+#: keypoints chosen on a mesh that declares none (SPEED+ labels 11)
+CHOSEN_KEYPOINTS = 11
+#: a mock-up a robotic testbed can hold and light: its largest dimension (m)
+MOCKUP_SIZE_M = (0.05, 3.0)
+#: declared keypoints may stand this far beyond the bounding sphere (antenna tips, fillets)
+KEYPOINT_MARGIN = 1.1
+DEFAULT_VIEWS = ((0.0, 0.0, 1.0), ("plus_z", "minus_z"))
+
+
+@dataclass(frozen=True)
+class MeshPart:
+    """Triangles of one part: vertices (V, 3) m, faces (F, 3) int, uv (V, 2) in [0, 1]."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+
+
+@dataclass(frozen=True)
+class Target:
+    """A loaded target (full scale, metres, body frame); see the module docstring."""
+
+    name: str
+    parts: dict[str, MeshPart]
+    keypoints_m: np.ndarray  # (K, 3)
+    keypoints_chosen: bool  # True: chosen on the mesh, the folder declares none
+    centre_m: np.ndarray  # (3,)
+    radius_m: float
+    diameter_m: float
+    view_axis: np.ndarray  # (3,) unit
+    view_names: tuple[str, str]
+    mockup_scale: float
+    mockup_mass_kg: float
+    looks: dict[str, Look]
+    digest: str  # sha256 of the folder's files: what the stages that use the target fingerprint
+
+    def triangles(self) -> np.ndarray:
+        """Every triangle (F, 3, 3) of the mesh, m."""
+        return np.concatenate([part.vertices[part.faces] for part in self.parts.values()])
+
+    def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """The view name (...) of camera positions (..., 3) in the body frame, metres at the
+        given model scale: ``view_names[0]`` on the side of the plane through the centre
+        that ``view_axis`` points to, else ``view_names[1]``."""
+        side = (np.asarray(camera_in_target_m, float) - scale * self.centre_m) @ self.view_axis
+        return np.where(side > 0, self.view_names[0], self.view_names[1])
+
+
+def folder_digest(directory: Path) -> str:
+    """sha256 over every file of the folder (relative path and bytes, in path order)."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in Path(directory).rglob("*") if p.is_file()):
+        digest.update(path.relative_to(directory).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def load_target(directory: Path) -> Target:
+    """The target of a folder, every check done: ``TargetError`` names the file and key."""
+    directory = Path(directory)
+    spec = read_target_spec(directory)
+    where = directory / TARGET_FILE
+    body_from_mesh = g.transform_from_qt(spec.body_from_mesh.q, np.asarray(spec.body_from_mesh.t) * spec.metres)
+    parts = {name: MeshPart(name, g.apply(body_from_mesh, part.vertices * spec.metres), part.faces, part.uv)
+             for name, part in read_mesh(mesh_path(directory, spec)).items()}
+    vertices = np.concatenate([p.vertices for p in parts.values()])
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    centre = (low + high) / 2 if spec.centre is None else np.asarray(spec.centre) * spec.metres
+    radius = float(np.max(np.linalg.norm(vertices - centre, axis=1)))
+    hull = _hull(vertices, mesh_path(directory, spec))
+    diameter = _diameter(hull)
+    _check_size(where, spec, diameter)
+    unknown = sorted(set(spec.looks) - set(parts))
+    if unknown:
+        raise TargetError(f"{where}: key looks.{unknown[0]}: the mesh has no part of that name "
+                          f"(its parts: {', '.join(parts)})")
+    if spec.keypoints is None:
+        keypoints = farthest_points(hull, centre, CHOSEN_KEYPOINTS)
+    else:
+        keypoints = g.apply(body_from_mesh, np.asarray(spec.keypoints) * spec.metres)
+        _check_keypoints(where, keypoints, centre, radius)
+    axis, names = (spec.view_axis, spec.view_names) if spec.view_axis is not None else DEFAULT_VIEWS
+    axis = np.asarray(axis, float)
+    return Target(spec.name, parts, keypoints, spec.keypoints is None, centre, radius, diameter,
+                  axis / np.linalg.norm(axis), tuple(names), spec.mockup_scale, spec.mockup_mass_kg, dict(spec.looks),
+                  folder_digest(directory))
+
+
+def read_mesh(path: Path) -> dict[str, MeshPart]:
+    """The mesh file's parts in its own units and frame; ``TargetError`` if it does not load
+    or holds no triangles."""
+    import trimesh  # loaded only where a mesh is read
+
+    try:
+        scene = trimesh.load(str(path), force="scene", process=False)
+        placed = [(geometry, node, scene.graph.get(node)[0]) for geometry in scene.geometry
+                  for node in scene.graph.geometry_nodes.get(geometry, [])]
+    except Exception as error:  # noqa: BLE001 - trimesh raises anything from a broken file
+        raise TargetError(f"{path}: not a mesh trimesh can read ({type(error).__name__}: {error})"[:400]) from None
+    parts: dict[str, MeshPart] = {}
+    for geometry, node, world_from_node in placed:  # in the file's order: renderers' shape order
+        mesh = scene.geometry[geometry]
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            continue  # points, lines and empty nodes are not surfaces
+        name = node if len(scene.graph.geometry_nodes[geometry]) == 1 else f"{geometry}_{node}"
+        name = name[: -len(path.suffix)] if name.lower().endswith(path.suffix.lower()) else name  # STL, PLY
+        vertices = g.apply(np.asarray(world_from_node, float), np.asarray(mesh.vertices, float))
+        if not np.all(np.isfinite(vertices)):
+            raise TargetError(f"{path}: part {name!r} has non-finite vertices")
+        uv = getattr(mesh.visual, "uv", None)
+        uv = np.zeros((len(vertices), 2)) if uv is None or len(uv) != len(vertices) else np.asarray(uv, float)
+        while name in parts:
+            name += "_"
+        parts[name] = MeshPart(name, vertices, np.asarray(mesh.faces, np.int64), uv)
+    if not parts:
+        raise TargetError(f"{path}: holds no triangles")
+    area = sum(float(np.sum(np.linalg.norm(np.cross(p.vertices[p.faces[:, 1]] - p.vertices[p.faces[:, 0]],
+                                                     p.vertices[p.faces[:, 2]] - p.vertices[p.faces[:, 0]]),
+                                            axis=1))) / 2 for p in parts.values())
+    if not area > 0:
+        raise TargetError(f"{path}: every triangle is degenerate (zero area)")
+    return parts
+
+
+def farthest_points(points: np.ndarray, centre: np.ndarray, count: int) -> np.ndarray:
+    """``count`` of ``points`` (N, 3) by farthest-point sampling, starting from the one
+    farthest from ``centre``; fewer when there are fewer points."""
+    chosen = [int(np.argmax(np.linalg.norm(points - centre, axis=1)))]
+    distance = np.linalg.norm(points - points[chosen[0]], axis=1)
+    while len(chosen) < min(count, len(points)):
+        chosen.append(int(np.argmax(distance)))
+        distance = np.minimum(distance, np.linalg.norm(points - points[chosen[-1]], axis=1))
+    return points[chosen].copy()
+
+
+def _hull(vertices: np.ndarray, path: Path) -> np.ndarray:
+    """The convex hull's vertices (H, 3) in vertex order; a flat or linear mesh has none."""
+    try:
+        return vertices[np.sort(ConvexHull(vertices).vertices)]
+    except QhullError:
+        raise TargetError(f"{path}: the mesh is flat or degenerate (no volume); a target needs three "
+                          "dimensions") from None
+
+
+def _diameter(hull: np.ndarray) -> float:
+    return float(max(np.max(np.linalg.norm(hull - p, axis=1)) for p in hull))
+
+
+def _check_size(where: Path, spec: TargetSpec, diameter: float) -> None:
+    """A unit mistake makes a mock-up of hundreds of metres or of millimetres."""
+    mockup = diameter * spec.mockup_scale
+    low, high = MOCKUP_SIZE_M
+    if low <= mockup <= high:
+        return
+    other = "mm" if spec.length_unit == "m" else "m"
+    as_other = diameter / spec.metres * {"m": 1.0, "mm": 1e-3}[other] * spec.mockup_scale
+    raise TargetError(f"{where}: key length_unit / mockup.scale: the mesh is {diameter:.4g} m across at full scale, "
+                      f"{mockup:.4g} m as a mock-up at scale {spec.mockup_scale:g}, outside what a testbed holds "
+                      f"({low:g}-{high:g} m); with length_unit = \"{other}\" the mock-up would be {as_other:.4g} m")
+
+
+def _check_keypoints(where: Path, keypoints: np.ndarray, centre: np.ndarray, radius: float) -> None:
+    distance = np.linalg.norm(keypoints - centre, axis=1)
+    far = np.flatnonzero(distance > KEYPOINT_MARGIN * radius)
+    if far.size:
+        i = int(far[0])
+        raise TargetError(f"{where}: key keypoints.points.{i}: {distance[i]:.4g} m from the body centre, outside "
+                          f"the mesh (every vertex is within {radius:.4g} m); another unit or frame?")

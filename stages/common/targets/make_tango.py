@@ -1,0 +1,50 @@
+"""Writes the built-in Tango target folder (``tango/``: ``target.toml`` and ``tango.glb``)
+from the procedural mesh and the 11 SPEED+ keypoints (``stages.common.tango``):
+
+    python -m stages.common.targets.make_tango
+
+The body centre is declared (the centre of the body box, not of the antennas' reach), so
+that the view rule and the planner's sphere stay those of ``stages.common.tango``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from manifests.files import write_bytes_atomic
+from manifests.schema import VIEWS
+from manifests.target import Look, TargetSpec, write_target_spec
+from stages.common.tango import BODY_CENTRE_M, KEYPOINTS_M
+from stages.common.tango_mesh import tango_parts
+from stages.common.targets import BUILTIN_ROOT
+
+MESH = "tango.glb"
+LOOKS = {"sides": "gold_mli", "solar_panel": "solar_cells", "rear_panel": "white_paint", "antennas": "aluminium"}
+
+
+def mesh_bytes() -> bytes:
+    """The procedural parts as one GLB, a node per part (vertices become float32)."""
+    import trimesh
+
+    scene = trimesh.Scene()
+    for name, part in tango_parts().items():
+        mesh = trimesh.Trimesh(part.vertices, part.faces, process=False,
+                               visual=trimesh.visual.TextureVisuals(uv=part.uv))
+        scene.add_geometry(mesh, geom_name=name, node_name=name)
+    return scene.export(file_type="glb")
+
+
+def spec() -> TargetSpec:
+    return TargetSpec("tango", MESH, "m", 0.5, 4.0, centre=tuple(float(v) for v in BODY_CENTRE_M),
+                      keypoints=tuple(tuple(float(v) for v in p) for p in KEYPOINTS_M), view_axis=(0.0, 0.0, 1.0),
+                      view_names=(VIEWS[0], VIEWS[1]), looks={part: Look(look, look) for part, look in LOOKS.items()})
+
+
+def main(folder: Path = BUILTIN_ROOT / "tango") -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(folder / MESH, mesh_bytes())
+    write_target_spec(folder, spec())
+    print(f"wrote {folder}")
+
+
+if __name__ == "__main__":
+    main()

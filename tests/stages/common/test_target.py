@@ -1,0 +1,189 @@
+"""Target folders: the built-in Tango is the procedural model it replaces, a stranger's
+object in another unit, frame and format loads with every derived quantity, and each
+mistake a lab makes is refused naming the file and the key."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from manifests.sidecars.base import Pose
+from manifests.target import TARGET_FILE, TargetError, TargetSpec, read_target_spec, write_target_spec
+from stages.common import geometry as g
+from stages.common import tango
+from stages.common.tango_mesh import tango_parts
+from stages.common.target import CHOSEN_KEYPOINTS, load_target
+from stages.common.targets import builtin_folder, builtin_names, make_tango
+
+
+def test_the_builtin_tango_is_the_procedural_model():
+    target = load_target(builtin_folder("tango"))
+    assert builtin_names() == ("tango",)
+    procedural = tango_parts()
+    assert list(target.parts) == list(procedural)  # renderers add shapes in this order
+    for name, part in procedural.items():
+        np.testing.assert_allclose(target.parts[name].vertices, part.vertices, atol=3e-8)  # GLB holds float32
+        np.testing.assert_array_equal(target.parts[name].faces, part.faces)
+        np.testing.assert_allclose(target.parts[name].uv, part.uv, atol=3e-8)
+    np.testing.assert_array_equal(target.keypoints_m, tango.KEYPOINTS_M)
+    np.testing.assert_array_equal(target.centre_m, tango.BODY_CENTRE_M)
+    assert not target.keypoints_chosen and target.mockup_scale == 0.5
+    cameras = np.random.default_rng(0).normal(0, 2, (500, 3))
+    for scale in (1.0, 0.5):
+        assert np.array_equal(target.view_of(cameras, scale), tango.view_of(cameras, scale))
+
+
+def test_the_builtin_folder_is_what_its_script_makes(tmp_path):
+    make_tango.main(tmp_path)
+    for name in (TARGET_FILE, make_tango.MESH):
+        assert (tmp_path / name).read_bytes() == (builtin_folder("tango") / name).read_bytes(), name
+
+
+def cubesat(folder: Path, unit: str = "mm", **fields) -> Path:
+    """A 6U CubeSat (100 x 226 x 366 mm body, two 366 x 226 mm wings) as a GLB of named
+    parts, in mm, with its long axis along the mesh's x (the body frame wants it on z)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.creation.box((366.0, 226.0, 100.0)), geom_name="body", node_name="body")
+    for side in (-1, 1):
+        wing = trimesh.creation.box((366.0, 2.0, 226.0))
+        wing.apply_translation((0.0, side * 113.0, 163.0))
+        scene.add_geometry(wing, geom_name=f"wing_{'minus' if side < 0 else 'plus'}",
+                           node_name=f"wing_{'minus' if side < 0 else 'plus'}")
+    (folder / "cubesat.glb").write_bytes(scene.export(file_type="glb"))
+    turn = g.matrix_to_quat(g.axis_angle_matrix("y", -np.pi / 2))  # mesh x -> body z
+    write_target_spec(folder, TargetSpec("cubesat6u", "cubesat.glb", unit, 1.0, 9.0,
+                                         body_from_mesh=Pose(tuple(float(v) for v in turn), (0.0, 0.0, 0.0)),
+                                         **fields))
+    return folder
+
+
+def test_a_strangers_cubesat_in_mm_with_its_own_frame_and_no_keypoints(tmp_path):
+    target = load_target(cubesat(tmp_path / "cubesat", looks={"body": make_tango.spec().looks["sides"]}))
+    assert list(target.parts) == ["body", "wing_minus", "wing_plus"]
+    vertices = np.concatenate([p.vertices for p in target.parts.values()])
+    # mm became m, and the long (mesh x) axis is the body's z
+    np.testing.assert_allclose(np.ptp(vertices, axis=0), [0.326, 0.228, 0.366], atol=1e-9)
+    assert target.diameter_m == pytest.approx(np.linalg.norm(vertices[:, None] - vertices[None], axis=2).max())
+    assert np.all(np.linalg.norm(vertices - target.centre_m, axis=1) <= target.radius_m + 1e-12)
+    # chosen keypoints: distinct corners of the hull, spread out, recorded as chosen
+    assert target.keypoints_chosen and len(target.keypoints_m) == CHOSEN_KEYPOINTS
+    assert len({tuple(p) for p in np.round(target.keypoints_m, 9)}) == CHOSEN_KEYPOINTS
+    pairwise = np.linalg.norm(target.keypoints_m[:, None] - target.keypoints_m[None], axis=2)
+    assert pairwise[~np.eye(CHOSEN_KEYPOINTS, dtype=bool)].min() > 0.05
+    assert target.view_names == ("plus_z", "minus_z")
+    assert load_target(tmp_path / "cubesat").keypoints_m.tolist() == target.keypoints_m.tolist()  # deterministic
+
+
+def test_an_stl_in_metres_with_declared_keypoints_and_views(tmp_path):
+    folder = tmp_path / "boulder"
+    folder.mkdir()
+    rock = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
+    rock.vertices *= [1.0, 0.8, 0.6]
+    rock.export(folder / "boulder.stl")
+    points = [[0.4, 0, 0], [-0.4, 0, 0], [0, 0.32, 0], [0, 0, 0.24], [0, 0, -0.24]]
+    write_target_spec(folder, TargetSpec("boulder", "boulder.stl", "m", 1.0, 12.0, keypoints=points,
+                                         view_axis=(1.0, 0.0, 0.0), view_names=("east", "west")))
+    target = load_target(folder)
+    assert list(target.parts) == ["boulder"] and not target.keypoints_chosen
+    np.testing.assert_allclose(target.keypoints_m, points)
+    assert target.view_of(np.array([[2.0, 0, 0], [-2.0, 0, 0]])).tolist() == ["east", "west"]
+
+
+def write(folder: Path, text: str, mesh: str = "boulder.stl") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    if not (folder / mesh).exists() and mesh.endswith(".stl"):
+        trimesh.creation.box((0.4, 0.3, 0.2)).export(folder / mesh)
+    (folder / TARGET_FILE).write_text(text)
+    return folder
+
+
+GOOD = ('format_version = 1\nname = "box"\nmesh = "boulder.stl"\nlength_unit = "m"\n'
+        '[mockup]\nscale = 1.0\nmass_kg = 3.0\n')
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("colour = 3\n" + GOOD, "unknown key(s) colour"),
+    (GOOD.replace('"box"', '"My Box"'), "key name"),
+    (GOOD.replace("format_version = 1", "format_version = 2"), "key format_version"),
+    (GOOD.replace("length_unit = \"m\"", "length_unit = \"inch\""), "key length_unit"),
+    (GOOD.replace("scale = 1.0", "scale = 0"), "key mockup.scale"),
+    (GOOD + "[keypoints]\npoints = [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]]\n", "key keypoints.points"),
+    (GOOD + "[keypoints]\npoints = [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 'a']]\n", "key keypoints.points.3"),
+    (GOOD + "[keypoints]\npoints = [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 5.0]]\n", "key keypoints.points.3"),
+    (GOOD + '[views]\naxis = [0, 0, 0]\nnames = ["a", "b"]\n', "key views.axis"),
+    (GOOD + '[views]\naxis = [0, 0, 1]\nnames = ["a", "a"]\n', "key views.names"),
+    (GOOD + '[looks]\nboulder = "chrome"\n', "key looks.boulder"),
+    (GOOD + '[looks]\nwing = "rock"\n', "key looks.wing"),
+    (GOOD + "[frame]\nbody_from_mesh_q = [1, 1, 0, 0]\n", "key frame.body_from_mesh_q"),
+    (GOOD.replace('"boulder.stl"', '"../boulder.stl"'), "key mesh"),
+    (GOOD.replace('"boulder.stl"', '"/etc/passwd.stl"'), "key mesh"),
+    (GOOD.replace('"boulder.stl"', '"missing.stl"'), "key mesh"),
+    (GOOD.replace('"boulder.stl"', '"notes.txt"'), "key mesh"),
+    (GOOD.replace("scale = 1.0", "scale = 1.0 ="), "not valid TOML (Expected newline or end of document after a "
+                                                    "statement (at line 6, column 13))"),
+])
+def test_each_mistake_names_the_file_and_the_key(tmp_path, text, expected):
+    folder = write(tmp_path / "t", text)
+    with pytest.raises(TargetError) as error:
+        load_target(folder)
+    assert str(folder / TARGET_FILE) in str(error.value) and expected in str(error.value), str(error.value)
+
+
+def test_a_mesh_in_mm_declared_in_metres_gives_both_sizes(tmp_path):
+    folder = tmp_path / "t"
+    folder.mkdir()
+    trimesh.creation.box((400.0, 300.0, 200.0)).export(folder / "boulder.stl")  # mm
+    write(folder, GOOD)
+    with pytest.raises(TargetError, match=r"length_unit / mockup.scale: the mesh is 538.5 m across.*"
+                                          r"length_unit = \"mm\" the mock-up would be 0.5385 m"):
+        load_target(folder)
+
+
+@pytest.mark.parametrize("mesh, content, expected", [
+    ("broken.glb", b"glTF this is not", "not a mesh trimesh can read"),
+    ("empty.obj", b"# nothing\nv 0 0 0\nv 1 0 0\n", "holds no triangles"),
+    ("flat.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n", "flat or degenerate"),
+    ("sliver.obj", b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "degenerate"),
+])
+def test_a_mesh_that_cannot_be_a_target_is_refused(tmp_path, mesh, content, expected):
+    folder = tmp_path / "t"
+    folder.mkdir()
+    (folder / mesh).write_bytes(content)
+    write(folder, GOOD.replace('"boulder.stl"', f'"{mesh}"'), mesh)
+    with pytest.raises(TargetError, match=expected):
+        load_target(folder)
+
+
+def test_a_link_out_of_the_folder_is_refused(tmp_path):
+    outside = tmp_path / "outside.stl"
+    trimesh.creation.box((0.4, 0.3, 0.2)).export(outside)
+    (tmp_path / "t").mkdir()
+    os.symlink(outside, tmp_path / "t" / "link.stl")
+    folder = write(tmp_path / "t", GOOD.replace('"boulder.stl"', '"link.stl"'), "link.stl")
+    with pytest.raises(TargetError, match="key mesh: 'link.stl' leads out of"):
+        load_target(folder)
+
+
+def test_the_written_spec_reads_back(tmp_path):
+    spec = make_tango.spec()
+    (tmp_path / make_tango.MESH).write_bytes(b"")
+    write_target_spec(tmp_path, spec)
+    assert read_target_spec(tmp_path) == spec
+
+
+def test_speedplus_target_checks_a_folder(tmp_path):
+    def speedplus(*args):
+        return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
+                              env={**os.environ, "COLUMNS": "200"}, timeout=120)
+
+    good = speedplus("target", str(cubesat(tmp_path / "cubesat")))
+    assert good.returncode == 0, good.stderr
+    for said in ("cubesat6u", "11, chosen on the mesh", "0.5401 m full scale", "body, wing_minus, wing_plus"):
+        assert said in good.stdout, good.stdout
+    bad = speedplus("target", str(write(tmp_path / "bad", "colour = 3\n" + GOOD)))
+    assert bad.returncode == 1 and "unknown key(s) colour" in bad.stderr and "Traceback" not in bad.stderr
