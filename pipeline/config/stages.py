@@ -164,11 +164,11 @@ class FuseConfig:
         "own distance; beyond it the error grows along the line of sight: 1 mm at 4 m. 0: none", "1")
     lost_motion_rad: tuple[float, float, float, float, float, float] = param(
         (2.9e-4, 2.9e-4, 2.9e-4, 5.8e-4, 5.8e-4, 5.8e-4),
-        "the arms' gearbox lost motion (backlash plus hysteresis) of A1-A6, as the data sheet gives it (RV "
-        "reducers of the main axes: 1 arcmin; wrist: about 2 arcmin). A joint below fuse.backlash_preload_nm "
-        "rests on the flank its last move left it on, which no calibration models: it adds (lost motion / 2)^2 "
-        "to its angle's variance, propagated to the robots' pose at each dataset capture (with calibrated "
-        "arms); 0: none", "rad")
+        "the arms' gearbox lost motion (backlash plus hysteresis) of A1-A6, as the data sheet rates it, a "
+        "maximum (RV reducers of the main axes: 1 arcmin; wrist: about 2 arcmin). A joint below "
+        "fuse.backlash_preload_nm rests on the flank its last move left it on, which no calibration models: "
+        "with a unit's lost motion uniform on 50-100% of the rating, it adds 7/12 (rating / 2)^2 to its angle's "
+        "variance, propagated to the robots' pose at each dataset capture (with calibrated arms); 0: none", "rad")
     backlash_preload_nm: float = param(
         15.0, "a joint whose gravity torque (the lab's nominal mass model) exceeds this rests on its loaded flank "
         "whatever its last move, and gains no lost-motion variance. RV reducers' lost motion is specified "

@@ -48,6 +48,8 @@ from stages.common.kinematics import arm_model, forward
 from stages.common.statics import gravity_torques, link_masses
 
 LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
+#: mean square of a unit's lost motion over its rating's square: uniform on 50-100% of it
+UNIT_SHARE = 7 / 12
 #: the joints whose compliance is estimated (A2, A3, A5: those gravity loads)
 COMPLIANT_JOINTS = (1, 2, 4)
 #: parameters of the arms: joint offsets (6 + 6), link lengths (6 + 6), bases (6 + 6), rail scale,
@@ -241,13 +243,15 @@ def flank_variances(testbed: TestbedConfig, r: Readings, lost_motion_rad: tuple[
 
     A joint whose nominal gravity torque exceeds ``preload_nm`` rests on its loaded flank,
     at the same place for every capture with that load, which the joint offsets absorb:
-    none. Any other rests on the flank its last move left it on, ``+-lost / 2`` from the
-    middle, which no calibration can know for a capture: ``(lost / 2)^2``, the two-point
-    distribution's variance. At 4 m a wrist's 1 arcmin turns the line of sight by 0.6 mm,
-    five times what it does to the board at the calibration's 0.75 m."""
+    none. Any other rests on the flank its last move left it on, ``+-l / 2`` from the
+    middle, which no calibration can know for a capture. The data sheet's ``lost_motion_rad``
+    is a rating, a maximum: a unit's ``l`` is taken as uniform between half of it and all
+    of it, so the variance is ``E[l^2] / 4 = 7 / 12 (lost / 2)^2``. At 4 m a wrist's
+    arcminute turns the line of sight by 0.6 mm, five times what it does to the board at
+    the calibration's 0.75 m."""
     camera_torque, target_torque = torques(testbed, r)
     free = np.abs(np.concatenate([camera_torque, target_torque], axis=1)) <= preload_nm
-    return np.where(free, np.tile((np.asarray(lost_motion_rad, float) / 2) ** 2, 2), 0.0)
+    return np.where(free, np.tile(UNIT_SHARE * (np.asarray(lost_motion_rad, float) / 2) ** 2, 2), 0.0)
 
 
 def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixtures: list[str],
