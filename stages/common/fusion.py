@@ -97,13 +97,11 @@ def sigma_between(estimates: np.ndarray, references: np.ndarray) -> Sigma:
 class VarianceFactor:
     """A posteriori scale of the calibrated sigmas on the dataset captures, common to both
     sources: per camera axis ``t`` (3,) and for the rotation angle ``r``, from ``samples``
-    two-source captures (``axis_samples`` (3,): those each axis's factor was measured on,
-    when fewer)."""
+    two-source captures."""
 
     t: np.ndarray
     r: float
     samples: int
-    axis_samples: np.ndarray | None = None
 
     def scale(self, sigma: Sigma) -> Sigma:
         pointing = None if sigma.pointing_rad is None else sigma.pointing_rad * self.r
@@ -117,8 +115,7 @@ class VarianceFactor:
         factor exceeds what two consistent sources show on this many captures."""
         if self.samples == 0:
             return np.zeros(3, bool)
-        counts = np.full(3, self.samples) if self.axis_samples is None else self.axis_samples
-        return self.t > np.array([consistency_bound(int(n)) for n in counts])
+        return self.t > consistency_bound(self.samples)
 
 
 UNIT_FACTOR = VarianceFactor(np.ones(3), 1.0, 0)
@@ -142,8 +139,9 @@ def variance_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: li
     The difference's variance is ``s_a^2 + s_b^2``: which source grew cannot be told
     without a third, so the factor is common to both (variance component estimation with
     one component). Medians, not means: a ghost marker or a mislabelled body must not
-    inflate it much (``screened_variance_factor`` leaves them out). Only inflation (>= 1):
-    a short session cannot show the sources better than their calibration."""
+    inflate it much (a fifth of them move it by about a third: a test flags consistent
+    sources more often then, and the fall-back costs only sigma). Only inflation (>= 1): a
+    short session cannot show the sources better than their calibration."""
     difference = pose_b[:, :3, 3] - pose_a[:, :3, 3]
     normalised = difference / np.stack([s.t_m for s in sigma_difference])
     t = np.maximum(np.sqrt(np.median(normalised**2, axis=0) / _CHI2_1_MEDIAN), 1.0)
@@ -152,36 +150,6 @@ def variance_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: li
     ratio = (angle / np.array([s.r_rad for s in sigma_difference])) ** 2
     r = max(float(np.sqrt(np.median(ratio) / (_CHI2_3_MEDIAN / 3))), 1.0)
     return VarianceFactor(t, r, len(pose_a))
-
-
-def screened_variance_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: list[Sigma],
-                             k: float = REJECTION_K) -> VarianceFactor:
-    """``variance_factor`` with gross outliers left out, each axis's from the captures whose
-    disagreement is within ``k`` sigmas (scaled by a first factor on all) on the other two
-    axes and in angle, and the angle's from those within on every axis.
-
-    A quarter of motion capture's poses are ghost markers or mislabelled bodies, centimetres
-    and degrees off: they move the median of the squares by a third, as far as the
-    consistency test allows. They show on several axes at once; screening an axis on the
-    others, never on itself, keeps the test's distribution (the axes' errors are
-    independent) and its power against a source that errs on that axis alone."""
-    first = variance_factor(pose_a, pose_b, sigma_difference)
-    scaled = [first.scale(s) for s in sigma_difference]
-    difference = np.abs(pose_b[:, :3, 3] - pose_a[:, :3, 3])
-    beyond = difference > k * np.stack([s.t_m for s in scaled])
-    angle = g.angular_distance(pose_b[:, :3, :3], pose_a[:, :3, :3])
-    beyond_angle = angle > k * np.array([s.r_rad for s in scaled])
-    t, counts = np.ones(3), np.zeros(3, int)
-    for axis in range(3):
-        keep = ~(np.delete(beyond, axis, axis=1).any(axis=1) | beyond_angle)
-        counts[axis] = int(keep.sum())
-        if counts[axis]:
-            t[axis] = variance_factor(pose_a[keep], pose_b[keep], [s for s, c in zip(sigma_difference, keep,
-                                                                                   strict=True) if c]).t[axis]
-    keep = ~beyond.any(axis=1)
-    r = first.r if not keep.any() else variance_factor(pose_a[keep], pose_b[keep], [
-        s for s, c in zip(sigma_difference, keep, strict=True) if c]).r
-    return VarianceFactor(t, r, len(pose_a), counts)
 
 
 def without_reference_noise(sigma: Sigma, reference_var_t: np.ndarray, reference_var_r: float,

@@ -36,7 +36,7 @@ from stages.common.fusion import (
     consistency_bound,
     fuse,
     rejection_reason,
-    screened_variance_factor,
+    variance_factor,
     with_scale_error,
 )
 from stages.common.rwhe import fixture_tilt
@@ -159,10 +159,8 @@ def session_factor(config: Config, estimates: list[Estimates], vicon: SourceMode
         return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
                              f"({config.fuse.min_scale_samples}): the calibrated sigmas")
     predicted = [e.plus_parameters(vicon.sigma_at(e.kuka, rejection)) for e in both]
-    factor = screened_variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]),
-                                      predicted, config.fuse.rejection_k)
-    return factor, (f"robust spread of motion capture against the robots on {len(both)} dataset captures, "
-                    "those beyond the rejection test on another axis or in angle left out of each axis's")
+    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
+    return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
 
 
 def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, vicon: SourceModel | None,
@@ -187,9 +185,8 @@ def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, 
         sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m[axis] for e in both])
         sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m[axis] for e in both])
         sources.append("kuka" if sigma_kuka <= sigma_vicon else "vicon")
-        samples = factor.samples if factor.axis_samples is None else int(factor.axis_samples[axis])
-        reasons.append(f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(samples):.3f} (what "
-                       f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {samples} captures); "
+        reasons.append(f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
+                       f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures); "
                        f"sigma robots {sigma_kuka * 1000:.2f} mm, motion capture {sigma_vicon * 1000:.2f} mm: "
                        f"{sources[-1]} alone")
     return tuple(sources), "; ".join(reasons) or "the sources agree within their sigmas on every axis"

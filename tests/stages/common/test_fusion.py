@@ -13,7 +13,6 @@ from stages.common.fusion import (
     fuse,
     lever_sq,
     rejection_reason,
-    screened_variance_factor,
     sigma_between,
     variance_factor,
     with_scale_error,
@@ -195,29 +194,3 @@ def test_consistent_sources_fail_the_consistency_test_at_most_5_percent_of_the_t
     assert not VarianceFactor(np.full(3, 9.0), 1.0, 0).inconsistent().any()  # nothing measured, nothing flagged
     assert consistency_bound(captures) > consistency_bound(4 * captures) > 1.0
 
-
-def test_ghost_markers_pass_the_consistency_test_once_screened_on_the_other_axes():
-    """A quarter of motion capture's poses off by centimetres move the median as far as the
-    test allows; screened on the other axes and the angle, consistent sources are flagged
-    at most about 5% of the time, and a source 2x off on one axis alone still is."""
-    rng = np.random.default_rng(44)
-    sigma = Sigma(np.full(3, 1e-3), 1e-3)
-    predicted = [difference_sigma(sigma, sigma)] * 44
-    flagged = {"plain": [], "screened": [], "screened, x 2x off": []}
-    for trial in range(300):
-        off = trial % 2 == 1
-        robots, mocap = noisy_pairs(rng, 44, Sigma(sigma.t_m * [2.0 if off else 1.0, 1, 1], sigma.r_rad), sigma)
-        ghosts = rng.random(44) < 0.25
-        mocap[ghosts, :3, 3] += rng.normal(scale=0.01, size=(ghosts.sum(), 3))
-        mocap[ghosts, :3, :3] = g.rotvec_to_matrix(rng.normal(scale=0.05, size=(ghosts.sum(), 3))) @ mocap[
-            ghosts, :3, :3]
-        screened = screened_variance_factor(robots, mocap, predicted)
-        if off:
-            flagged["screened, x 2x off"].append(screened.inconsistent()[0])
-        else:
-            flagged["plain"].append(variance_factor(robots, mocap, predicted).inconsistent())
-            flagged["screened"].append(screened.inconsistent())
-    share = {key: float(np.mean(value)) for key, value in flagged.items()}
-    assert share["plain"] > 0.3, share
-    assert share["screened"] <= 0.07, share
-    assert share["screened, x 2x off"] > 0.6, share  # 73%: a factor 1.58 against a bound of 1.37
