@@ -87,6 +87,31 @@ class Target:
         return np.where(side > 0, self.view_names[0], self.view_names[1])
 
 
+def feature_edges(target: Target, crease_deg: float = 20.0) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """A wireframe of the mesh: points (P, 3) m (body frame) and the edges (index pairs)
+    where a part's surface creases by more than ``crease_deg`` or ends (an edge of one
+    triangle). Vertices a part repeats at one place (a GLB's split normals) are one."""
+    points: list[np.ndarray] = []
+    edges: list[tuple[int, int]] = []
+    for part in target.parts.values():
+        unique, index = np.unique(np.round(part.vertices, 9), axis=0, return_inverse=True)
+        faces = index.reshape(-1)[part.faces]
+        corners = unique[faces]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normals, axis=1)
+        faces, normals = faces[length > 0], normals[length > 0] / length[length > 0, None]
+        sides: dict[tuple[int, int], list[int]] = {}
+        for face, (a, b, c) in enumerate(faces):
+            for edge in ((a, b), (b, c), (c, a)):
+                sides.setdefault((int(min(edge)), int(max(edge))), []).append(face)
+        cos_crease = np.cos(np.radians(crease_deg))
+        offset = sum(len(p) for p in points)
+        for (a, b), adjacent in sorted(sides.items()):
+            if len(adjacent) != 2 or normals[adjacent[0]] @ normals[adjacent[1]] < cos_crease:
+                edges.append((offset + a, offset + b))
+        points.append(unique)
+    return np.concatenate(points), edges
+
 def folder_digest(directory: Path) -> str:
     """sha256 over every file of the folder (relative path and bytes, in path order)."""
     digest = hashlib.sha256()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 import numpy as np  # noqa: E402
 
 from stages.common import geometry as g  # noqa: E402
-from stages.common import tango  # noqa: E402
-from stages.common.tango_mesh import antenna_base  # noqa: E402
+from stages.common.target import feature_edges, load_target  # noqa: E402
+from stages.common.targets import builtin_folder  # noqa: E402
 
 DOMAIN_COLOURS = {"synthetic": "tab:blue", "lightbox": "tab:orange", "sunlamp": "tab:red"}
 
@@ -121,14 +122,11 @@ def rotation_cdf(predictions: list[dict[str, Any]], models: list[str], path: Pat
     return _save(figure, path)
 
 
+@functools.lru_cache(maxsize=1)
 def wireframe_edges() -> tuple[np.ndarray, list[tuple[int, int]]]:
-    """Points (P, 3) of the Tango wireframe (body frame, full scale) and its edges."""
-    body = tango.KEYPOINTS_M[:8]
-    tips = tango.KEYPOINTS_M[8:]
-    points = np.concatenate([body, tips, np.array([antenna_base(tip) for tip in tips])])
-    edges = [(i, (i + 1) % 4) for i in range(4)] + [(4 + i, 4 + (i + 1) % 4) for i in range(4)]
-    edges += [(i, i + 4) for i in range(4)] + [(8 + i, 11 + i) for i in range(3)]
-    return points, edges
+    """Points (P, 3) of the target's wireframe (body frame, full scale) and its edges: the
+    mesh's feature edges (``target.feature_edges``)."""
+    return feature_edges(load_target(builtin_folder()))  # the target every stage builds today (issue 29)
 
 
 def thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:

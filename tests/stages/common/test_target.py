@@ -16,7 +16,7 @@ from manifests.target import TARGET_FILE, TargetError, TargetSpec, read_target_s
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.tango_mesh import tango_parts
-from stages.common.target import CHOSEN_KEYPOINTS, load_target
+from stages.common.target import CHOSEN_KEYPOINTS, feature_edges, load_target
 from stages.common.targets import builtin_folder, builtin_names, make_tango
 
 
@@ -187,3 +187,24 @@ def test_speedplus_target_checks_a_folder(tmp_path):
         assert said in good.stdout, good.stdout
     bad = speedplus("target", str(write(tmp_path / "bad", "colour = 3\n" + GOOD)))
     assert bad.returncode == 1 and "unknown key(s) colour" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_wireframe_is_the_meshs_creases_and_borders(tmp_path):
+    """A box's 12 edges, not its faces' diagonals; Tango's body box and its antennas."""
+    folder = tmp_path / "box"
+    folder.mkdir()
+    trimesh.creation.box((0.4, 0.3, 0.2)).export(folder / "boulder.stl")  # STL: every triangle its own vertices
+    write(folder, GOOD)
+    points, edges = feature_edges(load_target(folder))
+    assert len(points) == 8 and len(edges) == 12
+    lengths = sorted(round(float(np.linalg.norm(points[a] - points[b])), 6) for a, b in edges)
+    assert lengths == [0.2] * 4 + [0.3] * 4 + [0.4] * 4
+
+    points, edges = feature_edges(load_target(builtin_folder("tango")))
+    drawn = {frozenset(map(tuple, np.round(points[[a, b]], 6))) for a, b in edges}
+    body = np.round(tango.KEYPOINTS_M[:8], 6)
+    box = [(i, (i + 1) % 4) for i in range(4)] + [(4 + i, 4 + (i + 1) % 4) for i in range(4)] + [(i, i + 4)
+                                                                                              for i in range(4)]
+    assert all(frozenset((tuple(body[a]), tuple(body[b]))) in drawn for a, b in box)
+    tips = {tuple(p) for p in np.round(tango.KEYPOINTS_M[8:], 6)}
+    assert tips <= {tuple(p) for p in np.round(points, 6)}  # each antenna drawn to its tip
