@@ -32,6 +32,7 @@ the mock-up.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import tomllib
@@ -125,7 +126,41 @@ def mesh_path(directory: Path, spec: TargetSpec) -> Path:
         raise TargetError(f"{where}: key mesh: expected a {', '.join(MESH_SUFFIXES)} file, got {spec.mesh!r}")
     if not path.is_file():
         raise TargetError(f"{where}: key mesh: {path} does not exist")
+    for reference in referenced_files(path):
+        inside(directory, path, reference)
     return path
+
+
+def referenced_files(mesh: Path) -> list[str]:
+    """The files a mesh file names (a glTF's buffers and images, an OBJ's material
+    libraries and their texture maps), as written in it; ``data:`` URIs are inline."""
+    try:
+        if mesh.suffix.lower() == ".gltf":
+            document = json.loads(mesh.read_text(encoding="utf-8"))
+            return [entry["uri"] for key in ("buffers", "images") for entry in document.get(key, [])
+                    if isinstance(entry, dict) and isinstance(entry.get("uri"), str)
+                    and not entry["uri"].startswith("data:")]
+        if mesh.suffix.lower() == ".obj":
+            libraries = [line.split(maxsplit=1)[1].strip() for line in mesh.read_text(errors="replace").splitlines()
+                         if line.startswith("mtllib ") and len(line.split(maxsplit=1)) == 2]
+            maps = []
+            for library in libraries:
+                material = mesh.parent / library
+                if material.is_file() and material.resolve().is_relative_to(mesh.parent.resolve()):
+                    maps += [line.split()[-1] for line in material.read_text(errors="replace").splitlines()
+                             if line.strip().lower().startswith("map_") and len(line.split()) > 1]
+            return libraries + maps
+    except (OSError, ValueError) as error:  # unreadable, or a glTF that is not JSON: trimesh says more
+        raise TargetError(f"{mesh}: cannot read the files it names ({error})"[:400]) from None
+    return []
+
+
+def inside(directory: Path, mesh: Path, reference: str) -> None:
+    """A file the mesh names must stay inside the target folder."""
+    relative = PurePosixPath(reference.replace("\\", "/"))
+    if (relative.is_absolute() or ".." in relative.parts
+            or not (mesh.parent / relative).resolve().is_relative_to(directory.resolve())):
+        raise TargetError(f"{mesh}: names {reference!r}, which is outside the target folder {directory}")
 
 
 def read_target_spec(directory: Path) -> TargetSpec:
@@ -137,6 +172,8 @@ def read_target_spec(directory: Path) -> TargetSpec:
         raise TargetError(f"{path}: missing; a target folder holds target.toml beside its mesh") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise TargetError(f"{path}: not valid TOML ({error})") from None
+    except OSError as error:  # a file given for the folder, no permission
+        raise TargetError(f"{path}: cannot be read ({error.strerror or error})") from None
     try:
         return _parse(Fields(data, str(path), ""), Path(directory))
     except TargetError:

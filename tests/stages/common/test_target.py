@@ -208,3 +208,26 @@ def test_the_wireframe_is_the_meshs_creases_and_borders(tmp_path):
     assert all(frozenset((tuple(body[a]), tuple(body[b]))) in drawn for a, b in box)
     tips = {tuple(p) for p in np.round(tango.KEYPOINTS_M[8:], 6)}
     assert tips <= {tuple(p) for p in np.round(points, 6)}  # each antenna drawn to its tip
+
+
+@pytest.mark.parametrize("mesh, files, text", [
+    ("model.gltf", {"model.gltf": '{"asset": {"version": "2.0"}, "buffers": [{"uri": "../secret.bin", '
+                                  '"byteLength": 4}]}'}, "names '../secret.bin'"),
+    ("model.obj", {"model.obj": "mtllib /etc/materials.mtl\nv 0 0 0\n"}, "names '/etc/materials.mtl'"),
+    ("model.obj", {"model.obj": "mtllib m.mtl\nv 0 0 0\n", "m.mtl": "newmtl a\nmap_Kd ../../cat.png\n"},
+     "names '../../cat.png'"),
+])
+def test_a_mesh_naming_files_outside_the_folder_is_refused(tmp_path, mesh, files, text):
+    folder = tmp_path / "t"
+    folder.mkdir()
+    for name, content in files.items():
+        (folder / name).write_text(content)
+    write(folder, GOOD.replace('"boulder.stl"', f'"{mesh}"'), mesh)
+    with pytest.raises(TargetError, match=text):
+        load_target(folder)
+
+
+def test_a_file_given_for_the_folder_is_an_error_not_a_crash(tmp_path):
+    (tmp_path / "target.toml").write_text(GOOD)
+    with pytest.raises(TargetError, match="cannot be read"):
+        load_target(tmp_path / "target.toml")
