@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from manifests.target import (
+    LENGTH_UNITS,
     TARGET_FILE,
     Look,
     TargetError,
@@ -75,10 +76,6 @@ class Target:
     looks: dict[str, Look]
     digest: str  # sha256 of the folder's files: what the stages that use the target fingerprint
 
-    def triangles(self) -> np.ndarray:
-        """Every triangle (F, 3, 3) of the mesh, m."""
-        return np.concatenate([part.vertices[part.faces] for part in self.parts.values()])
-
     def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """The view name (...) of camera positions (..., 3) in the body frame, metres at the
         given model scale: ``view_names[0]`` on the side of the plane through the centre
@@ -117,7 +114,10 @@ def folder_digest(directory: Path) -> str:
     digest = hashlib.sha256()
     for path in sorted(p for p in Path(directory).rglob("*") if p.is_file()):
         digest.update(path.relative_to(directory).as_posix().encode() + b"\0")
-        digest.update(path.read_bytes())
+        try:
+            digest.update(path.read_bytes())
+        except OSError as error:
+            raise TargetError(f"{path}: cannot be read ({error.strerror or error})") from None
     return digest.hexdigest()
 
 
@@ -127,13 +127,14 @@ def load_target(directory: Path) -> Target:
     spec = read_target_spec(directory)
     where = directory / TARGET_FILE
     body_from_mesh = g.transform_from_qt(spec.body_from_mesh.q, np.asarray(spec.body_from_mesh.t) * spec.metres)
+    mesh = mesh_path(directory, spec)
     parts = {name: MeshPart(name, g.apply(body_from_mesh, part.vertices * spec.metres), part.faces, part.uv)
-             for name, part in read_mesh(mesh_path(directory, spec)).items()}
+             for name, part in read_mesh(mesh).items()}
     vertices = np.concatenate([p.vertices for p in parts.values()])
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     centre = (low + high) / 2 if spec.centre is None else np.asarray(spec.centre) * spec.metres
     radius = float(np.max(np.linalg.norm(vertices - centre, axis=1)))
-    hull = _hull(vertices, mesh_path(directory, spec))
+    hull = _hull(vertices, mesh)
     diameter = _diameter(hull)
     _check_size(where, spec, diameter)
     unknown = sorted(set(spec.looks) - set(parts))
@@ -143,7 +144,7 @@ def load_target(directory: Path) -> Target:
     if spec.keypoints is None:
         keypoints = farthest_points(hull, centre, CHOSEN_KEYPOINTS)
     else:
-        keypoints = g.apply(body_from_mesh, np.asarray(spec.keypoints) * spec.metres)
+        keypoints = np.asarray(spec.keypoints, float) * spec.metres  # declared in the body frame already
         _check_keypoints(where, keypoints, centre, radius)
     axis, names = (spec.view_axis, spec.view_names) if spec.view_axis is not None else DEFAULT_VIEWS
     axis = np.asarray(axis, float)
@@ -219,7 +220,7 @@ def _check_size(where: Path, spec: TargetSpec, diameter: float) -> None:
     if low <= mockup <= high:
         return
     other = "mm" if spec.length_unit == "m" else "m"
-    as_other = diameter / spec.metres * {"m": 1.0, "mm": 1e-3}[other] * spec.mockup_scale
+    as_other = diameter / spec.metres * LENGTH_UNITS[other] * spec.mockup_scale
     raise TargetError(f"{where}: key length_unit / mockup.scale: the mesh is {diameter:.4g} m across at full scale, "
                       f"{mockup:.4g} m as a mock-up at scale {spec.mockup_scale:g}, outside what a testbed holds "
                       f"({low:g}-{high:g} m); with length_unit = \"{other}\" the mock-up would be {as_other:.4g} m")

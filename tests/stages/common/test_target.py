@@ -231,3 +231,12 @@ def test_a_file_given_for_the_folder_is_an_error_not_a_crash(tmp_path):
     (tmp_path / "target.toml").write_text(GOOD)
     with pytest.raises(TargetError, match="cannot be read"):
         load_target(tmp_path / "target.toml")
+
+
+def test_declared_keypoints_and_centre_are_in_the_body_frame_whatever_the_meshs_frame(tmp_path):
+    """Only the mesh is moved by ``body_from_mesh``; keypoints and centre are written in the
+    body frame (the labels'), in ``length_unit``."""
+    points = [[0.0, 0.0, 183.0], [0.0, 0.0, -183.0], [163.0, 0.0, 0.0], [0.0, 114.0, 0.0]]
+    target = load_target(cubesat(tmp_path / "cubesat", keypoints=points, centre=(0.0, 0.0, 10.0)))
+    np.testing.assert_allclose(target.keypoints_m, np.asarray(points) / 1000)
+    np.testing.assert_allclose(target.centre_m, [0.0, 0.0, 0.01])
