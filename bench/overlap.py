@@ -17,7 +17,8 @@ import numpy as np
 from manifests import Workspace, read_manifest
 from pipeline.config import Config
 from stages.common.image_io import read_image
-from stages.common.sidecars import calibrated_camera, mockup_scale
+from stages.common.sidecars import calibrated_camera
+from stages.common.workspace_target import workspace_target
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
 
@@ -37,7 +38,7 @@ def twin_overlap(config: Config, workspace: Workspace, *, at_truth: bool = True)
     plan = {row["sample_id"]: row for row in read_manifest(workspace, "plan").to_pylist()}
     truth = {row["sample_id"]: row for row in read_manifest(workspace, "truth").to_pylist()}
     labels = {row["sample_id"]: row for row in read_manifest(workspace, "labels").to_pylist()}
-    scale = mockup_scale(config, workspace)
+    scale = workspace_target(config, workspace).mockup_scale
     worker = RenderWorker(calibrated_camera(workspace), 16, 1, 2) if at_truth else None
     rows = []
     for render in read_manifest(workspace, "renders").to_pylist():

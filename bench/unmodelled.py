@@ -29,6 +29,7 @@ from stages.acquire.virtual.truth import draw_truth
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.geometry import pose_columns
+from stages.common.workspace_target import planned_target
 from stages.plan import plan_sample, sample_ids
 
 PNP_SIGMA_M, PNP_SIGMA_RAD = 0.05e-3, np.radians(0.026)
@@ -63,13 +64,14 @@ def robots_only(config: Config, sessions: dict[str, Any], rng: np.random.Generat
     captures, true = sessions["calibration"]
     noise = np.stack([g.make_transform(g.rotvec_to_matrix(rng.normal(0, PNP_SIGMA_RAD / np.sqrt(3), 3)),
                                        rng.normal(0, PNP_SIGMA_M / np.sqrt(3), 3)) for _ in true])
-    a, fixtures, readings = true @ noise, [x["fixture"] for x in captures], arms.readings(captures)
+    payload = arms.Payload.of(planned_target(config))
+    a, fixtures, readings = true @ noise, [x["fixture"] for x in captures], arms.readings(captures, payload)
     b, up = arms.measurement(testbed, arms.NOMINAL, readings, world_up)
     start = rwhe.frobenius(a, b, fixtures, rwhe.shah(a, b, fixtures), up)
     fit = arms.fit(testbed, c, a, readings, fixtures, start, True)
     out = {}
     for session, (captures, true) in sessions.items():
-        b, up = arms.measurement(testbed, fit.errors, arms.readings(captures), world_up)
+        b, up = arms.measurement(testbed, fit.errors, arms.readings(captures, payload), world_up)
         predicted = fit.offsets.predict(b, [x["fixture"] for x in captures], up)
         rotation = np.degrees(g.angular_distance(predicted[:, :3, :3], true[:, :3, :3]))
         out[f"{session} E_T (mm)"] = float(np.linalg.norm(predicted[:, :3, 3] - true[:, :3, 3], axis=1).mean() * 1000)

@@ -28,7 +28,7 @@ import pyarrow.parquet as pq
 
 from manifests.files import fsync_dir, write_json_atomic, write_table_file
 from manifests.integrity import damage
-from manifests.schema import MANIFESTS, SCHEMA_VERSION, Column, ManifestSpec
+from manifests.schema import MANIFESTS, NAME_PATTERN, SCHEMA_VERSION, Column, ManifestSpec
 from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
 
 QUATERNION_TOLERANCE = 1e-6
@@ -140,6 +140,12 @@ def _validate_column(table: pa.Table, source: str, column: Column) -> None:
             if values[row] not in column.allowed:
                 raise _row_fail(table, source, int(row), column.name,
                                 f"value {values[row]!r} is not one of {', '.join(column.allowed)}")
+    if column.kind == "name":
+        values = array.to_pylist()
+        for row in rows:
+            if not isinstance(values[row], str) or not NAME_PATTERN.fullmatch(values[row]):
+                raise _row_fail(table, source, int(row), column.name,
+                                f"value {values[row]!r} is not a name (a-z, 0-9, _ and -)")
     if column.kind == "path":
         values = array.to_pylist()
         for row in rows:

@@ -11,18 +11,20 @@ parts written under another version, and stage fingerprints include it.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.7"
+SCHEMA_VERSION = "1.8"  # 1.8: a target's own keypoint count and view names
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
 VEC6 = pa.list_(pa.float64(), 6)
 JOINTS = pa.list_(pa.float64(), 6)
-KEYPOINTS = pa.list_(pa.list_(pa.float64(), 2), 11)
+KEYPOINTS = pa.list_(pa.list_(pa.float64(), 2))  # (K, 2): the target's K keypoints
 BBOX = pa.list_(pa.float64(), 4)
+KEYPOINTS_TEXT = "the target's keypoints (target.toml order; Tango: the 11 of SPEED+), distorted image coordinates"
 
 
 @dataclass(frozen=True)
@@ -34,7 +36,7 @@ class Column:
     unit: str
     description: str
     nullable: bool = False
-    kind: str = "value"  # "value" | "quaternion" | "path" | "enum"
+    kind: str = "value"  # "value" | "quaternion" | "path" | "enum" | "name" (matches NAME_PATTERN)
     allowed: tuple[str, ...] = ()
 
     def field(self) -> pa.Field:
@@ -84,7 +86,10 @@ def _sample_id() -> Column:
 
 
 SESSIONS = ("calibration", "dataset")
+#: the built-in Tango's views; a target folder names its own (``[views] names``)
 VIEWS = ("solar_panel", "rear_panel")
+#: what a target's view names (and other names from a target folder) look like
+NAME_PATTERN = re.compile(r"[a-z0-9_-]+")
 LIGHTS = ("lightbox", "sunlamp", "ambient")
 MOUNTS = ("minus_x", "plus_x")
 DOMAINS = ("lightbox", "sunlamp")
@@ -95,9 +100,9 @@ PLAN = ManifestSpec(
     (
         _sample_id(),
         Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
-        *pose("cam_from_target", "mock-up scale, OpenCV camera frame C, Tango body frame T"),
-        Column("view", pa.string(), "", "solar_panel when the camera sees the +z face of T",
-               kind="enum", allowed=VIEWS),
+        *pose("cam_from_target", "mock-up scale, OpenCV camera frame C, the target's body frame T"),
+        Column("view", pa.string(), "", "the side of the target the camera is on: the target's first view name "
+               "(Tango: solar_panel) when it sees the side its view axis points to, else the second", kind="name"),
         Column("light", pa.string(), "", "light set-up", kind="enum", allowed=LIGHTS),
         Column("light_boxes", pa.list_(pa.int8()), "index",
                "active Earth-albedo light boxes (0-9); empty unless lightbox"),
@@ -202,7 +207,7 @@ LABELS = ManifestSpec(
         _sample_id(),
         Column("filename", pa.string(), "", "image file name in the export"),
         Column("domain", pa.string(), "", "testbed domain", kind="enum", allowed=DOMAINS),
-        Column("view", pa.string(), "", "visible face", kind="enum", allowed=VIEWS),
+        Column("view", pa.string(), "", "visible side: one of the target's two view names", kind="name"),
         Column("q_vbs2tango_true", QUAT, "1", "rotation of cam_from_target (Tango body into camera), "
                "Hamilton (w, x, y, z)", kind="quaternion"),
         Column("r_Vo2To_vbs_true", VEC3, "m", "translation of cam_from_target, full scale"),
@@ -210,7 +215,7 @@ LABELS = ManifestSpec(
                allowed=("fused", "kuka_only")),
         Column("sigma_t_m", VEC3, "m", "1-sigma of the translation per camera axis, full scale"),
         Column("sigma_r_rad", pa.float64(), "rad", "1-sigma of the rotation angle"),
-        Column("keypoints_px", KEYPOINTS, "px", "the 11 Tango keypoints, distorted image coordinates"),
+        Column("keypoints_px", KEYPOINTS, "px", KEYPOINTS_TEXT),
         Column("bbox_px", BBOX, "px", "x_min, y_min, x_max, y_max of the projected model"),
     ),
 )
@@ -228,7 +233,7 @@ _RENDER_COLUMNS = (
     Column("light_dir_cam", VEC3, "1", "unit direction from the target towards the light, camera frame"),
     Column("irradiance", pa.float64(), "W/m^2", "irradiance of the directional light"),
     Column("earth", pa.bool_(), "", "the Earth is in the background"),
-    Column("keypoints_px", KEYPOINTS, "px", "the 11 Tango keypoints, distorted image coordinates"),
+    Column("keypoints_px", KEYPOINTS, "px", KEYPOINTS_TEXT),
     Column("bbox_px", BBOX, "px", "x_min, y_min, x_max, y_max of the mask (pixel centres)"),
     Column("width", pa.int32(), "px", "image width"),
     Column("height", pa.int32(), "px", "image height"),
@@ -254,7 +259,7 @@ PREDICTIONS = ManifestSpec(
         _sample_id(),
         Column("domain", pa.string(), "", "image domain: synthetic twin or testbed light", kind="enum",
                allowed=PREDICTION_DOMAINS),
-        Column("view", pa.string(), "", "visible face", kind="enum", allowed=VIEWS),
+        Column("view", pa.string(), "", "visible side: one of the target's two view names", kind="name"),
         Column("light", pa.string(), "", "light set-up of the sample (the twin's light is aligned with it)",
                kind="enum", allowed=LIGHTS),
         Column("crop", pa.string(), "", "full image, oracle box from the label, or self: the model's own crop (a "
@@ -292,7 +297,7 @@ SCORES = ManifestSpec(
                allowed=("full", "oracle_box", "self")),
         Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
                allowed=("synthetic", "testbed")),
-        Column("view", pa.string(), "", "visible face or all", kind="enum", allowed=(*VIEWS, "all")),
+        Column("view", pa.string(), "", "one of the target's view names, or all", kind="name"),
         Column("light", pa.string(), "", "light set-up or all", kind="enum", allowed=("lightbox", "sunlamp", "all")),
         Column("count", pa.int64(), "count", "images"),
         Column("pose_found_share", pa.float64(), "1", "share of images that gave a pose"),

@@ -21,11 +21,20 @@ import os
 import shutil
 from pathlib import Path
 
-from manifests.workspace import CONFIG_FILE, MANIFESTS_DIR, STATE_DIR, PathEscapeError, Workspace, check_relative
+from manifests.workspace import (
+    CONFIG_FILE,
+    MANIFESTS_DIR,
+    STATE_DIR,
+    TARGET_DIR,
+    PathEscapeError,
+    Workspace,
+    check_relative,
+)
 
 SNAPSHOT_DIR = ".snapshot"
-#: top-level files a command may write beside the manifests (the typed JSON files, the report)
-RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*")
+#: files a command may write beside the manifests (the typed JSON files, the report, the
+#: target folder plan copies in)
+RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*", f"{TARGET_DIR}/**/*")
 
 
 def _recorded_files(workspace: Workspace) -> set[str]:

@@ -32,9 +32,9 @@ the mock-up.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -43,6 +43,7 @@ from typing import Any
 import tomli_w
 
 from manifests.files import write_bytes_atomic
+from manifests.schema import NAME_PATTERN
 from manifests.sidecars.base import Fields, Pose, SidecarError
 
 TARGET_FILE = "target.toml"
@@ -52,7 +53,6 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 #: the looks a part can take (stages.common.target documents each)
 LOOK_PRESETS = ("gold_mli", "solar_cells", "aluminium", "white_paint", "black_paint", "rock")
-NAME_PATTERN = re.compile(r"[a-z0-9_-]+")
 MIN_KEYPOINTS = 4
 IDENTITY = Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
@@ -163,6 +163,33 @@ def inside(directory: Path, mesh: Path, reference: str) -> None:
         raise TargetError(f"{mesh}: names {reference!r}, which is outside the target folder {directory}")
 
 
+def target_files(directory: Path) -> list[str]:
+    """The files a target consists of, relative to ``directory`` (POSIX, sorted):
+    ``target.toml``, the mesh and the files the mesh names. What a workspace copies and
+    what its digest covers; other files in the folder (a lab's CAD sources) are not part of it."""
+    directory = Path(directory)
+    spec = read_target_spec(directory)
+    mesh = mesh_path(directory, spec)
+    names = {TARGET_FILE, mesh.relative_to(directory).as_posix()}
+    for reference in referenced_files(mesh):
+        path = (mesh.parent / reference.replace("\\", "/")).resolve()
+        if path.is_file():  # a missing texture is trimesh's to report
+            names.add(path.relative_to(directory.resolve()).as_posix())
+    return sorted(names)
+
+
+def target_digest(directory: Path) -> str:
+    """sha256 over the target's files (``target_files``: relative path and bytes, in order)."""
+    digest = hashlib.sha256()
+    for name in target_files(directory):
+        digest.update(name.encode() + b"\0")
+        try:
+            digest.update((Path(directory) / name).read_bytes())
+        except OSError as error:
+            raise TargetError(f"{Path(directory) / name}: cannot be read ({error.strerror or error})") from None
+    return digest.hexdigest()
+
+
 def read_target_spec(directory: Path) -> TargetSpec:
     """``DIR/target.toml``, validated (not the mesh: ``stages.common.target.load_target``)."""
     path = Path(directory) / TARGET_FILE
@@ -259,8 +286,9 @@ def _views(f: Fields) -> tuple[tuple[float, float, float] | None, tuple[str, str
         raise views.fail("axis", "a non-zero direction")
     names = views.raw("names")
     if (not isinstance(names, list) or len(names) != 2 or not all(isinstance(n, str) for n in names)
-            or names[0] == names[1] or not all(NAME_PATTERN.fullmatch(n) for n in names)):
-        raise views.fail("names", "two different names of a-z, 0-9, _ and - (positive side first)")
+            or names[0] == names[1] or not all(NAME_PATTERN.fullmatch(n) for n in names) or "all" in names):
+        raise views.fail("names", "two different names of a-z, 0-9, _ and - (positive side first; not \"all\", "
+                                  "which Table 2 uses for both)")
     return tuple(map(float, axis)), (names[0], names[1])
 
 

@@ -10,6 +10,7 @@ W/images/{calibration,dataset}/<sample_id>.png testbed captures
 W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/, ground_truth/<id>.exr beside them)
 W/truth/<sample_id>.exr                        virtual testbed: depth and part ids at the true pose
 W/models/<name>.onnx, <name>.json              trained models and their cards
+W/target/                                      the target folder the plan was made for (target.toml, mesh)
 W/session.json  W/calibration.json  W/fusion.json  W/truth.json     typed sidecars (manifests.sidecars)
 W/report/index.html  W/export/
 W/.snapshot/                                   a writing command's undo record (manifests.snapshot)
@@ -44,6 +45,7 @@ MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
 GROUND_TRUTH_TEMPLATE = "renders/{set}/ground_truth/{sample_id}.exr"
 TRUTH_MAPS_TEMPLATE = "truth/{sample_id}.exr"
 MODEL_TEMPLATE = "models/{name}.onnx"
+TARGET_DIR = "target"
 
 
 class PathEscapeError(InputError, ValueError):

@@ -77,6 +77,14 @@ EngineOption = Annotated[str | None, typer.Option("--engine", help=key_help("run
 RayAddressOption = Annotated[str | None, typer.Option("--ray-address",
                                                       help=key_help("run.ray_address") + "; this run only")]
 WorkersOption = Annotated[int | None, typer.Option("--workers", help=key_help("run.workers") + "; this run only")]
+TargetOption = Annotated[Path | None, typer.Option("--target", help=key_help("target.path")
+                                                   + "; the plan copies it into W/target")]
+
+
+def _target(overrides: list[Override], target: Path | None) -> list[Override]:
+    """``--target DIR`` as the override ``target.path`` (absolute: the saved configuration
+    must name the same folder from any directory)."""
+    return [*overrides, Override.of("target.path", str(target.resolve()), "--target")] if target else overrides
 
 
 def _engine(engine: str | None, ray_address: str | None, workers: int | None) -> list[Override]:
@@ -258,8 +266,20 @@ def _stage_command(entry: registry.StageEntry) -> None:
 
 
 for _entry in registry.STAGES:
-    if _entry.name not in ("acquire", "render", "evaluate", "export", "train-reference"):
+    if _entry.name not in ("plan", "acquire", "render", "evaluate", "export", "train-reference"):
         _stage_command(_entry)
+
+
+@app.command("plan")
+def plan_command(
+    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
+    set_: SetOption = None, force: ForceOption = False, target: TargetOption = None,
+    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
+) -> None:
+    """Run the plan stage: relative poses, view, light and robot/rail commands, for the target
+    (--target DIR, a target folder; default: the built-in Tango)."""
+    _run(["plan"], workspace, profile, config, _target(_parsed(set_), target), force,
+         _engine(engine, ray_address, workers))
 
 
 @app.command("acquire")
@@ -376,7 +396,7 @@ def run_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
     until: Annotated[str | None, typer.Option("--until", help="last stage to run: " + ", ".join(registry.CHAIN))]
-    = None,
+    = None, target: TargetOption = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the stages of the chain in order, skipping those already up to date."""
@@ -385,7 +405,8 @@ def run_command(
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, _parsed(set_), force, _engine(engine, ray_address, workers))
+    _run(names, workspace, profile, config, _target(_parsed(set_), target), force,
+         _engine(engine, ray_address, workers))
 
 
 @app.command("status")

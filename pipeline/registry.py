@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from pipeline.config import Config
 from pipeline.errors import InputError
@@ -53,6 +53,9 @@ class StageEntry:
     #: results made with another configuration are replaced without --force (they only
     #: record copies made elsewhere: an export to another folder or in another format)
     replace_stale: bool = False
+    #: which target's digest is in the fingerprint: the configured folder's (the plan, which
+    #: copies it into the workspace) or the workspace's copy (every later stage)
+    target: Literal["configured", "workspace"] = "workspace"
 
     def resolved(self, config: Config) -> Resolved:
         if self.resolve is None:
@@ -79,7 +82,7 @@ def _load(target: str) -> Callable[..., Any]:
 
 STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan:run",
-               (), ("plan",), ("plan", "camera", "testbed")),
+               (), ("plan",), ("plan", "camera", "testbed"), target="configured"),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire:run",
                ("plan",), ("captures", "truth"), ("acquire", "virtual", "camera", "testbed"),

@@ -68,12 +68,16 @@ def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace)
     if resolved.member_key is not None:  # members are tracked one by one (markers' "members")
         section, key = resolved.member_key.split(".")
         sections[section].pop(key)
+    from stages.common.workspace_target import digest  # the shared layer; meshes load there only
+
+    target = digest(config, workspace if stage.target == "workspace" else None)
     return json.loads(json.dumps({
         "stage": stage.name,
         "schema_version": SCHEMA_VERSION,
         "config": sections,
         "inputs": inputs,
         "extra": resolved.extra,
+        "target": target,
     }, sort_keys=True, default=list))
 
 

@@ -14,6 +14,7 @@ from pipeline.config.facility import (
     UNMODELLED_SOURCES,
     CameraConfig,
     RunConfig,
+    TargetConfig,
     TestbedConfig,
     VirtualConfig,
     resize_camera_matrix,
@@ -46,7 +47,7 @@ from pipeline.config.stages import (
 __all__ = [
     "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
     "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
-    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TestbedConfig", "VirtualConfig", "layered", "load_config",
-    "param", "parse_override",
+    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TargetConfig", "TestbedConfig", "VirtualConfig", "layered",
+    "load_config", "param", "parse_override",
     "profile_path", "resize_camera_matrix", "to_dict", "with_overrides", "write_config",
 ]

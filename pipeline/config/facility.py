@@ -82,6 +82,15 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
+class TargetConfig:
+    """The object the dataset is of: a target folder (``DIR/target.toml`` beside its mesh;
+    README, "Your own target"). ``plan`` copies it into ``W/target/``, which every later
+    stage reads; its content's digest is in their fingerprints."""
+
+    path: str = param("", "the target folder (DIR holding target.toml); empty: the built-in Tango", "")
+
+
+@dataclass(frozen=True)
 class TestbedConfig:
     """Geometry of the TRON-like room (frame K: x along the rail, y across, z up, origin on
     the floor in a corner). Nominal values: what the lab believes; the virtual testbed's
@@ -100,8 +109,6 @@ class TestbedConfig:
     target_presentation_m: tuple[tuple[float, float, float], ...] = param(
         ((1.55, 1.5, 1.25), (1.35, 1.5, 1.0)),
         "candidate positions in K where the target robot presents the model's origin", "m")
-    mockup_scale: float = param(0.5, "mock-up size / real Tango size (TRON: half scale)", "1")
-    mockup_mass_kg: float = param(4.0, "weighed mass of the mock-up (the target robot's payload)", "kg")
     camera_payload_kg: float = param(2.5, "weighed camera, lens and marker plate on the camera flange", "kg")
     camee_from_cam_q: tuple[float, float, float, float] = param(
         (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
@@ -157,7 +164,6 @@ class VirtualConfig:
     camera_fixture_sigma_rad: float = param(0.01, "1-sigma true camera rotation from its nominal fixture", "rad")
     model_fixture_sigma_m: float = param(0.003, "1-sigma true model offset from each nominal mount", "m")
     model_fixture_sigma_rad: float = param(0.01, "1-sigma true model rotation from each nominal mount", "rad")
-    model_mass_kg: float = param(4.0, "mass of the half-scale mock-up (gravity moment on its fixture)", "kg")
     model_compliance_rad_per_nm: float = param(
         1e-3, "fixture tilt per unit gravity moment; the paper blames its KUKA-only rotation error (0.64 deg) "
         "on the model tilting on its fixture", "rad/(N m)")

@@ -73,6 +73,13 @@ def _unknown(key: str, known: list[str]) -> ConfigError:
 
 #: keys older versions wrote into W/config.toml -> (the key now, how its value converts)
 RENAMED: dict[str, tuple[str, Any]] = {"evaluate.model": ("evaluate.models", lambda value: [value])}
+#: keys that moved into the target folder (target.toml) -> (the value older versions wrote,
+#: the built-in Tango's, which is dropped; where another value now belongs)
+RETIRED: dict[str, tuple[float, str]] = {
+    "testbed.mockup_scale": (0.5, "[mockup] scale"),
+    "testbed.mockup_mass_kg": (4.0, "[mockup] mass_kg"),
+    "virtual.model_mass_kg": (4.0, "[mockup] mass_kg"),
+}
 
 
 def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
@@ -93,6 +100,12 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
             key = f"{section_name}.{name}"
             if key in RENAMED and RENAMED[key][0].split(".")[1] not in values:  # written by an older version
                 name, value = RENAMED[key][0].split(".")[1], RENAMED[key][1](value)
+            if key in RETIRED:
+                builtin, moved_to = RETIRED[key]
+                if value == builtin:  # the built-in Tango's, written by an older version: the target holds it
+                    continue
+                raise ConfigError(f"{source}: {key} is now the target's own: set {moved_to} in the target folder's "
+                                  f"target.toml (target.path; the built-in Tango's is {builtin:g})")
             if name not in field_names:
                 raise ConfigError(f"{source}: " + str(_unknown(key, known_keys)))
             try:
@@ -104,7 +117,10 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
 
 
 def _check(config: Config) -> Config:
-    """Cross-field rules that types cannot express."""
+    """Cross-field rules that types cannot express; a relative ``target.path`` is made
+    absolute (the saved configuration must name the same folder from any directory)."""
+    if config.target.path and not Path(config.target.path).is_absolute():
+        config = replace(config, target=replace(config.target, path=str(Path(config.target.path).resolve())))
     c, p = config.camera, config.plan
     if c.width_px <= 0 or c.height_px <= 0:
         raise ConfigError("camera.width_px/height_px: must be positive")
@@ -113,9 +129,10 @@ def _check(config: Config) -> Config:
             f"camera.width_px/height_px: {c.width_px}x{c.height_px} does not have the aspect of the reference "
             f"{c.reference_width_px}x{c.reference_height_px}; intrinsics can only be scaled uniformly")
     for key, low, high in (("plan.calibration_distance_m", *p.calibration_distance_m),
-                           ("plan.dataset_range_m", *p.dataset_range_m)):
-        if not 0 < low <= high:
-            raise ConfigError(f"{key}: expected 0 < min <= max, got ({low}, {high})")
+                           ("plan.dataset_range_m", *p.dataset_range_m),
+                           ("plan.dataset_range_diameters", *p.dataset_range_diameters)):
+        if not 0 <= low <= high or (key == "plan.calibration_distance_m" and low == 0) or high == 0:
+            raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got ({low}, {high})")
     if p.n_calibration < 0 or p.n_dataset < 0:
         raise ConfigError("plan.n_calibration/n_dataset: must not be negative")
     if not set(p.lights) <= set(DOMAINS) or not p.lights:

@@ -6,7 +6,7 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any
 
-from pipeline.config.facility import CameraConfig, RunConfig, TestbedConfig, VirtualConfig
+from pipeline.config.facility import CameraConfig, RunConfig, TargetConfig, TestbedConfig, VirtualConfig
 from pipeline.config.stages import (
     AcquireConfig,
     CalibrateConfig,
@@ -26,6 +26,7 @@ class Config:
 
     profile: str = "default"
     run: RunConfig = field(default_factory=RunConfig)
+    target: TargetConfig = field(default_factory=TargetConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     testbed: TestbedConfig = field(default_factory=TestbedConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)

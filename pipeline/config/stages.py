@@ -34,7 +34,11 @@ class PlanConfig:
         MOUNTS, "model fixtures calibrated, alternated over calibration captures "
         "(each dataset capture uses the one away from the camera)", "")
     dataset_range_m: tuple[float, float] = param(
-        (6.5, 9.5), "camera-to-target distance range, FULL scale (paper: at least 6.5 m)", "m")
+        (6.5, 9.5), "camera-to-target distance range, FULL scale (paper: at least 6.5 m); the distance is drawn "
+        "uniformly where this and plan.dataset_range_diameters both hold", "m")
+    dataset_range_diameters: tuple[float, float] = param(
+        (0.0, 1e9), "the same range in units of the target's diameter (its largest extent; Tango: 1.37 m); "
+        "to draw in diameters alone, open plan.dataset_range_m, e.g. [0, 1e9]", "1")
     image_margin_px: float = param(
         10.0, "the target's bounding sphere stays this far inside the image edges", "px")
     lights: tuple[str, ...] = param(DOMAINS, "light set-ups of the dataset session", "")

@@ -28,6 +28,7 @@ from stages.common.patterns import PatternSpec, pattern_from_table
 from stages.common.sidecars import record
 from stages.common.sources import measurement, up_targetee
 from stages.common.tables import print_table
+from stages.common.workspace_target import workspace_target
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],
@@ -311,7 +312,8 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
             up = np.stack([up_targetee(by_id[o.sample_id], config.calibrate.world_up) for o in used])
             compliant, compliance_note = compliance_decision(config, up, fixtures)
             up = up if compliant else None
-            readings = arms.readings([by_id[o.sample_id] for o in used])
+            readings = arms.readings([by_id[o.sample_id] for o in used],
+                                     arms.Payload.of(workspace_target(config, workspace)))
             kinematic, arm_note = arm_decision(config, readings)
         progress.note(f"calibrate {source}: robust solve on {len(used)} samples")
         solution, inliers = robust_solve(config, a, b, fixtures, used, intrinsics, up)

@@ -43,9 +43,10 @@ from scipy.optimize import least_squares
 
 from pipeline.config import CalibrateConfig, TestbedConfig
 from stages.common import geometry as g
-from stages.common import layout, rwhe, tango
+from stages.common import layout, rwhe
 from stages.common.kinematics import arm_model, forward
 from stages.common.statics import gravity_torques, link_masses
+from stages.common.target import Target
 
 LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 #: mean square of a unit's lost motion over its rating's square: uniform on 50-100% of it
@@ -59,42 +60,58 @@ _COMPLIANCE = slice(37, 43)
 
 
 @dataclass(frozen=True)
+class Payload:
+    """What the target robot carries: the mock-up's mass (kg) and its body centre (3,) in
+    the body frame T at mock-up scale (m), where its weight acts (``Payload.of`` a target)."""
+
+    mass_kg: float
+    centre_m: tuple[float, float, float]
+
+    @classmethod
+    def of(cls, target: Target) -> Payload:
+        centre = np.asarray(target.centre_m, float) * target.mockup_scale
+        return cls(float(target.mockup_mass_kg), (float(centre[0]), float(centre[1]), float(centre[2])))
+
+
+@dataclass(frozen=True)
 class Readings:
-    """Encoder readings of the captures: joints (N, 6) rad of each robot, rail (N,) m, and
-    the model fixture of each (it decides where the model's weight hangs)."""
+    """Encoder readings of the captures: joints (N, 6) rad of each robot, rail (N,) m, the
+    model fixture of each (it decides where the model's weight hangs) and the payload."""
 
     camera_joints_rad: np.ndarray
     target_joints_rad: np.ndarray
     rail_m: np.ndarray
+    payload: Payload
     fixtures: tuple[str, ...] = ()
 
     def subset(self, mask: np.ndarray) -> Readings:
         fixtures = tuple(f for f, keep in zip(self.fixtures, mask, strict=True) if keep) if self.fixtures else ()
-        return Readings(self.camera_joints_rad[mask], self.target_joints_rad[mask], self.rail_m[mask], fixtures)
+        return Readings(self.camera_joints_rad[mask], self.target_joints_rad[mask], self.rail_m[mask], self.payload,
+                        fixtures)
 
 
-def readings(rows: list[dict[str, Any]]) -> Readings | None:
+def readings(rows: list[dict[str, Any]], payload: Payload) -> Readings | None:
     """The captures' encoder readings, or None when any capture lacks them."""
     keys = ("kuka_camera_joints_rad", "kuka_target_joints_rad", "kuka_rail_m")
     if not rows or any(row.get(key) is None for row in rows for key in keys):
         return None
     return Readings(np.array([r["kuka_camera_joints_rad"] for r in rows], float),
                     np.array([r["kuka_target_joints_rad"] for r in rows], float),
-                    np.array([r["kuka_rail_m"] for r in rows], float),
+                    np.array([r["kuka_rail_m"] for r in rows], float), payload,
                     tuple(str(r.get("fixture") or "fixed") for r in rows))
 
 
-def _model_centre_in_flange(testbed: TestbedConfig, fixture: str) -> np.ndarray:
+def _model_centre_in_flange(testbed: TestbedConfig, payload: Payload, fixture: str) -> np.ndarray:
     """Where the model's weight acts in the target flange frame (nominal mount; a fixture
     the layout does not know is taken as the minus_x mount)."""
     mount = fixture if fixture in layout.MOUNT_NAMES else layout.MOUNT_NAMES[0]
-    centre = np.asarray(tango.BODY_CENTRE_M) * testbed.mockup_scale
+    centre = np.asarray(payload.centre_m, float)
     return g.apply(g.invert(layout.target_from_targetee(testbed, mount)), centre[None])[0]
 
 
 @lru_cache(maxsize=32)
-def _torques(testbed: TestbedConfig, camera: bytes, target: bytes, rail: bytes, fixtures: tuple[str, ...]
-             ) -> tuple[np.ndarray, np.ndarray]:
+def _torques(testbed: TestbedConfig, payload: Payload, camera: bytes, target: bytes, rail: bytes,
+             fixtures: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     arm, masses = arm_model(testbed.robot_model), link_masses(testbed.robot_model)
     camera_joints = np.frombuffer(camera).reshape(-1, 6)
     target_joints = np.frombuffer(target).reshape(-1, 6)
@@ -107,13 +124,13 @@ def _torques(testbed: TestbedConfig, camera: bytes, target: bytes, rail: bytes, 
         camera_torque[i] = gravity_torques(arm, masses, layout.world_from_camera_base(testbed, rail_i), q_camera,
                                            testbed.camera_payload_kg, camera_payload)
         target_torque[i] = gravity_torques(arm, masses, layout.world_from_target_base(testbed), q_target,
-                                           testbed.mockup_mass_kg, _model_centre_in_flange(testbed, fixture))
+                                           payload.mass_kg, _model_centre_in_flange(testbed, payload, fixture))
     return camera_torque, target_torque
 
 
 def torques(testbed: TestbedConfig, r: Readings) -> tuple[np.ndarray, np.ndarray]:
     """Nominal gravity torques (N, 6) N m of the camera and target robots at readings ``r``."""
-    return _torques(testbed, np.ascontiguousarray(r.camera_joints_rad, float).tobytes(),
+    return _torques(testbed, r.payload, np.ascontiguousarray(r.camera_joints_rad, float).tobytes(),
                     np.ascontiguousarray(r.target_joints_rad, float).tobytes(),
                     np.ascontiguousarray(r.rail_m, float).tobytes(), tuple(r.fixtures))
 

@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from manifests import Workspace
-from manifests.sidecars import Pose, read_calibration, read_session
-from pipeline.config import Config
+from manifests.sidecars import Pose, read_calibration
 from stages.common import geometry as g
 from stages.common.lens import LensCamera
 
@@ -31,10 +30,3 @@ def calibrated_camera(workspace: Workspace) -> LensCamera:
                       intrinsics.width, intrinsics.height)
 
 
-def mockup_scale(config: Config, workspace: Workspace) -> float:
-    """The mock-up's scale recorded by acquire, else the configuration's."""
-    if workspace.session_path.exists():
-        scale = read_session(workspace).mockup_scale
-        if scale:
-            return scale
-    return config.testbed.mockup_scale

@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from manifests.schema import DOMAINS, VIEWS
+from manifests.schema import DOMAINS
 from manifests.sidecars import Calibration
 
 TESTBED = DOMAINS
@@ -79,8 +79,9 @@ def table2_groups(scores: list[dict[str, Any]], model: str, crop: str) -> list[t
     """Table 2's rows of one model and crop: (configuration "view, light", images, synthetic
     row, testbed row) of the ``scores`` rows, for every view x light present, then "all, all"."""
     by_group = {row["group"]: row for row in scores}
+    views = list(dict.fromkeys(row["view"] for row in scores if row["view"] != "all"))  # the target's, in order
     out = []
-    for view, light in [*product(VIEWS, TESTBED), ("all", "all")]:
+    for view, light in [*product(views, TESTBED), ("all", "all")]:
         synthetic = by_group.get(f"{model}/{crop}/synthetic/{view}/{light}")
         testbed = by_group.get(f"{model}/{crop}/testbed/{view}/{light}")
         if synthetic is None and testbed is None:

@@ -21,7 +21,6 @@ Derived here, so that every stage agrees:
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +35,7 @@ from manifests.target import (
     TargetSpec,
     mesh_path,
     read_target_spec,
+    target_digest,
 )
 from stages.common import geometry as g
 
@@ -109,18 +109,6 @@ def feature_edges(target: Target, crease_deg: float = 20.0) -> tuple[np.ndarray,
         points.append(unique)
     return np.concatenate(points), edges
 
-def folder_digest(directory: Path) -> str:
-    """sha256 over every file of the folder (relative path and bytes, in path order)."""
-    digest = hashlib.sha256()
-    for path in sorted(p for p in Path(directory).rglob("*") if p.is_file()):
-        digest.update(path.relative_to(directory).as_posix().encode() + b"\0")
-        try:
-            digest.update(path.read_bytes())
-        except OSError as error:
-            raise TargetError(f"{path}: cannot be read ({error.strerror or error})") from None
-    return digest.hexdigest()
-
-
 def load_target(directory: Path) -> Target:
     """The target of a folder, every check done: ``TargetError`` names the file and key."""
     directory = Path(directory)
@@ -150,7 +138,7 @@ def load_target(directory: Path) -> Target:
     axis = np.asarray(axis, float)
     return Target(spec.name, parts, keypoints, spec.keypoints is None, centre, radius, diameter,
                   axis / np.linalg.norm(axis), tuple(names), spec.mockup_scale, spec.mockup_mass_kg, dict(spec.looks),
-                  folder_digest(directory))
+                  target_digest(directory))
 
 
 def read_mesh(path: Path) -> dict[str, MeshPart]:

@@ -29,6 +29,7 @@ from stages.common.engine import map_config
 from stages.common.image_io import ImageReadError
 from stages.common.pose_model import PoseModel
 from stages.common.sidecars import calibrated_camera
+from stages.common.workspace_target import workspace_target
 from stages.evaluate.scorer import Decoding, open_scorer
 from stages.evaluate.table import print_table2, summarise
 
@@ -130,7 +131,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                 for row in rows:
                     sink.add(row)
     predictions = read_manifest(workspace, "predictions")
-    table = summarise(predictions.to_pylist())
+    table = summarise(predictions.to_pylist(), workspace_target(config, workspace).view_names)
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
     write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
     scored = sorted(set(zip(table.column("model").to_pylist(), table.column("crop").to_pylist(), strict=True)))

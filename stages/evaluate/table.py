@@ -9,7 +9,7 @@ import numpy as np
 from rich.table import Table
 
 from manifests import to_table
-from manifests.schema import SCORES, VIEWS
+from manifests.schema import SCORES
 from stages.common.tables import TESTBED, table2_groups
 
 
@@ -31,14 +31,15 @@ def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view:
             "mean_box_iou": float(np.mean([r["box_iou"] for r in chosen])) if crop == "self" else None}
 
 
-def summarise(predictions: list[dict[str, Any]]) -> Any:
+def summarise(predictions: list[dict[str, Any]], views: tuple[str, ...]) -> Any:
     """The ``scores`` table: for every model and crop, every (domain, view, light)
-    combination present, and 'all'. Means over the predictions in ``prediction_id`` order:
-    the order rows were written in (which follows the workers) must not reach the last bits."""
+    combination present (``views``: the target's, in order), and 'all'. Means over the
+    predictions in ``prediction_id`` order: the order rows were written in (which follows
+    the workers) must not reach the last bits."""
     predictions = sorted(predictions, key=lambda r: r["prediction_id"])
     rows = []
     for model, crop in sorted({(r["model"], r["crop"]) for r in predictions}):
-        for domain, view, light in product(("synthetic", "testbed"), (*VIEWS, "all"), (*TESTBED, "all")):
+        for domain, view, light in product(("synthetic", "testbed"), (*views, "all"), (*TESTBED, "all")):
             group = _group(predictions, model, crop, domain, view, light)
             if group is not None:
                 rows.append(group)

@@ -25,8 +25,7 @@ from pipeline.progress import track
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.sidecars import calibrated_camera
-from stages.common.target import load_target
-from stages.common.targets import builtin_folder
+from stages.common.workspace_target import require_builtin_mesh, workspace_target
 from stages.export import bop, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
@@ -136,6 +135,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         speedplus.check_one_camera(by_set["testbed"] if "testbed" in by_set else by_set["train"], by_set["train"])
     done = read_keys(workspace, name)
     todo = [item for item in chosen if item["export_id"] not in done]
+    target = workspace_target(config, workspace)
+    if config.export.format == "bop":
+        require_builtin_mesh(target, "the BOP export (its models/obj_000001.ply)")
     surfaces = bop.TangoSurfaces() if config.export.format == "bop" and todo else None
     with open_sink(workspace, name, config.run.part_rows) as sink:
         for item in track(todo, len(todo), "export"):
@@ -152,7 +154,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         pitch = config.camera.pixel_pitch_m * config.camera.reference_width_px / labels_camera.width
         counts = speedplus.write_annotations(out, chosen, speedplus.camera_json(labels_camera, pitch),
                                              config.export.validation_fraction)
-        target = load_target(builtin_folder())  # the target every stage builds today (issue 29)
         speedplus.write_keypoints(out, target.name, target.keypoints_m)
     else:
         counts = bop.write_annotations(out, chosen, by_set)

@@ -42,18 +42,20 @@ from stages.common.fusion import (
 from stages.common.rwhe import fixture_tilt
 from stages.common.sidecars import matrix
 from stages.common.sources import measurement, up_targetee
+from stages.common.workspace_target import workspace_target
 
 
 class SourceModel:
     """One source's calibrated offsets, fixture compliance and uncertainty."""
 
     def __init__(self, entry: SourceCalibration, calibration: Calibration, testbed: TestbedConfig,
-                 scale_sigma: float = 0.0) -> None:
+                 payload: arms.Payload, scale_sigma: float = 0.0) -> None:
         self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
         self.arms = arms.ArmErrors.from_json(kinematics) if kinematics["estimated"] else None
         self.kinematics = kinematics
         self.testbed = testbed
+        self.payload = payload
         self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
         self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
@@ -72,7 +74,7 @@ class SourceModel:
                              "with it")
         up = up_targetee(row, self.world_up)
         if self.arms is not None:
-            readings = arms.readings([row])
+            readings = arms.readings([row], self.payload)
             if readings is None:
                 raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
                                  "calibration of the arms needs (calibrate.arm_kinematics)")
@@ -95,7 +97,7 @@ class SourceModel:
         all captures at once."""
         if self.arms is None or not rows:
             return [None] * len(rows)
-        readings = arms.readings(rows)
+        readings = arms.readings(rows, self.payload)
         if readings is None:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
@@ -104,14 +106,14 @@ class SourceModel:
                                           self.world_up, flanks))
 
 
-def load_models(workspace: Workspace, testbed: TestbedConfig,
+def load_models(workspace: Workspace, testbed: TestbedConfig, payload: arms.Payload,
                 vicon_scale_sigma: float) -> tuple[SourceModel, SourceModel | None, Sigma | None]:
     """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``."""
     calibration = read_calibration(workspace)
-    kuka = SourceModel(calibration.kuka, calibration, testbed)
+    kuka = SourceModel(calibration.kuka, calibration, testbed, payload)
     vicon = rejection = None
     if calibration.vicon is not None:
-        vicon = SourceModel(calibration.vicon, calibration, testbed, vicon_scale_sigma)
+        vicon = SourceModel(calibration.vicon, calibration, testbed, payload, vicon_scale_sigma)
         rejection = Sigma.from_record(calibration.rejection)
     return kuka, vicon, rejection
 
@@ -221,7 +223,8 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    kuka, vicon, rejection = load_models(workspace, config.testbed, config.fuse.vicon_scale_sigma)
+    payload = arms.Payload.of(workspace_target(config, workspace))
+    kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma)
     # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
     rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
                    if r["session"] == "dataset" and r["status"] == "ok"), key=lambda r: r["sample_id"])

@@ -1,9 +1,9 @@
 """The label stage: SPEED+ labels of the dataset captures (docs/architecture.md section 4).
 
 Full-scale translation (mock-up translation / scale), the quaternion of
-``cam_from_target``, the 11 keypoints projected through the calibrated camera (with lens
-distortion), their bounding box, and the label's 1-sigma uncertainty. Reads ``poses``,
-the session and the calibration; never the truth.
+``cam_from_target``, the workspace target's keypoints projected through the calibrated
+camera (with lens distortion), their bounding box, its view, and the label's 1-sigma
+uncertainty. Reads ``poses``, the session, the calibration and ``W/target``; never the truth.
 """
 
 from __future__ import annotations
@@ -19,15 +19,17 @@ from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common import geometry as g
-from stages.common import tango
 from stages.common.pose_model import points_box
-from stages.common.sidecars import calibrated_camera, mockup_scale
+from stages.common.sidecars import calibrated_camera
+from stages.common.target import Target
+from stages.common.workspace_target import workspace_target
 
 
 def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: np.ndarray, dist: np.ndarray,
-              scale: float, filename: str) -> dict[str, Any]:
+              target: Target, filename: str) -> dict[str, Any]:
+    scale = target.mockup_scale
     cam_from_target = g.transform_from_qt(pose["cam_from_target_q"], pose["cam_from_target_t"])
-    keypoints = g.project(cam_from_target, tango.KEYPOINTS_M * scale, camera_matrix, dist)
+    keypoints = g.project(cam_from_target, target.keypoints_m * scale, camera_matrix, dist)
     camera_in_target = g.invert(cam_from_target)[:3, 3]
     light = plan["light"] if plan is not None else "lightbox"
     if light not in DOMAINS:
@@ -38,7 +40,7 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
         "sample_id": pose["sample_id"],
         "filename": filename,
         "domain": light,
-        "view": str(tango.view_of(camera_in_target, scale)),
+        "view": str(target.view_of(camera_in_target, scale)),
         "q_vbs2tango_true": q,
         "r_Vo2To_vbs_true": t / scale,
         "label_source": "fused" if pose["vicon_accepted"] else "kuka_only",
@@ -52,7 +54,7 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
 def run(config: Config, workspace: Workspace) -> pa.Table:
     camera = calibrated_camera(workspace)
     camera_matrix, dist = camera.camera_matrix, camera.dist
-    scale = mockup_scale(config, workspace)
+    target = workspace_target(config, workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})
     done = read_keys(workspace, "labels")
@@ -61,5 +63,5 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     with open_sink(workspace, "labels", config.run.part_rows) as sink:
         for pose in track(poses, len(poses), "label"):
             filename = config.label.filename_template.format(sample_id=pose["sample_id"])
-            sink.add(label_row(pose, plan.get(pose["sample_id"]), camera_matrix, dist, scale, filename))
+            sink.add(label_row(pose, plan.get(pose["sample_id"]), camera_matrix, dist, target, filename))
     return read_manifest(workspace, "labels")

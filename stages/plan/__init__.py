@@ -14,12 +14,15 @@ from manifests import Workspace, open_sink, read_keys, read_manifest
 from pipeline.config import Config
 from pipeline.progress import track
 from stages.common import geometry as g
-from stages.common import layout, tango
+from stages.common import layout
+from stages.common.target import Target
+from stages.common.workspace_target import install, planned_target
 from stages.plan.poses import (
     PlanningError,
     calibration_pose,
     dataset_configuration,
     dataset_pose,
+    dataset_range,
     facing_boxes,
     light_boxes,
     mount_away_from,
@@ -39,37 +42,45 @@ def sample_ids(config: Config) -> list[tuple[str, int, str]]:
     return ids
 
 
-def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dict:
-    """One row of the plan manifest. Unreachable relative poses are redrawn and counted."""
+def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None) -> dict:
+    """One row of the plan manifest (of ``target``, default the configured one).
+    Unreachable relative poses are redrawn and counted."""
     plan, testbed, camera = config.plan, config.testbed, config.camera
+    target = planned_target(config) if target is None else target
     rng = np.random.default_rng([plan.seed, SESSION_CODES[session], index])
     if session == "calibration":
-        view, light = "solar_panel", "ambient"
+        view, light = target.view_names[0], "ambient"
     else:
-        view, light = dataset_configuration(index, plan)
+        view, light = dataset_configuration(index, plan, target.view_names)
 
     def draw() -> tuple[np.ndarray, str, Reconfiguration | None]:
         if session == "calibration":
             cam_from_target = calibration_pose(rng, plan, testbed, camera)
             mount = plan.calibration_mounts[index % len(plan.calibration_mounts)]
         else:
-            cam_from_target = dataset_pose(rng, plan, testbed, camera, view)
+            cam_from_target = dataset_pose(rng, plan, target, camera, view)
             mount = mount_away_from(cam_from_target)
-        return cam_from_target, mount, reconfigure(cam_from_target, mount, plan, testbed,
+        return cam_from_target, mount, reconfigure(cam_from_target, mount, plan, testbed, target,
                                                    require_far_side=session == "dataset")
 
     redraws = 0
     cam_from_target, mount, commands = draw()
     while commands is None:
         if redraws == plan.max_redraws:
+            hint = ""
+            if session == "dataset":
+                low, high = (d * target.mockup_scale for d in dataset_range(plan, target))
+                hint = (f"; the dataset range puts the {target.name} mock-up {low:.2f}-{high:.2f} m from the camera "
+                        f"in a {' x '.join(f'{v:g}' for v in testbed.room_m)} m room (a target of another size: "
+                        "plan.dataset_range_diameters)")
             raise PlanningError(
                 f"sample {sample_id}: no reachable robot configuration in {redraws + 1} draws; check "
-                "testbed.target_presentation_m, testbed.rail_* and plan.sight_* (or raise plan.max_redraws)")
+                f"testbed.target_presentation_m, testbed.rail_* and plan.sight_* (or raise plan.max_redraws){hint}")
         redraws += 1
         cam_from_target, mount, commands = draw()
     world_from_cam = commands.world_from_camee @ layout.camee_from_cam(testbed)
     world_from_target = world_from_cam @ cam_from_target
-    centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[0]
+    centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[0]
     boxes = light_boxes(rng, plan, light, facing_boxes(testbed, centre, world_from_cam[:3, 3]))
     return {
         "sample_id": sample_id,
@@ -90,10 +101,13 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str) -> dic
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    """Plan every sample missing from ``W/manifests/plan``; returns the whole plan."""
+    """Plan every sample missing from ``W/manifests/plan`` for the configured target, and
+    copy the target into ``W/target`` for the later stages; returns the whole plan."""
+    target = planned_target(config)
     done = read_keys(workspace, "plan")
     todo = [item for item in sample_ids(config) if item[2] not in done]
     with open_sink(workspace, "plan", config.run.part_rows) as sink:
         for session, index, sample_id in track(todo, len(todo), "plan"):
-            sink.add(plan_sample(config, session, index, sample_id))
+            sink.add(plan_sample(config, session, index, sample_id, target))
+    install(config, workspace)
     return read_manifest(workspace, "plan")

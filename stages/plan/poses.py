@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.schema import VIEWS
 from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
 from pipeline.errors import InputError
 from stages.common import geometry as g
-from stages.common import layout, tango
+from stages.common import layout
 from stages.common.patterns import board_pattern
+from stages.common.target import Target
 
 #: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
 _MAX_VISIBILITY_DRAWS = 1000
@@ -62,14 +62,15 @@ def calibration_pose(rng: np.random.Generator, plan: PlanConfig, testbed: Testbe
         f"{_MAX_VISIBILITY_DRAWS} draws shows that much of the board; lower it, or the distance/tilt")
 
 
-def dataset_position(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedConfig,
+def dataset_position(rng: np.random.Generator, plan: PlanConfig, target: Target,
                      camera: CameraConfig) -> np.ndarray:
     """Target position in the camera frame (3,), mock-up scale: the full-scale range uniform
-    in ``dataset_range_m`` and the body's bounding sphere inside the image (with margin)."""
+    in ``dataset_range`` and the body's bounding sphere inside the image (with margin)."""
     k = camera.camera_matrix()
-    radius = tango.BOUNDING_RADIUS_M
+    radius = target.radius_m
+    low, high = dataset_range(plan, target)
     for _ in range(_MAX_VISIBILITY_DRAWS):
-        distance = rng.uniform(*plan.dataset_range_m)
+        distance = rng.uniform(low, high)
         # pinhole radius of the sphere, plus 5% for the lens distortion at the edges
         radius_px = 1.05 * k[0, 0] * np.tan(np.arcsin(min(radius / distance, 1.0)))
         low_u, high_u = plan.image_margin_px + radius_px, camera.width_px - 1 - plan.image_margin_px - radius_px
@@ -79,24 +80,38 @@ def dataset_position(rng: np.random.Generator, plan: PlanConfig, testbed: Testbe
         pixel = np.array([rng.uniform(low_u, high_u), rng.uniform(low_v, high_v), 1.0])
         ray = np.linalg.solve(k, pixel)
         centre_cam = distance * ray / np.linalg.norm(ray)
-        return centre_cam * testbed.mockup_scale
+        return centre_cam * target.mockup_scale
     raise PlanningError(
-        f"plan.dataset_range_m={plan.dataset_range_m}: the target does not fit in a "
-        f"{camera.width_px}x{camera.height_px} image at that range; increase the range")
+        f"plan.dataset_range_m={plan.dataset_range_m}, plan.dataset_range_diameters={plan.dataset_range_diameters}: "
+        f"the target ({target.diameter_m:.3g} m across) does not fit in a {camera.width_px}x{camera.height_px} image "
+        "at that range; increase the range")
 
 
-def dataset_pose(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedConfig, camera: CameraConfig,
+def dataset_range(plan: PlanConfig, target: Target) -> tuple[float, float]:
+    """The full-scale distance range (m) where both ``plan.dataset_range_m`` and
+    ``plan.dataset_range_diameters`` (times the target's diameter) hold."""
+    low = max(plan.dataset_range_m[0], plan.dataset_range_diameters[0] * target.diameter_m)
+    high = min(plan.dataset_range_m[1], plan.dataset_range_diameters[1] * target.diameter_m)
+    if low > high:
+        raise PlanningError(f"plan.dataset_range_m={plan.dataset_range_m} and plan.dataset_range_diameters="
+                            f"{plan.dataset_range_diameters} (x {target.diameter_m:.3g} m, the target's diameter) "
+                            "do not overlap; open one of them")
+    return low, high
+
+
+def dataset_pose(rng: np.random.Generator, plan: PlanConfig, target: Target, camera: CameraConfig,
                  view: str) -> np.ndarray:
     """``cam_from_target`` (4, 4), mock-up scale: orientation uniform on SO(3) given that
-    the camera sees ``view``; the body centre placed by ``dataset_position``."""
-    centre_cam = dataset_position(rng, plan, testbed, camera)
-    centre_target = tango.BODY_CENTRE_M * testbed.mockup_scale
-    keypoints = tango.KEYPOINTS_M * testbed.mockup_scale
+    the camera sees ``view``; the body centre placed by ``dataset_position``, every
+    keypoint inside the image."""
+    centre_cam = dataset_position(rng, plan, target, camera)
+    centre_target = target.centre_m * target.mockup_scale
+    keypoints = target.keypoints_m * target.mockup_scale
     for _ in range(_MAX_VISIBILITY_DRAWS):
         rotation = g.quat_to_matrix(g.random_quats(rng, 1)[0])
         cam_from_target = g.make_transform(rotation, centre_cam - rotation @ centre_target)
         camera_in_target = g.invert(cam_from_target)[:3, 3]
-        if tango.view_of(camera_in_target, testbed.mockup_scale) != view:
+        if target.view_of(camera_in_target, target.mockup_scale) != view:
             continue  # conditioning on the side keeps SO(3)-uniformity within each half
         pixels = g.project(cam_from_target, keypoints, camera.camera_matrix(), camera.dist_coeffs())
         if np.all(_inside(pixels, camera, plan.image_margin_px)):
@@ -104,10 +119,11 @@ def dataset_pose(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedCon
     raise PlanningError(f"no {view} pose with the model inside the image; check plan.image_margin_px")
 
 
-def dataset_configuration(index: int, plan: PlanConfig) -> tuple[str, str]:
-    """(view, light) of the index-th dataset sample: cycling through view x light keeps the
-    configurations balanced (counts differ by at most one) for any session length."""
-    configurations = [(view, light) for view in VIEWS for light in plan.lights]
+def dataset_configuration(index: int, plan: PlanConfig, views: tuple[str, str]) -> tuple[str, str]:
+    """(view, light) of the index-th dataset sample: cycling through the target's ``views``
+    x light keeps the configurations balanced (counts differ by at most one) for any
+    session length."""
+    configurations = [(view, light) for view in views for light in plan.lights]
     return configurations[index % len(configurations)]
 
 

@@ -22,8 +22,9 @@ import numpy as np
 
 from pipeline.config import PlanConfig, TestbedConfig
 from stages.common import geometry as g
-from stages.common import layout, tango
+from stages.common import layout
 from stages.common.kinematics import arm_model, limit_margin, solve
+from stages.common.target import Target
 
 
 @dataclass(frozen=True)
@@ -57,9 +58,10 @@ def _sight_directions(plan: PlanConfig) -> np.ndarray:
 
 
 def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testbed: TestbedConfig,
-                require_far_side: bool) -> Reconfiguration | None:
+                target: Target, require_far_side: bool) -> Reconfiguration | None:
     """The best robot/rail commands realising ``cam_from_target`` (4, 4, mock-up scale), or
-    None when no candidate is reachable."""
+    None when no candidate is reachable; ``require_far_side``: the target robot's base and
+    flange behind the target's body centre, seen from the camera."""
     arm = arm_model(testbed.robot_model)
     distance = np.linalg.norm(cam_from_target[:3, 3])
     sight_cam = cam_from_target[:3, 3] / distance  # model direction in the camera frame
@@ -102,7 +104,7 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     ok = camera_ok & on_rail & (target_ok & in_room_ok)[..., None]
     if require_far_side:
         sight = sights[None, :, None, :]
-        centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[..., 0, :]
+        centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[..., 0, :]
         base_behind = np.einsum("...i,...i->...", base_target[:3, 3] - centre, sight) > 0
         fixture_behind = np.einsum("...i,...i->...", world_from_targetee[..., :3, 3] - centre, sight) > 0
         ok &= (base_behind & fixture_behind)[..., None]

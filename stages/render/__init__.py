@@ -22,6 +22,7 @@ from pipeline.progress import console, track
 from stages.common.cameras import train_camera
 from stages.common.engine import map_config
 from stages.common.sidecars import calibrated_camera
+from stages.common.workspace_target import require_builtin_mesh, workspace_target
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
 from stages.render.worker import open_worker
 
@@ -49,13 +50,15 @@ def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str,
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Render every job missing from the manifest; returns the manifest."""
     name = output_name(config)
+    target = workspace_target(config, workspace)
+    require_builtin_mesh(target, "the renderer")
     rejected: list[dict[str, str]] = []
     if config.render.set == "twin":
         camera = calibrated_camera(workspace)
         jobs, rejected = twin_jobs(config, workspace)
     else:
         camera = train_camera(config)
-        jobs = train_jobs(config)
+        jobs = train_jobs(config, target)
     done = read_keys(workspace, name)
     todo = [job for job in jobs if job.sample_id not in done]
     run_config = config.run

@@ -19,9 +19,10 @@ from manifests.sidecars import read_calibration
 from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
 from stages.common import geometry as g
-from stages.common import tango
 from stages.common.cameras import train_camera
-from stages.common.sidecars import matrix, mockup_scale
+from stages.common.sidecars import matrix
+from stages.common.target import Target
+from stages.common.workspace_target import planned_target, workspace_target
 
 SET_DIRECTORIES = {"twin": "twins", "train": "train"}
 NEAR_CLIP_M = 0.05
@@ -62,9 +63,9 @@ def image_seed(seed: int, set_name: str, sample_id: str) -> int:
     return int.from_bytes(digest[:4], "little")
 
 
-def rejection_reason(q: Any, t: Any) -> str | None:
+def rejection_reason(q: Any, t: Any, radius_m: float) -> str | None:
     """Why a pose cannot be rendered, or None: q must be a finite unit quaternion, t finite
-    with the whole model (its bounding sphere) in front of the camera."""
+    with the whole model (its bounding sphere of ``radius_m``, full scale) in front of the camera."""
     q, t = np.asarray(q, float), np.asarray(t, float)
     if q.shape != (4,) or not np.all(np.isfinite(q)):
         return "quaternion is not 4 finite numbers"
@@ -74,7 +75,7 @@ def rejection_reason(q: Any, t: Any) -> str | None:
         return "translation is not 3 finite numbers"
     if t[2] <= 0:
         return f"target behind the camera (z = {t[2]:.3f} m)"
-    if t[2] - tango.BOUNDING_RADIUS_M <= NEAR_CLIP_M:
+    if t[2] - radius_m <= NEAR_CLIP_M:
         return f"target too close: its bounding sphere crosses the camera plane (z = {t[2]:.3f} m)"
     return None
 
@@ -102,7 +103,8 @@ def light_position(config: Config, light: str, boxes: list[int]) -> np.ndarray:
 
 def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], list[dict[str, str]]]:
     """A job per label, and the labels that cannot be rendered with their reasons."""
-    scale = mockup_scale(config, workspace)
+    target = workspace_target(config, workspace)
+    scale = target.mockup_scale
     world_from_cam = _world_from_cam(workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})
@@ -111,7 +113,7 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
     jobs, rejected = [], []
     for label in labels:
         sample_id = label["sample_id"]
-        reason = rejection_reason(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"])
+        reason = rejection_reason(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"], target.radius_m)
         if reason is None and sample_id not in world_from_cam:
             reason = "no capture with this sample_id (camera position unknown)"
         if reason is not None:
@@ -130,12 +132,14 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
 
 
 # --------------------------------------------------------------------------- training set
-def train_jobs(config: Config) -> list[RenderJob]:
-    """``render.train_count`` jobs: SO(3)-uniform attitudes, distances uniform in
-    ``render.train_distance_m``, the target's centre uniform over the image where its
-    bounding sphere fits, light directions uniform over the half-sphere facing the camera,
-    log-uniform irradiance, the Earth behind the target in ``render.train_earth_fraction``."""
+def train_jobs(config: Config, target: Target | None = None) -> list[RenderJob]:
+    """``render.train_count`` jobs of ``target`` (default: the configured one):
+    SO(3)-uniform attitudes, distances uniform in ``render.train_distance_m``, the target's
+    centre uniform over the image where its bounding sphere fits, light directions uniform
+    over the half-sphere facing the camera, log-uniform irradiance, the Earth behind the
+    target in ``render.train_earth_fraction``."""
     r = config.render
+    target = planned_target(config) if target is None else target
     camera = train_camera(config)
     rng = np.random.default_rng([r.seed, 0x7A1])
     quats = g.random_quats(rng, r.train_count)
@@ -143,7 +147,7 @@ def train_jobs(config: Config) -> list[RenderJob]:
     k_inv = np.linalg.inv(camera.camera_matrix)
     for index in range(r.train_count):
         distance = rng.uniform(*r.train_distance_m)
-        radius_px = tango.BOUNDING_RADIUS_M / distance * camera.camera_matrix[0, 0] + r.margin_px
+        radius_px = target.radius_m / distance * camera.camera_matrix[0, 0] + r.margin_px
         lows = np.array([radius_px, radius_px])
         highs = np.array([camera.width - 1 - radius_px, camera.height - 1 - radius_px])
         centre_px = np.where(lows < highs, rng.uniform(np.minimum(lows, highs), np.maximum(lows, highs)),
@@ -152,7 +156,7 @@ def train_jobs(config: Config) -> list[RenderJob]:
         centre_cam = ray / np.linalg.norm(ray) * distance
         q = quats[index]
         # the body centre (not the body origin) goes to the sampled point
-        t = centre_cam - g.quat_to_matrix(q) @ tango.BODY_CENTRE_M
+        t = centre_cam - g.quat_to_matrix(q) @ target.centre_m
         light = rng.normal(size=3)
         light /= np.linalg.norm(light)
         if light @ centre_cam > 0:  # keep the lit side towards the camera, as SPEED+'s synthetic images do

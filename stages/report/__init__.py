@@ -20,12 +20,14 @@ import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
 from manifests.files import write_bytes_atomic
-from manifests.schema import DOMAINS, VIEWS
+from manifests.schema import DOMAINS
 from manifests.sidecars import Calibration, read_calibration
 from pipeline.config import Config
 from stages.common import tables
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
 from stages.common.sidecars import calibrated_camera
+from stages.common.target import feature_edges
+from stages.common.workspace_target import workspace_target
 from stages.report import figures
 
 REPORT_DIR = "report"
@@ -165,15 +167,16 @@ def run(config: Config, workspace: Workspace) -> None:
     }
     # a few samples of each configuration for the picture sections
     chosen: list[dict[str, Any]] = []
-    for view in VIEWS:
+    for view in dict.fromkeys(row["view"] for row in labels):  # the target's views, in the plan's order
         for light in DOMAINS:
             chosen += [row for row in labels if row["view"] == view and row["domain"] == light][:2]
     overlays, pairs = [], []
+    wireframe = feature_edges(workspace_target(config, workspace))
     for label in chosen:
         sample_id = label["sample_id"]
         capture = to_uint8(read_image(workspace.fetch(captures[sample_id]["image_path"]), "bgr"))
-        name = _write_png(thumb_dir / f"overlay_{sample_id}.png",
-                          figures.thumbnail(figures.overlay(capture, label, camera.camera_matrix, camera.dist)))
+        drawn = figures.overlay(capture, label, camera.camera_matrix, camera.dist, wireframe)
+        name = _write_png(thumb_dir / f"overlay_{sample_id}.png", figures.thumbnail(drawn))
         overlays.append(f'<figure><img src="thumbs/{name}" alt="wireframe of {sample_id}"><figcaption>{sample_id}: '
                         f'{label["view"]}, {label["domain"]}, {label["label_source"]}</figcaption></figure>')
         if sample_id in renders:

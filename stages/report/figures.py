@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -14,8 +13,6 @@ import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 import numpy as np  # noqa: E402
 
 from stages.common import geometry as g  # noqa: E402
-from stages.common.target import feature_edges, load_target  # noqa: E402
-from stages.common.targets import builtin_folder  # noqa: E402
 
 DOMAIN_COLOURS = {"synthetic": "tab:blue", "lightbox": "tab:orange", "sunlamp": "tab:red"}
 
@@ -122,13 +119,6 @@ def rotation_cdf(predictions: list[dict[str, Any]], models: list[str], path: Pat
     return _save(figure, path)
 
 
-@functools.lru_cache(maxsize=1)
-def wireframe_edges() -> tuple[np.ndarray, list[tuple[int, int]]]:
-    """Points (P, 3) of the target's wireframe (body frame, full scale) and its edges: the
-    mesh's feature edges (``target.feature_edges``)."""
-    return feature_edges(load_target(builtin_folder()))  # the target every stage builds today (issue 29)
-
-
 def thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     scale = width / image.shape[1]
     return cv2.resize(image, (width, round(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)
@@ -139,9 +129,11 @@ def brighten(image: np.ndarray, gain: float = 2.0) -> np.ndarray:
     return np.clip(image.astype(np.float32) * gain, 0, 255).astype(np.uint8)
 
 
-def overlay(image: np.ndarray, label: dict[str, Any], camera_matrix: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """The label's wireframe drawn on a testbed image (BGR)."""
-    points, edges = wireframe_edges()
+def overlay(image: np.ndarray, label: dict[str, Any], camera_matrix: np.ndarray, dist: np.ndarray,
+            wireframe: tuple[np.ndarray, list[tuple[int, int]]]) -> np.ndarray:
+    """The label's wireframe (points (P, 3) full scale, body frame, and edges: the target's
+    ``feature_edges``) drawn on a testbed image (BGR)."""
+    points, edges = wireframe
     cam_from_target = g.transform_from_qt(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"])
     pixels = g.project(cam_from_target, points, camera_matrix, dist)
     drawn = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)

@@ -66,7 +66,7 @@ def test_overrides_are_typed():
         ("plan.n_dataset=many", "plan.n_dataset: expected an integer, got 'many'"),
         ("plan.n_dataset=2.5", "plan.n_dataset: expected an integer"),
         ("plan.dataset_range_m=[1, 2, 3]", "plan.dataset_range_m: expected 2 values"),
-        ("plan.dataset_range_m=[9, 7]", "plan.dataset_range_m: expected 0 < min <= max"),
+        ("plan.dataset_range_m=[9, 7]", "plan.dataset_range_m: expected 0 <= min <= max"),
         ("camera.width_px=1000", "does not have the aspect"),
         ("plan.lights=['moon']", "plan.lights"),
         ("virtual.rr_depth=0", "virtual.spp/max_depth/rr_depth"),

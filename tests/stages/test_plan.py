@@ -12,6 +12,7 @@ from stages.common import geometry as g
 from stages.common import layout, tango
 from stages.common.kinematics import KR16_2, forward, limit_margin
 from stages.common.patterns import board_pattern
+from stages.common.workspace_target import planned_target
 from stages.plan import PlanningError, plan_sample, sample_ids
 
 
@@ -65,7 +66,7 @@ def test_dataset_orientations_are_uniform_on_so3(default_plan):
 
 
 def test_view_is_what_the_camera_sees(default_config, default_plan):
-    scale = default_config.testbed.mockup_scale
+    scale = planned_target(default_config).mockup_scale
     for row in default_plan:
         camera_in_target = g.invert(pose(row, "cam_from_target"))[:3, 3]
         above = camera_in_target[2] > scale * tango.BODY_CENTRE_M[2]
@@ -74,7 +75,7 @@ def test_view_is_what_the_camera_sees(default_config, default_plan):
 
 def test_dataset_range_and_model_in_frame(default_config, default_plan):
     camera = default_config.camera
-    scale = default_config.testbed.mockup_scale
+    scale = planned_target(default_config).mockup_scale
     for row in dataset(default_plan):
         cam_from_target = pose(row, "cam_from_target")
         centre = g.apply(cam_from_target, (tango.BODY_CENTRE_M * scale)[None])[0]
@@ -130,7 +131,7 @@ def test_target_robot_is_never_between_camera_and_model(default_config, default_
         world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
         world_from_target = pose(row, "world_from_targetee") @ g.invert(
             layout.target_from_targetee(testbed, row["mount"]))
-        centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[0]
+        centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * 0.5)[None])[0]
         sight = centre - world_from_cam[:3, 3]
         for point in (pose(row, "world_from_targetee")[:3, 3], np.asarray(testbed.target_base_m)):
             assert np.dot(point - centre, sight) > 0
@@ -148,7 +149,7 @@ def test_light_boxes(default_config, default_plan):
             world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
             world_from_target = pose(row, "world_from_targetee") @ g.invert(
                 layout.target_from_targetee(testbed, row["mount"]))
-            centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * testbed.mockup_scale)[None])[0]
+            centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * 0.5)[None])[0]
             facing = np.einsum("bi,i->b", centres - centre, world_from_cam[:3, 3] - centre) > 0
             if facing.sum() >= len(row["light_boxes"]):
                 assert all(facing[b] for b in row["light_boxes"])

@@ -18,10 +18,12 @@ from stages.acquire.virtual.timeline import Moment, timeline
 from stages.acquire.virtual.truth import Truth, draw_truth
 from stages.common import geometry as g
 from stages.common import ground_truth
+from stages.common.arms import Payload
 from stages.common.geometry import pose_columns
 from stages.common.image_io import encode_png
 from stages.common.kinematics import link_points
 from stages.common.patterns import board_pattern
+from stages.common.workspace_target import require_builtin_mesh, workspace_target
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
 
@@ -31,6 +33,9 @@ class VirtualTestbed:
 
     def __init__(self, config: Config, workspace: Workspace, plan: list[dict[str, Any]] | None = None) -> None:
         self.config, self.workspace, self._plan = config, workspace, plan
+        self.target = workspace_target(config, workspace)
+        require_builtin_mesh(self.target, "the virtual testbed")
+        self.payload = Payload.of(self.target)
         self.truth: Truth = draw_truth(config)
         cameras = self.truth.unmodelled.camera_by_session
         self.sensor = Sensor(cameras["calibration"], config.virtual)
@@ -63,7 +68,7 @@ class VirtualTestbed:
         return Session("virtual", "virtual", ("kuka", "vicon"),
                        SessionCamera(camera.width_px, camera.height_px, camera.camera_matrix().tolist(),
                                      list(camera.dist)),
-                       board_pattern(self.config.testbed).to_json(), mockup_scale=self.config.testbed.mockup_scale)
+                       board_pattern(self.config.testbed).to_json(), mockup_scale=self.target.mockup_scale)
 
     @property
     def scene(self):  # noqa: ANN201 - TestbedScene, imported lazily with Mitsuba
@@ -84,7 +89,7 @@ class VirtualTestbed:
         index = int(sample_id[3:])
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
         moment = self.moment(sample)
-        state = robots.move(config, truth, sample, rng, moment)
+        state = robots.move(config, truth, sample, rng, moment, self.payload)
         segments = self._link_segments(state)
         camera_body = mocap.observe(config, rng, self.camera_markers_rb,
                                     state.world_from_camee @ truth.camee_from_camrb,
@@ -133,7 +138,7 @@ class VirtualTestbed:
 
         if self._surfaces is None:
             self._surfaces = TangoSurfaces()
-        scale = self.config.testbed.mockup_scale
+        scale = self.target.mockup_scale
         full_scale = cam_from_target.copy()
         full_scale[:3, 3] /= scale  # the mesh is the full-scale Tango; the mock-up is it scaled
         camera = lens_camera(self.sensors[session].camera)
@@ -162,7 +167,7 @@ class VirtualTestbed:
         config, truth = self.config, self.truth
         session, index = sample["session"], int(sample["sample_id"][3:])
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
-        state = robots.move(config, truth, sample, rng, self.moment(sample))  # the same draws as capture()
+        state = robots.move(config, truth, sample, rng, self.moment(sample), self.payload)  # capture()'s draws
         coverage = self.sensors[session].distort(self.scene.silhouette(state.world_from_cam,
                                                                         state.world_from_target))
         return coverage >= 0.5

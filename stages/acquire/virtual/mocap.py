@@ -25,6 +25,7 @@ import numpy as np
 from pipeline.config import Config
 from stages.common import geometry as g
 from stages.common import tango
+from stages.common.workspace_target import planned_target
 
 MIN_CAMERAS = 2
 MIN_MARKERS = 3
@@ -107,7 +108,7 @@ def body_box(scale: float) -> tuple[np.ndarray, np.ndarray]:
 
 def target_markers(config: Config) -> np.ndarray:
     """(M, 3) model marker positions in T (metres, mock-up scale), 1 cm off the surface."""
-    low, high = body_box(config.testbed.mockup_scale)
+    low, high = body_box(planned_target(config).mockup_scale)
     centre, half = (low + high) / 2, (high - low) / 2
     markers = centre + np.asarray(config.virtual.target_markers_rel) * half
     return markers
@@ -163,7 +164,7 @@ def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndar
     ends = np.tile(markers_world, (len(cams), 1))
     blocked = _segments_hit_capsules(starts, ends, link_segments[:, 0], link_segments[:, 1], v.vicon_link_radius_m)
     target_from_world = g.invert(world_from_target)
-    low, high = body_box(config.testbed.mockup_scale)
+    low, high = body_box(planned_target(config).mockup_scale)
     ends_box = g.apply(target_from_world, ends)
     starts_box = g.apply(target_from_world, starts)
     # shrink the sight line slightly so a marker on the surface is not hidden by its own face

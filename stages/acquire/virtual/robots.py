@@ -24,9 +24,11 @@ from stages.acquire.virtual.timeline import Moment
 from stages.acquire.virtual.truth import Truth
 from stages.acquire.virtual.unmodelled import Unmodelled
 from stages.common import geometry as g
-from stages.common import layout, tango
+from stages.common import layout
+from stages.common.arms import Payload
 from stages.common.kinematics import ArmModel, arm_model, forward
 from stages.common.statics import GRAVITY_M_S2, gravity_torques
+from stages.common.workspace_target import planned_target
 
 _LENGTHS = ("a1", "a2", "b", "c1", "c2", "c3", "c4")
 
@@ -106,11 +108,13 @@ def link_errors(u: Unmodelled, robot: str, arm: ArmModel, world_from_base: np.nd
 
 
 def move(config: Config, truth: Truth, row: dict[str, Any], rng: np.random.Generator,
-         moment: Moment | None = None) -> RobotState:
+         moment: Moment | None = None, payload: Payload | None = None) -> RobotState:
     """Drive both robots to a plan row's commands; ``rng`` draws the servo noise; ``moment``
     is the capture's place in its session (``timeline.timeline``; None: the session's start
-    with the robots' initial move directions)."""
+    with the robots' initial move directions); ``payload``: the mock-up on the target
+    flange (None: the configured target's)."""
     v, testbed, u = config.virtual, config.testbed, truth.unmodelled
+    payload = Payload.of(planned_target(config)) if payload is None else payload
     session = row["session"]
     nominal = arm_model(testbed.robot_model)
     camera_joints = np.asarray(row["camera_joints_rad"]) + rng.normal(0.0, v.repeatability_rad, 6)
@@ -129,7 +133,7 @@ def move(config: Config, truth: Truth, row: dict[str, Any], rng: np.random.Gener
     rail_scale = truth.rail_scale * (1.0 + v.rail_expansion_per_k * room_k)
     targetee_from_target = g.invert(truth.target_from_targetee[row["mount"]]
                                     @ (u.remount[row["mount"]] if session == "dataset" else np.eye(4)))
-    centre = tango.BODY_CENTRE_M * testbed.mockup_scale
+    centre = np.asarray(payload.centre_m, float)
 
     camera_base = layout.world_from_camera_base(testbed, rail * rail_scale) @ truth.camera_base_error
     target_base = layout.world_from_target_base(testbed) @ truth.target_base_error
@@ -139,16 +143,16 @@ def move(config: Config, truth: Truth, row: dict[str, Any], rng: np.random.Gener
                                               moment.camera_direction, u.camera_payload_kg,
                                               0.5 * truth.camee_from_cam[:3, 3])
     target_links = target_links + link_errors(u, "target", target_arm, target_base, target_links,
-                                              moment.target_direction, v.model_mass_kg,
+                                              moment.target_direction, payload.mass_kg,
                                               g.apply(targetee_from_target, centre[None])[0])
     world_from_camee = camera_base @ forward(camera_arm, camera_links)
     world_from_targetee = target_base @ forward(target_arm, target_links)
     shape = u.mount_compliance if "mount" in v.unmodelled else None
-    tilt, sag_rad = sag(world_from_targetee, targetee_from_target, v.model_mass_kg,
+    tilt, sag_rad = sag(world_from_targetee, targetee_from_target, payload.mass_kg,
                         v.model_compliance_rad_per_nm, centre, shape)
     if shape is not None and moment.previous_target_joints_rad is not None and v.mount_play_rad > 0:
         before = target_base @ forward(target_arm, moment.previous_target_joints_rad + truth.target_joint_offsets_rad)
-        earlier, _ = sag(before, targetee_from_target, v.model_mass_kg, v.model_compliance_rad_per_nm, centre, shape)
+        earlier, _ = sag(before, targetee_from_target, payload.mass_kg, v.model_compliance_rad_per_nm, centre, shape)
         tilt = tilt @ play(g.matrix_to_rotvec(tilt[:3, :3]) - g.matrix_to_rotvec(earlier[:3, :3]), v.mount_play_rad)
         sag_rad = float(np.linalg.norm(g.matrix_to_rotvec(tilt[:3, :3])))
     return RobotState(

@@ -29,6 +29,7 @@ from stages.common.mitsuba_adapter import (
 )
 from stages.common.patterns import board_image, board_pattern
 from stages.common.tango_mesh import tango_parts
+from stages.common.workspace_target import planned_target
 
 BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
 _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)
@@ -54,7 +55,7 @@ class TestbedScene:
         self.config, self.geometry = config, geometry
         testbed, virtual = config.testbed, config.virtual
         rng = np.random.default_rng([virtual.seed, 0x7E57])
-        self.scale = testbed.mockup_scale
+        self.scale = planned_target(config).mockup_scale
         self.light_box_count = len(testbed.light_box_centres_m)
 
         objects: dict[str, Any] = {

@@ -92,7 +92,7 @@ def test_elasticity_lets_the_arms_sag_under_gravity(config, rows):
         b = robots.move(elastic, truth_elastic, row, np.random.default_rng(1))
         payload = g.apply(g.invert(truth_elastic.target_from_targetee[row["mount"]]), np.zeros((1, 3)))[0]
         energy = [potential_energy(s.target_arm, u.masses["target"], s.world_from_target_base, s.target_link_rad,
-                                   config.virtual.model_mass_kg, payload, np.array([0, 0, 1.0]))
+                                   4.0, payload, np.array([0, 0, 1.0]))
                   for s in (a, b)]
         assert energy[1] < energy[0]
         assert 1e-5 < np.abs(b.target_link_rad - a.target_link_rad).max() < 5e-3  # tens of arcseconds to 0.3 deg

@@ -52,7 +52,7 @@ def test_up_direction_comes_from_the_target_flange_telemetry():
 
 
 def test_arm_kinematics_need_encoder_readings():
-    readings = arms.Readings(np.zeros((10, 6)), np.zeros((10, 6)), np.zeros(10))
+    readings = arms.Readings(np.zeros((10, 6)), np.zeros((10, 6)), np.zeros(10), arms.Payload(4.0, (0.0, 0.0, 0.08)))
     assert arm_decision(config_with(), readings) == (True, "encoder readings of 10 calibration captures")
     assert arm_decision(config_with(), None) == (False, "the captures have no encoder readings")
     assert arm_decision(config_with(arm_kinematics="off"), readings)[0] is False

@@ -8,12 +8,17 @@ from pipeline.config import load_config
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.kinematics import arm_model
+from stages.common.target import load_target
+from stages.common.targets import builtin_folder
+
+PAYLOAD = arms.Payload.of(load_target(builtin_folder()))
 
 
 def random_readings(rng, n, limits_fraction=0.4):
     nominal = arm_model(load_config("default").testbed.robot_model)
     low, high = np.array(nominal.lower) * limits_fraction, np.array(nominal.upper) * limits_fraction
-    return arms.Readings(rng.uniform(low, high, (n, 6)), rng.uniform(low, high, (n, 6)), rng.uniform(0.5, 5.5, n))
+    return arms.Readings(rng.uniform(low, high, (n, 6)), rng.uniform(low, high, (n, 6)), rng.uniform(0.5, 5.5, n),
+                         PAYLOAD)
 
 
 def true_errors(rng):
@@ -76,9 +81,9 @@ def test_arm_errors_survive_json():
 
 def test_readings_need_every_capture_to_have_them():
     row = {"kuka_camera_joints_rad": [0.0] * 6, "kuka_target_joints_rad": [0.1] * 6, "kuka_rail_m": 2.0}
-    assert arms.readings([row, row]).rail_m.tolist() == [2.0, 2.0]
-    assert arms.readings([row, {**row, "kuka_rail_m": None}]) is None
-    assert arms.readings([]) is None
+    assert arms.readings([row, row], PAYLOAD).rail_m.tolist() == [2.0, 2.0]
+    assert arms.readings([row, {**row, "kuka_rail_m": None}], PAYLOAD) is None
+    assert arms.readings([], PAYLOAD) is None
 
 
 def test_a_batch_of_parameters_predicts_each_exactly_and_differences_as_scipy_does():
@@ -141,7 +146,7 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     unit = rng.uniform(0.5, 1.0, (300, 12)) * np.tile(np.asarray(lost), 2)
     flank = np.where(loaded, 0.0, rng.choice([-1.0, 1.0], (300, 12)) * unit / 2)
     turned = arms.Readings(readings.camera_joints_rad + flank[:, :6], readings.target_joints_rad + flank[:, 6:],
-                           readings.rail_m, readings.fixtures)
+                           readings.rail_m, readings.payload, readings.fixtures)
     true = arms.predict(testbed, params, names, False, turned, fixtures, world_up)
     estimate = arms.predict(testbed, params, names, False, readings, fixtures, world_up)
     covariances = arms.pose_covariances(testbed, entry, readings, fixtures, world_up, variances)

@@ -11,13 +11,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from manifests.sidecars.base import Pose
-from manifests.target import TARGET_FILE, TargetError, TargetSpec, read_target_spec, write_target_spec
-from stages.common import geometry as g
+from manifests.target import TARGET_FILE, TargetError, read_target_spec, write_target_spec
 from stages.common import tango
 from stages.common.tango_mesh import tango_parts
 from stages.common.target import CHOSEN_KEYPOINTS, feature_edges, load_target
 from stages.common.targets import builtin_folder, builtin_names, make_tango
+from tests.target_folders import BOULDER_KEYPOINTS, boulder, cubesat
 
 
 def test_the_builtin_tango_is_the_procedural_model():
@@ -43,25 +42,6 @@ def test_the_builtin_folder_is_what_its_script_makes(tmp_path):
         assert (tmp_path / name).read_bytes() == (builtin_folder("tango") / name).read_bytes(), name
 
 
-def cubesat(folder: Path, unit: str = "mm", **fields) -> Path:
-    """A 6U CubeSat (100 x 226 x 366 mm body, two 366 x 226 mm wings) as a GLB of named
-    parts, in mm, with its long axis along the mesh's x (the body frame wants it on z)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    scene = trimesh.Scene()
-    scene.add_geometry(trimesh.creation.box((366.0, 226.0, 100.0)), geom_name="body", node_name="body")
-    for side in (-1, 1):
-        wing = trimesh.creation.box((366.0, 2.0, 226.0))
-        wing.apply_translation((0.0, side * 113.0, 163.0))
-        scene.add_geometry(wing, geom_name=f"wing_{'minus' if side < 0 else 'plus'}",
-                           node_name=f"wing_{'minus' if side < 0 else 'plus'}")
-    (folder / "cubesat.glb").write_bytes(scene.export(file_type="glb"))
-    turn = g.matrix_to_quat(g.axis_angle_matrix("y", -np.pi / 2))  # mesh x -> body z
-    write_target_spec(folder, TargetSpec("cubesat6u", "cubesat.glb", unit, 1.0, 9.0,
-                                         body_from_mesh=Pose(tuple(float(v) for v in turn), (0.0, 0.0, 0.0)),
-                                         **fields))
-    return folder
-
-
 def test_a_strangers_cubesat_in_mm_with_its_own_frame_and_no_keypoints(tmp_path):
     target = load_target(cubesat(tmp_path / "cubesat", looks={"body": make_tango.spec().looks["sides"]}))
     assert list(target.parts) == ["body", "wing_minus", "wing_plus"]
@@ -80,17 +60,9 @@ def test_a_strangers_cubesat_in_mm_with_its_own_frame_and_no_keypoints(tmp_path)
 
 
 def test_an_stl_in_metres_with_declared_keypoints_and_views(tmp_path):
-    folder = tmp_path / "boulder"
-    folder.mkdir()
-    rock = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
-    rock.vertices *= [1.0, 0.8, 0.6]
-    rock.export(folder / "boulder.stl")
-    points = [[0.4, 0, 0], [-0.4, 0, 0], [0, 0.32, 0], [0, 0, 0.24], [0, 0, -0.24]]
-    write_target_spec(folder, TargetSpec("boulder", "boulder.stl", "m", 1.0, 12.0, keypoints=points,
-                                         view_axis=(1.0, 0.0, 0.0), view_names=("east", "west")))
-    target = load_target(folder)
+    target = load_target(boulder(tmp_path / "boulder"))
     assert list(target.parts) == ["boulder"] and not target.keypoints_chosen
-    np.testing.assert_allclose(target.keypoints_m, points)
+    np.testing.assert_allclose(target.keypoints_m, BOULDER_KEYPOINTS)
     assert target.view_of(np.array([[2.0, 0, 0], [-2.0, 0, 0]])).tolist() == ["east", "west"]
 
 

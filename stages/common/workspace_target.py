@@ -1,0 +1,101 @@
+"""Which target a stage builds: the folder the configuration names (``target.path``; the
+built-in Tango when empty) until ``plan`` copies it into ``W/target/``, then that copy
+(docs/architecture.md section 7). Every stage after the plan reads the copy, so a target
+folder the lab edits or moves later cannot change a workspace behind its fingerprints."""
+
+from __future__ import annotations
+
+import shutil
+from functools import lru_cache
+from pathlib import Path
+
+from manifests import Workspace
+from manifests.target import TARGET_FILE, TargetError, target_digest, target_files
+from manifests.workspace import TARGET_DIR
+from pipeline.config import Config
+from pipeline.errors import InputError
+from stages.common.target import Target, load_target
+from stages.common.targets import builtin_folder
+
+
+def configured_folder(config: Config) -> Path:
+    """The folder ``target.path`` names, or the built-in Tango's."""
+    return Path(config.target.path) if config.target.path else builtin_folder()
+
+
+def workspace_folder(config: Config, workspace: Workspace) -> Path:
+    """``W/target`` once the plan has copied a target there (fetched from the store when the
+    workspace lives on object storage), else the configured folder."""
+    if not workspace.has_file(f"{TARGET_DIR}/{TARGET_FILE}"):
+        return configured_folder(config)
+    folder = workspace.fetch(f"{TARGET_DIR}/{TARGET_FILE}").parent
+    for name in target_files(folder):
+        workspace.fetch(f"{TARGET_DIR}/{name}")
+    return folder
+
+
+def planned_target(config: Config) -> Target:
+    """The configured target (the plan's, before it is copied)."""
+    return cached_target(configured_folder(config))
+
+
+def workspace_target(config: Config, workspace: Workspace) -> Target:
+    """The target of this workspace (``workspace_folder``)."""
+    return cached_target(workspace_folder(config, workspace))
+
+
+def cached_target(folder: Path) -> Target:
+    """``load_target``, loaded once per process for a given content (workers ask per sample)."""
+    return _load(str(Path(folder).resolve()), target_digest(folder))
+
+
+@lru_cache(maxsize=4)
+def _load(folder: str, digest: str) -> Target:
+    target = load_target(Path(folder))
+    if target.digest != digest:  # changed while it was read: the next call loads it again
+        _load.cache_clear()
+    return target
+
+
+def install(config: Config, workspace: Workspace) -> None:
+    """Copy the configured target's files into ``W/target`` (replacing another one there):
+    written beside it and renamed into place, so that the folder is never half-written."""
+    source = configured_folder(config)
+    destination = workspace.root / TARGET_DIR
+    if destination.is_dir() and (destination / TARGET_FILE).is_file() and _same(source, destination):
+        return
+    staging = workspace.root / f".{TARGET_DIR}.new"
+    shutil.rmtree(staging, ignore_errors=True)
+    for name in target_files(source):
+        (staging / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source / name, staging / name)
+    old = workspace.root / f".{TARGET_DIR}.old"
+    shutil.rmtree(old, ignore_errors=True)
+    if destination.exists():
+        destination.rename(old)
+    staging.rename(destination)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _same(source: Path, destination: Path) -> bool:
+    try:
+        return target_digest(source) == target_digest(destination)
+    except (TargetError, OSError):  # a damaged copy is simply replaced
+        return False
+
+
+def digest(config: Config, workspace: Workspace | None) -> str:
+    """The digest a stage's fingerprint takes: of the workspace's target, or without a
+    workspace (the plan, before it copies) of the configured one."""
+    return target_digest(configured_folder(config) if workspace is None else workspace_folder(config, workspace))
+
+
+def require_builtin_mesh(target: Target, what: str) -> None:
+    """Refuse a target the ``what`` cannot draw yet: the virtual testbed's mock-up, the
+    renderer's twin and the BOP model are still the built-in Tango's procedural mesh
+    (``stages.common.tango_mesh``) with its looks, so any other target would be drawn as
+    Tango under another's labels."""
+    builtin = cached_target(builtin_folder())
+    if target.digest != builtin.digest:
+        raise InputError(f"target {target.name!r} (target.path): {what} draws only the built-in Tango's mesh so far; "
+                         "plan, calibrate, fuse and label take any target, the mesh-drawing stages do not yet")
