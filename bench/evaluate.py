@@ -20,6 +20,7 @@ import numpy as np
 from bench.common import report
 from pipeline.config import load_config
 from stages.common.pose_model import PoseModel
+from stages.common.workspace_target import planned_target
 
 
 def main(*args: str) -> None:
@@ -34,7 +35,7 @@ def main(*args: str) -> None:
     model = KeypointNet(11, recipe.width, recipe.heatmap_stride).eval()
     directory = tempfile.mkdtemp()
     path = Path(directory) / "network.onnx"
-    export(model, recipe, path, {})
+    export(model, recipe, path, planned_target(load_config("default")), {})
     onnx_model = PoseModel(path, threads=threads)
     c = onnx_model.contract
     x = np.random.default_rng(0).normal(size=(batch, 3, c.height, c.width)).astype(np.float32)

@@ -9,15 +9,16 @@ distorted geometry; NaN where the model is not hit):
                            map); synthetic images only
 ``Z``                      depth: z of the surface in the OpenCV camera frame, metres
 ``N.X``, ``N.Y``, ``N.Z``  unit surface normal in the camera frame, towards the camera
-``P.X``, ``P.Y``, ``P.Z``  the surface point in Tango body coordinates, metres
-``part``                   ``stages.common.surface.PART_IDS``: 0 background, 1 sides,
-                           2 solar panel, 3 rear panel, 4 antennas (exact small integers)
+``P.X``, ``P.Y``, ``P.Z``  the surface point in the target's body coordinates, metres
+``part``                   0 background, then 1, 2, ... the target's mesh parts in order
+                           (``stages.common.surface.part_ids``; Tango: 1 solar panel, 2 rear
+                           panel, 3 sides, 4 antennas); exact small integers
 =========================  ============================================================
 
 The testbed's truth maps (virtual backend, for evaluation only) hold ``Z`` and ``part``
 at the mock-up's true pose and scale. Header: ``speedplus:ground_truth`` (JSON: version,
-camera_matrix (3, 3) px, dist (5,) OpenCV, cam_from_target (4, 4) m, length_scale, part
-ids). OpenEXR's own ``worldToCamera`` is not written: its camera looks along -z, not
+camera_matrix (3, 3) px, dist (5,) OpenCV, cam_from_target (4, 4) m, length_scale,
+part_ids: part name -> index). OpenEXR's own ``worldToCamera`` is not written: its camera looks along -z, not
 OpenCV's +z, and a second convention for the same pose would invite mistakes.
 """
 
@@ -33,7 +34,7 @@ import numpy as np
 from manifests.files import temporary_name
 from pipeline.errors import InputError
 from stages.common.lens import LensCamera
-from stages.common.surface import PART_IDS, SurfaceMaps
+from stages.common.surface import SurfaceMaps
 
 VERSION = 1
 HEADER_KEY = "speedplus:ground_truth"
@@ -54,6 +55,7 @@ class GroundTruth:
     camera: LensCamera
     cam_from_target: np.ndarray
     length_scale: float
+    part_ids: dict[str, int]
 
     def stack(self, names: tuple[str, ...]) -> np.ndarray:
         """(H, W, len(names)) of the named channels."""
@@ -76,18 +78,18 @@ def channels_of(maps: SurfaceMaps, radiance: np.ndarray | None, names: tuple[str
 
 
 def encode(channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
-           length_scale: float = 1.0) -> bytes:
+           part_ids: dict[str, int], length_scale: float = 1.0) -> bytes:
     """The EXR file ``write`` makes, as bytes (for a worker whose driver writes its files)."""
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="speedplus-exr-") as folder:
         path = Path(folder) / "ground_truth.exr"
-        write(path, channels, camera, cam_from_target, length_scale)
+        write(path, channels, camera, cam_from_target, part_ids, length_scale)
         return path.read_bytes()
 
 
 def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
-          length_scale: float = 1.0) -> None:
+          part_ids: dict[str, int], length_scale: float = 1.0) -> None:
     """Write the channels (ZIP-compressed) and the header atomically."""
     import OpenImageIO as oiio  # noqa: N813 - the library's own documented alias
 
@@ -99,7 +101,7 @@ def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_f
     spec.attribute("DateTime", "")  # OpenImageIO would stamp the time: same inputs, same bytes
     header = {"version": VERSION, "camera_matrix": np.asarray(camera.camera_matrix, float).tolist(),
               "dist": [float(v) for v in camera.dist], "cam_from_target": np.asarray(cam_from_target, float).tolist(),
-              "length_scale": float(length_scale), "part_ids": PART_IDS}
+              "length_scale": float(length_scale), "part_ids": dict(part_ids)}
     spec.attribute(HEADER_KEY, json.dumps(header))
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = temporary_name(path).with_suffix(".exr")  # OpenImageIO picks the format by suffix
@@ -132,6 +134,10 @@ def _header(path: Path, text: Any) -> dict[str, Any]:
             raise fail(key, f"numbers of shape {shape}")
     if not isinstance(header.get("length_scale"), (int, float)) or header["length_scale"] <= 0:
         raise fail("length_scale", "a positive number")
+    ids = header.get("part_ids")
+    if (not isinstance(ids, dict) or not all(isinstance(k, str) and isinstance(v, int) and 0 <= v < 256
+                                             for k, v in ids.items())):
+        raise fail("part_ids", "an object of part names to indices 0-255")
     return header
 
 
@@ -158,4 +164,5 @@ def read(path: Path, required: tuple[str, ...] = TRUTH) -> GroundTruth:
     camera = LensCamera(np.array(header["camera_matrix"], float), np.array(header["dist"], float), spec.width,
                         spec.height)
     return GroundTruth({name: pixels[..., i] for i, name in enumerate(names)}, camera,
-                       np.array(header["cam_from_target"], float), float(header["length_scale"]))
+                       np.array(header["cam_from_target"], float), float(header["length_scale"]),
+                       dict(header["part_ids"]))

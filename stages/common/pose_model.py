@@ -20,6 +20,9 @@ key                        value
                            a JSON list of K body-frame points, metres, full scale
 ``speedplus.crop``         ``full`` (the whole image, resized) or ``oracle_box`` (a square
                            around the label's box, enlarged 1.25 times: reported as oracle)
+``speedplus.target``       optional: the name of the target it was made for (a target
+                           folder's ``name``); evaluate refuses it on another target's
+                           workspace. Absent: made for the built-in Tango
 ``speedplus.turns``        optional: ``4`` for a heatmap model with a square input trained on
                            crops at every rotation; ``evaluate`` then averages its heatmaps
                            of the crop turned by 0, 90, 180 and 270 degrees, each turned
@@ -43,11 +46,14 @@ from typing import Any
 import cv2
 import numpy as np
 
+from manifests.schema import NAME_PATTERN
 from pipeline.errors import InputError
 from stages.common import geometry as g
 from stages.common import tango
 
 CONTRACT_VERSION = "1"
+#: the target of a model whose contract names none (every model made before targets had names)
+BUILTIN_TARGET = "tango"
 OUTPUT_KINDS = ("keypoints", "heatmaps", "pose")
 CROPS = ("full", "oracle_box")
 OPSET = 17
@@ -69,6 +75,7 @@ class ModelContract:
     keypoints_m: np.ndarray  # (K, 3) body frame, full scale
     crop: str
     turns: int = 1
+    target: str = BUILTIN_TARGET
 
     def metadata(self) -> dict[str, str]:
         """The ``metadata_props`` that state this contract (for exporters)."""
@@ -83,6 +90,7 @@ class ModelContract:
             "speedplus.keypoints": keypoints,
             "speedplus.crop": self.crop,
             **({"speedplus.turns": str(self.turns)} if self.turns != 1 else {}),
+            **({"speedplus.target": self.target} if self.target != BUILTIN_TARGET else {}),
         }
 
 
@@ -133,7 +141,10 @@ def parse_contract(metadata: dict[str, str], source: str) -> ModelContract:
     turns = metadata.get("speedplus.turns", "1")
     if turns not in ("1", "4") or (turns == "4" and (output != "heatmaps" or width != height)):
         raise fail("speedplus.turns", "1, or 4 for a heatmap model with a square input")
-    return ModelContract(width, height, channels, mean, std, output, keypoints, crop, int(turns))
+    target = metadata.get("speedplus.target", BUILTIN_TARGET)
+    if not NAME_PATTERN.fullmatch(target):
+        raise fail("speedplus.target", "a target's name (a-z, 0-9, _ and -)")
+    return ModelContract(width, height, channels, mean, std, output, keypoints, crop, int(turns), target)
 
 
 class PoseModel:

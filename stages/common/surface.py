@@ -1,5 +1,5 @@
-"""Per-pixel geometry of the Tango model by ray casting: which part each pixel centre sees,
-at what depth, with which surface normal and at which point of the body.
+"""Per-pixel geometry of the target's mesh by ray casting: which part each pixel centre
+sees, at what depth, with which surface normal and at which point of the body.
 
 One ray per output pixel centre, cast through the camera's own model (a pinhole ``K`` for
 undistorted images, or the lens's distortion for the 8-bit renders and captures), so the
@@ -8,7 +8,7 @@ and ids and coordinates are never interpolated across an edge. Used by render (t
 ground truth of every synthetic image), acquire (depth and masks at the true pose) and
 export (BOP masks at the label's pose).
 
-Conventions (docs/architecture.md section 5): ``cam_from_target`` (4, 4) maps Tango body
+Conventions (docs/architecture.md section 5): ``cam_from_target`` (4, 4) maps body
 coordinates (T, full scale, metres) into the OpenCV camera frame (x right, y down, z along
 the boresight); depth is z in that frame, not the distance along the ray.
 """
@@ -23,10 +23,20 @@ import numpy as np
 from stages.common import geometry as g
 from stages.common.lens import LensCamera, pixel_rays
 from stages.common.mitsuba_adapter import load_mitsuba, load_scene, mesh, rays
-from stages.common.tango_mesh import tango_parts
+from stages.common.target import MeshPart
 
-#: part index of every pixel (uint8); documented in the README's "Per-pixel ground truth"
-PART_IDS = {"background": 0, "sides": 1, "solar_panel": 2, "rear_panel": 3, "antennas": 4}
+BACKGROUND = "background"
+
+
+def part_ids(parts: dict[str, MeshPart]) -> dict[str, int]:
+    """Each pixel's part index (uint8): 0 the background, then 1, 2, ... the target's parts
+    in the mesh's order (``speedplus target DIR`` lists them); the EXR header records it."""
+    return {BACKGROUND: 0, **{name: index + 1 for index, name in enumerate(parts)}}
+
+
+def shape_id(index: int) -> str:
+    """The Mitsuba shape id of the target's ``index``-th part, in every scene that holds it."""
+    return f"target_part_{index + 1}"
 
 
 @dataclass(frozen=True)
@@ -42,6 +52,7 @@ class SurfaceMaps:
     normal_cam: np.ndarray
     body_m: np.ndarray
     part: np.ndarray
+    ids: dict[str, int]
 
     @property
     def mask(self) -> np.ndarray:
@@ -57,22 +68,23 @@ def pinhole_rays(camera_matrix: np.ndarray, width: int, height: int) -> np.ndarr
     return directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
 
-class TangoSurfaces:
-    """Ray casts against the model's triangles (``stages.common.tango_mesh``): those of a
-    scene that already holds them as shapes ``tango_<part>`` (a renderer's, in the Tango
-    frame), else of a geometry-only scene of their own."""
+class TargetSurfaces:
+    """Ray casts against the target's triangles (``parts``, full scale, body frame): those of
+    a scene that already holds them as shapes ``shape_id(index)`` (a renderer's), else of
+    a geometry-only scene of their own."""
 
-    def __init__(self, scene: Any = None) -> None:
+    def __init__(self, parts: dict[str, MeshPart], scene: Any = None) -> None:
         self.mi = mi = load_mitsuba()
         if scene is None:
             bsdf = mi.load_dict({"type": "diffuse"})
             objects: dict[str, Any] = {"type": "scene"}
-            for name, part in tango_parts().items():
-                objects[f"tango_{name}"] = mesh(mi, f"tango_{name}", part.vertices, part.faces, part.uv, bsdf)
+            for index, part in enumerate(parts.values()):
+                objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices, part.faces, part.uv, bsdf)
             scene = load_scene(mi, objects)
         self.scene = scene
-        self._ids = [(shape, PART_IDS[shape.id().removeprefix("tango_")]) for shape in scene.shapes()
-                     if shape.id().startswith("tango_")]
+        self.ids = part_ids(parts)
+        wanted = {shape_id(index): index + 1 for index in range(len(parts))}
+        self._ids = [(shape, wanted[shape.id()]) for shape in scene.shapes() if shape.id() in wanted]
 
     def cast(self, cam_from_target: np.ndarray, directions_cam: np.ndarray, shape: tuple[int, int]) -> SurfaceMaps:
         """Maps of ``shape`` (H, W) from unit ray directions (H * W, 3) in the camera frame."""
@@ -94,7 +106,7 @@ class TangoSurfaces:
         height, width = shape
         return SurfaceMaps(depth.reshape(height, width).astype(np.float32),
                            normal_cam.reshape(height, width, 3).astype(np.float32),
-                           body.reshape(height, width, 3).astype(np.float32), part.reshape(height, width))
+                           body.reshape(height, width, 3).astype(np.float32), part.reshape(height, width), self.ids)
 
     def pinhole(self, cam_from_target: np.ndarray, camera_matrix: np.ndarray, width: int, height: int) -> SurfaceMaps:
         """Maps of an undistorted ``width x height`` image with intrinsics ``camera_matrix``."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
@@ -50,12 +51,14 @@ DEFAULT_VIEWS = ((0.0, 0.0, 1.0), ("plus_z", "minus_z"))
 
 @dataclass(frozen=True)
 class MeshPart:
-    """Triangles of one part: vertices (V, 3) m, faces (F, 3) int, uv (V, 2) in [0, 1]."""
+    """Triangles of one part: vertices (V, 3) m, faces (F, 3) int, uv (V, 2) in [0, 1], and
+    the mesh's own colour (linear RGB reflectance; None when it gives none)."""
 
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     uv: np.ndarray
+    colour: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,17 @@ class Target:
         that ``view_axis`` points to, else ``view_names[1]``."""
         side = (np.asarray(camera_in_target_m, float) - scale * self.centre_m) @ self.view_axis
         return np.where(side > 0, self.view_names[0], self.view_names[1])
+
+
+def main_body_box(target: Target) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (low, high) (3,) m, full scale, of the target's main body: the axis-aligned box
+    of the part whose own box is largest by volume (the first on a tie). Thin appendages
+    (antennas, wings, booms) have flat boxes, so they never win over a body; a single-part
+    mesh's is its whole box. The virtual testbed fixes motion-capture markers on its faces
+    and lets it hide them."""
+    boxes = [(part.vertices.min(axis=0), part.vertices.max(axis=0)) for part in target.parts.values()]
+    volumes = [float(np.prod(high - low)) for low, high in boxes]
+    return boxes[int(np.argmax(volumes))]
 
 
 def feature_edges(target: Target, crease_deg: float = 20.0) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -116,8 +130,8 @@ def load_target(directory: Path) -> Target:
     where = directory / TARGET_FILE
     body_from_mesh = g.transform_from_qt(spec.body_from_mesh.q, np.asarray(spec.body_from_mesh.t) * spec.metres)
     mesh = mesh_path(directory, spec)
-    parts = {name: MeshPart(name, g.apply(body_from_mesh, part.vertices * spec.metres), part.faces, part.uv)
-             for name, part in read_mesh(mesh).items()}
+    parts = {name: MeshPart(name, g.apply(body_from_mesh, part.vertices * spec.metres), part.faces, part.uv,
+                            part.colour) for name, part in read_mesh(mesh).items()}
     vertices = np.concatenate([p.vertices for p in parts.values()])
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     centre = (low + high) / 2 if spec.centre is None else np.asarray(spec.centre) * spec.metres
@@ -166,7 +180,7 @@ def read_mesh(path: Path) -> dict[str, MeshPart]:
         uv = np.zeros((len(vertices), 2)) if uv is None or len(uv) != len(vertices) else np.asarray(uv, float)
         while name in parts:
             name += "_"
-        parts[name] = MeshPart(name, vertices, np.asarray(mesh.faces, np.int64), uv)
+        parts[name] = MeshPart(name, vertices, np.asarray(mesh.faces, np.int64), uv, mesh_colour(mesh))
     if not parts:
         raise TargetError(f"{path}: holds no triangles")
     area = sum(float(np.sum(np.linalg.norm(np.cross(p.vertices[p.faces[:, 1]] - p.vertices[p.faces[:, 0]],
@@ -221,3 +235,28 @@ def _check_keypoints(where: Path, keypoints: np.ndarray, centre: np.ndarray, rad
         i = int(far[0])
         raise TargetError(f"{where}: key keypoints.points.{i}: {distance[i]:.4g} m from the body centre, outside "
                           f"the mesh (every vertex is within {radius:.4g} m); another unit or frame?")
+
+
+def mesh_colour(mesh: Any) -> tuple[float, float, float] | None:
+    """A trimesh mesh's own colour as linear RGB reflectance, or None: a glTF material's
+    base colour factor (linear already), an MTL's ``Kd`` or the mean vertex or face colour
+    (both sRGB, linearised)."""
+    visual = getattr(mesh, "visual", None)
+    material = getattr(visual, "material", None)
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is not None:
+        rgb = np.asarray(factor, float).ravel()[:3]
+        return tuple(float(v) for v in (rgb / 255.0 if rgb.max() > 1.0 else rgb))
+    diffuse = getattr(material, "diffuse", None)
+    if diffuse is not None:
+        return _linear(np.asarray(diffuse, float).ravel()[:3] / 255.0)
+    kind = getattr(visual, "kind", None)
+    if kind in ("vertex", "face"):
+        colours = visual.vertex_colors if kind == "vertex" else visual.face_colors
+        return _linear(np.asarray(colours, float)[:, :3].mean(axis=0) / 255.0)
+    return None
+
+
+def _linear(srgb: np.ndarray) -> tuple[float, float, float]:
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    return tuple(float(v) for v in np.clip(linear, 0.0, 1.0))

@@ -13,7 +13,6 @@ from manifests import Workspace
 from manifests.target import TARGET_FILE, TargetError, target_digest, target_files
 from manifests.workspace import TARGET_DIR
 from pipeline.config import Config
-from pipeline.errors import InputError
 from stages.common.target import Target, load_target
 from stages.common.targets import builtin_folder
 
@@ -23,10 +22,10 @@ def configured_folder(config: Config) -> Path:
     return Path(config.target.path) if config.target.path else builtin_folder()
 
 
-def workspace_folder(config: Config, workspace: Workspace) -> Path:
+def workspace_folder(config: Config, workspace: Workspace | None) -> Path:
     """``W/target`` once the plan has copied a target there (fetched from the store when the
-    workspace lives on object storage), else the configured folder."""
-    if not workspace.has_file(f"{TARGET_DIR}/{TARGET_FILE}"):
+    workspace lives on object storage), else (and without a workspace) the configured folder."""
+    if workspace is None or not workspace.has_file(f"{TARGET_DIR}/{TARGET_FILE}"):
         return configured_folder(config)
     folder = workspace.fetch(f"{TARGET_DIR}/{TARGET_FILE}").parent
     for name in target_files(folder):
@@ -39,7 +38,7 @@ def planned_target(config: Config) -> Target:
     return cached_target(configured_folder(config))
 
 
-def workspace_target(config: Config, workspace: Workspace) -> Target:
+def workspace_target(config: Config, workspace: Workspace | None) -> Target:
     """The target of this workspace (``workspace_folder``)."""
     return cached_target(workspace_folder(config, workspace))
 
@@ -89,13 +88,3 @@ def digest(config: Config, workspace: Workspace | None) -> str:
     workspace (the plan, before it copies) of the configured one."""
     return target_digest(configured_folder(config) if workspace is None else workspace_folder(config, workspace))
 
-
-def require_builtin_mesh(target: Target, what: str) -> None:
-    """Refuse a target the ``what`` cannot draw yet: the virtual testbed's mock-up, the
-    renderer's twin and the BOP model are still the built-in Tango's procedural mesh
-    (``stages.common.tango_mesh``) with its looks, so any other target would be drawn as
-    Tango under another's labels."""
-    builtin = cached_target(builtin_folder())
-    if target.digest != builtin.digest:
-        raise InputError(f"target {target.name!r} (target.path): {what} draws only the built-in Tango's mesh so far; "
-                         "plan, calibrate, fuse and label take any target, the mesh-drawing stages do not yet")

@@ -108,13 +108,20 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     """Score every (model, crop, image) missing from ``predictions``, then rewrite the
     ``scores`` summary."""
     camera = calibrated_camera(workspace)
+    target = workspace_target(config, workspace)
+    contracts = {path: PoseModel(path, threads=1).contract for path in model_paths(config)}  # a bad model fails here
+    for path, contract in contracts.items():
+        if contract.target != target.name:
+            raise InputError(f"{path}: a model of target {contract.target!r} (its speedplus.target), but this "
+                             f"workspace's target is {target.name!r}; train one for it with speedplus render --set "
+                             "train, then speedplus train-reference, and score W/models/reference.onnx")
     done = read_keys(workspace, "predictions")
     images = _items(workspace)
     batch = config.evaluate.batch_size
     shown = []
     with open_sink(workspace, "predictions", config.run.part_rows) as sink:
         for path in model_paths(config):
-            contract = PoseModel(path, threads=1).contract  # a bad model fails here, naming its file
+            contract = contracts[path]
             crops = [contract.crop] + (["self"] if contract.crop == "oracle_box" and config.evaluate.self_crop else [])
             shown += [(path.stem, crop) for crop in crops]
             items = [{**item, "model": path.stem, "crop": crop} for crop in crops for item in images
@@ -131,7 +138,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                 for row in rows:
                     sink.add(row)
     predictions = read_manifest(workspace, "predictions")
-    table = summarise(predictions.to_pylist(), workspace_target(config, workspace).view_names)
+    table = summarise(predictions.to_pylist(), target.view_names)
     clear_manifest(workspace, "scores")  # a summary of all predictions: rewritten whole
     write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
     scored = sorted(set(zip(table.column("model").to_pylist(), table.column("crop").to_pylist(), strict=True)))

@@ -25,7 +25,7 @@ from pipeline.progress import track
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.sidecars import calibrated_camera
-from stages.common.workspace_target import require_builtin_mesh, workspace_target
+from stages.common.workspace_target import workspace_target
 from stages.export import bop, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
@@ -136,9 +136,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     done = read_keys(workspace, name)
     todo = [item for item in chosen if item["export_id"] not in done]
     target = workspace_target(config, workspace)
-    if config.export.format == "bop":
-        require_builtin_mesh(target, "the BOP export (its models/obj_000001.ply)")
-    surfaces = bop.TangoSurfaces() if config.export.format == "bop" and todo else None
+    surfaces = bop.TargetSurfaces(target.parts) if config.export.format == "bop" and todo else None
     with open_sink(workspace, name, config.run.part_rows) as sink:
         for item in track(todo, len(todo), "export"):
             source = workspace.fetch(item["source"])
@@ -156,6 +154,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                                              config.export.validation_fraction)
         speedplus.write_keypoints(out, target.name, target.keypoints_m)
     else:
-        counts = bop.write_annotations(out, chosen, by_set)
+        counts = bop.write_annotations(out, chosen, by_set, target)
     print(f"export: {', '.join(f'{v} in {k}' for k, v in counts.items())} ({config.export.format}) in {out}")
     return read_manifest(workspace, name)

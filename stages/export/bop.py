@@ -4,7 +4,7 @@ section 4): what bop_toolkit's loaders and projection read, without a distortion
 ::
 
     OUT/camera.json                      cx, cy, fx, fy, width, height, depth_scale (the labels' camera)
-    OUT/models/obj_000001.ply            the procedural Tango, mm, per-face normals; models_info.json
+    OUT/models/obj_000001.ply            the target's mesh, mm, per-face normals; models_info.json
     OUT/models_eval/obj_000001.ply       the same surface subdivided to edges of at most 20 mm
     OUT/test_targets_bop19.json          [{scene_id, im_id, obj_id: 1, inst_count: 1}] of test/
     OUT/dataset_info.md
@@ -16,8 +16,8 @@ section 4): what bop_toolkit's loaders and projection read, without a distortion
       depth/<im_id:06d>.png              synthetic sets only: uint16, mm = value * depth_scale
       scene_camera.json  scene_gt.json  scene_gt_info.json
 
-The model frame is the Tango body frame of the labels (origin on the body, not at the
-bounding-box centre BOP's own datasets use), so ``cam_R_m2c``, ``cam_t_m2c`` are the
+The model frame is the target's body frame of the labels (Tango: origin on the body, not at
+the bounding-box centre BOP's own datasets use), so ``cam_R_m2c``, ``cam_t_m2c`` are the
 labels' rotation and translation (mm) unchanged. Only one object is in a scene and the
 testbed's fixtures are not modelled, so ``mask_visib`` equals ``mask``.
 """
@@ -37,8 +37,8 @@ from pipeline.errors import InputError
 from stages.common import geometry as g
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
 from stages.common.lens import LensCamera
-from stages.common.surface import TangoSurfaces
-from stages.common.tango_mesh import tango_parts
+from stages.common.surface import TargetSurfaces
+from stages.common.target import Target
 
 OBJ_ID = 1
 IMAGES_PER_SCENE = 1000  # BOP's train_pbr scenes
@@ -77,7 +77,8 @@ def undistort(image: np.ndarray, camera: LensCamera) -> np.ndarray:
     return cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
-def write_image(out: Path, item: dict[str, Any], source: Path, camera: LensCamera, surfaces: TangoSurfaces) -> str:
+def write_image(out: Path, item: dict[str, Any], source: Path, camera: LensCamera, surfaces: TargetSurfaces
+                ) -> str:
     """Undistorted image, masks and (synthetic sets) depth of one item; returns the image's
     path relative to ``out``."""
     image = read_image(source)
@@ -100,9 +101,9 @@ def write_image(out: Path, item: dict[str, Any], source: Path, camera: LensCamer
 
 
 # ------------------------------------------------------------------------------- models
-def _triangles_mm() -> np.ndarray:
-    """Every triangle of the model (F, 3, 3), mm, Tango body frame."""
-    triangles = [part.vertices[part.faces] for part in tango_parts().values()]
+def _triangles_mm(target: Target) -> np.ndarray:
+    """Every triangle of the target's mesh (F, 3, 3), mm, body frame."""
+    triangles = [part.vertices[part.faces] for part in target.parts.values()]
     return np.concatenate(triangles) * 1000.0
 
 
@@ -119,14 +120,14 @@ def _subdivide(triangles: np.ndarray, max_edge_mm: float) -> np.ndarray:
     return np.concatenate(done)
 
 
-def ply_bytes(triangles: np.ndarray) -> bytes:
+def ply_bytes(triangles: np.ndarray, name: str) -> bytes:
     """ASCII PLY of triangles (F, 3, 3) with per-face normals (3 vertices per face, so a
     flat face keeps its own normal), as BOP's models are read by ``inout.load_ply``."""
     normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     vertices = triangles.reshape(-1, 3)
     vertex_normals = np.repeat(normals, 3, axis=0)
-    header = ("ply\nformat ascii 1.0\ncomment SPEED+ builder: procedural Tango, full scale, mm, Tango body frame\n"
+    header = (f"ply\nformat ascii 1.0\ncomment SPEED+ builder: target {name}, full scale, mm, its body frame\n"
               f"element vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
               "property float nx\nproperty float ny\nproperty float nz\n"
               f"element face {len(triangles)}\nproperty list uchar int vertex_indices\nend_header\n")
@@ -146,11 +147,12 @@ def model_info(triangles: np.ndarray) -> dict[str, float]:
             "size_x": float(high[0] - low[0]), "size_y": float(high[1] - low[1]), "size_z": float(high[2] - low[2])}
 
 
-def write_models(out: Path) -> None:
-    triangles = _triangles_mm()
-    write_bytes_atomic(out / "models" / f"obj_{OBJ_ID:06d}.ply", ply_bytes(triangles))
-    write_bytes_atomic(out / "models_eval" / f"obj_{OBJ_ID:06d}.ply", ply_bytes(_subdivide(triangles, EVAL_EDGE_MM)))
-    info = {str(OBJ_ID): model_info(triangles)}  # the Tango is not symmetric: no symmetries entry
+def write_models(out: Path, target: Target) -> None:
+    triangles = _triangles_mm(target)
+    write_bytes_atomic(out / "models" / f"obj_{OBJ_ID:06d}.ply", ply_bytes(triangles, target.name))
+    write_bytes_atomic(out / "models_eval" / f"obj_{OBJ_ID:06d}.ply",
+                       ply_bytes(_subdivide(triangles, EVAL_EDGE_MM), target.name))
+    info = {str(OBJ_ID): model_info(triangles)}  # no symmetries entry: the target folder declares none
     write_json_atomic(out / "models" / "models_info.json", info)
     write_json_atomic(out / "models_eval" / "models_info.json", info)
 
@@ -183,10 +185,11 @@ def gt_info(out: Path, item: dict[str, Any], camera_matrix: np.ndarray, vertices
             "visib_fract": 1.0 if count else 0.0}
 
 
-def write_annotations(out: Path, items: list[dict[str, Any]], cameras: dict[str, LensCamera]) -> dict[str, int]:
+def write_annotations(out: Path, items: list[dict[str, Any]], cameras: dict[str, LensCamera], target: Target
+                      ) -> dict[str, int]:
     """Root files and every scene's json from ``items`` (each with set, scene_id, im_id and
     the label's pose); ``cameras`` by set. Returns the image count per split."""
-    write_models(out)
+    write_models(out, target)
     labels_camera = cameras.get("testbed") or next(iter(cameras.values()))
     k = labels_camera.camera_matrix
     write_json_atomic(out / "camera.json", {"cx": float(k[0, 2]), "cy": float(k[1, 2]), "fx": float(k[0, 0]),
@@ -212,14 +215,15 @@ def write_annotations(out: Path, items: list[dict[str, Any]], cameras: dict[str,
                for item in sorted(items, key=lambda i: (i["scene_id"], i["im_id"])) if item["set"] == "testbed"]
     write_json_atomic(out / "test_targets_bop19.json", targets)
     counts = {split: sum(1 for i in items if i["set"] == s) for s, split in SPLITS.items()}
-    write_bytes_atomic(out / "dataset_info.md", dataset_info(counts).encode())
+    write_bytes_atomic(out / "dataset_info.md", dataset_info(counts, target).encode())
     return {split: n for split, n in counts.items() if n}
 
 
-def dataset_info(counts: dict[str, int]) -> str:
-    lines = ["# SPEED+ builder: the Tango mock-up on a TRON-like testbed", "",
-             "One object, obj_id 1: the Tango spacecraft (procedural model, full scale, mm). Its frame is the",
-             "Tango body frame of SPEED+ labels (origin on the body, not the bounding-box centre).", "",
+def dataset_info(counts: dict[str, int], target: Target) -> str:
+    lines = [f"# SPEED+ builder: the {target.name} mock-up on a TRON-like testbed", "",
+             f"One object, obj_id 1: {target.name} (its target folder's mesh, full scale, mm). Its frame is the",
+             "body frame of the labels (the target folder's; for Tango SPEED+'s, origin on the body, not the",
+             "bounding-box centre).", "",
              "| split | images | what |", "|---|---|---|",
              f"| test | {counts['test']} | testbed captures: scene 1 light boxes, scene 2 sun lamp |",
              f"| test_twin | {counts['test_twin']} | Mitsuba twins of the test images (same scene and im_id) |",

@@ -13,21 +13,23 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.integrity import sha256
 from pipeline.config import Config
+from stages.common.workspace_target import workspace_target
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Train every variant of ``reference.variants`` missing from the ``models`` manifest."""
     from stages.reference import train
 
+    target = workspace_target(config, workspace)
     done = read_keys(workspace, "models")
     todo = [v for v in config.reference.variants if train.VARIANTS[v][0] not in done]
-    data = train.load_training_set(workspace, config.reference) if todo else None
+    data = train.load_training_set(workspace, config.reference, target) if todo else None
     for variant in todo:
         name = train.VARIANTS[variant][0]
         relpath = workspace.model_relpath(name)
         path = workspace.resolve(relpath)
         checkpoint = path.with_name(f"{name}.checkpoint.pt")
-        card = train.run(config, data, variant, path, checkpoint, tag=workspace.output_fingerprint("models"))
+        card = train.run(config, data, variant, path, target, checkpoint, tag=workspace.output_fingerprint("models"))
         held = card["held_out"]
         with open_sink(workspace, "models", 1) as sink:
             sink.add({"model": name, "path": relpath, "sha256": sha256(path),

@@ -27,7 +27,6 @@ from manifests.files import temporary_name, write_json_atomic
 from pipeline.config import Config, ReferenceConfig
 from pipeline.config.stages import ReferenceVariant
 from pipeline.progress import console, track
-from stages.common import tango
 from stages.common.heatmap_pnp import poses_from_heatmaps
 from stages.common.image_io import read_image, to_uint8
 from stages.common.pose_model import (
@@ -41,6 +40,7 @@ from stages.common.pose_model import (
     prepare,
 )
 from stages.common.scores import score
+from stages.common.target import Target
 from stages.reference.augment import augment, geometric
 
 MEAN = (0.485, 0.456, 0.406)
@@ -50,11 +50,12 @@ VARIANTS: dict[str, tuple[str, str]] = {"plain": ("reference", "photometric"),
                                         "augmented": ("reference_augmented", "robust")}
 
 
-def contract(recipe: ReferenceConfig) -> ModelContract:
+def contract(recipe: ReferenceConfig, target: Target) -> ModelContract:
+    """The evaluation contract of a model of ``target``: a heatmap per target keypoint."""
     # trained at every rotation, a square model asks evaluate to average its quarter turns
     turns = 4 if recipe.rotation and recipe.input_width == recipe.input_height else 1
     return ModelContract(recipe.input_width, recipe.input_height, "rgb", MEAN, STD, "heatmaps",
-                         tango.KEYPOINTS_M.copy(), "oracle_box", turns)
+                         np.array(target.keypoints_m, float), "oracle_box", turns, target.name)
 
 
 def wide_box(box: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -67,21 +68,21 @@ def wide_box(box: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([shifted - scale * half.max(), shifted + scale * half.max()])
 
 
-def load_training_set(workspace: Workspace, recipe: ReferenceConfig) -> dict[str, np.ndarray]:
+def load_training_set(workspace: Workspace, recipe: ReferenceConfig, target: Target) -> dict[str, np.ndarray]:
     """Inputs (N, H, W, 3) uint8 RGB cropped and resized as ``evaluate`` will, the target's
-    masks (N, H, W) uint8 cropped alike, keypoints (N, 11, 2) in input pixels, the
+    masks (N, H, W) uint8 cropped alike, keypoints (N, K, 2) in input pixels, the
     input-to-image maps (N, 3, 3) and the manifest rows; and a wide crop of each image
     (``wide_box``: ``wide_images``, ``wide_masks``, ``wide_keypoints``)."""
     rows = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
     if not rows:
         raise ValueError(f"{workspace.manifest_dir('train')}: no training images; run render --set train")
-    terms = contract(recipe)
+    terms = contract(recipe, target)
     rng = np.random.default_rng(recipe.seed + 1)
     shape = (len(rows), recipe.input_height, recipe.input_width)
     out = {"images": np.empty((*shape, 3), np.uint8), "masks": np.empty(shape, np.uint8),
-           "keypoints": np.empty((len(rows), len(tango.KEYPOINTS_M), 2)), "maps": np.empty((len(rows), 3, 3)),
+           "keypoints": np.empty((len(rows), len(target.keypoints_m), 2)), "maps": np.empty((len(rows), 3, 3)),
            "wide_images": np.empty((*shape, 3), np.uint8), "wide_masks": np.empty(shape, np.uint8),
-           "wide_keypoints": np.empty((len(rows), len(tango.KEYPOINTS_M), 2))}
+           "wide_keypoints": np.empty((len(rows), len(target.keypoints_m), 2))}
     for index, row in enumerate(track(rows, len(rows), "load training images", rows=[0] * len(rows))):
         image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
         mask = to_uint8(read_image(workspace.fetch(row["mask_path"]), "bgr"))
@@ -132,8 +133,8 @@ def _load_checkpoint(path: Path | None, tag: str) -> dict[str, Any] | None:
     return state if state.get("tag") == tag else None
 
 
-def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, variant: ReferenceVariant = "plain", *,
-          checkpoint: Path | None = None, tag: str = "") -> Any:
+def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, target: Target, variant: ReferenceVariant = "plain",
+          *, checkpoint: Path | None = None, tag: str = "") -> Any:
     """The trained ``KeypointNet`` (torch, eval mode) and its training log. With a
     ``checkpoint`` path, the state is saved after every epoch and a run with the same
     ``tag`` resumes from it: the random streams are restored with the weights, so a resumed
@@ -142,13 +143,13 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, variant: Referen
 
     from stages.reference.network import KeypointNet
 
-    terms = contract(recipe)
+    terms = contract(recipe, target)
     torch.manual_seed(recipe.seed)
     torch.set_num_threads(recipe.threads)
     rng = np.random.default_rng(recipe.seed)
     # a GPU when there is one (never required); the random streams stay on the CPU
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    model = KeypointNet(len(tango.KEYPOINTS_M), recipe.width, recipe.heatmap_stride).to(device)
+    model = KeypointNet(len(target.keypoints_m), recipe.width, recipe.heatmap_stride).to(device)
     images, masks, keypoints = data["images"], data["masks"], data["keypoints"]
     name, augmentation = VARIANTS[variant]
     steps_per_epoch = max(1, len(images) // recipe.batch_size)
@@ -208,7 +209,7 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, variant: Referen
     return model.cpu(), log
 
 
-def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[str, str]) -> None:
+def export(model: Any, recipe: ReferenceConfig, out: Path, target: Target, extra_metadata: dict[str, str]) -> None:
     """ONNX (opset ``OPSET``, IR version ``IR_VERSION``) with the contract's metadata."""
     import onnx
     import torch
@@ -223,7 +224,7 @@ def export(model: Any, recipe: ReferenceConfig, out: Path, extra_metadata: dict[
     proto.ir_version = IR_VERSION
     proto.producer_name = "speedplus train-reference"
     del proto.metadata_props[:]
-    for key, value in {**contract(recipe).metadata(), **extra_metadata}.items():
+    for key, value in {**contract(recipe, target).metadata(), **extra_metadata}.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.checker.check_model(proto)
@@ -258,7 +259,7 @@ def split_held_out(data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], 
     return {key: value[:-held] for key, value in data.items()}, {key: value[-held:] for key, value in data.items()}
 
 
-def run(config: Config, data: dict[str, np.ndarray], variant: ReferenceVariant, out: Path,
+def run(config: Config, data: dict[str, np.ndarray], variant: ReferenceVariant, out: Path, target: Target,
         checkpoint: Path | None = None, tag: str = "") -> dict[str, Any]:
     """Train one variant on ``load_training_set``'s data (resuming from ``checkpoint`` when
     it carries ``tag``), export to ``out``, score the held-out images; returns the model
@@ -269,9 +270,9 @@ def run(config: Config, data: dict[str, np.ndarray], variant: ReferenceVariant, 
     split = split_held_out(data)
     held = len(split[1]["images"])
     started = time.perf_counter()
-    model, log = train(split[0], recipe, variant, checkpoint=checkpoint, tag=tag)
+    model, log = train(split[0], recipe, target, variant, checkpoint=checkpoint, tag=tag)
     seconds = time.perf_counter() - started
-    export(model, recipe, out, {"speedplus.recipe": json.dumps(asdict(recipe)), "speedplus.variant": variant,
+    export(model, recipe, out, target, {"speedplus.recipe": json.dumps(asdict(recipe)), "speedplus.variant": variant,
                                 "speedplus.augmentation": VARIANTS[variant][1]})
     camera = train_camera(config)
     scores = held_out_scores(out, split[1], camera.camera_matrix, camera.dist)

@@ -22,7 +22,7 @@ from pipeline.progress import console, track
 from stages.common.cameras import train_camera
 from stages.common.engine import map_config
 from stages.common.sidecars import calibrated_camera
-from stages.common.workspace_target import require_builtin_mesh, workspace_target
+from stages.common.workspace_target import workspace_target
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
 from stages.render.worker import open_worker
 
@@ -51,7 +51,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     """Render every job missing from the manifest; returns the manifest."""
     name = output_name(config)
     target = workspace_target(config, workspace)
-    require_builtin_mesh(target, "the renderer")
     rejected: list[dict[str, str]] = []
     if config.render.set == "twin":
         camera = calibrated_camera(workspace)
@@ -64,7 +63,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     run_config = config.run
     threads = threads_per_worker(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
-    args = (camera, spp, config.render.max_depth, threads, config.render.ground_truth)
+    args = (camera, target, spp, config.render.max_depth, threads, config.render.ground_truth)
     produced = map_config(config, open_worker, args, "render", todo, renders=True, remote=workspace.remote)
     with open_sink(workspace, name, run_config.part_rows) as sink:
         for output in track(produced, len(todo), f"render {config.render.set} ({run_config.engine})"):

@@ -1,6 +1,6 @@
-"""The synthetic Tango in Mitsuba 3: the procedural mesh of ``stages.common.tango_mesh`` at full
-scale with physically based materials of the flight model's look (smooth gold MLI, solar
-cells, white radiator, metal antennas), black space, one directional light.
+"""The synthetic target in Mitsuba 3: its mesh at full scale with the flight model's looks
+(``stages.common.looks``: for Tango smooth gold MLI, solar cells, white radiator, metal
+antennas), black space, one directional light.
 
 The model stays in its body frame T; each image moves the camera (``target_from_cam``)
 and turns the light through ``mi.traverse``, so the acceleration structure is built once.
@@ -16,6 +16,7 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common.lens import Lens, LensCamera, pixel_rays
+from stages.common.looks import synthetic_bsdf
 from stages.common.mitsuba_adapter import (
     first_hit_on,
     load_mitsuba,
@@ -27,29 +28,15 @@ from stages.common.mitsuba_adapter import (
     set_threads,
     transform,
 )
-from stages.common.tango_mesh import tango_parts
+from stages.common.surface import shape_id
+from stages.common.target import Target
 
 
-def solar_cell_texture(cells: tuple[int, int] = (8, 12), px_per_cell: int = 24) -> np.ndarray:
-    """Diffuse reflectance (H, W, 3) of a regular solar-cell array: dark blue cells, silver
-    bus bars and a thin frame (the synthetic model's clean look; the mock-up's is noisy)."""
-    rows, cols = cells
-    h, w = rows * px_per_cell, cols * px_per_cell
-    vs, us = np.mgrid[0:h, 0:w]
-    image = np.empty((h, w, 3), np.float32)
-    image[:] = (0.02, 0.03, 0.09)
-    gap = ((us % px_per_cell) < 2) | ((vs % px_per_cell) < 2)
-    fingers = (us % (px_per_cell // 3)) == 0
-    image[fingers] = (0.12, 0.12, 0.14)
-    image[gap] = (0.55, 0.55, 0.58)
-    return image
+class TargetRenderer:
+    """A loaded scene of the synthetic target for one camera; ``render`` returns (H, W, 4)
+    linear RGBA float32 in the camera's (distorted) image, alpha = coverage of the model."""
 
-
-class TangoRenderer:
-    """A loaded synthetic-Tango scene for one camera; ``render`` returns (H, W, 4) linear
-    RGBA float32 in the camera's (distorted) image, alpha = coverage of the model."""
-
-    def __init__(self, camera: LensCamera, *, spp: int, max_depth: int, threads: int) -> None:
+    def __init__(self, camera: LensCamera, target: Target, *, spp: int, max_depth: int, threads: int) -> None:
         self.mi = mi = load_mitsuba()
         # the same thread count in every engine: part of what makes the pixels reproducible
         set_threads(threads)
@@ -64,26 +51,11 @@ class TangoRenderer:
             "sun": {"type": "directional", "direction": [0.0, 0.0, -1.0],
                     "irradiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
         }
-        for name, part in tango_parts().items():
-            objects[f"tango_{name}"] = mesh(mi, f"tango_{name}", part.vertices, part.faces, part.uv,
-                                            self._bsdf(mi, name))
+        for index, (name, part) in enumerate(target.parts.items()):  # the part ids' order (stages.common.surface)
+            objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices, part.faces, part.uv,
+                                            synthetic_bsdf(mi, target.looks.get(name), part.colour))
         self.scene = load_scene(mi, objects)
         self.params = mi.traverse(self.scene)
-
-    @staticmethod
-    def _bsdf(mi: Any, part: str) -> Any:
-        if part == "sides":  # multi-layer insulation: gold foil, a rough conductor, evenly stretched
-            return mi.load_dict({"type": "blendbsdf", "weight": 0.25,
-                                 "bsdf_0": {"type": "roughconductor", "material": "Au", "alpha": 0.35},
-                                 "bsdf_1": {"type": "diffuse",
-                                            "reflectance": {"type": "rgb", "value": [0.55, 0.4, 0.12]}}})
-        if part == "solar_panel":
-            return mi.load_dict({"type": "roughplastic", "alpha": 0.06, "int_ior": 1.5,
-                                 "diffuse_reflectance": {"type": "bitmap",
-                                                         "bitmap": mi.Bitmap(solar_cell_texture())}})
-        if part == "rear_panel":  # white radiator paint
-            return mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}})
-        return mi.load_dict({"type": "roughconductor", "material": "Al", "alpha": 0.2})
 
     def render(self, cam_from_target: np.ndarray, light_dir_cam: np.ndarray, irradiance: float,
                seed: int) -> np.ndarray:
@@ -108,7 +80,7 @@ class TangoRenderer:
         return self.lens.distort(pinhole)
 
 
-def ray_traced_mask(renderer: TangoRenderer, cam_from_target: np.ndarray) -> np.ndarray:
+def ray_traced_mask(renderer: TargetRenderer, cam_from_target: np.ndarray) -> np.ndarray:
     """Where the model covers each output pixel centre (H, W) bool, by casting one ray per
     pixel through the lens model; independent of the film, the filter and the remap."""
     camera = renderer.lens.camera

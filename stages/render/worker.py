@@ -19,13 +19,14 @@ import numpy as np
 
 from pipeline.engines import Produced
 from stages.common import geometry as g
-from stages.common import ground_truth, tango
+from stages.common import ground_truth
 from stages.common.earth import earth_background
 from stages.common.image_io import encode_png
 from stages.common.lens import LensCamera
-from stages.common.surface import TangoSurfaces
+from stages.common.surface import TargetSurfaces
+from stages.common.target import Target
 from stages.render.jobs import RenderJob
-from stages.render.scene import TangoRenderer
+from stages.render.scene import TargetRenderer
 
 EXPOSURE = 1.0
 
@@ -48,11 +49,11 @@ def mask_bbox(mask: np.ndarray) -> np.ndarray:
 class RenderWorker:
     """Renders jobs of one camera."""
 
-    def __init__(self, camera: LensCamera, spp: int, max_depth: int, threads: int,
+    def __init__(self, camera: LensCamera, target: Target, spp: int, max_depth: int, threads: int,
                  with_ground_truth: bool = True) -> None:
-        self.camera, self.spp = camera, spp
-        self.renderer = TangoRenderer(camera, spp=spp, max_depth=max_depth, threads=threads)
-        self.surfaces = TangoSurfaces(self.renderer.scene)
+        self.camera, self.spp, self.keypoints_m = camera, spp, target.keypoints_m
+        self.renderer = TargetRenderer(camera, target, spp=spp, max_depth=max_depth, threads=threads)
+        self.surfaces = TargetSurfaces(target.parts, self.renderer.scene)
         self.with_ground_truth = with_ground_truth
 
     def radiance(self, job: RenderJob) -> np.ndarray:
@@ -80,8 +81,8 @@ class RenderWorker:
         if self.with_ground_truth:
             ground_truth_path = job.ground_truth_path
             channels = ground_truth.channels_of(maps, radiance, ground_truth.RADIANCE + ground_truth.GEOMETRY)
-            files[ground_truth_path] = ground_truth.encode(channels, self.camera, job.cam_from_target())
-        keypoints = g.project(job.cam_from_target(), tango.KEYPOINTS_M, self.camera.camera_matrix, self.camera.dist)
+            files[ground_truth_path] = ground_truth.encode(channels, self.camera, job.cam_from_target(), maps.ids)
+        keypoints = g.project(job.cam_from_target(), self.keypoints_m, self.camera.camera_matrix, self.camera.dist)
         return Produced({
             "sample_id": job.sample_id, "set": job.set, "image_path": job.image_path, "mask_path": job.mask_path,
             "ground_truth_path": ground_truth_path,
@@ -93,7 +94,8 @@ class RenderWorker:
         }, files)
 
 
-def open_worker(camera: LensCamera, spp: int, max_depth: int, threads: int,
+def open_worker(camera: LensCamera, target: Target, spp: int, max_depth: int, threads: int,
                 with_ground_truth: bool = True) -> RenderWorker:
-    """Picklable factory for the engines."""
-    return RenderWorker(camera, spp, max_depth, threads, with_ground_truth)
+    """Picklable factory for the engines (the target travels whole: a cluster's workers
+    may not see the workspace's files)."""
+    return RenderWorker(camera, target, spp, max_depth, threads, with_ground_truth)

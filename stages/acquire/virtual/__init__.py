@@ -23,7 +23,7 @@ from stages.common.geometry import pose_columns
 from stages.common.image_io import encode_png
 from stages.common.kinematics import link_points
 from stages.common.patterns import board_pattern
-from stages.common.workspace_target import require_builtin_mesh, workspace_target
+from stages.common.workspace_target import workspace_target
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
 
@@ -34,7 +34,7 @@ class VirtualTestbed:
     def __init__(self, config: Config, workspace: Workspace, plan: list[dict[str, Any]] | None = None) -> None:
         self.config, self.workspace, self._plan = config, workspace, plan
         self.target = workspace_target(config, workspace)
-        require_builtin_mesh(self.target, "the virtual testbed")
+        self.body_box = mocap.body_box(self.target)
         self.payload = Payload.of(self.target)
         self.truth: Truth = draw_truth(config)
         cameras = self.truth.unmodelled.camera_by_session
@@ -47,7 +47,8 @@ class VirtualTestbed:
         self._moments: dict[str, Moment] | None = None
         self.camera_markers_rb = g.apply(g.invert(self.truth.camee_from_camrb),
                                          np.asarray(config.virtual.camera_markers_m))
-        self.target_markers_rb = g.apply(g.invert(self.truth.target_from_targetrb), mocap.target_markers(config))
+        self.target_markers_rb = g.apply(g.invert(self.truth.target_from_targetrb),
+                                         mocap.target_markers(config, self.target))
         self.target_normals_target = mocap.target_marker_normals(config)
         u = self.truth.unmodelled
         self.mocap_errors = mocap.SystemErrors(u.vicon_scale, u.vicon_camera_errors, u.vicon_reflection_bias_m)
@@ -75,7 +76,7 @@ class VirtualTestbed:
         if self._scene is None:
             from stages.acquire.virtual.scene import TestbedScene
 
-            self._scene = TestbedScene(self.config, self.sensor.geometry)
+            self._scene = TestbedScene(self.config, self.sensor.geometry, self.target)
         return self._scene
 
     def _link_segments(self, state: robots.RobotState) -> np.ndarray:
@@ -93,12 +94,12 @@ class VirtualTestbed:
         segments = self._link_segments(state)
         camera_body = mocap.observe(config, rng, self.camera_markers_rb,
                                     state.world_from_camee @ truth.camee_from_camrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target,
+                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body_box,
                                     errors=self.mocap_errors)
         target_normals = self.target_normals_target @ state.world_from_target[:3, :3].T
         target_body = mocap.observe(config, rng, self.target_markers_rb,
                                     state.world_from_target @ truth.target_from_targetrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target,
+                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body_box,
                                     config.virtual.vicon_model_noise_factor, self.mocap_errors, target_normals)
         image = self.photograph(state, session, sample["light"], list(sample["light_boxes"]), rng,
                                 seed=SESSION_CODES[session] * 1_000_000 + index)
@@ -134,17 +135,17 @@ class VirtualTestbed:
     def truth_maps(self, session: str, cam_from_target: np.ndarray) -> bytes:
         """Depth and part ids of the mock-up at its TRUE pose, through the session's true
         lens (``stages.common.ground_truth``), for evaluation only: the EXR file's bytes."""
-        from stages.common.surface import TangoSurfaces
+        from stages.common.surface import TargetSurfaces
 
         if self._surfaces is None:
-            self._surfaces = TangoSurfaces()
+            self._surfaces = TargetSurfaces(self.target.parts)
         scale = self.target.mockup_scale
         full_scale = cam_from_target.copy()
-        full_scale[:3, 3] /= scale  # the mesh is the full-scale Tango; the mock-up is it scaled
+        full_scale[:3, 3] /= scale  # the mesh is the full-scale target; the mock-up is it scaled
         camera = lens_camera(self.sensors[session].camera)
         maps = self._surfaces.through_lens(full_scale, camera)
         return ground_truth.encode(ground_truth.channels_of(maps, None, ground_truth.TRUTH, scale), camera,
-                                   cam_from_target, scale)
+                                   cam_from_target, maps.ids, scale)
 
     def photograph(self, state: robots.RobotState, session: str, light: str, boxes: list[int],
                    rng: np.random.Generator, seed: int) -> np.ndarray:

@@ -24,8 +24,7 @@ import numpy as np
 
 from pipeline.config import Config
 from stages.common import geometry as g
-from stages.common import tango
-from stages.common.workspace_target import planned_target
+from stages.common.target import Target, main_body_box
 
 MIN_CAMERAS = 2
 MIN_MARKERS = 3
@@ -100,15 +99,18 @@ def _segments_hit_box(start_box: np.ndarray, end_box: np.ndarray, low: np.ndarra
     return (t_near <= t_far) & (t_far > 0.0) & (t_near < 1.0)
 
 
-def body_box(scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds (low, high) of the model's body in T, metres at ``scale``."""
-    body = tango.KEYPOINTS_M[:8] * scale
-    return body.min(axis=0), body.max(axis=0)
+def body_box(target: Target) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds (low, high) of the mock-up's main body in T, metres at mock-up
+    scale (``target.main_body_box``): what carries the markers and hides them from cameras
+    behind it (thin appendages, such as Tango's antennas, do not)."""
+    low, high = main_body_box(target)
+    return low * target.mockup_scale, high * target.mockup_scale
 
 
-def target_markers(config: Config) -> np.ndarray:
-    """(M, 3) model marker positions in T (metres, mock-up scale), 1 cm off the surface."""
-    low, high = body_box(planned_target(config).mockup_scale)
+def target_markers(config: Config, target: Target) -> np.ndarray:
+    """(M, 3) model marker positions in T (metres, mock-up scale): ``virtual.target_markers_rel``
+    of the main body box's half extents about its centre (1.02-1.03: just off a face)."""
+    low, high = body_box(target)
     centre, half = (low + high) / 2, (high - low) / 2
     markers = centre + np.asarray(config.virtual.target_markers_rel) * half
     return markers
@@ -150,8 +152,9 @@ def triangulate(cameras: np.ndarray, seen: np.ndarray, markers_world: np.ndarray
 
 
 def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndarray,
-               world_from_target: np.ndarray) -> np.ndarray:
-    """(cameras, markers) boolean: which camera sees which marker."""
+               world_from_target: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(cameras, markers) boolean: which camera sees which marker, past the arms' links and
+    the mock-up's main body ``box`` (``body_box``)."""
     v = config.virtual
     cams = camera_positions(config)
     aim = camera_aim(config)
@@ -164,7 +167,7 @@ def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndar
     ends = np.tile(markers_world, (len(cams), 1))
     blocked = _segments_hit_capsules(starts, ends, link_segments[:, 0], link_segments[:, 1], v.vicon_link_radius_m)
     target_from_world = g.invert(world_from_target)
-    low, high = body_box(planned_target(config).mockup_scale)
+    low, high = box
     ends_box = g.apply(target_from_world, ends)
     starts_box = g.apply(target_from_world, starts)
     # shrink the sight line slightly so a marker on the surface is not hidden by its own face
@@ -183,15 +186,16 @@ def kabsch(model: np.ndarray, observed: np.ndarray) -> np.ndarray:
 
 def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, world_from_rb: np.ndarray,
             vicon_world_from_world: np.ndarray, link_segments: np.ndarray,
-            world_from_target: np.ndarray, noise_factor: float = 1.0, errors: SystemErrors | None = None,
-            normals_world: np.ndarray | None = None) -> RigidBodyObservation:
-    """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``;
+            world_from_target: np.ndarray, box: tuple[np.ndarray, np.ndarray], noise_factor: float = 1.0,
+            errors: SystemErrors | None = None, normals_world: np.ndarray | None = None) -> RigidBodyObservation:
+    """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``; the
+    mock-up's main body ``box`` (``body_box``) at ``world_from_target`` hides markers;
     ``noise_factor`` scales the marker noise (markers on reflective surfaces); ``errors``
     of the system's calibration, and the markers' surface normals (M, 3) in K when they sit
     on reflective skin."""
     v = config.virtual
     markers_world = g.apply(world_from_rb, markers_rb)
-    seen = visibility(config, markers_world, link_segments, world_from_target)
+    seen = visibility(config, markers_world, link_segments, world_from_target, box)
     cameras_seeing = seen.sum(axis=0)
     counted = cameras_seeing >= MIN_CAMERAS
     sigma = noise_factor * v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))

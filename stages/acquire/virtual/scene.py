@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 
 from pipeline.config import Config
-from stages.acquire.virtual import textures
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.lens import RenderGeometry
+from stages.common.looks import mockup_bsdf
 from stages.common.mitsuba_adapter import (
     first_hit_on,
     load_mitsuba,
@@ -28,8 +28,8 @@ from stages.common.mitsuba_adapter import (
     transform,
 )
 from stages.common.patterns import board_image, board_pattern
-from stages.common.tango_mesh import tango_parts
-from stages.common.workspace_target import planned_target
+from stages.common.surface import shape_id
+from stages.common.target import Target
 
 BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
 _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)
@@ -49,13 +49,13 @@ class TestbedScene:
 
     __test__ = False
 
-    def __init__(self, config: Config, geometry: RenderGeometry) -> None:
+    def __init__(self, config: Config, geometry: RenderGeometry, target: Target) -> None:
         self.mi = mi = load_mitsuba()
         set_one_thread()  # the same bytes whatever the workers (mitsuba_adapter.set_one_thread)
         self.config, self.geometry = config, geometry
         testbed, virtual = config.testbed, config.virtual
         rng = np.random.default_rng([virtual.seed, 0x7E57])
-        self.scale = planned_target(config).mockup_scale
+        self.scale = target.mockup_scale
         self.light_box_count = len(testbed.light_box_centres_m)
 
         objects: dict[str, Any] = {
@@ -67,10 +67,10 @@ class TestbedScene:
         objects.update(self._room(mi))
         objects.update(self._lights(mi))
         self._parts = {}
-        for name, part in tango_parts().items():
-            objects[f"model_{name}"] = mesh(mi, f"model_{name}", part.vertices * self.scale, part.faces,
-                                                  part.uv, self._mockup_bsdf(mi, name, rng))
-            self._parts[f"model_{name}"] = part.vertices * self.scale
+        for index, (name, part) in enumerate(target.parts.items()):  # textures drawn in the mesh's order
+            objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices * self.scale, part.faces, part.uv,
+                                            mockup_bsdf(mi, target.looks.get(name), rng))
+            self._parts[shape_id(index)] = part.vertices * self.scale
         self._board_vertices = self._board(mi, objects)
         self.scene = load_scene(mi, objects)
         self.params = mi.traverse(self.scene)
@@ -122,25 +122,6 @@ class TestbedScene:
                 "bsdf": covered,
             }
         return lights
-
-    def _mockup_bsdf(self, mi: Any, part: str, rng: np.random.Generator) -> Any:
-        if part == "sides":
-            # crumpled MLI: a rough gold mirror with a diffuse share from the creases
-            inner = {"type": "blendbsdf", "weight": 0.35,
-                     "bsdf_0": {"type": "roughconductor", "material": "Au", "alpha": 0.25},
-                     "bsdf_1": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.75, 0.6, 0.3]}}}
-            return mi.load_dict({"type": "normalmap", "bsdf": inner,
-                                 "normalmap": {"type": "bitmap", "raw": True,
-                                               "bitmap": mi.Bitmap(textures.foil_normal_map(rng))}})
-        if part == "solar_panel":
-            return mi.load_dict({"type": "roughplastic", "alpha": 0.04, "int_ior": 1.5,
-                                 "diffuse_reflectance": {"type": "bitmap",
-                                                         "bitmap": mi.Bitmap(textures.solar_cells(rng))}})
-        if part == "rear_panel":
-            return mi.load_dict({"type": "roughconductor", "material": "Al", "alpha": 0.09,
-                                 "specular_reflectance": {"type": "bitmap",
-                                                          "bitmap": mi.Bitmap(textures.rear_panel(rng))}})
-        return mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.55, 0.55]}})
 
     def _board(self, mi: Any, objects: dict[str, Any]) -> np.ndarray:
         """The printed ChArUco plate as a textured quad; returns its corners in T."""

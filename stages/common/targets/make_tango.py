@@ -18,7 +18,10 @@ from stages.common.tango_mesh import tango_parts
 from stages.common.targets import BUILTIN_ROOT
 
 MESH = "tango.glb"
-LOOKS = {"sides": "gold_mli", "solar_panel": "solar_cells", "rear_panel": "white_paint", "antennas": "aluminium"}
+#: (synthetic, mock-up) looks: the flight model's radiator is white paint and its antennas
+#: metal; TRON's mock-up has a bare aluminium rear plate and painted antennas
+LOOKS = {"sides": ("gold_mli", "gold_mli"), "solar_panel": ("solar_cells", "solar_cells"),
+         "rear_panel": ("white_paint", "aluminium"), "antennas": ("aluminium", "white_paint")}
 
 
 def mesh_bytes() -> bytes:
@@ -36,7 +39,7 @@ def mesh_bytes() -> bytes:
 def spec() -> TargetSpec:
     return TargetSpec("tango", MESH, "m", 0.5, 4.0, centre=tuple(float(v) for v in BODY_CENTRE_M),
                       keypoints=tuple(tuple(float(v) for v in p) for p in KEYPOINTS_M), view_axis=(0.0, 0.0, 1.0),
-                      view_names=(VIEWS[0], VIEWS[1]), looks={part: Look(look, look) for part, look in LOOKS.items()})
+                      view_names=(VIEWS[0], VIEWS[1]), looks={part: Look(*looks) for part, looks in LOOKS.items()})
 
 
 def main(folder: Path = BUILTIN_ROOT / "tango") -> None:

@@ -126,11 +126,3 @@ def test_the_mockup_settings_moved_into_the_target_folder(tmp_path):
     assert load_config("smoke", overrides=["testbed.mockup_scale=0.5", "virtual.model_mass_kg=4.0"])
     with pytest.raises(ConfigError, match=r"testbed.mockup_scale is now the target's own: set \[mockup\] scale"):
         load_config("smoke", overrides=["testbed.mockup_scale=0.3"])
-
-
-def test_the_mesh_drawing_stages_refuse_a_target_they_cannot_draw_yet(planned, tmp_path):
-    _, ws = planned
-    root = tmp_path / "w"
-    shutil.copytree(ws.root, root)
-    result = speedplus("acquire", "--workspace", str(root))
-    assert result.returncode == 1 and "cubesat6u" in result.stderr and "virtual testbed" in result.stderr

@@ -10,6 +10,7 @@ import pytest
 from manifests import Workspace, read_manifest
 from pipeline.config import load_config
 from stages.common.pose_model import PoseModel
+from stages.common.workspace_target import planned_target
 from stages.reference.train import heatmap_targets
 from tests.conftest import speedplus
 
@@ -66,7 +67,8 @@ def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(
     rng = np.random.default_rng(3)
     data = {"images": rng.integers(0, 255, (8, 64, 64, 3), dtype=np.uint8),
             "masks": rng.integers(0, 255, (8, 64, 64), dtype=np.uint8), "keypoints": rng.uniform(5, 59, (8, 11, 2))}
-    reference, _ = training.train(data, recipe, "augmented")
+    target = planned_target(load_config("smoke"))
+    reference, _ = training.train(data, recipe, target, "augmented")
 
     saved = training._save_checkpoint
     calls = []
@@ -80,13 +82,13 @@ def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(
     monkeypatch.setattr(training, "_save_checkpoint", crash_after_two_epochs)
     checkpoint = tmp_path / "reference.checkpoint.pt"
     with pytest.raises(KeyboardInterrupt):
-        training.train(data, recipe, "augmented", checkpoint=checkpoint, tag="run-a")
+        training.train(data, recipe, target, "augmented", checkpoint=checkpoint, tag="run-a")
     monkeypatch.setattr(training, "_save_checkpoint", saved)
     assert torch.load(checkpoint, weights_only=False)["step"] == 4
-    resumed, log = training.train(data, recipe, "augmented", checkpoint=checkpoint, tag="run-a")
+    resumed, log = training.train(data, recipe, target, "augmented", checkpoint=checkpoint, tag="run-a")
     assert [entry["step"] for entry in log] == [2, 4, 6]
     for name, value in reference.state_dict().items():
         assert torch.equal(value, resumed.state_dict()[name]), name
     # a checkpoint of another run (another fingerprint) is ignored, never resumed from
-    other, other_log = training.train(data, recipe, "augmented", checkpoint=checkpoint, tag="run-b")
+    other, other_log = training.train(data, recipe, target, "augmented", checkpoint=checkpoint, tag="run-b")
     assert [entry["step"] for entry in other_log] == [2, 4, 6]

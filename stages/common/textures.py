@@ -1,7 +1,7 @@
-"""Procedural textures of the physical mock-up: what makes it look unlike the CAD model.
-
-Wrinkled multi-layer-insulation foil (a normal map), a solar-cell grid with reflective
-cover glass, and a riveted aluminium rear panel with handling marks. All are numpy
+"""Procedural textures of the looks (``stages.common.looks``). The mock-up's make it look
+unlike the CAD model: wrinkled multi-layer-insulation foil (a normal map), a solar-cell
+grid with reflective cover glass, a riveted aluminium panel with handling marks and a
+mottled rock. The synthetic twin's solar cells are a clean regular grid. All are numpy
 arrays, deterministic for a seed, in texture space (row 0 = v 0, as Mitsuba reads them).
 """
 
@@ -67,3 +67,26 @@ def rear_panel(rng: np.random.Generator, size: int = 512) -> np.ndarray:
     smudges = np.clip(smooth_noise(rng, size, ((18.0, 1.0),)), 0.8, None) - 0.8
     base -= 0.25 * smudges
     return np.repeat(np.clip(base, 0.05, 1.0)[..., None], 3, axis=-1).astype(np.float32)
+
+
+def clean_solar_cells(cells: tuple[int, int] = (8, 12), px_per_cell: int = 24) -> np.ndarray:
+    """Diffuse reflectance (H, W, 3) of a regular solar-cell array: dark blue cells, silver
+    bus bars and a thin frame (the synthetic model's clean look; the mock-up's is noisy)."""
+    rows, cols = cells
+    h, w = rows * px_per_cell, cols * px_per_cell
+    vs, us = np.mgrid[0:h, 0:w]
+    image = np.empty((h, w, 3), np.float32)
+    image[:] = (0.02, 0.03, 0.09)
+    gap = ((us % px_per_cell) < 2) | ((vs % px_per_cell) < 2)
+    fingers = (us % (px_per_cell // 3)) == 0
+    image[fingers] = (0.12, 0.12, 0.14)
+    image[gap] = (0.55, 0.55, 0.58)
+    return image
+
+
+def mottled_rock(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Diffuse reflectance (H, W, 3) of a painted rock replica: grey-brown with blotches and
+    grain (the synthetic twin's rock is one flat colour)."""
+    field = smooth_noise(rng, size, ((12.0, 1.0), (3.0, 0.5), (0.8, 0.25)))
+    shade = np.clip(0.22 + 0.06 * field, 0.05, 0.6)
+    return np.stack([shade * 1.08, shade, shade * 0.9], axis=-1).astype(np.float32)
