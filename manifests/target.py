@@ -20,6 +20,12 @@ key (or the line and column of a TOML syntax error).
     [mockup]
     scale = 0.5                   # mock-up size / real size
     mass_kg = 4.0
+    fixture_q = [w, x, y, z]      # optional: where the minus_x fixture's flange frame is in
+    fixture_t = [x, y, z]         # the body frame (length_unit, full scale; flange z along +x);
+                                  # absent: 12 cm (on the mock-up) off the main body's -x face
+    board_q = [w, x, y, z]        # optional: where the calibration board lies (OpenCV ChArUco
+    board_t = [x, y, z]           # frame: origin at a corner, z into the board); absent: on the
+                                  # face the view axis points to, centred, on a 3 mm plate
     [looks]                       # optional, per mesh part: a preset of LOOK_PRESETS, or
     sides = "gold_mli"            # {synthetic = ..., mockup = ...} for two different ones
     antennas = { synthetic = "aluminium", mockup = "white_paint" }
@@ -85,6 +91,8 @@ class TargetSpec:
     view_axis: tuple[float, float, float] | None = None
     view_names: tuple[str, str] | None = None
     looks: dict[str, Look] = field(default_factory=dict)
+    fixture: Pose | None = None  # the minus_x fixture's flange frame in the body frame
+    board: Pose | None = None  # the calibration board's frame in the body frame
 
     @property
     def metres(self) -> float:
@@ -105,6 +113,9 @@ class TargetSpec:
         if self.view_axis is not None and self.view_names is not None:
             out["views"] = {"axis": list(self.view_axis), "names": list(self.view_names)}
         out["mockup"] = {"scale": self.mockup_scale, "mass_kg": self.mockup_mass_kg}
+        for name, pose in (("fixture", self.fixture), ("board", self.board)):
+            if pose is not None:
+                out["mockup"].update({f"{name}_q": list(pose.q), f"{name}_t": list(pose.t)})
         if self.looks:
             out["looks"] = {part: look.synthetic if look.synthetic == look.mockup else
                             {"synthetic": look.synthetic, "mockup": look.mockup}
@@ -217,8 +228,9 @@ def _parse(f: Fields, directory: Path) -> TargetSpec:
     name = f.text("name")
     if not NAME_PATTERN.fullmatch(name):
         raise f.fail("name", "a name of a-z, 0-9, _ and -")
-    spec = TargetSpec(name, f.text("mesh"), f.text("length_unit", tuple(LENGTH_UNITS)), *_mockup(f),
-                      *_frame(f), _keypoints(f), *_views(f), _looks(f))
+    scale, mass, fixture, board = _mockup(f)
+    spec = TargetSpec(name, f.text("mesh"), f.text("length_unit", tuple(LENGTH_UNITS)), scale, mass,
+                      *_frame(f), _keypoints(f), *_views(f), _looks(f), fixture, board)
     mesh_path(directory, spec)
     return spec
 
@@ -245,10 +257,22 @@ def to_text(document: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _mockup(f: Fields) -> tuple[float, float]:
+def _mockup(f: Fields) -> tuple[float, float, Pose | None, Pose | None]:
     mockup = f.child("mockup")
-    mockup.only("scale", "mass_kg")
-    return mockup.number("scale", positive=True), mockup.number("mass_kg", positive=True)
+    mockup.only("scale", "mass_kg", "fixture_q", "fixture_t", "board_q", "board_t")
+    poses = []
+    for name in ("fixture", "board"):
+        given = [mockup.optional(f"{name}_q"), mockup.optional(f"{name}_t")]
+        if not any(given):
+            poses.append(None)
+            continue
+        if not all(given):
+            raise mockup.fail(f"{name}_{'t' if given[0] else 'q'}", f"given with {name}_{'q' if given[0] else 't'}")
+        q = mockup.vector(f"{name}_q", 4)
+        if abs(math.sqrt(sum(v * v for v in q)) - 1.0) > 1e-6:
+            raise mockup.fail(f"{name}_q", "a unit quaternion (w, x, y, z)")
+        poses.append(Pose(tuple(map(float, q)), tuple(map(float, mockup.vector(f"{name}_t", 3)))))
+    return mockup.number("scale", positive=True), mockup.number("mass_kg", positive=True), poses[0], poses[1]
 
 
 def _frame(f: Fields) -> tuple[Pose, tuple[float, float, float] | None]:

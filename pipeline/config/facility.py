@@ -3,7 +3,6 @@ lights, and the virtual testbed's error model (units: docs/architecture.md secti
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -114,13 +113,6 @@ class TestbedConfig:
         (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
     camee_from_cam_t_m: tuple[float, float, float] = param(
         (0.0, 0.0, 0.12), "nominal camera position in the flange frame (lens 12 cm out along flange z)", "m")
-    mount_target_from_targetee_q: tuple[float, float, float, float] = param(
-        (0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)),
-        "nominal rotation of the target flange in T for the minus_x mount (flange z along +x of T); "
-        "the plus_x mount is this rotated 180 deg about T's z", "1")
-    mount_target_from_targetee_t_m: tuple[float, float, float] = param(
-        (-0.305, 0.0, 0.08), "nominal flange position in T for the minus_x mount: 12 cm stand-off "
-        "from the -x face of the half-scale model", "m")
     light_box_centres_m: tuple[tuple[float, float, float], ...] = param(
         ((0.5, 0.02, 1.3), (1.3, 0.02, 1.3), (2.1, 0.02, 1.3), (2.9, 0.02, 1.3),
          (0.5, 2.98, 1.3), (1.3, 2.98, 1.3), (2.1, 2.98, 1.3), (2.9, 2.98, 1.3),
@@ -135,12 +127,6 @@ class TestbedConfig:
     board_square_m: float = param(0.030, "ChArUco square side (TRON: 30 mm)", "m")
     board_marker_m: float = param(0.022, "ArUco marker side inside a square", "m")
     board_dictionary: str = param("DICT_5X5_100", "cv2.aruco predefined dictionary of the board")
-    target_from_board_q: tuple[float, float, float, float] = param(
-        (0.0, 1.0, 0.0, 0.0), "board frame (OpenCV ChArUco: origin at a corner, z into the board) in T: "
-        "board z along -z of T, i.e. lying on the solar panel facing out", "1")
-    target_from_board_t_m: tuple[float, float, float] = param(
-        (-0.165, 0.165, 0.16375), "board origin in T: board centred on the half-scale solar panel "
-        "(z = 0.3215 * 0.5 m) on a 3 mm plate", "m")
 
 
 @dataclass(frozen=True)

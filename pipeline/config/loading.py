@@ -75,10 +75,14 @@ def _unknown(key: str, known: list[str]) -> ConfigError:
 RENAMED: dict[str, tuple[str, Any]] = {"evaluate.model": ("evaluate.models", lambda value: [value])}
 #: keys that moved into the target folder (target.toml) -> (the value older versions wrote,
 #: the built-in Tango's, which is dropped; where another value now belongs)
-RETIRED: dict[str, tuple[float, str]] = {
+RETIRED: dict[str, tuple[Any, str]] = {
     "testbed.mockup_scale": (0.5, "[mockup] scale"),
     "testbed.mockup_mass_kg": (4.0, "[mockup] mass_kg"),
     "virtual.model_mass_kg": (4.0, "[mockup] mass_kg"),
+    "testbed.mount_target_from_targetee_q": ((0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)), "[mockup] fixture_q"),
+    "testbed.mount_target_from_targetee_t_m": ((-0.305, 0.0, 0.08), "[mockup] fixture_t (full scale)"),
+    "testbed.target_from_board_q": ((0.0, 1.0, 0.0, 0.0), "[mockup] board_q"),
+    "testbed.target_from_board_t_m": ((-0.165, 0.165, 0.16375), "[mockup] board_t (full scale)"),
 }
 
 
@@ -102,10 +106,10 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
                 name, value = RENAMED[key][0].split(".")[1], RENAMED[key][1](value)
             if key in RETIRED:
                 builtin, moved_to = RETIRED[key]
-                if value == builtin:  # the built-in Tango's, written by an older version: the target holds it
-                    continue
+                if (tuple(value) if isinstance(value, list) else value) == builtin:
+                    continue  # the built-in Tango's, written by an older version: its target folder holds it
                 raise ConfigError(f"{source}: {key} is now the target's own: set {moved_to} in the target folder's "
-                                  f"target.toml (target.path; the built-in Tango's is {builtin:g})")
+                                  f"target.toml (target.path; the built-in Tango's is {builtin})")
             if name not in field_names:
                 raise ConfigError(f"{source}: " + str(_unknown(key, known_keys)))
             try:
@@ -195,8 +199,7 @@ def _check(config: Config) -> Config:
                           "contain {sample_id}")
     if config.run.part_rows < 1:
         raise ConfigError("run.part_rows: must be at least 1")
-    for section, key in (("testbed", "camee_from_cam_q"), ("testbed", "mount_target_from_targetee_q"),
-                         ("testbed", "target_from_board_q"), ("virtual", "vicon_world_from_world_q")):
+    for section, key in (("testbed", "camee_from_cam_q"), ("virtual", "vicon_world_from_world_q")):
         q = np.asarray(getattr(config.section(section), key))
         if abs(np.linalg.norm(q) - 1.0) > 1e-6:
             raise ConfigError(f"{section}.{key}: quaternion norm {np.linalg.norm(q):.6f} is not 1")

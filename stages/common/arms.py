@@ -61,16 +61,27 @@ _COMPLIANCE = slice(37, 43)
 
 @dataclass(frozen=True)
 class Payload:
-    """What the target robot carries: the mock-up's mass (kg) and its body centre (3,) in
-    the body frame T at mock-up scale (m), where its weight acts (``Payload.of`` a target)."""
+    """What the target robot carries: the mock-up's mass (kg), its body centre (its weight)
+    (3,) in T at mock-up scale (m) and, per fixture, in the nominal target flange frame
+    (``Payload.of`` a target)."""
 
     mass_kg: float
     centre_m: tuple[float, float, float]
+    centre_in_flange_m: tuple[tuple[str, tuple[float, float, float]], ...]
 
     @classmethod
     def of(cls, target: Target) -> Payload:
         centre = np.asarray(target.centre_m, float) * target.mockup_scale
-        return cls(float(target.mockup_mass_kg), (float(centre[0]), float(centre[1]), float(centre[2])))
+        in_flange = {mount: g.apply(g.invert(layout.target_from_targetee(target, mount)), centre[None])[0]
+                     for mount in layout.MOUNT_NAMES}
+        return cls(float(target.mockup_mass_kg), (float(centre[0]), float(centre[1]), float(centre[2])),
+                   tuple((mount, tuple(float(v) for v in point)) for mount, point in in_flange.items()))
+
+    def centre_in_flange(self, fixture: str) -> np.ndarray:
+        """(3,) m: the body centre in the flange frame of ``fixture`` (one the layout does not
+        know is taken as the minus_x mount)."""
+        known = dict(self.centre_in_flange_m)
+        return np.array(known.get(fixture, known[layout.MOUNT_NAMES[0]]), float)
 
 
 @dataclass(frozen=True)
@@ -101,14 +112,6 @@ def readings(rows: list[dict[str, Any]], payload: Payload) -> Readings | None:
                     tuple(str(r.get("fixture") or "fixed") for r in rows))
 
 
-def _model_centre_in_flange(testbed: TestbedConfig, payload: Payload, fixture: str) -> np.ndarray:
-    """Where the model's weight acts in the target flange frame (nominal mount; a fixture
-    the layout does not know is taken as the minus_x mount)."""
-    mount = fixture if fixture in layout.MOUNT_NAMES else layout.MOUNT_NAMES[0]
-    centre = np.asarray(payload.centre_m, float)
-    return g.apply(g.invert(layout.target_from_targetee(testbed, mount)), centre[None])[0]
-
-
 @lru_cache(maxsize=32)
 def _torques(testbed: TestbedConfig, payload: Payload, camera: bytes, target: bytes, rail: bytes,
              fixtures: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +127,7 @@ def _torques(testbed: TestbedConfig, payload: Payload, camera: bytes, target: by
         camera_torque[i] = gravity_torques(arm, masses, layout.world_from_camera_base(testbed, rail_i), q_camera,
                                            testbed.camera_payload_kg, camera_payload)
         target_torque[i] = gravity_torques(arm, masses, layout.world_from_target_base(testbed), q_target,
-                                           payload.mass_kg, _model_centre_in_flange(testbed, payload, fixture))
+                                           payload.mass_kg, payload.centre_in_flange(fixture))
     return camera_torque, target_torque
 
 

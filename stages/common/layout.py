@@ -11,6 +11,7 @@ import numpy as np
 from manifests.schema import MOUNTS
 from pipeline.config import TestbedConfig
 from stages.common import geometry as g
+from stages.common.target import Target
 
 MOUNT_NAMES = MOUNTS
 
@@ -36,23 +37,51 @@ def camee_from_cam(testbed: TestbedConfig) -> np.ndarray:
     return g.transform_from_qt(testbed.camee_from_cam_q, testbed.camee_from_cam_t_m)
 
 
-def target_from_targetee(testbed: TestbedConfig, mount: str) -> np.ndarray:
-    """(4, 4) nominal model fixture: target flange frame T_K in T for a mount.
+def target_from_targetee(target: Target, mount: str) -> np.ndarray:
+    """(4, 4) nominal model fixture: target flange frame T_K in T for a mount, at mock-up
+    scale (``Target.fixture``).
 
-    The ``plus_x`` mounting spot is the ``minus_x`` one turned 180 degrees about T's z, so
-    that each covers the half of the views its opposite side cannot.
+    The ``plus_x`` mounting spot is the ``minus_x`` one turned 180 degrees about the body
+    centre's line along T's z, so that each covers the half of the views its opposite side
+    cannot.
     """
-    minus_x = g.transform_from_qt(testbed.mount_target_from_targetee_q, testbed.mount_target_from_targetee_t_m)
+    minus_x = g.transform_from_qt(target.fixture.q, np.asarray(target.fixture.t) * target.mockup_scale)
     if mount == "minus_x":
         return minus_x
     if mount == "plus_x":
-        return g.make_transform(g.axis_angle_matrix("z", np.pi), np.zeros(3)) @ minus_x
+        centre = np.array([target.centre_m[0], target.centre_m[1], 0.0]) * target.mockup_scale
+        half_turn = g.make_transform(g.axis_angle_matrix("z", np.pi), centre - g.axis_angle_matrix("z", np.pi) @ centre)
+        return half_turn @ minus_x
     raise ValueError(f"unknown mount {mount!r}; expected one of {MOUNT_NAMES}")
 
 
-def target_from_board(testbed: TestbedConfig) -> np.ndarray:
-    """(4, 4) ChArUco board frame (OpenCV: origin at a corner, z into the board) in T."""
-    return g.transform_from_qt(testbed.target_from_board_q, testbed.target_from_board_t_m)
+#: the calibration board's plate (m): the board's face stands this far off the mock-up
+BOARD_PLATE_M = 0.003
+
+
+def target_from_board(testbed: TestbedConfig, target: Target) -> np.ndarray:
+    """(4, 4) ChArUco board frame (OpenCV: origin at a corner, z into the board) in T at
+    mock-up scale (``board_pose``)."""
+    return g.transform_from_qt(*board_pose(testbed, target))
+
+
+def board_pose(testbed: TestbedConfig, target: Target) -> tuple[np.ndarray, np.ndarray]:
+    """(q (4,), t (3,) m at mock-up scale) of the board frame in T: the target's declared
+    one, else the testbed's board lying on the mock-up face the view axis points to,
+    centred on the body centre's line along it, printed face out, on a ``BOARD_PLATE_M``
+    plate."""
+    if target.board is not None:
+        return np.array(target.board.q, float), np.asarray(target.board.t, float) * target.mockup_scale
+    axis = target.view_axis
+    vertices = np.concatenate([part.vertices for part in target.parts.values()])
+    height = float(np.max((vertices - target.centre_m) @ axis))
+    face = (target.centre_m + height * axis) * target.mockup_scale + BOARD_PLATE_M * axis
+    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]  # the body axis least along the view axis
+    x = helper - (helper @ axis) * axis
+    x /= np.linalg.norm(x)
+    z = -axis
+    rotation = np.stack([x, np.cross(z, x), z], axis=1)
+    return g.matrix_to_quat(rotation), face - rotation @ board_centre(testbed)
 
 
 def board_centre(testbed: TestbedConfig) -> np.ndarray:

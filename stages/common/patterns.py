@@ -15,7 +15,9 @@ import cv2
 import numpy as np
 
 from pipeline.config import TestbedConfig
+from stages.common import layout
 from stages.common.image_io import to_uint8
+from stages.common.target import Target
 
 
 @dataclass(frozen=True)
@@ -115,14 +117,16 @@ def charuco_board(spec: PatternSpec) -> cv2.aruco.CharucoBoard:
     return cv2.aruco.CharucoBoard(spec.size, spec.square_m, spec.marker_m, dictionary)
 
 
-def board_pattern(testbed: TestbedConfig) -> PatternSpec:
-    """The ChArUco board fixed on the model's solar panel, checked by the one pattern
-    validator (a bad dictionary name is an error naming the configuration key)."""
+def board_pattern(testbed: TestbedConfig, target: Target) -> PatternSpec:
+    """The testbed's ChArUco board where it lies on the mock-up (``layout.target_from_board``:
+    Tango's solar panel), checked by the one pattern validator (a bad dictionary name is an
+    error naming the configuration key)."""
+    q, t = layout.board_pose(testbed, target)
     return pattern_from_table({"kind": "charuco", "size": list(testbed.board_squares),
                                "square_m": testbed.board_square_m, "marker_m": testbed.board_marker_m,
                                "dictionary": testbed.board_dictionary,
-                               "target_from_pattern_q": list(testbed.target_from_board_q),
-                               "target_from_pattern_t": list(testbed.target_from_board_t_m)},
+                               "target_from_pattern_q": [float(v) for v in q],
+                               "target_from_pattern_t": [float(v) for v in t]},
                               "configuration [testbed] board_*")
 
 

@@ -21,6 +21,8 @@ Derived here, so that every stage agrees:
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,7 +30,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from manifests.sidecars.base import Pose
 from manifests.target import (
+    IDENTITY,
     LENGTH_UNITS,
     TARGET_FILE,
     Look,
@@ -78,6 +82,12 @@ class Target:
     mockup_mass_kg: float
     looks: dict[str, Look]
     digest: str  # sha256 of the folder's files: what the stages that use the target fingerprint
+    #: the minus_x fixture's flange frame in T, full scale (the plus_x one is it turned half a
+    #: turn about T's z through the body centre); declared in [mockup], else ``derived_fixture``
+    fixture: Pose
+    #: the calibration board's frame in T, full scale, when [mockup] declares it; else None:
+    #: ``stages.common.layout.target_from_board`` lays the testbed's board on the mesh
+    board: Pose | None
 
     def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """The view name (...) of camera positions (..., 3) in the body frame, metres at the
@@ -85,6 +95,21 @@ class Target:
         that ``view_axis`` points to, else ``view_names[1]``."""
         side = (np.asarray(camera_in_target_m, float) - scale * self.centre_m) @ self.view_axis
         return np.where(side > 0, self.view_names[0], self.view_names[1])
+
+
+#: the minus_x fixture's flange axes in T: its z (out of the flange) along T's +x
+FIXTURE_Q = (0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5))
+#: the fixture's flange stands this far off the main body's -x face, on the mock-up (m)
+FIXTURE_STAND_OFF_M = 0.12
+
+
+def derived_fixture(target: Target) -> Pose:
+    """Full scale: the minus_x fixture's flange ``FIXTURE_STAND_OFF_M`` (on the mock-up)
+    beyond the main body box's -x face, level with the body centre, flange z along T's +x
+    (``FIXTURE_Q``)."""
+    low, _ = main_body_box(target)
+    position = (low[0] - FIXTURE_STAND_OFF_M / target.mockup_scale, target.centre_m[1], target.centre_m[2])
+    return Pose(FIXTURE_Q, tuple(float(v) for v in position))
 
 
 def main_body_box(target: Target) -> tuple[np.ndarray, np.ndarray]:
@@ -150,9 +175,12 @@ def load_target(directory: Path) -> Target:
         _check_keypoints(where, keypoints, centre, radius)
     axis, names = (spec.view_axis, spec.view_names) if spec.view_axis is not None else DEFAULT_VIEWS
     axis = np.asarray(axis, float)
-    return Target(spec.name, parts, keypoints, spec.keypoints is None, centre, radius, diameter,
-                  axis / np.linalg.norm(axis), tuple(names), spec.mockup_scale, spec.mockup_mass_kg, dict(spec.looks),
-                  target_digest(directory))
+    fixture, board = (None if pose is None else Pose(pose.q, tuple(v * spec.metres for v in pose.t))
+                      for pose in (spec.fixture, spec.board))
+    target = Target(spec.name, parts, keypoints, spec.keypoints is None, centre, radius, diameter,
+                    axis / np.linalg.norm(axis), tuple(names), spec.mockup_scale, spec.mockup_mass_kg,
+                    dict(spec.looks), target_digest(directory), IDENTITY, board)
+    return dataclasses.replace(target, fixture=derived_fixture(target) if fixture is None else fixture)
 
 
 def read_mesh(path: Path) -> dict[str, MeshPart]:

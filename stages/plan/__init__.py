@@ -55,7 +55,7 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
 
     def draw() -> tuple[np.ndarray, str, Reconfiguration | None]:
         if session == "calibration":
-            cam_from_target = calibration_pose(rng, plan, testbed, camera)
+            cam_from_target = calibration_pose(rng, plan, testbed, camera, target)
             mount = plan.calibration_mounts[index % len(plan.calibration_mounts)]
         else:
             cam_from_target = dataset_pose(rng, plan, target, camera, view)

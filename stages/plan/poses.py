@@ -29,14 +29,14 @@ def _inside(pixels: np.ndarray, camera: CameraConfig, margin_px: float) -> np.nd
 
 
 def calibration_pose(rng: np.random.Generator, plan: PlanConfig, testbed: TestbedConfig,
-                     camera: CameraConfig) -> np.ndarray:
+                     camera: CameraConfig, target: Target) -> np.ndarray:
     """A camera pose looking at the board: distance in ``calibration_distance_m``, boresight
     tilted from the board normal by an angle uniform in [0, max tilt], free roll.
 
     Redrawn until ``calibration_min_corner_fraction`` of the inner corners are in the image.
     """
-    target_from_board = layout.target_from_board(testbed)
-    corners_target = g.apply(target_from_board, board_pattern(testbed).object_points())
+    target_from_board = layout.target_from_board(testbed, target)
+    corners_target = g.apply(target_from_board, board_pattern(testbed, target).object_points())
     centre_board = layout.board_centre(testbed)
     for _ in range(_MAX_VISIBILITY_DRAWS):
         tilt = rng.uniform(0.0, plan.calibration_max_tilt_rad)

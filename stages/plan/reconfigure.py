@@ -80,7 +80,7 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     camera_position = origin - distance * sights[None, :, None, :]  # (P, S, 1, 3)
     world_from_cam = g.make_transform(world_from_cam_rotation[None], camera_position)  # (P, S, R, 4, 4)
     world_from_target = world_from_cam @ cam_from_target
-    world_from_targetee = world_from_target @ layout.target_from_targetee(testbed, mount)
+    world_from_targetee = world_from_target @ layout.target_from_targetee(target, mount)
     world_from_camee = world_from_cam @ g.invert(layout.camee_from_cam(testbed))
 
     base_target = layout.world_from_target_base(testbed)

@@ -86,8 +86,8 @@ def test_dataset_range_and_model_in_frame(default_config, default_plan):
 
 def test_calibration_poses_look_at_the_board(default_config, default_plan):
     testbed, plan, camera = default_config.testbed, default_config.plan, default_config.camera
-    target_from_board = layout.target_from_board(testbed)
-    corners = g.apply(target_from_board, board_pattern(testbed).object_points())
+    target_from_board = layout.target_from_board(testbed, planned_target(default_config))
+    corners = g.apply(target_from_board, board_pattern(testbed, planned_target(default_config)).object_points())
     tilts = []
     for row in default_plan[:64]:
         cam_from_board = pose(row, "cam_from_target") @ target_from_board
@@ -117,7 +117,7 @@ def test_commands_realise_the_relative_pose(default_config, default_plan):
             world_from_targetee, atol=1e-9)
         # and the flanges, through the nominal fixtures, give cam_from_target
         cam_from_target = (g.invert(world_from_camee @ layout.camee_from_cam(testbed)) @ world_from_targetee
-                           @ g.invert(layout.target_from_targetee(testbed, row["mount"])))
+                           @ g.invert(layout.target_from_targetee(planned_target(default_config), row["mount"])))
         np.testing.assert_allclose(cam_from_target, pose(row, "cam_from_target"), atol=1e-9)
         assert limit_margin(KR16_2, row["camera_joints_rad"]) >= default_config.plan.joint_limit_margin_rad - 1e-9
         assert limit_margin(KR16_2, row["target_joints_rad"]) >= default_config.plan.joint_limit_margin_rad - 1e-9
@@ -130,7 +130,7 @@ def test_target_robot_is_never_between_camera_and_model(default_config, default_
     for row in dataset(default_plan):
         world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
         world_from_target = pose(row, "world_from_targetee") @ g.invert(
-            layout.target_from_targetee(testbed, row["mount"]))
+            layout.target_from_targetee(planned_target(default_config), row["mount"]))
         centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * 0.5)[None])[0]
         sight = centre - world_from_cam[:3, 3]
         for point in (pose(row, "world_from_targetee")[:3, 3], np.asarray(testbed.target_base_m)):
@@ -148,7 +148,7 @@ def test_light_boxes(default_config, default_plan):
             # the active boxes are on the camera's side of the model: they light what it sees
             world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
             world_from_target = pose(row, "world_from_targetee") @ g.invert(
-                layout.target_from_targetee(testbed, row["mount"]))
+                layout.target_from_targetee(planned_target(default_config), row["mount"]))
             centre = g.apply(world_from_target, (tango.BODY_CENTRE_M * 0.5)[None])[0]
             facing = np.einsum("bi,i->b", centres - centre, world_from_cam[:3, 3] - centre) > 0
             if facing.sum() >= len(row["light_boxes"]):

@@ -69,7 +69,7 @@ class VirtualTestbed:
         return Session("virtual", "virtual", ("kuka", "vicon"),
                        SessionCamera(camera.width_px, camera.height_px, camera.camera_matrix().tolist(),
                                      list(camera.dist)),
-                       board_pattern(self.config.testbed).to_json(), mockup_scale=self.target.mockup_scale)
+                       board_pattern(self.config.testbed, self.target).to_json(), mockup_scale=self.target.mockup_scale)
 
     @property
     def scene(self):  # noqa: ANN201 - TestbedScene, imported lazily with Mitsuba

@@ -71,7 +71,7 @@ class TestbedScene:
             objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices * self.scale, part.faces, part.uv,
                                             mockup_bsdf(mi, target.looks.get(name), rng))
             self._parts[shape_id(index)] = part.vertices * self.scale
-        self._board_vertices = self._board(mi, objects)
+        self._board_vertices = self._board(mi, objects, target)
         self.scene = load_scene(mi, objects)
         self.params = mi.traverse(self.scene)
         names = list(self.params.keys())
@@ -123,9 +123,9 @@ class TestbedScene:
             }
         return lights
 
-    def _board(self, mi: Any, objects: dict[str, Any]) -> np.ndarray:
+    def _board(self, mi: Any, objects: dict[str, Any], target: Target) -> np.ndarray:
         """The printed ChArUco plate as a textured quad; returns its corners in T."""
-        spec = board_pattern(self.config.testbed)
+        spec = board_pattern(self.config.testbed, target)
         image = board_image(spec, px_per_m=4000.0, margin_m=BOARD_MARGIN_M)
         reflectance = (0.03 + 0.82 * (image.astype(np.float32) / 255.0))[..., None].repeat(3, axis=-1)
         m = BOARD_MARGIN_M
@@ -133,7 +133,7 @@ class TestbedScene:
         corners_board = np.array([[-m, -m, 0.0], [w + m, -m, 0.0], [w + m, h + m, 0.0], [-m, h + m, 0.0]])
         uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
         faces = np.array([[0, 2, 1], [0, 3, 2]])  # front faces -z of the board frame, towards the camera
-        corners_target = g.apply(layout.target_from_board(self.config.testbed), corners_board)
+        corners_target = g.apply(layout.target_from_board(self.config.testbed, target), corners_board)
         bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(reflectance)}})
         objects["board"] = mesh(mi, "board", corners_target + _HIDDEN_OFFSET, faces, uv, bsdf)
         return corners_target

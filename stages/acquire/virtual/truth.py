@@ -20,6 +20,8 @@ from stages.common import geometry as g
 from stages.common import layout
 from stages.common.kinematics import ArmModel, arm_model
 from stages.common.sidecars import record
+from stages.common.target import Target
+from stages.common.workspace_target import planned_target
 
 _LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 
@@ -65,12 +67,14 @@ def _perturbed_arm(rng: np.random.Generator, arm: ArmModel, sigma_m: float) -> A
     return replace(arm, name=f"{arm.name} (true)", **changes)
 
 
-def draw_truth(config: Config) -> Truth:
-    """The truth of this virtual facility; identical for the same ``virtual.seed``."""
+def draw_truth(config: Config, target: Target | None = None) -> Truth:
+    """The truth of this virtual facility holding ``target`` (default: the configured one);
+    identical for the same ``virtual.seed``."""
     v, testbed = config.virtual, config.testbed
+    target = planned_target(config) if target is None else target
     rng = np.random.default_rng([v.seed, 0xFAC7])
     arm = arm_model(testbed.robot_model)
-    mounts = {m: layout.target_from_targetee(testbed, m) @ _small_transform(
+    mounts = {m: layout.target_from_targetee(target, m) @ _small_transform(
         rng, v.model_fixture_sigma_m, v.model_fixture_sigma_rad) for m in layout.MOUNT_NAMES}
     # the model's markers sit on its body; the rigid body's frame is where the motion-capture
     # software put it when the object was defined: at the markers' centroid, axes rotated

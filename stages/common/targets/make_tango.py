@@ -8,10 +8,12 @@ that the view rule and the planner's sphere stay those of ``stages.common.tango`
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from manifests.files import write_bytes_atomic
 from manifests.schema import VIEWS
+from manifests.sidecars.base import Pose
 from manifests.target import Look, TargetSpec, write_target_spec
 from stages.common.tango import BODY_CENTRE_M, KEYPOINTS_M
 from stages.common.tango_mesh import tango_parts
@@ -36,10 +38,19 @@ def mesh_bytes() -> bytes:
     return scene.export(file_type="glb")
 
 
+#: TRON's half-scale mock-up, full scale here (the mock-up's lengths doubled, exactly): the
+#: minus_x fixture's flange 12 cm (on the mock-up) off the -x face, 8 cm up; the board on
+#: the solar panel on a 3 mm plate, its 11 x 30 mm squares centred
+SCALE = 0.5
+FIXTURE = Pose((0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)), (-0.305 / SCALE, 0.0, 0.08 / SCALE))
+BOARD = Pose((0.0, 1.0, 0.0, 0.0), (-0.165 / SCALE, 0.165 / SCALE, 0.16375 / SCALE))
+
+
 def spec() -> TargetSpec:
-    return TargetSpec("tango", MESH, "m", 0.5, 4.0, centre=tuple(float(v) for v in BODY_CENTRE_M),
+    return TargetSpec("tango", MESH, "m", SCALE, 4.0, centre=tuple(float(v) for v in BODY_CENTRE_M),
                       keypoints=tuple(tuple(float(v) for v in p) for p in KEYPOINTS_M), view_axis=(0.0, 0.0, 1.0),
-                      view_names=(VIEWS[0], VIEWS[1]), looks={part: Look(*looks) for part, looks in LOOKS.items()})
+                      view_names=(VIEWS[0], VIEWS[1]), looks={part: Look(*looks) for part, looks in LOOKS.items()},
+                      fixture=FIXTURE, board=BOARD)
 
 
 def main(folder: Path = BUILTIN_ROOT / "tango") -> None:

@@ -9,6 +9,7 @@ from stages.calibrate import arm_decision, compliance_decision
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.sources import up_targetee
+from stages.common.workspace_target import planned_target
 
 
 def config_with(**calibrate):
@@ -52,7 +53,8 @@ def test_up_direction_comes_from_the_target_flange_telemetry():
 
 
 def test_arm_kinematics_need_encoder_readings():
-    readings = arms.Readings(np.zeros((10, 6)), np.zeros((10, 6)), np.zeros(10), arms.Payload(4.0, (0.0, 0.0, 0.08)))
+    payload = arms.Payload.of(planned_target(load_config("smoke")))
+    readings = arms.Readings(np.zeros((10, 6)), np.zeros((10, 6)), np.zeros(10), payload)
     assert arm_decision(config_with(), readings) == (True, "encoder readings of 10 calibration captures")
     assert arm_decision(config_with(), None) == (False, "the captures have no encoder readings")
     assert arm_decision(config_with(arm_kinematics="off"), readings)[0] is False

@@ -5,11 +5,13 @@ import numpy as np
 from pipeline.config import load_config
 from stages.common import layout
 from stages.common.patterns import PatternSpec, board_pattern
+from stages.common.workspace_target import planned_target
 
 
 def test_charuco_corners_are_the_inner_corners_row_by_row_and_survive_json():
-    testbed = load_config("default").testbed
-    spec = board_pattern(testbed)
+    config = load_config("default")
+    testbed = config.testbed
+    spec = board_pattern(testbed, planned_target(config))
     xs, ys = np.meshgrid(np.arange(1, 11), np.arange(1, 11))
     expected = np.stack([xs.ravel(), ys.ravel(), np.zeros(100)], axis=1) * 0.030
     np.testing.assert_allclose(spec.object_points(), expected, atol=1e-12)

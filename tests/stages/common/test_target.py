@@ -2,6 +2,7 @@
 object in another unit, frame and format loads with every derived quantity, and each
 mistake a lab makes is refused naming the file and the key."""
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -12,9 +13,11 @@ import pytest
 import trimesh
 
 from manifests.target import TARGET_FILE, TargetError, read_target_spec, write_target_spec
-from stages.common import tango
+from pipeline.config import load_config
+from stages.common import geometry as g
+from stages.common import layout, tango
 from stages.common.tango_mesh import tango_parts
-from stages.common.target import CHOSEN_KEYPOINTS, feature_edges, load_target
+from stages.common.target import CHOSEN_KEYPOINTS, derived_fixture, feature_edges, load_target
 from stages.common.targets import builtin_folder, builtin_names, make_tango
 from tests.target_folders import BOULDER_KEYPOINTS, boulder, cubesat
 
@@ -212,3 +215,30 @@ def test_declared_keypoints_and_centre_are_in_the_body_frame_whatever_the_meshs_
     target = load_target(cubesat(tmp_path / "cubesat", keypoints=points, centre=(0.0, 0.0, 10.0)))
     np.testing.assert_allclose(target.keypoints_m, np.asarray(points) / 1000)
     np.testing.assert_allclose(target.centre_m, [0.0, 0.0, 0.01])
+
+
+def test_the_generic_mounts_put_tangos_board_and_fixture_where_tron_has_them():
+    """Tango declares TRON's board and fixture; the rules for a target that declares none
+    put them in the same places (the fixture level with the body centre, 0.4 mm above
+    TRON's 8 cm on the mock-up)."""
+    config = load_config("default")
+    declared = load_target(builtin_folder("tango"))
+    derived = dataclasses.replace(declared, board=None, fixture=derived_fixture(declared))
+    np.testing.assert_allclose(layout.target_from_board(config.testbed, derived),
+                               layout.target_from_board(config.testbed, declared), atol=1e-6)
+    for mount in layout.MOUNT_NAMES:
+        difference = (layout.target_from_targetee(derived, mount) - layout.target_from_targetee(declared, mount))
+        np.testing.assert_allclose(difference[:3, :3], 0, atol=1e-12)
+        np.testing.assert_allclose(difference[:3, 3], [0, 0, 0.000375], atol=1e-6)
+
+
+def test_a_stranger_target_gets_a_board_on_its_view_side_and_a_fixture_off_its_body(tmp_path):
+    config = load_config("default")
+    target = load_target(boulder(tmp_path / "boulder"))  # view axis +x, 0.8 x 0.64 x 0.48 m, full-size mock-up
+    board = layout.target_from_board(config.testbed, target)
+    centre = g.apply(board, layout.board_centre(config.testbed)[None])[0]
+    np.testing.assert_allclose(centre, [0.4 + layout.BOARD_PLATE_M, 0, 0], atol=1e-6)  # on the +x tip
+    np.testing.assert_allclose(board[:3, 2], [-1, 0, 0], atol=1e-12)  # z into the board, into the rock
+    fixture = layout.target_from_targetee(target, "minus_x")
+    np.testing.assert_allclose(fixture[:3, 3], [-0.4 - 0.12, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(fixture[:3, 2], [1, 0, 0], atol=1e-12)  # flange z along +x
