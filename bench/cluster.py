@@ -32,6 +32,7 @@ from pipeline.engines.local_cluster import ENV, LocalCluster
 from stages.acquire.virtual.sensor import lens_camera
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
+from stages.common.workspace_target import planned_target
 from stages.plan import plan_sample, sample_ids
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
@@ -57,7 +58,7 @@ def _capture_seconds(profile: str, count: int) -> float:
 
 def _render_seconds(camera: LensCamera, spp: int, max_depth: int, count: int) -> float:
     """CPU-seconds of one synthetic image (the target 4-8 m away, full scale), ground truth included."""
-    worker = RenderWorker(camera, spp, max_depth, 1)
+    worker = RenderWorker(camera, planned_target(load_config("default")), spp, max_depth, 1)
     jobs = []
     for i in range(count + 1):
         q = np.array([0.9, 0.1 * i, 0.3, 0.1])

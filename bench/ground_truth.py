@@ -20,6 +20,7 @@ from manifests import Workspace
 from pipeline.config import load_config
 from pipeline.engines import store, threads_per_worker
 from stages.common.cameras import train_camera
+from stages.common.workspace_target import planned_target
 from stages.render.jobs import train_jobs
 from stages.render.worker import RenderWorker
 
@@ -31,8 +32,9 @@ def main(count: str = "8") -> None:
     rows = []
     for label, spp in (("training image", config.render.train_spp), ("twin", config.render.spp)):
         with tempfile.TemporaryDirectory() as root:
-            workers = {on: RenderWorker(train_camera(config), spp, config.render.max_depth, threads_per_worker(1), on)
-                       for on in (False, True)}
+            target = planned_target(config)
+            workers = {on: RenderWorker(train_camera(config), target, spp, config.render.max_depth,
+                                        threads_per_worker(1), on) for on in (False, True)}
             for worker in workers.values():  # compile the kernels before timing
                 worker.render(jobs[0])
             seconds: dict[bool, list[float]] = {False: [], True: []}

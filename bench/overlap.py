@@ -38,8 +38,9 @@ def twin_overlap(config: Config, workspace: Workspace, *, at_truth: bool = True)
     plan = {row["sample_id"]: row for row in read_manifest(workspace, "plan").to_pylist()}
     truth = {row["sample_id"]: row for row in read_manifest(workspace, "truth").to_pylist()}
     labels = {row["sample_id"]: row for row in read_manifest(workspace, "labels").to_pylist()}
-    scale = workspace_target(config, workspace).mockup_scale
-    worker = RenderWorker(calibrated_camera(workspace), 16, 1, 2) if at_truth else None
+    target = workspace_target(config, workspace)
+    scale = target.mockup_scale
+    worker = RenderWorker(calibrated_camera(workspace), target, 16, 1, 2) if at_truth else None
     rows = []
     for render in read_manifest(workspace, "renders").to_pylist():
         sample_id = render["sample_id"]

@@ -22,6 +22,7 @@ from manifests import Workspace
 from pipeline.config import load_config
 from pipeline.engines import map_local, threads_per_worker
 from stages.common.cameras import train_camera
+from stages.common.workspace_target import planned_target
 from stages.render.jobs import train_jobs
 from stages.render.worker import open_worker
 
@@ -37,7 +38,9 @@ def _seconds_per_image(profile: str, count: int) -> tuple[float, float]:
     config = load_config(profile, overrides=[f"render.train_count={count + 1}"])
     jobs = train_jobs(config)
     started = time.perf_counter()
-    worker = open_worker(train_camera(config), config.render.spp, config.render.max_depth, threads_per_worker(1))
+    target = planned_target(config)
+    worker = open_worker(train_camera(config), target, config.render.spp, config.render.max_depth,
+                         threads_per_worker(1))
     worker.render(jobs[0])  # scene load and kernel compilation
     first = time.perf_counter() - started
     started = time.perf_counter()
@@ -58,7 +61,8 @@ def _throughput(workers: int, count: int, threads: int) -> float:
 
 def _memory_child(renders: int, queue: multiprocessing.Queue) -> None:
     config = load_config("default", overrides=[f"render.train_count={renders}", "render.spp=16"])
-    worker = open_worker(train_camera(config), 16, config.render.max_depth, threads_per_worker(1))
+    target = planned_target(config)
+    worker = open_worker(train_camera(config), target, 16, config.render.max_depth, threads_per_worker(1))
     samples = []
     for index, job in enumerate(train_jobs(config), start=1):
         worker.render(job)

@@ -25,7 +25,8 @@ key (or the line and column of a TOML syntax error).
                                   # absent: 12 cm (on the mock-up) off the main body's -x face
     board_q = [w, x, y, z]        # optional: where the calibration board lies (OpenCV ChArUco
     board_t = [x, y, z]           # frame: origin at a corner, z into the board); absent: on the
-                                  # face the view axis points to, centred, on a 3 mm plate
+                                  # mesh's top (+z, the fixtures hold -x and +x), centred, on a
+                                  # 3 mm plate
     [looks]                       # optional, per mesh part: a preset of LOOK_PRESETS, or
     sides = "gold_mli"            # {synthetic = ..., mockup = ...} for two different ones
     antennas = { synthetic = "aluminium", mockup = "white_paint" }

@@ -33,12 +33,14 @@ def cubesat(folder: Path, unit: str = "mm", **fields) -> Path:
     return folder
 
 
-def boulder(folder: Path) -> Path:
-    """An ellipsoidal boulder 0.8 x 0.64 x 0.48 m as one STL, keypoints and views declared."""
+def boulder(folder: Path, mass_kg: float = 3.0) -> Path:
+    """An ellipsoidal boulder 0.8 x 0.64 x 0.48 m as one STL, keypoints and views declared; a
+    hollow replica's mass (a solid 12 kg one tilts TRON's fixture by 3.5 deg, beyond its
+    first-order sag model)."""
     folder.mkdir(parents=True, exist_ok=True)
     rock = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
     rock.vertices *= [1.0, 0.8, 0.6]
     rock.export(folder / "boulder.stl")
-    write_target_spec(folder, TargetSpec("boulder", "boulder.stl", "m", 1.0, 12.0, keypoints=BOULDER_KEYPOINTS,
+    write_target_spec(folder, TargetSpec("boulder", "boulder.stl", "m", 1.0, mass_kg, keypoints=BOULDER_KEYPOINTS,
                                          view_axis=(1.0, 0.0, 0.0), view_names=("east", "west")))
     return folder

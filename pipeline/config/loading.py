@@ -182,8 +182,10 @@ def _check(config: Config) -> Config:
     r = config.render
     if r.spp < 1 or r.train_spp < 1 or r.max_depth < 1 or r.train_count < 0:
         raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
-    if not 0 < r.train_distance_m[0] <= r.train_distance_m[1]:
-        raise ConfigError(f"render.train_distance_m: expected 0 < min <= max, got {r.train_distance_m}")
+    for key, (low, high) in (("render.train_distance_m", r.train_distance_m),
+                             ("render.train_distance_diameters", r.train_distance_diameters)):
+        if not 0 <= low <= high or high == 0:
+            raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got {(low, high)}")
     if not 0 < r.train_irradiance[0] <= r.train_irradiance[1]:
         raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {r.train_irradiance}")
     if not 0 <= r.train_earth_fraction <= 1 or not 0 < r.train_resolution_scale <= 4:

@@ -201,7 +201,10 @@ class RenderConfig:
     train_count: int = param(1000, "images of the training set (render --set train --count N)", "count")
     train_distance_m: tuple[float, float] = param(
         (3.0, 10.0), "camera-to-target distance of training images, full scale (SPEED+ synthetic: a few "
-        "metres to about 10 m)", "m")
+        "metres to about 10 m); drawn uniformly where this and render.train_distance_diameters both hold", "m")
+    train_distance_diameters: tuple[float, float] = param(
+        (0.0, 1e9), "the same range in units of the target's diameter (Tango: 1.37 m); to draw in diameters "
+        "alone, open render.train_distance_m, e.g. [0, 1e9]", "1")
     train_irradiance: tuple[float, float] = param(
         (1.0, 6.0), "training images: range of the light's irradiance (log-uniform)", "W/m^2")
     train_earth_fraction: float = param(

@@ -67,12 +67,12 @@ def target_from_board(testbed: TestbedConfig, target: Target) -> np.ndarray:
 
 def board_pose(testbed: TestbedConfig, target: Target) -> tuple[np.ndarray, np.ndarray]:
     """(q (4,), t (3,) m at mock-up scale) of the board frame in T: the target's declared
-    one, else the testbed's board lying on the mock-up face the view axis points to,
-    centred on the body centre's line along it, printed face out, on a ``BOARD_PLATE_M``
-    plate."""
+    one, else the testbed's board lying on the mock-up's top (T's +z: the fixtures hold its
+    -x and +x sides), centred on the body centre's line along z, printed face out, board x
+    along T's x, on a ``BOARD_PLATE_M`` plate."""
     if target.board is not None:
         return np.array(target.board.q, float), np.asarray(target.board.t, float) * target.mockup_scale
-    axis = target.view_axis
+    axis = np.array([0.0, 0.0, 1.0])
     vertices = np.concatenate([part.vertices for part in target.parts.values()])
     height = float(np.max((vertices - target.centre_m) @ axis))
     face = (target.centre_m + height * axis) * target.mockup_scale + BOARD_PLATE_M * axis

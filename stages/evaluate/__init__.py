@@ -112,9 +112,11 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     contracts = {path: PoseModel(path, threads=1).contract for path in model_paths(config)}  # a bad model fails here
     for path, contract in contracts.items():
         if contract.target != target.name:
+            trained = workspace.resolve(workspace.model_relpath("reference"))
             raise InputError(f"{path}: a model of target {contract.target!r} (its speedplus.target), but this "
-                             f"workspace's target is {target.name!r}; train one for it with speedplus render --set "
-                             "train, then speedplus train-reference, and score W/models/reference.onnx")
+                             f"workspace's target is {target.name!r}: train one for it (speedplus train-reference "
+                             f"-w {workspace.location} --out DIR), then score it alone (--set 'evaluate.models="
+                             f"[\"{trained}\"]')")
     done = read_keys(workspace, "predictions")
     images = _items(workspace)
     batch = config.evaluate.batch_size

@@ -195,7 +195,7 @@ def write_annotations(out: Path, items: list[dict[str, Any]], cameras: dict[str,
     write_json_atomic(out / "camera.json", {"cx": float(k[0, 2]), "cy": float(k[1, 2]), "fx": float(k[0, 0]),
                                             "fy": float(k[1, 1]), "width": labels_camera.width,
                                             "height": labels_camera.height, "depth_scale": DEPTH_SCALE_MM})
-    vertices = np.unique(_triangles_mm().reshape(-1, 3), axis=0)
+    vertices = np.unique(_triangles_mm(target).reshape(-1, 3), axis=0)
     scenes: dict[str, dict[str, dict[str, Any]]] = {}
     for item in items:
         folder = scene_dir(item["set"], item["scene_id"])

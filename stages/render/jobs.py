@@ -18,6 +18,7 @@ from manifests import Workspace, read_manifest, read_success
 from manifests.sidecars import read_calibration
 from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
+from pipeline.errors import InputError
 from stages.common import geometry as g
 from stages.common.cameras import train_camera
 from stages.common.sidecars import matrix
@@ -134,19 +135,26 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
 # --------------------------------------------------------------------------- training set
 def train_jobs(config: Config, target: Target | None = None) -> list[RenderJob]:
     """``render.train_count`` jobs of ``target`` (default: the configured one):
-    SO(3)-uniform attitudes, distances uniform in ``render.train_distance_m``, the target's
+    SO(3)-uniform attitudes, distances uniform where ``render.train_distance_m`` and
+    ``render.train_distance_diameters`` (times the target's diameter) both hold, the target's
     centre uniform over the image where its bounding sphere fits, light directions uniform
     over the half-sphere facing the camera, log-uniform irradiance, the Earth behind the
     target in ``render.train_earth_fraction``."""
     r = config.render
     target = planned_target(config) if target is None else target
+    low = max(r.train_distance_m[0], r.train_distance_diameters[0] * target.diameter_m)
+    high = min(r.train_distance_m[1], r.train_distance_diameters[1] * target.diameter_m)
+    if not 0 < low <= high:
+        raise InputError(f"render.train_distance_m={r.train_distance_m} and render.train_distance_diameters="
+                         f"{r.train_distance_diameters} (x {target.diameter_m:.3g} m, the target's diameter) leave no "
+                         "distance; open one of them")
     camera = train_camera(config)
     rng = np.random.default_rng([r.seed, 0x7A1])
     quats = g.random_quats(rng, r.train_count)
     jobs = []
     k_inv = np.linalg.inv(camera.camera_matrix)
     for index in range(r.train_count):
-        distance = rng.uniform(*r.train_distance_m)
+        distance = rng.uniform(low, high)
         radius_px = target.radius_m / distance * camera.camera_matrix[0, 0] + r.margin_px
         lows = np.array([radius_px, radius_px])
         highs = np.array([camera.width - 1 - radius_px, camera.height - 1 - radius_px])

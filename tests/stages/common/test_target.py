@@ -232,13 +232,13 @@ def test_the_generic_mounts_put_tangos_board_and_fixture_where_tron_has_them():
         np.testing.assert_allclose(difference[:3, 3], [0, 0, 0.000375], atol=1e-6)
 
 
-def test_a_stranger_target_gets_a_board_on_its_view_side_and_a_fixture_off_its_body(tmp_path):
+def test_a_stranger_target_gets_a_board_on_its_top_and_a_fixture_off_its_body(tmp_path):
     config = load_config("default")
-    target = load_target(boulder(tmp_path / "boulder"))  # view axis +x, 0.8 x 0.64 x 0.48 m, full-size mock-up
+    target = load_target(boulder(tmp_path / "boulder"))  # 0.8 x 0.64 x 0.48 m, a full-size mock-up
     board = layout.target_from_board(config.testbed, target)
     centre = g.apply(board, layout.board_centre(config.testbed)[None])[0]
-    np.testing.assert_allclose(centre, [0.4 + layout.BOARD_PLATE_M, 0, 0], atol=1e-6)  # on the +x tip
-    np.testing.assert_allclose(board[:3, 2], [-1, 0, 0], atol=1e-12)  # z into the board, into the rock
+    np.testing.assert_allclose(centre, [0, 0, 0.24 + layout.BOARD_PLATE_M], atol=1e-6)  # on its top
+    np.testing.assert_allclose(board[:3, 2], [0, 0, -1], atol=1e-12)  # z into the board, into the rock
     fixture = layout.target_from_targetee(target, "minus_x")
     np.testing.assert_allclose(fixture[:3, 3], [-0.4 - 0.12, 0, 0], atol=1e-6)
     np.testing.assert_allclose(fixture[:3, 2], [1, 0, 0], atol=1e-12)  # flange z along +x

@@ -17,6 +17,7 @@ from stages.common.cameras import train_camera
 from stages.common.ground_truth import GroundTruthError
 from stages.common.tango import KEYPOINTS_M
 from stages.common.tango_mesh import tango_parts
+from stages.common.workspace_target import planned_target
 from stages.render.jobs import train_jobs
 from stages.render.worker import EXPOSURE, RenderWorker, to_srgb8
 
@@ -29,7 +30,7 @@ def rendered(tmp_path_factory):
     root = tmp_path_factory.mktemp("ground_truth")
     config = load_config("default", None, ["render.train_spp=4"])
     camera = train_camera(config)
-    worker = RenderWorker(camera, 4, config.render.max_depth, 2)
+    worker = RenderWorker(camera, planned_target(config), 4, config.render.max_depth, 2)
     rows = [store(Workspace(root), worker.render(job)) for job in train_jobs(config)[:6]]
     rows = [row for row in rows if "rejected" not in row]
     assert len(rows) == 6
@@ -130,7 +131,7 @@ def test_radiance_is_the_png_before_its_tone_map(rendered):
 
 def test_the_switch_turns_the_ground_truth_off(tmp_path):
     config = load_config("smoke", None, ["render.train_spp=2"])
-    worker = RenderWorker(train_camera(config), 2, config.render.max_depth, 2, False)
+    worker = RenderWorker(train_camera(config), planned_target(config), 2, config.render.max_depth, 2, False)
     produced = worker.render(train_jobs(config)[0])
     assert produced.value["ground_truth_path"] is None and not any(p.endswith(".exr") for p in produced.files)
 
@@ -147,7 +148,7 @@ def test_a_bad_file_is_an_error_naming_file_and_key(rendered, tmp_path):
     channels = {name: files[0].channels[name] for name in ground_truth.TRUTH}
     for header, key in ((json.dumps({"version": 99}), "version"), ("not json", "top level")):
         other = tmp_path / f"{key.replace(' ', '_')}.exr"
-        ground_truth.write(other, channels, camera, files[0].cam_from_target)
+        ground_truth.write(other, channels, camera, files[0].cam_from_target, files[0].part_ids)
         _rewrite_header(other, header)
         with pytest.raises(GroundTruthError, match=rf"{other.name}: header speedplus:ground_truth, key \(?{key}"):
             ground_truth.read(other)

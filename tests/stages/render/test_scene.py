@@ -8,6 +8,7 @@ from stages.acquire.virtual.sensor import lens_camera
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.tango_mesh import tango_parts
+from stages.common.workspace_target import planned_target
 from stages.render.jobs import RenderJob
 from stages.render.scene import TangoRenderer, ray_traced_mask
 from stages.render.worker import mask_bbox
@@ -84,7 +85,7 @@ def test_job_pose_round_trip():
 def test_a_target_outside_the_image_is_rejected_not_written(tmp_path):
     from stages.render.worker import RenderWorker
 
-    worker = RenderWorker(lens_camera(load_config("smoke").camera), 4, 2, 2)
+    worker = RenderWorker(lens_camera(load_config("smoke").camera), planned_target(load_config("smoke")), 4, 2, 2)
     job = RenderJob("img000001", "twin", (1.0, 0.0, 0.0, 0.0), (40.0, 0.0, 8.0), (0.0, 0.0, -1.0), 3.0, False, 1)
     outside = worker.render(job)
     assert outside.value == {"sample_id": "img000001", "rejected": "the target covers no pixel of the image"}
