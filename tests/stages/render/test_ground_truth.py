@@ -90,7 +90,7 @@ def test_depth_and_normals_at_each_visible_corner_give_its_depth(rendered):
             x, y = int(round(u)), int(round(v))
             if not visible or not (0 <= x < camera.width and 0 <= y < camera.height):
                 continue
-            if file.channels["part"][y, x] not in (1, 2, 3):
+            if file.channels["part"][y, x] not in [file.part_ids[n] for n in ("solar_panel", "rear_panel", "sides")]:
                 continue  # the pixel centre is off the silhouette or on an antenna in front
             point = np.array([file.channels[f"P.{a}"][y, x] for a in "XYZ"], float)
             normal = np.array([file.channels[f"N.{a}"][y, x] for a in "XYZ"], float)
@@ -107,8 +107,11 @@ def test_depth_and_normals_at_each_visible_corner_give_its_depth(rendered):
 
 def test_part_ids_mean_their_parts_and_match_the_mask(rendered):
     root, _, rows, files = rendered
-    panel_normal = {2: np.array([0, 0, 1.0]), 3: np.array([0, 0, -1.0])}  # solar panel +z, rear panel -z
     for row, file in zip(rows, files, strict=True):
+        # the header names the ids: the background, then the mesh's parts in order
+        assert file.part_ids == {"background": 0, "solar_panel": 1, "rear_panel": 2, "sides": 3, "antennas": 4}
+        panel_normal = {file.part_ids["solar_panel"]: np.array([0, 0, 1.0]), file.part_ids["rear_panel"]: np.array(
+            [0, 0, -1.0])}
         part = file.channels["part"]
         assert set(np.unique(part)) <= {0, 1, 2, 3, 4} and (part == np.round(part)).all()
         mask = cv2.imread(str(root / row["mask_path"]), cv2.IMREAD_UNCHANGED) > 0

@@ -1,4 +1,5 @@
-"""The synthetic Tango renderer against the geometry core: same camera, same pixels."""
+"""The synthetic target renderer (the built-in Tango) against the geometry core: same
+camera, same pixels."""
 
 import numpy as np
 import pytest
@@ -10,14 +11,14 @@ from stages.common import tango
 from stages.common.tango_mesh import tango_parts
 from stages.common.workspace_target import planned_target
 from stages.render.jobs import RenderJob
-from stages.render.scene import TangoRenderer, ray_traced_mask
+from stages.render.scene import TargetRenderer, ray_traced_mask
 from stages.render.worker import mask_bbox
 
 
 @pytest.fixture(scope="module")
 def renderer():
     camera = lens_camera(load_config("default").camera)  # 960 x 600 with the SPEED+ lens distortion
-    return TangoRenderer(camera, spp=4, max_depth=2, threads=2)
+    return TargetRenderer(camera, planned_target(load_config("default")), spp=4, max_depth=2, threads=2)
 
 
 def random_poses(seed, n):
