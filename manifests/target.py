@@ -27,6 +27,9 @@ key (or the line and column of a TOML syntax error).
     board_t = [x, y, z]           # frame: origin at a corner, z into the board); absent: on the
                                   # mesh's top (+z, the fixtures hold -x and +x), centred, on a
                                   # 3 mm plate
+    [symmetries]                  # optional (BOP's models_info): poses that map the mesh onto itself
+    discrete = [[16 numbers], ...]    # 4 x 4 row-major body-frame transforms (translation in length_unit)
+    continuous = [{ axis = [0, 0, 1], offset = [0, 0, 0] }]   # rotation about an axis through offset
     [looks]                       # optional, per mesh part: a preset of LOOK_PRESETS, or
     sides = "gold_mli"            # {synthetic = ..., mockup = ...} for two different ones
     antennas = { synthetic = "aluminium", mockup = "white_paint" }
@@ -47,6 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+import numpy as np
 import tomli_w
 
 from manifests.files import write_bytes_atomic
@@ -94,6 +98,10 @@ class TargetSpec:
     looks: dict[str, Look] = field(default_factory=dict)
     fixture: Pose | None = None  # the minus_x fixture's flange frame in the body frame
     board: Pose | None = None  # the calibration board's frame in the body frame
+    #: 4 x 4 row-major transforms (16,) in the body frame, translation in length_unit
+    symmetries_discrete: tuple[tuple[float, ...], ...] = ()
+    #: (axis (3,), offset (3,) in length_unit) of each continuous symmetry
+    symmetries_continuous: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
 
     @property
     def metres(self) -> float:
@@ -117,6 +125,11 @@ class TargetSpec:
         for name, pose in (("fixture", self.fixture), ("board", self.board)):
             if pose is not None:
                 out["mockup"].update({f"{name}_q": list(pose.q), f"{name}_t": list(pose.t)})
+        if self.symmetries_discrete or self.symmetries_continuous:
+            out["symmetries"] = {
+                **({"discrete": [list(m) for m in self.symmetries_discrete]} if self.symmetries_discrete else {}),
+                **({"continuous": [{"axis": list(a), "offset": list(o)} for a, o in self.symmetries_continuous]}
+                   if self.symmetries_continuous else {})}
         if self.looks:
             out["looks"] = {part: look.synthetic if look.synthetic == look.mockup else
                             {"synthetic": look.synthetic, "mockup": look.mockup}
@@ -223,7 +236,8 @@ def read_target_spec(directory: Path) -> TargetSpec:
 
 def _parse(f: Fields, directory: Path) -> TargetSpec:
     data = f.data
-    f.only("format_version", "name", "mesh", "length_unit", "frame", "keypoints", "views", "mockup", "looks")
+    f.only("format_version", "name", "mesh", "length_unit", "frame", "keypoints", "views", "mockup", "symmetries",
+           "looks")
     if data.get("format_version") != TARGET_FORMAT_VERSION:
         raise f.fail("format_version", f"{TARGET_FORMAT_VERSION} (this program reads version {TARGET_FORMAT_VERSION})")
     name = f.text("name")
@@ -231,7 +245,7 @@ def _parse(f: Fields, directory: Path) -> TargetSpec:
         raise f.fail("name", "a name of a-z, 0-9, _ and -")
     scale, mass, fixture, board = _mockup(f)
     spec = TargetSpec(name, f.text("mesh"), f.text("length_unit", tuple(LENGTH_UNITS)), scale, mass,
-                      *_frame(f), _keypoints(f), *_views(f), _looks(f), fixture, board)
+                      *_frame(f), _keypoints(f), *_views(f), _looks(f), fixture, board, *_symmetries(f))
     mesh_path(directory, spec)
     return spec
 
@@ -315,6 +329,40 @@ def _views(f: Fields) -> tuple[tuple[float, float, float] | None, tuple[str, str
         raise views.fail("names", "two different names of a-z, 0-9, _ and - (positive side first; not \"all\", "
                                   "which Table 2 uses for both)")
     return tuple(map(float, axis)), (names[0], names[1])
+
+
+def _symmetries(f: Fields) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[tuple[float, float, float],
+                                                                              tuple[float, float, float]], ...]]:
+    """BOP's symmetries, checked as transforms (``load_target`` checks them on the mesh)."""
+    if not f.optional("symmetries"):
+        return (), ()
+    symmetries = f.child("symmetries")
+    symmetries.only("discrete", "continuous")
+    discrete = []
+    for index, matrix in enumerate(symmetries.raw("discrete") if symmetries.optional("discrete") else []):
+        key = f"discrete.{index}"
+        numbers = isinstance(matrix, list) and all(isinstance(v, int | float) and not isinstance(v, bool)
+                                                   for v in matrix)
+        if not numbers or len(matrix) != 16 or not np.all(np.isfinite(matrix)):
+            raise symmetries.fail(key, "16 finite numbers: a 4 x 4 transform, row-major")
+        transform = np.asarray(matrix, float).reshape(4, 4)
+        rotation = transform[:3, :3]
+        if (not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0
+                or not np.array_equal(transform[3], [0, 0, 0, 1])):
+            raise symmetries.fail(key, "a rigid transform (an orthonormal rotation, last row 0 0 0 1)")
+        discrete.append(tuple(float(v) for v in matrix))
+    continuous = []
+    for index, entry in enumerate(symmetries.raw("continuous") if symmetries.optional("continuous") else []):
+        if not isinstance(entry, dict):
+            raise symmetries.fail(f"continuous.{index}", "a table { axis = [x, y, z], offset = [x, y, z] }")
+        item = Fields(entry, symmetries.where, f"{symmetries.key('continuous')}.{index}.")
+        item.only("axis", "offset")
+        axis = item.vector("axis", 3)
+        if math.sqrt(sum(v * v for v in axis)) < 1e-9:
+            raise item.fail("axis", "a non-zero direction")
+        offset = item.vector("offset", 3) if item.optional("offset") else (0.0, 0.0, 0.0)
+        continuous.append((tuple(map(float, axis)), tuple(map(float, offset))))
+    return tuple(discrete), tuple(continuous)
 
 
 def _looks(f: Fields) -> dict[str, Look]:

@@ -88,6 +88,10 @@ class Target:
     #: the calibration board's frame in T, full scale, when [mockup] declares it; else None:
     #: ``stages.common.layout.target_from_board`` lays the testbed's board on the mesh
     board: Pose | None
+    #: BOP's symmetries in the body frame: (4, 4) transforms, translation in m; (axis (3,) unit,
+    #: offset (3,) m) rotations of any angle
+    symmetries_discrete: tuple[np.ndarray, ...] = ()
+    symmetries_continuous: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
     def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """The view name (...) of camera positions (..., 3) in the body frame, metres at the
@@ -180,7 +184,12 @@ def load_target(directory: Path) -> Target:
     target = Target(spec.name, parts, keypoints, spec.keypoints is None, centre, radius, diameter,
                     axis / np.linalg.norm(axis), tuple(names), spec.mockup_scale, spec.mockup_mass_kg,
                     dict(spec.looks), target_digest(directory), IDENTITY, board)
-    return dataclasses.replace(target, fixture=derived_fixture(target) if fixture is None else fixture)
+    discrete = tuple(_metres(np.asarray(m, float).reshape(4, 4), spec.metres) for m in spec.symmetries_discrete)
+    _check_symmetries(where, discrete, vertices, diameter)
+    continuous = tuple((np.asarray(a, float) / np.linalg.norm(a), np.asarray(o, float) * spec.metres)
+                       for a, o in spec.symmetries_continuous)
+    return dataclasses.replace(target, fixture=derived_fixture(target) if fixture is None else fixture,
+                               symmetries_discrete=discrete, symmetries_continuous=continuous)
 
 
 def read_mesh(path: Path) -> dict[str, MeshPart]:
@@ -254,6 +263,29 @@ def _check_size(where: Path, spec: TargetSpec, diameter: float) -> None:
     raise TargetError(f"{where}: key length_unit / mockup.scale: the mesh is {diameter:.4g} m across at full scale, "
                       f"{mockup:.4g} m as a mock-up at scale {spec.mockup_scale:g}, outside what a testbed holds "
                       f"({low:g}-{high:g} m); with length_unit = \"{other}\" the mock-up would be {as_other:.4g} m")
+
+
+def _metres(transform: np.ndarray, metres: float) -> np.ndarray:
+    out = transform.copy()
+    out[:3, 3] *= metres
+    return out
+
+
+#: a declared discrete symmetry must put every vertex this close (share of the diameter) to one
+SYMMETRY_TOLERANCE = 0.01
+
+
+def _check_symmetries(where: Path, discrete: tuple[np.ndarray, ...], vertices: np.ndarray, diameter: float) -> None:
+    """Each discrete symmetry maps the mesh onto itself: every vertex lands near a vertex."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(vertices)
+    for index, transform in enumerate(discrete):
+        distance, _ = tree.query(g.apply(transform, vertices))
+        if distance.max() > SYMMETRY_TOLERANCE * diameter:
+            raise TargetError(f"{where}: key symmetries.discrete.{index}: moves a vertex {distance.max():.4g} m from "
+                              f"any vertex of the mesh (more than {SYMMETRY_TOLERANCE:.0%} of its {diameter:.4g} m): "
+                              "not a symmetry of this mesh (another unit or frame?)")
 
 
 def _check_keypoints(where: Path, keypoints: np.ndarray, centre: np.ndarray, radius: float) -> None:

@@ -147,12 +147,25 @@ def model_info(triangles: np.ndarray) -> dict[str, float]:
             "size_x": float(high[0] - low[0]), "size_y": float(high[1] - low[1]), "size_z": float(high[2] - low[2])}
 
 
+def symmetries_mm(target: Target) -> dict[str, Any]:
+    """BOP's ``symmetries_discrete`` (4 x 4 row-major, mm) and ``symmetries_continuous``
+    (axis, offset mm) of the target folder's ``[symmetries]``; none when it declares none."""
+    out: dict[str, Any] = {}
+    if target.symmetries_discrete:
+        scaled = [np.concatenate([m[:3, :3], m[:3, 3:] * 1000.0], axis=1) for m in target.symmetries_discrete]
+        out["symmetries_discrete"] = [[float(v) for v in np.vstack([m, [0, 0, 0, 1]]).ravel()] for m in scaled]
+    if target.symmetries_continuous:
+        out["symmetries_continuous"] = [{"axis": [float(v) for v in axis], "offset": [float(v) * 1000 for v in offset]}
+                                        for axis, offset in target.symmetries_continuous]
+    return out
+
+
 def write_models(out: Path, target: Target) -> None:
     triangles = _triangles_mm(target)
     write_bytes_atomic(out / "models" / f"obj_{OBJ_ID:06d}.ply", ply_bytes(triangles, target.name))
     write_bytes_atomic(out / "models_eval" / f"obj_{OBJ_ID:06d}.ply",
                        ply_bytes(_subdivide(triangles, EVAL_EDGE_MM), target.name))
-    info = {str(OBJ_ID): model_info(triangles)}  # no symmetries entry: the target folder declares none
+    info = {str(OBJ_ID): {**model_info(triangles), **symmetries_mm(target)}}
     write_json_atomic(out / "models" / "models_info.json", info)
     write_json_atomic(out / "models_eval" / "models_info.json", info)
 
@@ -231,5 +244,6 @@ def dataset_info(counts: dict[str, int], target: Target) -> str:
              "Images are undistorted to each scene's cam_K. Poses are the testbed's fused labels (test), the",
              "same labels (test_twin) or the rendered poses (train_pbr). Masks are the model's silhouette at that",
              "pose (ray-cast at pixel centres); nothing occludes the model, so mask_visib = mask. Depth (uint16,",
-             "mm = value * depth_scale) exists for the synthetic splits only. No symmetries."]
+             "mm = value * depth_scale) exists for the synthetic splits only. Symmetries: those the target",
+             "folder declares (models_info.json), none otherwise."]
     return "\n".join(lines) + "\n"

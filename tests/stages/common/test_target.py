@@ -242,3 +242,26 @@ def test_a_stranger_target_gets_a_board_on_its_top_and_a_fixture_off_its_body(tm
     fixture = layout.target_from_targetee(target, "minus_x")
     np.testing.assert_allclose(fixture[:3, 3], [-0.4 - 0.12, 0, 0], atol=1e-6)
     np.testing.assert_allclose(fixture[:3, 2], [1, 0, 0], atol=1e-12)  # flange z along +x
+
+
+def test_declared_symmetries_are_checked_on_the_mesh_and_reach_bops_models_info(tmp_path):
+    from stages.export.bop import symmetries_mm
+
+    folder = tmp_path / "box"
+    folder.mkdir()
+    trimesh.creation.box((400.0, 300.0, 200.0)).export(folder / "box.stl")  # mm, centred on the origin
+    half_turn = [-1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # about z: the box onto itself
+    (folder / TARGET_FILE).write_text('format_version = 1\nname = "box"\nmesh = "box.stl"\nlength_unit = "mm"\n'
+                                      f"[mockup]\nscale = 1.0\nmass_kg = 2.0\n[symmetries]\ndiscrete = [{half_turn}]\n"
+                                      "continuous = [{ axis = [0, 0, 2], offset = [0, 0, 10] }]\n")
+    info = symmetries_mm(load_target(folder))
+    assert info["symmetries_discrete"] == [[float(v) for v in half_turn]]
+    assert info["symmetries_continuous"] == [{"axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 10.0]}]
+    quarter_turn = [0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # 400 x 300: not onto itself
+    text = (folder / TARGET_FILE).read_text().replace(str(half_turn), str(quarter_turn))
+    (folder / TARGET_FILE).write_text(text)
+    with pytest.raises(TargetError, match=r"target.toml: key symmetries.discrete.0: moves a vertex"):
+        load_target(folder)
+    (folder / TARGET_FILE).write_text(text.replace(str(quarter_turn), str([2, 0, 0, 0] + half_turn[4:])))
+    with pytest.raises(TargetError, match=r"key symmetries.discrete.0: expected a rigid transform"):
+        load_target(folder)
