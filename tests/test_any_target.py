@@ -23,8 +23,8 @@ from tests.stages.export.test_bop import load_ply, project
 from tests.target_folders import boulder, cubesat
 
 #: SPEED+'s 6.5-9.5 m of Tango (1.37 m across) in target diameters: any size, the same pictures;
-#: 40 calibration captures (smoke: 16), enough for the arms' calibration to carry to 3-4 m
-IN_DIAMETERS = ("--set", "plan.n_calibration=40", "--set", "plan.dataset_range_m=[0, 1e9]", "--set",
+#: 24 calibration captures (smoke: 16), enough for the arms' calibration to carry to 3-4 m
+IN_DIAMETERS = ("--set", "plan.n_calibration=24", "--set", "plan.dataset_range_m=[0, 1e9]", "--set",
                 "plan.dataset_range_diameters=[4.75, 6.94]", "--set", "render.train_distance_m=[0, 1e9]", "--set",
                 "render.train_distance_diameters=[2.2, 7.3]")
 TINY_MODEL = ("--set", "reference.images=40", "--set", "reference.variants=[\"plain\"]", "--set",
@@ -74,7 +74,8 @@ def test_the_labels_keypoints_land_on_the_twin_where_they_are_visible(made):
             nearest = twin.channels["Z"][row, column]
             if nearest < z - 0.02 * target.diameter_m:
                 continue  # the body hides it (NaN: just off the silhouette's rim, where it must touch it)
-            window = (slice(max(row - 1, 0), row + 2), slice(max(column - 1, 0), column + 2))
+            # 2 px: a corner of a wing thinner than a pixel, seen edge-on, can miss the pixel centres next to it
+            window = (slice(max(row - 2, 0), row + 3), slice(max(column - 2, 0), column + 3))
             assert (twin.channels["part"][window] > 0).any(), (label["sample_id"], u, v)
             checked += 1
     keypoints = len(target.keypoints_m) * len(read_manifest(ws, "labels"))
@@ -85,13 +86,13 @@ def test_twins_overlap_the_mockup_in_the_testbed_captures(made):
     """At the true pose the twin (through the calibrated lens) covers the capture's
     silhouette (through the true one) but for its rim pixels; at the label, the labels'
     errors show: a few mm at 3-4 m, more for a robots-only label (motion capture rejected)
-    on a smoke facility whose dataset poses the arms' calibration reaches from 40 captures."""
+    on a smoke facility whose dataset poses the arms' calibration reaches from 24 captures."""
     _, ws, _, _ = made
     rows = twin_overlap(load_config(None, ws.config_path), ws)
     assert min(r["iou_truth"] for r in rows) > 0.96  # one set of conventions, whatever the target
     labels = sorted(r["iou_label"] for r in rows)
     fused = [r["iou_label"] for r in rows if r["label_source"] == "fused"]
-    assert labels[0] > 0.85 and np.median(labels) > 0.95 and min(fused, default=1.0) > 0.95, rows
+    assert labels[0] > 0.9 and np.median(labels) > 0.95 and min(fused, default=1.0) > 0.94, rows
 
 
 def test_a_run_without_a_model_of_the_target_says_so_and_how_to_make_one(made):

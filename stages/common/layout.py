@@ -72,15 +72,9 @@ def board_pose(testbed: TestbedConfig, target: Target) -> tuple[np.ndarray, np.n
     along T's x, on a ``BOARD_PLATE_M`` plate."""
     if target.board is not None:
         return np.array(target.board.q, float), np.asarray(target.board.t, float) * target.mockup_scale
-    axis = np.array([0.0, 0.0, 1.0])
-    vertices = np.concatenate([part.vertices for part in target.parts.values()])
-    height = float(np.max((vertices - target.centre_m) @ axis))
-    face = (target.centre_m + height * axis) * target.mockup_scale + BOARD_PLATE_M * axis
-    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]  # the body axis least along the view axis
-    x = helper - (helper @ axis) * axis
-    x /= np.linalg.norm(x)
-    z = -axis
-    rotation = np.stack([x, np.cross(z, x), z], axis=1)
+    top = max(float(part.vertices[:, 2].max()) for part in target.parts.values())
+    face = np.array([target.centre_m[0], target.centre_m[1], top]) * target.mockup_scale + [0.0, 0.0, BOARD_PLATE_M]
+    rotation = np.diag([1.0, -1.0, -1.0])  # board x along T's x, its z down into the mock-up
     return g.matrix_to_quat(rotation), face - rotation @ board_centre(testbed)
 
 
