@@ -6,6 +6,7 @@ given a reference model of its own, scored, reported and exported, and the produ
 read back with the consumers' own rules."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -32,26 +33,32 @@ TINY_MODEL = ("--set", "reference.images=40", "--set", "reference.variants=[\"pl
               "--set", "reference.width=4", "--set", "reference.batch_size=8")
 
 
+def chain(name: str, root: Path) -> tuple[Path, dict]:
+    """The whole chain for one target, as a lab runs it: the folder and each command's result."""
+    folder = (cubesat if name == "cubesat" else boulder)(root / "lab" / name)
+    ws = root / "w"
+    models = f"evaluate.models=[\"{ws / 'models' / 'reference.onnx'}\"]"
+    steps = {"until render": speedplus("run", "--profile", "smoke", "--workspace", str(ws), "--target", str(folder),
+                                       *IN_DIAMETERS, "--until", "render")}
+    if name == "cubesat":  # before it has a model: the run stops at evaluate, saying why
+        steps["run without a model"] = speedplus("run", "--workspace", str(ws))
+    steps.update({"train": speedplus("train-reference", "--workspace", str(ws), "--out", str(root / "models"),
+                                     *TINY_MODEL),
+                  "evaluate and report": speedplus("run", "--workspace", str(ws), "--set", models),
+                  "speedplus": speedplus("export", "--workspace", str(ws), "--format", "speedplus", "--out",
+                                         str(root / "speedplus")),
+                  "bop": speedplus("export", "--workspace", str(ws), "--format", "bop", "--out", str(root / "bop"))})
+    return folder, steps
+
+
 @pytest.fixture(scope="module", params=["cubesat", "boulder"])
 def made(request, tmp_path_factory):
-    """The whole chain for one target; the folder, the workspace and the exports."""
+    """One target's chain: the target, its workspace, its root folder and the results."""
     root = tmp_path_factory.mktemp(request.param)
-    folder = (cubesat if request.param == "cubesat" else boulder)(root / "lab" / request.param)
-    ws = root / "w"
-    steps = {"until render": speedplus("run", "--profile", "smoke", "--workspace", str(ws), "--target", str(folder),
-                                       *IN_DIAMETERS, "--until", "render"),
-             "run without a model": speedplus("run", "--workspace", str(ws)),
-             "train": speedplus("train-reference", "--workspace", str(ws), "--out", str(root / "models"),
-                                *TINY_MODEL),
-             "evaluate": speedplus("evaluate", "--workspace", str(ws), "--set",
-                                   f"evaluate.models=[\"{ws / 'models' / 'reference.onnx'}\"]"),
-             "report": speedplus("report", "--workspace", str(ws)),
-             "speedplus": speedplus("export", "--workspace", str(ws), "--format", "speedplus", "--out",
-                                    str(root / "speedplus")),
-             "bop": speedplus("export", "--workspace", str(ws), "--format", "bop", "--out", str(root / "bop"))}
+    folder, steps = chain(request.param, root)
     for name, result in steps.items():
         assert (result.returncode == 0) == (name != "run without a model"), (name, result.stderr[-2000:])
-    return load_target(folder), Workspace(ws), root, steps
+    return load_target(folder), Workspace(root / "w"), root, steps
 
 
 def test_labels_carry_the_targets_keypoints_and_views(made):
@@ -97,6 +104,8 @@ def test_twins_overlap_the_mockup_in_the_testbed_captures(made):
 
 def test_a_run_without_a_model_of_the_target_says_so_and_how_to_make_one(made):
     target, _, _, steps = made
+    if "run without a model" not in steps:
+        pytest.skip("asked of the CubeSat only")
     said = " ".join(steps["run without a model"].stderr.split())
     assert f"this workspace's target is '{target.name}'" in said and "speedplus train-reference" in said
     assert "Traceback" not in said

@@ -1,7 +1,8 @@
 """The shared domain layer every stage may import, and which imports no stage: frames and
 transforms (``geometry``), the camera lens model (``lens``), robot kinematics and the
-testbed layout, the Tango model, calibration patterns, the fusion maths, the RWHE model of
-the measurement sources, image I/O (OpenImageIO) and the Mitsuba adapter.
+testbed layout, the target (its folder, looks, the built-in Tango), calibration patterns,
+the fusion maths, the RWHE model of the measurement sources, image I/O (OpenImageIO) and
+the Mitsuba adapter.
 
 A stage package (``stages/<name>/``) imports this package, ``manifests`` and
 ``pipeline.config`` (with ``errors``, ``progress``, ``engines``), never another stage;

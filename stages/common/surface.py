@@ -44,7 +44,7 @@ class SurfaceMaps:
     """What each pixel centre sees; every array (H, W[, 3]) float32, NaN where ``part`` is 0.
 
     depth_m: z of the hit in the camera frame (m). normal_cam: unit geometric normal in the
-    camera frame, turned towards the camera. body_m: the hit in Tango body coordinates (m).
+    camera frame, turned towards the camera. body_m: the hit in body coordinates (m).
     part: ``PART_IDS`` index (uint8).
     """
 

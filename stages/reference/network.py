@@ -1,4 +1,4 @@
-"""The reference keypoint CNN: a small encoder-decoder that outputs one heatmap per Tango
+"""The reference keypoint CNN: a small encoder-decoder that outputs one heatmap per target
 keypoint at half (``stride`` 2) or a quarter (4) of the input resolution (torch; imported
 only by training).
 
