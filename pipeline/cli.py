@@ -289,6 +289,7 @@ def acquire_command(
     backend: Annotated[str | None, typer.Option("--backend", help=key_help("acquire.backend"))] = None,
     format_: Annotated[str | None, typer.Option("--format", help=key_help("acquire.format"))] = None,
     source: Annotated[Path | None, typer.Option("--source", help=key_help("acquire.source"))] = None,
+    target: TargetOption = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the acquire stage: drive the testbed (virtual) or ingest a recorded session (replay)."""
@@ -299,7 +300,8 @@ def acquire_command(
         overrides.append(Override.of("acquire.format", format_, "--format"))
     if source is not None:
         overrides.append(Override.of("acquire.source", str(source.resolve()), "--source"))
-    _run(["acquire"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
+    _run(["acquire"], workspace, profile, config, _target(overrides, target), force,
+         _engine(engine, ray_address, workers))
 
 
 @app.command("render")

@@ -21,6 +21,7 @@ from pipeline.engines import Produced, store
 from pipeline.progress import track
 from stages.acquire.backend import Testbed
 from stages.common.engine import map_config
+from stages.common.workspace_target import install
 
 
 def open_testbed(config: Config, root: str, plan: list[dict[str, Any]] | None = None) -> Testbed:
@@ -68,7 +69,10 @@ def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str,
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    """Capture every sample missing from the manifests; returns the ``captures`` table."""
+    """Capture every sample missing from the manifests; returns the ``captures`` table. A
+    replayed session has no plan: the configured target is copied into ``W/target`` here."""
+    if config.acquire.backend != "virtual":
+        install(config, workspace)
     testbed = open_testbed(config, str(workspace.root))
     samples = testbed.samples()
     write_session(workspace, testbed.session())

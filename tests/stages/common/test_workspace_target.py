@@ -126,3 +126,15 @@ def test_the_mockup_settings_moved_into_the_target_folder(tmp_path):
     assert load_config("smoke", overrides=["testbed.mockup_scale=0.5", "virtual.model_mass_kg=4.0"])
     with pytest.raises(ConfigError, match=r"testbed.mockup_scale is now the target's own: set \[mockup\] scale"):
         load_config("smoke", overrides=["testbed.mockup_scale=0.3"])
+
+
+def test_a_replayed_session_gets_its_target_copied_too(tmp_path):
+    """A recording has no plan: acquire copies the target (real data: Ali et al.'s KUKA)."""
+    from tests.stages.acquire.test_handeye import kuka_folder
+
+    source = kuka_folder(tmp_path / "kuka", images=3)
+    folder = boulder(tmp_path / "boulder")
+    result = speedplus("acquire", "-w", str(tmp_path / "w"), "--backend", "replay", "--format", "handeye",
+                       "--source", str(source), "--target", str(folder))
+    assert result.returncode == 0, result.stderr
+    assert target_digest(tmp_path / "w" / "target") == target_digest(folder)
