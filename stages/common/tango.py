@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.schema import VIEWS
-
 #: The 11 public SPEED+ keypoints (11, 3), full scale, metres. 0-3: solar-panel face
 #: (z = 0.3215); 4-7: the opposite face (z = 0); 8-10: antenna tips.
 KEYPOINTS_M = np.array([
@@ -32,15 +30,3 @@ KEYPOINTS_M.setflags(write=False)
 SOLAR_PANEL_Z_M = 0.3215
 #: Centre of the body's bounding box, full scale (m).
 BODY_CENTRE_M = np.array([0.0, 0.0, SOLAR_PANEL_Z_M / 2])
-#: Radius of a sphere about BODY_CENTRE_M enclosing every keypoint, full scale (m).
-BOUNDING_RADIUS_M = float(np.max(np.linalg.norm(KEYPOINTS_M - BODY_CENTRE_M, axis=1)))
-
-
-def view_of(camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """Visible side for camera positions (..., 3) in T, metres at the given model scale.
-
-    ``"solar_panel"`` when the camera is on the +z side of the body's mid-plane (it sees
-    the +z face), else ``"rear_panel"``.
-    """
-    camera_in_target_m = np.asarray(camera_in_target_m, dtype=float)
-    return np.where(camera_in_target_m[..., 2] > scale * BODY_CENTRE_M[2], VIEWS[0], VIEWS[1])
