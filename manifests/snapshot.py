@@ -118,6 +118,10 @@ class Snapshot:
                 relpath = path.relative_to(root).as_posix()
                 if path.is_file() and relpath not in before:
                     path.unlink()
+        target = root / TARGET_DIR
+        if target.is_dir() and not any(p.is_file() for p in target.rglob("*")) and not any(
+                name.startswith(f"{TARGET_DIR}/") for name in before):
+            shutil.rmtree(target)  # a folder the command made (a target copied in) goes with its files
         manifests = root / MANIFESTS_DIR
         if manifests.is_dir():
             for path in sorted(manifests.iterdir()):

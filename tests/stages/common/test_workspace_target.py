@@ -138,3 +138,18 @@ def test_a_replayed_session_gets_its_target_copied_too(tmp_path):
                        "--source", str(source), "--target", str(folder))
     assert result.returncode == 0, result.stderr
     assert target_digest(tmp_path / "w" / "target") == target_digest(folder)
+
+
+def test_a_failed_command_puts_the_workspaces_target_back(tmp_path):
+    from tests.stages.acquire.test_handeye import kuka_folder
+
+    source = kuka_folder(tmp_path / "kuka", images=3)
+    ws = tmp_path / "w"
+    assert speedplus("acquire", "-w", str(ws), "--backend", "replay", "--format", "handeye", "--source",
+                     str(source)).returncode == 0  # the built-in Tango
+    before = target_digest(ws / "target")
+    (source / "dataset.toml").write_text((source / "dataset.toml").read_text().replace(
+        'layout = "rowmajor4x4"', 'layout = "rowmajor"'))
+    failed = speedplus("acquire", "-w", str(ws), "--force", "--target", str(boulder(tmp_path / "boulder")))
+    assert failed.returncode == 1 and "layout" in failed.stderr
+    assert target_digest(ws / "target") == before and not (ws / ".target.new").exists()
