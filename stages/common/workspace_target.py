@@ -5,6 +5,9 @@ folder the lab edits or moves later cannot change a workspace behind its fingerp
 
 from __future__ import annotations
 
+import hashlib
+import os
+import pickle
 import shutil
 from functools import lru_cache
 from pathlib import Path
@@ -44,16 +47,44 @@ def workspace_target(config: Config, workspace: Workspace | None) -> Target:
 
 
 def cached_target(folder: Path) -> Target:
-    """``load_target``, loaded once per process for a given content (workers ask per sample)."""
+    """``load_target``, once per process for a given content, and kept in the user's cache
+    between processes: reading a mesh costs a command or a worker most of a second (trimesh's
+    import, the hull), unpickling a few milliseconds."""
     return _load(str(Path(folder).resolve()), target_digest(folder))
 
 
 @lru_cache(maxsize=4)
 def _load(folder: str, digest: str) -> Target:
+    # keyed by the folder's content and by the code that derives a Target from it
+    path = _cache_dir() / f"{hashlib.sha256((digest + _code_digest()).encode()).hexdigest()[:32]}.pickle"
+    try:
+        cached = pickle.loads(path.read_bytes())
+        if isinstance(cached, Target) and cached.digest == digest:
+            return cached
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError, ValueError):
+        pass  # none yet, or written by other code: load the folder
     target = load_target(Path(folder))
-    if target.digest != digest:  # changed while it was read: the next call loads it again
-        _load.cache_clear()
+    if target.digest == digest:  # not changed while it was read
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            temporary = path.with_name(f".{path.name}.{os.getpid()}")
+            temporary.write_bytes(pickle.dumps(target))
+            temporary.replace(path)
+        except OSError:
+            pass  # a read-only cache only costs the next process the load
     return target
+
+
+def _cache_dir() -> Path:
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "speedplus" / "targets"
+
+
+@lru_cache(maxsize=1)
+def _code_digest() -> str:
+    import manifests.target as spec_module
+    import stages.common.target as target_module
+
+    return hashlib.sha256(b"".join(Path(m.__file__).read_bytes() for m in (spec_module, target_module))).hexdigest()
 
 
 def install(config: Config, workspace: Workspace) -> None:
