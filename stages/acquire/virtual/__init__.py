@@ -36,7 +36,7 @@ class VirtualTestbed:
         self.target = workspace_target(config, workspace)
         self.body_box = mocap.body_box(self.target)
         self.payload = Payload.of(self.target)
-        self.truth: Truth = draw_truth(config)
+        self.truth: Truth = draw_truth(config, self.target)
         cameras = self.truth.unmodelled.camera_by_session
         self.sensor = Sensor(cameras["calibration"], config.virtual)
         # the dataset session's camera may have drifted: same pinhole render, another lens map
