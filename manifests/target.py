@@ -338,6 +338,9 @@ def _symmetries(f: Fields) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[t
         return (), ()
     symmetries = f.child("symmetries")
     symmetries.only("discrete", "continuous")
+    for name in ("discrete", "continuous"):
+        if symmetries.optional(name) and not isinstance(symmetries.raw(name), list):
+            raise symmetries.fail(name, "a list")
     discrete = []
     for index, matrix in enumerate(symmetries.raw("discrete") if symmetries.optional("discrete") else []):
         key = f"discrete.{index}"

@@ -266,3 +266,6 @@ def test_declared_symmetries_are_checked_on_the_mesh_and_reach_bops_models_info(
     (folder / TARGET_FILE).write_text(text.replace(str(quarter_turn), str([2, 0, 0, 0] + half_turn[4:])))
     with pytest.raises(TargetError, match=r"key symmetries.discrete.0: expected a rigid transform"):
         load_target(folder)
+    (folder / TARGET_FILE).write_text(text.split("[symmetries]")[0] + "[symmetries]\ndiscrete = 5\n")
+    with pytest.raises(TargetError, match=r"key symmetries.discrete: expected a list"):
+        load_target(folder)
