@@ -34,7 +34,7 @@ SPEEDPLUS_TRANSLATION = 2.173e-3
 #: nominal arms, rigid fixtures, the calibrated sigmas as they are: no variance factor, no
 #: motion-capture scale growth (lost motion needs calibrated arms: off with them)
 PAPERS_METHOD = ("calibrate.fixture_compliance=off", "calibrate.arm_kinematics=off", "fuse.sigma_scale=calibration",
-                 "fuse.vicon_scale_sigma=0")
+                 "fuse.vicon_scale_sigma=0", "fuse.session_offset=off")
 
 
 def table1_rows(ws: Workspace, method: str) -> list[dict[str, Any]]:

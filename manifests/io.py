@@ -28,7 +28,7 @@ import pyarrow.parquet as pq
 
 from manifests.files import fsync_dir, write_json_atomic, write_table_file
 from manifests.integrity import damage
-from manifests.schema import MANIFESTS, NAME_PATTERN, SCHEMA_VERSION, Column, ManifestSpec
+from manifests.schema import MANIFESTS, NAME_PATTERN, READABLE_VERSIONS, SCHEMA_VERSION, Column, ManifestSpec
 from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
 
 QUATERNION_TOLERANCE = 1e-6
@@ -294,6 +294,12 @@ def open_sink(workspace: Workspace, name: str, part_rows: int) -> PartSink:
 
 
 # ------------------------------------------------------------------------------------ read
+def _same_columns(schema: pa.Schema, spec: ManifestSpec) -> bool:
+    """The part's columns are the spec's, by name and type (an older version's part that
+    this version did not change)."""
+    return [(f.name, f.type) for f in schema] == [(c.name, c.field().type) for c in spec.columns]
+
+
 def _read_part(path: Path, spec: ManifestSpec, source: str) -> pa.Table:
     try:
         table = pq.read_table(path)
@@ -301,7 +307,7 @@ def _read_part(path: Path, spec: ManifestSpec, source: str) -> pa.Table:
         raise ManifestError(source, f"not a readable Parquet file ({error})") from None
     metadata = table.schema.metadata or {}
     version = metadata.get(b"speedplus.schema_version", b"").decode()
-    if version != SCHEMA_VERSION:
+    if version != SCHEMA_VERSION and not (version in READABLE_VERSIONS and _same_columns(table.schema, spec)):
         raise ManifestError(source, f"schema version {version or 'missing'}, this program reads {SCHEMA_VERSION}; "
                                     "rerun the stage with --force")
     manifest = metadata.get(b"speedplus.manifest", b"").decode()

@@ -17,6 +17,10 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 SCHEMA_VERSION = "1.8"  # 1.8: a target's own keypoint count and view names
+#: older versions whose parts still read when their columns' names and types are this
+#: version's: 1.7 differs only in the keypoint columns' fixed length (11) and the view
+#: columns' enumeration, so a 1.7 plan, captures or truth (a kept recording) reads as it is
+READABLE_VERSIONS = ("1.7",)
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)

@@ -1,5 +1,6 @@
 """``W/fusion.json``: the dataset session's a posteriori variance factor, which scales the
-calibrated sigmas in fuse (docs/architecture.md section 6). Written by fuse; read by the
+calibrated sigmas in fuse, and the offset between the sources it removed before fusing
+(docs/architecture.md section 6). Written by fuse; read by the
 benchmarks and tests that judge the sigmas."""
 
 from __future__ import annotations
@@ -10,9 +11,10 @@ from typing import Any
 from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
-FUSION_VERSION = 2
+FUSION_VERSION = 3  # 3: the session offset
 #: where a position axis's label comes from: both sources fused, or one of them alone
 AXIS_SOURCES = ("fused", "kuka", "vicon")
+SOURCES = ("kuka", "vicon")
 
 
 @dataclass(frozen=True)
@@ -28,16 +30,25 @@ class FusionRecord:
     rejection_k: float
     axis_sources: tuple[str, str, str] = ("fused", "fused", "fused")
     axis_why: str = ""
+    #: per camera axis (m): the mean by which motion capture's position exceeded the robots'
+    #: on the session's accepted two-source captures, removed from the source named in
+    #: ``offset_from`` before fusing; its standard error; why (zeros when not estimated)
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    offset_sigma_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    offset_from: tuple[str, str, str] = ("vicon", "vicon", "vicon")
+    offset_why: str = ""
 
     def to_json(self) -> dict[str, Any]:
         return {"version": FUSION_VERSION,
                 "variance_factor": {"t": list(self.factor_t), "r": self.factor_r, "samples": self.samples},
                 "why": self.why, "rejection_k": self.rejection_k,
-                "axes": {"sources": list(self.axis_sources), "why": self.axis_why}}
+                "axes": {"sources": list(self.axis_sources), "why": self.axis_why},
+                "offset": {"t_m": list(self.offset_m), "sigma_m": list(self.offset_sigma_m),
+                           "removed_from": list(self.offset_from), "why": self.offset_why}}
 
     @classmethod
     def from_fields(cls, f: Fields) -> FusionRecord:
-        f.only("version", "variance_factor", "why", "rejection_k", "axes")
+        f.only("version", "variance_factor", "why", "rejection_k", "axes", "offset")
         factor = f.child("variance_factor")
         factor.only("t", "r", "samples")
         t = factor.vector("t", 3)
@@ -48,8 +59,16 @@ class FusionRecord:
         sources = axes.raw("sources")
         if not isinstance(sources, list) or len(sources) != 3 or any(s not in AXIS_SOURCES for s in sources):
             raise axes.fail("sources", f"a list of three of {', '.join(AXIS_SOURCES)}")
+        offset = f.child("offset")
+        offset.only("t_m", "sigma_m", "removed_from", "why")
+        removed_from = offset.raw("removed_from")
+        if not isinstance(removed_from, list) or len(removed_from) != 3 or any(s not in SOURCES for s in removed_from):
+            raise offset.fail("removed_from", f"a list of three of {', '.join(SOURCES)}")
+        if min(offset.vector("sigma_m", 3)) < 0:
+            raise offset.fail("sigma_m", "three standard errors >= 0")
         return cls(t, factor.number("r", positive=True), factor.integer("samples"), f.text("why"),
-                   f.number("rejection_k", positive=True), tuple(sources), axes.text("why"))
+                   f.number("rejection_k", positive=True), tuple(sources), axes.text("why"),
+                   offset.vector("t_m", 3), offset.vector("sigma_m", 3), tuple(removed_from), offset.text("why"))
 
 
 def write_fusion(workspace: Workspace, record: FusionRecord) -> None:

@@ -9,11 +9,14 @@ a posteriori variance factor: how much the two sources disagree on its own captu
 beyond what those sigmas predict (``W/fusion.json``). On an axis where that disagreement
 fails a 95% test of consistency, the source with the smaller sigma there is kept alone
 (``axis_sources``): two sources cannot tell which of them is off, and fusing would let the
-worse pull the better.
+worse pull the better. Elsewhere the mean difference of the two on the session is first
+removed from the source with the larger sigma (``session_offset``), so that only the
+capture-to-capture errors are fused.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -165,6 +168,68 @@ def session_factor(config: Config, estimates: list[Estimates], vicon: SourceMode
     return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
 
 
+def smaller_sigma(estimates: list[Estimates], kuka: SourceModel, vicon: SourceModel) -> tuple[np.ndarray, str]:
+    """Per camera axis (3,) the source whose sigma is smaller (median over the two-source
+    captures; "kuka" or "vicon"), and the medians in words."""
+    both = [e for e in estimates if e.tracked]
+    sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in both], axis=0)
+    sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m for e in both], axis=0)
+    words = ", ".join(f"{a} {k * 1000:.2f}/{v * 1000:.2f}" for a, k, v in zip("xyz", sigma_kuka, sigma_vicon,
+                                                                              strict=True))
+    return np.where(sigma_kuka <= sigma_vicon, "kuka", "vicon"), f"median sigma robots/motion capture (mm): {words}"
+
+
+@dataclass(frozen=True)
+class SessionOffset:
+    """Per camera axis (m): motion capture's mean excess over the robots on the session, its
+    standard error, and the source it is removed from (the one whose sigma is larger)."""
+
+    t_m: np.ndarray  # (3,)
+    sigma_m: np.ndarray  # (3,)
+    removed_from: tuple[str, str, str]
+    why: str
+
+    def apply(self, kuka: np.ndarray, vicon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Both positions (3,) with the offset removed from the larger-sigma source."""
+        from_vicon = np.array([source == "vicon" for source in self.removed_from])
+        return kuka + np.where(from_vicon, 0.0, self.t_m), vicon - np.where(from_vicon, self.t_m, 0.0)
+
+
+NO_OFFSET = SessionOffset(np.zeros(3), np.zeros(3), ("vicon",) * 3, "")
+
+
+def session_offset(config: Config, estimates: list[Estimates], kuka: SourceModel, vicon: SourceModel | None,
+                   rejection: Sigma | None, factor: VarianceFactor) -> SessionOffset:
+    """The mean difference (motion capture minus robots, per camera axis) over the session's
+    two-source captures that pass the rejection test, each weighted by the inverse variance
+    of its predicted difference.
+
+    Why: both sources were calibrated at close range, so at the dataset's range each errs
+    mostly by one offset per session (the rail's and the wand's scale, offsets extrapolated
+    from the calibration's lever), the same on every capture. Inverse-variance fusion treats
+    errors as independent from capture to capture; fusing two session offsets helps on
+    average but harms wherever the better source drew the smaller one, which two sources
+    cannot see. With the difference of the offsets removed from the larger-sigma source,
+    the labels keep that source's own offset and fuse only what varies between captures,
+    which the session's many captures do average. The standard error is the weighted
+    mean's, scaled by the factor."""
+    if vicon is None or rejection is None or config.fuse.session_offset == "off":
+        return dataclasses.replace(NO_OFFSET, why="one source" if vicon is None else "fuse.session_offset = off")
+    both = [e for e in estimates if e.tracked]
+    if len(both) < config.fuse.min_scale_samples:
+        return dataclasses.replace(NO_OFFSET, why=f"{len(both)} two-source captures < "
+                                   f"fuse.min_scale_samples ({config.fuse.min_scale_samples}): none removed")
+    difference = np.stack([e.vicon[:3, 3] - e.kuka[:3, 3] for e in both])
+    offset = np.median(difference, axis=0)
+    predicted = np.stack([e.plus_parameters(vicon.sigma_at(e.kuka, rejection)).t_m for e in both])
+    # a median's standard error is sqrt(pi / 2) times the mean's
+    sigma = np.sqrt(np.pi / 2) * factor.t * np.sqrt(np.mean(predicted**2, axis=0) / len(both))
+    larger = tuple("vicon" if source == "kuka" else "kuka" for source in smaller_sigma(estimates, kuka, vicon)[0])
+    words = ", ".join(f"{a} {o * 1000:+.2f} +- {e * 1000:.2f}" for a, o, e in zip("xyz", offset, sigma, strict=True))
+    return SessionOffset(offset, sigma, larger, f"median of motion capture minus robots on {len(both)} captures "
+                         f"(mm): {words}; removed from {'/'.join(larger)}")
+
+
 def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, vicon: SourceModel | None,
                  factor: VarianceFactor) -> tuple[tuple[str, str, str], str]:
     """Per camera axis, where the labels' position comes from (``AXIS_SOURCES``), and why.
@@ -177,37 +242,33 @@ def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, 
     the disagreement's variance over the predicted, since that excess may be its own."""
     if vicon is None or config.fuse.inconsistent_axes == "fuse":
         return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
-    both = [e for e in estimates if e.tracked]
     inconsistent = factor.inconsistent()
-    sources, reasons = [], []
-    for axis, name in enumerate("xyz"):
-        if not inconsistent[axis]:
-            sources.append("fused")
-            continue
-        sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m[axis] for e in both])
-        sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m[axis] for e in both])
-        sources.append("kuka" if sigma_kuka <= sigma_vicon else "vicon")
-        reasons.append(f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
-                       f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures); "
-                       f"sigma robots {sigma_kuka * 1000:.2f} mm, motion capture {sigma_vicon * 1000:.2f} mm: "
-                       f"{sources[-1]} alone")
-    return tuple(sources), "; ".join(reasons) or "the sources agree within their sigmas on every axis"
+    smaller, medians = smaller_sigma(estimates, kuka, vicon)
+    sources = tuple(str(smaller[axis]) if inconsistent[axis] else "fused" for axis in range(3))
+    reasons = [f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
+               f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures): "
+               f"{sources[axis]} alone" for axis, name in enumerate("xyz") if inconsistent[axis]]
+    if not reasons:
+        return sources, "the sources agree within their sigmas on every axis"
+    return sources, f"{'; '.join(reasons)} ({medians})"
 
 
 def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
-                 factor: VarianceFactor, rejection_k: float,
-                 sources: tuple[str, ...] = ("fused",) * 3) -> dict[str, Any]:
-    """One ``poses`` row; ``sources``: per camera axis, fused or one source alone (``axis_sources``)."""
+                 factor: VarianceFactor, rejection_k: float, sources: tuple[str, ...] = ("fused",) * 3,
+                 offset: SessionOffset = NO_OFFSET) -> dict[str, Any]:
+    """One ``poses`` row; ``sources``: per camera axis, fused or one source alone
+    (``axis_sources``); ``offset``: removed before fusing (``session_offset``)."""
     calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
-    reason, excess = "no motion capture in this session", np.zeros(3)
+    reason = "no motion capture in this session"
     if vicon is not None:
         predicted = e.plus_parameters(vicon.sigma_at(e.kuka, rejection))
-        reason = rejection_reason(e.kuka, e.vicon, factor.scale(predicted), rejection_k)
-        # the disagreement's variance beyond the prediction may all be the kept source's own
-        excess = (factor.t**2 - 1) * predicted.t_m**2
+        kuka_pose, vicon_pose = e.kuka.copy(), None if e.vicon is None else e.vicon.copy()
+        if e.tracked:  # tested and fused without the session's offset: only what varies by capture
+            kuka_pose[:3, 3], vicon_pose[:3, 3] = offset.apply(e.kuka[:3, 3], e.vicon[:3, 3])
+        reason = rejection_reason(kuka_pose, vicon_pose, factor.scale(predicted), rejection_k)
     if reason is None:
         calibrated_vicon = vicon.sigma_at(e.vicon)
-        fused, sigma = fuse(e.kuka, factor.scale(calibrated_kuka), e.vicon, factor.scale(calibrated_vicon))
+        fused, sigma = fuse(kuka_pose, factor.scale(calibrated_kuka), vicon_pose, factor.scale(calibrated_vicon))
     else:
         fused, sigma = e.kuka.copy(), factor.scale(calibrated_kuka)
     t_m = sigma.t_m.copy()
@@ -215,7 +276,9 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
         if source != "fused":  # motion capture alone where it passed the rejection test, else the robots
             mocap = source == "vicon" and reason is None
             pose, alone = (e.vicon, calibrated_vicon) if mocap else (e.kuka, calibrated_kuka)
-            fused[axis, 3], t_m[axis] = pose[axis, 3], np.sqrt(alone.t_m[axis] ** 2 + excess[axis])
+            # the session's factor scales the kept source as it scales both where they fuse:
+            # which of the two the disagreement's excess belongs to cannot be told
+            fused[axis, 3], t_m[axis] = pose[axis, 3], factor.t[axis] * alone.t_m[axis]
     return {"sample_id": e.row["sample_id"], **g.pose_columns("kuka_cam_from_target", e.kuka),
             **g.pose_columns("vicon_cam_from_target", e.vicon if e.tracked else None), "vicon_accepted": reason is None,
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
@@ -234,13 +297,17 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
     factor, why = session_factor(config, estimates, vicon, rejection)
     sources, axis_why = axis_sources(config, estimates, kuka, vicon, factor)
+    offset = session_offset(config, estimates, kuka, vicon, rejection, factor)
     write_fusion(workspace, FusionRecord(tuple(float(v) for v in factor.t), float(factor.r), factor.samples, why,
-                                         config.fuse.rejection_k, sources, axis_why))
+                                         config.fuse.rejection_k, sources, axis_why,
+                                         tuple(float(v) for v in offset.t_m), tuple(float(v) for v in offset.sigma_m),
+                                         offset.removed_from, offset.why))
     print(f"fuse: sigma factors: position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, "
-          f"rotation {factor.r:.2f} ({why}); position x, y, z: {', '.join(sources)} ({axis_why})")
+          f"rotation {factor.r:.2f} ({why}); position x, y, z: {', '.join(sources)} ({axis_why}); "
+          f"offset: {offset.why}")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]
     with open_sink(workspace, "poses", config.run.part_rows) as sink:
         for e in track(todo, len(todo), "fuse"):
-            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k, sources))
+            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k, sources, offset))
     return read_manifest(workspace, "poses")

@@ -165,3 +165,30 @@ def test_a_malformed_completion_marker_names_the_file_and_key(tmp_path, text, ke
     ws.success_path("truth").write_text(text)
     with pytest.raises(ManifestError, match=rf"_state/truth.json: key {re.escape(key)}: expected"):
         read_success(ws, "truth")
+
+
+def _restamp(path, version, schema=None):
+    """Rewrite a part as another schema version would have (and with another schema)."""
+    table = pq.read_table(path)
+    metadata = {**table.schema.metadata, b"speedplus.schema_version": version.encode()}
+    if schema is not None:
+        table = table.cast(schema)
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+
+
+def test_an_older_version_reads_only_where_its_columns_are_unchanged(tmp_path):
+    """A kept 1.7 recording (plan, captures, truth: columns 1.8 did not change) reads as it
+    is; a 1.7 labels part, whose keypoints were 11 fixed, or an unknown version, does not."""
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(3), "fp")
+    part = list_parts(ws, "truth")[0]
+    _restamp(part, "1.7")
+    assert read_manifest(ws, "truth").num_rows == 3
+    _restamp(part, "1.6")
+    with pytest.raises(ManifestError, match=r"schema version 1.6, this program reads 1.8; rerun the stage"):
+        read_manifest(ws, "truth")
+    fields = [pa.field(f.name, pa.list_(pa.float32(), 3) if f.name == "cam_from_target_t" else f.type, f.nullable)
+              for f in TRUTH.schema()]
+    _restamp(part, "1.7", pa.schema(fields))
+    with pytest.raises(ManifestError, match=r"schema version 1.7, this program reads 1.8"):
+        read_manifest(ws, "truth")

@@ -147,7 +147,8 @@ def test_missing_calibration_says_to_run_calibrate(tmp_path):
 def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
     workspace = Workspace(tmp_path)
     record = FusionRecord((1.02, 1.01, 1.6), 1.29, 44, "robust spread", 1.96, ("fused", "fused", "kuka"),
-                          "z: factor 1.60 > 1.32")
+                          "z: factor 1.60 > 1.32", (0.0021, -0.0004, 0.0011), (3e-4, 3e-4, 1e-4),
+                          ("vicon", "vicon", "kuka"), "median on 44 captures")
     write_fusion(workspace, record)
     assert read_fusion(workspace) == record
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "variance_factor.t", [1.0, 0.0, 1.0])))
@@ -155,6 +156,9 @@ def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
         read_fusion(workspace)
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "axes.sources", ["fused", "pnp", "kuka"])))
     with pytest.raises(SidecarError, match=r"fusion.json: key axes.sources: expected a list of three of fused"):
+        read_fusion(workspace)
+    workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "offset.removed_from", ["vicon", "pnp"])))
+    with pytest.raises(SidecarError, match=r"fusion.json: key offset.removed_from: expected a list of three of kuka"):
         read_fusion(workspace)
 
     arm = {"name": "KR 16", "source": "datasheet", "a1": 0.26, "a2": -0.035, "b": 0.0, "c1": 0.675, "c2": 0.68,
