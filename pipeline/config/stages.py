@@ -135,8 +135,9 @@ class CalibrateConfig:
         0.01, "the same for the pitch (translation along the screw axis) of the motions; good real data: 1-2 mm",
         "m")
     max_scale_error: float = param(
-        0.03, "the camera's motions may differ from the robot's by at most this relative scale (a wrong square "
-        "size or length unit scales them; a robot's own scale error is about 1e-4)", "1")
+        0.03, "the camera's motions may differ from the robot's by at most this relative scale, beyond twice the "
+        "scale's standard error (a wrong square size or length unit scales them all; a robot's own scale error is "
+        "about 1e-4, and arms that err by millimetres blur the ratio of centimetre pitches)", "1")
     max_rotation_error_rad: float = param(
         math.radians(5.0), "a calibration whose cross-validated E_R exceeds this is refused as absurd: robots and "
         "PnP err by tenths of a degree; 5 deg means the data do not fit the model", "rad")

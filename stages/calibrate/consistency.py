@@ -89,20 +89,26 @@ class Pairs:
         # at least 3 such pairs: one or two say as much about the other image as about this one
         return _row_medians(np.where(self.travel_pairs(), np.abs(self.travel_a - self.travel_b), np.nan), 3)
 
-    def scale(self, keep: np.ndarray) -> tuple[float | None, float]:
+    def scale(self, keep: np.ndarray) -> tuple[float | None, float, float]:
         """Ratio of camera to robot lengths, the median over the kept images' pairs of the
         ratio of their pitches (pairs that turn, robot pitch at least 1 cm) and of their
         travels (pairs that do not): a median, so that one image paired with a wrong pose
-        does not pass for a scale. Also the RMS robot length it rests on (m); None when the
-        lengths are too small to tell."""
+        does not pass for a scale. Also the RMS robot length it rests on (m), and the
+        median's standard error: robust (MAD), over as many draws as kept images, since
+        the pairs of n images carry about n images' errors. Uncalibrated arms err by
+        millimetres, which on centimetre pitches is several percent per pair. None and NaN
+        when the lengths are too small to tell."""
         axis = self.axis_pairs() & keep[:, None] & keep[None] & (np.abs(self.pitch_b) >= MIN_TRAVEL_M)
         still = self.travel_pairs() & keep[:, None] & keep[None]
         ratio = np.concatenate([self.pitch_a[axis] / self.pitch_b[axis], self.travel_a[still] / self.travel_b[still]])
         length = np.concatenate([self.pitch_b[axis], self.travel_b[still]])
         spread = float(np.sqrt(np.mean(length**2))) if length.size else 0.0
         if length.size < 6 or spread < 0.02:
-            return None, spread
-        return float(np.median(ratio)), spread
+            return None, spread, float("nan")
+        median = float(np.median(ratio))
+        mad = float(np.median(np.abs(ratio - median)))
+        # a median's standard error is sqrt(pi / 2) times the mean's; 1.4826 MAD is a sigma
+        return median, spread, float(np.sqrt(np.pi / 2) * 1.4826 * mad / np.sqrt(max(int(keep.sum()), 1)))
 
 
 def rotation_fit(a: np.ndarray, b: np.ndarray, fixtures: list[str]) -> float:

@@ -142,10 +142,12 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
                 ["the pose file's transform is the other way round (base_from_flange or flange_from_base), or "
                  "the camera is on the other side ([setup] camera_on flange or world)"])
     angle_bad, angle_limit = robust_flags(angle, limits.motion_angle_floor_rad, limits.outlier_k)
-    scale, spread = pairs.scale(~angle_bad)
-    if scale is not None and abs(scale - 1.0) > limits.max_scale_error:
-        _refuse(f"the camera's motions are {scale:.3f} times the robot's along their screw axes ({spread * 1000:.0f} "
-                "mm RMS robot pitch)", observations, spec,
+    scale, spread, scale_se = pairs.scale(~angle_bad)
+    # beyond the limit by more than its noise: a wrong square size or unit scales every
+    # motion alike, where arms that err by millimetres only blur the ratio
+    if scale is not None and abs(scale - 1.0) - 2.0 * scale_se > limits.max_scale_error:
+        _refuse(f"the camera's motions are {scale:.3f} (+- {scale_se:.3f}) times the robot's along their screw axes "
+                f"({spread * 1000:.0f} mm RMS robot pitch)", observations, spec,
                 [f"[pattern] square_m = {spec.square_m:g} m, but the images suggest {spec.square_m / scale:.4g} m "
                  "(a printer's scaling?)", f"robot lengths in another unit than {length_hint}"])
     pitch_bad, pitch_limit = robust_flags(pitch, limits.motion_pitch_floor_m, limits.outlier_k)
@@ -171,8 +173,8 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
             "rotation_fit_rad": straight, "rotation_fit_inverted_rad": inverted,
             "angle_mismatch_rad_median": float(np.nanmedian(angle)),
             "pitch_mismatch_m_median": float(np.nanmedian(pitch)),
-            "pitch_scale": scale, "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit,
-            "travel_limit_m": travel_limit}
+            "pitch_scale": scale, "pitch_scale_se": None if scale is None else scale_se,
+            "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit, "travel_limit_m": travel_limit}
 
 
 def check_inliers(name: str, inliers: int, total: int) -> None:
