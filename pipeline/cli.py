@@ -335,7 +335,9 @@ def evaluate_command(
     overrides = _parsed(set_)
     redo: tuple[str, ...] = ()
     if model is not None:
-        current = _context(workspace, profile, config, overrides)[0].evaluate.models
+        resolved, ws, _ = _context(workspace, profile, config, overrides)
+        # an empty list stands for the models evaluate picks itself: the new one joins them
+        current = resolved.evaluate.models or tuple(str(path) for path in registry.evaluated_models(resolved, ws))
         added = [str(path.expanduser().resolve()) for path in model]
         by_name = {Path(path).stem: path for path in added}
         names = set(by_name)

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from manifests import Workspace
 from pipeline.config import Config
 from pipeline.errors import InputError
 
@@ -45,8 +46,9 @@ class StageEntry:
     inputs: tuple[str, ...]  # manifests whose completion markers it needs
     outputs: tuple[str, ...]  # manifests it writes (the runner writes their completion markers)
     sections: tuple[str, ...]  # configuration sections in its fingerprint
-    resolve: str | None = None  # "module:function": (config) -> Resolved (or its first four fields)
-    #: "module:function" taking (config): checks what the stage reads from outside the
+    #: "module:function": (config, workspace) -> Resolved (or its first four fields)
+    resolve: str | None = None
+    #: "module:function" taking (config, workspace): checks what the stage reads from outside the
     #: workspace (evaluate: every model against its contract) before anything is discarded
     preflight: str | None = None
     chained: bool = True  # a step of `speedplus run`
@@ -57,22 +59,28 @@ class StageEntry:
     #: copies it into the workspace) or the workspace's copy (every later stage)
     target: Literal["configured", "workspace"] = "workspace"
 
-    def resolved(self, config: Config) -> Resolved:
+    def resolved(self, config: Config, workspace: Workspace) -> Resolved:
         if self.resolve is None:
             return Resolved(self.inputs, self.sections, {}, self.outputs)
-        resolved = _load(self.resolve)(config)
+        resolved = _load(self.resolve)(config, workspace)
         if isinstance(resolved, dict):  # a stage cannot import this module: it names the fields
             return Resolved(**resolved)
         return Resolved(*resolved)
 
-    def check(self, config: Config) -> None:
+    def check(self, config: Config, workspace: Workspace) -> None:
         """The stage's own checks of its inputs from outside the workspace (a model file),
         before the runner changes anything."""
         if self.preflight is not None:
-            _load(self.preflight)(config)
+            _load(self.preflight)(config, workspace)
 
     def function(self) -> Callable[..., Any]:
         return _load(self.run)
+
+
+def evaluated_models(config: Config, workspace: Workspace) -> list[Any]:
+    """The model files evaluate scores under ``config`` in ``workspace`` (paths; none when
+    it has none to pick): what ``evaluate --model`` adds to."""
+    return list(_load("stages.evaluate:model_paths")(config, workspace))
 
 
 def _load(target: str) -> Callable[..., Any]:

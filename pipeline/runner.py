@@ -57,7 +57,7 @@ def _section_dict(config: Config, name: str) -> dict[str, Any]:
 def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace) -> dict[str, Any] | None:
     """What the stage's fingerprint hashes (recorded in its markers, so that ``status`` can say
     why results are stale), or None while an input manifest is incomplete."""
-    resolved = stage.resolved(config)
+    resolved = stage.resolved(config, workspace)
     inputs = {}
     for name in resolved.inputs:
         marker = read_success(workspace, name)
@@ -152,7 +152,7 @@ class StageStatus:
 
 
 def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStatus:
-    resolved = stage.resolved(config)
+    resolved = stage.resolved(config, workspace)
     inputs, outputs = resolved.inputs, resolved.outputs
     rows = {name: row_count(workspace, name) for name in outputs}
     current = fingerprint(stage, config, workspace)
@@ -219,7 +219,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     """Run (or resume, or skip) one stage; see the module docstring. ``on_start`` is called
     once every check has passed, just before anything in the workspace changes. ``redo``
     with ``force``: redo only these members (evaluate's models) and keep the others'."""
-    resolved = stage.resolved(config)
+    resolved = stage.resolved(config, workspace)
     inputs, outputs = resolved.inputs, resolved.outputs
     made_with = fingerprint_payload(stage, config, workspace)
     current = None if made_with is None else _digest(made_with)
@@ -232,7 +232,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         if problem is not None:
             raise StageError(f"stage {stage.name!r} needs manifest {name}, which is damaged ({problem}); redo "
                              "the stage that writes it with --force (speedplus status names it)")
-    stage.check(config)
+    stage.check(config, workspace)
     unknown = sorted(set(redo) - set(resolved.members))
     if unknown:
         raise StageError(f"stage {stage.name!r}: nothing named {', '.join(unknown)} to redo (members: "
@@ -372,7 +372,7 @@ def redo_plan(config: Config, workspace: Workspace, stages: tuple[StageEntry, ..
     redone: dict[str, str] = {}
     plan = []
     for stage in (s for s in stages if s.chained):
-        resolved = stage.resolved(config)
+        resolved = stage.resolved(config, workspace)
         upstream = [name for name in resolved.inputs if name in redone]
         state = status(stage, config, workspace)
         if upstream:
@@ -397,7 +397,7 @@ def verify(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...])
     size and hash; one finding per manifest (no problems: intact)."""
     findings = []
     for stage in stages:
-        for name in stage.resolved(config).outputs:
+        for name in stage.resolved(config, workspace).outputs:
             marker = read_success(workspace, name)
             if marker is None:
                 continue

@@ -260,9 +260,10 @@ class EvaluateConfig:
     """The evaluate stage: an ONNX model scored on twins and testbed images."""
 
     models: tuple[str, ...] = param(
-        ("models/reference.onnx", "models/reference_augmented.onnx"), "ONNX models following the contract of "
-        "stages/common/pose_model.py, each scored on every image; relative paths: from the current directory, else "
-        "from the repository", "")
+        (), "ONNX models following the contract of stages/common/pose_model.py, each scored on every image; "
+        "relative paths: from the current directory, else from the repository. Empty: the models train-reference "
+        "made in this workspace (W/models/*.onnx), else, for the built-in Tango, the shipped reference models "
+        "(models/reference.onnx, models/reference_augmented.onnx)", "")
     self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: a coarse pass on "
                             "the whole image, then the keypoint pass around what it found", "")
     batch_size: int = param(16, "images per inference call", "count")

@@ -58,7 +58,8 @@ def source_digest(source: Path) -> str:
     return digest.hexdigest()[:16]
 
 
-def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[str, ...], tuple[str, ...],
+                                                                     dict[str, Any], tuple[str, ...]]:
     """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
     (pipeline/registry.py): the virtual testbed follows the plan and draws a truth; a
     replayed session is fingerprinted by its folder's content."""

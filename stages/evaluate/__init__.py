@@ -27,7 +27,7 @@ from pipeline.errors import InputError
 from pipeline.progress import track
 from stages.common.engine import map_config
 from stages.common.image_io import ImageReadError
-from stages.common.pose_model import PoseModel
+from stages.common.pose_model import BUILTIN_TARGET, PoseModel
 from stages.common.sidecars import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.evaluate.scorer import Decoding, open_scorer
@@ -36,38 +36,65 @@ from stages.evaluate.table import print_table2, summarise
 REPOSITORY = Path(__file__).resolve().parents[2]
 
 
-def model_paths(config: Config) -> list[Path]:
-    """``evaluate.models``: absolute, relative to the current directory, or to the repository."""
+#: the reference models shipped for the built-in Tango (``evaluate.models`` empty)
+SHIPPED_MODELS = ("models/reference.onnx", "models/reference_augmented.onnx")
+
+
+def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
+    """``evaluate.models``: absolute, relative to the current directory, or to the repository.
+    Empty: the models trained in this workspace (``W/models/*.onnx``, by train-reference),
+    else, for the built-in Tango, the shipped reference models; for another target none,
+    which ``check_models`` refuses naming the target and the command that trains one."""
+    texts = list(config.evaluate.models) or _default_models(config, workspace)
     paths = []
-    for text in config.evaluate.models:
+    for text in texts:
         path = Path(text).expanduser()
         paths.append(path.resolve() if path.is_absolute() or path.exists() else (REPOSITORY / path).resolve())
     names = [path.stem for path in paths]
-    if not paths or len(set(names)) != len(names):
-        raise InputError(f"evaluate.models {list(config.evaluate.models)}: give at least one model, each with its "
-                         "own file name (a model is named by it in predictions and scores)")
+    if len(set(names)) != len(names):
+        raise InputError(f"evaluate.models {list(config.evaluate.models)}: give each model its own file name (a "
+                         "model is named by it in predictions and scores)")
     return paths
+
+
+def _default_models(config: Config, workspace: Workspace | None) -> list[str]:
+    trained = [] if workspace is None else sorted(
+        str(path) for path in workspace.resolve(workspace.model_relpath("x")).parent.glob("*.onnx"))
+    if trained:
+        return trained
+    return list(SHIPPED_MODELS) if workspace_target(config, workspace).name == BUILTIN_TARGET else []
+
+
+def _no_model(config: Config, workspace: Workspace | None) -> InputError:
+    where = "W" if workspace is None else workspace.location
+    target = workspace_target(config, workspace).name
+    return InputError(f"evaluate.models is empty and {where}/models/ holds no model: this workspace's target is "
+                      f"{target!r}, and the shipped models are of {BUILTIN_TARGET!r}; train one for it (speedplus "
+                      f"train-reference -w {where} --out DIR), or name one (evaluate --model FILE)")
 
 
 def _digest(path: Path) -> str:
     return sha256(path)[:16] if path.exists() else "missing"
 
 
-def resolve(config: Config) -> dict[str, Any]:
+def resolve(config: Config, workspace: Workspace | None = None) -> dict[str, Any]:
     """Inputs, configuration sections, outputs and members of this stage (pipeline/registry.py):
     each model is a member, known by its file's bytes, so that a model is added (or one
     redone) without redoing the others."""
     return {"inputs": ("labels", "renders", "captures"), "sections": ("evaluate",), "extra": {},
             "outputs": ("predictions", "scores"),
-            "members": {path.stem: _digest(path) for path in model_paths(config)},
+            "members": {path.stem: _digest(path) for path in model_paths(config, workspace)},
             "member_key": "evaluate.models", "member_column": "model"}
 
 
-def check_models(config: Config) -> None:
+def check_models(config: Config, workspace: Workspace | None = None) -> None:
     """Every model of ``evaluate.models`` opens and answers an input of its contract's shape;
     else an InputError naming the file and what is wrong (the runner calls this before it
     discards or writes anything)."""
-    for path in model_paths(config):
+    paths = model_paths(config, workspace)
+    if not paths:
+        raise _no_model(config, workspace)
+    for path in paths:
         PoseModel(path, threads=1).check()
 
 
@@ -109,7 +136,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     ``scores`` summary."""
     camera = calibrated_camera(workspace)
     target = workspace_target(config, workspace)
-    contracts = {path: PoseModel(path, threads=1).contract for path in model_paths(config)}  # a bad model fails here
+    paths = model_paths(config, workspace)
+    if not paths:
+        raise _no_model(config, workspace)
+    contracts = {path: PoseModel(path, threads=1).contract for path in paths}  # a bad model fails here
     for path, contract in contracts.items():
         if contract.target != target.name:
             trained = workspace.resolve(workspace.model_relpath("reference"))
@@ -122,7 +152,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     batch = config.evaluate.batch_size
     shown = []
     with open_sink(workspace, "predictions", config.run.part_rows) as sink:
-        for path in model_paths(config):
+        for path in paths:
             contract = contracts[path]
             crops = [contract.crop] + (["self"] if contract.crop == "oracle_box" and config.evaluate.self_crop else [])
             shown += [(path.stem, crop) for crop in crops]

@@ -34,7 +34,8 @@ EXPORT_MARK = ".speedplus-export.json"
 EXPORT_MARK_VERSION = 1
 
 
-def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[str, ...], tuple[str, ...],
+                                                                     dict[str, Any], tuple[str, ...]]:
     """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
     (pipeline/registry.py): one manifest per format, so both exports can coexist."""
     inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}

@@ -34,7 +34,8 @@ def output_name(config: Config) -> str:
 TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance", "ground_truth")
 
 
-def resolve(config: Config) -> tuple[tuple[str, ...], tuple[str, ...], dict[str, Any], tuple[str, ...]]:
+def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[str, ...], tuple[str, ...],
+                                                                     dict[str, Any], tuple[str, ...]]:
     """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
     (pipeline/registry.py): each image set depends on its own render keys only (resizing
     the training set leaves the twins done)."""

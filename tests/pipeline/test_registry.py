@@ -7,7 +7,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from manifests import MANIFESTS
+from manifests import MANIFESTS, Workspace
 from pipeline import registry
 from pipeline.cli import app
 from pipeline.config import SECTION_TYPES, load_config
@@ -23,12 +23,12 @@ CONFIGS = {
 }
 
 
-def test_every_entry_names_existing_manifests_and_sections():
+def test_every_entry_names_existing_manifests_and_sections(tmp_path):
     produced, needed = set(), set()
     for overrides in CONFIGS.values():
         config = load_config("smoke", overrides=overrides)
         for entry in registry.STAGES:
-            resolved = entry.resolved(config)
+            resolved = entry.resolved(config, Workspace(tmp_path))
             assert set(resolved.inputs) <= set(MANIFESTS), entry.name
             assert set(resolved.outputs) <= set(MANIFESTS) | MARKERS and resolved.outputs, entry.name
             assert set(resolved.sections) <= set(SECTION_TYPES), entry.name
