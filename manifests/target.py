@@ -27,6 +27,9 @@ key (or the line and column of a TOML syntax error).
     board_t = [x, y, z]           # frame: origin at a corner, z into the board); absent: on the
                                   # mesh's top (+z, the fixtures hold -x and +x), centred, on a
                                   # 3 mm plate
+    markers = [[x, y, z], ...]    # optional: the motion-capture markers' centres (body frame,
+                                  # length_unit, full scale; at least 4); absent: chosen on the
+                                  # main body's surface (stages.common.markers)
     [symmetries]                  # optional (BOP's models_info): poses that map the mesh onto itself
     discrete = [[16 numbers], ...]    # 4 x 4 row-major body-frame transforms (translation in length_unit)
     continuous = [{ axis = [0, 0, 1], offset = [0, 0, 0] }]   # rotation about an axis through offset
@@ -65,6 +68,8 @@ MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 #: the looks a part can take (stages.common.target documents each)
 LOOK_PRESETS = ("gold_mli", "solar_cells", "aluminium", "white_paint", "black_paint", "rock")
 MIN_KEYPOINTS = 4
+#: a rigid body Vicon tracks needs 3 markers in sight; 4 keep it when one is hidden
+MIN_MARKERS = 4
 IDENTITY = Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
 
@@ -102,6 +107,8 @@ class TargetSpec:
     symmetries_discrete: tuple[tuple[float, ...], ...] = ()
     #: (axis (3,), offset (3,) in length_unit) of each continuous symmetry
     symmetries_continuous: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
+    #: the motion-capture markers' centres (body frame, length_unit, full scale); None: chosen
+    markers: tuple[tuple[float, float, float], ...] | None = None
 
     @property
     def metres(self) -> float:
@@ -125,6 +132,8 @@ class TargetSpec:
         for name, pose in (("fixture", self.fixture), ("board", self.board)):
             if pose is not None:
                 out["mockup"].update({f"{name}_q": list(pose.q), f"{name}_t": list(pose.t)})
+        if self.markers is not None:
+            out["mockup"]["markers"] = [list(p) for p in self.markers]
         if self.symmetries_discrete or self.symmetries_continuous:
             out["symmetries"] = {
                 **({"discrete": [list(m) for m in self.symmetries_discrete]} if self.symmetries_discrete else {}),
@@ -245,7 +254,8 @@ def _parse(f: Fields, directory: Path) -> TargetSpec:
         raise f.fail("name", "a name of a-z, 0-9, _ and -")
     scale, mass, fixture, board = _mockup(f)
     spec = TargetSpec(name, f.text("mesh"), f.text("length_unit", tuple(LENGTH_UNITS)), scale, mass,
-                      *_frame(f), _keypoints(f), *_views(f), _looks(f), fixture, board, *_symmetries(f))
+                      *_frame(f), _keypoints(f), *_views(f), _looks(f), fixture, board, *_symmetries(f),
+                      _markers(f.child("mockup")))
     mesh_path(directory, spec)
     return spec
 
@@ -274,7 +284,7 @@ def to_text(document: dict[str, Any]) -> str:
 
 def _mockup(f: Fields) -> tuple[float, float, Pose | None, Pose | None]:
     mockup = f.child("mockup")
-    mockup.only("scale", "mass_kg", "fixture_q", "fixture_t", "board_q", "board_t")
+    mockup.only("scale", "mass_kg", "fixture_q", "fixture_t", "board_q", "board_t", "markers")
     poses = []
     for name in ("fixture", "board"):
         given = [mockup.optional(f"{name}_q"), mockup.optional(f"{name}_t")]
@@ -301,6 +311,16 @@ def _frame(f: Fields) -> tuple[Pose, tuple[float, float, float] | None]:
     t = frame.vector("body_from_mesh_t", 3) if frame.optional("body_from_mesh_t") else IDENTITY.t
     centre = frame.vector("centre", 3) if frame.optional("centre") else None
     return Pose(tuple(map(float, q)), tuple(map(float, t))), centre
+
+
+def _markers(mockup: Fields) -> tuple[tuple[float, float, float], ...] | None:
+    if not mockup.optional("markers"):
+        return None
+    markers = mockup.raw("markers")
+    if not isinstance(markers, list) or len(markers) < MIN_MARKERS:
+        raise mockup.fail("markers", f"a list of at least {MIN_MARKERS} [x, y, z] marker centres")
+    inner = Fields({str(i): p for i, p in enumerate(markers)}, mockup.where, "mockup.markers.")
+    return tuple(tuple(map(float, inner.vector(str(i), 3))) for i in range(len(markers)))
 
 
 def _keypoints(f: Fields) -> tuple[tuple[float, float, float], ...] | None:

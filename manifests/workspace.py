@@ -33,6 +33,7 @@ SESSION_FILE = "session.json"
 TRUTH_FILE = "truth.json"
 CALIBRATION_FILE = "calibration.json"
 FUSION_FILE = "fusion.json"
+MARKERS_FILE = "markers.json"
 MANIFESTS_DIR = "manifests"
 PART_TEMPLATE = "part-{index:05d}.parquet"
 STATE_DIR = "_state"
@@ -140,6 +141,11 @@ class Workspace:
     def fusion_path(self) -> Path:
         """The dataset session's variance factor, written by fuse."""
         return self.root / FUSION_FILE
+
+    @property
+    def markers_path(self) -> Path:
+        """Where the virtual testbed stuck the motion-capture markers on the mock-up."""
+        return self.root / MARKERS_FILE
 
     @property
     def truth_path(self) -> Path:

@@ -476,11 +476,14 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
 def target_command(folder: Annotated[Path, typer.Argument(help="a target folder: target.toml beside its mesh")]
                    ) -> None:
     """Check a target folder and print what the pipeline takes from it: its parts, its size
-    at full scale and as the mock-up, its keypoints (declared, or chosen on the mesh) and
-    its views. Exit 1 naming the file and key when it cannot be used."""
-    from stages.common.target import load_target  # the shared layer: meshes load only here
+    at full scale and as the mock-up, its keypoints (declared, or chosen on the mesh), its
+    views and where the motion-capture markers go. Exit 1 naming the file and key when it
+    cannot be used."""
+    from stages.common.markers import markers  # the shared layer: meshes load only here
+    from stages.common.target import load_target, main_body_part
 
     target = load_target(folder)
+    placed = markers(target)
     table = Table(title=escape(f"target {target.name} ({folder})"))
     for column in ("what", "value"):
         table.add_column(column)
@@ -498,6 +501,10 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
                              else "declared")),
             ("views", f"{target.view_names[0]} / {target.view_names[1]}: the camera's side of the plane "
                       f"through the centre normal to ({', '.join(f'{v:.3f}' for v in target.view_axis)})"),
+            ("motion-capture markers", f"{len(placed.centres_m)} "
+             + (f"chosen on the surface of part {main_body_part(target).name!r}" if placed.chosen else "declared")
+             + "; centres on the mock-up, body frame (mm): "
+             + "; ".join("(" + ", ".join(f"{v * 1000:.1f}" for v in c) + ")" for c in placed.centres_m)),
             ("digest", target.digest[:16])]
     for what, value in rows:
         table.add_row(what, escape(value))

@@ -14,9 +14,10 @@ from stages.common import geometry as g
 BOULDER_KEYPOINTS = [[0.4, 0, 0], [-0.4, 0, 0], [0, 0.32, 0], [0, 0, 0.24], [0, 0, -0.24]]
 
 
-def cubesat(folder: Path, unit: str = "mm", **fields) -> Path:
+def cubesat(folder: Path, unit: str = "mm", mass_kg: float = 9.0, **fields) -> Path:
     """A 6U CubeSat (100 x 226 x 366 mm body, two 366 x 226 mm wings) as a GLB of named
-    parts, in mm, with its long axis along the mesh's x (the body frame wants it on z)."""
+    parts, in mm, with its long axis along the mesh's x (the body frame wants it on z);
+    ``mass_kg``: a flight 6U's by default."""
     folder.mkdir(parents=True, exist_ok=True)
     scene = trimesh.Scene()
     scene.add_geometry(trimesh.creation.box((366.0, 226.0, 100.0)), geom_name="body", node_name="body")
@@ -27,7 +28,7 @@ def cubesat(folder: Path, unit: str = "mm", **fields) -> Path:
                            node_name=f"wing_{'minus' if side < 0 else 'plus'}")
     (folder / "cubesat.glb").write_bytes(scene.export(file_type="glb"))
     turn = g.matrix_to_quat(g.axis_angle_matrix("y", -np.pi / 2))  # mesh x -> body z
-    write_target_spec(folder, TargetSpec("cubesat6u", "cubesat.glb", unit, 1.0, 9.0,
+    write_target_spec(folder, TargetSpec("cubesat6u", "cubesat.glb", unit, 1.0, mass_kg,
                                          body_from_mesh=Pose(tuple(float(v) for v in turn), (0.0, 0.0, 0.0)),
                                          **fields))
     return folder

@@ -8,6 +8,7 @@ path on the ``Workspace``, and one reader and one writer:
 | ``calibration.json`` | calibrate | fuse, label, render, evaluate, report, export |
 | ``fusion.json`` | fuse | report, benchmarks |
 | ``truth.json`` | acquire (virtual only) | tests and benchmarks, never a stage after acquire |
+| ``markers.json`` | acquire (virtual only) | tests; the lab (where the virtual markers sat) |
 """
 
 from manifests.sidecars.base import Pose, SidecarError
@@ -22,6 +23,7 @@ from manifests.sidecars.calibration import (
     write_calibration,
 )
 from manifests.sidecars.fusion import FUSION_VERSION, FusionRecord, read_fusion, write_fusion
+from manifests.sidecars.markers import MARKERS_VERSION, MarkersRecord, read_markers, write_markers
 from manifests.sidecars.session import (
     BACKENDS,
     FORMATS,
@@ -35,8 +37,9 @@ from manifests.sidecars.session import (
 from manifests.sidecars.truth import TRUTH_VERSION, TruthRecord, read_truth, write_truth
 
 __all__ = [
-    "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "OFFSET_KEYS", "SESSION_VERSION", "SOURCES",
-    "TRUTH_VERSION", "Calibration", "FusionRecord", "Intrinsics", "Pose", "Session", "SessionCamera",
-    "SidecarError", "SigmaRecord", "SourceCalibration", "TruthRecord", "read_calibration", "read_fusion",
-    "read_session", "read_truth", "write_calibration", "write_fusion", "write_session", "write_truth",
+    "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "MARKERS_VERSION", "OFFSET_KEYS",
+    "SESSION_VERSION", "SOURCES", "TRUTH_VERSION", "Calibration", "FusionRecord", "Intrinsics", "MarkersRecord",
+    "Pose", "Session", "SessionCamera", "SidecarError", "SigmaRecord", "SourceCalibration", "TruthRecord",
+    "read_calibration", "read_fusion", "read_markers", "read_session", "read_truth", "write_calibration",
+    "write_fusion", "write_markers", "write_session", "write_truth",
 ]

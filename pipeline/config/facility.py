@@ -175,10 +175,6 @@ class VirtualConfig:
         ((0.12, 0.08, 0.02), (-0.12, 0.09, 0.04), (0.10, -0.11, 0.10), (-0.11, -0.10, 0.13), (0.0, 0.13, 0.18)),
         "camera rigid-body markers in the camera flange frame (5 markers on a plate around the camera, "
         "spread about 25 cm so that the camera's pointing is tracked to about 0.05 deg)", "m")
-    target_markers_rel: tuple[tuple[float, float, float], ...] = param(
-        ((0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5), (-1.03, -0.3, 0.3),
-         (0.2, 1.03, 0.2)),
-        "model markers as fractions of the half extents of the body box about its centre (6 markers)", "1")
     spp: int = param(16, "Mitsuba samples per pixel of a capture", "count")
     max_depth: int = param(4, "Mitsuba path length (4: direct light and two interreflections)", "count")
     rr_depth: int = param(

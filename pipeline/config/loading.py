@@ -83,7 +83,14 @@ RETIRED: dict[str, tuple[Any, str]] = {
     "testbed.mount_target_from_targetee_t_m": ((-0.305, 0.0, 0.08), "[mockup] fixture_t (full scale)"),
     "testbed.target_from_board_q": ((0.0, 1.0, 0.0, 0.0), "[mockup] board_q"),
     "testbed.target_from_board_t_m": ((-0.165, 0.165, 0.16375), "[mockup] board_t (full scale)"),
+    "virtual.target_markers_rel": (((0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5),
+                                    (-1.03, -0.3, 0.3), (0.2, 1.03, 0.2)), "[mockup] markers (full scale)"),
 }
+
+
+def _frozen(value: Any) -> Any:
+    """A TOML value with its lists as tuples, to compare with a default."""
+    return tuple(_frozen(v) for v in value) if isinstance(value, list | tuple) else value
 
 
 def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
@@ -106,10 +113,11 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
                 name, value = RENAMED[key][0].split(".")[1], RENAMED[key][1](value)
             if key in RETIRED:
                 builtin, moved_to = RETIRED[key]
-                if (tuple(value) if isinstance(value, list) else value) == builtin:
+                if _frozen(value) == builtin:
                     continue  # the built-in Tango's, written by an older version: its target folder holds it
                 raise ConfigError(f"{source}: {key} is now the target's own: set {moved_to} in the target folder's "
-                                  f"target.toml (target.path; the built-in Tango's is {builtin})")
+                                  f"target.toml (target.path; the built-in Tango's folder holds what was the "
+                                  f"default, {builtin})")
             if name not in field_names:
                 raise ConfigError(f"{source}: " + str(_unknown(key, known_keys)))
             try:

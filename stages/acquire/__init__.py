@@ -15,7 +15,7 @@ from typing import Any
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.sidecars import write_session, write_truth
+from manifests.sidecars import write_markers, write_session, write_truth
 from pipeline.config import Config
 from pipeline.engines import Produced, store
 from pipeline.progress import track
@@ -80,6 +80,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     with_truth = config.acquire.backend == "virtual"
     if with_truth:
         write_truth(workspace, testbed.truth.to_record())
+        write_markers(workspace, testbed.markers_record())
     have_captures = read_keys(workspace, "captures")
     have_truth = read_keys(workspace, "truth") if with_truth else set()
     todo = [s for s in samples

@@ -11,7 +11,7 @@ import numpy as np
 from manifests.schema import MOUNTS
 from pipeline.config import TestbedConfig
 from stages.common import geometry as g
-from stages.common.target import Target
+from stages.common.target import Target, main_body_box
 
 MOUNT_NAMES = MOUNTS
 
@@ -41,15 +41,17 @@ def target_from_targetee(target: Target, mount: str) -> np.ndarray:
     """(4, 4) nominal model fixture: target flange frame T_K in T for a mount, at mock-up
     scale (``Target.fixture``).
 
-    The ``plus_x`` mounting spot is the ``minus_x`` one turned 180 degrees about the body
-    centre's line along T's z, so that each covers the half of the views its opposite side
-    cannot.
+    The ``plus_x`` mounting spot is the ``minus_x`` one turned 180 degrees about the line
+    along T's z through the main body's centre (``main_body_box``: the fixtures hold the
+    body, whatever its wings do to the whole mesh's box), so that each covers the half of
+    the views its opposite side cannot.
     """
     minus_x = g.transform_from_qt(target.fixture.q, np.asarray(target.fixture.t) * target.mockup_scale)
     if mount == "minus_x":
         return minus_x
     if mount == "plus_x":
-        centre = np.array([target.centre_m[0], target.centre_m[1], 0.0]) * target.mockup_scale
+        low, high = main_body_box(target)
+        centre = np.array([(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, 0.0]) * target.mockup_scale
         half_turn = g.make_transform(g.axis_angle_matrix("z", np.pi), centre - g.axis_angle_matrix("z", np.pi) @ centre)
         return half_turn @ minus_x
     raise ValueError(f"unknown mount {mount!r}; expected one of {MOUNT_NAMES}")

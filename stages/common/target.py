@@ -92,6 +92,9 @@ class Target:
     #: offset (3,) m) rotations of any angle
     symmetries_discrete: tuple[np.ndarray, ...] = ()
     symmetries_continuous: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    #: the motion-capture markers' centres (M, 3) in T, full scale, when [mockup] declares
+    #: them; else None: ``stages.common.markers`` chooses them on the main body
+    markers_m: np.ndarray | None = None
 
     def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """The view name (...) of camera positions (..., 3) in the body frame, metres at the
@@ -116,15 +119,20 @@ def derived_fixture(target: Target) -> Pose:
     return Pose(FIXTURE_Q, tuple(float(v) for v in position))
 
 
+def main_body_part(target: Target) -> MeshPart:
+    """The target's main body: the part whose axis-aligned box is largest by volume (the
+    first on a tie). Thin appendages (antennas, wings, booms) have flat boxes, so they never
+    win over a body; a single-part mesh is its own. The virtual testbed sticks
+    motion-capture markers on it and lets it hide them (``stages.common.markers``)."""
+    parts = list(target.parts.values())
+    volumes = [float(np.prod(part.vertices.max(axis=0) - part.vertices.min(axis=0))) for part in parts]
+    return parts[int(np.argmax(volumes))]
+
+
 def main_body_box(target: Target) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds (low, high) (3,) m, full scale, of the target's main body: the axis-aligned box
-    of the part whose own box is largest by volume (the first on a tie). Thin appendages
-    (antennas, wings, booms) have flat boxes, so they never win over a body; a single-part
-    mesh's is its whole box. The virtual testbed fixes motion-capture markers on its faces
-    and lets it hide them."""
-    boxes = [(part.vertices.min(axis=0), part.vertices.max(axis=0)) for part in target.parts.values()]
-    volumes = [float(np.prod(high - low)) for low, high in boxes]
-    return boxes[int(np.argmax(volumes))]
+    """Bounds (low, high) (3,) m, full scale, of the target's main body (``main_body_part``)."""
+    vertices = main_body_part(target).vertices
+    return vertices.min(axis=0), vertices.max(axis=0)
 
 
 def feature_edges(target: Target, crease_deg: float = 20.0) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -188,8 +196,11 @@ def load_target(directory: Path) -> Target:
     _check_symmetries(where, discrete, vertices, diameter)
     continuous = tuple((np.asarray(a, float) / np.linalg.norm(a), np.asarray(o, float) * spec.metres)
                        for a, o in spec.symmetries_continuous)
+    markers = None if spec.markers is None else np.asarray(spec.markers, float) * spec.metres
+    if markers is not None:
+        _check_points(where, "mockup.markers", "marker", markers, centre, radius)
     return dataclasses.replace(target, fixture=derived_fixture(target) if fixture is None else fixture,
-                               symmetries_discrete=discrete, symmetries_continuous=continuous)
+                               symmetries_discrete=discrete, symmetries_continuous=continuous, markers_m=markers)
 
 
 def read_mesh(path: Path) -> dict[str, MeshPart]:
@@ -289,12 +300,18 @@ def _check_symmetries(where: Path, discrete: tuple[np.ndarray, ...], vertices: n
 
 
 def _check_keypoints(where: Path, keypoints: np.ndarray, centre: np.ndarray, radius: float) -> None:
-    distance = np.linalg.norm(keypoints - centre, axis=1)
+    _check_points(where, "keypoints.points", "keypoint", keypoints, centre, radius)
+
+
+def _check_points(where: Path, key: str, what: str, points: np.ndarray, centre: np.ndarray, radius: float) -> None:
+    """Points (N, 3) m declared on the body lie near it: far outside, they are in another
+    unit or frame."""
+    distance = np.linalg.norm(points - centre, axis=1)
     far = np.flatnonzero(distance > KEYPOINT_MARGIN * radius)
     if far.size:
         i = int(far[0])
-        raise TargetError(f"{where}: key keypoints.points.{i}: {distance[i]:.4g} m from the body centre, outside "
-                          f"the mesh (every vertex is within {radius:.4g} m); another unit or frame?")
+        raise TargetError(f"{where}: key {key}.{i}: {distance[i]:.4g} m from the body centre, outside the mesh "
+                          f"(every vertex is within {radius:.4g} m): a {what} in another unit or frame?")
 
 
 def mesh_colour(mesh: Any) -> tuple[float, float, float] | None:

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest
-from manifests.sidecars import Session, SessionCamera
+from manifests.sidecars import MarkersRecord, Session, SessionCamera
 from manifests.workspace import TRUTH_MAPS_TEMPLATE
 from pipeline.config import Config
 from stages.acquire.backend import CaptureRecord
@@ -22,7 +22,9 @@ from stages.common.arms import Payload
 from stages.common.geometry import pose_columns
 from stages.common.image_io import encode_png
 from stages.common.kinematics import link_points
+from stages.common.markers import main_body_hull, markers
 from stages.common.patterns import board_pattern
+from stages.common.target import main_body_part
 from stages.common.workspace_target import workspace_target
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
@@ -34,7 +36,8 @@ class VirtualTestbed:
     def __init__(self, config: Config, workspace: Workspace, plan: list[dict[str, Any]] | None = None) -> None:
         self.config, self.workspace, self._plan = config, workspace, plan
         self.target = workspace_target(config, workspace)
-        self.body_box = mocap.body_box(self.target)
+        self.body = main_body_hull(self.target)
+        self.markers = markers(self.target)
         self.payload = Payload.of(self.target)
         self.truth: Truth = draw_truth(config, self.target)
         cameras = self.truth.unmodelled.camera_by_session
@@ -47,11 +50,16 @@ class VirtualTestbed:
         self._moments: dict[str, Moment] | None = None
         self.camera_markers_rb = g.apply(g.invert(self.truth.camee_from_camrb),
                                          np.asarray(config.virtual.camera_markers_m))
-        self.target_markers_rb = g.apply(g.invert(self.truth.target_from_targetrb),
-                                         mocap.target_markers(config, self.target))
-        self.target_normals_target = mocap.target_marker_normals(config)
+        self.target_markers_rb = g.apply(g.invert(self.truth.target_from_targetrb), self.markers.centres_m)
+        self.target_normals_target = self.markers.normals
         u = self.truth.unmodelled
         self.mocap_errors = mocap.SystemErrors(u.vicon_scale, u.vicon_camera_errors, u.vicon_reflection_bias_m)
+
+    def markers_record(self) -> MarkersRecord:
+        """Where this testbed stuck the model's markers (``W/markers.json``)."""
+        return MarkersRecord("chosen" if self.markers.chosen else "declared", main_body_part(self.target).name,
+                             tuple(tuple(map(float, c)) for c in self.markers.centres_m),
+                             tuple(tuple(map(float, n)) for n in self.markers.normals))
 
     def samples(self) -> list[dict[str, Any]]:
         if self._plan is None:
@@ -94,12 +102,12 @@ class VirtualTestbed:
         segments = self._link_segments(state)
         camera_body = mocap.observe(config, rng, self.camera_markers_rb,
                                     state.world_from_camee @ truth.camee_from_camrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body_box,
+                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body,
                                     errors=self.mocap_errors)
         target_normals = self.target_normals_target @ state.world_from_target[:3, :3].T
         target_body = mocap.observe(config, rng, self.target_markers_rb,
                                     state.world_from_target @ truth.target_from_targetrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body_box,
+                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body,
                                     config.virtual.vicon_model_noise_factor, self.mocap_errors, target_normals)
         image = self.photograph(state, session, sample["light"], list(sample["light_boxes"]), rng,
                                 seed=SESSION_CODES[session] * 1_000_000 + index)

@@ -2,7 +2,7 @@
 
 A marker counts when at least two cameras see it: inside the camera's field of view and
 range, and with the line of sight clear of the robot links (capsules) and of the model
-(its body box). Each counted marker is triangulated with noise growing as fewer cameras
+(its main body's convex hull). Each counted marker is triangulated with noise growing as fewer cameras
 see it. With a configured probability a rigid body's observation includes one ghost or
 mislabelled marker. The pose of a rigid body is the least-squares fit (Kabsch) of its
 marker model to the observed markers; with fewer than 3 markers it is not tracked.
@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.config import Config
 from stages.common import geometry as g
-from stages.common.target import Target, main_body_box
+from stages.common.markers import Hull
 
 MIN_CAMERAS = 2
 MIN_MARKERS = 3
@@ -88,43 +88,6 @@ def _segments_hit_capsules(start: np.ndarray, end: np.ndarray, a: np.ndarray, b:
     return np.any(distance < radius, axis=(1, 2))
 
 
-def _segments_hit_box(start_box: np.ndarray, end_box: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """Slab test: does segment start->end (N, 3), in the box frame, cross the box (N,)?"""
-    direction = end_box - start_box
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (low - start_box) / direction
-        t2 = (high - start_box) / direction
-    t_near = np.nanmax(np.minimum(t1, t2), axis=1)
-    t_far = np.nanmin(np.maximum(t1, t2), axis=1)
-    return (t_near <= t_far) & (t_far > 0.0) & (t_near < 1.0)
-
-
-def body_box(target: Target) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds (low, high) of the mock-up's main body in T, metres at mock-up
-    scale (``target.main_body_box``): what carries the markers and hides them from cameras
-    behind it (thin appendages, such as Tango's antennas, do not)."""
-    low, high = main_body_box(target)
-    return low * target.mockup_scale, high * target.mockup_scale
-
-
-def target_markers(config: Config, target: Target) -> np.ndarray:
-    """(M, 3) model marker positions in T (metres, mock-up scale): ``virtual.target_markers_rel``
-    of the main body box's half extents about its centre (1.02-1.03: just off a face)."""
-    low, high = body_box(target)
-    centre, half = (low + high) / 2, (high - low) / 2
-    markers = centre + np.asarray(config.virtual.target_markers_rel) * half
-    return markers
-
-
-def target_marker_normals(config: Config) -> np.ndarray:
-    """(M, 3) outward normals in T of the body faces the model's markers sit on."""
-    rel = np.asarray(config.virtual.target_markers_rel, float)
-    axis = np.argmax(np.abs(rel), axis=1)
-    normals = np.zeros_like(rel)
-    normals[np.arange(len(rel)), axis] = np.sign(rel[np.arange(len(rel)), axis])
-    return normals
-
-
 def triangulate(cameras: np.ndarray, seen: np.ndarray, markers_world: np.ndarray, errors: SystemErrors,
                 normals_world: np.ndarray | None) -> np.ndarray:
     """(M, 3) where the system puts markers (M, 3) seen by ``seen`` (cameras, M): the
@@ -152,9 +115,9 @@ def triangulate(cameras: np.ndarray, seen: np.ndarray, markers_world: np.ndarray
 
 
 def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndarray,
-               world_from_target: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+               world_from_target: np.ndarray, body: Hull) -> np.ndarray:
     """(cameras, markers) boolean: which camera sees which marker, past the arms' links and
-    the mock-up's main body ``box`` (``body_box``)."""
+    the mock-up's main ``body`` (``stages.common.markers.main_body_hull``)."""
     v = config.virtual
     cams = camera_positions(config)
     aim = camera_aim(config)
@@ -167,12 +130,11 @@ def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndar
     ends = np.tile(markers_world, (len(cams), 1))
     blocked = _segments_hit_capsules(starts, ends, link_segments[:, 0], link_segments[:, 1], v.vicon_link_radius_m)
     target_from_world = g.invert(world_from_target)
-    low, high = box
-    ends_box = g.apply(target_from_world, ends)
-    starts_box = g.apply(target_from_world, starts)
+    ends_body = g.apply(target_from_world, ends)
+    starts_body = g.apply(target_from_world, starts)
     # shrink the sight line slightly so a marker on the surface is not hidden by its own face
-    ends_box = starts_box + 0.995 * (ends_box - starts_box)
-    blocked |= _segments_hit_box(starts_box, ends_box, low, high)
+    ends_body = starts_body + 0.995 * (ends_body - starts_body)
+    blocked |= body.hides(starts_body, ends_body)
     return seen & ~blocked.reshape(len(cams), len(markers_world))
 
 
@@ -186,16 +148,16 @@ def kabsch(model: np.ndarray, observed: np.ndarray) -> np.ndarray:
 
 def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, world_from_rb: np.ndarray,
             vicon_world_from_world: np.ndarray, link_segments: np.ndarray,
-            world_from_target: np.ndarray, box: tuple[np.ndarray, np.ndarray], noise_factor: float = 1.0,
+            world_from_target: np.ndarray, body: Hull, noise_factor: float = 1.0,
             errors: SystemErrors | None = None, normals_world: np.ndarray | None = None) -> RigidBodyObservation:
     """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``; the
-    mock-up's main body ``box`` (``body_box``) at ``world_from_target`` hides markers;
+    mock-up's main ``body`` (its convex hull) at ``world_from_target`` hides markers;
     ``noise_factor`` scales the marker noise (markers on reflective surfaces); ``errors``
     of the system's calibration, and the markers' surface normals (M, 3) in K when they sit
     on reflective skin."""
     v = config.virtual
     markers_world = g.apply(world_from_rb, markers_rb)
-    seen = visibility(config, markers_world, link_segments, world_from_target, box)
+    seen = visibility(config, markers_world, link_segments, world_from_target, body)
     cameras_seeing = seen.sum(axis=0)
     counted = cameras_seeing >= MIN_CAMERAS
     sigma = noise_factor * v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))

@@ -44,13 +44,18 @@ def mesh_bytes() -> bytes:
 SCALE = 0.5
 FIXTURE = Pose((0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)), (-0.305 / SCALE, 0.0, 0.08 / SCALE))
 BOARD = Pose((0.0, 1.0, 0.0, 0.0), (-0.165 / SCALE, 0.165 / SCALE, 0.16375 / SCALE))
+#: the six motion-capture markers TRON-like rigid bodies use, full scale: on the top (+z)
+#: near three corners, on the +x and -x sides and on the slanted +y side, each about 1 cm
+#: (on the mock-up) off the body
+MARKERS = ((0.333, 0.308, 0.324715), (-0.333, 0.32725, 0.324715), (0.3145, -0.3465, 0.324715),
+           (0.3811, 0.077, 0.241125), (-0.3811, -0.1155, 0.208975), (0.074, 0.39655, 0.1929))
 
 
 def spec() -> TargetSpec:
     return TargetSpec("tango", MESH, "m", SCALE, 4.0, centre=tuple(float(v) for v in BODY_CENTRE_M),
                       keypoints=tuple(tuple(float(v) for v in p) for p in KEYPOINTS_M), view_axis=(0.0, 0.0, 1.0),
                       view_names=(VIEWS[0], VIEWS[1]), looks={part: Look(*looks) for part, looks in LOOKS.items()},
-                      fixture=FIXTURE, board=BOARD)
+                      fixture=FIXTURE, board=BOARD, markers=MARKERS)
 
 
 def main(folder: Path = BUILTIN_ROOT / "tango") -> None:

@@ -7,6 +7,7 @@ from pipeline.config import load_config
 from stages.acquire.virtual import VirtualTestbed, mocap, robots
 from stages.acquire.virtual.truth import draw_truth
 from stages.common import geometry as g
+from stages.common.markers import main_body_hull, markers
 from stages.common.workspace_target import planned_target
 from stages.plan import plan_sample, sample_ids
 
@@ -68,7 +69,7 @@ def observe_all(config, rows, link_segments=None):
         out.append(mocap.observe(config, rng, testbed.target_markers_rb,
                                  state.world_from_target @ testbed.truth.target_from_targetrb,
                                  testbed.truth.vicon_world_from_world, segments, state.world_from_target,
-                                 testbed.body_box))
+                                 testbed.body))
     return out
 
 
@@ -87,11 +88,11 @@ def test_ghost_rate_is_respected_and_ghosts_bias_the_pose():
     config = load_config("default", overrides=["virtual.vicon_ghost_rate=0.2"])
     rng = np.random.default_rng(5)
     target = planned_target(config)
-    markers_rb = mocap.target_markers(config, target)
+    markers_rb = markers(target).centres_m
     world_from_rb = g.make_transform(np.eye(3), [1.5, 1.5, 1.2])
     nowhere = np.array([[[100.0, 100, 100], [101.0, 100, 100]]])
     observations = [mocap.observe(config, rng, markers_rb, world_from_rb, np.eye(4), nowhere, world_from_rb,
-                                  mocap.body_box(target)) for _ in range(1000)]
+                                  main_body_hull(target)) for _ in range(1000)]
     rate = np.mean([o.ghost for o in observations])
     assert abs(rate - 0.2) < 3 * np.sqrt(0.2 * 0.8 / 1000)
     error = {flag: np.median([np.linalg.norm(o.vicon_world_from_rb[:3, 3] - world_from_rb[:3, 3])

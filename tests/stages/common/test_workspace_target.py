@@ -125,6 +125,11 @@ def test_the_mockup_settings_moved_into_the_target_folder(tmp_path):
     assert load_config("smoke", overrides=["testbed.mockup_scale=0.5", "virtual.model_mass_kg=4.0"])
     with pytest.raises(ConfigError, match=r"testbed.mockup_scale is now the target's own: set \[mockup\] scale"):
         load_config("smoke", overrides=["testbed.mockup_scale=0.3"])
+    rel = ("[[0.9, 0.8, 1.02], [-0.9, 0.85, 1.02], [0.85, -0.9, 1.02], [1.03, 0.2, 0.5], [-1.03, -0.3, 0.3], "
+           "[0.2, 1.03, 0.2]]")
+    assert load_config("smoke", overrides=[f"virtual.target_markers_rel={rel}"])  # the markers now in Tango's folder
+    with pytest.raises(ConfigError, match=r"target_markers_rel is now the target's own: set \[mockup\] markers"):
+        load_config("smoke", overrides=["virtual.target_markers_rel=[[0.5, 0.5, 1.02]]"])
 
 
 def test_a_replayed_session_gets_its_target_copied_too(tmp_path):

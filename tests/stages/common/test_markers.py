@@ -1,0 +1,95 @@
+"""Motion-capture markers on a target's mock-up: chosen on the main body's surface where a
+folder declares none (spread out, seen from a whole half-space each, clear of the
+fixtures), declared ones kept, and the convex hull that hides them."""
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from manifests.target import TARGET_FILE, TargetError
+from stages.common import layout
+from stages.common.markers import CHOSEN_MARKERS, FIXTURE_CLEARANCE, STAND_OFF_M, Hull, main_body_hull, markers
+from stages.common.target import load_target, main_body_box, main_body_part
+from stages.common.targets import builtin_folder
+from tests.target_folders import boulder, cubesat
+
+
+def test_a_segment_is_hidden_exactly_when_it_passes_through_the_hull():
+    """Seeded: random hulls and segments against a dense walk along each segment."""
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        hull = ConvexHull(rng.normal(size=(30, 3)))
+        body = Hull(hull.equations[:, :3], hull.equations[:, 3])
+        start, end = rng.uniform(-3, 3, (400, 3)), rng.uniform(-3, 3, (400, 3))
+        walk = start[:, None] + np.linspace(0, 1, 2001)[None, :, None] * (end - start)[:, None]
+        inside = np.all(walk @ body.normals.T + body.offsets < -1e-3, axis=-1).any(axis=1)
+        outside = np.all(np.max(walk @ body.normals.T + body.offsets, axis=-1) > 1e-3, axis=1)
+        hidden = body.hides(start, end)
+        assert np.all(hidden[inside]) and not np.any(hidden[outside])
+        assert inside.sum() > 50 and outside.sum() > 50
+
+
+@pytest.mark.parametrize("make", [cubesat, boulder], ids=["cubesat", "boulder"])
+def test_chosen_markers_stand_off_the_body_spread_out_and_seen_from_a_half_space(make, tmp_path):
+    target = load_target(make(tmp_path / "t"))
+    placed, body = markers(target), main_body_hull(target)
+    assert placed.chosen and len(placed.centres_m) == CHOSEN_MARKERS
+    # each stands STAND_OFF_M outside one face of the body's hull, inside the others' planes
+    np.testing.assert_allclose(np.max(placed.centres_m @ body.normals.T + body.offsets, axis=1), STAND_OFF_M,
+                               atol=1e-9)
+    vertices = main_body_part(target).vertices * target.mockup_scale
+    diameter = 2 * np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1))
+    apart = np.linalg.norm(placed.centres_m[:, None] - placed.centres_m[None], axis=2)
+    assert apart[~np.eye(len(apart), dtype=bool)].min() > 0.2 * diameter
+    flanges = np.stack([layout.target_from_targetee(target, mount)[:3, 3] for mount in layout.MOUNT_NAMES])
+    assert np.linalg.norm(placed.centres_m[:, None] - flanges[None], axis=2).min() > FIXTURE_CLEARANCE * diameter
+    rng = np.random.default_rng(3)
+    for centre, normal in zip(placed.centres_m, placed.normals, strict=True):
+        directions = rng.normal(size=(500, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        directions[directions @ normal < 0] *= -1  # the outward half-space
+        far = centre + 5.0 * directions
+        assert not body.hides(centre + 1e-6 * directions, far).any()  # a camera anywhere there sees it
+
+
+def test_tangos_declared_markers_are_where_the_body_box_rule_put_them():
+    """Tango declares the six markers the virtual testbed used before targets chose their
+    own (fractions of the main body box's half extents), to a micrometre on the mock-up."""
+    target = load_target(builtin_folder("tango"))
+    placed = markers(target)
+    low, high = (v * target.mockup_scale for v in main_body_box(target))
+    rel = np.array([(0.9, 0.8, 1.02), (-0.9, 0.85, 1.02), (0.85, -0.9, 1.02), (1.03, 0.2, 0.5), (-1.03, -0.3, 0.3),
+                    (0.2, 1.03, 0.2)])
+    assert not placed.chosen
+    np.testing.assert_allclose(placed.centres_m, (low + high) / 2 + rel * (high - low) / 2, atol=1e-6)
+    # on the faces they were meant for: the top, +x, -x; the last on the body's slanted +y side
+    np.testing.assert_allclose(placed.normals[:5], [[0, 0, 1]] * 3 + [[1, 0, 0], [-1, 0, 0]], atol=1e-9)
+    assert placed.normals[5][1] > 0.9
+
+
+def test_the_plus_x_fixture_holds_the_body_from_its_other_side(tmp_path):
+    """The CubeSat's wings reach 226 mm to -x: the whole mesh's centre is not the body's,
+    and the fixtures stand off the body's two faces alike."""
+    target = load_target(cubesat(tmp_path / "c"))
+    low, high = (v * target.mockup_scale for v in main_body_box(target))
+    minus_x, plus_x = (layout.target_from_targetee(target, mount) for mount in layout.MOUNT_NAMES)
+    assert minus_x[0, 3] == pytest.approx(low[0] - 0.12) and plus_x[0, 3] == pytest.approx(high[0] + 0.12)
+    np.testing.assert_allclose(plus_x[:3, 2], [-1, 0, 0], atol=1e-12)  # its flange faces the body too
+
+
+def test_declared_markers_are_checked(tmp_path):
+    folder = boulder(tmp_path / "b")
+    text = (folder / TARGET_FILE).read_text()
+    for markers_toml, key in (("[[0.4, 0, 0], [0, 0.3, 0], [0, 0, 0.3]]", r"key mockup\.markers: expected a list of "
+                                                                          "at least 4"),
+                              ("[[0.4, 0, 0], [0, 0.3, 0], [0, 0, 0.3], [0, 0, 300]]", r"key mockup\.markers\.3: "
+                                                                                       "300 m from the body centre")):
+        (folder / TARGET_FILE).write_text(text.replace("[mockup]\n", f"[mockup]\nmarkers = {markers_toml}\n"))
+        with pytest.raises(TargetError, match=key):
+            load_target(folder)
+    (folder / TARGET_FILE).write_text(text.replace("[mockup]\n", "[mockup]\nmarkers = [[0.41, 0, 0], [-0.41, 0, 0], "
+                                                   "[0, 0.33, 0], [0, 0, 0.25]]\n"))
+    target = load_target(folder)
+    placed = markers(target)
+    assert not placed.chosen
+    np.testing.assert_allclose(placed.centres_m, [[0.41, 0, 0], [-0.41, 0, 0], [0, 0.33, 0], [0, 0, 0.25]])
