@@ -9,9 +9,9 @@ a posteriori variance factor: how much the two sources disagree on its own captu
 beyond what those sigmas predict (``W/fusion.json``). On an axis where that disagreement
 fails a 95% test of consistency, the source with the smaller sigma there is kept alone
 (``axis_sources``): two sources cannot tell which of them is off, and fusing would let the
-worse pull the better. Elsewhere the mean difference of the two on the session is first
+worse pull the better. The median difference of the two over the session is first
 removed from the source with the larger sigma (``session_offset``), so that only the
-capture-to-capture errors are fused.
+capture-to-capture errors are tested and fused.
 """
 
 from __future__ import annotations
@@ -181,18 +181,25 @@ def smaller_sigma(estimates: list[Estimates], kuka: SourceModel, vicon: SourceMo
 
 @dataclass(frozen=True)
 class SessionOffset:
-    """Per camera axis (m): motion capture's mean excess over the robots on the session, its
-    standard error, and the source it is removed from (the one whose sigma is larger)."""
+    """Per camera axis (m): motion capture's median excess over the robots on the session,
+    its standard error, and the source it is removed from (the one whose sigma is larger)."""
 
     t_m: np.ndarray  # (3,)
     sigma_m: np.ndarray  # (3,)
     removed_from: tuple[str, str, str]
     why: str
 
-    def apply(self, kuka: np.ndarray, vicon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Both positions (3,) with the offset removed from the larger-sigma source."""
-        from_vicon = np.array([source == "vicon" for source in self.removed_from])
-        return kuka + np.where(from_vicon, 0.0, self.t_m), vicon - np.where(from_vicon, self.t_m, 0.0)
+    def robots(self, pose: np.ndarray) -> np.ndarray:
+        """The robots' ``cam_from_target`` (4, 4), the offset added where their sigma is larger."""
+        out = pose.copy()
+        out[:3, 3] += np.where([source == "kuka" for source in self.removed_from], self.t_m, 0.0)
+        return out
+
+    def motion_capture(self, pose: np.ndarray) -> np.ndarray:
+        """Motion capture's ``cam_from_target`` (4, 4), the offset removed where its sigma is larger."""
+        out = pose.copy()
+        out[:3, 3] -= np.where([source == "vicon" for source in self.removed_from], self.t_m, 0.0)
+        return out
 
 
 NO_OFFSET = SessionOffset(np.zeros(3), np.zeros(3), ("vicon",) * 3, "")
@@ -200,9 +207,9 @@ NO_OFFSET = SessionOffset(np.zeros(3), np.zeros(3), ("vicon",) * 3, "")
 
 def session_offset(config: Config, estimates: list[Estimates], kuka: SourceModel, vicon: SourceModel | None,
                    rejection: Sigma | None, factor: VarianceFactor) -> SessionOffset:
-    """The mean difference (motion capture minus robots, per camera axis) over the session's
-    two-source captures that pass the rejection test, each weighted by the inverse variance
-    of its predicted difference.
+    """The median difference (motion capture minus robots, per camera axis) over the
+    session's two-source captures: a median, so that ghost markers, which the rejection test
+    has not yet removed, barely move it.
 
     Why: both sources were calibrated at close range, so at the dataset's range each errs
     mostly by one offset per session (the rail's and the wand's scale, offsets extrapolated
@@ -211,8 +218,8 @@ def session_offset(config: Config, estimates: list[Estimates], kuka: SourceModel
     average but harms wherever the better source drew the smaller one, which two sources
     cannot see. With the difference of the offsets removed from the larger-sigma source,
     the labels keep that source's own offset and fuse only what varies between captures,
-    which the session's many captures do average. The standard error is the weighted
-    mean's, scaled by the factor."""
+    which the session's many captures do average. The standard error is the median's of
+    differences with the predicted sigmas scaled by the session's factor."""
     if vicon is None or rejection is None or config.fuse.session_offset == "off":
         return dataclasses.replace(NO_OFFSET, why="one source" if vicon is None else "fuse.session_offset = off")
     both = [e for e in estimates if e.tracked]
@@ -238,8 +245,8 @@ def axis_sources(config: Config, estimates: list[Estimates], kuka: SourceModel, 
     fails ``VarianceFactor.inconsistent``), one of them errs beyond its sigma, and two
     sources cannot tell which; fusing would let the worse pull the better. The source with
     the smaller sigma on that axis (median over the two-source captures) is kept alone: the
-    calibration's ranking is the only evidence left. Its variance gains the whole excess of
-    the disagreement's variance over the predicted, since that excess may be its own."""
+    calibration's ranking is the only evidence left. Its sigma is scaled by the session's
+    factor, as both are where they fuse (``fuse_capture``)."""
     if vicon is None or config.fuse.inconsistent_axes == "fuse":
         return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
     inconsistent = factor.inconsistent()
@@ -259,23 +266,24 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
     """One ``poses`` row; ``sources``: per camera axis, fused or one source alone
     (``axis_sources``); ``offset``: removed before fusing (``session_offset``)."""
     calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
+    # both in the offset of the source with the smaller sigma: tested and fused on what
+    # varies from capture to capture only, and a robots-only label in the session's offset
+    kuka_pose = offset.robots(e.kuka)
+    vicon_pose = offset.motion_capture(e.vicon) if e.tracked else e.vicon
     reason = "no motion capture in this session"
     if vicon is not None:
         predicted = e.plus_parameters(vicon.sigma_at(e.kuka, rejection))
-        kuka_pose, vicon_pose = e.kuka.copy(), None if e.vicon is None else e.vicon.copy()
-        if e.tracked:  # tested and fused without the session's offset: only what varies by capture
-            kuka_pose[:3, 3], vicon_pose[:3, 3] = offset.apply(e.kuka[:3, 3], e.vicon[:3, 3])
         reason = rejection_reason(kuka_pose, vicon_pose, factor.scale(predicted), rejection_k)
     if reason is None:
         calibrated_vicon = vicon.sigma_at(e.vicon)
         fused, sigma = fuse(kuka_pose, factor.scale(calibrated_kuka), vicon_pose, factor.scale(calibrated_vicon))
     else:
-        fused, sigma = e.kuka.copy(), factor.scale(calibrated_kuka)
+        fused, sigma = kuka_pose.copy(), factor.scale(calibrated_kuka)
     t_m = sigma.t_m.copy()
     for axis, source in enumerate(sources):
         if source != "fused":  # motion capture alone where it passed the rejection test, else the robots
             mocap = source == "vicon" and reason is None
-            pose, alone = (e.vicon, calibrated_vicon) if mocap else (e.kuka, calibrated_kuka)
+            pose, alone = (vicon_pose, calibrated_vicon) if mocap else (kuka_pose, calibrated_kuka)
             # the session's factor scales the kept source as it scales both where they fuse:
             # which of the two the disagreement's excess belongs to cannot be told
             fused[axis, 3], t_m[axis] = pose[axis, 3], factor.t[axis] * alone.t_m[axis]
