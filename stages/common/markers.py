@@ -76,10 +76,10 @@ def markers(target: Target) -> Markers:
         # the face whose plane the marker stands farthest outside of is the one it is stuck on
         face = np.argmax(centres @ hull.normals.T + hull.offsets, axis=1)
         return Markers(centres, hull.normals[face], chosen=False)
-    return chosen(target, hull)
+    return chosen(target)
 
 
-def chosen(target: Target, hull: Hull) -> Markers:
+def chosen(target: Target) -> Markers:
     """``CHOSEN_MARKERS`` spread over the main body's hull, away from the fixtures."""
     body = main_body_part(target).vertices * target.mockup_scale
     spread = ConvexHull(body)
