@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from stages.common import layout
 from stages.common.target import Target, farthest_points, main_body_part
@@ -63,9 +63,18 @@ class Hull:
 
 def main_body_hull(target: Target) -> Hull:
     """The convex hull of the main body part (``main_body_part``), mock-up scale."""
-    hull = ConvexHull(main_body_part(target).vertices * target.mockup_scale)
+    hull = _hull(main_body_part(target).vertices * target.mockup_scale)
     normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
     return Hull(normals, offsets)
+
+
+def _hull(points: np.ndarray) -> ConvexHull:
+    """A flat main body (a panel modelled as one plane) gets the hull of its points joggled
+    by a rounding error: both of its faces, a sheet thin as nothing."""
+    try:
+        return ConvexHull(points)
+    except QhullError:
+        return ConvexHull(points, qhull_options="QJ")
 
 
 def markers(target: Target) -> Markers:
@@ -82,7 +91,7 @@ def markers(target: Target) -> Markers:
 def chosen(target: Target) -> Markers:
     """``CHOSEN_MARKERS`` spread over the main body's hull, away from the fixtures."""
     body = main_body_part(target).vertices * target.mockup_scale
-    spread = ConvexHull(body)
+    spread = _hull(body)
     triangles = body[spread.simplices]  # (F, 3, 3)
     areas = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
     centres, normals = triangles.mean(axis=1)[areas > 0], spread.equations[areas > 0, :3]
