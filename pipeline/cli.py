@@ -477,13 +477,15 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
                    ) -> None:
     """Check a target folder and print what the pipeline takes from it: its parts, its size
     at full scale and as the mock-up, its keypoints (declared, or chosen on the mesh), its
-    views and where the motion-capture markers go. Exit 1 naming the file and key when it
-    cannot be used."""
+    views, where the motion-capture markers go, and the symmetries that make its keypoints
+    ambiguous. Exit 1 naming the file and key when it cannot be used."""
     from stages.common.markers import markers  # the shared layer: meshes load only here
+    from stages.common.symmetry import ambiguities
     from stages.common.target import load_target, main_body_part
 
     target = load_target(folder)
     placed = markers(target)
+    ambiguous = ambiguities(target)
     table = Table(title=escape(f"target {target.name} ({folder})"))
     for column in ("what", "value"):
         table.add_column(column)
@@ -505,6 +507,15 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
              + (f"chosen on the surface of part {main_body_part(target).name!r}" if placed.chosen else "declared")
              + "; centres on the mock-up, body frame (mm): "
              + "; ".join("(" + ", ".join(f"{v * 1000:.1f}" for v in c) + ")" for c in placed.centres_m)),
+            ("symmetries", "; ".join(
+                f"{a.symmetry} maps the mesh onto itself and moves keypoints "
+                f"({', '.join(f'{i}<->{j}' for i, j in a.swapped)}"
+                + (f"{', ' if a.swapped else ''}{', '.join(map(str, a.unmatched))} onto none" if a.unmatched else "")
+                + ")" for a in ambiguous)
+             + (": a pose and the pose so turned look the same, and no model of the images can tell them apart; "
+                "declare it in [symmetries] (BOP's metrics then score them alike; the SPEED score does not), or give "
+                "the mock-up a feature that breaks it" if ambiguous
+                else "none moves a keypoint (half and quarter turns about the body axes, and the declared ones)")),
             ("digest", target.digest[:16])]
     for what, value in rows:
         table.add_row(what, escape(value))
