@@ -83,7 +83,7 @@ class CameraConfig:
 @dataclass(frozen=True)
 class TargetConfig:
     """The object the dataset is of: a target folder (``DIR/target.toml`` beside its mesh;
-    README, "Your own target"). ``plan`` copies it into ``W/target/``, which every later
+    docs/user-guide.md, "Your own target"). ``plan`` copies it into ``W/target/``, which every later
     stage reads; its content's digest is in their fingerprints."""
 
     path: str = param("", "the target folder (DIR holding target.toml); empty: the built-in Tango", "")

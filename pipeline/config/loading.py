@@ -292,7 +292,7 @@ def load_config(profile: str | None = None, config_file: str | Path | None = Non
 
 def layered(saved: Path | None, profile: str | None = None, config_file: str | Path | None = None,
             overrides: Sequence[Override] = ()) -> tuple[Config, str | None]:
-    """A command's configuration, lowest precedence first (the README, "Configuration"):
+    """A command's configuration, lowest precedence first (docs/user-guide.md, "Configuration"):
 
     1. the workspace's saved ``W/config.toml`` (``saved``, when it exists), else the profile
        (``profile``, else the ``profile`` key of ``config_file``, else ``default``);

@@ -70,7 +70,7 @@ class AcquireConfig:
     format: Literal["session", "handeye", "tabb"] = param(
         "session", "replay format: session (a TRON-like logger's folder), handeye (images and a "
         "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
-        "preset of handeye); see README", "")
+        "preset of handeye); see docs/user-guide.md", "")
     source: str = param("", "replay: the recorded session directory", "")
 
 
@@ -84,7 +84,7 @@ class CalibrateConfig:
     min_corners: int = param(6, "pattern corners an image needs to be used", "count")
     solver: Literal["shah", "frobenius", "reprojection"] = param(
         "frobenius", "shah (closed form), frobenius (Shah, then the paper's LM; the most accurate "
-        "against the virtual truth, see README), or reprojection (then also the "
+        "against the virtual truth, see docs/accuracy.md), or reprojection (then also the "
         "pattern's reprojection error)", "")
     folds: int = param(5, "k of the k-fold cross-validation", "count")
     seed: int = param(0, "random assignment of samples to folds", "")
@@ -126,7 +126,8 @@ class CalibrateConfig:
         "Computer-Integrated Manufacturing 27(4), 2011)", "rad/(N m)")
     max_intrinsics_rms_px: float = param(
         2.0, "an estimated camera whose reprojection RMS over the kept images exceeds this is refused: corners of "
-        "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see README)", "px")
+        "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see "
+        "docs/accuracy.md)", "px")
     motion_angle_floor_rad: float = param(
         math.radians(1.0), "an image is rejected when its camera motions' rotation angles differ from the robot's "
         "by more than this and by more than median + outlier_k robust sigmas (median over its pairs; a flipped "

@@ -1,5 +1,5 @@
 """Replay of a hand-eye folder: images plus one robot pose file, described by
-``DIR/dataset.toml`` (format version 1; the README documents every key).
+``DIR/dataset.toml`` (format version 1; docs/user-guide.md documents every key).
 
 Frames (docs/architecture.md section 4): the target T is the pattern's frame. With ``camera_on =
 "flange"`` (eye-in-hand: the camera rides the flange, the pattern stands still) the camera

@@ -1,4 +1,4 @@
-"""Replay of a recorded testbed session (the format a real lab writes; see the README).
+"""Replay of a recorded testbed session (the format a real lab writes; see docs/user-guide.md).
 
 ```
 session.toml   format_version = 1, length_unit = "mm" | "m", angle_unit = "deg" | "rad",

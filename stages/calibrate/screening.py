@@ -3,7 +3,7 @@ the images, patterns are seen from the front, every chessboard's corners are put
 order, single images that disagree with the robot's motion are rejected (each with its
 reason), and the whole set is refused, naming the likely cause, when the detections do
 not fit the declared pattern (``stages.calibrate.consistency``); after the solve, absurd
-results are refused. Thresholds: ``CalibrateConfig``; why: the README.
+results are refused. Thresholds: ``CalibrateConfig``; why: docs/accuracy.md.
 """
 
 from __future__ import annotations
@@ -190,7 +190,7 @@ def check_inliers(name: str, inliers: int, total: int) -> None:
 def check_result(name: str, cross_validated: dict[str, list[float]], intrinsics: obs.Intrinsics,
                  limits: CalibrateConfig) -> None:
     """Refuse a calibration whose cross-validated errors are absurd for any real set-up
-    (the thresholds and why: ``CalibrateConfig`` and the README)."""
+    (the thresholds and why: ``CalibrateConfig`` and docs/accuracy.md)."""
     e_r, e_p = cross_validated["E_R_rad"][0], cross_validated["E_p_px"][0]
     diagonal = float(np.hypot(intrinsics.width, intrinsics.height))
     if e_r > limits.max_rotation_error_rad or e_p > limits.max_reprojection_fraction * diagonal:

@@ -13,7 +13,7 @@ from far away).
 
 Measured on the plain reference model's 300 held-out renders (oracle crop, four turns),
 with these constants chosen before looking: mean SPEED score 0.27 -> 0.12, poses off by
-more than 10 deg 16% -> 10%, median rotation error 0.84 -> 0.87 deg (README, "The
+more than 10 deg 16% -> 10%, median rotation error 0.84 -> 0.87 deg (docs/models.md, "The
 reference models").
 """
 

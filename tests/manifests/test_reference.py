@@ -1,0 +1,16 @@
+"""docs/formats.md documents every manifest's columns as the schema defines them."""
+
+from pathlib import Path
+
+from manifests.reference import markdown
+from manifests.schema import MANIFESTS
+
+FORMATS = Path(__file__).resolve().parents[2] / "docs" / "formats.md"
+
+
+def test_the_formats_document_holds_the_schemas_tables_as_generated():
+    text = FORMATS.read_text()
+    assert markdown() in text, "docs/formats.md is stale: paste `python -m manifests.reference` into it"
+    for spec in MANIFESTS.values():
+        assert f"### `{spec.name}`" in text
+        assert all(f"| `{column.name}` |" in text for column in spec.columns)
