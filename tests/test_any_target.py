@@ -1,5 +1,5 @@
 """Strangers' targets through every stage on the smoke profile, as a lab would run them
-(README, "Your own target"): a CubeSat as a GLB of named parts in millimetres with no
+(docs/user-guide.md, "Your own target"): a CubeSat as a GLB of named parts in millimetres with no
 keypoints, and a boulder as one STL in metres with its own keypoints and view names.
 Each is planned, acquired on the virtual testbed, calibrated, fused, labelled, rendered,
 given a reference model of its own, scored, reported and exported, and the products are

@@ -81,7 +81,7 @@ def test_fused_calibration_beats_the_papers_fused_figures_and_is_never_worse_tha
     assert truth["E_T_m"][0] * 1000 < PAPER["fused"][0][0]
     assert np.degrees(truth["E_R_rad"][0]) < PAPER["fused"][1][0]
     # on the samples both sources measured: with the arms calibrated the robots are some 20x
-    # better than motion capture, and fusion must not spoil them (README)
+    # better than motion capture, and fusion must not spoil them (docs/accuracy.md)
     same = fused["sources_on_the_same_samples"]
     for key in ("E_T_m", "E_R_rad"):
         assert truth[key][0] <= 1.01 * same["kuka"]["truth"][key][0]
@@ -114,15 +114,15 @@ def dataset_errors(ws):
 def test_dataset_labels_against_the_speedplus_thresholds(labelled, rigid):
     ours, papers = dataset_errors(labelled), dataset_errors(rigid)
     # (d) on the dataset captures motion capture is some 8x worse than the calibrated robots
-    # (README, "Accuracy"): fusion cannot gain much there, and must do no harm (issue 28)
+    # (docs/accuracy.md): fusion cannot gain much there, and must do no harm (issue 28)
     assert ours["fused"].mean() <= 1.01 * ours["kuka"].mean() and ours["fused"].mean() < 0.3 * ours["vicon"].mean()
     assert papers["fused"].mean() < min(papers["kuka"].mean(), papers["vicon"].mean())  # the paper's case
     # (c) the goal is every label under both thresholds; with the unmodelled errors the default
-    # facility (seed 11) keeps most of them, seeds 12-15 all (README, "Accuracy")
+    # facility (seed 11) keeps most of them, seeds 12-15 all (docs/accuracy.md)
     under = (ours["rotation"] < SPEEDPLUS_ROTATION_RAD) & (ours["position"] < SPEEDPLUS_TRANSLATION)
     assert under.mean() >= 0.8
     assert ours["rotation"].mean() < 0.2 * papers["rotation"].mean()
-    # (e) the sigmas: 90-99% is the goal (README)
+    # (e) the sigmas: 90-99% is the goal (docs/accuracy.md)
     assert np.all(ours["inside"].mean(axis=0) >= 0.85), ours["inside"].mean(axis=0)
     factor = json.loads((labelled.root / "fusion.json").read_text())["variance_factor"]
     assert factor["samples"] >= 30 and min(factor["t"]) >= 1.0 and factor["r"] >= 1.0

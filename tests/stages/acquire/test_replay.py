@@ -43,7 +43,7 @@ def recorded_rows(n=6, seed=0):
 
 
 def write_session(directory: Path, rows, length_unit="mm", untracked_as="zeros"):
-    """The session format of the README, as a lab's logger writes it."""
+    """The session format of docs/user-guide.md, as a lab's logger writes it."""
     directory.mkdir(parents=True)
     (directory / "images").mkdir()
     (directory / "session.toml").write_text(

@@ -3,7 +3,7 @@ positions in one orientation, plus a few tilted views. The chessboard stands sti
 robot world; each image is the board's texture warped by the exact homography of its view
 (pinhole camera, no distortion), so the truth (``cam_from_flange``) is known to the bit.
 
-Written as a ``--format handeye`` folder (README, "Hand-eye folders"): ``images/*.png``,
+Written as a ``--format handeye`` folder (docs/user-guide.md, "Hand-eye folders"): ``images/*.png``,
 ``poses.txt`` (base_from_flange, row-major 4x4, metres) and ``dataset.toml``.
 """
 

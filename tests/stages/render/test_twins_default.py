@@ -33,7 +33,7 @@ def test_twins_overlap_the_mockup_silhouette_in_the_capture(default_twins):
     at_truth = np.array([r["iou_truth"] for r in rows])
     fused = np.array([r["iou_label"] for r in rows if r["label_source"] == "fused"])
     assert at_truth.min() > 0.98, at_truth.min()  # one set of conventions from plan to render
-    # the labels carry the facility's unmodelled errors (README, "Accuracy": up to 0.17 deg, a few mm)
+    # the labels carry the facility's unmodelled errors (docs/accuracy.md: up to 0.17 deg, a few mm)
     assert len(fused) >= 30 and fused.min() >= 0.93, sorted(fused)[:3]
     assert np.median(fused) > 0.98
     # KUKA-only labels (motion capture rejected or untracked): the calibrated arms are as good
