@@ -14,3 +14,13 @@ def test_the_formats_document_holds_the_schemas_tables_as_generated():
     for spec in MANIFESTS.values():
         assert f"### `{spec.name}`" in text
         assert all(f"| `{column.name}` |" in text for column in spec.columns)
+
+
+def test_the_formats_document_gives_each_json_files_version_as_the_code_has_it():
+    from manifests.sidecars import CALIBRATION_VERSION, FUSION_VERSION, MARKERS_VERSION, SESSION_VERSION, TRUTH_VERSION
+
+    text = " ".join(FORMATS.read_text().split())
+    for name, version in (("session.json", SESSION_VERSION), ("calibration.json", CALIBRATION_VERSION),
+                          ("fusion.json", FUSION_VERSION), ("truth.json", TRUTH_VERSION),
+                          ("markers.json", MARKERS_VERSION)):
+        assert f"`{name}` {version}" in text, name
