@@ -19,10 +19,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated
 
+import click
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+from typer.core import TyperGroup
 
 from manifests import ManifestError, Workspace
 from manifests.lock import WorkspaceLock, holder
@@ -42,15 +44,46 @@ from pipeline.config import (
 )
 from pipeline.errors import InputError, RefusalError
 
+
+class _PipelineOrder(TyperGroup):
+    """Lists the commands in the pipeline's order, then the ones about a workspace or a target."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        order = [*registry.STAGE_NAMES, "run", "status", "verify", "target"]
+        return sorted(super().list_commands(ctx), key=lambda name: order.index(name) if name in order else len(order))
+
+
 app = typer.Typer(
+    cls=_PipelineOrder,
     name="speedplus",
     help="SPEED+ builder: spacecraft pose datasets from a robotic testbed and their synthetic twins.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    rich_markup_mode=None,  # help texts name configuration sections in brackets: [reference] is not markup
 )
 out = Console()
 err = Console(stderr=True)
+
+
+def _print_version(asked: bool) -> None:
+    if asked:
+        from importlib.metadata import PackageNotFoundError, version
+
+        from manifests.schema import SCHEMA_VERSION
+
+        try:
+            number = version("speedplus-builder")
+        except PackageNotFoundError:  # run from a checkout that was not installed
+            number = "unknown (not installed)"
+        out.print(f"speedplus {number} (manifest schema {SCHEMA_VERSION})", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                   help="print the version and exit")] = False) -> None:
+    """SPEED+ builder: spacecraft pose datasets from a robotic testbed and their synthetic twins."""
 
 
 def key_help(dotted: str) -> str:
@@ -71,7 +104,8 @@ ProfileOption = Annotated[
 ConfigOption = Annotated[
     Path | None, typer.Option("--config", "-c", help="TOML file overriding the profile", exists=False)]
 SetOption = Annotated[
-    list[str] | None, typer.Option("--set", "-s", help="override one key: section.key=value (repeatable)")]
+    list[str] | None, typer.Option("--set", "-s", metavar="SECTION.KEY=VALUE",
+                                   help="override one key (repeatable)")]
 ForceOption = Annotated[bool, typer.Option("--force", help="discard this stage's existing results and redo them")]
 EngineOption = Annotated[str | None, typer.Option("--engine", help=key_help("run.engine") + "; this run only")]
 RayAddressOption = Annotated[str | None, typer.Option("--ray-address",
@@ -256,10 +290,10 @@ def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspac
 
 
 def _stage_command(entry: registry.StageEntry) -> None:
+    # calibrate, fuse, label and report run in the command's own process: no engine options
     def command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-                set_: SetOption = None, force: ForceOption = False, engine: EngineOption = None,
-                ray_address: RayAddressOption = None, workers: WorkersOption = None) -> None:
-        _run([entry.name], workspace, profile, config, _parsed(set_), force, _engine(engine, ray_address, workers))
+                set_: SetOption = None, force: ForceOption = False) -> None:
+        _run([entry.name], workspace, profile, config, _parsed(set_), force, [])
 
     command.__doc__ = f"Run the {entry.name} stage: {entry.summary}."
     app.command(entry.name)(command)
@@ -327,8 +361,8 @@ def evaluate_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
     model: Annotated[list[Path] | None, typer.Option(
-        "--model", help="add this ONNX model to evaluate.models and score it beside the others, whose results "
-        "are kept; with --force, redo only it (repeatable)")] = None,
+        "--model", metavar="FILE.onnx", help="add this ONNX model to evaluate.models and score it beside the "
+        "others, whose results are kept; with --force, redo only it (repeatable)")] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the evaluate stage: score an ONNX model on the twins and the testbed images (Table 2)."""
