@@ -1,6 +1,7 @@
 """The one adapter between this project's cameras and Mitsuba 3, used by the virtual
 testbed's camera and by the synthetic twins (docs/architecture.md section 3): loading the
-fast variant (with its fallback) and a per-process kernel cache, the thread split, the
+LLVM variant (an error naming what to install when it is missing: there is no fallback)
+and a per-process kernel cache, the thread split, the
 sensor built from a pinhole ``RenderGeometry``, the camera pose through
 ``OPENCV_FROM_MITSUBA``, meshes, deterministic scene loading, and ray-cast silhouettes.
 
