@@ -4,8 +4,8 @@ its hull), made here with trimesh. ``train-reference`` renders its training set 
 on it with a profile's recipe; the model card's held-out synthetic accuracy is printed.
 
     python -m bench stranger_model [PROFILE] [VARIANT] [ROOT]
-        (default: default plain data/stranger_model; the default recipe takes about 45 min a
-        variant on 2 cores, smoke's about a minute)
+        (default: default plain data/stranger_model; the default recipe took 49 min for the
+        plain variant on 2 cores, 28 rendering and 21 training; smoke's about two minutes)
 
 Distances are SPEED+'s training range in target diameters (3-10 m of Tango's 1.37 m).
 """
