@@ -45,7 +45,9 @@ RENDER_TEMPLATE = "renders/{set}/{sample_id}.png"
 MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
 GROUND_TRUTH_TEMPLATE = "renders/{set}/ground_truth/{sample_id}.exr"
 TRUTH_MAPS_TEMPLATE = "truth/{sample_id}.exr"
-MODEL_TEMPLATE = "models/{name}.onnx"
+#: train-reference's models and their cards
+MODELS_DIR = "models"
+MODEL_TEMPLATE = MODELS_DIR + "/{name}.onnx"
 TARGET_DIR = "target"
 
 

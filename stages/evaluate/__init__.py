@@ -21,6 +21,7 @@ from rich.console import Console
 from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from manifests.integrity import sha256
+from manifests.workspace import MODELS_DIR
 from pipeline.config import Config
 from pipeline.engines import threads_per_worker
 from pipeline.errors import InputError
@@ -59,7 +60,7 @@ def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
 
 def _default_models(config: Config, workspace: Workspace | None) -> list[str]:
     trained = [] if workspace is None else sorted(
-        str(path) for path in workspace.resolve(workspace.model_relpath("x")).parent.glob("*.onnx"))
+        str(path) for path in workspace.resolve(MODELS_DIR).glob("*.onnx") if path.is_file())
     if trained:
         return trained
     return list(SHIPPED_MODELS) if workspace_target(config, workspace).name == BUILTIN_TARGET else []
