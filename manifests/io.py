@@ -294,10 +294,19 @@ def open_sink(workspace: Workspace, name: str, part_rows: int) -> PartSink:
 
 
 # ------------------------------------------------------------------------------------ read
-def _same_columns(schema: pa.Schema, spec: ManifestSpec) -> bool:
-    """The part's columns are the spec's, by name and type (an older version's part that
-    this version did not change)."""
-    return [(f.name, f.type) for f in schema] == [(c.name, c.field().type) for c in spec.columns]
+def _upgraded(table: pa.Table, spec: ManifestSpec) -> pa.Table | None:
+    """An older version's part in this version's columns, or None when it differs by more
+    than nullable columns added since: the same columns in order, by name and type, with
+    each added column filled with nulls."""
+    have = [(f.name, f.type) for f in table.schema]
+    kept = [(c.name, c.field().type) for c in spec.columns if c.name in table.column_names]
+    added = [c for c in spec.columns if c.name not in table.column_names]
+    if have != kept or not all(c.nullable for c in added):
+        return None
+    columns = [table.column(c.name) if c.name in table.column_names else pa.nulls(table.num_rows, c.field().type)
+               for c in spec.columns]
+    return pa.Table.from_arrays(columns, schema=pa.schema([c.field() for c in spec.columns],
+                                                          metadata=table.schema.metadata))
 
 
 def _read_part(path: Path, spec: ManifestSpec, source: str) -> pa.Table:
@@ -307,9 +316,12 @@ def _read_part(path: Path, spec: ManifestSpec, source: str) -> pa.Table:
         raise ManifestError(source, f"not a readable Parquet file ({error})") from None
     metadata = table.schema.metadata or {}
     version = metadata.get(b"speedplus.schema_version", b"").decode()
-    if version != SCHEMA_VERSION and not (version in READABLE_VERSIONS and _same_columns(table.schema, spec)):
-        raise ManifestError(source, f"schema version {version or 'missing'}, this program reads {SCHEMA_VERSION}; "
-                                    "rerun the stage with --force")
+    if version != SCHEMA_VERSION:
+        upgraded = _upgraded(table, spec) if version in READABLE_VERSIONS else None
+        if upgraded is None:
+            raise ManifestError(source, f"schema version {version or 'missing'}, this program reads "
+                                        f"{SCHEMA_VERSION}; rerun the stage with --force")
+        table = upgraded
     manifest = metadata.get(b"speedplus.manifest", b"").decode()
     if manifest != spec.name:
         raise ManifestError(source, f"part of manifest {manifest or 'unknown'!r}, expected {spec.name!r}")

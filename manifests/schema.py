@@ -16,11 +16,12 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.8"  # 1.8: a target's own keypoint count and view names
-#: older versions whose parts still read when their columns' names and types are this
-#: version's: 1.7 differs only in the keypoint columns' fixed length (11) and the view
-#: columns' enumeration, so a 1.7 plan, captures or truth (a kept recording) reads as it is
-READABLE_VERSIONS = ("1.7",)
+SCHEMA_VERSION = "1.9"  # 1.9: trajectory columns of the plan, captures' move_s
+#: older versions whose parts still read when their columns are this version's by name and
+#: type, less nullable columns added since (read as nulls): 1.7 differs only in the
+#: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
+#: plan's trajectory columns and captures' move_s; a kept recording reads as it is
+READABLE_VERSIONS = ("1.7", "1.8")
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -119,6 +120,20 @@ PLAN = ManifestSpec(
         *pose("world_from_targetee", "nominal, robot world frame K, target flange T_K"),
         Column("reachable", pa.bool_(), "", "both robots reach the commands within joint limits"),
         Column("redraws", pa.int32(), "count", "relative poses drawn and discarded as unreachable before this one"),
+        Column("sequence_id", pa.string(), "", "plan.mode = trajectory: the rendezvous sequence (W/trajectories.json); "
+               "null for independent poses", nullable=True, kind="name"),
+        Column("frame", pa.int32(), "index", "frame of the sequence, from 0, in capture order", nullable=True),
+        Column("time_s", pa.float64(), "s", "time since the sequence's epoch", nullable=True),
+        Column("rtn_servicer_m", VEC3, "m", "the servicer's camera relative to the target's centre of mass, in the "
+               "target's orbital RTN frame (radial, along-track, orbit normal), full scale", nullable=True),
+        Column("eci_from_target_q", QUAT, "1", "the target's attitude in ECI (mean equator and equinox of date), "
+               "Hamilton (w, x, y, z), w >= 0", nullable=True, kind="quaternion"),
+        Column("eci_from_cam_q", QUAT, "1", "the camera's attitude in ECI (OpenCV camera frame C)", nullable=True,
+               kind="quaternion"),
+        Column("sun_eci", VEC3, "1", "unit vector from the Earth's centre to the sun, ECI", nullable=True),
+        Column("in_eclipse", pa.bool_(), "", "the target is in the Earth's shadow", nullable=True),
+        Column("light_from_sun_rad", pa.float64(), "rad", "angle between the testbed light's direction at the model "
+               "(the sun lamp, or the mean of the active light boxes) and the true sun's", nullable=True),
     ),
 )
 
@@ -147,6 +162,8 @@ CAPTURES = ManifestSpec(
                nullable=True),
         Column("capture_time_s", pa.float64(), "s", "exposure time since the session's first capture; null when "
                "not recorded", nullable=True),
+        Column("move_s", pa.float64(), "s", "duration of the robots' move from the session's previous capture (the "
+               "previous frame of a sequence); null for the first capture or when not recorded", nullable=True),
         *pose("vicon_world_from_camrb", "motion capture, frame V; null when not tracked", nullable=True),
         *pose("vicon_world_from_targetrb", "motion capture, frame V; null when not tracked", nullable=True),
         Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body"),

@@ -11,7 +11,8 @@ W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/, ground_
 W/truth/<sample_id>.exr                        virtual testbed: depth and part ids at the true pose
 W/models/<name>.onnx, <name>.json              trained models and their cards
 W/target/                                      the target folder the plan was made for (target.toml, mesh)
-W/session.json  W/calibration.json  W/fusion.json  W/truth.json     typed sidecars (manifests.sidecars)
+W/session.json  W/calibration.json  W/fusion.json  W/truth.json  W/markers.json
+W/trajectories.json                            typed sidecars (manifests.sidecars)
 W/report/index.html  W/export/
 W/.snapshot/                                   a writing command's undo record (manifests.snapshot)
 ```
@@ -34,6 +35,7 @@ TRUTH_FILE = "truth.json"
 CALIBRATION_FILE = "calibration.json"
 FUSION_FILE = "fusion.json"
 MARKERS_FILE = "markers.json"
+TRAJECTORIES_FILE = "trajectories.json"
 MANIFESTS_DIR = "manifests"
 PART_TEMPLATE = "part-{index:05d}.parquet"
 STATE_DIR = "_state"
@@ -148,6 +150,11 @@ class Workspace:
     def markers_path(self) -> Path:
         """Where the virtual testbed stuck the motion-capture markers on the mock-up."""
         return self.root / MARKERS_FILE
+
+    @property
+    def trajectories_path(self) -> Path:
+        """The planned rendezvous sequences' orbits and spins (plan.mode = trajectory)."""
+        return self.root / TRAJECTORIES_FILE
 
     @property
     def truth_path(self) -> Path:

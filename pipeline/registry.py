@@ -90,7 +90,7 @@ def _load(target: str) -> Callable[..., Any]:
 
 STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan:run",
-               (), ("plan",), ("plan", "camera", "testbed"), target="configured"),
+               (), ("plan",), ("plan", "camera", "testbed"), resolve="stages.plan:resolve", target="configured"),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire:run",
                ("plan",), ("captures", "truth"), ("acquire", "virtual", "camera", "testbed"),

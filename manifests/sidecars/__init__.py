@@ -9,6 +9,7 @@ path on the ``Workspace``, and one reader and one writer:
 | ``fusion.json`` | fuse | report, benchmarks |
 | ``truth.json`` | acquire (virtual only) | tests and benchmarks, never a stage after acquire |
 | ``markers.json`` | acquire (virtual only) | tests; the lab (where the virtual markers sat) |
+| ``trajectories.json`` | plan (trajectory mode) | export (SHIRT), evaluate (tracking), tests |
 """
 
 from manifests.sidecars.base import Pose, SidecarError
@@ -34,12 +35,21 @@ from manifests.sidecars.session import (
     read_session,
     write_session,
 )
+from manifests.sidecars.trajectories import (
+    TRAJECTORIES_VERSION,
+    SequenceRecord,
+    TrajectoriesRecord,
+    read_trajectories,
+    write_trajectories,
+)
 from manifests.sidecars.truth import TRUTH_VERSION, TruthRecord, read_truth, write_truth
 
 __all__ = [
     "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "MARKERS_VERSION", "OFFSET_KEYS",
-    "SESSION_VERSION", "SOURCES", "TRUTH_VERSION", "Calibration", "FusionRecord", "Intrinsics", "MarkersRecord",
-    "Pose", "Session", "SessionCamera", "SidecarError", "SigmaRecord", "SourceCalibration", "TruthRecord",
-    "read_calibration", "read_fusion", "read_markers", "read_session", "read_truth", "write_calibration",
-    "write_fusion", "write_markers", "write_session", "write_truth",
+    "SESSION_VERSION", "SOURCES", "TRAJECTORIES_VERSION", "TRUTH_VERSION",
+    "Calibration", "FusionRecord", "Intrinsics", "MarkersRecord",
+    "Pose", "SequenceRecord", "Session", "SessionCamera", "SidecarError", "SigmaRecord", "SourceCalibration",
+    "TrajectoriesRecord", "TruthRecord",
+    "read_calibration", "read_fusion", "read_markers", "read_session", "read_trajectories", "read_truth",
+    "write_calibration", "write_fusion", "write_markers", "write_session", "write_trajectories", "write_truth",
 ]

@@ -42,12 +42,14 @@ from pipeline.config.stages import (
     PlanConfig,
     ReferenceConfig,
     RenderConfig,
+    TrajectoryConfig,
 )
 
 __all__ = [
     "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
     "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
-    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TargetConfig", "TestbedConfig", "VirtualConfig", "layered",
+    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TargetConfig", "TestbedConfig", "TrajectoryConfig",
+    "VirtualConfig", "layered",
     "load_config", "param", "parse_override",
     "profile_path", "resize_camera_matrix", "to_dict", "with_overrides", "write_config",
 ]

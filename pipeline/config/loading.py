@@ -11,6 +11,7 @@ import types
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
+from datetime import datetime
 from importlib import resources
 from pathlib import Path, PurePosixPath
 from typing import Any, Literal
@@ -128,6 +129,41 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
     return replace(config, **changes)
 
 
+def _check_trajectory(config: Config) -> None:
+    """The [trajectory] section's physics: an orbit above the Earth, a time scale, an inertia
+    that a body can have (the message names the key)."""
+    t = config.trajectory
+    if not t.presets or len(set(t.presets)) != len(t.presets):
+        raise ConfigError(f"trajectory.presets: expected distinct presets, got {list(t.presets)}")
+    if t.frames < 1 or not t.cam_step_s > 0:
+        raise ConfigError("trajectory.frames/cam_step_s: expected at least one frame and a positive step (s)")
+    try:
+        epoch = datetime.fromisoformat(t.epoch_utc.replace("Z", "+00:00"))
+    except ValueError:
+        epoch = None
+    if epoch is None or epoch.tzinfo is None:
+        raise ConfigError(f"trajectory.epoch_utc: {t.epoch_utc!r} is not an ISO 8601 time in UTC, "
+                          "e.g. 2026-03-20T06:00:00Z")
+    if not 0 <= t.chief_e < 1:
+        raise ConfigError(f"trajectory.chief_e: expected an eccentricity in [0, 1), got {t.chief_e}")
+    if t.chief_a_m * (1 - t.chief_e) <= 6_478_137.0:
+        raise ConfigError(f"trajectory.chief_a_m: a perigee {t.chief_a_m * (1 - t.chief_e) / 1e3:.0f} km from the "
+                          "Earth's centre is below 100 km altitude (the value is in metres)")
+    if abs(math.sin(t.chief_i_rad)) < 1e-3:
+        raise ConfigError("trajectory.chief_i_rad: an equatorial orbit has no node; the relative elements dix, diy "
+                          "need an inclination away from 0 and pi")
+    if min(t.mass_kg, t.cam_step_s) <= 0 or min(t.pointing_sigma_rad, t.jitter_sigma_rad) < 0:
+        raise ConfigError("trajectory.mass_kg: positive; trajectory.pointing_sigma_rad/jitter_sigma_rad: at least 0")
+    if t.inertia_kgm2:
+        if len(t.inertia_kgm2) != 6:
+            raise ConfigError("trajectory.inertia_kgm2: expected (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) or empty")
+        ixx, iyy, izz, ixy, ixz, iyz = t.inertia_kgm2
+        moments = np.linalg.eigvalsh(np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], float))
+        if moments[0] <= 0 or moments[2] > moments[0] + moments[1] * (1 + 1e-9):
+            raise ConfigError(f"trajectory.inertia_kgm2: principal moments {moments.round(6).tolist()} kg m^2 are "
+                              "not a rigid body's (all positive, the largest at most the sum of the others)")
+
+
 def _check(config: Config) -> Config:
     """Cross-field rules that types cannot express; a relative ``target.path`` is made
     absolute (the saved configuration must name the same folder from any directory)."""
@@ -156,6 +192,8 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
     if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
         raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
+    if p.mode == "trajectory":
+        _check_trajectory(config)
     if not 0.0 <= config.export.validation_fraction <= 1.0:
         raise ConfigError("export.validation_fraction: expected a share in [0, 1]")
     if not config.export.sets or len(set(config.export.sets)) != len(config.export.sets):

@@ -17,6 +17,7 @@ from pipeline.config.stages import (
     PlanConfig,
     ReferenceConfig,
     RenderConfig,
+    TrajectoryConfig,
 )
 
 
@@ -30,6 +31,7 @@ class Config:
     camera: CameraConfig = field(default_factory=CameraConfig)
     testbed: TestbedConfig = field(default_factory=TestbedConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     acquire: AcquireConfig = field(default_factory=AcquireConfig)
     virtual: VirtualConfig = field(default_factory=VirtualConfig)
     calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)

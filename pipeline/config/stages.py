@@ -10,6 +10,9 @@ from manifests.schema import DOMAINS, MOUNTS
 from pipeline.config.params import param
 
 ExportSet = Literal["testbed", "twins", "train"]
+PlanMode = Literal["poses", "trajectory"]
+TrajectoryPreset = Literal["vbar_hold_spin", "approach_tumble", "custom"]
+TRAJECTORY_PRESETS: tuple[TrajectoryPreset, ...] = ("vbar_hold_spin", "approach_tumble", "custom")
 #: the reference models: ``plain`` (photometric jitter) and ``augmented`` (the robust recipe of
 #: stages/reference/augment.py), named reference and reference_augmented
 ReferenceVariant = Literal["plain", "augmented"]
@@ -20,6 +23,9 @@ class PlanConfig:
     """The plan stage: which relative poses to capture and how the robots realise them."""
 
     seed: int = param(2021, "random seed of the plan; same seed, same plan", "")
+    mode: PlanMode = param(
+        "poses", "poses (independent samples, SPEED+) or trajectory (rendezvous sequences following orbital and "
+        "attitude dynamics, the [trajectory] section; they replace plan.n_dataset)", "")
     n_calibration: int = param(64, "calibration-session captures (TRON: 64)", "count")
     n_dataset: int = param(48, "dataset-session captures, balanced over view x light", "count")
     calibration_distance_m: tuple[float, float] = param(
@@ -59,6 +65,46 @@ class PlanConfig:
         12, "camera rolls about the line of sight tried when searching robot configurations", "count")
     joint_limit_margin_rad: float = param(
         math.radians(3.0), "commanded joints keep this distance from the data-sheet limits", "rad")
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    """plan.mode = trajectory: rendezvous sequences of the target (the chief) seen from a
+    servicer (the deputy) that carries the camera. Relative motion in D'Amico's
+    quasi-nonsingular relative orbital elements (stages/common/orbits.py), torque-free
+    attitude (stages/common/attitude.py), the sun from the epoch (stages/common/sun.py)."""
+
+    presets: tuple[TrajectoryPreset, ...] = param(
+        TRAJECTORY_PRESETS[:2], "sequences to plan, in order: vbar_hold_spin (an along-track hold at mid range, the "
+        "target spinning about its major principal axis), approach_tumble (a slow natural-drift approach from the "
+        "far end of the range, the target tumbling about two principal axes), custom (trajectory.roe_m and "
+        "trajectory.spin_rad_s); the presets scale with plan.dataset_range_*", "")
+    frames: int = param(24, "frames per sequence", "count")
+    cam_step_s: float = param(5.0, "time between frames (SHIRT: 5 s)", "s")
+    epoch_utc: str = param("2026-03-20T06:00:00Z", "the sequences' epoch, ISO 8601 in UTC", "")
+    chief_a_m: float = param(7_078_137.0, "the target's mean semi-major axis (700 km altitude)", "m")
+    chief_e: float = param(0.001, "the target's mean eccentricity", "1")
+    chief_i_rad: float = param(math.radians(98.19), "the target's inclination (sun-synchronous at 700 km)", "rad")
+    chief_raan_rad: float = param(math.radians(20.0), "the target's right ascension of the ascending node", "rad")
+    chief_argp_rad: float = param(math.radians(30.0), "the target's argument of perigee", "rad")
+    chief_mean_anomaly_rad: float = param(math.radians(10.0), "the target's mean anomaly at the epoch", "rad")
+    roe_m: tuple[float, float, float, float, float, float] = param(
+        (0.0, -8.0, 0.0, 0.4, 0.0, 0.4), "custom: the servicer's relative orbital elements times the target's "
+        "semi-major axis, a (da, dlambda, dex, dey, dix, diy); dlambda < 0 puts the servicer behind", "m")
+    spin_rad_s: tuple[float, float, float] = param(
+        (0.0, 0.0, math.radians(1.0)), "custom: the target's initial angular velocity in its body frame T", "rad/s")
+    spin_rate_rad_s: float = param(math.radians(1.0), "the presets' spin rate", "rad/s")
+    mass_kg: float = param(40.0, "the target's full-scale mass (Tango: about 40 kg); scales its inertia", "kg")
+    inertia_kgm2: tuple[float, ...] = param(
+        (), "the target's inertia about its centre of mass in T, (Ixx, Iyy, Izz, Ixy, Ixz, Iyz); empty: a uniform "
+        "shell over the mesh's surface, of trajectory.mass_kg", "kg m^2")
+    pointing_sigma_rad: float = param(
+        math.radians(0.3), "the camera's pointing error at the target's centre of mass, per axis, one draw per "
+        "sequence", "rad")
+    jitter_sigma_rad: float = param(math.radians(0.02), "the camera's pointing jitter, per axis and frame", "rad")
+    sunlamp_tolerance_rad: float = param(
+        math.radians(30.0), "a sunlit frame is taken under the sun lamp when the lamp's direction at the model is "
+        "this close to the true sun's, else under the light boxes on the Earth's side", "rad")
 
 
 @dataclass(frozen=True)

@@ -316,6 +316,7 @@ class HandEyeReplay:
             **pose_columns("kuka_world_from_camee", world_from_camee),
             **pose_columns("kuka_world_from_targetee", world_from_targetee),
             "kuka_camera_joints_rad": None, "kuka_target_joints_rad": None, "kuka_rail_m": None, "capture_time_s": None,
+            "move_s": None,
             **pose_columns("vicon_world_from_camrb", None), **pose_columns("vicon_world_from_targetrb", None),
             "vicon_camrb_markers": 0, "vicon_targetrb_markers": 0, "status": "ok",
         }

@@ -257,6 +257,7 @@ class SessionReplay:
             **pose_columns("kuka_world_from_targetee", robot["targetee"]),
             "kuka_camera_joints_rad": robot["camera_joints_rad"], "kuka_target_joints_rad": robot["target_joints_rad"],
             "kuka_rail_m": robot["rail_m"], "capture_time_s": robot["time_s"],
+            "move_s": None,
             **pose_columns("vicon_world_from_camrb", camera_body["pose"]),
             **pose_columns("vicon_world_from_targetrb", target_body["pose"]),
             "vicon_camrb_markers": camera_body["markers"], "vicon_targetrb_markers": target_body["markers"],

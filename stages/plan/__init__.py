@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from pipeline.config import Config
 from pipeline.progress import track
 from stages.common import geometry as g
@@ -28,18 +29,43 @@ from stages.plan.poses import (
     mount_away_from,
 )
 from stages.plan.reconfigure import Reconfiguration, reconfigure
+from stages.plan.trajectory import SEQUENCE_COLUMNS, sequence_rows
 
 SESSION_CODES = {"calibration": 0, "dataset": 1}
 ID_PREFIX = {"calibration": "cal", "dataset": "img"}
 
-__all__ = ["PlanningError", "plan_sample", "run", "sample_ids"]
+__all__ = ["PlanningError", "dataset_count", "plan_sample", "resolve", "run", "sample_ids"]
+
+
+def dataset_count(config: Config) -> int:
+    """Dataset samples planned: ``plan.n_dataset``, or every sequence's frames."""
+    if config.plan.mode == "trajectory":
+        return config.trajectory.frames * len(config.trajectory.presets)
+    return config.plan.n_dataset
 
 
 def sample_ids(config: Config) -> list[tuple[str, int, str]]:
     """(session, index, sample_id) of every planned sample, in capture order."""
     ids = [("calibration", i, f"cal{i:06d}") for i in range(config.plan.n_calibration)]
-    ids += [("dataset", i, f"img{i:06d}") for i in range(config.plan.n_dataset)]
+    ids += [("dataset", i, f"img{i:06d}") for i in range(dataset_count(config))]
     return ids
+
+
+def resolve(config: Config, workspace: Workspace) -> dict:
+    """The [trajectory] section counts only when the plan is made of sequences."""
+    sections = ("plan", "camera", "testbed") + (("trajectory",) if config.plan.mode == "trajectory" else ())
+    return {"inputs": (), "sections": sections, "extra": {}, "outputs": ("plan",)}
+
+
+def trajectory_rows(config: Config, target: Target) -> tuple[list[dict], TrajectoriesRecord]:
+    """Every sequence's rows, in capture order, and their record; nothing is written before
+    all of them are placed (a refused sequence leaves the workspace as it was)."""
+    rows, records = [], []
+    for index, preset in enumerate(config.trajectory.presets):
+        sequence, record = sequence_rows(config, target, index, preset, index * config.trajectory.frames)
+        rows += sequence
+        records.append(record)
+    return rows, TrajectoriesRecord(tuple(records))
 
 
 def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None) -> dict:
@@ -97,6 +123,7 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         **g.pose_columns("world_from_targetee", commands.world_from_targetee),
         "reachable": True,
         "redraws": redraws,
+        **dict.fromkeys(SEQUENCE_COLUMNS),
     }
 
 
@@ -106,8 +133,17 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     target = planned_target(config)
     done = read_keys(workspace, "plan")
     todo = [item for item in sample_ids(config) if item[2] not in done]
+    sequences: dict[str, dict] = {}
+    if config.plan.mode == "trajectory":
+        rows, record = trajectory_rows(config, target)
+        sequences = {row["sample_id"]: row for row in rows}
     with open_sink(workspace, "plan", config.run.part_rows) as sink:
         for session, index, sample_id in track(todo, len(todo), "plan"):
-            sink.add(plan_sample(config, session, index, sample_id, target))
+            sink.add(sequences[sample_id] if sample_id in sequences
+                     else plan_sample(config, session, index, sample_id, target))
+    if config.plan.mode == "trajectory":
+        write_trajectories(workspace, record)
+    else:
+        workspace.trajectories_path.unlink(missing_ok=True)
     install(config, workspace)
     return read_manifest(workspace, "plan")

@@ -58,10 +58,13 @@ def _sight_directions(plan: PlanConfig) -> np.ndarray:
 
 
 def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testbed: TestbedConfig,
-                target: Target, require_far_side: bool) -> Reconfiguration | None:
+                target: Target, require_far_side: bool, previous: Reconfiguration | None = None
+                ) -> Reconfiguration | None:
     """The best robot/rail commands realising ``cam_from_target`` (4, 4, mock-up scale), or
     None when no candidate is reachable; ``require_far_side``: the target robot's base and
-    flange behind the target's body centre, seen from the camera."""
+    flange behind the target's body centre, seen from the camera. Best: farthest from the
+    joint limits, or, after a ``previous`` frame of a sequence, the smallest move from it
+    (the largest joint change, rad, plus the rail's, m), so that a sequence flows."""
     arm = arm_model(testbed.robot_model)
     distance = np.linalg.norm(cam_from_target[:3, 3])
     sight_cam = cam_from_target[:3, 3] / distance  # model direction in the camera frame
@@ -75,6 +78,11 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     frame_world = _frame_from_direction(sights)  # (S, 3, 3)
     roll_rotation = g.axis_angle_matrix("x", rolls)  # (R, 3, 3)
     world_from_cam_rotation = frame_world[:, None] @ roll_rotation[None] @ frame_cam.T  # (S, R, 3, 3)
+    if previous is not None:  # one more sight: the camera keeps its attitude, the target robot turns the model
+        kept = (previous.world_from_camee @ layout.camee_from_cam(testbed))[:3, :3]
+        sights = np.concatenate([sights, (kept @ sight_cam)[None]])
+        world_from_cam_rotation = np.concatenate([world_from_cam_rotation,
+                                                  np.broadcast_to(kept, (1, len(rolls), 3, 3))])
 
     origin = presentation[:, None, None, :]  # (P, 1, 1, 3): the model's origin in K
     camera_position = origin - distance * sights[None, :, None, :]  # (P, S, 1, 3)
@@ -112,7 +120,12 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
         return None
     margin = np.minimum(limit_margin(arm, np.nan_to_num(camera_joints)),
                         limit_margin(arm, np.nan_to_num(target_joints))[..., None])
-    best = np.unravel_index(np.argmax(np.where(ok, margin, -np.inf)), ok.shape)
+    score = margin
+    if previous is not None:
+        move = np.maximum(np.max(np.abs(np.nan_to_num(camera_joints) - previous.camera_joints_rad), axis=-1),
+                          np.max(np.abs(np.nan_to_num(target_joints) - previous.target_joints_rad), axis=-1)[..., None])
+        score = -(move + np.abs(rail - previous.rail_m))
+    best = np.unravel_index(np.argmax(np.where(ok, score, -np.inf)), ok.shape)
     p, s, r, o = (int(i) for i in best)
     return Reconfiguration(
         rail_m=float(rail[p, s, r, o]),

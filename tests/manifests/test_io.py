@@ -10,7 +10,7 @@ import pytest
 
 from manifests import ManifestError, Workspace, read_manifest, read_success, write_part, write_success
 from manifests.io import list_parts, part_fingerprints, remove_temporaries, to_table
-from manifests.schema import MANIFESTS, TRUTH
+from manifests.schema import MANIFESTS, SCHEMA_VERSION, TRUTH
 
 
 def truth_rows(n, start=0):
@@ -185,10 +185,28 @@ def test_an_older_version_reads_only_where_its_columns_are_unchanged(tmp_path):
     _restamp(part, "1.7")
     assert read_manifest(ws, "truth").num_rows == 3
     _restamp(part, "1.6")
-    with pytest.raises(ManifestError, match=r"schema version 1.6, this program reads 1.8; rerun the stage"):
+    with pytest.raises(ManifestError, match=rf"schema version 1.6, this program reads {SCHEMA_VERSION}; rerun the"):
         read_manifest(ws, "truth")
     fields = [pa.field(f.name, pa.list_(pa.float32(), 3) if f.name == "cam_from_target_t" else f.type, f.nullable)
               for f in TRUTH.schema()]
     _restamp(part, "1.7", pa.schema(fields))
-    with pytest.raises(ManifestError, match=r"schema version 1.7, this program reads 1.8"):
+    with pytest.raises(ManifestError, match=rf"schema version 1.7, this program reads {SCHEMA_VERSION}"):
+        read_manifest(ws, "truth")
+
+
+def test_an_older_part_without_a_nullable_column_added_since_reads_it_as_nulls(tmp_path):
+    """A 1.8 part lacks 1.9's nullable columns (the plan's trajectory columns, captures'
+    move_s): it reads with them null; a part lacking a column that may not be null does not."""
+    ws = Workspace(tmp_path)
+    write_part(ws, "truth", truth_rows(3), "fp")
+    part = list_parts(ws, "truth")[0]
+    table = pq.read_table(part)
+    metadata = {**table.schema.metadata, b"speedplus.schema_version": b"1.8"}
+    pq.write_table(table.drop_columns(["maps_path"]).replace_schema_metadata(metadata), part)
+    read = read_manifest(ws, "truth")
+    assert read.column_names == [c.name for c in TRUTH.columns]
+    assert read.column("maps_path").null_count == 3
+    assert read.column("fixture_sag_rad").to_pylist() == table.column("fixture_sag_rad").to_pylist()
+    pq.write_table(table.drop_columns(["fixture_sag_rad"]).replace_schema_metadata(metadata), part)
+    with pytest.raises(ManifestError, match="schema version 1.8"):
         read_manifest(ws, "truth")

@@ -17,10 +17,17 @@ def test_the_formats_document_holds_the_schemas_tables_as_generated():
 
 
 def test_the_formats_document_gives_each_json_files_version_as_the_code_has_it():
-    from manifests.sidecars import CALIBRATION_VERSION, FUSION_VERSION, MARKERS_VERSION, SESSION_VERSION, TRUTH_VERSION
+    from manifests.sidecars import (
+        CALIBRATION_VERSION,
+        FUSION_VERSION,
+        MARKERS_VERSION,
+        SESSION_VERSION,
+        TRAJECTORIES_VERSION,
+        TRUTH_VERSION,
+    )
 
     text = " ".join(FORMATS.read_text().split())
     for name, version in (("session.json", SESSION_VERSION), ("calibration.json", CALIBRATION_VERSION),
                           ("fusion.json", FUSION_VERSION), ("truth.json", TRUTH_VERSION),
-                          ("markers.json", MARKERS_VERSION)):
+                          ("markers.json", MARKERS_VERSION), ("trajectories.json", TRAJECTORIES_VERSION)):
         assert f"`{name}` {version}" in text, name

@@ -125,6 +125,7 @@ class VirtualTestbed:
             **pose_columns("kuka_world_from_targetee", state.kuka_world_from_targetee),
             "kuka_camera_joints_rad": state.camera_joints_rad, "kuka_target_joints_rad": state.target_joints_rad,
             "kuka_rail_m": state.rail_m, "capture_time_s": moment.time_s,
+            "move_s": moment.move_s,
             **pose_columns("vicon_world_from_camrb", camera_body.vicon_world_from_rb),
             **pose_columns("vicon_world_from_targetrb", target_body.vicon_world_from_rb),
             "vicon_camrb_markers": camera_body.markers, "vicon_targetrb_markers": target_body.markers,

@@ -33,6 +33,7 @@ class Moment:
     camera_direction: np.ndarray
     target_direction: np.ndarray
     previous_target_joints_rad: np.ndarray | None = None  # commanded at the session's capture before; None: first
+    move_s: float | None = None  # the robots' move from the capture before; None: first
 
 
 def _light(row: dict[str, Any]) -> tuple[str, tuple[int, ...]]:
@@ -65,13 +66,15 @@ def timeline(config: Config, rows: list[dict[str, Any]], start_direction: dict[s
         time_s = 0.0
         camera, target = np.asarray(start_direction["camera"], float), np.asarray(start_direction["target"], float)
         for index, row in enumerate(ordered):
+            move = None
             if index:
                 previous = ordered[index - 1]
-                time_s += move_seconds(config, previous, row) + v.settle_s + v.expose_s
+                move = move_seconds(config, previous, row)
+                time_s += move + v.settle_s + v.expose_s
                 if _light(previous) != _light(row):
                     time_s += v.light_change_s
                 camera = _directions(previous["camera_joints_rad"], row["camera_joints_rad"], camera)
                 target = _directions(previous["target_joints_rad"], row["target_joints_rad"], target)
             previous_joints = np.asarray(ordered[index - 1]["target_joints_rad"], float) if index else None
-            moments[row["sample_id"]] = Moment(time_s, camera, target, previous_joints)
+            moments[row["sample_id"]] = Moment(time_s, camera, target, previous_joints, move)
     return moments
