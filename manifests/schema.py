@@ -347,6 +347,8 @@ _EXPORT_COLUMNS = (
 EXPORT_SPEEDPLUS = ManifestSpec("export_speedplus", "images written by export --format speedplus", _EXPORT_COLUMNS,
                                 key="export_id")
 EXPORT_BOP = ManifestSpec("export_bop", "images written by export --format bop", _EXPORT_COLUMNS, key="export_id")
+EXPORT_SHIRT = ManifestSpec("export_shirt", "images written by export --format shirt (sequences)", _EXPORT_COLUMNS,
+                            key="export_id")
 
 MODELS = ManifestSpec(
     "models",
@@ -368,5 +370,6 @@ MODELS = ManifestSpec(
 
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
-                                  PREDICTIONS, SCORES, EXPORT_SPEEDPLUS, EXPORT_BOP, MODELS)
+                                  PREDICTIONS, SCORES, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
+                                  MODELS)
 }

@@ -196,6 +196,9 @@ def _check(config: Config) -> Config:
         _check_trajectory(config)
     if not 0.0 <= config.export.validation_fraction <= 1.0:
         raise ConfigError("export.validation_fraction: expected a share in [0, 1]")
+    if config.export.format == "shirt" and (p.mode != "trajectory" or "train" in config.export.sets):
+        raise ConfigError("export.format: shirt exports sequences (plan.mode = trajectory) of the testbed and the "
+                          "twins (export.sets without train); export the training set with speedplus or bop")
     if not config.export.sets or len(set(config.export.sets)) != len(config.export.sets):
         raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:

@@ -328,8 +328,9 @@ class EvaluateConfig:
 class ExportConfig:
     """speedplus export: the labels and testbed images in a layout other tools read."""
 
-    format: Literal["speedplus", "bop"] = param(
-        "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read) or bop (bop_toolkit's scenes)", "")
+    format: Literal["speedplus", "bop", "shirt"] = param(
+        "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read), bop (bop_toolkit's scenes; a "
+        "trajectory plan's sequences are its scenes) or shirt (SHIRT's sequences, plan.mode = trajectory)", "")
     out: str = param("", "export folder; empty: W/export", "")
     sets: tuple[ExportSet, ...] = param(
         ("testbed", "twins"), "image sets exported: testbed (the labelled captures), twins (their synthetic twins, "

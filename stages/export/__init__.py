@@ -1,6 +1,7 @@
 """The export stage: the labelled testbed images, their synthetic twins and the training set
-as a SPEED+ dataset (the Stanford devkits; ``stages.export.speedplus``) or a BOP dataset
-(bop_toolkit; ``stages.export.bop``), in ``export.out`` (default ``W/export``).
+as a SPEED+ dataset (the Stanford devkits; ``stages.export.speedplus``), a BOP dataset
+(bop_toolkit; ``stages.export.bop``) or, for a trajectory plan, SHIRT's sequences
+(``stages.export.shirt``), in ``export.out`` (default ``W/export``).
 
 Every image written is a row of the ``export_<format>`` manifest (key ``<set>/<sample_id>``),
 so an interrupted export resumes with the images it lacks; the annotation files are
@@ -18,6 +19,7 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
+from manifests.sidecars import read_trajectories
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
 from pipeline.errors import InputError
@@ -26,7 +28,7 @@ from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.sidecars import calibrated_camera
 from stages.common.workspace_target import workspace_target
-from stages.export import bop, speedplus
+from stages.export import bop, shirt, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
 #: {"version": EXPORT_MARK_VERSION, "workspace": W, "format": ...}, compared whole
@@ -40,6 +42,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[s
     (pipeline/registry.py): one manifest per format, so both exports can coexist."""
     inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}
     needed = tuple(dict.fromkeys(name for chosen in config.export.sets for name in inputs[chosen]))
+    if config.plan.mode == "trajectory":  # each image's sequence and frame
+        needed = ("plan", *needed)
     # of the render section, only what sizes the training camera matters here
     extra = {"train_resolution_scale": config.render.train_resolution_scale} if "train" in config.export.sets else {}
     return needed, ("export", "camera"), extra, (f"export_{config.export.format}",)
@@ -88,6 +92,7 @@ def items(config: Config, workspace: Workspace) -> list[dict[str, Any]]:
         sources["testbed"] = {r["sample_id"]: r["image_path"] for r in read_manifest(workspace, "captures").to_pylist()}
     if "twins" in config.export.sets:
         sources["twins"] = {r["sample_id"]: r["image_path"] for r in read_manifest(workspace, "renders").to_pylist()}
+    frames = sequence_frames(config, workspace)
     for export_set in ("testbed", "twins"):
         if export_set not in sources:
             continue
@@ -98,11 +103,16 @@ def items(config: Config, workspace: Workspace) -> list[dict[str, Any]]:
                 raise InputError(f"labels: sample {label['sample_id']} has no row in the captures manifest")
             if source is None:  # a twin that could not be rendered (render's rejected.json says why)
                 continue
-            scene_id, im_id = bop.place(export_set, label["domain"], index[label["domain"]])
-            index[label["domain"]] += 1
+            frame = frames.get(label["sample_id"], {})
+            if frame:  # a sequence is a scene of its own, its frames the image ids
+                scene_id, im_id = frame["scene_id"], frame["frame"]
+            else:
+                scene_id, im_id = bop.place(export_set, label["domain"], index[label["domain"]])
+                index[label["domain"]] += 1
             out.append({"set": export_set, "sample_id": label["sample_id"], "domain": label["domain"],
                         "filename": label["filename"], "source": source, "scene_id": scene_id, "im_id": im_id,
-                        "q_vbs2tango_true": label["q_vbs2tango_true"], "r_Vo2To_vbs_true": label["r_Vo2To_vbs_true"]})
+                        "q_vbs2tango_true": label["q_vbs2tango_true"], "r_Vo2To_vbs_true": label["r_Vo2To_vbs_true"],
+                        **frame})
     if "train" in config.export.sets:
         train = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
         for index, row in enumerate(train):
@@ -114,6 +124,21 @@ def items(config: Config, workspace: Workspace) -> list[dict[str, Any]]:
     for item in out:
         item["export_id"] = f"{item['set']}/{item['sample_id']}"
     return sorted(out, key=lambda item: item["export_id"])
+
+
+def sequence_frames(config: Config, workspace: Workspace) -> dict[str, dict[str, Any]]:
+    """sample_id -> its sequence_id, frame, time_s and BOP scene (the sequence's place in
+    the plan, from 1), for a trajectory plan; empty otherwise."""
+    if config.plan.mode != "trajectory":
+        if config.export.format == "shirt":
+            raise InputError("export.format: shirt needs a trajectory plan (plan.mode = trajectory)")
+        return {}
+    rows = read_manifest(workspace, "plan").select(["sample_id", "sequence_id", "frame", "time_s"]).to_pylist()
+    scenes = {name: i + 1 for i, name in enumerate(dict.fromkeys(r["sequence_id"] for r in rows
+                                                                 if r["sequence_id"] is not None))}
+    return {r["sample_id"]: {"sequence_id": r["sequence_id"], "frame": r["frame"], "time_s": r["time_s"],
+                             "scene_id": scenes[r["sequence_id"]]}
+            for r in rows if r["sequence_id"] is not None}
 
 
 def cameras(config: Config, workspace: Workspace) -> dict[str, LensCamera]:
@@ -141,18 +166,22 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     with open_sink(workspace, name, config.run.part_rows) as sink:
         for item in track(todo, len(todo), "export"):
             source = workspace.fetch(item["source"])
-            if config.export.format == "speedplus":
-                file = speedplus.image_file(item["set"], item["domain"], item["filename"])
+            if config.export.format in ("speedplus", "shirt"):
+                file = (speedplus.image_file(item["set"], item["domain"], item["filename"])
+                        if config.export.format == "speedplus" else shirt.image_file(item))
                 copy_atomic(source, out / inside_export(file, item))
             else:
                 file = bop.write_image(out, item, source, by_set[item["set"]], surfaces)
             sink.add({"export_id": item["export_id"], "sample_id": item["sample_id"], "set": item["set"],
                       "domain": item["domain"], "file": file, "source_image": item["source"]})
-    if config.export.format == "speedplus":
+    if config.export.format in ("speedplus", "shirt"):
         labels_camera = by_set.get("testbed") or by_set["train"]
         pitch = config.camera.pixel_pitch_m * config.camera.reference_width_px / labels_camera.width
-        counts = speedplus.write_annotations(out, chosen, speedplus.camera_json(labels_camera, pitch),
-                                             config.export.validation_fraction)
+        camera = speedplus.camera_json(labels_camera, pitch)
+        if config.export.format == "speedplus":
+            counts = speedplus.write_annotations(out, chosen, camera, config.export.validation_fraction)
+        else:
+            counts = shirt.write_annotations(out, chosen, camera, read_trajectories(workspace))
         speedplus.write_keypoints(out, target.name, target.keypoints_m)
     else:
         counts = bop.write_annotations(out, chosen, by_set, target)
