@@ -5,7 +5,7 @@ import sys
 
 BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "budget", "unmodelled", "render",
               "cluster", "storage", "ground_truth", "evaluate", "pnp", "identity", "model_cards", "pipeline",
-              "ransac_noise", "stranger_model")
+              "ransac_noise", "stranger_model", "trajectory")
 #: need arguments or take long; not part of `python -m bench`
 ON_REQUEST = ("identity", "model_cards", "pipeline", "ransac_noise", "stranger_model")
 

@@ -135,6 +135,8 @@ def _check_trajectory(config: Config) -> None:
     t = config.trajectory
     if not t.presets or len(set(t.presets)) != len(t.presets):
         raise ConfigError(f"trajectory.presets: expected distinct presets, got {list(t.presets)}")
+    if t.max_replans < 0:
+        raise ConfigError("trajectory.max_replans: expected a count of at least 0")
     if t.frames < 1 or not t.cam_step_s > 0:
         raise ConfigError("trajectory.frames/cam_step_s: expected at least one frame and a positive step (s)")
     try:

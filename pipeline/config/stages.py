@@ -87,7 +87,9 @@ class TrajectoryConfig:
     chief_i_rad: float = param(math.radians(98.19), "the target's inclination (sun-synchronous at 700 km)", "rad")
     chief_raan_rad: float = param(math.radians(20.0), "the target's right ascension of the ascending node", "rad")
     chief_argp_rad: float = param(math.radians(30.0), "the target's argument of perigee", "rad")
-    chief_mean_anomaly_rad: float = param(math.radians(10.0), "the target's mean anomaly at the epoch", "rad")
+    chief_mean_anomaly_rad: float = param(
+        math.radians(35.0), "the target's mean anomaly at the epoch (the paper profile's 20 minutes then enter the "
+        "Earth's shadow)", "rad")
     roe_m: tuple[float, float, float, float, float, float] = param(
         (0.0, -8.0, 0.0, 0.4, 0.0, 0.4), "custom: the servicer's relative orbital elements times the target's "
         "semi-major axis, a (da, dlambda, dex, dey, dix, diy); dlambda < 0 puts the servicer behind", "m")
@@ -102,6 +104,9 @@ class TrajectoryConfig:
         math.radians(0.3), "the camera's pointing error at the target's centre of mass, per axis, one draw per "
         "sequence", "rad")
     jitter_sigma_rad: float = param(math.radians(0.02), "the camera's pointing jitter, per axis and frame", "rad")
+    max_replans: int = param(
+        5, "a sequence with a frame the room cannot hold is planned again from another initial attitude this many "
+        "times before it is refused (the plan's redraws column counts them)", "count")
     sunlamp_tolerance_rad: float = param(
         math.radians(30.0), "a sunlit frame is taken under the sun lamp when the lamp's direction at the model is "
         "this close to the true sun's, else under the light boxes on the Earth's side", "rad")

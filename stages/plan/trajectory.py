@@ -172,21 +172,15 @@ def unplaceable(frames: list[int], why: str, sequence_id: str) -> PlanningError:
                          "or widen testbed.rail_* and plan.sight_*")
 
 
-def sequence_rows(config: Config, target: Target, index: int, preset: str, first_index: int
-                  ) -> tuple[list[dict], SequenceRecord]:
-    """The plan rows of the index-th sequence (dataset samples ``first_index`` on) and its record."""
-    sequence_id = preset if preset != "custom" else "custom"
-    rng = np.random.default_rng([config.plan.seed, _STREAM, index])
-    masses, source = mass_properties(config, target)
-    roe_m, omega0 = preset_motion(config, target, preset, masses)
-    q0 = g.random_quats(rng, 1)[0]
-    bias = rng.normal(0.0, config.trajectory.pointing_sigma_rad, 2)
-    tilts = bias + rng.normal(0.0, config.trajectory.jitter_sigma_rad, (config.trajectory.frames, 2))
-    frames = propagate(config, roe_m, omega0, q0, tilts, masses)
-    scale = target.mockup_scale
-    rows, unreachable, outside, previous = [], [], [], None
-    camera = config.camera
+def _placed(config: Config, target: Target, frames: Frames, sequence_id: str, first_index: int, redraws: int,
+            every: bool) -> tuple[list[dict], list[int], list[int]]:
+    """(rows, frames outside the image, frames out of reach) of a propagated sequence; stops
+    at the first frame that cannot be placed unless ``every``."""
+    scale, camera = target.mockup_scale, config.camera
+    rows, outside, unreachable, previous = [], [], [], None
     for k in range(config.trajectory.frames):
+        if (outside or unreachable) and not every:
+            break
         cam_from_target = frames.cam_from_target_m[k].copy()
         cam_from_target[:3, 3] *= scale
         pixels = g.project(cam_from_target, target.keypoints_m * scale, camera.camera_matrix(), camera.dist_coeffs())
@@ -201,30 +195,51 @@ def sequence_rows(config: Config, target: Target, index: int, preset: str, first
             unreachable.append(k)
             continue
         previous = commands
-        world_from_cam = commands.world_from_camee @ layout.camee_from_cam(config.testbed)
-        world_from_target = world_from_cam @ cam_from_target
+        world_from_target = commands.world_from_camee @ layout.camee_from_cam(config.testbed) @ cam_from_target
         centre = g.apply(world_from_target, (target.centre_m * scale)[None])[0]
         target_from_eci = g.quat_to_matrix(frames.eci_from_target_q[k]).T
         light, boxes, light_error = frame_light(config, world_from_target, centre, target_from_eci,
                                                 frames.sun_eci[k], frames.earth_eci[k], bool(frames.in_eclipse[k]))
-        camera_in_target = g.invert(cam_from_target)[:3, 3]
         rows.append({
             "sample_id": f"img{first_index + k:06d}", "session": "dataset",
             **g.pose_columns("cam_from_target", cam_from_target),
-            "view": target.view_of(camera_in_target, scale), "light": light, "light_boxes": boxes, "mount": mount,
-            "rail_m": commands.rail_m, "camera_joints_rad": commands.camera_joints_rad,
+            "view": target.view_of(g.invert(cam_from_target)[:3, 3], scale), "light": light, "light_boxes": boxes,
+            "mount": mount, "rail_m": commands.rail_m, "camera_joints_rad": commands.camera_joints_rad,
             "target_joints_rad": commands.target_joints_rad,
             **g.pose_columns("world_from_camee", commands.world_from_camee),
             **g.pose_columns("world_from_targetee", commands.world_from_targetee),
-            "reachable": True, "redraws": 0, "sequence_id": sequence_id, "frame": k,
+            "reachable": True, "redraws": redraws, "sequence_id": sequence_id, "frame": k,
             "time_s": float(frames.times_s[k]), "rtn_servicer_m": frames.rtn_servicer_m[k],
             "eci_from_target_q": frames.eci_from_target_q[k], "eci_from_cam_q": frames.eci_from_cam_q[k],
             "sun_eci": frames.sun_eci[k], "in_eclipse": bool(frames.in_eclipse[k]), "light_from_sun_rad": light_error,
         })
+    return rows, outside, unreachable
+
+
+def sequence_rows(config: Config, target: Target, index: int, preset: str, first_index: int
+                  ) -> tuple[list[dict], SequenceRecord]:
+    """The plan rows of the index-th sequence (dataset samples ``first_index`` on) and its record.
+
+    A sequence with a frame that cannot be placed is re-planned from another draw of the
+    target's initial attitude and the camera's pointing error (``redraws`` counts them, in
+    every row), up to ``trajectory.max_replans`` times, then refused with every such frame."""
+    sequence_id = preset
+    masses, source = mass_properties(config, target)
+    roe_m, omega0 = preset_motion(config, target, preset, masses)
+    t = config.trajectory
+    for attempt in range(t.max_replans + 1):
+        rng = np.random.default_rng([config.plan.seed, _STREAM, index, attempt])
+        q0 = g.random_quats(rng, 1)[0]
+        bias = rng.normal(0.0, t.pointing_sigma_rad, 2)
+        tilts = bias + rng.normal(0.0, t.jitter_sigma_rad, (t.frames, 2))
+        frames = propagate(config, roe_m, omega0, q0, tilts, masses)
+        rows, outside, unreachable = _placed(config, target, frames, sequence_id, first_index, attempt,
+                                             every=attempt == t.max_replans)
+        if not outside and not unreachable:
+            record = sequence_record(config, sequence_id, preset, f"img{first_index:06d}", roe_m, omega0, q0, bias,
+                                     masses, source)
+            return rows, record
+    tried = f" in each of {t.max_replans + 1} draws of its initial attitude (the last shown)"
     if outside:
-        raise unplaceable(outside, "put the target's keypoints outside the image", sequence_id)
-    if unreachable:
-        raise unplaceable(unreachable, "cannot be reached by the robots in this room", sequence_id)
-    record = sequence_record(config, sequence_id, preset, f"img{first_index:06d}", roe_m, omega0, q0, bias,
-                             masses, source)
-    return rows, record
+        raise unplaceable(outside, f"put the target's keypoints outside the image{tried}", sequence_id)
+    raise unplaceable(unreachable, f"cannot be reached by the robots in this room{tried}", sequence_id)
