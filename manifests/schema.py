@@ -333,6 +333,35 @@ SCORES = ManifestSpec(
     key="group",
 )
 
+TRACKS = ManifestSpec(
+    "tracks",
+    "plan.mode = trajectory: a navigation filter fed each model's per-frame poses, per sequence and domain, "
+    "against the per-frame scores (stages/common/tracking.py)",
+    (
+        Column("track_id", pa.string(), "", "<model>:<crop>:<domain>:<sample_id>"),
+        Column("model", pa.string(), "", "the model's name"),
+        Column("crop", pa.string(), "", "full, oracle_box or self (see predictions)", kind="enum",
+               allowed=("full", "oracle_box", "self")),
+        Column("domain", pa.string(), "", "synthetic twins, or the testbed's frames (either light) in frame order",
+               kind="enum", allowed=("synthetic", "testbed")),
+        Column("sequence_id", pa.string(), "", "the sequence (W/trajectories.json)", kind="name"),
+        Column("frame", pa.int32(), "index", "frame of the sequence"),
+        Column("time_s", pa.float64(), "s", "time since the sequence's epoch"),
+        _sample_id(),
+        Column("measured", pa.bool_(), "", "the model gave a pose for this frame"),
+        Column("rotation_used", pa.bool_(), "", "the attitude filter took the measurement (innovation gate passed)"),
+        Column("position_used", pa.bool_(), "", "the position filter took the measurement"),
+        Column("q_track", QUAT, "1", "tracked rotation of cam_from_target; null before a first measurement",
+               nullable=True, kind="quaternion"),
+        Column("t_track", VEC3, "m", "tracked translation of cam_from_target, full scale", nullable=True),
+        Column("err_q_rad", pa.float64(), "rad", "tracked rotation error against the label (pi when none)"),
+        Column("err_t_norm", pa.float64(), "1", "tracked |t_true - t_track| / |t_true| (1 when none)"),
+        Column("score_speed", pa.float64(), "1", "tracked SPEED score"),
+        Column("frame_score_speed", pa.float64(), "1", "the same image's per-frame SPEED score (predictions)"),
+    ),
+    key="track_id",
+)
+
 _EXPORT_COLUMNS = (
     Column("export_id", pa.string(), "", "<set>/<sample_id>: one exported image", kind="value"),
     _sample_id(),
@@ -370,6 +399,6 @@ MODELS = ManifestSpec(
 
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
-                                  PREDICTIONS, SCORES, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
+                                  PREDICTIONS, SCORES, TRACKS, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
                                   MODELS)
 }

@@ -196,3 +196,25 @@ def test_the_shirt_format_needs_sequences(tmp_path):
     shutil.rmtree(root, ignore_errors=True)
     result = speedplus("plan", "--profile", "smoke", "--workspace", str(root), "--set", "export.format=shirt")
     assert result.returncode == 1 and "export.format" in result.stderr
+
+
+def test_evaluate_tracks_every_sequence_and_the_report_plots_it(sequences, tmp_path):
+    root = tmp_path / "w"
+    shutil.copytree(sequences.root, root)
+    workspace = Workspace(root)
+    result = speedplus("run", "--workspace", str(root))
+    assert result.returncode == 0, result.stderr
+    assert "Tracking: mean SPEED score per frame and tracked" in result.stdout
+    predictions = read_manifest(workspace, "predictions").to_pylist()
+    tracked = read_manifest(workspace, "tracks").to_pylist()
+    assert len(tracked) == len(predictions)  # every image of these workspaces is a frame of a sequence
+    by_id = {p["prediction_id"]: p for p in predictions}
+    for row in tracked:
+        domain = "synthetic" if row["domain"] == "synthetic" else None
+        matches = [p for key, p in by_id.items() if key.startswith(f"{row['model']}:{row['crop']}:")
+                   and p["sample_id"] == row["sample_id"] and (p["domain"] == "synthetic") == (domain == "synthetic")]
+        assert len(matches) == 1 and matches[0]["score_speed"] == row["frame_score_speed"]
+        assert row["measured"] == matches[0]["pose_found"]
+    report = (root / "report" / "index.html").read_text()
+    assert "Tracking: per frame against a navigation filter" in report
+    assert (root / "report" / "figures" / "tracking.png").is_file()

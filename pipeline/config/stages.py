@@ -327,6 +327,20 @@ class EvaluateConfig:
                         "quarter turns and its heatmaps, turned back, are averaged; off: one pass", "")
     ransac_seed: int = param(0, "seed of the RANSAC draws that turn heatmaps into poses: the scores of another seed "
                              "show how much of a difference between models or runs is the draw's", "")
+    tracking_rotation_sigma_rad: float = param(
+        math.radians(3.0), "plan.mode = trajectory, the tracking filter: a per-frame rotation's error, per axis", "rad")
+    tracking_lateral_sigma: float = param(
+        0.005, "the tracking filter: a per-frame position's error across the boresight, times the range", "1")
+    tracking_depth_sigma: float = param(
+        0.03, "the tracking filter: a per-frame position's error along the boresight, times the range", "1")
+    tracking_angular_acceleration_sigma: float = param(
+        3e-4, "the tracking filter's process noise on the body rate (a tumbling body's rate turns in its frame)",
+        "rad/s^2")
+    tracking_roe_walk: float = param(
+        1e-3, "the tracking filter's random walk of the relative orbital elements (times a)", "m/s^0.5")
+    tracking_gate_probability: float = param(
+        0.999, "a measurement whose innovation is less likely than this under the filter's covariance is not used",
+        "1")
 
 
 @dataclass(frozen=True)

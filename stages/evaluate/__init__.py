@@ -33,6 +33,7 @@ from stages.common.sidecars import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.evaluate.scorer import Decoding, open_scorer
 from stages.evaluate.table import print_table2, summarise
+from stages.evaluate.tracks import tracking_table, tracks
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 
@@ -82,8 +83,10 @@ def resolve(config: Config, workspace: Workspace | None = None) -> dict[str, Any
     """Inputs, configuration sections, outputs and members of this stage (pipeline/registry.py):
     each model is a member, known by its file's bytes, so that a model is added (or one
     redone) without redoing the others."""
-    return {"inputs": ("labels", "renders", "captures"), "sections": ("evaluate",), "extra": {},
-            "outputs": ("predictions", "scores"),
+    sequences = config.plan.mode == "trajectory"  # the tracking baseline: frames in order, and the orbit
+    return {"inputs": ("labels", "renders", "captures") + (("plan",) if sequences else ()),
+            "sections": ("evaluate",), "extra": {},
+            "outputs": ("predictions", "scores") + (("tracks",) if sequences else ()),
             "members": {path.stem: _digest(path) for path in model_paths(config, workspace)},
             "member_key": "evaluate.models", "member_column": "model"}
 
@@ -178,4 +181,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     shown += [pair for pair in scored if pair not in shown]  # every model scored here, also earlier ones
     for model, crop in shown:  # results: standard output
         Console().print(print_table2(table, model, crop))
+    if config.plan.mode == "trajectory":
+        tracked = tracks(config, workspace, predictions.to_pylist())
+        clear_manifest(workspace, "tracks")  # like scores, a summary of all predictions
+        write_part(workspace, "tracks", tracked, workspace.output_fingerprint("tracks"))
+        Console().print(tracking_table(tracked))
     return predictions

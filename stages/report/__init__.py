@@ -139,6 +139,27 @@ def _write_png(path: Path, image: np.ndarray) -> str:
     return path.name
 
 
+def tracking_section(config: Config, workspace: Workspace, figure_dir: Path) -> list[tuple[str, str]]:
+    """A trajectory plan's tracking baseline: per sequence, domain and model, the mean SPEED
+    score per frame against tracked, and the scores against time."""
+    if config.plan.mode != "trajectory":
+        return []
+    tracks = read_manifest(workspace, "tracks").to_pylist()
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for row in tracks:
+        groups.setdefault((row["sequence_id"], row["domain"], row["model"], row["crop"]), []).append(row)
+    rows = [[sequence, domain, f"{model} ({crop.replace('_', ' ')})", len(group),
+             f"{np.mean([r['frame_score_speed'] for r in group]):.4f}",
+             f"{np.mean([r['score_speed'] for r in group]):.4f}",
+             f"{sum(r['rotation_used'] for r in group)} / {sum(r['position_used'] for r in group)}"]
+            for (sequence, domain, model, crop), group in sorted(groups.items())]
+    figure = figures.tracking_errors(tracks, figure_dir / "tracking.png")
+    return [("Tracking: per frame against a navigation filter", _table(
+        ["sequence", "domain", "model (crop)", "frames", "mean SPEED per frame", "mean SPEED tracked",
+         "measurements used (attitude / position)"], rows)
+        + f'<img src="figures/{figure}" alt="SPEED score against time per sequence and domain">')]
+
+
 def run(config: Config, workspace: Workspace) -> None:
     out = workspace.root / REPORT_DIR
     figure_dir, thumb_dir = out / "figures", out / "thumbs"
@@ -201,6 +222,7 @@ def run(config: Config, workspace: Workspace) -> None:
         (f"Per-sample scores ({models[0] if models else '-'})",
          f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
         ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
+        *tracking_section(config, workspace, figure_dir),
         ("Provenance", provenance(config, workspace)),
     ]
     body = "".join(f"<section><h2>{html.escape(title)}</h2>{content}</section>" for title, content in sections)

@@ -119,6 +119,35 @@ def rotation_cdf(predictions: list[dict[str, Any]], models: list[str], path: Pat
     return _save(figure, path)
 
 
+def tracking_errors(tracks: list[dict[str, Any]], path: Path) -> str:
+    """SPEED score against time for each sequence (rows) and domain (columns): per model and
+    crop (a colour each) the tracked score (solid) and the per-frame one (dots)."""
+    sequences = list(dict.fromkeys(r["sequence_id"] for r in sorted(tracks, key=lambda r: r["track_id"]))) or ["-"]
+    domains = [d for d in ("synthetic", "testbed") if any(r["domain"] == d for r in tracks)] or ["-"]
+    runs = sorted({(r["model"], r["crop"]) for r in tracks})
+    figure, axes = plt.subplots(len(sequences), len(domains), figsize=(6.0 * len(domains), 3.2 * len(sequences)),
+                                squeeze=False, sharey=True)
+    colours = plt.get_cmap("tab10")
+    for row, sequence in enumerate(sequences):
+        for column, domain in enumerate(domains):
+            axis = axes[row][column]
+            for index, (model, crop) in enumerate(runs):
+                chosen = sorted((r for r in tracks if (r["sequence_id"], r["domain"], r["model"], r["crop"])
+                                 == (sequence, domain, model, crop)), key=lambda r: r["frame"])
+                if not chosen:
+                    continue
+                times = [r["time_s"] for r in chosen]
+                axis.plot(times, [r["score_speed"] for r in chosen], "-", color=colours(index % 10),
+                          label=f"{model} ({crop.replace('_', ' ')}): tracked")
+                axis.plot(times, [r["frame_score_speed"] for r in chosen], ".", color=colours(index % 10), ms=4,
+                          label=f"{model} ({crop.replace('_', ' ')}): per frame")
+            axis.set(yscale="log", title=f"{sequence}, {domain}", xlabel="time since the epoch [s]",
+                     ylabel="SPEED score")
+            if row == 0 and column == 0:
+                axis.legend(fontsize=7)
+    return _save(figure, path)
+
+
 def thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     scale = width / image.shape[1]
     return cv2.resize(image, (width, round(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)

@@ -1,0 +1,186 @@
+"""A navigation filter over a sequence of per-frame pose estimates (a CNN's), the tracking
+baseline of evaluate for rendezvous sequences.
+
+Two filters, both fed the measured ``cam_from_target`` and the servicer's own knowledge of
+its attitude (``eci_from_cam``) and orbit (the chief's RTN frame):
+
+- attitude: a multiplicative EKF (Markley, JGCD 26(2), 2003) of ``eci_from_target`` and the
+  body rate, constant angular velocity driven by white angular acceleration; the error
+  state is the small rotation in the body frame;
+- position: a linear Kalman filter of the relative orbital elements at the sequence's epoch
+  (``a`` times D'Amico's ROE, metres), whose measurement is the servicer's position in RTN,
+  mapped by the linear model of ``stages/common/orbits.py`` (the dynamics are in the map);
+  a random walk lets the elements move.
+
+Each measurement passes an innovation gate (the squared Mahalanobis distance under the
+chi-square quantile of ``gate_probability``) or is not used; ``reset_after`` rejections in a
+row restart the attitude filter from the current measurement (a filter that locked onto a
+flipped first estimate recovers). Units: metres, seconds, radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from stages.common import geometry as g
+from stages.common.orbits import Elements
+
+
+@dataclass(frozen=True)
+class TrackingNoise:
+    """What the filters assume (rad, fractions of the range, rad/s^2, m/s^0.5)."""
+
+    rotation_sigma_rad: float
+    lateral_sigma: float  # across the boresight, times the range
+    depth_sigma: float  # along the boresight, times the range
+    angular_acceleration_sigma: float
+    roe_walk_m_per_sqrt_s: float
+    gate_probability: float = 0.999
+    reset_after: int = 3
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One frame: its time (s since the epoch), the measured ``cam_from_target`` (None when the
+    model gave no pose; translation full scale, m), the servicer's ``eci_from_cam`` (3, 3), and
+    the chief's ``rtn_from_eci`` (3, 3) and mean argument of latitude (rad)."""
+
+    time_s: float
+    cam_from_target: np.ndarray | None
+    eci_from_cam: np.ndarray
+    rtn_from_eci: np.ndarray
+    latitude_rad: float
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    cam_from_target: np.ndarray  # (4, 4) the filters' estimate after this frame
+    rotation_used: bool
+    position_used: bool
+
+
+def roe_map(chief: Elements, time_s: float, latitude_rad: float) -> np.ndarray:
+    """(3, 6): the servicer's RTN position from ``a`` times the ROE at the epoch (orbits.py)."""
+    cos_u, sin_u = np.cos(latitude_rad), np.sin(latitude_rad)
+    drift = -1.5 * chief.mean_motion_rad_s * time_s
+    return np.array([[1.0, 0, -cos_u, -sin_u, 0, 0],
+                     [drift, 1.0, 2 * sin_u, -2 * cos_u, 0, 0],
+                     [0, 0, 0, 0, sin_u, -cos_u]])
+
+
+class AttitudeFilter:
+    """The multiplicative EKF of ``eci_from_target`` (module docstring)."""
+
+    def __init__(self, noise: TrackingNoise) -> None:
+        self.noise, self.q, self.omega, self.time = noise, None, np.zeros(3), 0.0
+        self.covariance = np.zeros((6, 6))
+        self.rejections = 0
+        self.gate = chi2.ppf(noise.gate_probability, 3)
+
+    def _start(self, q: np.ndarray, time_s: float) -> None:
+        self.q, self.omega, self.time = g.quat_normalize(q), np.zeros(3), time_s
+        self.covariance = np.diag([self.noise.rotation_sigma_rad ** 2] * 3 + [np.radians(5.0) ** 2] * 3)
+        self.rejections = 0
+
+    def predict(self, time_s: float) -> None:
+        dt = time_s - self.time
+        if self.q is None:
+            self.time = time_s
+            return
+        if dt <= 0:
+            return
+        self.q = g.quat_normalize(g.quat_multiply(self.q, g.rotvec_to_quat(self.omega * dt)))
+        transition = np.eye(6)
+        transition[:3, :3] = g.rotvec_to_matrix(-self.omega * dt)
+        transition[:3, 3:] = np.eye(3) * dt
+        s2 = self.noise.angular_acceleration_sigma ** 2
+        noise = np.kron(np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]]) * s2, np.eye(3))
+        self.covariance = transition @ self.covariance @ transition.T + noise
+        self.time = time_s
+
+    def update(self, q_measured: np.ndarray) -> bool:
+        """Fold in a measured ``eci_from_target`` quaternion; whether it passed the gate."""
+        if self.q is None:
+            self._start(q_measured, self.time)
+            return True
+        error = g.quat_multiply(g.quat_conjugate(self.q), q_measured)
+        innovation = g.quat_to_rotvec(g.quat_normalize(error))
+        observation = np.hstack([np.eye(3), np.zeros((3, 3))])
+        innovation_cov = observation @ self.covariance @ observation.T + np.eye(3) * self.noise.rotation_sigma_rad ** 2
+        if innovation @ np.linalg.solve(innovation_cov, innovation) > self.gate:
+            self.rejections += 1
+            if self.rejections >= self.noise.reset_after:
+                self._start(q_measured, self.time)
+            return False
+        gain = self.covariance @ observation.T @ np.linalg.inv(innovation_cov)
+        correction = gain @ innovation
+        self.q = g.quat_normalize(g.quat_multiply(self.q, g.rotvec_to_quat(correction[:3])))
+        self.omega = self.omega + correction[3:]
+        self.covariance = (np.eye(6) - gain @ observation) @ self.covariance
+        self.rejections = 0
+        return True
+
+
+class PositionFilter:
+    """The linear Kalman filter of ``a`` times the ROE at the epoch (module docstring)."""
+
+    def __init__(self, chief: Elements, noise: TrackingNoise, prior_range_m: float) -> None:
+        self.chief, self.noise, self.time = chief, noise, 0.0
+        self.state = np.zeros(6)
+        self.covariance = np.eye(6) * (10.0 * prior_range_m) ** 2
+        self.gate = chi2.ppf(noise.gate_probability, 3)
+
+    def predict(self, time_s: float) -> None:
+        dt = time_s - self.time
+        if dt > 0:
+            self.covariance = self.covariance + np.eye(6) * self.noise.roe_walk_m_per_sqrt_s ** 2 * dt
+            self.time = time_s
+
+    def rtn(self, time_s: float, latitude_rad: float) -> np.ndarray:
+        return roe_map(self.chief, time_s, latitude_rad) @ self.state
+
+    def update(self, rtn_measured: np.ndarray, rtn_covariance: np.ndarray, latitude_rad: float) -> bool:
+        observation = roe_map(self.chief, self.time, latitude_rad)
+        innovation = rtn_measured - observation @ self.state
+        innovation_cov = observation @ self.covariance @ observation.T + rtn_covariance
+        if innovation @ np.linalg.solve(innovation_cov, innovation) > self.gate:
+            return False
+        gain = self.covariance @ observation.T @ np.linalg.inv(innovation_cov)
+        self.state = self.state + gain @ innovation
+        self.covariance = (np.eye(6) - gain @ observation) @ self.covariance
+        return True
+
+
+def track(measurements: list[Measurement], chief: Elements, centre_of_mass_m: np.ndarray, noise: TrackingNoise
+          ) -> list[TrackedFrame]:
+    """The filtered ``cam_from_target`` after each frame (in time order), and whether each
+    frame's measurement passed the gates."""
+    ranges = [np.linalg.norm(m.cam_from_target[:3, 3]) for m in measurements if m.cam_from_target is not None]
+    attitude = AttitudeFilter(noise)
+    position = PositionFilter(chief, noise, float(np.median(ranges)) if ranges else 10.0)
+    out, com = [], np.asarray(centre_of_mass_m, float)
+    for m in measurements:
+        attitude.predict(m.time_s)
+        position.predict(m.time_s)
+        rotation_used = position_used = False
+        if m.cam_from_target is not None:
+            eci_from_target = m.eci_from_cam @ m.cam_from_target[:3, :3]
+            rotation_used = attitude.update(g.matrix_to_quat(eci_from_target))
+            centre_cam = m.cam_from_target[:3, 3] + m.cam_from_target[:3, :3] @ com
+            rtn_from_cam = m.rtn_from_eci @ m.eci_from_cam
+            distance = float(np.linalg.norm(centre_cam))
+            sigma_cam = np.diag([noise.lateral_sigma, noise.lateral_sigma, noise.depth_sigma]) ** 2 * distance ** 2
+            position_used = position.update(-rtn_from_cam @ centre_cam, rtn_from_cam @ sigma_cam @ rtn_from_cam.T,
+                                            m.latitude_rad)
+        if attitude.q is None:  # nothing measured yet: no estimate to give
+            out.append(TrackedFrame(np.full((4, 4), np.nan), False, False))
+            continue
+        eci_from_target = g.quat_to_matrix(attitude.q)
+        cam_from_eci = m.eci_from_cam.T
+        centre_cam = -cam_from_eci @ m.rtn_from_eci.T @ position.rtn(m.time_s, m.latitude_rad)
+        rotation = cam_from_eci @ eci_from_target
+        out.append(TrackedFrame(g.make_transform(rotation, centre_cam - rotation @ com), rotation_used, position_used))
+    return out
