@@ -218,3 +218,23 @@ def test_evaluate_tracks_every_sequence_and_the_report_plots_it(sequences, tmp_p
     report = (root / "report" / "index.html").read_text()
     assert "Tracking: per frame against a navigation filter" in report
     assert (root / "report" / "figures" / "tracking.png").is_file()
+
+
+def test_a_twin_shows_the_earth_where_the_orbit_puts_it_in_view(sequences, tmp_path):
+    """Held on the v-bar the camera looks along the track, 27 degrees above the 700 km
+    horizon: no Earth. From 8 m above the target (a custom sequence) it looks down: the
+    Earth fills the background around the target."""
+    assert not any(read_manifest(sequences, "renders").column("earth").to_pylist())
+    root = tmp_path / "w"
+    result = speedplus("run", "--profile", "smoke", "--workspace", str(root), *TRAJECTORY, "--until", "render",
+                       "--set", "trajectory.presets=[\"custom\"]", "--set", "trajectory.roe_m=[8, 0, 0, 0, 0, 0]")
+    assert result.returncode == 0, result.stderr
+    workspace = Workspace(root)
+    renders = read_manifest(workspace, "renders").to_pylist()
+    assert renders and all(r["earth"] for r in renders)
+    import cv2
+
+    for row in renders:
+        image = cv2.imread(str(root / row["image_path"]))
+        mask = cv2.imread(str(root / row["mask_path"]), cv2.IMREAD_GRAYSCALE) > 0
+        assert image[~mask].mean() > 20  # a lit planet, not black space

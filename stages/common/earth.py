@@ -91,6 +91,33 @@ def _bilinear(texture: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return top * (1 - fv) + bottom * fv
 
 
+def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: np.ndarray,
+                light_dir_cam: np.ndarray, irradiance: float) -> tuple[np.ndarray, bool]:
+    """Linear radiance (H, W, 3) of the Earth whose centre is at ``centre_cam_m`` (3,) in the
+    camera frame, its surface turned by ``cam_from_planet`` (3, 3), lit from ``light_dir_cam``
+    (3,) with ``irradiance`` W/m^2; and whether any pixel sees it."""
+    centre = np.asarray(centre_cam_m, float)
+    rays = pixel_rays(camera)  # cached per camera
+    along = rays @ centre
+    miss_sq = along**2 - (centre @ centre - EARTH_RADIUS_M**2)
+    hit = (miss_sq > 0) & (along > 0)
+    image = np.zeros((len(rays), 3), np.float32)
+    if hit.any():
+        distance = along[hit] - np.sqrt(miss_sq[hit])
+        normals = (rays[hit] * distance[:, None] - centre) / EARTH_RADIUS_M
+        surface = normals @ np.asarray(cam_from_planet, float)
+        texture = albedo_map()
+        u = ((np.arctan2(surface[:, 1], surface[:, 0]) / np.pi + 1) / 2 * texture.shape[1] - 0.5).astype(np.float32)
+        v = ((0.5 - np.arcsin(np.clip(surface[:, 2], -1, 1)) / np.pi) * texture.shape[0] - 0.5).astype(np.float32)
+        albedo = _bilinear(texture, u, v)
+        sun = np.clip(normals @ np.asarray(light_dir_cam, float), 0.0, None)
+        facing = np.clip(-(normals * rays[hit]).sum(axis=1), 0.0, 1.0)  # 0 at the limb
+        haze = (1.0 - facing) ** 8  # the atmosphere seen edge-on
+        image[hit] = irradiance / np.pi * (albedo * sun[:, None] + 0.5 * np.array([0.3, 0.5, 1.0]) * haze[:, None]
+                                           * np.clip(sun[:, None] + 0.2, 0.0, 1.0))
+    return image.reshape(camera.height, camera.width, 3), bool(hit.any())
+
+
 def earth_background(camera: LensCamera, light_dir_cam: np.ndarray, irradiance: float,
                      rng: np.random.Generator) -> np.ndarray:
     """Linear radiance (H, W, 3) of the Earth seen by ``camera``, lit from ``light_dir_cam``
@@ -101,23 +128,4 @@ def earth_background(camera: LensCamera, light_dir_cam: np.ndarray, irradiance: 
     nadir = np.array([rng.normal(0, 0.6), rng.normal(0, 0.6), 1.0])
     nadir /= np.linalg.norm(nadir)
     spin = np.linalg.qr(rng.normal(size=(3, 3)))[0]  # which part of the planet is below
-    centre = nadir * (EARTH_RADIUS_M + altitude)
-    rays = pixel_rays(camera)  # cached per camera
-    along = rays @ centre
-    miss_sq = along**2 - (centre @ centre - EARTH_RADIUS_M**2)
-    hit = (miss_sq > 0) & (along > 0)
-    image = np.zeros((len(rays), 3), np.float32)
-    if hit.any():
-        distance = along[hit] - np.sqrt(miss_sq[hit])
-        normals = (rays[hit] * distance[:, None] - centre) / EARTH_RADIUS_M
-        surface = normals @ spin.T
-        texture = albedo_map()
-        u = ((np.arctan2(surface[:, 1], surface[:, 0]) / np.pi + 1) / 2 * texture.shape[1] - 0.5).astype(np.float32)
-        v = ((0.5 - np.arcsin(np.clip(surface[:, 2], -1, 1)) / np.pi) * texture.shape[0] - 0.5).astype(np.float32)
-        albedo = _bilinear(texture, u, v)
-        sun = np.clip(normals @ np.asarray(light_dir_cam, float), 0.0, None)
-        facing = np.clip(-(normals * rays[hit]).sum(axis=1), 0.0, 1.0)  # 0 at the limb
-        haze = (1.0 - facing) ** 8  # the atmosphere seen edge-on
-        image[hit] = irradiance / np.pi * (albedo * sun[:, None] + 0.5 * np.array([0.3, 0.5, 1.0]) * haze[:, None]
-                                           * np.clip(sun[:, None] + 0.2, 0.0, 1.0))
-    return image.reshape(camera.height, camera.width, 3)
+    return earth_image(camera, nadir * (EARTH_RADIUS_M + altitude), spin.T, light_dir_cam, irradiance)[0]

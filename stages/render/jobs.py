@@ -15,12 +15,13 @@ from typing import Any
 import numpy as np
 
 from manifests import Workspace, read_manifest, read_success
-from manifests.sidecars import read_calibration
+from manifests.sidecars import read_calibration, read_trajectories
 from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
 from pipeline.errors import InputError
 from stages.common import geometry as g
 from stages.common.cameras import train_camera
+from stages.common.orbits import Elements, rtn_from_eci, two_body
 from stages.common.sidecars import matrix
 from stages.common.target import Target
 from stages.common.workspace_target import planned_target, workspace_target
@@ -41,6 +42,12 @@ class RenderJob:
     irradiance: float  # W/m^2
     earth: bool
     seed: int  # uint32 Monte-Carlo seed; also seeds the Earth background
+    #: a sequence's frame: the Earth where the orbit puts it (else, with ``earth``, a random one):
+    #: its centre (3,) m and surface rotation ``cam_from_planet`` (9,) in the camera frame, and
+    #: the true sun's direction (3,) that lights it
+    earth_centre_cam_m: tuple[float, ...] | None = None
+    cam_from_planet: tuple[float, ...] | None = None
+    sun_dir_cam: tuple[float, ...] | None = None
 
     @property
     def image_path(self) -> str:
@@ -109,6 +116,8 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
     world_from_cam = _world_from_cam(workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
             if read_success(workspace, "plan") is not None else {})
+    sequences = ({s.sequence_id: s for s in read_trajectories(workspace).sequences}
+                 if config.plan.mode == "trajectory" else {})
     # unvalidated read: a bad row is rejected with its reason, the valid ones still render
     labels = sorted(read_manifest(workspace, "labels", validate=False).to_pylist(), key=lambda r: r["sample_id"])
     jobs, rejected = [], []
@@ -127,9 +136,30 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
         world_from_target = world_from_cam[sample_id] @ cam_from_target
         towards = light_position(config, light, list(row.get("light_boxes") or [])) - world_from_target[:3, 3]
         direction = g.invert(world_from_cam[sample_id])[:3, :3] @ (towards / np.linalg.norm(towards))
+        earth = _orbital_earth(row, sequences) if row.get("sequence_id") is not None else {}
         jobs.append(RenderJob(sample_id, "twin", tuple(q), tuple(label["r_Vo2To_vbs_true"]), tuple(direction),
-                              config.render.irradiance, False, image_seed(config.render.seed, "twin", sample_id)))
+                              config.render.irradiance, bool(earth), image_seed(config.render.seed, "twin", sample_id),
+                              **earth))
     return jobs, rejected
+
+
+#: the Earth's rotation rate (rad/s, sidereal)
+EARTH_RATE_RAD_S = 7.2921159e-5
+
+
+def _orbital_earth(row: dict[str, Any], sequences: dict[str, Any]) -> dict[str, tuple[float, ...]]:
+    """A sequence frame's Earth in its camera frame: the chief's orbit places it, the
+    camera's attitude turns it, the planet spins from its pose at the epoch."""
+    sequence = sequences[row["sequence_id"]]
+    chief = Elements(**sequence.chief)
+    position, velocity = two_body(chief, [row["time_s"]])
+    rtn_from = rtn_from_eci(position, velocity)[0]
+    cam_from_eci = g.quat_to_matrix(row["eci_from_cam_q"]).T
+    camera_eci = position[0] + rtn_from.T @ np.asarray(row["rtn_servicer_m"], float)
+    spin = g.axis_angle_matrix("z", EARTH_RATE_RAD_S * row["time_s"])
+    return {"earth_centre_cam_m": tuple(float(v) for v in cam_from_eci @ -camera_eci),
+            "cam_from_planet": tuple(float(v) for v in (cam_from_eci @ spin).ravel()),
+            "sun_dir_cam": tuple(float(v) for v in cam_from_eci @ np.asarray(row["sun_eci"], float))}
 
 
 # --------------------------------------------------------------------------- training set

@@ -20,7 +20,7 @@ import numpy as np
 from pipeline.engines import Produced
 from stages.common import geometry as g
 from stages.common import ground_truth
-from stages.common.earth import earth_background
+from stages.common.earth import earth_background, earth_image
 from stages.common.image_io import encode_png
 from stages.common.lens import LensCamera
 from stages.common.surface import TargetSurfaces
@@ -56,21 +56,28 @@ class RenderWorker:
         self.surfaces = TargetSurfaces(target.parts, self.renderer.scene)
         self.with_ground_truth = with_ground_truth
 
-    def radiance(self, job: RenderJob) -> np.ndarray:
-        """Linear radiance (H, W, 3) of a job: the render, over the Earth when it has one."""
+    def radiance(self, job: RenderJob) -> tuple[np.ndarray, bool]:
+        """Linear radiance (H, W, 3) of a job: the render, over the Earth when it has one; and
+        whether the Earth is in the image."""
         light = np.asarray(job.light_dir_cam, float)
         rgba = self.renderer.render(job.cam_from_target(), light, job.irradiance, job.seed)
         rgb, alpha = rgba[..., :3], np.clip(rgba[..., 3:], 0.0, 1.0)
-        if job.earth:
-            background = earth_background(self.camera, light, job.irradiance, np.random.default_rng(job.seed))
-            rgb = rgb + (1.0 - alpha) * background  # the render's rgb is premultiplied by coverage
-        return rgb
+        if not job.earth:
+            return rgb, False
+        if job.earth_centre_cam_m is not None:
+            background, seen = earth_image(self.camera, np.asarray(job.earth_centre_cam_m),
+                                           np.reshape(job.cam_from_planet, (3, 3)), np.asarray(job.sun_dir_cam),
+                                           job.irradiance)
+        else:
+            background, seen = earth_background(self.camera, light, job.irradiance,
+                                                np.random.default_rng(job.seed)), True
+        return rgb + (1.0 - alpha) * background, seen  # the render's rgb is premultiplied by coverage
 
     def render(self, job: RenderJob) -> Produced:
         """Render; the job's ``renders`` row with its PNGs and ground truth, or, when the
         target covers no pixel centre, ``{"sample_id", "rejected": reason}`` and no files."""
         started = time.perf_counter()
-        radiance = self.radiance(job)
+        radiance, earth = self.radiance(job)
         maps = self.surfaces.through_lens(job.cam_from_target(), self.camera)
         mask = maps.mask
         if not mask.any():
@@ -87,7 +94,7 @@ class RenderWorker:
             "sample_id": job.sample_id, "set": job.set, "image_path": job.image_path, "mask_path": job.mask_path,
             "ground_truth_path": ground_truth_path,
             "q_vbs2tango_true": list(job.q_vbs2tango_true), "r_Vo2To_vbs_true": list(job.r_Vo2To_vbs_true),
-            "light_dir_cam": list(job.light_dir_cam), "irradiance": job.irradiance, "earth": job.earth,
+            "light_dir_cam": list(job.light_dir_cam), "irradiance": job.irradiance, "earth": earth,
             "keypoints_px": keypoints, "bbox_px": mask_bbox(mask),
             "width": self.camera.width, "height": self.camera.height,
             "seed": job.seed, "spp": self.spp, "seconds": time.perf_counter() - started,
