@@ -238,3 +238,30 @@ def test_a_twin_shows_the_earth_where_the_orbit_puts_it_in_view(sequences, tmp_p
         image = cv2.imread(str(root / row["image_path"]))
         mask = cv2.imread(str(root / row["mask_path"]), cv2.IMREAD_GRAYSCALE) > 0
         assert image[~mask].mean() > 20  # a lit planet, not black space
+
+
+def test_a_strangers_target_gets_sequences_of_its_own_size_and_inertia(tmp_path):
+    """The CubeSat of tests/target_folders.py (three parts, mm): its sequences sit in its own
+    range (SPEED+'s in diameters), its inertia is its mesh's, and the whole plan is placed."""
+    from pipeline.config import load_config
+    from stages.common.attitude import check_inertia
+    from stages.common.workspace_target import planned_target
+    from tests.target_folders import cubesat
+
+    folder = cubesat(tmp_path / "cubesat", mass_kg=4.0)
+    root = tmp_path / "w"
+    result = speedplus("plan", "--profile", "smoke", "--workspace", str(root), *TRAJECTORY, "--set",
+                       f"target.path={folder}", "--set", "plan.dataset_range_m=[0, 1e9]", "--set",
+                       "plan.dataset_range_diameters=[4.75, 6.94]", "--set", "trajectory.frames=12")
+    assert result.returncode == 0, result.stderr
+    workspace = Workspace(root)
+    record = read_trajectories(workspace)
+    diameter = planned_target(load_config(None, workspace.config_path)).diameter_m
+    hold = record.sequence("vbar_hold_spin")
+    assert hold.inertia_source == "mesh shell" and check_inertia(np.array(hold.inertia_kgm2)) is None
+    rows = dataset_rows(workspace)
+    assert len(rows) == 24 and all(r["reachable"] for r in rows)
+    ranges = [np.linalg.norm(r["rtn_servicer_m"]) for r in rows if r["sequence_id"] == "vbar_hold_spin"]
+    # held at the middle of 4.75-6.94 diameters, as Tango's at the middle of 6.5-9.5 m
+    assert -hold.roe_m[1] == pytest.approx((4.75 + 6.94) / 2 * diameter)
+    assert abs(np.mean(ranges) - -hold.roe_m[1]) < 0.1 * -hold.roe_m[1]
