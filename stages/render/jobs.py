@@ -136,7 +136,7 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
         world_from_target = world_from_cam[sample_id] @ cam_from_target
         towards = light_position(config, light, list(row.get("light_boxes") or [])) - world_from_target[:3, 3]
         direction = g.invert(world_from_cam[sample_id])[:3, :3] @ (towards / np.linalg.norm(towards))
-        earth = _orbital_earth(row, sequences) if row.get("sequence_id") is not None else {}
+        earth = orbital_earth(row, sequences) if row.get("sequence_id") is not None else {}
         jobs.append(RenderJob(sample_id, "twin", tuple(q), tuple(label["r_Vo2To_vbs_true"]), tuple(direction),
                               config.render.irradiance, bool(earth), image_seed(config.render.seed, "twin", sample_id),
                               **earth))
@@ -147,7 +147,7 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
 EARTH_RATE_RAD_S = 7.2921159e-5
 
 
-def _orbital_earth(row: dict[str, Any], sequences: dict[str, Any]) -> dict[str, tuple[float, ...]]:
+def orbital_earth(row: dict[str, Any], sequences: dict[str, Any]) -> dict[str, tuple[float, ...]]:
     """A sequence frame's Earth in its camera frame: the chief's orbit places it, the
     camera's attitude turns it, the planet spins from its pose at the epoch."""
     sequence = sequences[row["sequence_id"]]
