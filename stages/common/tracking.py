@@ -13,9 +13,10 @@ its attitude (``eci_from_cam``) and orbit (the chief's RTN frame):
   a random walk lets the elements move.
 
 Each measurement passes an innovation gate (the squared Mahalanobis distance under the
-chi-square quantile of ``gate_probability``) or is not used; ``reset_after`` rejections in a
-row restart the attitude filter from the current measurement (a filter that locked onto a
-flipped first estimate recovers). Units: metres, seconds, radians.
+chi-square quantile of ``gate_probability``) or is not used. The attitude filter starts
+from three measurements in a row that one body rate explains, and restarts so after
+``reset_after`` rejections in a row (a filter that locked onto a wrong estimate recovers);
+until it starts, a frame's own rotation stands for it. Units: metres, seconds, radians.
 """
 
 from __future__ import annotations
@@ -72,18 +73,40 @@ def roe_map(chief: Elements, time_s: float, latitude_rad: float) -> np.ndarray:
 
 
 class AttitudeFilter:
-    """The multiplicative EKF of ``eci_from_target`` (module docstring)."""
+    """The multiplicative EKF of ``eci_from_target`` (module docstring).
+
+    It starts (and, after ``reset_after`` rejections in a row, restarts) only from three
+    measurements in a row that a constant body rate explains within the gate: one flipped or
+    wild estimate can neither start it nor pull it away. Until then it has no estimate."""
 
     def __init__(self, noise: TrackingNoise) -> None:
         self.noise, self.q, self.omega, self.time = noise, None, np.zeros(3), 0.0
         self.covariance = np.zeros((6, 6))
         self.rejections = 0
         self.gate = chi2.ppf(noise.gate_probability, 3)
+        self.recent: list[tuple[float, np.ndarray]] = []  # (time, q) since the filter last took one
 
-    def _start(self, q: np.ndarray, time_s: float) -> None:
-        self.q, self.omega, self.time = g.quat_normalize(q), np.zeros(3), time_s
-        self.covariance = np.diag([self.noise.rotation_sigma_rad ** 2] * 3 + [np.radians(5.0) ** 2] * 3)
-        self.rejections = 0
+    def _rate(self, first: tuple[float, np.ndarray], second: tuple[float, np.ndarray]) -> np.ndarray:
+        """The constant body rate (3,) rad/s that turns one measurement into the other."""
+        return g.quat_to_rotvec(g.quat_multiply(g.quat_conjugate(first[1]), second[1])) / (second[0] - first[0])
+
+    def _try_start(self) -> bool:
+        """Start from the last three measurements when a constant rate explains them."""
+        if len(self.recent) < 3:
+            return False
+        (t1, q1), (t2, q2), (t3, q3) = self.recent[-3:]
+        if not (t1 < t2 < t3):
+            return False
+        predicted = g.quat_multiply(q2, g.rotvec_to_quat(self._rate((t1, q1), (t2, q2)) * (t3 - t2)))
+        miss = g.quat_to_rotvec(g.quat_multiply(g.quat_conjugate(predicted), q3))
+        sigma = self.noise.rotation_sigma_rad
+        spread = 1 + 2 * ((t3 - t2) / (t2 - t1)) ** 2 + 1  # the noise of q1, q2 carried to t3, and q3's own
+        if miss @ miss > self.gate * spread * sigma ** 2:
+            return False
+        self.q, self.omega, self.time = g.quat_normalize(q3), self._rate((t1, q1), (t3, q3)), t3
+        self.covariance = np.diag([sigma ** 2] * 3 + [2 * (sigma / (t3 - t1)) ** 2] * 3)
+        self.rejections, self.recent = 0, []
+        return True
 
     def predict(self, time_s: float) -> None:
         dt = time_s - self.time
@@ -102,25 +125,23 @@ class AttitudeFilter:
         self.time = time_s
 
     def update(self, q_measured: np.ndarray) -> bool:
-        """Fold in a measured ``eci_from_target`` quaternion; whether it passed the gate."""
+        """Fold in a measured ``eci_from_target`` quaternion; whether the filter took it."""
+        self.recent = [*self.recent[-2:], (self.time, g.quat_normalize(q_measured))]
         if self.q is None:
-            self._start(q_measured, self.time)
-            return True
+            return self._try_start()
         error = g.quat_multiply(g.quat_conjugate(self.q), q_measured)
         innovation = g.quat_to_rotvec(g.quat_normalize(error))
         observation = np.hstack([np.eye(3), np.zeros((3, 3))])
         innovation_cov = observation @ self.covariance @ observation.T + np.eye(3) * self.noise.rotation_sigma_rad ** 2
         if innovation @ np.linalg.solve(innovation_cov, innovation) > self.gate:
             self.rejections += 1
-            if self.rejections >= self.noise.reset_after:
-                self._start(q_measured, self.time)
-            return False
+            return self.rejections >= self.noise.reset_after and self._try_start()
         gain = self.covariance @ observation.T @ np.linalg.inv(innovation_cov)
         correction = gain @ innovation
         self.q = g.quat_normalize(g.quat_multiply(self.q, g.rotvec_to_quat(correction[:3])))
         self.omega = self.omega + correction[3:]
         self.covariance = (np.eye(6) - gain @ observation) @ self.covariance
-        self.rejections = 0
+        self.rejections, self.recent = 0, []
         return True
 
 
@@ -128,10 +149,10 @@ class PositionFilter:
     """The linear Kalman filter of ``a`` times the ROE at the epoch (module docstring)."""
 
     def __init__(self, chief: Elements, noise: TrackingNoise, prior_range_m: float) -> None:
-        self.chief, self.noise, self.time = chief, noise, 0.0
-        self.state = np.zeros(6)
-        self.covariance = np.eye(6) * (10.0 * prior_range_m) ** 2
+        self.chief, self.noise, self.time, self.prior_range_m = chief, noise, 0.0, prior_range_m
+        self.state, self.covariance = np.zeros(6), np.eye(6) * (10.0 * prior_range_m) ** 2
         self.gate = chi2.ppf(noise.gate_probability, 3)
+        self.rejected: list[tuple[float, np.ndarray, np.ndarray, float]] = []  # in a row, as (time, rtn, cov, u)
 
     def predict(self, time_s: float) -> None:
         dt = time_s - self.time
@@ -142,15 +163,31 @@ class PositionFilter:
     def rtn(self, time_s: float, latitude_rad: float) -> np.ndarray:
         return roe_map(self.chief, time_s, latitude_rad) @ self.state
 
-    def update(self, rtn_measured: np.ndarray, rtn_covariance: np.ndarray, latitude_rad: float) -> bool:
-        observation = roe_map(self.chief, self.time, latitude_rad)
+    def _fold(self, time_s: float, rtn_measured: np.ndarray, rtn_covariance: np.ndarray, latitude_rad: float,
+              gated: bool) -> bool:
+        observation = roe_map(self.chief, time_s, latitude_rad)
         innovation = rtn_measured - observation @ self.state
         innovation_cov = observation @ self.covariance @ observation.T + rtn_covariance
-        if innovation @ np.linalg.solve(innovation_cov, innovation) > self.gate:
+        if gated and innovation @ np.linalg.solve(innovation_cov, innovation) > self.gate:
             return False
         gain = self.covariance @ observation.T @ np.linalg.inv(innovation_cov)
         self.state = self.state + gain @ innovation
         self.covariance = (np.eye(6) - gain @ observation) @ self.covariance
+        return True
+
+    def update(self, rtn_measured: np.ndarray, rtn_covariance: np.ndarray, latitude_rad: float) -> bool:
+        """Fold in a measured RTN position; whether it passed the gate. ``reset_after``
+        rejections in a row start the filter again from its prior and those measurements."""
+        if self._fold(self.time, rtn_measured, rtn_covariance, latitude_rad, gated=True):
+            self.rejected = []
+            return True
+        self.rejected.append((self.time, rtn_measured, rtn_covariance, latitude_rad))
+        if len(self.rejected) < self.noise.reset_after:
+            return False
+        self.state, self.covariance = np.zeros(6), np.eye(6) * (10.0 * self.prior_range_m) ** 2
+        for time_s, rtn, covariance, latitude in self.rejected:
+            self._fold(time_s, rtn, covariance, latitude, gated=False)
+        self.rejected = []
         return True
 
 
@@ -175,10 +212,13 @@ def track(measurements: list[Measurement], chief: Elements, centre_of_mass_m: np
             sigma_cam = np.diag([noise.lateral_sigma, noise.lateral_sigma, noise.depth_sigma]) ** 2 * distance ** 2
             position_used = position.update(-rtn_from_cam @ centre_cam, rtn_from_cam @ sigma_cam @ rtn_from_cam.T,
                                             m.latitude_rad)
-        if attitude.q is None:  # nothing measured yet: no estimate to give
+        if attitude.q is not None:
+            eci_from_target = g.quat_to_matrix(attitude.q)
+        elif m.cam_from_target is not None:  # until the filter starts, the frame's own estimate
+            eci_from_target = m.eci_from_cam @ m.cam_from_target[:3, :3]
+        else:
             out.append(TrackedFrame(np.full((4, 4), np.nan), False, False))
             continue
-        eci_from_target = g.quat_to_matrix(attitude.q)
         cam_from_eci = m.eci_from_cam.T
         centre_cam = -cam_from_eci @ m.rtn_from_eci.T @ position.rtn(m.time_s, m.latitude_rad)
         rotation = cam_from_eci @ eci_from_target
