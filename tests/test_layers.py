@@ -52,13 +52,19 @@ def test_a_stage_imports_no_other_stage(stage):
     assert violations(sorted((ROOT / "stages" / stage).rglob("*.py")), {stage}) == []
 
 
-@pytest.mark.parametrize("package", ["stages/common", "manifests", "pipeline"])
+@pytest.mark.parametrize("package", ["stages/common", "manifests", "pipeline", "loaders"])
 def test_shared_layers_import_no_stage(package):
     assert violations(sorted((ROOT / package).rglob("*.py")), set()) == []
 
 
 def test_manifests_sit_below_the_shared_domain_code():
     imports = [(path.name, line, module) for path in sorted((ROOT / "manifests").rglob("*.py"))
+               for line, module in imported_modules(path) if module.split(".")[0] == "stages"]
+    assert imports == []
+
+
+def test_the_loaders_read_files_not_stages():
+    imports = [(path.name, line, module) for path in sorted((ROOT / "loaders").rglob("*.py"))
                for line, module in imported_modules(path) if module.split(".")[0] == "stages"]
     assert imports == []
 
