@@ -89,11 +89,31 @@ def _list_values(array: pa.Array, rows: np.ndarray) -> tuple[np.ndarray, pa.Arra
     return flat, subset
 
 
-def _check_floats(table: pa.Table, source: str, column: Column, rows: np.ndarray, values: np.ndarray) -> None:
-    bad = ~np.isfinite(values).reshape(len(rows), -1).all(axis=1)
-    if bad.any():
+def _leaf_lengths(subset: pa.Array) -> np.ndarray | None:
+    """Values per row of a list column whose rows differ in length, else None."""
+    if not pa.types.is_list(subset.type):
+        return None
+    counts = np.asarray(pc.list_value_length(subset).to_numpy(zero_copy_only=False), dtype=np.int64)
+    if len(counts) == 0 or (counts == counts[0]).all():
+        return None
+    inner, size = subset.type.value_type, 1
+    while pa.types.is_fixed_size_list(inner):
+        size, inner = size * inner.list_size, inner.value_type
+    return counts * size
+
+
+def _check_floats(table: pa.Table, source: str, column: Column, rows: np.ndarray, values: np.ndarray,
+                  lengths: np.ndarray | None = None) -> None:
+    """Every value finite; ``values`` hold ``lengths`` (per row) values each, else the same count."""
+    finite = np.isfinite(values)
+    if finite.all():
+        return
+    if lengths is None:
+        bad = ~finite.reshape(len(rows), -1).all(axis=1)
         row = int(rows[np.argmax(bad)])
-        raise _row_fail(table, source, row, column.name, "value is not finite (NaN or infinity)")
+    else:  # rows of different lengths (a list of corners): find the row by its offsets
+        row = int(rows[np.searchsorted(np.cumsum(lengths), int(np.argmax(~finite)), side="right")])
+    raise _row_fail(table, source, row, column.name, "value is not finite (NaN or infinity)")
 
 
 def _validate_column(table: pa.Table, source: str, column: Column) -> None:
@@ -120,8 +140,13 @@ def _validate_column(table: pa.Table, source: str, column: Column) -> None:
                 first = int(np.searchsorted(np.cumsum(lengths), int(np.argmax(inner_null)), side="right"))
             raise _row_fail(table, source, int(rows[first]), column.name, "null value (or a null element in the list)")
         if pa.types.is_floating(flat.type):
-            values = np.asarray(flat.to_numpy(zero_copy_only=False), dtype=float).reshape(len(rows), -1)
-            _check_floats(table, source, column, rows, values)
+            values = np.asarray(flat.to_numpy(zero_copy_only=False), dtype=float)
+            lengths = _leaf_lengths(array.take(pa.array(rows)))
+            if lengths is not None:  # rows of their own lengths (a capture's detected corners)
+                _check_floats(table, source, column, rows, values, lengths)
+            else:
+                values = values.reshape(len(rows), -1)
+                _check_floats(table, source, column, rows, values)
             if column.kind == "quaternion":
                 norm = np.linalg.norm(values, axis=1)
                 bad = np.abs(norm - 1.0) > QUATERNION_TOLERANCE

@@ -203,6 +203,10 @@ CALIBRATION_SAMPLES = ManifestSpec(
         *pose("cam_from_target_cal", "PnP pose of the pattern, mock-up scale", nullable=True),
         *pose("kuka_cam_from_target", "robots' estimate with the calibrated offsets", nullable=True),
         *pose("vicon_cam_from_target", "motion capture's estimate with the calibrated offsets", nullable=True),
+        Column("corners_px", pa.list_(pa.list_(pa.float64(), 2)), "px", "the detected pattern corners (M, 2), "
+               "distorted image coordinates; null when none were found", nullable=True),
+        Column("corners_target_m", pa.list_(pa.list_(pa.float64(), 3)), "m", "the same corners (M, 3) in the "
+               "target frame T, mock-up scale: reproject them with a pose to see its error", nullable=True),
     ),
 )
 

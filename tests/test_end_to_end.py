@@ -57,6 +57,47 @@ def test_report_references_only_existing_files(finished):
         assert section in page
 
 
+def test_report_is_browsable_every_sample_and_calibration_capture_in_it(finished):
+    """A table of contents whose anchors all exist, a gallery and a table row for every
+    label, and an overlay for every calibration capture with corners, worst first."""
+    ws, _ = finished
+    page = (ws.root / "report" / "index.html").read_text()
+    ids = set(re.findall(r'id="([^"]+)"', page))
+    anchors = re.findall(r'href="#([^"]+)"', page)
+    assert len(anchors) >= 12 and set(anchors) <= ids
+    labels = read_manifest(ws, "labels").column("sample_id").to_pylist()
+    for sample_id in labels:
+        assert f'id="sample-{sample_id}"' in page and f'href="#sample-{sample_id}"' in page
+        assert f'href="../images/dataset/{sample_id}.png"' in page
+        assert f'href="../renders/twins/{sample_id}.png"' in page
+    samples = [r for r in read_manifest(ws, "calibration_samples").to_pylist() if r["corners_px"] is not None]
+    shown = re.findall(r'href="calibration/(cal\d+)\.png"', page)
+    assert sorted(shown) == sorted(r["sample_id"] for r in samples)
+    rms = [float(v) for v in re.findall(r"(\d+\.\d+) px RMS through the robots", page)]
+    assert rms == sorted(rms, reverse=True) and rms
+    assert "Solver: " in page and "{" not in page.split("Solver: ")[1].split("<")[0]  # words, not a dict
+    assert "paper (TRON)" in page
+
+
+def test_report_fits_a_1280_pixel_window(finished, tmp_path):
+    """Chromium lays the page out 1280 pixels wide: nothing wider than the window (tables
+    scroll in their own box)."""
+    ws, _ = finished
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert browser, "Debian's chromium is needed (make setup and .ci/run install it)"
+    copy = tmp_path / "report"
+    shutil.copytree(ws.root / "report", copy)
+    probe = ("<script>window.addEventListener('load', () => { document.body.setAttribute('data-width', "
+             "String(document.documentElement.scrollWidth)); });</script>")
+    (copy / "index.html").write_text((copy / "index.html").read_text().replace("</body>", probe + "</body>"))
+    dom = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                          "--window-size=1280,900", "--virtual-time-budget=5000", "--dump-dom",
+                          (copy / "index.html").as_uri()], capture_output=True, text=True, timeout=120).stdout
+    width = re.search(r'data-width="(\d+)"', dom)
+    assert width is not None, dom[-500:]
+    assert int(width.group(1)) <= 1280
+
+
 def test_report_renders_in_headless_chromium(finished, tmp_path):
     ws, _ = finished
     browser = shutil.which("chromium") or shutil.which("chromium-browser")

@@ -255,7 +255,9 @@ def _write_samples(config: Config, workspace: Workspace, observations: list[obs.
             if reason is None and flagged:
                 reason = "outlier of " + " and ".join(flagged) + " (excluded from that source's calibration)"
             row = {"sample_id": o.sample_id, "fixture": by_id[o.sample_id]["fixture"], "corners": len(o.ids),
-                   "used": o.cam_from_target is not None, "reason": reason, "pnp_rms_px": o.rms_px}
+                   "used": o.cam_from_target is not None, "reason": reason, "pnp_rms_px": o.rms_px,
+                   "corners_px": np.asarray(o.pixels, float) if len(o.ids) else None,
+                   "corners_target_m": np.asarray(o.object_points, float) if len(o.ids) else None}
             for prefix, pose in (("cam_from_target_cal", o.cam_from_target),
                                  ("kuka_cam_from_target", predictions.get("kuka", {}).get(o.sample_id)),
                                  ("vicon_cam_from_target", predictions.get("vicon", {}).get(o.sample_id))):

@@ -148,6 +148,20 @@ def tracking_errors(tracks: list[dict[str, Any]], path: Path) -> str:
     return _save(figure, path)
 
 
+def corners(image: np.ndarray, detected: np.ndarray, reprojected: np.ndarray | None) -> np.ndarray:
+    """A calibration capture (brightened, BGR) with its detected corners (M, 2) as green
+    crosses and reprojected ones as red circles, joined by a line where they differ."""
+    drawn = brighten(image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    size = max(3, round(image.shape[1] / 300))
+    for index, point in enumerate(np.round(detected * 4).astype(int)):
+        cv2.drawMarker(drawn, (point[0] >> 2, point[1] >> 2), (60, 220, 60), cv2.MARKER_CROSS, 2 * size, 1)
+        if reprojected is not None:
+            other = np.round(reprojected[index] * 4).astype(int)
+            cv2.circle(drawn, tuple(other), size * 4, (40, 40, 230), 1, cv2.LINE_AA, shift=2)
+            cv2.line(drawn, tuple(point), tuple(other), (40, 40, 230), 1, cv2.LINE_AA, shift=2)
+    return drawn
+
+
 def thumbnail(image: np.ndarray, width: int = 320) -> np.ndarray:
     scale = width / image.shape[1]
     return cv2.resize(image, (width, round(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)

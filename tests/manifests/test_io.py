@@ -210,3 +210,26 @@ def test_an_older_part_without_a_nullable_column_added_since_reads_it_as_nulls(t
     pq.write_table(table.drop_columns(["fixture_sag_rad"]).replace_schema_metadata(metadata), part)
     with pytest.raises(ManifestError, match="schema version 1.8"):
         read_manifest(ws, "truth")
+
+
+def test_a_ragged_list_column_is_checked_row_by_row(tmp_path):
+    """calibration_samples.corners_px holds each capture's own number of corners: a NaN in the
+    second row's is named in that row."""
+    from manifests.schema import CALIBRATION_SAMPLES
+
+    rows = []
+    for index, count in enumerate((5, 3, 7)):
+        corners = np.arange(2 * count, dtype=float).reshape(count, 2)
+        if index == 1:
+            corners[2, 1] = np.nan
+        rows.append({"sample_id": f"cal{index:06d}", "fixture": "fixed", "corners": count, "used": True,
+                     "reason": None, "pnp_rms_px": 0.1, **{f"{p}_{s}": None for p in (
+                         "cam_from_target_cal", "kuka_cam_from_target", "vicon_cam_from_target") for s in "qt"},
+                     "corners_px": corners, "corners_target_m": np.zeros((count, 3))})
+    ws = Workspace(tmp_path)
+    with pytest.raises(ManifestError, match=r"row 1.*corners_px|corners_px.*row 1") as error:
+        write_part(ws, CALIBRATION_SAMPLES, rows, "fp")
+    assert "cal000001" in str(error.value) and "not finite" in str(error.value)
+    rows[1]["corners_px"][2, 1] = 0.0
+    write_part(ws, CALIBRATION_SAMPLES, rows, "fp")
+    assert [len(c) for c in read_manifest(ws, "calibration_samples").column("corners_px").to_pylist()] == [5, 3, 7]

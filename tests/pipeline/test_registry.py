@@ -20,6 +20,7 @@ CONFIGS = {
     "replay": ["acquire.backend=replay", "acquire.format=tabb", f"acquire.source='{TABB}'"],
     "train set": ["render.set=train"],
     "bop": ["export.format=bop"],
+    "sequences": ["plan.mode=trajectory", "export.format=shirt"],
 }
 
 

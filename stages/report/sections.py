@@ -1,0 +1,200 @@
+"""The report's tables: Table 1 (with TRON's figures), Table 2 side by side per crop, the
+motion-capture decisions, a row per sample, the tracking baseline, and the provenance."""
+
+from __future__ import annotations
+
+import html
+import platform
+from collections import Counter
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from manifests import Workspace, read_manifest, read_success
+from manifests.sidecars import Calibration
+from pipeline.config import Config
+from stages.common import tables
+from stages.report import figures
+
+PACKAGES = ("speedplus-builder", "numpy", "opencv-contrib-python-headless", "mitsuba", "drjit", "onnxruntime",
+            "pyarrow", "ray")
+
+
+def _table(headers: list[str], rows: list[list[Any]], raw_first: bool = False) -> str:
+    """An HTML table in a scrolling box (it never widens the page); cells escaped, but for
+    the first column's when ``raw_first`` (a link made here)."""
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in headers)
+
+    def cell(index: int, value: Any) -> str:
+        return f"<td>{value if raw_first and index == 0 else html.escape(str(value))}</td>"
+
+    body = "".join("<tr>" + "".join(cell(i, c) for i, c in enumerate(row)) + "</tr>" for row in rows)
+    return f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
+
+
+def table1(calibration: Calibration) -> str:
+    """Table 1 of this run (mean ± standard deviation over the calibration samples) with TRON's
+    reference rows, and the solver in words."""
+    rows = [[label, *cells] for label, cells in tables.rows(calibration, with_paper=True)]
+    return f"<p>{html.escape(solver_line(calibration.solver))}</p>" + _table(
+        ["metric", "KUKA-only", "Vicon-only", "fused"], rows)
+
+
+def solver_line(solver: dict[str, Any]) -> str:
+    """``calibration.json``'s solver record as a sentence."""
+    parts = [f"Solver: {solver.get('method', '?')}"]
+    if "folds" in solver:
+        parts.append(f"{solver['folds']}-fold cross-validation")
+    pattern = solver.get("pattern") or {}
+    if pattern:
+        size = "x".join(str(v) for v in pattern.get("size", []))
+        square = f", {1000 * pattern['square_m']:g} mm squares" if "square_m" in pattern else ""
+        parts.append(f"pattern {pattern.get('kind', '?')} {size}{square}")
+    if solver.get("fixtures"):
+        parts.append("fixtures " + ", ".join(solver["fixtures"]))
+    return "; ".join(parts) + ". Mean ± standard deviation over the calibration samples."
+
+
+def _cell(row: dict[str, Any] | None, key: str) -> str:
+    return "-" if row is None else f"{row[key]:.4f}"
+
+
+def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
+    """Table 2 of every model side by side for one crop, and how much of the domain gap (testbed
+    minus synthetic mean SPEED score) each model other than the first closes per light."""
+    rows = []
+    for configuration, count, *_ in tables.table2_groups(scores, models[0], crop):
+        view, light = configuration.split(", ")
+        cells: list[Any] = [configuration, count]
+        for model in models:
+            by_group = {row["group"]: row for row in scores}
+            synthetic = by_group.get(f"{model}/{crop}/synthetic/{view}/{light}")
+            testbed = by_group.get(f"{model}/{crop}/testbed/{view}/{light}")
+            gap = ("-" if synthetic is None or testbed is None
+                   else f"{testbed['mean_score_speed'] - synthetic['mean_score_speed']:+.4f}")
+            cells += [_cell(synthetic, "mean_score_speed"), _cell(testbed, "mean_score_speed"), gap,
+                      f"{_no_pose(synthetic)} / {_no_pose(testbed)}"]
+        rows.append(cells)
+    header = ["configuration (view, light)", "images"]
+    for model in models:
+        header += [f"{model}: synthetic", f"{model}: testbed", f"{model}: gap", f"{model}: no pose (syn / test)"]
+    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a search over windows "
+           "of the whole image, then passes around what it found", "full": "the whole image"}.get(crop, crop)
+    closing = []
+    by_group = {row["group"]: row for row in scores}
+    for model in models[1:]:
+        for light in ("lightbox", "sunlamp"):
+            gaps = []
+            for name in (models[0], model):
+                synthetic = by_group.get(f"{name}/{crop}/synthetic/all/{light}")
+                testbed = by_group.get(f"{name}/{crop}/testbed/all/{light}")
+                if synthetic and testbed:
+                    gaps.append(testbed["mean_score_speed"] - synthetic["mean_score_speed"])
+            if len(gaps) == 2:
+                closing.append(f"<li>{html.escape(light)}: gap {gaps[0]:.3f} ({html.escape(models[0])}) against "
+                               f"{gaps[1]:.3f} ({html.escape(model)}): {gap_change(gaps[0], gaps[1])}</li>")
+    if crop == "self":
+        for model in models:
+            row = by_group.get(f"{model}/{crop}/testbed/all/all")
+            twin = by_group.get(f"{model}/{crop}/synthetic/all/all")
+            if row and twin:
+                closing.append(f"<li>{html.escape(model)}: the boxes it found overlap the labels' by a mean IoU of "
+                               f"{twin['mean_box_iou']:.2f} on the twins, {row['mean_box_iou']:.2f} on the testbed "
+                               "images</li>")
+    return (f"<p>Mean SPEED scores, {html.escape(how)}; gap: testbed minus synthetic. An image without a pose "
+            "(non-finite model output) scores the worst case, pi + 1.</p>" + _table(header, rows)
+            + (f"<ul>{''.join(closing)}</ul>" if closing else ""))
+
+
+def gap_change(first: float, second: float) -> str:
+    """How the second model's domain gap compares with the first's, in words."""
+    if first <= 0:
+        return "no gap to close"
+    change = 100 * (first - second) / first
+    if round(change) == 0:
+        return "the same gap"
+    return f"{change:.0f}% of it closed" if change > 0 else f"{-change:.0f}% wider"
+
+
+def per_sample_table(labels: list[dict[str, Any]], poses: dict[str, dict], predictions: list[dict[str, Any]],
+                     runs: list[tuple[str, str]]) -> str:
+    """A row per label: its configuration, label source and sigma, the motion-capture
+    decision, and each model's SPEED score per crop on the twin and the testbed image."""
+    score = {(p["model"], p["crop"], p["domain"] == "synthetic", p["sample_id"]): p["score_speed"]
+             for p in predictions}
+    rows = []
+    for label in sorted(labels, key=lambda r: r["sample_id"]):
+        sample_id = label["sample_id"]
+        pose = poses.get(sample_id, {})
+        decision = "accepted" if pose.get("vicon_accepted") else (pose.get("reject_reason") or "-")
+        cells: list[Any] = [f'<a href="#sample-{html.escape(sample_id)}">{html.escape(sample_id)}</a>',
+                            label["view"], label["domain"], label["label_source"],
+                            f"{1000 * float(np.linalg.norm(label['sigma_t_m'])):.2f}",
+                            f"{np.degrees(label['sigma_r_rad']):.3f}", decision]
+        for model, crop in runs:
+            twin, testbed = (score.get((model, crop, synthetic, sample_id)) for synthetic in (True, False))
+            cells.append(" / ".join("-" if v is None else f"{v:.3f}" for v in (twin, testbed)))
+        rows.append(cells)
+    header = ["sample", "view", "light", "label source", "sigma t [mm]", "sigma r [deg]", "motion capture",
+              *(f"{model} ({crop.replace('_', ' ')}): twin / testbed" for model, crop in runs)]
+    return ("<p>SPEED score of each model on the twin / the testbed image; sigma t: the norm of the "
+            "label's per-axis translation sigma (full scale).</p>" + _table(header, rows, raw_first=True))
+
+
+def _no_pose(row: dict[str, Any] | None) -> str:
+    return "-" if row is None else f"{100 * (1 - row['pose_found_share']):.0f}%"
+
+
+def rejection_table(poses: list[dict[str, Any]], labels: list[dict[str, Any]]) -> str:
+    reasons = Counter()
+    for row in poses:
+        reason = row["reject_reason"] or "accepted"
+        reasons[reason.split(" differs")[0] + (" differs" if " differs" in reason else "")] += 1
+    sources = Counter(row["label_source"] for row in labels)
+    rows = [[reason, count] for reason, count in reasons.most_common()]
+    rows += [[f"labels from {source}", count] for source, count in sources.items()]
+    return _table(["motion-capture decision / label source", "samples"], rows)
+
+
+def provenance(config: Config, workspace: Workspace) -> str:
+    versions = []
+    for package in PACKAGES:
+        try:
+            versions.append([package, metadata.version(package)])
+        except metadata.PackageNotFoundError:
+            versions.append([package, "not installed"])
+    versions.append(["python", platform.python_version()])
+    timings = []
+    for name in ("plan", "captures", "calibration_samples", "poses", "labels", "renders", "predictions"):
+        marker = read_success(workspace, name)
+        if marker:
+            timings.append([marker.get("stage", name), name, marker.get("rows"), marker.get("seconds"),
+                            marker.get("completed_at"), marker.get("fingerprint")])
+    config_text = workspace.config_path.read_text() if workspace.config_path.exists() else ""
+    return (_table(["package", "version"], versions)
+            + _table(["stage", "manifest", "rows", "seconds", "completed", "fingerprint"], timings)
+            + f"<details><summary>configuration (W/config.toml)</summary><pre>{html.escape(config_text)}</pre>"
+              "</details>")
+
+
+def tracking_section(config: Config, workspace: Workspace, figure_dir: Path) -> list[tuple[str, str]]:
+    """A trajectory plan's tracking baseline: per sequence, domain and model, the mean SPEED
+    score per frame against tracked, and the scores against time."""
+    if config.plan.mode != "trajectory":
+        return []
+    tracks = read_manifest(workspace, "tracks").to_pylist()
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for row in tracks:
+        groups.setdefault((row["sequence_id"], row["domain"], row["model"], row["crop"]), []).append(row)
+    rows = [[sequence, domain, f"{model} ({crop.replace('_', ' ')})", len(group),
+             f"{np.mean([r['frame_score_speed'] for r in group]):.4f}",
+             f"{np.mean([r['score_speed'] for r in group]):.4f}",
+             f"{sum(r['rotation_used'] for r in group)} / {sum(r['position_used'] for r in group)}"]
+            for (sequence, domain, model, crop), group in sorted(groups.items())]
+    figure = figures.tracking_errors(tracks, figure_dir / "tracking.png")
+    return [("Tracking: per frame against a navigation filter", _table(
+        ["sequence", "domain", "model (crop)", "frames", "mean SPEED per frame", "mean SPEED tracked",
+         "measurements used (attitude / position)"], rows)
+        + f'<img src="figures/{figure}" alt="SPEED score against time per sequence and domain">')]
