@@ -204,7 +204,7 @@ def test_evaluate_tracks_every_sequence_and_the_report_plots_it(sequences, tmp_p
     workspace = Workspace(root)
     result = speedplus("run", "--workspace", str(root))
     assert result.returncode == 0, result.stderr
-    assert "Tracking: mean SPEED score per frame and tracked" in result.stdout
+    assert "Tracking: reference, mean SPEED score" in result.stdout
     predictions = read_manifest(workspace, "predictions").to_pylist()
     tracked = read_manifest(workspace, "tracks").to_pylist()
     assert len(tracked) == len(predictions)  # every image of these workspaces is a frame of a sequence

@@ -33,7 +33,7 @@ from stages.common.sidecars import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.evaluate.scorer import Decoding, open_scorer
 from stages.evaluate.table import print_table2, summarise
-from stages.evaluate.tracks import tracking_table, tracks
+from stages.evaluate.tracks import tracking_tables, tracks
 
 REPOSITORY = Path(__file__).resolve().parents[2]
 
@@ -185,5 +185,6 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         tracked = tracks(config, workspace, predictions.to_pylist())
         clear_manifest(workspace, "tracks")  # like scores, a summary of all predictions
         write_part(workspace, "tracks", tracked, workspace.output_fingerprint("tracks"))
-        Console().print(tracking_table(tracked))
+        for shown in tracking_tables(tracked):
+            Console().print(shown)
     return predictions

@@ -6,6 +6,7 @@ from itertools import product
 from typing import Any
 
 import numpy as np
+from rich import box
 from rich.table import Table
 
 from manifests import to_table
@@ -48,12 +49,15 @@ def summarise(predictions: list[dict[str, Any]], views: tuple[str, ...]) -> Any:
 
 def print_table2(scores: Any, model: str, crop: str) -> Table:
     """Configuration (view, light) x {synthetic, testbed}: mean SPEED (and SPEED+) scores of
-    one model and crop."""
-    how = {"oracle_box": " (oracle crop: boxes from the labels)", "self": " (its own crop)"}.get(crop, "")
-    table = Table(title=f"Table 2: mean SPEED score of {model}{how} on twins and testbed images")
-    for column in ("configuration (view, light)", "images", "synthetic", "testbed", "synthetic SPEED+",
-                   "testbed SPEED+", "no pose (syn / test)"):
-        table.add_column(column)
+    one model and crop, in 80 columns (abbreviated headers, a legend below)."""
+    how = {"oracle_box": "oracle crop", "self": "its own crop", "full": "whole image"}.get(crop, crop)
+    table = Table(title=f"Table 2: {model} ({how}), mean SPEED score", box=box.SIMPLE_HEAD, title_justify="left",
+                  caption="syn / test: the twins / the testbed images; +: SPEED+ score; no pose: share of images "
+                  "without one (syn / test)", caption_justify="left")
+    table.add_column("view", overflow="fold")  # a long view name folds; the numbers never shrink
+    table.add_column("light", no_wrap=True)
+    for column, width in (("n", 3), ("syn", 6), ("test", 6), ("syn+", 6), ("test+", 6), ("no pose", 9)):
+        table.add_column(column, no_wrap=True, justify="right", min_width=width)
 
     def cell(row: dict[str, Any] | None, key: str) -> str:
         return "-" if row is None else f"{row[key]:.4f}"
@@ -62,7 +66,8 @@ def print_table2(scores: Any, model: str, crop: str) -> Table:
         return "-" if row is None else f"{100 * (1 - row['pose_found_share']):.0f}%"
 
     for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist(), model, crop):
-        table.add_row(configuration, str(count), cell(synthetic, "mean_score_speed"),
+        view, light = configuration.split(", ")
+        table.add_row(view, light, str(count), cell(synthetic, "mean_score_speed"),
                       cell(testbed, "mean_score_speed"), cell(synthetic, "mean_score_speedplus"),
                       cell(testbed, "mean_score_speedplus"), f"{no_pose(synthetic)} / {no_pose(testbed)}")
     return table

@@ -8,6 +8,7 @@ from itertools import groupby
 from typing import Any
 
 import numpy as np
+from rich import box
 from rich.table import Table
 
 from manifests import Workspace, read_manifest, to_table
@@ -75,17 +76,23 @@ def tracks(config: Config, workspace: Workspace, predictions: list[dict[str, Any
     return to_table(rows, TRACKS)
 
 
-def tracking_table(table: Any) -> Table:
-    """Per model, crop, sequence and domain: the mean per-frame SPEED score against the tracked."""
-    out = Table(title="Tracking: mean SPEED score per frame and tracked (frames used by the filter)")
-    for column in ("model / crop", "sequence", "domain", "frames", "per frame", "tracked", "used"):
-        out.add_column(column)
+def tracking_tables(table: Any) -> list[Table]:
+    """Per model: for each crop, sequence and domain the mean SPEED score per frame against
+    tracked, and the frames the attitude filter took; 80 columns."""
     rows = sorted(table.to_pylist(), key=lambda r: (r["model"], r["crop"], r["sequence_id"], r["domain"], r["frame"]))
-    for (model, crop, sequence_id, domain), group in groupby(
-            rows, key=lambda r: (r["model"], r["crop"], r["sequence_id"], r["domain"])):
-        group = list(group)
-        out.add_row(f"{model} / {crop}", sequence_id, domain, str(len(group)),
-                    f"{np.mean([r['frame_score_speed'] for r in group]):.4f}",
-                    f"{np.mean([r['score_speed'] for r in group]):.4f}",
-                    f"{sum(r['rotation_used'] for r in group)}/{len(group)}")
+    out = []
+    for model, of_model in groupby(rows, key=lambda r: r["model"]):
+        shown = Table(title=f"Tracking: {model}, mean SPEED score", box=box.SIMPLE_HEAD, title_justify="left",
+                      caption="frame: per frame; tracked: the filter's; used: frames its attitude filter took",
+                      caption_justify="left")
+        for column in ("crop", "sequence", "domain", "n", "frame", "tracked", "used"):
+            shown.add_column(column, no_wrap=True, justify="right" if column in ("n", "frame", "tracked") else "left")
+        for (crop, sequence_id, domain), group in groupby(of_model, key=lambda r: (r["crop"], r["sequence_id"],
+                                                                                    r["domain"])):
+            group = list(group)
+            shown.add_row(crop, sequence_id, domain, str(len(group)),
+                          f"{np.mean([r['frame_score_speed'] for r in group]):.4f}",
+                          f"{np.mean([r['score_speed'] for r in group]):.4f}",
+                          f"{sum(r['rotation_used'] for r in group)}/{len(group)}")
+        out.append(shown)
     return out

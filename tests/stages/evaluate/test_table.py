@@ -1,0 +1,47 @@
+"""Table 2 in a terminal of 80 columns: every view and light name whole, nothing cut."""
+
+import itertools
+
+import numpy as np
+from rich.console import Console
+
+from stages.evaluate.table import print_table2, summarise
+
+
+def predictions(views):
+    rng = np.random.default_rng(0)
+    rows = []
+    for index, (view, light, domain) in enumerate(itertools.product(views, ("lightbox", "sunlamp"),
+                                                                    ("synthetic", "lightbox"))):
+        domain = light if domain != "synthetic" else "synthetic"
+        err_q, err_t = rng.uniform(0, 0.3), rng.uniform(0, 0.1)
+        rows.append({"prediction_id": f"reference_augmented:oracle_box:{domain}:img{index:06d}",
+                     "model": "reference_augmented", "sample_id": f"img{index:06d}", "domain": domain, "view": view,
+                     "light": light, "crop": "oracle_box", "box_iou": None, "pose_found": True, "err_q_rad": err_q,
+                     "err_t_norm": err_t, "score_speed": err_q + err_t, "score_speedplus": err_q + err_t})
+    return rows
+
+
+def render(views):
+    scores = summarise(predictions(views), views)
+    console = Console(width=80, record=True)
+    console.print(print_table2(scores, "reference_augmented", "oracle_box"))
+    return scores, console.export_text()
+
+
+def test_table2_fits_80_columns_with_every_name_whole():
+    views = ("solar_panel", "rear_panel")
+    _, text = render(views)
+    assert max(len(line) for line in text.splitlines()) <= 80 and "…" not in text
+    for name in (*views, "lightbox", "sunlamp", "reference_augmented"):
+        assert name in text
+    assert len(text.splitlines()) <= 14  # a line per configuration, not three
+
+
+def test_a_long_view_name_folds_and_no_number_is_cut():
+    scores, text = render(("solar_panel", "rear_panel_with_a_long_name"))
+    assert max(len(line) for line in text.splitlines()) <= 80 and "…" not in text
+    shown = [r for r in scores.to_pylist() if (r["view"] == "all") == (r["light"] == "all")]  # Table 2's rows
+    assert len(shown) == 10
+    for row in shown:
+        assert f"{row['mean_score_speed']:.4f}" in text
