@@ -21,7 +21,7 @@ from types import TracebackType
 from manifests.lease import Lease
 from manifests.lease import holder as lease_holder
 from manifests.workspace import Workspace
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 LOCK_FILE = ".lock"
 

@@ -38,7 +38,7 @@ from urllib.parse import urlsplit, urlunsplit
 
 from manifests.files import write_bytes_atomic, write_json_atomic
 from manifests.workspace import STATE_DIR, PathEscapeError, check_relative
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 SCHEMES = ("s3", "gs", "gcs")
 CACHE_ENV = "SPEEDPLUS_WORKSPACE_CACHE"

@@ -24,7 +24,7 @@ from __future__ import annotations
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
 
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 if TYPE_CHECKING:
     from manifests.remote import Remote, RemoteCopy

@@ -42,7 +42,7 @@ from pipeline.config import (
     with_overrides,
     write_config,
 )
-from pipeline.errors import InputError, RefusalError
+from speedplus.errors import InputError, RefusalError
 
 
 class _PipelineOrder(TyperGroup):

@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 from manifests import Workspace
 from pipeline.config import Config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -40,9 +40,9 @@ from manifests.integrity import compact, damage, damaged_files, file_records, pa
 from manifests.schema import MANIFESTS
 from pipeline import progress
 from pipeline.config import Config
-from pipeline.errors import InputError
 from pipeline.progress import console
 from pipeline.registry import StageEntry
+from speedplus.errors import InputError
 
 
 class StageError(InputError):

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
 from manifests.files import write_json_atomic
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 T = TypeVar("T")
 

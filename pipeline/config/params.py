@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import field
 from typing import Any
 
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 
 class ConfigError(InputError):

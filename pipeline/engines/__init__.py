@@ -24,7 +24,7 @@ from manifests import Workspace
 from manifests.files import write_bytes_atomic
 from manifests.remote import Remote, StoredFile
 from pipeline.engines.local import map_local
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 #: set in a Ray worker to the CPUs Ray reserved for it: its renderer uses that many threads
 WORKER_CPUS_ENV = "SPEEDPLUS_WORKER_CPUS"

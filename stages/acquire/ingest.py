@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 #: Plausible distances of a flange or rigid body from its world origin, per unit: an
 #: industrial cell is metres across (at most 30 m), and a flange never stays within 50 mm of

@@ -17,7 +17,7 @@ from manifests import clear as clear_manifest
 from manifests.sidecars import SOURCES, Calibration, Session, SourceCalibration, read_session, write_calibration
 from pipeline import progress
 from pipeline.config import Config
-from pipeline.errors import InputError, RefusalError
+from speedplus.errors import InputError, RefusalError
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json

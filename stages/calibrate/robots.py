@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.config import Config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from manifests.files import temporary_name
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common.lens import LensCamera
 from stages.common.surface import SurfaceMaps
 

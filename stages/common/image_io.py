@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from manifests.files import write_bytes_atomic
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 #: file types the readers accept (by suffix, case-insensitive)
 IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg", ".exr")

@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common.lens import RenderGeometry
 
 #: Mitsuba's camera frame in OpenCV's (``opencv_from_mitsuba``): both look along +z, but

@@ -71,7 +71,7 @@ PATTERN_KEYS = {"kind", "size", "square_m", "marker_m", "dictionary", "target_fr
 def pattern_from_table(table: Any, where: str) -> PatternSpec:
     """A ``[pattern]`` table of a recorded session (``session.toml``, ``dataset.toml``),
     validated; errors start with ``where`` and name the key."""
-    from pipeline.errors import InputError
+    from speedplus.errors import InputError
 
     def fail(message: str) -> InputError:
         return InputError(f"{where}: [pattern] {message}")

@@ -47,7 +47,7 @@ import cv2
 import numpy as np
 
 from manifests.schema import NAME_PATTERN
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import tango
 

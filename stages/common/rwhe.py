@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 
 

@@ -24,8 +24,8 @@ from manifests.integrity import sha256
 from manifests.workspace import MODELS_DIR
 from pipeline.config import Config
 from pipeline.engines import threads_per_worker
-from pipeline.errors import InputError
 from pipeline.progress import track
+from speedplus.errors import InputError
 from stages.common.engine import map_config
 from stages.common.image_io import ImageReadError
 from stages.common.pose_model import BUILTIN_TARGET, PoseModel

@@ -22,8 +22,8 @@ from manifests.schema import DOMAINS
 from manifests.sidecars import read_trajectories
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
-from pipeline.errors import InputError
 from pipeline.progress import track
+from speedplus.errors import InputError
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.sidecars import calibrated_camera

@@ -33,7 +33,7 @@ import numpy as np
 
 from manifests.files import write_bytes_atomic, write_json_atomic
 from manifests.schema import DOMAINS
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
 from stages.common.lens import LensCamera

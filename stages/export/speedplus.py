@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from manifests.files import write_bytes_atomic, write_json_atomic
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common.lens import LensCamera
 
 TWINS_DOMAIN = "twins"

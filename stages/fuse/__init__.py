@@ -26,8 +26,8 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
 from pipeline.config import Config, FuseConfig, TestbedConfig
-from pipeline.errors import InputError
 from pipeline.progress import track
+from speedplus.errors import InputError
 from stages.common import arms
 from stages.common import geometry as g
 from stages.common.fusion import (

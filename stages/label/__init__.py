@@ -16,8 +16,8 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
 from manifests.schema import DOMAINS
 from pipeline.config import Config
-from pipeline.errors import InputError
 from pipeline.progress import track
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.pose_model import points_box
 from stages.common.sidecars import calibrated_camera

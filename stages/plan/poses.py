@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.patterns import board_pattern

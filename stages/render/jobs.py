@@ -18,7 +18,7 @@ from manifests import Workspace, read_manifest, read_success
 from manifests.sidecars import read_calibration, read_trajectories
 from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
 from pipeline.config import Config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.cameras import train_camera
 from stages.common.orbits import Elements, rtn_from_eci, two_body

@@ -9,7 +9,7 @@ import pytest
 
 from bench.handeye import KUKA_TOML
 from manifests import Workspace, read_manifest
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
 from stages.acquire.ingest import IngestError
 from stages.common import geometry as g

@@ -11,7 +11,7 @@ import pytest
 from manifests import Workspace, read_manifest
 from pipeline import registry, runner
 from pipeline.config import load_config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.acquire.handeye import HandEyeReplay
 from stages.acquire.ingest import IngestError
 from stages.acquire.replay import SessionReplay

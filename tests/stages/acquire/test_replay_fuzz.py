@@ -13,7 +13,7 @@ import pytest
 from manifests import MANIFESTS, ManifestError, Workspace, read_manifest
 from pipeline import registry, runner
 from pipeline.config import load_config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from tests.stages.acquire.test_replay import recorded_rows, write_session
 
 FILES = ("session.toml", "robot.csv", "mocap.csv")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.calibrate import arm_decision, compliance_decision
 from stages.common import arms, rwhe
 from stages.common import geometry as g

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.calibrate import consistency, screening
 from stages.calibrate import observations as obs
 from stages.common import geometry as g

@@ -11,7 +11,7 @@ from bench.handeye import KUKA_TOML, kuka_b, opencv_reference
 from manifests import Workspace, read_manifest
 from pipeline import registry, runner
 from pipeline.config import load_config
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.image_io import read_image
 from tests.conftest import speedplus

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.pose_model import (

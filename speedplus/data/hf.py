@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from loaders.records import SETS, samples
+from speedplus.data.records import SETS, samples
 
 
 def hf_dataset(root: str | Path, sets: tuple[str, ...] = SETS) -> Any:

@@ -11,7 +11,7 @@ import numpy as np
 
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_calibration
-from pipeline.errors import InputError
+from speedplus.errors import InputError
 
 SETS = ("testbed", "twins")
 

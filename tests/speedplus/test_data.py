@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from torch.utils.data import DataLoader
 
-from loaders import PoseDataset, hf_dataset, samples
 from manifests import read_manifest
-from pipeline.errors import InputError
+from speedplus.data import PoseDataset, hf_dataset, samples
+from speedplus.errors import InputError
 from stages.common import geometry as g
 
 

@@ -1,4 +1,4 @@
-"""``PoseDataset``: a PyTorch ``Dataset`` of labelled images (``loaders.records``)."""
+"""``PoseDataset``: a PyTorch ``Dataset`` of labelled images (``speedplus.data.records``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 from torch.utils.data import Dataset
 
-from loaders.records import SETS, Sample, samples
+from speedplus.data.records import SETS, Sample, samples
 
 
 def read_rgb(path: Path) -> np.ndarray:

@@ -7,14 +7,14 @@ as a Hugging Face ``datasets.Dataset`` (``hf_dataset``). Units: metres, radians,
 Five lines to train from a workspace::
 
     from torch.utils.data import DataLoader
-    from loaders import PoseDataset
+    from speedplus.data import PoseDataset
     data = PoseDataset("data/default", sets=("twins",))
     for batch in DataLoader(data, batch_size=8, shuffle=True):
         images, q, r = batch["image"], batch["q_vbs2tango_true"], batch["r_Vo2To_vbs_true"]
 """
 
-from loaders.hf import hf_dataset
-from loaders.pytorch import PoseDataset
-from loaders.records import Sample, samples
+from speedplus.data.hf import hf_dataset
+from speedplus.data.pytorch import PoseDataset
+from speedplus.data.records import Sample, samples
 
 __all__ = ["PoseDataset", "Sample", "hf_dataset", "samples"]
