@@ -17,7 +17,7 @@ import numpy as np
 from manifests import Workspace, read_manifest
 from pipeline.config import Config
 from stages.common.image_io import read_image
-from stages.common.sidecars import calibrated_camera
+from stages.common.json_arrays import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker

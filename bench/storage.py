@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
+from manifests import sample_ids
 from manifests.remote import Remote, RemoteCopy
 
 BUCKET = "bench"
@@ -74,7 +75,7 @@ def main(*args: str) -> None:
         source = folder / "source"
         size = 1_500_000  # about one 960 x 600 capture PNG
         for index in range(files):
-            path = source / "images" / "dataset" / f"img{index:06d}.png"
+            path = source / "images" / "dataset" / f"{sample_ids.make('dataset', index)}.png"
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(rng.bytes(size))
         (source / "manifests" / "_state").mkdir(parents=True)

@@ -66,12 +66,12 @@ def robots_only(config: Config, sessions: dict[str, Any], rng: np.random.Generat
                                        rng.normal(0, PNP_SIGMA_M / np.sqrt(3), 3)) for _ in true])
     payload = arms.Payload.of(planned_target(config))
     a, fixtures, readings = true @ noise, [x["fixture"] for x in captures], arms.readings(captures, payload)
-    b, up = arms.measurement(testbed, arms.NOMINAL, readings, world_up)
+    b, up = arms.corrected_b(testbed, arms.NOMINAL, readings, world_up)
     start = rwhe.frobenius(a, b, fixtures, rwhe.shah(a, b, fixtures), up)
     fit = arms.fit(testbed, c, a, readings, fixtures, start, True)
     out = {}
     for session, (captures, true) in sessions.items():
-        b, up = arms.measurement(testbed, fit.errors, arms.readings(captures, payload), world_up)
+        b, up = arms.corrected_b(testbed, fit.errors, arms.readings(captures, payload), world_up)
         predicted = fit.offsets.predict(b, [x["fixture"] for x in captures], up)
         rotation = np.degrees(g.angular_distance(predicted[:, :3, :3], true[:, :3, :3]))
         out[f"{session} E_T (mm)"] = float(np.linalg.norm(predicted[:, :3, 3] - true[:, :3, 3], axis=1).mean() * 1000)

@@ -20,7 +20,7 @@ from pipeline.config import Config
 from pipeline.engines import Produced, store
 from pipeline.progress import track
 from stages.acquire.backend import Testbed
-from stages.common.engine import map_config
+from stages.common.dispatch import map_config
 from stages.common.workspace_target import install
 
 

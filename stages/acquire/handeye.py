@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from manifests import Workspace
+from manifests import Workspace, sample_ids
 from manifests.sidecars import Session, SessionCamera
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import (
@@ -287,7 +287,7 @@ class HandEyeReplay:
         self.info = check_images(self.images, dataset.camera, where)
 
     def samples(self) -> list[dict[str, Any]]:
-        return [{"sample_id": f"cal{i:06d}", "session": "calibration", "index": i}
+        return [{"sample_id": sample_ids.make("calibration", i), "session": "calibration", "index": i}
                 for i in range(len(self.images))]
 
     def session(self) -> Session:

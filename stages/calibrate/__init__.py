@@ -24,15 +24,16 @@ from stages.calibrate.robots import arm_decision, compliance_decision, complianc
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, fuse, lever_sq, sigma_between, without_reference_noise
+from stages.common.json_arrays import record
 from stages.common.patterns import PatternSpec, pattern_from_table
-from stages.common.sidecars import record
-from stages.common.sources import measurement, up_targetee
+from stages.common.sources import measured_b, up_targetee
 from stages.common.tables import print_table
 from stages.common.workspace_target import workspace_target
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],
-            intrinsics: obs.Intrinsics, reference_pixels: list[np.ndarray] | None = None) -> dict[str, list[float]]:
+            intrinsics: obs.EstimatedCamera, reference_pixels: list[np.ndarray] | None = None
+            ) -> dict[str, list[float]]:
     """E_T, E_R, E_p (paper eqs.) as [mean, std]. E_p is the RMS distance of the corners
     projected with ``predicted`` from the detected corners (or from ``reference_pixels``)."""
     e_t = np.linalg.norm(predicted[:, :3, 3] - reference[:, :3, 3], axis=1)
@@ -47,7 +48,7 @@ def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs
 
 
 def solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
-          intrinsics: obs.Intrinsics, up: np.ndarray | None = None, method: str | None = None) -> rwhe.Solution:
+          intrinsics: obs.EstimatedCamera, up: np.ndarray | None = None, method: str | None = None) -> rwhe.Solution:
     """Offsets from ``A`` (PnP) and ``B`` (N, 4, 4); ``up`` (N, 3): also the fixtures' compliance."""
     method = method or config.calibrate.solver
     try:
@@ -68,7 +69,7 @@ def _subset(up: np.ndarray | None, mask: np.ndarray) -> np.ndarray | None:
 
 
 def robust_solve(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
-                 intrinsics: obs.Intrinsics, up: np.ndarray | None = None) -> tuple[rwhe.Solution, np.ndarray]:
+                 intrinsics: obs.EstimatedCamera, up: np.ndarray | None = None) -> tuple[rwhe.Solution, np.ndarray]:
     """Solve, then drop samples whose residual against PnP is an outlier (a ghost marker, a
     bad detection) and solve again, until nothing changes. Returns the solution and the
     inlier mask. Outlier: position or angle residual beyond median + k * 1.4826 * MAD."""
@@ -138,7 +139,7 @@ def folds_of(config: Config, b: np.ndarray) -> np.ndarray:
 
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
-                   used: list[obs.Observation], intrinsics: obs.Intrinsics,
+                   used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
                    up: np.ndarray | None = None, readings: arms.Readings | None = None,
                    label: str = "calibrate") -> np.ndarray:
     """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets (and arms, with
@@ -166,7 +167,7 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
             fitted = arms.fit(config.testbed, config.calibrate, a[train], readings.subset(train), train_fixtures,
                               solution, up is not None)
             solution = fitted.offsets
-            b_test, up_arms = arms.measurement(config.testbed, fitted.errors, readings.subset(test),
+            b_test, up_arms = arms.corrected_b(config.testbed, fitted.errors, readings.subset(test),
                                                config.calibrate.world_up)
             up_test = None if up is None else up_arms
         predicted[test] = solution.predict(b_test, test_fixtures, up_test)
@@ -174,7 +175,7 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
 
 
 def opencv_shah_metrics(a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],
-                        intrinsics: obs.Intrinsics) -> dict[str, Any]:
+                        intrinsics: obs.EstimatedCamera) -> dict[str, Any]:
     """In-sample metrics of OpenCV's Shah solution (one fixture), or why it has none: its
     closed form fails on some data ("Rotation normalization issue"), ours falls back."""
     import cv2
@@ -275,14 +276,14 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
     if fixed:
         if not camera.camera_matrix:
             raise InputError(f"{workspace.session_path}: calibrate.intrinsics=fixed but the session has no camera K")
-        intrinsics = obs.Intrinsics(np.array(camera.camera_matrix, float), np.array(camera.dist, float),
+        intrinsics = obs.EstimatedCamera(np.array(camera.camera_matrix, float), np.array(camera.dist, float),
                                     camera.width, camera.height, 0.0, False)
     else:
         intrinsics = obs.estimate_intrinsics(observations, camera.width, camera.height,
                                              k=config.calibrate.outlier_k)
         screening.check_intrinsics(intrinsics, observations, spec, config.calibrate)
     obs.solve_pnp(observations, intrinsics)
-    robot_b = {r["sample_id"]: measurement(r, "kuka") for r in captures}
+    robot_b = {r["sample_id"]: measured_b(r, "kuka") for r in captures}
     fixture_of = {r["sample_id"]: r["fixture"] for r in captures}
     posed = [o.sample_id for o in observations if o.cam_from_target is not None]
     rwhe.check_diversity(np.stack([robot_b[s] for s in posed]) if posed else np.zeros((0, 4, 4)),
@@ -302,9 +303,9 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
             results[source] = None
             continue
         used = [o for o in observations if o.cam_from_target is not None
-                and measurement(by_id[o.sample_id], source) is not None]
+                and measured_b(by_id[o.sample_id], source) is not None]
         a = np.stack([o.cam_from_target for o in used]) if used else np.zeros((0, 4, 4))
-        b = np.stack([measurement(by_id[o.sample_id], source) for o in used]) if used else np.zeros((0, 4, 4))
+        b = np.stack([measured_b(by_id[o.sample_id], source) for o in used]) if used else np.zeros((0, 4, 4))
         fixtures = [by_id[o.sample_id]["fixture"] for o in used]
         rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
                              f"{source} calibration")
@@ -334,7 +335,7 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
             progress.note(f"calibrate {source}: the arms' fit on all {len(used)} samples")
             fitted = arms.fit(config.testbed, config.calibrate, a, readings, fixtures, solution, up is not None)
             solution = fitted.offsets
-            b, up_arms = arms.measurement(config.testbed, fitted.errors, readings, config.calibrate.world_up)
+            b, up_arms = arms.corrected_b(config.testbed, fitted.errors, readings, config.calibrate.world_up)
             up = None if up is None else up_arms
         else:
             cross = cross_validate(config, a, b, fixtures, used, intrinsics, up, label=f"calibrate {source}")

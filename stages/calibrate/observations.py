@@ -36,7 +36,7 @@ class Observation:
 
 
 @dataclass(frozen=True)
-class Intrinsics:
+class EstimatedCamera:
     camera_matrix: np.ndarray
     dist: np.ndarray
     width: int
@@ -82,7 +82,7 @@ def detect_all(workspace: Workspace, captures: list[dict], spec: PatternSpec, mi
 
 
 def estimate_intrinsics(observations: list[Observation], width: int, height: int, floor_px: float = 1.0,
-                        k: float = 5.0, rounds: int = 4) -> Intrinsics:
+                        k: float = 5.0, rounds: int = 4) -> EstimatedCamera:
     """``cv2.calibrateCamera`` on the detected corners (pattern frame coordinates), robustly:
     an image whose own reprojection RMS exceeds max(``floor_px``, median + k robust sigmas)
     does not fit the camera model with the others (corners of another grid, a blurred or
@@ -116,10 +116,10 @@ def estimate_intrinsics(observations: list[Observation], width: int, height: int
             if error_px > limit:
                 o.reason = (f"does not fit the camera model with the other images: its reprojection RMS is "
                             f"{error_px:.3g} px, the limit {limit:.3g} px (median {median:.3g} px)")
-    return Intrinsics(camera_matrix, dist.ravel()[:5], width, height, float(rms), True)
+    return EstimatedCamera(camera_matrix, dist.ravel()[:5], width, height, float(rms), True)
 
 
-def solve_pnp(observations: list[Observation], intrinsics: Intrinsics) -> None:
+def solve_pnp(observations: list[Observation], intrinsics: EstimatedCamera) -> None:
     """Fill ``cam_from_target``, ``rms_px`` and ``covariance`` of every usable observation
     (SQPnP, then Levenberg-Marquardt refinement)."""
     for o in observations:
@@ -127,7 +127,7 @@ def solve_pnp(observations: list[Observation], intrinsics: Intrinsics) -> None:
             pnp(o, intrinsics)
 
 
-def pnp(o: Observation, intrinsics: Intrinsics) -> None:
+def pnp(o: Observation, intrinsics: EstimatedCamera) -> None:
     """PnP of one observation with its current ids (see ``solve_pnp``)."""
     points = np.ascontiguousarray(o.object_points, np.float64)
     pixels = np.ascontiguousarray(o.pixels, np.float64)
@@ -148,7 +148,7 @@ def pnp(o: Observation, intrinsics: Intrinsics) -> None:
 
 
 def pnp_covariance(cam_from_target: np.ndarray, points: np.ndarray, residuals: np.ndarray,
-                   intrinsics: Intrinsics, step: float = 1e-7) -> np.ndarray | None:
+                   intrinsics: EstimatedCamera, step: float = 1e-7) -> np.ndarray | None:
     """(6, 6) covariance of a least-squares PnP pose from its reprojection residuals (M, 2):
     ``s^2 (J^T J)^-1`` with ``s^2`` the residual variance per coordinate and ``J`` the
     projection's Jacobian (central differences) in the rotation-then-translation

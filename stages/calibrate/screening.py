@@ -72,7 +72,7 @@ def _refuse(message: str, observations: list[obs.Observation], spec: PatternSpec
     raise InconsistentPatternError(f"calibration refused: {message}{hint}")
 
 
-def check_intrinsics(intrinsics: obs.Intrinsics, observations: list[obs.Observation], spec: PatternSpec,
+def check_intrinsics(intrinsics: obs.EstimatedCamera, observations: list[obs.Observation], spec: PatternSpec,
                      limits: CalibrateConfig) -> None:
     """An estimated camera must fit most images, and fit them well."""
     detected = [o for o in observations if len(o.ids) >= limits.min_corners]
@@ -87,7 +87,7 @@ def check_intrinsics(intrinsics: obs.Intrinsics, observations: list[obs.Observat
 
 
 def order_corners(observations: list[obs.Observation], b: dict[str, np.ndarray], fixtures: dict[str, str],
-                  spec: PatternSpec, intrinsics: obs.Intrinsics, limits: CalibrateConfig) -> dict[str, Any]:
+                  spec: PatternSpec, intrinsics: obs.EstimatedCamera, limits: CalibrateConfig) -> dict[str, Any]:
     """Relabel chessboards found from their other end so that every image agrees with the
     robot's motion; an image whose order cannot be decided is rejected with its reason."""
     reorderings = spec.reorderings()
@@ -187,7 +187,7 @@ def check_inliers(name: str, inliers: int, total: int) -> None:
             "and the pairing of images and poses")
 
 
-def check_result(name: str, cross_validated: dict[str, list[float]], intrinsics: obs.Intrinsics,
+def check_result(name: str, cross_validated: dict[str, list[float]], intrinsics: obs.EstimatedCamera,
                  limits: CalibrateConfig) -> None:
     """Refuse a calibration whose cross-validated errors are absurd for any real set-up
     (the thresholds and why: ``CalibrateConfig`` and docs/accuracy.md)."""

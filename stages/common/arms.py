@@ -195,7 +195,7 @@ def _flanges(testbed: TestbedConfig, p: np.ndarray, r: Readings) -> tuple[np.nda
     return world_from_camee, world_from_targetee
 
 
-def measurement(testbed: TestbedConfig, errors: ArmErrors, r: Readings,
+def corrected_b(testbed: TestbedConfig, errors: ArmErrors, r: Readings,
                 world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The robots' ``B`` = ``camee_from_targetee`` (N, 4, 4) and the up direction in the
     target flange frame (N, 3) from the readings, with the arms corrected by ``errors``."""

@@ -12,7 +12,7 @@ import numpy as np
 from stages.common import geometry as g
 
 
-def measurement(row: dict[str, Any], source: str) -> np.ndarray | None:
+def measured_b(row: dict[str, Any], source: str) -> np.ndarray | None:
     """``B_i`` of a capture for a source (4, 4), or None when the source did not measure it."""
     if source == "kuka":
         world_from_camee = g.transform_from_qt(row["kuka_world_from_camee_q"], row["kuka_world_from_camee_t"])

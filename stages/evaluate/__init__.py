@@ -26,10 +26,10 @@ from pipeline.config import Config
 from pipeline.engines import threads_per_worker
 from pipeline.progress import track
 from speedplus.errors import InputError
-from stages.common.engine import map_config
+from stages.common.dispatch import map_config
 from stages.common.image_io import ImageReadError
+from stages.common.json_arrays import calibrated_camera
 from stages.common.pose_model import BUILTIN_TARGET, PoseModel
-from stages.common.sidecars import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.evaluate.scorer import Decoding, open_scorer
 from stages.evaluate.table import print_table2, summarise

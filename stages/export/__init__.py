@@ -25,8 +25,8 @@ from pipeline.config import Config
 from pipeline.progress import track
 from speedplus.errors import InputError
 from stages.common.cameras import train_camera
+from stages.common.json_arrays import calibrated_camera
 from stages.common.lens import LensCamera
-from stages.common.sidecars import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.export import bop, shirt, speedplus
 

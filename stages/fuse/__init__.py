@@ -42,9 +42,9 @@ from stages.common.fusion import (
     variance_factor,
     with_scale_error,
 )
+from stages.common.json_arrays import matrix
 from stages.common.rwhe import fixture_tilt
-from stages.common.sidecars import matrix
-from stages.common.sources import measurement, up_targetee
+from stages.common.sources import measured_b, up_targetee
 from stages.common.workspace_target import workspace_target
 
 
@@ -81,7 +81,7 @@ class SourceModel:
             if readings is None:
                 raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
                                  "calibration of the arms needs (calibrate.arm_kinematics)")
-            b_arms, up_arms = arms.measurement(self.testbed, self.arms, readings, self.world_up)
+            b_arms, up_arms = arms.corrected_b(self.testbed, self.arms, readings, self.world_up)
             b, up = b_arms[0], up_arms[0]
         if fixture in self.compliance:
             d = self.anisotropy[fixture][None] if fixture in self.anisotropy else None
@@ -147,9 +147,9 @@ def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None,
              kuka_covariance: np.ndarray | None) -> Estimates:
     vicon_pose = None
     if vicon is not None:
-        b = measurement(row, "vicon")
+        b = measured_b(row, "vicon")
         vicon_pose = None if b is None else vicon.estimate(b, row)
-    return Estimates(row, kuka.estimate(measurement(row, "kuka"), row), vicon_pose, kuka_covariance)
+    return Estimates(row, kuka.estimate(measured_b(row, "kuka"), row), vicon_pose, kuka_covariance)
 
 
 def session_factor(config: Config, estimates: list[Estimates], vicon: SourceModel | None,

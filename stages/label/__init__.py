@@ -19,8 +19,8 @@ from pipeline.config import Config
 from pipeline.progress import track
 from speedplus.errors import InputError
 from stages.common import geometry as g
+from stages.common.json_arrays import calibrated_camera
 from stages.common.pose_model import points_box
-from stages.common.sidecars import calibrated_camera
 from stages.common.target import Target
 from stages.common.workspace_target import workspace_target
 

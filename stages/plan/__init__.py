@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests import Workspace, open_sink, read_keys, read_manifest, sample_ids
+from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from pipeline.config import Config
 from pipeline.progress import track
@@ -31,10 +32,7 @@ from stages.plan.poses import (
 from stages.plan.reconfigure import Reconfiguration, reconfigure
 from stages.plan.trajectory import SEQUENCE_COLUMNS, sequence_rows
 
-SESSION_CODES = {"calibration": 0, "dataset": 1}
-ID_PREFIX = {"calibration": "cal", "dataset": "img"}
-
-__all__ = ["PlanningError", "dataset_count", "plan_sample", "resolve", "run", "sample_ids"]
+__all__ = ["PlanningError", "dataset_count", "plan_sample", "planned_samples", "resolve", "run"]
 
 
 def dataset_count(config: Config) -> int:
@@ -44,10 +42,10 @@ def dataset_count(config: Config) -> int:
     return config.plan.n_dataset
 
 
-def sample_ids(config: Config) -> list[tuple[str, int, str]]:
+def planned_samples(config: Config) -> list[tuple[str, int, str]]:
     """(session, index, sample_id) of every planned sample, in capture order."""
-    ids = [("calibration", i, f"cal{i:06d}") for i in range(config.plan.n_calibration)]
-    ids += [("dataset", i, f"img{i:06d}") for i in range(dataset_count(config))]
+    ids = [("calibration", i, sample_ids.make("calibration", i)) for i in range(config.plan.n_calibration)]
+    ids += [("dataset", i, sample_ids.make("dataset", i)) for i in range(dataset_count(config))]
     return ids
 
 
@@ -132,7 +130,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     copy the target into ``W/target`` for the later stages; returns the whole plan."""
     target = planned_target(config)
     done = read_keys(workspace, "plan")
-    todo = [item for item in sample_ids(config) if item[2] not in done]
+    todo = [item for item in planned_samples(config) if item[2] not in done]
     sequences: dict[str, dict] = {}
     if config.plan.mode == "trajectory":
         rows, record = trajectory_rows(config, target)

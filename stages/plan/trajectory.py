@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from manifests import sample_ids
 from manifests.sidecars import SequenceRecord
 from pipeline.config import Config
 from stages.common import geometry as g
@@ -201,7 +202,7 @@ def _placed(config: Config, target: Target, frames: Frames, sequence_id: str, fi
         light, boxes, light_error = frame_light(config, world_from_target, centre, target_from_eci,
                                                 frames.sun_eci[k], frames.earth_eci[k], bool(frames.in_eclipse[k]))
         rows.append({
-            "sample_id": f"img{first_index + k:06d}", "session": "dataset",
+            "sample_id": sample_ids.make("dataset", first_index + k), "session": "dataset",
             **g.pose_columns("cam_from_target", cam_from_target),
             "view": target.view_of(g.invert(cam_from_target)[:3, 3], scale), "light": light, "light_boxes": boxes,
             "mount": mount, "rail_m": commands.rail_m, "camera_joints_rad": commands.camera_joints_rad,
@@ -236,8 +237,8 @@ def sequence_rows(config: Config, target: Target, index: int, preset: str, first
         rows, outside, unreachable = _placed(config, target, frames, sequence_id, first_index, attempt,
                                              every=attempt == t.max_replans)
         if not outside and not unreachable:
-            record = sequence_record(config, sequence_id, preset, f"img{first_index:06d}", roe_m, omega0, q0, bias,
-                                     masses, source)
+            record = sequence_record(config, sequence_id, preset, sample_ids.make("dataset", first_index), roe_m,
+                                     omega0, q0, bias, masses, source)
             return rows, record
     tried = f" in each of {t.max_replans + 1} draws of its initial attitude (the last shown)"
     if outside:

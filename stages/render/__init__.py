@@ -20,8 +20,8 @@ from pipeline.config import Config
 from pipeline.engines import store, threads_per_worker
 from pipeline.progress import console, track
 from stages.common.cameras import train_camera
-from stages.common.engine import map_config
-from stages.common.sidecars import calibrated_camera
+from stages.common.dispatch import map_config
+from stages.common.json_arrays import calibrated_camera
 from stages.common.workspace_target import workspace_target
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
 from stages.render.worker import open_worker

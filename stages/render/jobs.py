@@ -21,8 +21,8 @@ from pipeline.config import Config
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.cameras import train_camera
+from stages.common.json_arrays import matrix
 from stages.common.orbits import Elements, rtn_from_eci, two_body
-from stages.common.sidecars import matrix
 from stages.common.target import Target
 from stages.common.workspace_target import planned_target, workspace_target
 
@@ -71,7 +71,7 @@ def image_seed(seed: int, set_name: str, sample_id: str) -> int:
     return int.from_bytes(digest[:4], "little")
 
 
-def rejection_reason(q: Any, t: Any, radius_m: float) -> str | None:
+def unrenderable_reason(q: Any, t: Any, radius_m: float) -> str | None:
     """Why a pose cannot be rendered, or None: q must be a finite unit quaternion, t finite
     with the whole model (its bounding sphere of ``radius_m``, full scale) in front of the camera."""
     q, t = np.asarray(q, float), np.asarray(t, float)
@@ -123,7 +123,7 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
     jobs, rejected = [], []
     for label in labels:
         sample_id = label["sample_id"]
-        reason = rejection_reason(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"], target.radius_m)
+        reason = unrenderable_reason(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"], target.radius_m)
         if reason is None and sample_id not in world_from_cam:
             reason = "no capture with this sample_id (camera position unknown)"
         if reason is not None:

@@ -20,7 +20,7 @@ from manifests import Workspace, read_manifest
 from manifests.files import write_bytes_atomic
 from manifests.sidecars import read_calibration
 from pipeline.config import Config
-from stages.common.sidecars import calibrated_camera
+from stages.common.json_arrays import calibrated_camera
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target
 from stages.report import figures

@@ -8,11 +8,11 @@ import numpy as np
 
 from manifests import Workspace, open_sink, read_keys
 from pipeline.config import Config
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 
 
 def run(config: Config, workspace: Workspace) -> None:
-    ids = sample_ids(config)
+    ids = planned_samples(config)
     order = np.random.default_rng(int(os.environ.get("FAKE_ORDER_SEED", "0"))).permutation(len(ids))
     stop = int(os.environ.get("FAKE_STOP_AFTER", "-1"))
     done = read_keys(workspace, "plan")

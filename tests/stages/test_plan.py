@@ -13,7 +13,7 @@ from stages.common import layout, tango
 from stages.common.kinematics import KR16_2, forward, limit_margin
 from stages.common.patterns import board_pattern
 from stages.common.workspace_target import planned_target
-from stages.plan import PlanningError, plan_sample, sample_ids
+from stages.plan import PlanningError, plan_sample, planned_samples
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,7 @@ def default_config():
 
 @pytest.fixture(scope="module")
 def default_plan(default_config):
-    return [plan_sample(default_config, *item) for item in sample_ids(default_config)]
+    return [plan_sample(default_config, *item) for item in planned_samples(default_config)]
 
 
 def pose(row, prefix):
@@ -41,7 +41,7 @@ def test_sizes_and_ids(default_plan):
 
 
 def test_same_seed_same_plan_other_seed_other_plan(default_config, default_plan):
-    items = sample_ids(default_config)
+    items = planned_samples(default_config)
     again = [plan_sample(default_config, *item) for item in items[:5] + items[64:69]]
     expected = default_plan[:5] + default_plan[64:69]
     for a, b in zip(again, expected, strict=True):

@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from manifests import Workspace, read_manifest
+from manifests import Workspace, read_manifest, sample_ids
+from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import MarkersRecord, Session, SessionCamera
 from manifests.workspace import TRUTH_MAPS_TEMPLATE
 from pipeline.config import Config
@@ -26,8 +27,6 @@ from stages.common.markers import main_body_hull, markers
 from stages.common.patterns import board_pattern
 from stages.common.target import main_body_part
 from stages.common.workspace_target import workspace_target
-
-SESSION_CODES = {"calibration": 0, "dataset": 1}
 
 
 class VirtualTestbed:
@@ -95,7 +94,7 @@ class VirtualTestbed:
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:
         config, truth = self.config, self.truth
         sample_id, session = sample["sample_id"], sample["session"]
-        index = int(sample_id[3:])
+        index = sample_ids.parse(sample_id)[1]
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
         moment = self.moment(sample)
         state = robots.move(config, truth, sample, rng, moment, self.payload)
@@ -175,7 +174,7 @@ class VirtualTestbed:
         """The mock-up's silhouette (H, W) bool in the capture of a plan row: the scene's
         model at the TRUE poses of that capture, through the camera's lens."""
         config, truth = self.config, self.truth
-        session, index = sample["session"], int(sample["sample_id"][3:])
+        session, index = sample["session"], sample_ids.parse(sample["sample_id"])[1]
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
         state = robots.move(config, truth, sample, rng, self.moment(sample), self.payload)  # capture()'s draws
         coverage = self.sensors[session].distort(self.scene.silhouette(state.world_from_cam,

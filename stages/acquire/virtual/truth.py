@@ -18,8 +18,8 @@ from pipeline.config import Config
 from stages.acquire.virtual.unmodelled import Unmodelled, draw_unmodelled
 from stages.common import geometry as g
 from stages.common import layout
+from stages.common.json_arrays import record
 from stages.common.kinematics import ArmModel, arm_model
-from stages.common.sidecars import record
 from stages.common.target import Target
 from stages.common.workspace_target import planned_target
 

@@ -9,7 +9,7 @@ from stages.acquire.virtual.truth import draw_truth
 from stages.common import geometry as g
 from stages.common.markers import main_body_hull, markers
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 
 
 @pytest.fixture(scope="module")
@@ -19,7 +19,7 @@ def default_config():
 
 @pytest.fixture(scope="module")
 def plan_rows(default_config):
-    return [plan_sample(default_config, *item) for item in sample_ids(default_config)]
+    return [plan_sample(default_config, *item) for item in planned_samples(default_config)]
 
 
 def test_truth_is_reproducible_and_differs_from_nominal(default_config):

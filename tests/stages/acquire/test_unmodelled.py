@@ -14,7 +14,7 @@ from stages.acquire.virtual.unmodelled import draw_unmodelled
 from stages.common import geometry as g
 from stages.common.kinematics import KR16_2, forward
 from stages.common.statics import GRAVITY_M_S2, KR16_2_MASSES, gravity_torques, potential_energy
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 
 
 def only(config, *sources):
@@ -28,7 +28,7 @@ def config():
 
 @pytest.fixture(scope="module")
 def rows(config):
-    return [plan_sample(config, *item) for item in sample_ids(config)]
+    return [plan_sample(config, *item) for item in planned_samples(config)]
 
 
 def relative(state):

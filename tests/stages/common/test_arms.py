@@ -30,7 +30,7 @@ def true_errors(rng):
 
 def captures(testbed, errors, readings, z, x, k, fixtures, world_up, anisotropy=None):
     """PnP poses A (N, 4, 4) the true arms and compliant (anisotropic) fixtures would give."""
-    b, up = arms.measurement(testbed, errors, readings, world_up)
+    b, up = arms.corrected_b(testbed, errors, readings, world_up)
     return rwhe.Solution(z, x, k, anisotropy or {}).predict(b, fixtures, up)
 
 
@@ -49,7 +49,7 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     a = captures(testbed, errors, readings, z, x, k, fixtures, world_up, d)
 
     # the nominal arms' solution is the start, as in the calibrate stage
-    b_nominal, up_nominal = arms.measurement(testbed, arms.NOMINAL, readings, world_up)
+    b_nominal, up_nominal = arms.corrected_b(testbed, arms.NOMINAL, readings, world_up)
     start = rwhe.frobenius(a, b_nominal, fixtures, rwhe.shah(a, b_nominal, fixtures), up_nominal)
     fit = arms.fit(testbed, config.calibrate, a, readings, fixtures, start, compliant=True)
     solution, fitted = fit.offsets, fit.errors
@@ -57,7 +57,7 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     others = random_readings(rng, 40)  # other arm configurations: what the dataset session does
     other_fixtures = ["plus_x", "minus_x"] * 20
     expected = captures(testbed, errors, others, z, x, k, other_fixtures, world_up, d)
-    b_fitted, up_fitted = arms.measurement(testbed, fitted, others, world_up)
+    b_fitted, up_fitted = arms.corrected_b(testbed, fitted, others, world_up)
     predicted = solution.predict(b_fitted, other_fixtures, up_fitted)
     assert np.abs(predicted[:, :3, 3] - expected[:, :3, 3]).max() < 1e-6
     assert g.angular_distance(predicted[:, :3, :3], expected[:, :3, :3]).max() < 1e-6
@@ -69,7 +69,7 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     assert np.linalg.eigvalsh(covariances).min() > -1e-18
     assert np.sqrt(np.trace(covariances, axis1=1, axis2=2)).max() < 1e-4  # priors bound what the data do not
     # the nominal arms' solution does not carry over
-    b_rigid, up_rigid = arms.measurement(testbed, arms.NOMINAL, others, world_up)
+    b_rigid, up_rigid = arms.corrected_b(testbed, arms.NOMINAL, others, world_up)
     rigid = start.predict(b_rigid, other_fixtures, up_rigid)
     assert np.abs(rigid[:, :3, 3] - expected[:, :3, 3]).max() > 1e-3
 
@@ -107,7 +107,7 @@ def test_a_batch_of_parameters_predicts_each_exactly_and_differences_as_scipy_do
         np.testing.assert_array_equal(predicted, arms.predict(testbed, params, names, True, readings, fixtures,
                                                               world_up))
         # and the packed offsets predict as the unpacked solution does
-        b, up = arms.measurement(testbed, arms.ArmErrors(params[:arms.N_ARM]), readings, world_up)
+        b, up = arms.corrected_b(testbed, arms.ArmErrors(params[:arms.N_ARM]), readings, world_up)
         solution = rwhe.unpack(params[arms.N_ARM:], names, True, anisotropic=True)
         np.testing.assert_allclose(predicted, solution.predict(b, fixtures, up), rtol=0, atol=1e-12)
 

@@ -7,7 +7,7 @@ from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from stages.common import geometry as g
-from stages.common.sidecars import matrix, record
+from stages.common.json_arrays import matrix, record
 
 SEEDS = [0, 1, 2]
 

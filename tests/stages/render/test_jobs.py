@@ -8,7 +8,7 @@ from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.cameras import train_camera
-from stages.render.jobs import image_seed, light_position, rejection_reason, train_jobs
+from stages.render.jobs import image_seed, light_position, train_jobs, unrenderable_reason
 
 
 @pytest.mark.parametrize(("q", "t", "expected"), [
@@ -19,8 +19,8 @@ from stages.render.jobs import image_seed, light_position, rejection_reason, tra
     ((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -8.0), "behind the camera"),
     ((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.5), "too close"),
 ])
-def test_rejection_reasons(q, t, expected):
-    reason = rejection_reason(q, t, 0.7377)
+def test_unrenderable_reasons(q, t, expected):
+    reason = unrenderable_reason(q, t, 0.7377)
     assert (reason is None) if expected is None else (expected in reason)
 
 
@@ -52,7 +52,7 @@ def test_training_poses_follow_the_specified_distributions():
         assert low - 1e-9 <= np.linalg.norm(centre) <= high + 1e-9
         u, v = g.project_points(centre[None], camera.camera_matrix, np.zeros(5))[0]
         assert 0 <= u <= camera.width - 1 and 0 <= v <= camera.height - 1
-        assert rejection_reason(job.q_vbs2tango_true, job.r_Vo2To_vbs_true, 0.7377) is None
+        assert unrenderable_reason(job.q_vbs2tango_true, job.r_Vo2To_vbs_true, 0.7377) is None
         lights_facing += np.dot(job.light_dir_cam, -centre) >= 0
     assert lights_facing == len(jobs)
     earth = np.mean([j.earth for j in jobs])
