@@ -23,7 +23,7 @@ from manifests import Workspace, read_manifest
 from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common.patterns import PatternSpec, detect
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 
 
 def timing(per_session: int = 6) -> None:
@@ -32,7 +32,7 @@ def timing(per_session: int = 6) -> None:
     config = load_config("default", overrides=["run.workers=1"])
     rows = []
     with tempfile.TemporaryDirectory() as directory:
-        items = sample_ids(config)
+        items = planned_samples(config)
         # the session timeline (thermal drift, backlash) is laid out from the whole plan
         testbed = VirtualTestbed(config, Workspace(directory), [plan_sample(config, *item) for item in items])
         started = time.perf_counter()

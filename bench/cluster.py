@@ -33,7 +33,7 @@ from stages.acquire.virtual.sensor import lens_camera
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
 
@@ -45,7 +45,7 @@ def _capture_seconds(profile: str, count: int) -> float:
     from stages.acquire.virtual import VirtualTestbed
 
     config = load_config(profile)
-    items = [item for item in sample_ids(config) if item[0] == "dataset"][: count + 1]
+    items = [item for item in planned_samples(config) if item[0] == "dataset"][: count + 1]
     plans = [plan_sample(config, *item) for item in items]
     with tempfile.TemporaryDirectory() as directory:
         testbed = VirtualTestbed(config, Workspace(directory), plans)
@@ -88,14 +88,14 @@ def main(images: str = "24") -> None:
     costs = []
     for profile in PROFILES:
         config = load_config(profile)
-        samples = len(sample_ids(config))
+        samples = len(planned_samples(config))
         per_capture = _capture_seconds(profile, 1 if profile == "paper" else 3)
         renders = 2 if profile == "paper" else 4
         per_twin = _render_seconds(lens_camera(config.camera), config.render.spp, config.render.max_depth, renders)
         training = with_overrides(config, [Override.of("render.train_resolution_scale",
                                                        config.reference.resolution_scale, "bench")])
         per_image = _render_seconds(train_camera(training), config.render.train_spp, config.render.max_depth, renders)
-        dataset = sum(1 for item in sample_ids(config) if item[0] == "dataset")
+        dataset = sum(1 for item in planned_samples(config) if item[0] == "dataset")
         cpu_seconds = samples * per_capture + dataset * per_twin + config.reference.images * per_image
         costs.append({"profile": profile, "image": f"{config.camera.width_px}x{config.camera.height_px}",
                       "CPU-s per capture": per_capture, "CPU-s per twin": per_twin,

@@ -30,7 +30,7 @@ from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.geometry import pose_columns
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 
 PNP_SIGMA_M, PNP_SIGMA_RAD = 0.05e-3, np.radians(0.026)
 SPEEDPLUS_ROTATION_DEG = 0.169
@@ -42,7 +42,7 @@ def facility(seed: int, sources: list[str], settings: tuple[str, ...] = ()) -> t
     overrides = [f"virtual.seed={seed}", f"virtual.unmodelled=[{listed}]", *settings]
     config = with_overrides(load_config("default"), [parse_override(o) for o in overrides])
     truth = draw_truth(config)
-    rows = [plan_sample(config, *item) for item in sample_ids(config)]
+    rows = [plan_sample(config, *item) for item in planned_samples(config)]
     moments = timeline(config, rows, truth.unmodelled.start_direction)
     sessions = {}
     for session in ("calibration", "dataset"):

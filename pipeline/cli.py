@@ -300,7 +300,7 @@ def _stage_command(entry: registry.StageEntry) -> None:
 
 
 for _entry in registry.STAGES:
-    if _entry.name not in ("plan", "acquire", "render", "evaluate", "export", "train-reference"):
+    if not _entry.own_command:
         _stage_command(_entry)
 
 

@@ -44,7 +44,7 @@ def violations(files: list[Path], allowed: set[str]) -> list[str]:
 def test_the_stage_list_is_the_registrys():
     from pipeline import registry
 
-    assert set(STAGES) == {entry.run.split(":")[0].split(".")[1] for entry in registry.STAGES}
+    assert set(STAGES) == {entry.package.split(".")[1] for entry in registry.STAGES}
 
 
 @pytest.mark.parametrize("stage", STAGES)

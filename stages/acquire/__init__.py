@@ -19,6 +19,7 @@ from manifests.sidecars import write_markers, write_session, write_truth
 from pipeline.config import Config
 from pipeline.engines import Produced, store
 from pipeline.progress import track
+from pipeline.stage_io import Resolved
 from stages.acquire.backend import Testbed
 from stages.common.dispatch import map_config
 from stages.common.workspace_target import install
@@ -58,15 +59,13 @@ def source_digest(source: Path) -> str:
     return digest.hexdigest()[:16]
 
 
-def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[str, ...], tuple[str, ...],
-                                                                     dict[str, Any], tuple[str, ...]]:
-    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
-    (pipeline/registry.py): the virtual testbed follows the plan and draws a truth; a
-    replayed session is fingerprinted by its folder's content."""
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """The virtual testbed follows the plan and draws a truth (``captures``, ``truth``); a
+    replayed session writes ``captures`` and is fingerprinted by its folder's content."""
     if config.acquire.backend == "virtual":
-        return ("plan",), ("acquire", "virtual", "camera", "testbed"), {}, ("captures", "truth")
+        return Resolved(("plan",), ("acquire", "virtual", "camera", "testbed"), {}, ("captures", "truth"))
     source = Path(config.acquire.source).resolve()
-    return (), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}, ("captures",)
+    return Resolved((), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}, ("captures",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

@@ -17,6 +17,7 @@ from manifests import clear as clear_manifest
 from manifests.sidecars import SOURCES, Calibration, Session, SourceCalibration, read_session, write_calibration
 from pipeline import progress
 from pipeline.config import Config
+from pipeline.stage_io import Resolved
 from speedplus.errors import InputError, RefusalError
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
@@ -205,6 +206,13 @@ def load_truth(workspace: Workspace) -> dict[str, np.ndarray] | None:
         return None
     return {r["sample_id"]: g.transform_from_qt(r["cam_from_target_q"], r["cam_from_target_t"])
             for r in read_manifest(workspace, "truth").to_pylist()}
+
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads the calibration session's captures (and ``W/session.json``); writes
+    ``calibration_samples`` and ``W/calibration.json``."""
+    return Resolved(("captures",), ("calibrate", "testbed"), {}, ("calibration_samples",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

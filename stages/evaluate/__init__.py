@@ -25,6 +25,7 @@ from manifests.workspace import MODELS_DIR
 from pipeline.config import Config
 from pipeline.engines import threads_per_worker
 from pipeline.progress import track
+from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common.dispatch import map_config
 from stages.common.image_io import ImageReadError
@@ -46,7 +47,7 @@ def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
     """``evaluate.models``: absolute, relative to the current directory, or to the repository.
     Empty: the models trained in this workspace (``W/models/*.onnx``, by train-reference),
     else, for the built-in Tango, the shipped reference models; for another target none,
-    which ``check_models`` refuses naming the target and the command that trains one."""
+    which ``preflight`` refuses naming the target and the command that trains one."""
     texts = list(config.evaluate.models) or _default_models(config, workspace)
     paths = []
     for text in texts:
@@ -79,19 +80,18 @@ def _digest(path: Path) -> str:
     return sha256(path)[:16] if path.exists() else "missing"
 
 
-def resolve(config: Config, workspace: Workspace | None = None) -> dict[str, Any]:
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Inputs, configuration sections, outputs and members of this stage (pipeline/registry.py):
     each model is a member, known by its file's bytes, so that a model is added (or one
     redone) without redoing the others."""
     sequences = config.plan.mode == "trajectory"  # the tracking baseline: frames in order, and the orbit
-    return {"inputs": ("labels", "renders", "captures") + (("plan",) if sequences else ()),
-            "sections": ("evaluate",), "extra": {},
-            "outputs": ("predictions", "scores") + (("tracks",) if sequences else ()),
-            "members": {path.stem: _digest(path) for path in model_paths(config, workspace)},
-            "member_key": "evaluate.models", "member_column": "model"}
+    return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate",), {},
+                    ("predictions", "scores") + (("tracks",) if sequences else ()),
+                    members={path.stem: _digest(path) for path in model_paths(config, workspace)},
+                    member_key="evaluate.models", member_column="model")
 
 
-def check_models(config: Config, workspace: Workspace | None = None) -> None:
+def preflight(config: Config, workspace: Workspace | None = None) -> None:
     """Every model of ``evaluate.models`` opens and answers an input of its contract's shape;
     else an InputError naming the file and what is wrong (the runner calls this before it
     discards or writes anything)."""

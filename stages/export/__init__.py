@@ -23,6 +23,7 @@ from manifests.sidecars import read_trajectories
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
 from pipeline.progress import track
+from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common.cameras import train_camera
 from stages.common.json_arrays import calibrated_camera
@@ -36,17 +37,16 @@ EXPORT_MARK = ".speedplus-export.json"
 EXPORT_MARK_VERSION = 1
 
 
-def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[str, ...], tuple[str, ...],
-                                                                     dict[str, Any], tuple[str, ...]]:
-    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
-    (pipeline/registry.py): one manifest per format, so both exports can coexist."""
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Per ``export.sets`` the labels with their captures, renders or the training set (and a
+    trajectory plan's sequences); one output manifest per format, so the exports coexist."""
     inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}
     needed = tuple(dict.fromkeys(name for chosen in config.export.sets for name in inputs[chosen]))
     if config.plan.mode == "trajectory":  # each image's sequence and frame
         needed = ("plan", *needed)
     # of the render section, only what sizes the training camera matters here
     extra = {"train_resolution_scale": config.render.train_resolution_scale} if "train" in config.export.sets else {}
-    return needed, ("export", "camera"), extra, (f"export_{config.export.format}",)
+    return Resolved(needed, ("export", "camera"), extra, (f"export_{config.export.format}",))
 
 
 def out_dir(config: Config, workspace: Workspace) -> Path:

@@ -27,6 +27,7 @@ from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
 from pipeline.config import Config, FuseConfig, TestbedConfig
 from pipeline.progress import track
+from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common import arms
 from stages.common import geometry as g
@@ -291,6 +292,13 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
             **g.pose_columns("vicon_cam_from_target", e.vicon if e.tracked else None), "vicon_accepted": reason is None,
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
             "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad}
+
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads the dataset session's captures and the calibration; writes ``poses`` and
+    ``W/fusion.json``."""
+    return Resolved(("captures", "calibration_samples"), ("fuse", "testbed"), {}, ("poses",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

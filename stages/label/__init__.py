@@ -17,6 +17,7 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, read_succe
 from manifests.schema import DOMAINS
 from pipeline.config import Config
 from pipeline.progress import track
+from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.json_arrays import calibrated_camera
@@ -49,6 +50,12 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
         "keypoints_px": keypoints,
         "bbox_px": points_box(keypoints),
     }
+
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads the fused poses (and the calibration, the session); writes ``labels``."""
+    return Resolved(("poses",), ("label", "testbed"), {}, ("labels",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

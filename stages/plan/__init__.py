@@ -15,6 +15,7 @@ from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from pipeline.config import Config
 from pipeline.progress import track
+from pipeline.stage_io import Resolved
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.target import Target
@@ -49,10 +50,11 @@ def planned_samples(config: Config) -> list[tuple[str, int, str]]:
     return ids
 
 
-def resolve(config: Config, workspace: Workspace) -> dict:
-    """The [trajectory] section counts only when the plan is made of sequences."""
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads the configuration only; the [trajectory] section counts when the plan is made of
+    sequences. Writes ``plan`` (and ``W/trajectories.json``, ``W/target/``)."""
     sections = ("plan", "camera", "testbed") + (("trajectory",) if config.plan.mode == "trajectory" else ())
-    return {"inputs": (), "sections": sections, "extra": {}, "outputs": ("plan",)}
+    return Resolved((), sections, {}, ("plan",))
 
 
 def trajectory_rows(config: Config, target: Target) -> tuple[list[dict], TrajectoriesRecord]:

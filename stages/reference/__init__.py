@@ -13,7 +13,13 @@ import pyarrow as pa
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.integrity import sha256
 from pipeline.config import Config
+from pipeline.stage_io import Resolved
 from stages.common.workspace_target import workspace_target
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads the training set (render --set train); writes ``models`` and ``W/models/``."""
+    return Resolved(("train",), ("reference",), {}, ("models",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

@@ -10,7 +10,6 @@ pixels and an interrupted run resumes with the missing ``sample_id``s.
 from __future__ import annotations
 
 from dataclasses import fields
-from typing import Any
 
 import pyarrow as pa
 
@@ -19,6 +18,7 @@ from manifests.files import write_json_atomic
 from pipeline.config import Config
 from pipeline.engines import store, threads_per_worker
 from pipeline.progress import console, track
+from pipeline.stage_io import Resolved
 from stages.common.cameras import train_camera
 from stages.common.dispatch import map_config
 from stages.common.json_arrays import calibrated_camera
@@ -34,18 +34,17 @@ def output_name(config: Config) -> str:
 TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance", "ground_truth")
 
 
-def resolve(config: Config, workspace: Workspace | None = None) -> tuple[tuple[str, ...], tuple[str, ...],
-                                                                     dict[str, Any], tuple[str, ...]]:
-    """(inputs, configuration sections, extra fingerprint content, outputs) of this stage
-    (pipeline/registry.py): each image set depends on its own render keys only (resizing
-    the training set leaves the twins done)."""
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Each image set depends on its own render keys only (resizing the training set leaves
+    the twins done): the twins read the labels, the captures (the camera's place), the
+    calibration and the plan (each sample's light, a sequence's Earth)."""
     render = {f.name: getattr(config.render, f.name) for f in fields(config.render) if f.name != "set"}
     if config.render.set == "train":
-        return (), ("camera",), {"render": render}, (output_name(config),)
+        return Resolved((), ("camera",), {"render": render}, (output_name(config),))
     inputs = ("labels", "captures", "calibration_samples")
     if config.acquire.backend == "virtual":
         inputs += ("plan",)  # the light set-up of each sample
-    return inputs, ("testbed",), {"render": {key: render[key] for key in TWIN_KEYS}}, (output_name(config),)
+    return Resolved(inputs, ("testbed",), {"render": {key: render[key] for key in TWIN_KEYS}}, (output_name(config),))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

@@ -20,6 +20,7 @@ from manifests import Workspace, read_manifest
 from manifests.files import write_bytes_atomic
 from manifests.sidecars import read_calibration
 from pipeline.config import Config
+from pipeline.stage_io import Resolved
 from stages.common.json_arrays import calibrated_camera
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target
@@ -68,6 +69,14 @@ def page(workspace: Workspace, summary: str, sections: list[tuple[str, str]]) ->
 {body}
 </body></html>
 """
+
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads everything a run made (a trajectory plan's tracks too); writes ``W/report/``
+    (its marker: ``report``)."""
+    tracks = ("tracks",) if config.plan.mode == "trajectory" else ()
+    return Resolved(("labels", "renders", "predictions", "scores", *tracks), (), {}, ("report",))
 
 
 def run(config: Config, workspace: Workspace) -> None:

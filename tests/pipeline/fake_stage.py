@@ -9,6 +9,7 @@ import numpy as np
 from manifests import Workspace, open_sink, read_keys
 from pipeline.config import Config
 from stages.plan import plan_sample, planned_samples
+from stages.plan import resolve as resolve  # the plan's inputs and outputs
 
 
 def run(config: Config, workspace: Workspace) -> None:

@@ -13,8 +13,7 @@ from pipeline.config import load_config
 from pipeline.registry import StageEntry
 from tests.conftest import speedplus
 
-FAKE = StageEntry("plan", "plan rows in a shuffled order", "tests.pipeline.fake_stage:run", (), ("plan",),
-                  ("plan", "camera", "testbed"))
+FAKE = StageEntry("plan", "plan rows in a shuffled order", "tests.pipeline.fake_stage", target="configured")
 
 
 def parts_bytes(ws):

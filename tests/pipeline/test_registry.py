@@ -3,6 +3,7 @@ exist (its function, its manifests, its configuration sections), for every confi
 that changes them, and the CLI has a command for each."""
 
 import inspect
+import re
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -21,6 +22,7 @@ CONFIGS = {
     "train set": ["render.set=train"],
     "bop": ["export.format=bop"],
     "sequences": ["plan.mode=trajectory", "export.format=shirt"],
+    "export all sets": ['export.sets=["testbed", "twins", "train"]'],
 }
 
 
@@ -51,3 +53,23 @@ def test_the_cli_has_a_command_per_stage_and_no_unbuilt_path():
     result = CliRunner().invoke(app, ["export", "--help"])
     help_text = " ".join(result.output.replace("│", " ").split())
     assert "the layout the Stanford SPEED+ devkits read" in help_text and "(export.format)" in help_text
+
+
+def test_what_a_stage_resolves_is_what_the_design_record_says(tmp_path):
+    """A stage's own resolve is the one truth of what it reads and writes; docs/architecture.md
+    section 1's table names the same manifests (over every configuration above)."""
+    table = {}
+    text = (Path(__file__).resolve().parents[2] / "docs" / "architecture.md").read_text()
+    for line in text.split("## 1.")[1].split("## 2.")[0].splitlines():
+        cells = [c.strip() for c in line.split("|")[1:-1]]
+        if len(cells) == 3 and cells[0] in registry.STAGE_NAMES:
+            named = [set(re.findall(r"`([a-z_]+)`", cell)) & (set(MANIFESTS) | MARKERS) for cell in cells[1:]]
+            table[cells[0]] = tuple(named)
+    assert set(table) == set(registry.STAGE_NAMES)
+    for entry in registry.STAGES:
+        reads, writes = set(), set()
+        for overrides in CONFIGS.values():
+            resolved = entry.resolved(load_config("smoke", overrides=overrides), Workspace(tmp_path))
+            reads |= set(resolved.inputs)
+            writes |= set(resolved.outputs)
+        assert (reads, writes) == table[entry.name], entry.name

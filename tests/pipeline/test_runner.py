@@ -8,7 +8,7 @@ import pytest
 from manifests import Workspace, part_fingerprints, read_manifest, read_success, write_part
 from pipeline import registry, runner
 from pipeline.config import load_config
-from stages.plan import plan_sample, sample_ids
+from stages.plan import plan_sample, planned_samples
 
 PLAN = registry.stage("plan")
 
@@ -62,7 +62,7 @@ def test_partial_results_resume_to_the_uninterrupted_plan(smoke, tmp_path):
     runner.run_stage(PLAN, smoke, fresh)
     ws = Workspace(tmp_path / "resumed")
     fingerprint = runner.fingerprint(PLAN, smoke, ws)
-    done = [plan_sample(smoke, *item) for item in sample_ids(smoke)[3:9]]  # not even a prefix
+    done = [plan_sample(smoke, *item) for item in planned_samples(smoke)[3:9]]  # not even a prefix
     write_part(ws, "plan", done, fingerprint)
     assert runner.status(PLAN, smoke, ws).state == "partial"
     outcome = runner.run_stage(PLAN, smoke, ws)
@@ -72,7 +72,7 @@ def test_partial_results_resume_to_the_uninterrupted_plan(smoke, tmp_path):
 
 def test_partial_results_of_another_configuration_are_not_mixed(smoke, tmp_path):
     ws = Workspace(tmp_path)
-    write_part(ws, "plan", [plan_sample(smoke, *sample_ids(smoke)[0])], "some-other-fingerprint")
+    write_part(ws, "plan", [plan_sample(smoke, *planned_samples(smoke)[0])], "some-other-fingerprint")
     assert runner.status(PLAN, smoke, ws).state == "stale"
     with pytest.raises(runner.StageError, match="--force"):
         runner.run_stage(PLAN, smoke, ws)
