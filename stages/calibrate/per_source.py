@@ -1,0 +1,172 @@
+"""One source's calibration as named steps (docs/architecture.md section 5): gather its
+samples (``SourceSamples``), solve robustly and drop its outliers, cross-validate, fit the
+arms where they are calibrated, and measure Table 1 (``SourceFit``); then the fused column
+of Table 1 and the rejection sigma from both sources' fits."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from manifests import Workspace
+from manifests.sidecars import SOURCES, SigmaRecord, SourceCalibration
+from pipeline import progress
+from pipeline.config import Config
+from stages.calibrate import observations as obs
+from stages.calibrate import screening
+from stages.calibrate.fitting import (
+    _subset,
+    cross_validate,
+    metrics,
+    opencv_shah_metrics,
+    pnp_variance,
+    robust_solve,
+)
+from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json
+from stages.common import arms, rwhe
+from stages.common import geometry as g
+from stages.common.fusion import Sigma, fuse, sigma_between, without_reference_noise
+from stages.common.json_arrays import record
+from stages.common.sources import measured_b, up_targetee
+from stages.common.workspace_target import workspace_target
+
+
+@dataclass(frozen=True)
+class SourceSamples:
+    """The captures a source measured, with what its calibration will take into account:
+    PnP poses ``a`` and its ``b`` (N, 4, 4), fixtures, the up direction in the target flange
+    (N, 3) where the fixtures' compliance is fitted, the arms' readings where they are."""
+
+    used: list[obs.Observation]
+    a: np.ndarray
+    b: np.ndarray
+    fixtures: list[str]
+    up: np.ndarray | None
+    readings: arms.Readings | None
+    kinematic: bool  # the arms' kinematics are fitted
+    compliance_note: str
+    arm_note: str
+
+    def inliers(self, keep: np.ndarray) -> SourceSamples:
+        """The same samples less the solve's outliers (``keep`` (N,) bool)."""
+        return SourceSamples(
+            [o for o, k in zip(self.used, keep, strict=True) if k], self.a[keep], self.b[keep],
+            [f for f, k in zip(self.fixtures, keep, strict=True) if k], _subset(self.up, keep),
+            None if self.readings is None else self.readings.subset(keep), self.kinematic, self.compliance_note,
+            self.arm_note)
+
+
+@dataclass(frozen=True)
+class SourceFit:
+    """A source's calibration and its estimates of ``cam_from_target`` per sample_id, in
+    sample and cross-validated (each fold's from the others)."""
+
+    calibration: SourceCalibration
+    in_sample: dict[str, np.ndarray]
+    cross_validated: dict[str, np.ndarray]
+
+
+def gather(config: Config, workspace: Workspace, source: str, observations: list[obs.Observation],
+           by_id: dict[str, dict[str, Any]]) -> SourceSamples:
+    """The source's samples: every posed capture it measured; for the robots, the up
+    direction and the compliance and arm decisions."""
+    used = [o for o in observations if o.cam_from_target is not None
+            and measured_b(by_id[o.sample_id], source) is not None]
+    a = np.stack([o.cam_from_target for o in used]) if used else np.zeros((0, 4, 4))
+    b = np.stack([measured_b(by_id[o.sample_id], source) for o in used]) if used else np.zeros((0, 4, 4))
+    fixtures = [by_id[o.sample_id]["fixture"] for o in used]
+    rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
+                         f"{source} calibration")
+    if source != "kuka":
+        note = "motion capture tracks the model itself"
+        return SourceSamples(used, a, b, fixtures, None, None, False, note, note)
+    up = np.stack([up_targetee(by_id[o.sample_id], config.calibrate.world_up) for o in used])
+    compliant, compliance_note = compliance_decision(config, up, fixtures)
+    readings = arms.readings([by_id[o.sample_id] for o in used], arms.Payload.of(workspace_target(config, workspace)))
+    kinematic, arm_note = arm_decision(config, readings)
+    return SourceSamples(used, a, b, fixtures, up if compliant else None, readings, kinematic, compliance_note,
+                         arm_note)
+
+
+def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.EstimatedCamera,
+        truth: dict[str, np.ndarray] | None) -> tuple[SourceFit, tuple[str, ...]]:
+    """The source's calibration from its samples, and the outliers its robust solve dropped."""
+    progress.note(f"calibrate {source}: robust solve on {len(samples.used)} samples")
+    solution, keep = robust_solve(config, samples.a, samples.b, samples.fixtures, samples.used, intrinsics,
+                                  samples.up)
+    screening.check_inliers(source, int(keep.sum()), len(keep))
+    outliers = tuple(o.sample_id for o, k in zip(samples.used, keep, strict=True) if not k)
+    s = samples.inliers(keep)
+    b, up, fitted = s.b, s.up, None
+    if s.kinematic:
+        cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, s.readings,
+                               f"calibrate {source}")
+        progress.note(f"calibrate {source}: the arms' fit on all {len(s.used)} samples")
+        fitted = arms.fit(config.testbed, config.calibrate, s.a, s.readings, s.fixtures, solution, s.up is not None)
+        solution = fitted.offsets
+        b, up_arms = arms.corrected_b(config.testbed, fitted.errors, s.readings, config.calibrate.world_up)
+        up = None if up is None else up_arms
+    else:
+        cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, label=f"calibrate {source}")
+    predicted = solution.predict(b, s.fixtures, up)
+    cross_metrics = metrics(cross, s.a, s.used, intrinsics)
+    screening.check_result(source, cross_metrics, intrinsics, config.calibrate)
+    calibration = SourceCalibration(
+        source=source, cam_from_offset=record(solution.z),
+        target_from_offset_by_fixture={f: record(x) for f, x in solution.x.items()},
+        fixture_compliance=compliance_json(solution, up, s.fixtures, s.compliance_note),
+        arm_kinematics={"estimated": fitted is not None, "why": s.arm_note,
+                        **(fitted.to_json() if fitted is not None else {})},
+        sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
+        samples=len(s.used), outliers=outliers,
+        metrics={"in_sample": metrics(predicted, s.a, s.used, intrinsics), "cross_validated": cross_metrics,
+                 "truth": _truth_metrics(predicted, s.used, intrinsics, truth)},
+        # OpenCV's Shah on the same detections and intrinsics, for comparison
+        opencv_shah_in_sample=(opencv_shah_metrics(s.a, s.b, s.fixtures, s.used, intrinsics)
+                               if len(solution.x) == 1 else None))
+    ids = [o.sample_id for o in s.used]
+    return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), dict(zip(ids, cross, strict=True))), outliers
+
+
+def _truth_metrics(predicted: np.ndarray, used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
+                   truth: dict[str, np.ndarray] | None) -> dict[str, list[float]] | None:
+    """Table 1 against the hidden truth (the virtual testbed's), else None."""
+    if truth is None:
+        return None
+    true = np.stack([truth[o.sample_id] for o in used])
+    true_pixels = [g.project(t, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
+                   for t, o in zip(true, used, strict=True)]
+    return metrics(predicted, true, used, intrinsics, true_pixels)
+
+
+def fused_column(observations: list[obs.Observation], fits: dict[str, SourceFit], intrinsics: obs.EstimatedCamera,
+                 truth: dict[str, np.ndarray] | None) -> tuple[dict[str, Any], SigmaRecord]:
+    """Table 1's fused column on the samples both sources measured (each source's own column
+    is over its own samples, as in the paper; fusion is judged against the single sources
+    on the same samples), and the spread of motion capture against the robots (the
+    rejection test's sigma)."""
+    kuka, vicon = fits["kuka"], fits["vicon"]
+    both = [o for o in observations if o.sample_id in kuka.in_sample and o.sample_id in vicon.in_sample]
+    rejection = sigma_between(np.stack([vicon.in_sample[o.sample_id] for o in both]),
+                              np.stack([kuka.in_sample[o.sample_id] for o in both])).to_record()
+    sigma = {s: Sigma.from_record(fits[s].calibration.sigma) for s in SOURCES}
+
+    def estimates_of(which: str) -> dict[str, np.ndarray]:
+        return {s: np.stack([getattr(fits[s], which)[o.sample_id] for o in both]) for s in SOURCES}
+
+    estimates = {s: {} for s in (*SOURCES, "fused")}
+    for which in ("in_sample", "cross_validated"):
+        by_source = estimates_of(which)
+        for s in SOURCES:
+            estimates[s][which] = by_source[s]
+        estimates["fused"][which] = np.stack([fuse(k, sigma["kuka"], v, sigma["vicon"])[0]
+                                              for k, v in zip(by_source["kuka"], by_source["vicon"], strict=True)])
+    a = np.stack([o.cam_from_target for o in both])
+    on_both = {name: {"in_sample": metrics(e["in_sample"], a, both, intrinsics),
+                      "cross_validated": metrics(e["cross_validated"], a, both, intrinsics),
+                      "truth": _truth_metrics(e["in_sample"], both, intrinsics, truth)}
+               for name, e in estimates.items()}
+    return ({"samples": len(both), "metrics": on_both["fused"],
+             "sources_on_the_same_samples": {s: on_both[s] for s in SOURCES}}, rejection)
