@@ -162,103 +162,144 @@ def map_ray(factory: Callable[..., Any], args: tuple[Any, ...], method: str, ite
     ray = _ray()
     from ray import exceptions as ray_errors
 
-    prepare = prepare or (lambda item: item)
     connect(address, workers * worker_cpus or os.cpu_count() or 1)
+    size = min(workers or len(items), len(items), _free_workers(ray, worker_cpus))
+    if size < 1:
+        raise EngineError(f"the Ray cluster has no free CPU for a worker of {worker_cpus} CPU(s) "
+                          f"(free: {ray.available_resources().get('CPU', 0):g}); wait for other jobs or add nodes")
+    worker_class = _actor_class(ray).options(num_cpus=worker_cpus, max_restarts=0)
+    pool = _Pool(ray, worker_class, ray.put((factory, args, probe, remote)), method, items,
+                 prepare or (lambda item: item), max_tasks, start_timeout_s, {**environment(), **(expect or {})},
+                 tuple(expect or {}))
+    console.print(f"ray: {size} worker(s) of {worker_cpus} CPU(s) for {len(items)} items")
+    try:
+        pool.start(size)
+        yield from pool.results()
+    except ray_errors.RayError as error:
+        raise EngineError(f"Ray failed: {type(error).__name__}: {' '.join(str(error).split())[:300]}") from None
+    finally:
+        pool.close()
+
+
+def _free_workers(ray: Any, worker_cpus: int) -> int:
+    """Workers the cluster's free CPUs hold, after a moment for the previous map's actors
+    (``ray.kill`` is asynchronous) to give theirs back."""
     free = int(ray.available_resources().get("CPU", 0) // worker_cpus)
     waited = 0.0
-    # ray.kill is asynchronous: the actors of the map just before (the previous model of
-    # evaluate) give their CPUs back a moment after they are killed
     while free < 1 and waited < FREE_CPU_WAIT_S:
         time.sleep(0.25)
         waited += 0.25
         free = int(ray.available_resources().get("CPU", 0) // worker_cpus)
-    size = min(workers or len(items), len(items), free)
-    if size < 1:
-        raise EngineError(f"the Ray cluster has no free CPU for a worker of {worker_cpus} CPU(s) "
-                          f"(free: {ray.available_resources().get('CPU', 0):g}); wait for other jobs or add nodes")
-    expected = {**environment(), **(expect or {})}
-    worker_class = _actor_class(ray).options(num_cpus=worker_cpus, max_restarts=0)
-    factory_ref = ray.put((factory, args, probe, remote))  # one copy in the object store for every actor
+    return free
 
-    def start() -> _Slot:
-        actor = worker_class.remote(factory_ref)
-        return _Slot(actor, actor.describe.remote())
 
-    queue = list(reversed(range(len(items))))
-    attempts = [0] * len(items)
-    start_errors: list[str] = []
-    slots = [start() for _ in range(size)]
-    owner: dict[Any, tuple[_Slot, int]] = {}  # task ref -> (slot, item index)
-    console.print(f"ray: {size} worker(s) of {worker_cpus} CPU(s) for {len(items)} items")
+class _Pool:
+    """The actors of one map: started (``start``), given items two at a time (``dispatch``),
+    checked when they report ready (``_on_ready``), replaced when they die (``_on_lost``) or
+    reach ``max_tasks`` (recycled: a renderer's memory grows with its age); ``results``
+    yields each item's result as it finishes."""
 
-    def retire(slot: _Slot, replace: bool) -> None:
-        slots.remove(slot)
+    def __init__(self, ray: Any, worker_class: Any, factory_ref: Any, method: str, items: list[Any],
+                 prepare: Callable[[Any], Any], max_tasks: int, start_timeout_s: float, expected: dict[str, str],
+                 shown: tuple[str, ...]) -> None:
+        self.ray, self.worker_class, self.factory_ref, self.method = ray, worker_class, factory_ref, method
+        self.items, self.prepare, self.max_tasks, self.start_timeout_s = items, prepare, max_tasks, start_timeout_s
+        self.expected, self.shown = expected, shown
+        self.queue = list(reversed(range(len(items))))
+        self.attempts = [0] * len(items)
+        self.start_errors: list[str] = []
+        self.slots: list[_Slot] = []
+        self.owner: dict[Any, tuple[_Slot, int]] = {}  # task ref -> (slot, item index)
+
+    def start(self, count: int = 1) -> None:
+        for _ in range(count):
+            actor = self.worker_class.remote(self.factory_ref)
+            self.slots.append(_Slot(actor, actor.describe.remote()))
+
+    def retire(self, slot: _Slot, replace: bool) -> None:
+        self.slots.remove(slot)
         for ref in slot.in_flight:
-            owner.pop(ref, None)
-        ray.kill(slot.actor, no_restart=True)
-        if replace and (queue or owner):
-            slots.append(start())
+            self.owner.pop(ref, None)
+        self.ray.kill(slot.actor, no_restart=True)
+        if replace and (self.queue or self.owner):
+            self.start()
 
-    try:
-        while queue or owner:
-            for slot in list(slots):
-                if slot.ready:
-                    while queue and len(slot.in_flight) < 2 and slot.done + len(slot.in_flight) < max_tasks:
-                        index = queue.pop()
-                        ref = slot.actor.call.remote(method, prepare(items[index]))
-                        slot.in_flight.add(ref)
-                        owner[ref] = (slot, index)
-                elif time.monotonic() - slot.started > start_timeout_s:
-                    retire(slot, replace=False)  # unschedulable now (the cluster shrank, or is busy)
-            if not slots:
-                why = (f"the last one failed: {start_errors[-1]}" if start_errors else
-                       f"none was placed within {start_timeout_s:.0f} s: the cluster has no free CPU")
-                raise EngineError(f"no Ray worker could start ({len(queue)} items left); {why}")
-            waiting = list(owner) + [s.ready_ref for s in slots if not s.ready]
-            ready_refs, _ = ray.wait(waiting, num_returns=1, timeout=1.0)
+    def close(self) -> None:
+        for slot in self.slots:
+            self.ray.kill(slot.actor, no_restart=True)
+
+    def dispatch(self) -> None:
+        """Items to every ready actor (two in flight each, within its task budget); an actor
+        not ready within the start timeout is given up (the cluster shrank, or is busy)."""
+        for slot in list(self.slots):
+            if slot.ready:
+                while self.queue and len(slot.in_flight) < 2 and slot.done + len(slot.in_flight) < self.max_tasks:
+                    index = self.queue.pop()
+                    ref = slot.actor.call.remote(self.method, self.prepare(self.items[index]))
+                    slot.in_flight.add(ref)
+                    self.owner[ref] = (slot, index)
+            elif time.monotonic() - slot.started > self.start_timeout_s:
+                self.retire(slot, replace=False)
+        if not self.slots:
+            why = (f"the last one failed: {self.start_errors[-1]}" if self.start_errors else
+                   f"none was placed within {self.start_timeout_s:.0f} s: the cluster has no free CPU")
+            raise EngineError(f"no Ray worker could start ({len(self.queue)} items left); {why}")
+
+    def results(self) -> Iterator[Any]:
+        from ray import exceptions as ray_errors
+
+        while self.queue or self.owner:
+            self.dispatch()
+            waiting = list(self.owner) + [s.ready_ref for s in self.slots if not s.ready]
+            ready_refs, _ = self.ray.wait(waiting, num_returns=1, timeout=1.0)
             for ref in ready_refs:
-                starting = next((s for s in slots if not s.ready and s.ready_ref == ref), None)
+                starting = next((s for s in self.slots if not s.ready and s.ready_ref == ref), None)
                 if starting is not None:
-                    try:
-                        report = ray.get(ref)
-                    except ray_errors.RayError as error:
-                        start_errors.append(" ".join(str(_cause(error)).split())[:300])
-                        retire(starting, replace=False)  # died while starting: its node is gone
-                        continue
-                    refusal = _refusal(report, expected)
-                    if refusal:
-                        raise EngineError(refusal)
-                    starting.ready = True
-                    facts = [f"{report['cpus']} CPU(s)", *(f"{key} {report[key]}" for key in expect or {})]
-                    console.print(f"ray worker on {report['host']} (node {report['node']}, pid {report['pid']}): "
-                                  + ", ".join(facts), soft_wrap=True)
+                    self._on_ready(starting, ref)
                     continue
-                slot, index = owner.pop(ref)
+                slot, index = self.owner.pop(ref)
                 slot.in_flight.discard(ref)
                 try:
-                    result = ray.get(ref)
+                    result = self.ray.get(ref)
                 except ray_errors.RayTaskError as error:  # the method itself raised: not worth a retry
                     raise _cause(error) from None
                 except (ray_errors.RayActorError, ray_errors.ObjectLostError, ray_errors.WorkerCrashedError,
                         ray_errors.NodeDiedError) as error:
-                    attempts[index] += 1
-                    if attempts[index] >= MAX_ATTEMPTS:
-                        raise EngineError(f"item {index} ended {MAX_ATTEMPTS} Ray workers (last: "
-                                          f"{type(error).__name__}); the finished rows are kept") from None
-                    queue.append(index)
-                    for other in list(slot.in_flight):  # the actor is gone: its other items go back too
-                        queue.append(owner.pop(other)[1])
-                    slot.in_flight.clear()
-                    console.print(f"[yellow]ray: a worker died ({type(error).__name__}); its items go to "
-                                  "another worker[/]")
-                    retire(slot, replace=True)
+                    self._on_lost(slot, index, error)
                     continue
                 slot.done += 1
                 yield result
-                if slot.done >= max_tasks and not slot.in_flight:
-                    retire(slot, replace=True)  # recycle: a renderer's memory grows with its age
-    except ray_errors.RayError as error:
-        raise EngineError(f"Ray failed: {type(error).__name__}: {' '.join(str(error).split())[:300]}") from None
-    finally:
-        for slot in slots:
-            ray.kill(slot.actor, no_restart=True)
+                if slot.done >= self.max_tasks and not slot.in_flight:
+                    self.retire(slot, replace=True)
+
+    def _on_ready(self, slot: _Slot, ref: Any) -> None:
+        """An actor's report: refuse a node that cannot make the driver's bytes; else it takes items."""
+        from ray import exceptions as ray_errors
+
+        try:
+            report = self.ray.get(ref)
+        except ray_errors.RayError as error:
+            self.start_errors.append(" ".join(str(_cause(error)).split())[:300])
+            self.retire(slot, replace=False)  # died while starting: its node is gone
+            return
+        refusal = _refusal(report, self.expected)
+        if refusal:
+            raise EngineError(refusal)
+        slot.ready = True
+        facts = [f"{report['cpus']} CPU(s)", *(f"{key} {report[key]}" for key in self.shown)]
+        console.print(f"ray worker on {report['host']} (node {report['node']}, pid {report['pid']}): "
+                      + ", ".join(facts), soft_wrap=True)
+
+    def _on_lost(self, slot: _Slot, index: int, error: Exception) -> None:
+        """A dead actor: its items go back to the queue (an item that ended ``MAX_ATTEMPTS``
+        actors ends the map), and another actor takes its place."""
+        self.attempts[index] += 1
+        if self.attempts[index] >= MAX_ATTEMPTS:
+            raise EngineError(f"item {index} ended {MAX_ATTEMPTS} Ray workers (last: "
+                              f"{type(error).__name__}); the finished rows are kept") from None
+        self.queue.append(index)
+        for other in list(slot.in_flight):  # the actor is gone: its other items go back too
+            self.queue.append(self.owner.pop(other)[1])
+        slot.in_flight.clear()
+        console.print(f"[yellow]ray: a worker died ({type(error).__name__}); its items go to another worker[/]")
+        self.retire(slot, replace=True)
