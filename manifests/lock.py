@@ -38,7 +38,7 @@ class WorkspaceLock:
         self.path = workspace.root / LOCK_FILE
         self.command = command or " ".join(os.path.basename(a) if i == 0 else a for i, a in enumerate(sys.argv))
         self.handle: int | None = None
-        self.lease = Lease(workspace.copy.remote, self.command) if workspace.copy is not None else None
+        self.lease = Lease(workspace.remote, self.command) if workspace.remote is not None else None
 
     def __enter__(self) -> WorkspaceLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -85,8 +85,8 @@ def _holder(handle: int) -> str:
 
 def holder(workspace: Workspace) -> str | None:
     """Who writes the workspace now, or None (for ``status``; takes nothing)."""
-    if workspace.copy is not None:
-        return lease_holder(workspace.copy.remote)
+    if workspace.remote is not None:
+        return lease_holder(workspace.remote)
     path = workspace.root / LOCK_FILE
     try:
         handle = os.open(path, os.O_RDONLY)

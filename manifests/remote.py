@@ -37,7 +37,7 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from manifests.files import write_bytes_atomic, write_json_atomic
-from manifests.workspace import STATE_DIR, PathEscapeError, check_relative
+from manifests.workspace import CONFIG_FILE, STATE_DIR, PathEscapeError, check_relative
 from speedplus.errors import InputError
 
 SCHEMES = ("s3", "gs", "gcs")
@@ -285,6 +285,16 @@ class RemoteCopy:
 
     def has(self, relpath: str) -> bool:
         return (self.root / check_relative(relpath)).is_file() or relpath in self.stored
+
+    def location(self) -> str:
+        return self.remote.display()
+
+    def saved_config(self) -> bytes | None:
+        """The store's ``config.toml`` (not what this machine last saw), or None."""
+        return self.remote.read(CONFIG_FILE)
+
+    def started(self) -> bool:
+        return self.saved_config() is not None
 
     def record(self, relpath: str) -> dict[str, Any] | None:
         """Size and SHA-256 of a file only the store holds (None when unknown or held here)."""

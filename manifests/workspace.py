@@ -65,10 +65,46 @@ def check_relative(path: str) -> PurePosixPath:
     return pure
 
 
+class LocalStore:
+    """Where a workspace on this machine's file system keeps its files: where the manifests
+    say, under ``root``. The same interface as ``manifests.remote.RemoteCopy`` (a working
+    copy of a workspace on object storage), with nothing to fetch, pull or push."""
+
+    remote: Remote | None = None
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def location(self) -> str:
+        return str(self.root)
+
+    def fetch(self, relpath: str) -> Path:
+        return self.root / check_relative(relpath)
+
+    def has(self, relpath: str) -> bool:
+        return self.fetch(relpath).is_file()
+
+    def record(self, relpath: str) -> dict[str, Any] | None:
+        return None  # every file is here: hash it
+
+    def accept(self, relpath: str, stored: Any) -> None:
+        raise InputError(f"{relpath}: a worker uploaded it to object storage, but {self.root} is a local workspace")
+
+    def started(self) -> bool:
+        return (self.root / CONFIG_FILE).is_file()
+
+    def pull(self) -> None:
+        """Nothing to bring: the files are here."""
+
+    def push(self) -> None:
+        """Nothing to send: the files are here."""
+
+
 class Workspace:
-    """A run directory ``W``; every stage reads and writes through these paths. A workspace
-    on object storage is a local working copy at ``root`` of the store (``copy``,
-    ``manifests.remote``): stages read files through ``fetch``, which downloads them on demand."""
+    """A run directory ``W``; every stage reads and writes through these paths. Its files
+    live in a store (``store``): this machine's file system (``LocalStore``), or object
+    storage through a local working copy at ``root`` (``manifests.remote.RemoteCopy``),
+    from which ``fetch`` downloads a file on demand."""
 
     def __init__(self, root: str | Path, output_fingerprints: dict[str, str] | None = None,
                  forced: bool = False, copy: RemoteCopy | None = None) -> None:
@@ -77,44 +113,39 @@ class Workspace:
         #: the run was asked to redo its results (--force): a stage may then replace what it
         #: would otherwise refuse to touch (export: a folder holding other files)
         self.forced = forced
-        self.copy = copy
+        self.store: LocalStore | RemoteCopy = copy if copy is not None else LocalStore(self.root)
 
     def for_run(self, output_fingerprints: dict[str, str], forced: bool = False) -> Workspace:
         """The same workspace as a stage run sees it: writers stamp each output manifest's
         parts with its fingerprint (docs/architecture.md section 1). Made by the runner."""
-        return Workspace(self.root, output_fingerprints, forced, self.copy)
+        return Workspace(self.root, output_fingerprints, forced, self.store if self.remote is not None else None)
 
     @property
     def remote(self) -> Remote | None:
-        """The store this workspace lives in (workers write there directly), or None."""
-        return self.copy.remote if self.copy is not None else None
+        """The object store this workspace lives in (workers write there directly), or None."""
+        return self.store.remote
 
     @property
     def location(self) -> str:
         """The workspace as the user named it: its path, or its store URI."""
-        return self.copy.remote.display() if self.copy is not None else str(self.root)
+        return self.store.location()
 
     def fetch(self, relpath: str) -> Path:
         """The local path of a manifest path, to read: fetched from the store when only it
         has the file (a missing file stays missing; readers report it)."""
-        if self.copy is not None:
-            return self.copy.fetch(relpath)
-        return self.resolve(relpath)
+        return self.store.fetch(relpath)
 
     def has_file(self, relpath: str) -> bool:
         """Whether the file a manifest names exists (here, or in the store)."""
-        if self.copy is not None:
-            return self.copy.has(relpath)
-        return self.resolve(relpath).is_file()
+        return self.store.has(relpath)
 
     def stored_record(self, relpath: str) -> dict[str, Any] | None:
         """``{"bytes", "sha256"}`` of a file a worker wrote straight to the store, or None."""
-        return self.copy.record(relpath) if self.copy is not None else None
+        return self.store.record(relpath)
 
     def sync(self) -> None:
         """Push the working copy to its store (after a stage completes); nothing locally."""
-        if self.copy is not None:
-            self.copy.push()
+        self.store.push()
 
     def output_fingerprint(self, name: str) -> str:
         """The fingerprint the running stage stamps on manifest ``name``'s parts."""
@@ -189,7 +220,7 @@ class Workspace:
     def display(self, path: Path) -> str:
         """A path as users should read it in messages: relative to the workspace's parent
         (in the store: its URI)."""
-        if self.copy is not None and path.is_relative_to(self.root):
+        if self.remote is not None and path.is_relative_to(self.root):
             return f"{self.location}/{path.relative_to(self.root).as_posix()}"
         try:
             return str(path.relative_to(self.root.parent))

@@ -148,10 +148,10 @@ def _context(workspace: str | None, profile: str | None, config: Path | None,
         workspace = str(Path("data") / named)
     ws = _workspace(workspace)
     with tempfile.TemporaryDirectory(prefix="speedplus-config-") as folder:
-        saved = ws.config_path
-        if ws.copy is not None:  # the store's, not what this machine last saw
+        saved = ws.config_path  # named as it is in messages
+        if ws.remote is not None:  # the store's, not what this machine last saw
             saved = Path(folder) / CONFIG_FILE
-            data = ws.copy.remote.read(CONFIG_FILE)
+            data = ws.store.saved_config()
             if data is not None:
                 saved.write_bytes(data)
         resolved, switched_from = layered(saved, profile, config, overrides)
@@ -160,9 +160,7 @@ def _context(workspace: str | None, profile: str | None, config: Path | None,
 
 def _exists(ws: Workspace) -> bool:
     """Whether a workspace has been started (its saved configuration exists)."""
-    if ws.copy is not None:
-        return ws.copy.remote.read(CONFIG_FILE) is not None
-    return ws.config_path.is_file()
+    return ws.store.started()
 
 
 @contextlib.contextmanager
@@ -170,30 +168,27 @@ def _writing(ws: Workspace) -> Iterator[Workspace]:
     """Hold the workspace's lock; on object storage, pull first and push at the end, however
     the command ends (rows finished before an error or Ctrl-C reach the store)."""
     with WorkspaceLock(ws):
-        if ws.copy is None:
-            yield ws
-            return
-        ws.copy.pull()
+        ws.store.pull()
         try:
             yield ws
         except BaseException:
             try:
-                ws.copy.push()
+                ws.store.push()
             except InputError as error:
                 err.print(f"[yellow]warning:[/] {escape(str(error))}", highlight=False)
             raise
-        ws.copy.push()
+        ws.store.push()
 
 
 @contextlib.contextmanager
 def _reading(ws: Workspace) -> Iterator[Workspace]:
     """A workspace to read without the lock: on object storage, a fresh temporary copy."""
-    if ws.copy is None:
+    if ws.remote is None:
         yield ws
         return
     with tempfile.TemporaryDirectory(prefix="speedplus-read-") as folder:
-        copy = _workspace(ws.copy.remote.uri, Path(folder))
-        copy.copy.pull()
+        copy = _workspace(ws.remote.uri, Path(folder))
+        copy.store.pull()
         yield copy
 
 
@@ -220,7 +215,7 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     try:
         _transaction(stages, resolved, transient, ws, force, switched_from, redo)
     finally:
-        if ws.copy is None and not existed and not _exists(ws):
+        if ws.remote is None and not existed and not _exists(ws):
             shutil.rmtree(ws.root, ignore_errors=True)  # refused before anything was made: no empty folder left
     if stages and stages[-1] == "report":
         out.print(f"report: {ws.location}/report/index.html")
@@ -460,7 +455,7 @@ def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
 def _must_exist(ws: Workspace) -> None:
     """A folder, or a store prefix holding anything (a workspace its first command is still
     starting counts: its lock or lease is there)."""
-    if not (ws.root.is_dir() if ws.copy is None else bool(ws.copy.remote.listing())):
+    if not (ws.root.is_dir() if ws.remote is None else bool(ws.remote.listing())):
         raise InputError(f"{ws.location}: no such workspace; start one with `speedplus run "
                          f"--workspace {ws.location}`")
 

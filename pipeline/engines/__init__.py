@@ -58,10 +58,7 @@ def store(workspace: Workspace, produced: Produced) -> Any:
     return its value, which may then be recorded."""
     for relpath, data in produced.files.items():
         if isinstance(data, StoredFile):
-            if workspace.copy is None:
-                raise EngineError(f"{relpath}: a worker uploaded it to object storage, but {workspace.location} is "
-                                  "a local workspace")
-            workspace.copy.accept(relpath, data)
+            workspace.store.accept(relpath, data)
         else:
             write_bytes_atomic(workspace.resolve(relpath), data)
     return produced.value
