@@ -57,6 +57,35 @@ def _sight_directions(plan: PlanConfig) -> np.ndarray:
                      -np.sin(elevation)], axis=-1)
 
 
+def _orientations(sight_cam: np.ndarray, plan: PlanConfig, testbed: TestbedConfig,
+                  previous: Reconfiguration | None) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate lines of sight in K (S, 3) and camera attitudes ``world_from_cam`` (S, R, 3, 3)
+    that map the model's direction in the camera frame (``sight_cam``, (3,)) onto each, rolled
+    about it; after a ``previous`` frame, one more: the camera keeps its attitude and the
+    target robot turns the model."""
+    sights = _sight_directions(plan)  # (S, 3)
+    rolls = np.linspace(0.0, 2 * np.pi, plan.camera_roll_candidates, endpoint=False)  # (R,)
+    frame_cam = _frame_from_direction(sight_cam)  # (3, 3)
+    frame_world = _frame_from_direction(sights)  # (S, 3, 3)
+    roll_rotation = g.axis_angle_matrix("x", rolls)  # (R, 3, 3)
+    world_from_cam_rotation = frame_world[:, None] @ roll_rotation[None] @ frame_cam.T  # (S, R, 3, 3)
+    if previous is not None:
+        kept = (previous.world_from_camee @ layout.camee_from_cam(testbed))[:3, :3]
+        sights = np.concatenate([sights, (kept @ sight_cam)[None]])
+        world_from_cam_rotation = np.concatenate([world_from_cam_rotation,
+                                                  np.broadcast_to(kept, (1, len(rolls), 3, 3))])
+    return sights, world_from_cam_rotation
+
+
+def _move(previous: Reconfiguration, camera_joints: np.ndarray, target_joints: np.ndarray,
+          rail: np.ndarray) -> np.ndarray:
+    """Each candidate's move from the previous frame's commands (P, S, R, O): the largest
+    joint change of either arm (rad) plus the rail's travel (m)."""
+    camera = np.max(np.abs(np.nan_to_num(camera_joints) - previous.camera_joints_rad), axis=-1)
+    target = np.max(np.abs(np.nan_to_num(target_joints) - previous.target_joints_rad), axis=-1)[..., None]
+    return np.maximum(camera, target) + np.abs(rail - previous.rail_m)
+
+
 def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testbed: TestbedConfig,
                 target: Target, require_far_side: bool, previous: Reconfiguration | None = None
                 ) -> Reconfiguration | None:
@@ -67,22 +96,8 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     (the largest joint change, rad, plus the rail's, m), so that a sequence flows."""
     arm = arm_model(testbed.robot_model)
     distance = np.linalg.norm(cam_from_target[:3, 3])
-    sight_cam = cam_from_target[:3, 3] / distance  # model direction in the camera frame
-
     presentation = np.asarray(testbed.target_presentation_m, dtype=float)  # (P, 3)
-    sights = _sight_directions(plan)  # (S, 3)
-    rolls = np.linspace(0.0, 2 * np.pi, plan.camera_roll_candidates, endpoint=False)  # (R,)
-
-    # world_from_cam rotation maps sight_cam onto the sight direction, rolled about it
-    frame_cam = _frame_from_direction(sight_cam)  # (3, 3)
-    frame_world = _frame_from_direction(sights)  # (S, 3, 3)
-    roll_rotation = g.axis_angle_matrix("x", rolls)  # (R, 3, 3)
-    world_from_cam_rotation = frame_world[:, None] @ roll_rotation[None] @ frame_cam.T  # (S, R, 3, 3)
-    if previous is not None:  # one more sight: the camera keeps its attitude, the target robot turns the model
-        kept = (previous.world_from_camee @ layout.camee_from_cam(testbed))[:3, :3]
-        sights = np.concatenate([sights, (kept @ sight_cam)[None]])
-        world_from_cam_rotation = np.concatenate([world_from_cam_rotation,
-                                                  np.broadcast_to(kept, (1, len(rolls), 3, 3))])
+    sights, world_from_cam_rotation = _orientations(cam_from_target[:3, 3] / distance, plan, testbed, previous)
 
     origin = presentation[:, None, None, :]  # (P, 1, 1, 3): the model's origin in K
     camera_position = origin - distance * sights[None, :, None, :]  # (P, S, 1, 3)
@@ -120,11 +135,7 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
         return None
     margin = np.minimum(limit_margin(arm, np.nan_to_num(camera_joints)),
                         limit_margin(arm, np.nan_to_num(target_joints))[..., None])
-    score = margin
-    if previous is not None:
-        move = np.maximum(np.max(np.abs(np.nan_to_num(camera_joints) - previous.camera_joints_rad), axis=-1),
-                          np.max(np.abs(np.nan_to_num(target_joints) - previous.target_joints_rad), axis=-1)[..., None])
-        score = -(move + np.abs(rail - previous.rail_m))
+    score = margin if previous is None else -_move(previous, camera_joints, target_joints, rail)
     best = np.unravel_index(np.argmax(np.where(ok, score, -np.inf)), ok.shape)
     p, s, r, o = (int(i) for i in best)
     return Reconfiguration(

@@ -138,7 +138,8 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, target: Target, 
     """The trained ``KeypointNet`` (torch, eval mode) and its training log. With a
     ``checkpoint`` path, the state is saved after every epoch and a run with the same
     ``tag`` resumes from it: the random streams are restored with the weights, so a resumed
-    training ends with the weights an uninterrupted one would have."""
+    training ends with the weights an uninterrupted one would have. Kept in one piece (74
+    lines): the seeding, the checkpoint's restore and the epochs' draws share one order."""
     import torch
 
     from stages.reference.network import KeypointNet

@@ -112,7 +112,8 @@ def move(config: Config, truth: Truth, row: dict[str, Any], rng: np.random.Gener
     """Drive both robots to a plan row's commands; ``rng`` draws the servo noise; ``moment``
     is the capture's place in its session (``timeline.timeline``; None: the session's start
     with the robots' initial move directions); ``payload``: the mock-up on the target
-    flange (None: the configured target's)."""
+    flange (None: the configured target's). Kept in one piece (66 lines): its draws from
+    ``rng`` come in one fixed order, which the same-bytes guarantee depends on."""
     v, testbed, u = config.virtual, config.testbed, truth.unmodelled
     payload = Payload.of(planned_target(config)) if payload is None else payload
     session = row["session"]
