@@ -279,3 +279,17 @@ def test_a_strangers_target_gets_sequences_of_its_own_size_and_inertia(tmp_path)
     # held at the middle of 4.75-6.94 diameters, as Tango's at the middle of 6.5-9.5 m
     assert -hold.roe_m[1] == pytest.approx((4.75 + 6.94) / 2 * diameter)
     assert abs(np.mean(ranges) - -hold.roe_m[1]) < 0.1 * -hold.roe_m[1]
+
+
+def test_a_sequence_id_that_would_leave_the_export_is_refused(sequences, tmp_path):
+    """W/trajectories.json names the export's folders: a hand-edited id with a path in it is
+    an error naming the file and key."""
+    from manifests.sidecars import SidecarError
+
+    copy = Workspace(tmp_path / "w")
+    copy.root.mkdir()
+    data = json.loads(sequences.trajectories_path.read_text())
+    data["sequences"][0]["sequence_id"] = "../outside"
+    copy.trajectories_path.write_text(json.dumps(data))
+    with pytest.raises(SidecarError, match=r"trajectories.json: key sequences.0.sequence_id: expected a name"):
+        read_trajectories(copy)

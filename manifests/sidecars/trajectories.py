@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from manifests.schema import NAME_PATTERN
 from manifests.sidecars.base import Fields, SidecarError, read, save
 from manifests.workspace import Workspace
 
@@ -60,6 +61,8 @@ class SequenceRecord:
     @classmethod
     def from_fields(cls, f: Fields) -> SequenceRecord:
         f.only(*cls.__dataclass_fields__)
+        if not NAME_PATTERN.fullmatch(f.text("sequence_id")):  # it names export folders
+            raise f.fail("sequence_id", "a name (a-z, 0-9, _ and -)")
         chief = f.child("chief")
         chief.only(*ELEMENT_KEYS)
         return cls(

@@ -58,6 +58,10 @@ class Elements:
     def mean_motion_rad_s(self) -> float:
         return float(np.sqrt(MU_EARTH / self.a_m ** 3))
 
+    def mean_latitude_rad(self, times_s: np.ndarray | float) -> np.ndarray:
+        """The mean argument of latitude ``u = argp + M`` at ``times_s`` after the epoch."""
+        return self.argp_rad + self.mean_anomaly_rad + self.mean_motion_rad_s * np.asarray(times_s, float)
+
     def to_json(self) -> dict[str, float]:
         return {"a_m": self.a_m, "e": self.e, "i_rad": self.i_rad, "raan_rad": self.raan_rad,
                 "argp_rad": self.argp_rad, "mean_anomaly_rad": self.mean_anomaly_rad}
@@ -149,7 +153,7 @@ class RoeModel:
     def rtn_m(self, times_s: np.ndarray) -> np.ndarray:
         """The deputy's position in the chief's RTN frame (N, 3), m."""
         times_s = np.atleast_1d(np.asarray(times_s, float))
-        u = self.chief.argp_rad + self.chief.mean_anomaly_rad + self.chief.mean_motion_rad_s * times_s
+        u = self.chief.mean_latitude_rad(times_s)
         da, dlambda, dex, dey, dix, diy = self.roe_at(times_s).T
         cos_u, sin_u = np.cos(u), np.sin(u)
         return self.chief.a_m * np.stack([

@@ -33,7 +33,7 @@ def _domain(prediction: dict[str, Any]) -> str:
 
 def _measurement(prediction: dict[str, Any], frame: dict[str, Any], chief: Elements) -> Measurement:
     position, velocity = two_body(chief, [frame["time_s"]])
-    latitude = chief.argp_rad + chief.mean_anomaly_rad + chief.mean_motion_rad_s * frame["time_s"]
+    latitude = chief.mean_latitude_rad(frame["time_s"])
     measured = None
     if prediction["pose_found"] and prediction["q_pred"] is not None:
         measured = g.transform_from_qt(prediction["q_pred"], prediction["t_pred"])

@@ -40,7 +40,7 @@ def eye_in_hand_views(seed, n=14, size=(8, 6)):
     centre = np.array([(size[0] - 1) * 0.015, (size[1] - 1) * 0.015, 0.0])
     cam_from_flange = g.make_transform(g.rotvec_to_matrix(rng.normal(scale=0.1, size=3)), [0.02, -0.01, 0.05])
     base_from_target = g.make_transform(g.rotvec_to_matrix([0, 0, 0.3]), [0.8, 0.1, 0.0])
-    intrinsics = obs.Intrinsics(CAMERA, np.zeros(5), 640, 480, 0.0, False)
+    intrinsics = obs.EstimatedCamera(CAMERA, np.zeros(5), 640, 480, 0.0, False)
     observations, b, truth = [], [], []
     for i in range(n):
         tilt = g.rotvec_to_matrix(rng.normal(scale=0.35, size=3))
@@ -138,7 +138,7 @@ def test_parks_linear_start_recovers_the_offsets_and_replaces_a_failing_shah(mon
 
 
 def test_opencvs_failing_closed_form_is_reported_not_raised(monkeypatch):
-    from stages import calibrate
+    from stages.calibrate import fitting
 
     def failing(*_, **__):
         raise cv2.error("OpenCV(4.14.0) calibration.cpp: error: Rotation normalization issue: determinant(R) is null")
@@ -146,14 +146,14 @@ def test_opencvs_failing_closed_form_is_reported_not_raised(monkeypatch):
     monkeypatch.setattr(cv2, "calibrateRobotWorldHandEye", failing)
     rng = np.random.default_rng(9)
     a, b, _, _, _ = synthetic(rng, 6, fixtures=("fixed",))
-    result = calibrate.opencv_shah_metrics(a, b, ["fixed"] * 6, [], obs.Intrinsics(CAMERA, np.zeros(5), 640, 480,
-                                                                                    0.0, False))
+    camera = obs.EstimatedCamera(CAMERA, np.zeros(5), 640, 480, 0.0, False)
+    result = fitting.opencv_shah_metrics(a, b, ["fixed"] * 6, [], camera)
     assert "determinant(R) is null" in result["failed"]
 
 
 def test_absurd_results_and_solves_that_keep_few_samples_are_refused():
     limits = load_config("smoke").calibrate
-    intrinsics = obs.Intrinsics(CAMERA, np.zeros(5), 640, 480, 0.0, False)
+    intrinsics = obs.EstimatedCamera(CAMERA, np.zeros(5), 640, 480, 0.0, False)
     real = {"E_T_m": [1.7e-3, 0.6e-3], "E_R_rad": [np.radians(0.5), 0.0], "E_p_px": [4.3, 1.0]}  # Tabb-like
     screening.check_result("kuka", real, intrinsics, limits)
     garbage = {"E_T_m": [0.107, 0.0], "E_R_rad": [np.radians(95.0), 0.0], "E_p_px": [583.0, 0.0]}  # the issue's case

@@ -11,7 +11,7 @@ import pytest
 
 from manifests import Workspace, read_manifest
 from pipeline.config import load_config
-from stages import calibrate
+from stages.calibrate import fitting
 from stages.common import geometry as g
 from stages.common import rwhe
 from tests.conftest import speedplus
@@ -59,24 +59,24 @@ def test_outlier_rejection_never_leaves_a_set_that_cannot_determine_the_offsets(
     keep[-4:] = False  # a poor first solve fits the four tilted views worst
     excess = np.ones(len(b))
     excess[-4:] = [3.0, 1.5, 2.0, 4.0]
-    kept = calibrate._determinate(config, b, names, keep, excess)
+    kept = fitting._determinate(config, b, names, keep, excess)
     assert rwhe.diversity_problem(b[kept], [n for n, k in zip(names, kept, strict=True) if k],
                                   config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad) is None
     assert kept[:11].all() and kept[-3] and not kept[-1]  # taken back the least flagged first, only as needed
     everything = np.ones(len(b), bool)
-    assert calibrate._determinate(config, b, names, everything, excess).all()
+    assert fitting._determinate(config, b, names, everything, excess).all()
 
 
 def test_folds_deal_each_orientation_group_round_the_folds():
     config = load_config("smoke")
     _, b, _, _, _ = grid_and_tilts(np.random.default_rng(6))
-    folds = calibrate.folds_of(config, b)
+    folds = fitting.folds_of(config, b)
     assert len(set(folds[-4:])) == 4  # each tilted view in its own fold: every training set keeps three
     assert np.bincount(folds).max() - np.bincount(folds).min() <= 1
     # distinct orientations: the seeded shuffle as before, fold = rank % folds
     distinct = np.stack([random_pose(np.random.default_rng(k)) for k in range(13)])
     rank = np.random.default_rng(config.calibrate.seed).permutation(13)
-    np.testing.assert_array_equal(calibrate.folds_of(config, distinct), rank % config.calibrate.folds)
+    np.testing.assert_array_equal(fitting.folds_of(config, distinct), rank % config.calibrate.folds)
 
 
 @pytest.fixture(scope="module")

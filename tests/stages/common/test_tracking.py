@@ -37,7 +37,7 @@ def sequence(scene, preset, seed, flip_rate=0.1, first_flipped=False):
     chief = chief_elements(config)
     position, velocity = two_body(chief, frames.times_s)
     rtn_from = rtn_from_eci(position, velocity)
-    latitude = chief.argp_rad + chief.mean_anomaly_rad + chief.mean_motion_rad_s * frames.times_s
+    latitude = chief.mean_latitude_rad(frames.times_s)
     measurements, flipped = [], []
     for k, true in enumerate(frames.cam_from_target_m):
         flip = rng.uniform() < flip_rate or (first_flipped and k == 0)
