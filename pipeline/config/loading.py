@@ -33,6 +33,8 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):  # TOML writes nan and inf; no setting means them
+            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
         return float(value)
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -154,8 +156,11 @@ def _check_trajectory(config: Config) -> None:
     if abs(math.sin(t.chief_i_rad)) < 1e-3:
         raise ConfigError("trajectory.chief_i_rad: an equatorial orbit has no node; the relative elements dix, diy "
                           "need an inclination away from 0 and pi")
-    if min(t.mass_kg, t.cam_step_s) <= 0 or min(t.pointing_sigma_rad, t.jitter_sigma_rad) < 0:
+    if t.mass_kg <= 0 or min(t.pointing_sigma_rad, t.jitter_sigma_rad) < 0:
         raise ConfigError("trajectory.mass_kg: positive; trajectory.pointing_sigma_rad/jitter_sigma_rad: at least 0")
+    if not 0 <= t.sunlamp_tolerance_rad <= math.pi:
+        raise ConfigError(f"trajectory.sunlamp_tolerance_rad: expected an angle in [0, pi], got "
+                          f"{t.sunlamp_tolerance_rad}")
     if t.inertia_kgm2:
         if len(t.inertia_kgm2) != 6:
             raise ConfigError("trajectory.inertia_kgm2: expected (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) or empty")
@@ -205,6 +210,13 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
+    e = config.evaluate
+    if min(e.tracking_rotation_sigma_rad, e.tracking_lateral_sigma, e.tracking_depth_sigma) <= 0 \
+            or min(e.tracking_angular_acceleration_sigma, e.tracking_roe_walk) < 0:
+        raise ConfigError("evaluate.tracking_*: the measurement sigmas must be positive, the process noises at least 0")
+    if not 0 < e.tracking_gate_probability < 1:
+        raise ConfigError(f"evaluate.tracking_gate_probability: expected a probability in (0, 1), got "
+                          f"{e.tracking_gate_probability}")
     if config.evaluate.threads < 0 or config.evaluate.batch_size < 1 or config.evaluate.ransac_seed < 0:
         raise ConfigError("evaluate.threads/batch_size/ransac_seed: expected a count of threads (0: the worker's "
                           "share of the cores), a batch size of at least 1 and a seed of at least 0")

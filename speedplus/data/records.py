@@ -89,12 +89,33 @@ def _export(root: Path, domains: tuple[str, ...] | None) -> list[Sample]:
         if not files:
             raise InputError(f"{root / folder}: no annotation json (test.json, train.json, validation.json)")
         for path in files:
-            for entry in json.loads(path.read_text()):
+            for index, entry in enumerate(_entries(path)):
                 image = (root / folder / "images" / entry["filename"]).resolve()
                 if root.resolve() not in image.parents:
-                    raise InputError(f"{path}: filename {entry['filename']!r} leaves the export folder")
+                    raise InputError(f"{path}: entry {index}: filename {entry['filename']!r} leaves the export folder")
                 out.append(Sample(Path(entry["filename"]).stem, folder,
                                   "synthetic" if folder in ("synthetic", "twins") else folder, image, None, None,
                                   np.asarray(entry["q_vbs2tango_true"], float),
                                   np.asarray(entry["r_Vo2To_vbs_true"], float), None, None, None, None, matrix, dist))
     return sorted(out, key=lambda s: (s.sample_id, s.set))
+
+
+def _entries(path: Path) -> list[dict]:
+    """A SPEED+ json's entries, each checked for its filename and pose; else an InputError
+    naming the file, the entry and the key."""
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise InputError(f"{path}: not a readable JSON list ({error})") from None
+    if not isinstance(entries, list):
+        raise InputError(f"{path}: expected a list of {{filename, q_vbs2tango_true, r_Vo2To_vbs_true}}")
+    for index, entry in enumerate(entries):
+        for key, size in (("filename", None), ("q_vbs2tango_true", 4), ("r_Vo2To_vbs_true", 3)):
+            value = entry.get(key) if isinstance(entry, dict) else None
+            good = isinstance(value, str) if size is None else (
+                isinstance(value, list) and len(value) == size
+                and all(isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in value))
+            if not good:
+                raise InputError(f"{path}: entry {index}: key {key}: expected "
+                                 f"{'a file name' if size is None else f'{size} finite numbers'}, got {value!r}")
+    return entries

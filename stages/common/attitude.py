@@ -4,7 +4,8 @@ Inertia from the mesh treats the target as a shell of uniform areal density (its
 its skin: panels, walls, solar arrays), which any mesh defines, watertight or not; a lab
 that knows its target's inertia declares it instead (``trajectory.inertia_kgm2``).
 Only the ratios of the principal moments shape torque-free motion; the mass scales the
-angular momentum.
+angular momentum. A declared inertia is checked where the configuration is read
+(``pipeline/config/loading.py``: positive moments, the triangle inequality).
 """
 
 from __future__ import annotations
@@ -55,21 +56,6 @@ def shell_mass_properties(target: Target, mass_kg: float) -> MassProperties:
     covariance = (second - area_total * np.outer(centre, centre)) * (mass_kg / area_total)
     inertia = np.trace(covariance) * np.eye(3) - covariance
     return MassProperties(mass_kg, centre, 0.5 * (inertia + inertia.T))
-
-
-def check_inertia(inertia_kgm2: np.ndarray) -> str | None:
-    """Why a (3, 3) matrix is not a rigid body's inertia, or None: symmetric, positive
-    definite, principal moments obeying the triangle inequality."""
-    inertia = np.asarray(inertia_kgm2, float)
-    if inertia.shape != (3, 3) or not np.allclose(inertia, inertia.T, rtol=1e-9, atol=1e-12):
-        return "not a symmetric 3 x 3 matrix"
-    moments = np.linalg.eigvalsh(inertia)
-    if moments[0] <= 0:
-        return f"principal moments {moments.round(6).tolist()} are not all positive"
-    if moments[2] > moments[0] + moments[1] * (1 + 1e-9):
-        return (f"principal moments {moments.round(6).tolist()} break the triangle inequality "
-                "(no mass distribution has them)")
-    return None
 
 
 def torque_free(inertia_kgm2: np.ndarray, eci_from_body_q: np.ndarray, omega_body_rad_s: np.ndarray,

@@ -129,11 +129,10 @@ def items(config: Config, workspace: Workspace) -> list[dict[str, Any]]:
 def sequence_frames(config: Config, workspace: Workspace) -> dict[str, dict[str, Any]]:
     """sample_id -> its sequence_id, frame, time_s and BOP scene (the sequence's place in
     the plan, from 1), for a trajectory plan; empty otherwise."""
-    if config.plan.mode != "trajectory":
-        if config.export.format == "shirt":
-            raise InputError("export.format: shirt needs a trajectory plan (plan.mode = trajectory)")
+    if config.plan.mode != "trajectory":  # (a shirt export without sequences is refused with the configuration)
         return {}
-    rows = read_manifest(workspace, "plan").select(["sample_id", "sequence_id", "frame", "time_s"]).to_pylist()
+    rows = sorted(read_manifest(workspace, "plan").select(["sample_id", "sequence_id", "frame", "time_s"]).to_pylist(),
+                  key=lambda r: r["sample_id"])
     scenes = {name: i + 1 for i, name in enumerate(dict.fromkeys(r["sequence_id"] for r in rows
                                                                  if r["sequence_id"] is not None))}
     return {r["sample_id"]: {"sequence_id": r["sequence_id"], "frame": r["frame"], "time_s": r["time_s"],

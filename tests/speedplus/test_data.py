@@ -84,3 +84,17 @@ def test_a_hugging_face_dataset_of_the_workspace(rendered, tmp_path):
 def test_a_folder_that_is_neither_is_named(tmp_path):
     with pytest.raises(InputError, match="neither a workspace"):
         samples(tmp_path)
+
+
+def test_a_broken_export_json_is_named_by_file_entry_and_key(exported, tmp_path):
+    import json
+    import shutil
+
+    copy = tmp_path / "export"
+    shutil.copytree(exported["speedplus"], copy)
+    path = next(p for p in sorted(copy.glob("*/test.json")))
+    entries = json.loads(path.read_text())
+    entries[1]["r_Vo2To_vbs_true"] = [0.0, "far"]
+    path.write_text(json.dumps(entries))
+    with pytest.raises(InputError, match=r"test.json: entry 1: key r_Vo2To_vbs_true: expected 3 finite numbers"):
+        samples(copy)

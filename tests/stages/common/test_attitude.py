@@ -11,7 +11,6 @@ from stages.common import geometry as g
 from stages.common.attitude import (
     MassProperties,
     angular_momentum_eci,
-    check_inertia,
     shell_mass_properties,
     torque_free,
 )
@@ -38,11 +37,15 @@ def test_a_long_box_spins_stably_about_its_major_axis():
     assert np.linalg.det(axes) == pytest.approx(1.0)
 
 
-def test_a_body_that_cannot_exist_is_named():
-    assert check_inertia(np.diag([1.0, 2.0, 2.5])) is None
-    assert "triangle inequality" in check_inertia(np.diag([1.0, 1.0, 3.0]))
-    assert "positive" in check_inertia(np.diag([1.0, 2.0, -1.0]))
-    assert "symmetric" in check_inertia(np.array([[1.0, 0.1, 0], [0, 1, 0], [0, 0, 1]]))
+@pytest.mark.parametrize(("inertia", "why"), [([1, 1, 3, 0, 0, 0], "not a rigid body's"),
+                                              ([1, 2, -1, 0, 0, 0], "not a rigid body's"),
+                                              ([1, 2], "expected \\(Ixx")])
+def test_a_declared_body_that_cannot_exist_is_named(inertia, why):
+    from pipeline.config import ConfigError, load_config
+
+    load_config("smoke", overrides=["plan.mode=trajectory", "trajectory.inertia_kgm2=[1, 2, 2.5, 0.1, 0, 0]"])
+    with pytest.raises(ConfigError, match=rf"trajectory.inertia_kgm2: .*{why}"):
+        load_config("smoke", overrides=["plan.mode=trajectory", f"trajectory.inertia_kgm2={inertia}"])
 
 
 @pytest.mark.parametrize("seed", range(4))
