@@ -11,7 +11,7 @@ from typing import Any
 from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
-FUSION_VERSION = 3  # 3: the session offset
+FUSION_VERSION = 4  # 3: the session offset; 4: the factor as measured beside the one applied
 #: where a position axis's label comes from: both sources fused, or one of them alone
 AXIS_SOURCES = ("fused", "kuka", "vicon")
 SOURCES = ("kuka", "vicon")
@@ -19,9 +19,12 @@ SOURCES = ("kuka", "vicon")
 
 @dataclass(frozen=True)
 class FusionRecord:
-    """The variance factor per position axis (3,) and for rotation (sigma multipliers, 1 =
-    the calibrated sigmas), the captures it was measured on, why, the rejection k, and per
-    camera axis where the labels' position comes from (``AXIS_SOURCES``) and why."""
+    """The variance factor applied per position axis (3,) and for rotation (sigma
+    multipliers, 1 = the calibrated sigmas), the captures it was measured on, why, the
+    rejection k, per camera axis where the labels' position comes from (``AXIS_SOURCES``)
+    and why, and the position factor as measured on the differences, session offset
+    included, which the consistency test judged (on a fused axis the applied one is measured
+    with the offset removed)."""
 
     factor_t: tuple[float, float, float]
     factor_r: float
@@ -30,6 +33,7 @@ class FusionRecord:
     rejection_k: float
     axis_sources: tuple[str, str, str] = ("fused", "fused", "fused")
     axis_why: str = ""
+    measured_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
     #: per camera axis (m): the mean by which motion capture's position exceeded the robots'
     #: on the session's accepted two-source captures, removed from the source named in
     #: ``offset_from`` before fusing; its standard error; why (zeros when not estimated)
@@ -40,7 +44,8 @@ class FusionRecord:
 
     def to_json(self) -> dict[str, Any]:
         return {"version": FUSION_VERSION,
-                "variance_factor": {"t": list(self.factor_t), "r": self.factor_r, "samples": self.samples},
+                "variance_factor": {"t": list(self.factor_t), "measured_t": list(self.measured_t), "r": self.factor_r,
+                                    "samples": self.samples},
                 "why": self.why, "rejection_k": self.rejection_k,
                 "axes": {"sources": list(self.axis_sources), "why": self.axis_why},
                 "offset": {"t_m": list(self.offset_m), "sigma_m": list(self.offset_sigma_m),
@@ -50,10 +55,11 @@ class FusionRecord:
     def from_fields(cls, f: Fields) -> FusionRecord:
         f.only("version", "variance_factor", "why", "rejection_k", "axes", "offset")
         factor = f.child("variance_factor")
-        factor.only("t", "r", "samples")
-        t = factor.vector("t", 3)
-        if min(t) <= 0:
-            raise factor.fail("t", "three positive factors")
+        factor.only("t", "measured_t", "r", "samples")
+        t, measured_t = factor.vector("t", 3), factor.vector("measured_t", 3)
+        for key, value in (("t", t), ("measured_t", measured_t)):
+            if min(value) <= 0:
+                raise factor.fail(key, "three positive factors")
         axes = f.child("axes")
         axes.only("sources", "why")
         sources = axes.raw("sources")
@@ -67,7 +73,7 @@ class FusionRecord:
         if min(offset.vector("sigma_m", 3)) < 0:
             raise offset.fail("sigma_m", "three standard errors >= 0")
         return cls(t, factor.number("r", positive=True), factor.integer("samples"), f.text("why"),
-                   f.number("rejection_k", positive=True), tuple(sources), axes.text("why"),
+                   f.number("rejection_k", positive=True), tuple(sources), axes.text("why"), measured_t,
                    offset.vector("t_m", 3), offset.vector("sigma_m", 3), tuple(removed_from), offset.text("why"))
 
 

@@ -1,38 +1,60 @@
-"""The statistics ``bench honesty`` judges the sigmas by: errors that share a facility's
-calibration, and what honest sigmas give under that sharing."""
+"""The yardstick ``bench honesty`` judges the sigmas by: what honest sigmas show on a
+facility whose labels share the errors of one calibration (``bench/honest_odds.py``)."""
 
 import numpy as np
 import pytest
 from scipy.stats import norm
 
-from bench.honesty import common_share, honest_odds
+from bench.honest_odds import FacilityModel, HonestDraws, draw, pooled_range
+
+CAPTURES = 48
 
 
-@pytest.mark.parametrize("share", [0.0, 0.3, 0.8])
-def test_common_share_recovers_the_shared_variance(share: float) -> None:
-    rng = np.random.default_rng(7)
-    facilities = [np.sqrt(share) * rng.standard_normal() + np.sqrt(1 - share) * rng.standard_normal(48)
-                  for _ in range(400)]
-    assert common_share(facilities) == pytest.approx(share, abs=0.08)
+def model(shared_m: float, own_m: float, vicon_m: float = 0.0, weight: float = 0.0,
+          offset_removed: bool = False) -> FacilityModel:
+    """A facility of 48 captures whose robots err in depth by one parameter shared by every
+    capture (``shared_m`` 1-sigma, the same at each) and by their own noise ``own_m``;
+    sideways by their own 1 mm alone."""
+    jacobian = np.zeros((CAPTURES, 3, 13))
+    jacobian[:, 2, 12] = 1.0  # a parameter past the 12 joint offsets, which the lost motion drives
+    return FacilityModel(jacobian, np.diag([0.0] * 12 + [shared_m**2]), np.zeros((CAPTURES, 12)),
+                         np.tile([1e-3, 1e-3, own_m], (CAPTURES, 1)), np.full((CAPTURES, 3), vicon_m),
+                         np.full((CAPTURES, 3), weight), offset_removed)
 
 
-def test_common_share_ignores_the_sigma_scale() -> None:
-    """A share, not a variance: sigmas twice too small leave it unchanged."""
-    rng = np.random.default_rng(8)
-    facilities = [0.7 * rng.standard_normal() + 0.7 * rng.standard_normal(48) for _ in range(300)]
-    assert common_share([2 * u for u in facilities]) == pytest.approx(common_share(facilities), abs=1e-12)
+def test_independent_errors_keep_every_honest_facility_in_its_bands():
+    odds = draw(model(0.0, 1e-3), 4000, 1).probabilities()
+    assert np.all(odds["rms under"] < 0.01) and np.all(odds["rms over"] < 0.01)
+    assert np.all(odds["inside under"] < 0.02)
 
 
-def test_independent_errors_keep_every_honest_facility_in_its_band() -> None:
-    odds = honest_odds(0.0, 48, 13)
-    assert odds["facility outside rms-band"] < 0.01
-    assert 0.93 < odds["pooled rms 2.5%"] < 1.0 < odds["pooled rms 97.5%"] < 1.07
+def test_one_shared_draw_makes_a_facility_a_lottery():
+    """All of the depth error shared: a facility's rms is |N(0, 1)|, under 0.7 with
+    probability 2 Phi(0.7) - 1 and over 1.4 with 2 (1 - Phi(1.4)); lateral axes untouched."""
+    odds = draw(model(1e-3, 0.0), 8000, 2).probabilities()
+    assert odds["rms under"][2] == pytest.approx(2 * norm.cdf(0.7) - 1, abs=0.02)
+    assert odds["rms over"][2] == pytest.approx(2 * (1 - norm.cdf(1.4)), abs=0.01)
+    assert odds["rms under"][0] < 0.01
 
 
-def test_one_shared_draw_makes_a_facility_a_lottery() -> None:
-    """All of the error common: a facility's rms is |N(0, 1)|, inside 0.7-1.4 with
-    probability 2 (Phi(1.4) - Phi(0.7)); its labels are all inside 1.96 sigma or none."""
-    odds = honest_odds(1.0, 48, 13)
-    assert odds["facility outside rms-band"] == pytest.approx(1 - 2 * (norm.cdf(1.4) - norm.cdf(0.7)), abs=0.01)
-    assert odds["facility outside inside-band"] == pytest.approx(0.05, abs=0.006)
-    assert odds["pooled rms 2.5%"] < 0.7 and odds["pooled rms 97.5%"] > 1.3
+def test_fusing_with_the_offset_removed_keeps_the_shared_error():
+    """Motion capture's difference from the robots, its median removed, carries the robots'
+    shared error into both sources: fused, the labels still share it, as fuse's sigma says
+    (``offset_variance``); fused as measured, the shared part is averaged like the rest."""
+    kept = draw(model(1e-3, 0.2e-3, vicon_m=1e-3, weight=0.5, offset_removed=True), 4000, 3).probabilities()
+    averaged = draw(model(1e-3, 0.2e-3, vicon_m=1e-3, weight=0.5), 4000, 3).probabilities()
+    assert kept["rms under"][2] > 0.4 > averaged["rms under"][2]
+
+
+def test_the_seen_rms_is_placed_among_honest_facilities():
+    honest = draw(model(0.5e-3, 0.5e-3), 4000, 4)
+    median = np.median(np.sqrt(honest.mean_square), axis=0)
+    assert honest.percentile(median) == pytest.approx([0.5, 0.5, 0.5], abs=0.01)
+    assert np.all(honest.percentile(2 * median) > 0.97) and np.all(honest.percentile(0.5 * median) < 0.03)
+
+
+def test_the_pooled_range_narrows_with_facilities_and_holds_one():
+    honest: HonestDraws = draw(model(0.5e-3, 0.5e-3), 4000, 5)
+    few, many = pooled_range([honest] * 4), pooled_range([honest] * 25)
+    assert np.all(many["rms"][0] < 1.0) and np.all(many["rms"][1] > 1.0)
+    assert np.all(np.diff(many["rms"], axis=0) < np.diff(few["rms"], axis=0))

@@ -1,0 +1,175 @@
+"""What fuse measures on the dataset session as a whole, before it fuses any capture
+(docs/architecture.md section 6): how much the two sources disagree beyond their sigmas
+(the variance factor, as measured and as applied), which source a position axis keeps
+where they disagree beyond a consistency test, and the session offset between them.
+
+At the dataset's 3-5 m each source errs mostly by one offset per session (the rail's and
+the wand's scale, offsets extrapolated from the calibration's lever), and only the rest
+varies from capture to capture. So the offset is removed first and the factor that scales
+the fused sigmas is measured on what is left, which is what fusion averages; the
+consistency test and a kept source's factor see the differences as measured, offset
+included, since which source's offset it is cannot be told from two sources.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from pipeline.config import Config
+from stages.common.fusion import (
+    CONSISTENCY_LEVEL,
+    UNIT_FACTOR,
+    Sigma,
+    VarianceFactor,
+    consistency_bound,
+    variance_factor,
+)
+
+if TYPE_CHECKING:
+    from stages.fuse import Estimates
+
+#: robust standard deviation of a normal sample from its median absolute deviation
+_MAD_TO_SIGMA = 1.482602
+
+
+class Source(Protocol):
+    """What the session's measures need of a calibrated source (``SourceModel``)."""
+
+    def sigma_at(self, pose: np.ndarray, sigma: Sigma | None = None) -> Sigma: ...
+
+
+def two_source(estimates: list[Estimates]) -> list[Estimates]:
+    return [e for e in estimates if e.tracked]
+
+
+def session_factor(config: Config, estimates: list[Estimates], vicon: Source | None,
+                   rejection: Sigma | None) -> tuple[VarianceFactor, str]:
+    """The variance factor of the differences as measured on this dataset session (the
+    consistency test's), and why it is what it is."""
+    if vicon is None or rejection is None:
+        return UNIT_FACTOR, "one source: the calibrated sigmas"
+    if config.fuse.sigma_scale == "calibration":
+        return UNIT_FACTOR, "fuse.sigma_scale = calibration"
+    both = two_source(estimates)
+    if len(both) < config.fuse.min_scale_samples:
+        return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
+                             f"({config.fuse.min_scale_samples}): the calibrated sigmas")
+    predicted = [e.plus_parameters(vicon.sigma_at(e.kuka, rejection)) for e in both]
+    factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
+    return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
+
+
+def smaller_sigma(estimates: list[Estimates], kuka: Source, vicon: Source) -> tuple[np.ndarray, str]:
+    """Per camera axis (3,) the source whose sigma is smaller (median over the two-source
+    captures; "kuka" or "vicon"), and the medians in words."""
+    both = two_source(estimates)
+    sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in both], axis=0)
+    sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m for e in both], axis=0)
+    words = ", ".join(f"{a} {k * 1000:.2f}/{v * 1000:.2f}" for a, k, v in zip("xyz", sigma_kuka, sigma_vicon,
+                                                                              strict=True))
+    return np.where(sigma_kuka <= sigma_vicon, "kuka", "vicon"), f"median sigma robots/motion capture (mm): {words}"
+
+
+@dataclass(frozen=True)
+class SessionOffset:
+    """Per camera axis (m): motion capture's median excess over the robots on the session,
+    its standard error, and the source it is removed from (the one whose sigma is larger)."""
+
+    t_m: np.ndarray  # (3,)
+    sigma_m: np.ndarray  # (3,)
+    removed_from: tuple[str, str, str]
+    why: str
+    estimated: bool = True  # False: nothing removed (one source, switched off, too few captures)
+
+    def robots(self, pose: np.ndarray) -> np.ndarray:
+        """The robots' ``cam_from_target`` (4, 4), the offset added where their sigma is larger."""
+        out = pose.copy()
+        out[:3, 3] += np.where([source == "kuka" for source in self.removed_from], self.t_m, 0.0)
+        return out
+
+    def motion_capture(self, pose: np.ndarray) -> np.ndarray:
+        """Motion capture's ``cam_from_target`` (4, 4), the offset removed where its sigma is larger."""
+        out = pose.copy()
+        out[:3, 3] -= np.where([source == "vicon" for source in self.removed_from], self.t_m, 0.0)
+        return out
+
+
+NO_OFFSET = SessionOffset(np.zeros(3), np.zeros(3), ("vicon",) * 3, "", estimated=False)
+
+
+def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
+                   rejection: Sigma | None) -> SessionOffset:
+    """The median difference (motion capture minus robots, per camera axis) over the
+    session's two-source captures: a median, so that ghost markers, which the rejection test
+    has not yet removed, barely move it.
+
+    Why: inverse-variance fusion treats errors as independent from capture to capture;
+    fusing two session offsets helps on average but harms wherever the better source drew
+    the smaller one, which two sources cannot see. With the difference of the offsets
+    removed from the larger-sigma source, the labels keep that source's own offset and fuse
+    only what varies between captures, which the session's many captures do average. The
+    standard error is the median's, ``sqrt(pi / 2)`` times the mean's, from the differences'
+    own robust spread (their median absolute deviation)."""
+    if vicon is None or rejection is None or config.fuse.session_offset == "off":
+        return dataclasses.replace(NO_OFFSET, why="one source" if vicon is None else "fuse.session_offset = off")
+    both = two_source(estimates)
+    if len(both) < config.fuse.min_scale_samples:
+        return dataclasses.replace(NO_OFFSET, why=f"{len(both)} two-source captures < "
+                                   f"fuse.min_scale_samples ({config.fuse.min_scale_samples}): none removed")
+    difference = np.stack([e.vicon[:3, 3] - e.kuka[:3, 3] for e in both])
+    offset = np.median(difference, axis=0)
+    spread = _MAD_TO_SIGMA * np.median(np.abs(difference - offset), axis=0)
+    sigma = np.sqrt(np.pi / 2) * spread / np.sqrt(len(both))
+    larger = tuple("vicon" if source == "kuka" else "kuka" for source in smaller_sigma(estimates, kuka, vicon)[0])
+    words = ", ".join(f"{a} {o * 1000:+.2f} +- {e * 1000:.2f}" for a, o, e in zip("xyz", offset, sigma, strict=True))
+    return SessionOffset(offset, sigma, larger, f"median of motion capture minus robots on {len(both)} captures "
+                         f"(mm): {words}; removed from {'/'.join(larger)}")
+
+
+def axis_sources(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
+                 factor: VarianceFactor) -> tuple[tuple[str, str, str], str]:
+    """Per camera axis, where the labels' position comes from (``AXIS_SOURCES``), and why.
+
+    Where the two sources disagree on the dataset captures beyond their sigmas (``factor``,
+    as measured, fails ``VarianceFactor.inconsistent``), one of them errs beyond its sigma,
+    and two sources cannot tell which; fusing would let the worse pull the better. The
+    source with the smaller sigma on that axis (median over the two-source captures) is kept
+    alone: the calibration's ranking is the only evidence left."""
+    if vicon is None or config.fuse.inconsistent_axes == "fuse":
+        return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
+    inconsistent = factor.inconsistent()
+    smaller, medians = smaller_sigma(estimates, kuka, vicon)
+    sources = tuple(str(smaller[axis]) if inconsistent[axis] else "fused" for axis in range(3))
+    reasons = [f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
+               f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures): "
+               f"{sources[axis]} alone" for axis, name in enumerate("xyz") if inconsistent[axis]]
+    if not reasons:
+        return sources, "the sources agree within their sigmas on every axis"
+    return sources, f"{'; '.join(reasons)} ({medians})"
+
+
+def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: Sigma | None,
+                   measured: VarianceFactor, offset: SessionOffset) -> VarianceFactor:
+    """The factor that scales the sigmas, measured on the differences with the session
+    offset removed: what is fused is what varies between captures, and its excess over the
+    sigmas is common to both sources. The offset's own uncertainty is added in
+    ``fuse_capture``.
+
+    On an axis kept from one source the same factor applies, not the one as measured: the
+    kept source carries its own offset, whose size its calibrated sigma already holds, and
+    given the measured difference of the two offsets, the share expected of the kept one is
+    ``a_k^2 / (a_k^2 + a_v^2)`` of it (the offsets' prior variances): at 3-5 m motion
+    capture's (its wand's scale, about 1 mm) is several times the robots' (about 0.45 mm
+    in depth), so the expected square of the kept offset barely exceeds its prior. The
+    rotation's factor is as measured (no offset is removed from the rotations)."""
+    both = two_source(estimates)
+    if vicon is None or rejection is None or measured.samples == 0 or not both:
+        return measured
+    predicted = [e.plus_parameters(vicon.sigma_at(e.kuka, rejection)) for e in both]
+    centred = variance_factor(np.stack([offset.robots(e.kuka) for e in both]),
+                              np.stack([offset.motion_capture(e.vicon) for e in both]), predicted)
+    return VarianceFactor(centred.t, measured.r, measured.samples)
