@@ -216,12 +216,12 @@ class FuseConfig:
         "sigmas (the variance factor fails a 95% test), fall_back: keep only the source whose sigma there is "
         "smaller, as which one is off cannot be told from two; fuse: fuse it anyway, both sigmas scaled", "")
     session_offset: Literal["on", "off"] = param(
-        "on", "on: before fusing, remove from the source whose sigma on an axis is larger the mean by which it "
-        "differs there from the other on the session's accepted two-source captures: at the dataset's range "
-        "each source errs mostly by one offset its calibration at close range could not see (rail and wand "
-        "scale, extrapolated offsets), and fusing that would let the larger one's pull the better; only the "
-        "capture-to-capture errors are then fused (docs/architecture.md section 6); off: fuse as measured "
-        "(the paper)", "")
+        "on", "on: before fusing, remove from the source whose sigma on an axis is larger the median by which it "
+        "differs there from the other over the session's two-source captures: at the dataset's range each "
+        "source errs mostly by one offset its calibration at close range could not see (rail and wand scale, "
+        "extrapolated offsets), and fusing that would let the larger one's pull the better; only the "
+        "capture-to-capture errors are then fused, and the variance factor is measured on them "
+        "(docs/architecture.md section 6); off: fuse as measured (the paper)", "")
     vicon_scale_sigma: float = param(
         3e-4, "motion capture: 1-sigma scale error of its wand calibration (Vicon: 0.15 mm on the 500 mm wand, "
         "sub-mm volume accuracy; Merriaux et al., Sensors 17(7) 1591, 2017). The calibration absorbs it at its "

@@ -343,9 +343,9 @@ def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, 
     translation entries (m), as two variance components: one scale for both, as the
     paper's cost weighs them, took the translations (0.17 mm RMS on the default
     facility) as noisy as the rotations' 3e-4, which under-weighted them in the fit and
-    made the arms' covariance, which reaches the labels' sigmas at 3-5 m, 1.7x too wide
-    there. The scales start from ``start`` with nominal arms and are re-estimated from
-    each fit until they settle."""
+    widened the arms' covariance that reaches the labels' sigmas at 3-5 m
+    (docs/accuracy.md, "The sigmas"). The scales start from ``start`` with nominal arms
+    and are re-estimated from each fit until they settle."""
     names = sorted(start.x)
     sigma_prior = priors(c)
     world_up = np.asarray(c.world_up, float)
