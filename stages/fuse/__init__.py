@@ -106,19 +106,32 @@ class SourceModel:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
         flanks = arms.flank_variances(self.testbed, readings, fuse.lost_motion_rad, fuse.backlash_preload_nm)
-        shared, own = arms.pose_covariance_parts(self.testbed, self.kinematics, readings,
-                                                 [r["fixture"] for r in rows], self.world_up, flanks)
-        return [ArmUncertainty(s + o, np.diag(s)[3:].copy()) for s, o in zip(shared, own, strict=True)]
+        fixtures = [r["fixture"] for r in rows]
+        jacobians = arms.pose_jacobians(self.testbed, self.kinematics, readings, fixtures, self.world_up)
+        shared, own = arms.pose_covariance_parts(self.testbed, self.kinematics, readings, fixtures, self.world_up,
+                                                 flanks)
+        parameters = np.asarray(self.kinematics["covariance"])
+        return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
 
 
 @dataclass(frozen=True)
 class ArmUncertainty:
-    """A capture's pose covariance (6, 6) from the calibrated arms (rotation, rad; position,
-    m), and per camera axis (3,) the position variance (m^2) of it that the arms'
-    parameters share with every other capture of the session."""
+    """A capture's pose covariance from the calibrated arms, and how its position error
+    depends on the arms' parameters, whose one error the session's captures share."""
 
-    covariance: np.ndarray
-    shared_t_m2: np.ndarray
+    covariance: np.ndarray  # (6, 6): rotation (rad), then position (m)
+    jacobian_t: np.ndarray  # (3, P) m per unit of each parameter
+    parameters: np.ndarray  # (P, P) the parameters' covariance
+
+    def shared_t_m2(self, mean_jacobian_t: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per camera axis (3,) m^2: the variance of this capture's error from the
+        parameters, its covariance with the mean of that error over the captures whose
+        Jacobian mean is ``mean_jacobian_t`` (3, P; None: this capture's own), and that
+        mean's variance."""
+        mean = self.jacobian_t if mean_jacobian_t is None else mean_jacobian_t
+        own = np.einsum("ap,pq,aq->a", self.jacobian_t, self.parameters, self.jacobian_t)
+        with_mean = np.einsum("ap,pq,aq->a", self.jacobian_t, self.parameters, mean)
+        return own, with_mean, np.einsum("ap,pq,aq->a", mean, self.parameters, mean)
 
 
 def load_models(workspace: Workspace, testbed: TestbedConfig, payload: arms.Payload,
@@ -155,11 +168,6 @@ class Estimates:
         return Sigma(np.sqrt(sigma.t_m**2 + np.diag(covariance)[3:]),
                      float(np.sqrt(sigma.r_rad**2 + np.trace(covariance[:3, :3]))), sigma.pointing_rad)
 
-    @property
-    def shared_t_m2(self) -> np.ndarray:
-        """(3,) m^2: the robots' position variance shared by the session's captures."""
-        return np.zeros(3) if self.arm is None else self.arm.shared_t_m2
-
 
 def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None,
              arm: ArmUncertainty | None) -> Estimates:
@@ -177,16 +185,21 @@ def offset_variance(e: Estimates, factor: VarianceFactor, offset: SessionOffset,
 
     The removed offset's standard error reaches the label through the share of the source
     it was removed from. And where motion capture's offset was removed, the robots' error
-    that their calibrated parameters share across the session is not averaged: the median
-    difference carried it into motion capture's positions too, so the label keeps all of
-    it, not the ``(1 - w)^2`` share fusion would leave of an error independent between
-    captures."""
+    from their calibrated parameters is not averaged as fusion assumes: the median
+    difference carried the session's mean of it, ``m``, into motion capture's positions,
+    so the label's share of that error is ``(1 - w) c + w m`` (``c``: this capture's), not
+    ``(1 - w) c``; the difference of the variances, ``w^2 var m + 2 w (1 - w) cov(c, m)``,
+    is added (``m``'s Jacobian: ``SessionOffset.mean_jacobian_t``)."""
     if not offset.estimated:
         return np.zeros(3)
     from_vicon = np.array([source == "vicon" for source in offset.removed_from])
     shifted = np.where(from_vicon, vicon_weight, 1.0 - vicon_weight)
-    unaveraged = (1.0 - (1.0 - vicon_weight) ** 2) * factor.t**2 * e.shared_t_m2
-    return (shifted * offset.sigma_m) ** 2 + np.where(from_vicon, unaveraged, 0.0)
+    extra = np.zeros(3)
+    if e.arm is not None:
+        _, with_mean, mean = e.arm.shared_t_m2(offset.mean_jacobian_t)
+        w = vicon_weight
+        extra = np.where(from_vicon, factor.t**2 * (w**2 * mean + 2 * w * (1 - w) * with_mean), 0.0)
+    return (shifted * offset.sigma_m) ** 2 + extra
 
 
 def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,

@@ -84,6 +84,9 @@ class SessionOffset:
     removed_from: tuple[str, str, str]
     why: str
     estimated: bool = True  # False: nothing removed (one source, switched off, too few captures)
+    #: (3, P) the mean over the captures the median was taken on of the robots' position
+    #: Jacobian by the arms' parameters (``ArmUncertainty``; None without calibrated arms)
+    mean_jacobian_t: np.ndarray | None = None
 
     def robots(self, pose: np.ndarray) -> np.ndarray:
         """The robots' ``cam_from_target`` (4, 4), the offset added where their sigma is larger."""
@@ -126,8 +129,10 @@ def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vic
     sigma = np.sqrt(np.pi / 2) * spread / np.sqrt(len(both))
     larger = tuple("vicon" if source == "kuka" else "kuka" for source in smaller_sigma(estimates, kuka, vicon)[0])
     words = ", ".join(f"{a} {o * 1000:+.2f} +- {e * 1000:.2f}" for a, o, e in zip("xyz", offset, sigma, strict=True))
+    jacobians = [e.arm.jacobian_t for e in both if e.arm is not None]
     return SessionOffset(offset, sigma, larger, f"median of motion capture minus robots on {len(both)} captures "
-                         f"(mm): {words}; removed from {'/'.join(larger)}")
+                         f"(mm): {words}; removed from {'/'.join(larger)}",
+                         mean_jacobian_t=np.mean(jacobians, axis=0) if jacobians else None)
 
 
 def axis_sources(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
