@@ -293,17 +293,15 @@ def pose_jacobians(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, f
     return jacobian
 
 
-def pose_covariance_parts(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixtures: list[str],
-                          world_up: np.ndarray, joint_variance_rad2: np.ndarray | None = None,
-                          step: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 6, 6) twice (rotation applied on the camera side, rad; translation, m): the
-    covariance of the poses predicted for captures ``r`` from the fitted parameters'
-    covariance (``Fit.to_json``), one draw shared by every capture of the session, which
-    grows where the arms' configuration differs from the calibration's; and each capture's
-    own, from the noise of its joint angles ``joint_variance_rad2`` (N, 12)
-    (``flank_variances``; zeros without)."""
-    jacobian = pose_jacobians(testbed, entry, r, fixtures, world_up, step)
-    shared = jacobian @ np.asarray(entry["covariance"]) @ np.swapaxes(jacobian, -1, -2)
+def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
+                          joint_variance_rad2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 6, 6) twice (rotation applied on the camera side, rad; translation, m), from the
+    poses' Jacobians (N, 6, P) by the fitted parameters (``pose_jacobians``): the
+    covariance from the parameters' covariance ``parameters`` (P, P), one draw shared by
+    every capture of the session, which grows where the arms' configuration differs from
+    the calibration's; and each capture's own, from the noise of its joint angles
+    ``joint_variance_rad2`` (N, 12) (``flank_variances``; zeros without)."""
+    shared = jacobian @ parameters @ np.swapaxes(jacobian, -1, -2)
     own = np.zeros_like(shared)
     if joint_variance_rad2 is not None:
         joints = jacobian[:, :, :12]  # the camera's then the target's joint offsets (``ArmErrors.params``)
@@ -316,7 +314,8 @@ def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings,
                      step: float = 1e-7) -> np.ndarray:
     """(N, 6, 6) covariances of the poses predicted for captures ``r``: both parts of
     ``pose_covariance_parts`` together."""
-    shared, own = pose_covariance_parts(testbed, entry, r, fixtures, world_up, joint_variance_rad2, step)
+    jacobian = pose_jacobians(testbed, entry, r, fixtures, world_up, step)
+    shared, own = pose_covariance_parts(jacobian, np.asarray(entry["covariance"]), joint_variance_rad2)
     return shared + own
 
 

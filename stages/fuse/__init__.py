@@ -106,11 +106,10 @@ class SourceModel:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
         flanks = arms.flank_variances(self.testbed, readings, fuse.lost_motion_rad, fuse.backlash_preload_nm)
-        fixtures = [r["fixture"] for r in rows]
-        jacobians = arms.pose_jacobians(self.testbed, self.kinematics, readings, fixtures, self.world_up)
-        shared, own = arms.pose_covariance_parts(self.testbed, self.kinematics, readings, fixtures, self.world_up,
-                                                 flanks)
+        jacobians = arms.pose_jacobians(self.testbed, self.kinematics, readings, [r["fixture"] for r in rows],
+                                        self.world_up)
         parameters = np.asarray(self.kinematics["covariance"])
+        shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks)
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
 
 
@@ -123,15 +122,12 @@ class ArmUncertainty:
     jacobian_t: np.ndarray  # (3, P) m per unit of each parameter
     parameters: np.ndarray  # (P, P) the parameters' covariance
 
-    def shared_t_m2(self, mean_jacobian_t: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per camera axis (3,) m^2: the variance of this capture's error from the
-        parameters, its covariance with the mean of that error over the captures whose
-        Jacobian mean is ``mean_jacobian_t`` (3, P; None: this capture's own), and that
-        mean's variance."""
-        mean = self.jacobian_t if mean_jacobian_t is None else mean_jacobian_t
-        own = np.einsum("ap,pq,aq->a", self.jacobian_t, self.parameters, self.jacobian_t)
-        with_mean = np.einsum("ap,pq,aq->a", self.jacobian_t, self.parameters, mean)
-        return own, with_mean, np.einsum("ap,pq,aq->a", mean, self.parameters, mean)
+    def with_session_mean_t_m2(self, mean_jacobian_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per camera axis (3,) m^2: the covariance of this capture's position error from
+        the parameters with that error's mean over the captures whose mean Jacobian is
+        ``mean_jacobian_t`` (3, P), and the mean's variance."""
+        with_mean = np.einsum("ap,pq,aq->a", self.jacobian_t, self.parameters, mean_jacobian_t)
+        return with_mean, np.einsum("ap,pq,aq->a", mean_jacobian_t, self.parameters, mean_jacobian_t)
 
 
 def load_models(workspace: Workspace, testbed: TestbedConfig, payload: arms.Payload,
@@ -195,8 +191,8 @@ def offset_variance(e: Estimates, factor: VarianceFactor, offset: SessionOffset,
     from_vicon = np.array([source == "vicon" for source in offset.removed_from])
     shifted = np.where(from_vicon, vicon_weight, 1.0 - vicon_weight)
     extra = np.zeros(3)
-    if e.arm is not None:
-        _, with_mean, mean = e.arm.shared_t_m2(offset.mean_jacobian_t)
+    if e.arm is not None and offset.mean_jacobian_t is not None:
+        with_mean, mean = e.arm.with_session_mean_t_m2(offset.mean_jacobian_t)
         w = vicon_weight
         extra = np.where(from_vicon, factor.t**2 * (w**2 * mean + 2 * w * (1 - w) * with_mean), 0.0)
     return (shifted * offset.sigma_m) ** 2 + extra
