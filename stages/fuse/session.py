@@ -6,9 +6,9 @@ where they disagree beyond a consistency test, and the session offset between th
 At the dataset's 3-5 m each source errs mostly by one offset per session (the rail's and
 the wand's scale, offsets extrapolated from the calibration's lever), and only the rest
 varies from capture to capture. So the offset is removed first and the factor that scales
-the fused sigmas is measured on what is left, which is what fusion averages; the
-consistency test and a kept source's factor see the differences as measured, offset
-included, since which source's offset it is cannot be told from two sources.
+the sigmas is measured on what is left, which is what fusion averages; the consistency
+test sees the differences as measured, offset included: sources whose offsets differ
+beyond their sigmas are not fused on that axis.
 """
 
 from __future__ import annotations
