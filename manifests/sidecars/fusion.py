@@ -23,8 +23,8 @@ class FusionRecord:
     multipliers, 1 = the calibrated sigmas), the captures it was measured on, why, the
     rejection k, per camera axis where the labels' position comes from (``AXIS_SOURCES``)
     and why, and the position factor as measured on the differences, session offset
-    included, which the consistency test judged (on a fused axis the applied one is measured
-    with the offset removed)."""
+    included, which the consistency test judged (the applied one is measured with the
+    offset removed)."""
 
     factor_t: tuple[float, float, float]
     factor_r: float
@@ -34,8 +34,8 @@ class FusionRecord:
     axis_sources: tuple[str, str, str] = ("fused", "fused", "fused")
     axis_why: str = ""
     measured_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    #: per camera axis (m): the mean by which motion capture's position exceeded the robots'
-    #: on the session's accepted two-source captures, removed from the source named in
+    #: per camera axis (m): the median by which motion capture's position exceeded the
+    #: robots' over the session's two-source captures, removed from the source named in
     #: ``offset_from`` before fusing; its standard error; why (zeros when not estimated)
     offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     offset_sigma_m: tuple[float, float, float] = (0.0, 0.0, 0.0)

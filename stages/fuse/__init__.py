@@ -254,7 +254,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
     measured, why = session_factor(config, estimates, vicon, rejection)
     sources, axis_why = axis_sources(config, estimates, kuka, vicon, measured)
-    offset = session_offset(config, estimates, kuka, vicon, rejection)
+    offset = session_offset(config, estimates, kuka, vicon)
     factor = applied_factor(estimates, vicon, rejection, measured, offset)
     write_fusion(workspace, FusionRecord(
         factor_t=tuple(float(v) for v in factor.t), factor_r=float(factor.r), samples=factor.samples, why=why,

@@ -104,8 +104,7 @@ class SessionOffset:
 NO_OFFSET = SessionOffset(np.zeros(3), np.zeros(3), ("vicon",) * 3, "", estimated=False)
 
 
-def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
-                   rejection: Sigma | None) -> SessionOffset:
+def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None) -> SessionOffset:
     """The median difference (motion capture minus robots, per camera axis) over the
     session's two-source captures: a median, so that ghost markers, which the rejection test
     has not yet removed, barely move it.
@@ -117,7 +116,7 @@ def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vic
     only what varies between captures, which the session's many captures do average. The
     standard error is the median's, ``sqrt(pi / 2)`` times the mean's, from the differences'
     own robust spread (their median absolute deviation)."""
-    if vicon is None or rejection is None or config.fuse.session_offset == "off":
+    if vicon is None or config.fuse.session_offset == "off":
         return dataclasses.replace(NO_OFFSET, why="one source" if vicon is None else "fuse.session_offset = off")
     both = two_source(estimates)
     if len(both) < config.fuse.min_scale_samples:

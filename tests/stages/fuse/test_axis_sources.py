@@ -72,7 +72,7 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_o
     truths, estimates = session(seed, kuka_true_mm, vicon_true_mm, vicon_offset_mm, arm)
     factor, _ = session_factor(config, estimates, vicon, rejection)
     sources, _ = axis_sources(config, estimates, kuka, vicon, factor)
-    removed = session_offset(config, estimates, kuka, vicon, rejection)
+    removed = session_offset(config, estimates, kuka, vicon)
     if not declared:  # no shared part: each capture's own Jacobian against a mean that is zero
         removed = dataclasses.replace(removed, mean_jacobian_t=np.zeros_like(removed.mean_jacobian_t))
         estimates = [dataclasses.replace(e, arm=dataclasses.replace(e.arm, jacobian_t=np.zeros_like(
