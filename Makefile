@@ -37,9 +37,9 @@ $(RUN_STAMP): pyproject.toml
 
 dataset: $(RUN_STAMP)
 	$(BIN)/speedplus run --profile $(PROFILE) --workspace $(WORKSPACE)
-	$(BIN)/speedplus export --workspace $(WORKSPACE) --format speedplus --out $(WORKSPACE)/export
+	$(BIN)/speedplus export --workspace $(WORKSPACE) --format speedplus
 	@echo "report:  $(WORKSPACE)/report/index.html"
-	@echo "exports: $(WORKSPACE)/export (SPEED+ layout); manifests: $(WORKSPACE)/manifests"
+	@echo "exports: $(WORKSPACE)/export/speedplus (SPEED+ layout); manifests: $(WORKSPACE)/manifests"
 
 test: setup
 	$(BIN)/ruff check pipeline stages manifests speedplus tests bench

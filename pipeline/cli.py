@@ -19,7 +19,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated
 
-import click
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -48,7 +47,7 @@ from speedplus.errors import InputError, RefusalError
 class _PipelineOrder(TyperGroup):
     """Lists the commands in the pipeline's order, then the ones about a workspace or a target."""
 
-    def list_commands(self, ctx: click.Context) -> list[str]:
+    def list_commands(self, ctx: typer.Context) -> list[str]:
         order = [*registry.STAGE_NAMES, "run", "status", "verify", "target"]
         return sorted(super().list_commands(ctx), key=lambda name: order.index(name) if name in order else len(order))
 
@@ -387,29 +386,34 @@ def export_command(
     out_dir: Annotated[Path | None, typer.Option("--out", help=key_help("export.out"))] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
-    """Run the export stage: the labels and their images as a SPEED+ (or BOP) dataset. The
-    format and folder are saved in W/config.toml, so `status` reports this export."""
-    overrides = [*_parsed(set_), Override.of("export.format", format_, "--format")]
+    """Run the export stage: the labels and their images as a SPEED+, BOP or SHIRT dataset, in
+    W/export/<format> or --out. The format and folder are this export's alone (a later export
+    in another format never reuses them); `status` reports each format's export."""
+    transient = [Override.of("export.format", format_, "--format"), *_engine(engine, ray_address, workers)]
     if out_dir is not None:
-        overrides.append(Override.of("export.out", str(out_dir.resolve()), "--out"))
-    _run(["export"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers))
+        transient.append(Override.of("export.out", str(out_dir.expanduser().resolve()), "--out"))
+    _run(["export"], workspace, profile, config, _parsed(set_), force, transient)
 
 
 @app.command("train-reference")
 def train_reference_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
-    out_dir: Annotated[Path, typer.Option("--out", help="folder that gets a copy of each ONNX model and its card "
-                                                        "(.json)")] = Path("models"),
+    out_dir: Annotated[Path | None, typer.Option(
+        "--out", help="also copy each ONNX model and its card (.json) to this folder as <target>_<model>.onnx; "
+        "a file there that this workspace did not make is replaced only with --force")] = None,
     steps: Annotated[int | None, typer.Option("--steps", help=key_help("reference.max_steps"))] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the train-reference stage: render the synthetic training set its recipe asks for
     (section [reference]), train the reference keypoint CNNs on it (reference.variants: plain
-    and augmented), export them to ONNX with the evaluation contract (W/models/<name>.onnx),
-    and copy them to --out."""
+    and augmented) and export them to ONNX with the evaluation contract (W/models/<name>.onnx,
+    which evaluate then scores); with --out, copy them there too, named by target."""
     overrides = _parsed(set_)
-    recipe = _context(workspace, profile, config, overrides)[0].reference
+    resolved, ws, _ = _context(workspace, profile, config, overrides)
+    recipe = resolved.reference
+    destinations = {} if out_dir is None else runner.publish_destinations(
+        resolved, ws, registry.trained_models(resolved), out_dir.expanduser().resolve(), force)
     transient = [Override.of("render.set", "train", "train-reference"),
                  Override.of("render.train_count", recipe.images, "reference.images"),
                  Override.of("render.train_resolution_scale", recipe.resolution_scale, "reference.resolution_scale")]
@@ -418,10 +422,12 @@ def train_reference_command(
     transient += _engine(engine, ray_address, workers)
     ws = _run(["render", "train-reference"], workspace, profile, config, overrides, force, transient)
     for name in runner.model_names(ws):
-        row = runner.publish_model(ws, name, out_dir / f"{name}.onnx")
-        out.print(f"{out_dir / name}.onnx: trained on {row['training_images']} images in {row['train_seconds']:.0f} "
-                  f"s; held-out synthetic: mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation "
-                  f"error {row['held_out_median_rotation_error_deg']:.2f} deg")
+        row = runner.publish_model(ws, name, destinations[name]) if name in destinations else \
+            runner.model_row(ws, name)
+        where = destinations[name] if name in destinations else ws.display(ws.resolve(ws.model_relpath(name)))
+        out.print(escape(f"{where}: trained on {row['training_images']} images in {row['train_seconds']:.0f} "
+                         f"s; held-out synthetic: mean SPEED score {row['held_out_mean_speed_score']:.4f}, median "
+                         f"rotation error {row['held_out_median_rotation_error_deg']:.2f} deg"), highlight=False)
 
 
 @app.command("run")
@@ -466,9 +472,10 @@ def _print_status(resolved: Config, ws: Workspace) -> None:
         table.add_column(column)
     colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim", "damaged": "bold red"}
     for entry in registry.STAGES:
-        state = runner.status(entry, resolved, ws)
-        rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
-        table.add_row(entry.name, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(state.detail))
+        for label, config in entry.status_views(resolved, ws):
+            state = runner.status(entry, config, ws)
+            rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
+            table.add_row(label, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(state.detail))
     out.print(table)
     busy = holder(ws)
     if busy:

@@ -37,6 +37,9 @@ class StageEntry:
     target: Literal["configured", "workspace"] = "workspace"
     #: the CLI has a command of its own for it (options beyond the common ones)
     own_command: bool = False
+    #: the package reports several results side by side (``status_views(config, workspace)``
+    #: -> [(label, config)]: export, one per format written)
+    views: bool = False
 
     def resolved(self, config: Config, workspace: Workspace) -> Resolved:
         resolved = _load(f"{self.package}:resolve")(config, workspace)
@@ -50,6 +53,12 @@ class StageEntry:
         if self.preflight:
             _load(f"{self.package}:preflight")(config, workspace)
 
+    def status_views(self, config: Config, workspace: Workspace) -> list[tuple[str, Config]]:
+        """What ``status`` shows of this stage: (label, the configuration it is judged under)."""
+        if not self.views:
+            return [(self.name, config)]
+        return list(_load(f"{self.package}:status_views")(config, workspace))
+
     def function(self) -> Callable[..., Any]:
         return _load(f"{self.package}:run")
 
@@ -58,6 +67,11 @@ def evaluated_models(config: Config, workspace: Workspace) -> list[Any]:
     """The model files evaluate scores under ``config`` in ``workspace`` (paths; none when
     it has none to pick): what ``evaluate --model`` adds to."""
     return list(_load("stages.evaluate:model_paths")(config, workspace))
+
+
+def trained_models(config: Config) -> list[str]:
+    """The names of the models train-reference makes under ``config``."""
+    return list(_load("stages.reference:model_names")(config))
 
 
 def _load(target: str) -> Callable[..., Any]:
@@ -79,7 +93,7 @@ STAGES: tuple[StageEntry, ...] = (
                preflight=True, own_command=True),
     StageEntry("report", "static HTML report (W/report/index.html)", "stages.report"),
     StageEntry("export", "the labels and images as a SPEED+, BOP or SHIRT dataset", "stages.export", chained=False,
-               replace_stale=True, own_command=True),
+               replace_stale=True, own_command=True, views=True),
     StageEntry("train-reference", "train the reference keypoint CNNs (plain and augmented) on the synthetic "
                "training set and export ONNX (W/models/reference.onnx, reference_augmented.onnx)",
                "stages.reference", chained=False, own_command=True),

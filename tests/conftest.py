@@ -44,10 +44,10 @@ def smoke_finished(smoke_labelled, tmp_path_factory):
     return Workspace(root), result.stdout
 
 
-def speedplus(*args, env=None, timeout=1800):
+def speedplus(*args, env=None, timeout=1800, cwd=None):
     """Run the CLI in a fresh process (as users do)."""
     return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
-                          env={**os.environ, "COLUMNS": "200", **(env or {})}, timeout=timeout)
+                          env={**os.environ, "COLUMNS": "200", **(env or {})}, timeout=timeout, cwd=cwd)
 
 
 @pytest.fixture(scope="session")

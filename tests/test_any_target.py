@@ -27,9 +27,8 @@ from tests.target_folders import boulder, cubesat
 
 #: SPEED+'s 6.5-9.5 m of Tango (1.37 m across) in target diameters: any size, the same pictures;
 #: 24 calibration captures (smoke: 16), enough for the arms' calibration to carry to 3-4 m
-IN_DIAMETERS = ("--set", "plan.n_calibration=24", "--set", "plan.dataset_range_m=[0, 1e9]", "--set",
-                "plan.dataset_range_diameters=[4.75, 6.94]", "--set", "render.train_distance_m=[0, 1e9]", "--set",
-                "render.train_distance_diameters=[2.2, 7.3]")
+# no distance override: a target folder plans at SPEED+'s apparent size alone (issue 42)
+IN_DIAMETERS = ("--set", "plan.n_calibration=24")
 TINY_MODEL = ("--set", "reference.images=40", "--set", "reference.variants=[\"plain\"]", "--set",
               "reference.max_steps=20", "--set", "reference.input_width=64", "--set", "reference.input_height=64",
               "--set", "reference.width=4", "--set", "reference.batch_size=8")

@@ -183,8 +183,11 @@ def _check(config: Config) -> Config:
         raise ConfigError(
             f"camera.width_px/height_px: {c.width_px}x{c.height_px} does not have the aspect of the reference "
             f"{c.reference_width_px}x{c.reference_height_px}; intrinsics can only be scaled uniformly")
+    if len(p.dataset_range_m) not in (0, 2):
+        raise ConfigError(f"plan.dataset_range_m: expected [] (SPEED+'s, in the target's diameters) or [min, max], "
+                          f"got {list(p.dataset_range_m)}")
     for key, low, high in (("plan.calibration_distance_m", *p.calibration_distance_m),
-                           ("plan.dataset_range_m", *p.dataset_range_m),
+                           *((("plan.dataset_range_m", *p.dataset_range_m),) if p.dataset_range_m else ()),
                            ("plan.dataset_range_diameters", *p.dataset_range_diameters)):
         if not 0 <= low <= high or (key == "plan.calibration_distance_m" and low == 0) or high == 0:
             raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got ({low}, {high})")
@@ -245,8 +248,11 @@ def _check(config: Config) -> Config:
     r = config.render
     if r.spp < 1 or r.train_spp < 1 or r.max_depth < 1 or r.train_count < 0:
         raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
-    for key, (low, high) in (("render.train_distance_m", r.train_distance_m),
-                             ("render.train_distance_diameters", r.train_distance_diameters)):
+    if len(r.train_distance_m) not in (0, 2):
+        raise ConfigError(f"render.train_distance_m: expected [] (SPEED+'s, in the target's diameters) or [min, max], "
+                          f"got {list(r.train_distance_m)}")
+    ranges = [("render.train_distance_m", r.train_distance_m)] if r.train_distance_m else []
+    for key, (low, high) in [*ranges, ("render.train_distance_diameters", r.train_distance_diameters)]:
         if not 0 <= low <= high or high == 0:
             raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got {(low, high)}")
     if not 0 < r.train_irradiance[0] <= r.train_irradiance[1]:

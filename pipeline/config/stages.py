@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 from manifests.schema import DOMAINS, MOUNTS
 from pipeline.config.params import param
 
 ExportSet = Literal["testbed", "twins", "train"]
+ExportFormat = Literal["speedplus", "bop", "shirt"]
+EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)
 PlanMode = Literal["poses", "trajectory"]
 TrajectoryPreset = Literal["vbar_hold_spin", "approach_tumble", "custom"]
 TRAJECTORY_PRESETS: tuple[TrajectoryPreset, ...] = ("vbar_hold_spin", "approach_tumble", "custom")
@@ -39,12 +41,13 @@ class PlanConfig:
     calibration_mounts: tuple[str, ...] = param(
         MOUNTS, "model fixtures calibrated, alternated over calibration captures "
         "(each dataset capture uses the one away from the camera)", "")
-    dataset_range_m: tuple[float, float] = param(
-        (6.5, 9.5), "camera-to-target distance range, FULL scale (paper: at least 6.5 m); the distance is drawn "
-        "uniformly where this and plan.dataset_range_diameters both hold", "m")
+    dataset_range_m: tuple[float, ...] = param(
+        (), "camera-to-target distance range, FULL scale, [min, max]; empty: SPEED+'s (6.5-9.5 m for Tango, paper: "
+        "at least 6.5 m), for another target the same apparent size (4.75-6.94 of its diameters), clipped to what "
+        "the room holds; the distance is drawn uniformly where this and plan.dataset_range_diameters both hold", "m")
     dataset_range_diameters: tuple[float, float] = param(
-        (0.0, 1e9), "the same range in units of the target's diameter (its largest extent; Tango: 1.37 m); "
-        "to draw in diameters alone, open plan.dataset_range_m, e.g. [0, 1e9]", "1")
+        (0.0, 1e9), "the range in units of the target's diameter (its largest extent; Tango: 1.37 m), which "
+        "narrows plan.dataset_range_m; with plan.dataset_range_m empty, it narrows SPEED+'s", "1")
     image_margin_px: float = param(
         10.0, "the target's bounding sphere stays this far inside the image edges", "px")
     lights: tuple[str, ...] = param(DOMAINS, "light set-ups of the dataset session", "")
@@ -259,12 +262,13 @@ class RenderConfig:
         3.0, "irradiance of the directional light on the model; the synthetic images' exposure is fixed, "
         "so 3.0 puts a sunlit white radiator near saturation", "W/m^2")
     train_count: int = param(1000, "images of the training set (render --set train --count N)", "count")
-    train_distance_m: tuple[float, float] = param(
-        (3.0, 10.0), "camera-to-target distance of training images, full scale (SPEED+ synthetic: a few "
-        "metres to about 10 m); drawn uniformly where this and render.train_distance_diameters both hold", "m")
+    train_distance_m: tuple[float, ...] = param(
+        (), "camera-to-target distance of training images, full scale, [min, max]; empty: SPEED+ synthetic's "
+        "(3-10 m for Tango), for another target the same apparent size (2.19-7.3 of its diameters); drawn "
+        "uniformly where this and render.train_distance_diameters both hold", "m")
     train_distance_diameters: tuple[float, float] = param(
-        (0.0, 1e9), "the same range in units of the target's diameter (Tango: 1.37 m); to draw in diameters "
-        "alone, open render.train_distance_m, e.g. [0, 1e9]", "1")
+        (0.0, 1e9), "the same range in units of the target's diameter (Tango: 1.37 m), which narrows "
+        "render.train_distance_m", "1")
     train_irradiance: tuple[float, float] = param(
         (1.0, 6.0), "training images: range of the light's irradiance (log-uniform)", "W/m^2")
     train_earth_fraction: float = param(
@@ -347,10 +351,10 @@ class EvaluateConfig:
 class ExportConfig:
     """speedplus export: the labels and testbed images in a layout other tools read."""
 
-    format: Literal["speedplus", "bop", "shirt"] = param(
+    format: ExportFormat = param(
         "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read), bop (bop_toolkit's scenes; a "
         "trajectory plan's sequences are its scenes) or shirt (SHIRT's sequences, plan.mode = trajectory)", "")
-    out: str = param("", "export folder; empty: W/export", "")
+    out: str = param("", "export folder; empty: W/export/<format>", "")
     sets: tuple[ExportSet, ...] = param(
         ("testbed", "twins"), "image sets exported: testbed (the labelled captures), twins (their synthetic twins, "
         "from render) and train (the synthetic training set, from render --set train)", "")

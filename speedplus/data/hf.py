@@ -1,5 +1,6 @@
 """A Hugging Face ``datasets.Dataset`` of labelled images: the joined records as columns,
-the image (and a twin's mask) as ``datasets.Image`` columns read from their files."""
+the image (and a twin's mask) as ``datasets.Image`` columns read from their files. It needs
+the ``[hf]`` extra (``pip install 'speedplus-builder[hf]'``)."""
 
 from __future__ import annotations
 

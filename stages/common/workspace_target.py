@@ -119,3 +119,8 @@ def digest(config: Config, workspace: Workspace | None) -> str:
     workspace (the plan, before it copies) of the configured one."""
     return target_digest(configured_folder(config) if workspace is None else workspace_folder(config, workspace))
 
+
+def apparent_size_ratio(target: Target) -> float:
+    """``target``'s diameter over the built-in Tango's: a distance range of SPEED+'s (made
+    for Tango) times this shows ``target`` at the same apparent size (1.0 for Tango)."""
+    return target.diameter_m / cached_target(builtin_folder()).diameter_m

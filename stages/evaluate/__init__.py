@@ -73,7 +73,8 @@ def _no_model(config: Config, workspace: Workspace | None) -> InputError:
     target = workspace_target(config, workspace).name
     return InputError(f"evaluate.models is empty and {where}/models/ holds no model: this workspace's target is "
                       f"{target!r}, and the shipped models are of {BUILTIN_TARGET!r}; train one for it (speedplus "
-                      f"train-reference -w {where} --out DIR), or name one (evaluate --model FILE)")
+                      f"train-reference -w {where}: its models stay in {where}/models/, where evaluate finds them)"
+                      f", or name one (evaluate --model FILE)")
 
 
 def _digest(path: Path) -> str:

@@ -1,7 +1,8 @@
 """The export stage: the labelled testbed images, their synthetic twins and the training set
 as a SPEED+ dataset (the Stanford devkits; ``stages.export.speedplus``), a BOP dataset
 (bop_toolkit; ``stages.export.bop``) or, for a trajectory plan, SHIRT's sequences
-(``stages.export.shirt``), in ``export.out`` (default ``W/export``).
+(``stages.export.shirt``), in ``export.out`` (default ``W/export/<format>``: each format its
+own folder, never another's).
 
 Every image written is a row of the ``export_<format>`` manifest (key ``<set>/<sample_id>``),
 so an interrupted export resumes with the images it lacks; the annotation files are
@@ -11,17 +12,19 @@ written last, from every item.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 import pyarrow as pa
 
-from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest, read_success
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
 from manifests.sidecars import read_trajectories
 from manifests.workspace import PathEscapeError, check_relative
 from pipeline.config import Config
+from pipeline.config.stages import EXPORT_FORMATS
 from pipeline.progress import track
 from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
@@ -50,7 +53,26 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
 
 
 def out_dir(config: Config, workspace: Workspace) -> Path:
-    return Path(config.export.out).resolve() if config.export.out else workspace.root / "export"
+    """``export.out``, else ``W/export/<format>``."""
+    return Path(config.export.out).resolve() if config.export.out else workspace.root / "export" / config.export.format
+
+
+def status_views(config: Config, workspace: Workspace) -> list[tuple[str, Config]]:
+    """One (label, configuration) per format this workspace has exported, each with the
+    folder its marker recorded, so that ``status`` reports every export, not only the
+    configured one; the configured format alone when none has results."""
+    views = []
+    for export_format in EXPORT_FORMATS:
+        name = f"export_{export_format}"
+        marker = read_success(workspace, name)
+        if marker is None and not list_parts(workspace, name):
+            continue
+        made = marker.get("made_with", {}) if marker else {}
+        recorded = made.get("config", {}).get("export", {}) if isinstance(made, dict) else {}
+        section = replace(config.export, format=export_format, out=recorded.get("out", config.export.out),
+                          sets=tuple(recorded.get("sets", config.export.sets)))
+        views.append((f"export {export_format}", replace(config, export=section)))
+    return views or [(f"export {config.export.format}", config)]
 
 
 def inside_export(file: str, item: dict[str, Any]) -> PurePosixPath:
@@ -63,20 +85,25 @@ def inside_export(file: str, item: dict[str, Any]) -> PurePosixPath:
 
 
 def claim(out: Path, workspace: Workspace, export_format: str) -> None:
-    """Make ``out`` this workspace's export folder: it must be empty, or an export of this
-    workspace in this format (a resumed or repeated export), or ``--force`` was given."""
+    """Make ``out`` this workspace's export folder in ``export_format``: it must be empty, or
+    an export of this workspace in this format (a resumed, repeated or forced export). Even
+    ``--force`` never writes into another format's export or a folder of the user's."""
     mark = out / EXPORT_MARK
     ours = {"version": EXPORT_MARK_VERSION, "workspace": workspace.location, "format": export_format}
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: export.out is a file, not a folder")
-    if out.is_dir() and any(out.iterdir()) and not workspace.forced:
+    if out.is_dir() and any(out.iterdir()):
         try:
             theirs = json.loads(mark.read_text())
         except (OSError, ValueError):
             theirs = None
         if theirs != ours:
-            raise InputError(f"{out}: not empty and not a {export_format} export of {workspace.location}; choose an "
-                             "empty folder, or rerun with --force to write into it anyway")
+            what = (f"a {theirs.get('format')} export of {theirs.get('workspace')}" if isinstance(theirs, dict)
+                    else "files speedplus did not write")
+            raise InputError(f"{out}: not empty: it holds {what}, not a {export_format} export of "
+                             f"{workspace.location}, and an export replaces only its own (even with --force); "
+                             f"choose an empty folder with --out, or leave --out out for "
+                             f"{workspace.location}/export/{export_format}")
     write_json_atomic(mark, ours)
 
 

@@ -78,13 +78,14 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         view, light = target.view_names[0], "ambient"
     else:
         view, light = dataset_configuration(index, plan, target.view_names)
+    chosen = dataset_range(plan, target, testbed) if session == "dataset" else None
 
     def draw() -> tuple[np.ndarray, str, Reconfiguration | None]:
         if session == "calibration":
             cam_from_target = calibration_pose(rng, plan, testbed, camera, target)
             mount = plan.calibration_mounts[index % len(plan.calibration_mounts)]
         else:
-            cam_from_target = dataset_pose(rng, plan, target, camera, view)
+            cam_from_target = dataset_pose(rng, plan, target, camera, view, chosen)
             mount = mount_away_from(cam_from_target)
         return cam_from_target, mount, reconfigure(cam_from_target, mount, plan, testbed, target,
                                                    require_far_side=session == "dataset")
@@ -94,11 +95,9 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
     while commands is None:
         if redraws == plan.max_redraws:
             hint = ""
-            if session == "dataset":
-                low, high = (d * target.mockup_scale for d in dataset_range(plan, target))
-                hint = (f"; the dataset range puts the {target.name} mock-up {low:.2f}-{high:.2f} m from the camera "
-                        f"in a {' x '.join(f'{v:g}' for v in testbed.room_m)} m room (a target of another size: "
-                        "plan.dataset_range_diameters)")
+            if chosen is not None:
+                hint = (f"; the {chosen.describe(target)}, in a {' x '.join(f'{v:g}' for v in testbed.room_m)} m "
+                        "room (plan.dataset_range_m sets it in metres, plan.dataset_range_diameters narrows it)")
             raise PlanningError(
                 f"sample {sample_id}: no reachable robot configuration in {redraws + 1} draws; check "
                 f"testbed.target_presentation_m, testbed.rail_* and plan.sight_* (or raise plan.max_redraws){hint}")
@@ -137,6 +136,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     if config.plan.mode == "trajectory":
         rows, record = trajectory_rows(config, target)
         sequences = {row["sample_id"]: row for row in rows}
+    if config.plan.mode != "trajectory" and config.plan.n_dataset:
+        print(f"plan: {dataset_range(config.plan, target, config.testbed).describe(target)}")
     with open_sink(workspace, "plan", config.run.part_rows) as sink:
         for session, index, sample_id in track(todo, len(todo), "plan"):
             sink.add(sequences[sample_id] if sample_id in sequences

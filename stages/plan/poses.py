@@ -6,14 +6,18 @@ All poses are ``cam_from_target`` (4, 4) at mock-up scale, metres, OpenCV camera
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import layout
+from stages.common.kinematics import arm_model
 from stages.common.patterns import board_pattern
 from stages.common.target import Target
+from stages.common.workspace_target import apparent_size_ratio
 
 #: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
 _MAX_VISIBILITY_DRAWS = 1000
@@ -63,12 +67,12 @@ def calibration_pose(rng: np.random.Generator, plan: PlanConfig, testbed: Testbe
 
 
 def dataset_position(rng: np.random.Generator, plan: PlanConfig, target: Target,
-                     camera: CameraConfig) -> np.ndarray:
+                     camera: CameraConfig, chosen: DatasetRange) -> np.ndarray:
     """Target position in the camera frame (3,), mock-up scale: the full-scale range uniform
-    in ``dataset_range`` and the body's bounding sphere inside the image (with margin)."""
+    in ``chosen`` (``dataset_range``) and the body's bounding sphere inside the image (with margin)."""
     k = camera.camera_matrix()
     radius = target.radius_m
-    low, high = dataset_range(plan, target)
+    low, high = chosen.low_m, chosen.high_m
     for _ in range(_MAX_VISIBILITY_DRAWS):
         distance = rng.uniform(low, high)
         # pinhole radius of the sphere, plus 5% for the lens distortion at the edges
@@ -82,29 +86,74 @@ def dataset_position(rng: np.random.Generator, plan: PlanConfig, target: Target,
         centre_cam = distance * ray / np.linalg.norm(ray)
         return centre_cam * target.mockup_scale
     raise PlanningError(
-        f"plan.dataset_range_m={plan.dataset_range_m}, plan.dataset_range_diameters={plan.dataset_range_diameters}: "
-        f"the target ({target.diameter_m:.3g} m across) does not fit in a {camera.width_px}x{camera.height_px} image "
-        "at that range; increase the range")
+        f"plan.dataset_range_m={list(plan.dataset_range_m)}, plan.dataset_range_diameters="
+        f"{list(plan.dataset_range_diameters)}: the target ({target.diameter_m:.3g} m across) does not fit in a "
+        f"{camera.width_px}x{camera.height_px} image at {chosen.describe(target)}; increase the range")
 
 
-def dataset_range(plan: PlanConfig, target: Target) -> tuple[float, float]:
-    """The full-scale distance range (m) where both ``plan.dataset_range_m`` and
-    ``plan.dataset_range_diameters`` (times the target's diameter) hold."""
-    low = max(plan.dataset_range_m[0], plan.dataset_range_diameters[0] * target.diameter_m)
-    high = min(plan.dataset_range_m[1], plan.dataset_range_diameters[1] * target.diameter_m)
+#: SPEED+'s camera-to-target distances, full scale (m): the paper's 6.5-9.5 m, of Tango
+SPEEDPLUS_RANGE_M = (6.5, 9.5)
+
+
+@dataclass(frozen=True)
+class DatasetRange:
+    """The full-scale distance range (m) the plan draws in, and how it was chosen."""
+
+    low_m: float
+    high_m: float
+    #: "metres" (plan.dataset_range_m as set), "speedplus" (SPEED+'s apparent size) or
+    #: "room" (SPEED+'s, shrunk to the farthest the room holds)
+    origin: str
+
+    def describe(self, target: Target) -> str:
+        """The range in metres (full scale and mock-up) and in the target's diameters."""
+        scale, diameter = target.mockup_scale, target.diameter_m
+        why = {"metres": "plan.dataset_range_m", "speedplus": "SPEED+'s apparent size",
+               "room": "SPEED+'s apparent size does not fit the room: its ratio, at the farthest the room holds"}
+        return (f"dataset range {self.low_m:.3g}-{self.high_m:.3g} m full scale = {self.low_m / diameter:.3g}-"
+                f"{self.high_m / diameter:.3g} diameters of {target.name} ({diameter:.3g} m); the mock-up "
+                f"{self.low_m * scale:.3g}-{self.high_m * scale:.3g} m from the camera ({why[self.origin]})")
+
+
+def room_reach_m(testbed: TestbedConfig, plan: PlanConfig) -> float:
+    """The farthest mock-up distance (m) the room gives a camera on the rail robot from the
+    nearest presentation point: along the rail (K's x), to the far wall's clearance or the
+    rail's end plus the arm's reach, whichever is nearer. An upper bound: the planner's
+    reachability decides each pose."""
+    rail_end = testbed.rail_origin_m[0] + testbed.rail_length_m + arm_model(testbed.robot_model).reach_m
+    far = min(testbed.room_m[0] - plan.wall_clearance_m, rail_end)
+    return far - min(p[0] for p in testbed.target_presentation_m)
+
+
+def dataset_range(plan: PlanConfig, target: Target, testbed: TestbedConfig) -> DatasetRange:
+    """Where the plan draws distances: ``plan.dataset_range_m`` when set, else SPEED+'s range
+    at the same apparent size (scaled by the target's diameter over Tango's; Tango's own is
+    SPEED+'s to the bit), shrunk at its ratio when the room cannot hold it; then narrowed by
+    ``plan.dataset_range_diameters``."""
+    origin = "metres"
+    if plan.dataset_range_m:
+        low, high = plan.dataset_range_m
+    else:
+        ratio = apparent_size_ratio(target)
+        low, high, origin = SPEEDPLUS_RANGE_M[0] * ratio, SPEEDPLUS_RANGE_M[1] * ratio, "speedplus"
+        room = room_reach_m(testbed, plan) / target.mockup_scale
+        if high > room:
+            low, high, origin = room * SPEEDPLUS_RANGE_M[0] / SPEEDPLUS_RANGE_M[1], room, "room"
+    low = max(low, plan.dataset_range_diameters[0] * target.diameter_m)
+    high = min(high, plan.dataset_range_diameters[1] * target.diameter_m)
     if low > high:
-        raise PlanningError(f"plan.dataset_range_m={plan.dataset_range_m} and plan.dataset_range_diameters="
-                            f"{plan.dataset_range_diameters} (x {target.diameter_m:.3g} m, the target's diameter) "
-                            "do not overlap; open one of them")
-    return low, high
+        raise PlanningError(f"plan.dataset_range_m={list(plan.dataset_range_m)} and plan.dataset_range_diameters="
+                            f"{list(plan.dataset_range_diameters)} (x {target.diameter_m:.3g} m, the target's "
+                            "diameter) do not overlap; open one of them")
+    return DatasetRange(low, high, origin)
 
 
 def dataset_pose(rng: np.random.Generator, plan: PlanConfig, target: Target, camera: CameraConfig,
-                 view: str) -> np.ndarray:
+                 view: str, chosen: DatasetRange) -> np.ndarray:
     """``cam_from_target`` (4, 4), mock-up scale: orientation uniform on SO(3) given that
     the camera sees ``view``; the body centre placed by ``dataset_position``, every
     keypoint inside the image."""
-    centre_cam = dataset_position(rng, plan, target, camera)
+    centre_cam = dataset_position(rng, plan, target, camera, chosen)
     centre_target = target.centre_m * target.mockup_scale
     keypoints = target.keypoints_m * target.mockup_scale
     for _ in range(_MAX_VISIBILITY_DRAWS):

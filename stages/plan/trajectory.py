@@ -78,7 +78,8 @@ def preset_motion(config: Config, target: Target, preset: str, masses: MassPrope
     t = config.trajectory
     if preset == "custom":
         return np.asarray(t.roe_m, float), np.asarray(t.spin_rad_s, float)
-    low, high = dataset_range(config.plan, target)
+    chosen = dataset_range(config.plan, target, config.testbed)
+    low, high = chosen.low_m, chosen.high_m
     middle, span = 0.5 * (low + high), high - low
     _, axes = masses.principal_axes()  # columns: minor, intermediate, major
     if preset == "vbar_hold_spin":

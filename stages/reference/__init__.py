@@ -22,6 +22,13 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     return Resolved(("train",), ("reference",), {}, ("models",))
 
 
+def model_names(config: Config) -> list[str]:
+    """The names of the models ``reference.variants`` trains (``W/models/<name>.onnx``)."""
+    from stages.reference import train
+
+    return [train.VARIANTS[variant][0] for variant in config.reference.variants]
+
+
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Train every variant of ``reference.variants`` missing from the ``models`` manifest."""
     from stages.reference import train

@@ -24,7 +24,7 @@ from stages.common.cameras import train_camera
 from stages.common.json_arrays import matrix
 from stages.common.orbits import Elements, rtn_from_eci, two_body
 from stages.common.target import Target
-from stages.common.workspace_target import planned_target, workspace_target
+from stages.common.workspace_target import apparent_size_ratio, planned_target, workspace_target
 
 SET_DIRECTORIES = {"twin": "twins", "train": "train"}
 NEAR_CLIP_M = 0.05
@@ -163,6 +163,10 @@ def orbital_earth(row: dict[str, Any], sequences: dict[str, Any]) -> dict[str, t
 
 
 # --------------------------------------------------------------------------- training set
+#: SPEED+'s synthetic images of Tango: a few metres to about 10 m (full scale)
+SPEEDPLUS_TRAIN_DISTANCE_M = (3.0, 10.0)
+
+
 def train_jobs(config: Config, target: Target | None = None) -> list[RenderJob]:
     """``render.train_count`` jobs of ``target`` (default: the configured one):
     SO(3)-uniform attitudes, distances uniform where ``render.train_distance_m`` and
@@ -172,12 +176,13 @@ def train_jobs(config: Config, target: Target | None = None) -> list[RenderJob]:
     target in ``render.train_earth_fraction``."""
     r = config.render
     target = planned_target(config) if target is None else target
-    low = max(r.train_distance_m[0], r.train_distance_diameters[0] * target.diameter_m)
-    high = min(r.train_distance_m[1], r.train_distance_diameters[1] * target.diameter_m)
+    metres = r.train_distance_m or tuple(d * apparent_size_ratio(target) for d in SPEEDPLUS_TRAIN_DISTANCE_M)
+    low = max(metres[0], r.train_distance_diameters[0] * target.diameter_m)
+    high = min(metres[1], r.train_distance_diameters[1] * target.diameter_m)
     if not 0 < low <= high:
-        raise InputError(f"render.train_distance_m={r.train_distance_m} and render.train_distance_diameters="
-                         f"{r.train_distance_diameters} (x {target.diameter_m:.3g} m, the target's diameter) leave no "
-                         "distance; open one of them")
+        raise InputError(f"render.train_distance_m={list(r.train_distance_m)} and render.train_distance_diameters="
+                         f"{list(r.train_distance_diameters)} (x {target.diameter_m:.3g} m, the target's diameter) "
+                         "leave no distance; open one of them")
     camera = train_camera(config)
     rng = np.random.default_rng([r.seed, 0x7A1])
     quats = g.random_quats(rng, r.train_count)

@@ -176,3 +176,54 @@ def test_impossible_configuration_names_the_sample(default_config):
     config = replace(default_config, testbed=testbed, plan=replace(default_config.plan, max_redraws=2))
     with pytest.raises(PlanningError, match="sample img000003: no reachable robot configuration in 3 draws"):
         plan_sample(config, "dataset", 3, "img000003")
+
+
+# ----------------------------------------------------------------------- the dataset range
+def test_the_default_range_is_speedplus_for_tango_to_the_bit():
+    from stages.plan.poses import SPEEDPLUS_RANGE_M, dataset_range
+
+    config = load_config("default")
+    chosen = dataset_range(config.plan, planned_target(config), config.testbed)
+    assert (chosen.low_m, chosen.high_m, chosen.origin) == (*SPEEDPLUS_RANGE_M, "speedplus")
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_another_targets_default_range_keeps_speedplus_apparent_size(tmp_path, seed):
+    """A target of any size is drawn at Tango's apparent size in SPEED+: the same range in
+    diameters, until the room cannot hold it; then SPEED+'s ratio at the room's farthest."""
+    from stages.plan.poses import dataset_range, room_reach_m
+    from tests.target_folders import boulder
+
+    rng = np.random.default_rng(seed)
+    config = load_config("default")
+    tango_range = dataset_range(config.plan, planned_target(config), config.testbed)
+    target = planned_target(replace(config, target=replace(config.target, path=str(boulder(tmp_path / "b")))))
+    target = replace(target, diameter_m=float(rng.uniform(0.1, 4.0)), mockup_scale=float(rng.uniform(0.2, 1.0)))
+    chosen = dataset_range(config.plan, target, config.testbed)
+    room = room_reach_m(config.testbed, config.plan) / target.mockup_scale
+    assert chosen.high_m <= room * (1 + 1e-12)
+    np.testing.assert_allclose(chosen.low_m / chosen.high_m, 6.5 / 9.5)
+    if chosen.origin == "speedplus":
+        np.testing.assert_allclose(chosen.high_m / target.diameter_m, tango_range.high_m / 1.37, rtol=0.01)
+    else:
+        assert chosen.origin == "room" and 9.5 / 1.37 * target.diameter_m > room
+    user = dataset_range(replace(config.plan, dataset_range_m=(7.0, 30.0)), target, config.testbed)
+    assert (user.low_m, user.high_m, user.origin) == (7.0, 30.0, "metres")  # the user's metres win, unclipped
+
+
+def test_a_small_target_plans_with_its_folder_alone(tmp_path):
+    """Issue 42: a 6U CubeSat at 1:1 (0.78 m across) planned nothing with the defaults."""
+    from tests.conftest import speedplus
+    from tests.target_folders import cubesat
+
+    folder = cubesat(tmp_path / "cubesat", mass_kg=4.0)
+    result = speedplus("plan", "--profile", "smoke", "--workspace", str(tmp_path / "w"), "--target", str(folder))
+    assert result.returncode == 0, result.stderr
+    said = " ".join(result.stdout.split())
+    assert "= 4.75-6.94 diameters of cubesat6u" in said and "SPEED+'s apparent size" in said
+    from manifests import Workspace, read_manifest
+
+    rows = [r for r in read_manifest(Workspace(tmp_path / "w"), "plan").to_pylist() if r["session"] == "dataset"]
+    distances = [np.linalg.norm(r["cam_from_target_t"]) for r in rows]  # mock-up scale 1: full scale
+    diameter = planned_target(load_config("smoke", overrides=[f"target.path={folder}"])).diameter_m
+    assert len(rows) == 8 and all(4.75 * diameter - 0.3 < d < 6.94 * diameter + 0.3 for d in distances)

@@ -2,6 +2,7 @@
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -17,6 +18,14 @@ from tests.conftest import speedplus
 
 def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models(tmp_path):
     out = tmp_path / "models"
+    out.mkdir()
+    theirs = out / "tango_reference_augmented.json"  # a file the command did not make
+    theirs.write_text("{}")
+    refused = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"),
+                        "--set", "reference.images=10", "--steps", "2", "--out", str(out))
+    assert refused.returncode == 1 and f"{theirs}: exists" in refused.stderr, refused.stderr
+    assert not (tmp_path / "w").exists() and theirs.read_text() == "{}"  # refused before training anything
+    theirs.unlink()
     result = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"),
                        "--set", "reference.images=10", "--steps", "2", "--out", str(out))
     assert result.returncode == 0, result.stderr
@@ -25,7 +34,7 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
     rows = {row["model"]: row for row in read_manifest(ws, "models").to_pylist()}
     assert set(rows) == {"reference", "reference_augmented"}
     for name, augmentation in (("reference", "photometric"), ("reference_augmented", "robust")):
-        path = out / f"{name}.onnx"
+        path = out / f"tango_{name}.onnx"  # named by target: never the shipped models' names
         proto = onnx.load(str(path))
         assert proto.ir_version <= 13  # what onnxruntime 1.31 reads
         assert {e.key: e.value for e in proto.metadata_props}["speedplus.augmentation"] == augmentation
@@ -43,6 +52,22 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
     assert result.stdout.count("held-out synthetic") == 2
     again = speedplus("train-reference", "--workspace", str(ws.root), "--steps", "2", "--out", str(out))
     assert again.returncode == 0 and "train-reference: up to date" in again.stdout, again.stderr
+    assert sorted(p.name for p in out.iterdir()) == sorted(f"tango_{n}.{e}" for n in rows for e in ("json", "onnx"))
+
+
+def test_without_out_the_models_stay_in_the_workspace(tmp_path, monkeypatch):
+    """Run from the repository's root, as issue 42's user did: the shipped models are untouched."""
+    from stages.evaluate import SHIPPED_MODELS
+
+    repository = Path(__file__).resolve().parents[3]
+    shipped = {name: (repository / name).read_bytes() for name in SHIPPED_MODELS}
+    result = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"), "--set",
+                       "reference.images=6", "--set", "reference.variants=[\"plain\"]", "--steps", "1",
+                       cwd=repository)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "w" / "models" / "reference.onnx").is_file()
+    assert {name: (repository / name).read_bytes() for name in SHIPPED_MODELS} == shipped
+    assert "w/models/reference.onnx: trained on 5 images" in result.stdout
 
 
 def test_heatmap_targets_peak_at_the_keypoints():
