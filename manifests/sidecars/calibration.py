@@ -16,7 +16,9 @@ from typing import Any
 from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
 from manifests.workspace import Workspace
 
-CALIBRATION_VERSION = 2  # 2: the arms' joint compliances (arm_kinematics)
+# 2: the arms' joint compliances (arm_kinematics); 3: metrics.cross_validation (the folds
+# that could not determine the offsets, left out of the cross-validated means)
+CALIBRATION_VERSION = 3
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}
@@ -68,14 +70,24 @@ class SigmaRecord:
 
 
 def _metrics(f: Fields, name: str) -> dict[str, Any]:
-    """Table 1's metrics of one column: {kind: {E_T_m: [mean, std], ...} or null}."""
+    """Table 1's metrics of one column: {kind: {E_T_m: [mean, std], ...} or null, and
+    cross_validation: {samples, and for a source's column folds, undetermined_folds, judged}};
+    cross_validated is null only when no sample's fold was determined."""
     metrics = f.child(name)
+    cross = metrics.child("cross_validation")
+    samples = cross.integer("samples")
+    if cross.optional("folds"):
+        folds = cross.integer("folds", minimum=2)
+        left_out = cross.raw("undetermined_folds")
+        if not isinstance(left_out, list) or not all(isinstance(k, int) and 1 <= k <= folds for k in left_out):
+            raise cross.fail("undetermined_folds", f"a list of fold numbers 1..{folds}")
+        cross.boolean("judged")
     for kind in METRIC_KINDS:
         if metrics.optional(kind):
             entry = metrics.child(kind)
             for key in METRIC_KEYS:
                 entry.vector(key, 2)
-        elif kind != "truth":
+        elif kind == "in_sample" or (kind == "cross_validated" and samples > 0):
             raise metrics.fail(kind, "an object of mean and std per metric")
     return metrics.data
 

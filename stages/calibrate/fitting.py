@@ -5,6 +5,7 @@ source's measured ``B``, mock-up scale, metres."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -124,30 +125,69 @@ def folds_of(config: Config, b: np.ndarray) -> np.ndarray:
     return folds
 
 
+#: fewer determined folds than this cannot judge the data: the in-sample fit alone does
+MIN_JUDGED_FOLDS = 2
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """Out-of-fold predictions ``predicted`` (N, 4, 4), valid where ``determined`` (N,): the
+    samples of folds whose training samples determine the offsets. An undetermined fold's
+    training set leaves a rotation free (or a fixture unseen): its prediction would be an
+    extrapolation of nothing, so it is not made, and the fold is named (from 1)."""
+
+    predicted: np.ndarray
+    determined: np.ndarray
+    folds: int
+    undetermined_folds: tuple[int, ...]
+    why: dict[int, str]
+
+    @property
+    def judged(self) -> bool:
+        """Whether enough folds are determined for their errors to judge the data."""
+        return self.folds - len(self.undetermined_folds) >= MIN_JUDGED_FOLDS
+
+    def record(self) -> dict[str, Any]:
+        """calibration.json's ``metrics.cross_validation``: what the cross-validated means are over."""
+        return {"folds": self.folds, "undetermined_folds": list(self.undetermined_folds),
+                "samples": int(self.determined.sum()), "judged": self.judged}
+
+
+def _undetermined(config: Config, b: np.ndarray, fixtures: list[str], train: np.ndarray,
+                  test: np.ndarray) -> str | None:
+    """Why a fold's training samples cannot determine the offsets its test samples need, or None."""
+    train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
+    missing = sorted({f for f, t in zip(fixtures, test, strict=True) if t} - set(train_fixtures))
+    if missing:
+        return f"no training sample holds fixture(s) {', '.join(missing)}"
+    return rwhe.diversity_problem(b[train], train_fixtures, 3, config.calibrate.min_rotation_spread_rad)
+
+
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
                    used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
                    up: np.ndarray | None = None, readings: arms.Readings | None = None,
-                   label: str = "calibrate") -> np.ndarray:
-    """Out-of-fold predictions (N, 4, 4): each fold predicted by offsets (and arms, with
-    ``readings``) fitted without it."""
+                   label: str = "calibrate") -> CrossValidation:
+    """Each determined fold predicted by offsets (and arms, with ``readings``) fitted without it."""
     folds = folds_of(config, b)
-    predicted = np.zeros_like(a)
+    predicted = np.tile(np.eye(4), (len(a), 1, 1))
+    determined = np.zeros(len(a), dtype=bool)
+    why: dict[int, str] = {}
     for fold in range(config.calibrate.folds):
+        test, train = folds == fold, folds != fold
+        if not test.any():
+            continue
+        problem = _undetermined(config, b, fixtures, train, test)
+        if problem is not None:
+            why[fold + 1] = problem
+            progress.note(f"  {label}: fold {fold + 1}'s training samples do not determine the offsets ({problem}); "
+                          "it is left out of the cross-validated means")
+            continue
         progress.note(f"  {label}: cross-validation fold {fold + 1} of {config.calibrate.folds}"
                       f"{' (offsets and arms)' if readings is not None else ''}")
-        test, train = folds == fold, folds != fold
         train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
-        problem = rwhe.diversity_problem(b[train], train_fixtures, 3, config.calibrate.min_rotation_spread_rad)
-        if problem is not None:  # its error is then an extrapolation: say so, it is real
-            progress.note(f"  {label}: fold {fold + 1}'s training samples do not determine the offsets ({problem}); "
-                          "its cross-validated error measures that")
         solution = solve(config, a[train], b[train], train_fixtures,
                          [o for o, keep in zip(used, train, strict=True) if keep], intrinsics, _subset(up, train))
         test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]
-        missing = set(test_fixtures) - set(solution.x)
-        if missing:
-            raise rwhe.DegenerateError(f"cross-validation: fold {fold} leaves fixture(s) {missing} without "
-                                       "training samples; capture more calibration poses")
         b_test, up_test = b[test], _subset(up, test)
         if readings is not None:
             fitted = arms.fit(config.testbed, config.calibrate, a[train], readings.subset(train), train_fixtures,
@@ -157,7 +197,8 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
                                                config.calibrate.world_up)
             up_test = None if up is None else up_arms
         predicted[test] = solution.predict(b_test, test_fixtures, up_test)
-    return predicted
+        determined |= test
+    return CrossValidation(predicted, determined, int(config.calibrate.folds), tuple(sorted(why)), why)
 
 
 def opencv_shah_metrics(a: np.ndarray, b: np.ndarray, fixtures: list[str], used: list[obs.Observation],

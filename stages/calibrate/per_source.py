@@ -17,6 +17,7 @@ from pipeline.config import Config
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.fitting import (
+    CrossValidation,
     _subset,
     cross_validate,
     metrics,
@@ -61,7 +62,8 @@ class SourceSamples:
 @dataclass(frozen=True)
 class SourceFit:
     """A source's calibration and its estimates of ``cam_from_target`` per sample_id, in
-    sample and cross-validated (each fold's from the others)."""
+    sample and cross-validated (each fold's from the others; the samples of determined
+    folds only)."""
 
     calibration: SourceCalibration
     in_sample: dict[str, np.ndarray]
@@ -111,8 +113,13 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     else:
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, label=f"calibrate {source}")
     predicted = solution.predict(b, s.fixtures, up)
-    cross_metrics = metrics(cross, s.a, s.used, intrinsics)
-    screening.check_result(source, cross_metrics, intrinsics, config.calibrate)
+    in_sample = metrics(predicted, s.a, s.used, intrinsics)
+    if not cross.judged:
+        progress.note(f"calibrate {source}: {cross.folds - len(cross.undetermined_folds)} of {cross.folds} folds "
+                      "determine the offsets, too few to judge the data: the in-sample fit alone is judged")
+    cross_metrics = _determined_metrics(cross, s.a, s.used, intrinsics)
+    screening.check_result(source, in_sample, cross_metrics if cross.judged else None, intrinsics, config.calibrate,
+                           cross.record())
     calibration = SourceCalibration(
         source=source, cam_from_offset=record(solution.z),
         target_from_offset_by_fixture={f: record(x) for f, x in solution.x.items()},
@@ -121,13 +128,23 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
                         **(fitted.to_json() if fitted is not None else {})},
         sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,
-        metrics={"in_sample": metrics(predicted, s.a, s.used, intrinsics), "cross_validated": cross_metrics,
+        metrics={"in_sample": in_sample, "cross_validated": cross_metrics, "cross_validation": cross.record(),
                  "truth": _truth_metrics(predicted, s.used, intrinsics, truth)},
         # OpenCV's Shah on the same detections and intrinsics, for comparison
         opencv_shah_in_sample=(opencv_shah_metrics(s.a, s.b, s.fixtures, s.used, intrinsics)
                                if len(solution.x) == 1 else None))
     ids = [o.sample_id for o in s.used]
-    return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), dict(zip(ids, cross, strict=True))), outliers
+    determined = {i: p for i, p, d in zip(ids, cross.predicted, cross.determined, strict=True) if d}
+    return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), determined), outliers
+
+
+def _determined_metrics(cross: CrossValidation, a: np.ndarray, used: list[obs.Observation],
+                        intrinsics: obs.EstimatedCamera) -> dict[str, list[float]] | None:
+    """Table 1's cross-validated metrics over the determined folds' samples (None: no fold is)."""
+    if not cross.determined.any():
+        return None
+    chosen = [o for o, d in zip(used, cross.determined, strict=True) if d]
+    return metrics(cross.predicted[cross.determined], a[cross.determined], chosen, intrinsics)
 
 
 def _truth_metrics(predicted: np.ndarray, used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
@@ -139,6 +156,12 @@ def _truth_metrics(predicted: np.ndarray, used: list[obs.Observation], intrinsic
     true_pixels = [g.project(t, o.object_points, intrinsics.camera_matrix, intrinsics.dist)
                    for t, o in zip(true, used, strict=True)]
     return metrics(predicted, true, used, intrinsics, true_pixels)
+
+
+def _fused(by_source: dict[str, np.ndarray], sigma: dict[str, Sigma]) -> np.ndarray:
+    """The fused estimates (N, 4, 4) of the sources' (N, 4, 4) with their sigmas."""
+    return np.stack([fuse(k, sigma["kuka"], v, sigma["vicon"])[0]
+                     for k, v in zip(by_source["kuka"], by_source["vicon"], strict=True)])
 
 
 def fused_column(observations: list[obs.Observation], fits: dict[str, SourceFit], intrinsics: obs.EstimatedCamera,
@@ -153,20 +176,19 @@ def fused_column(observations: list[obs.Observation], fits: dict[str, SourceFit]
                               np.stack([kuka.in_sample[o.sample_id] for o in both])).to_record()
     sigma = {s: Sigma.from_record(fits[s].calibration.sigma) for s in SOURCES}
 
-    def estimates_of(which: str) -> dict[str, np.ndarray]:
-        return {s: np.stack([getattr(fits[s], which)[o.sample_id] for o in both]) for s in SOURCES}
-
-    estimates = {s: {} for s in (*SOURCES, "fused")}
-    for which in ("in_sample", "cross_validated"):
-        by_source = estimates_of(which)
-        for s in SOURCES:
-            estimates[s][which] = by_source[s]
-        estimates["fused"][which] = np.stack([fuse(k, sigma["kuka"], v, sigma["vicon"])[0]
-                                              for k, v in zip(by_source["kuka"], by_source["vicon"], strict=True)])
-    a = np.stack([o.cam_from_target for o in both])
-    on_both = {name: {"in_sample": metrics(e["in_sample"], a, both, intrinsics),
-                      "cross_validated": metrics(e["cross_validated"], a, both, intrinsics),
-                      "truth": _truth_metrics(e["in_sample"], both, intrinsics, truth)}
-               for name, e in estimates.items()}
+    # cross-validated: the samples where both sources' folds determined their offsets
+    judged = [o for o in both if all(o.sample_id in fits[s].cross_validated for s in SOURCES)]
+    found: dict[str, dict[str, Any]] = {name: {"cross_validated": None} for name in (*SOURCES, "fused")}
+    for which, chosen in (("in_sample", both), ("cross_validated", judged)):
+        if not chosen:
+            continue
+        by_source = {s: np.stack([getattr(fits[s], which)[o.sample_id] for o in chosen]) for s in SOURCES}
+        a = np.stack([o.cam_from_target for o in chosen])
+        for name, estimates in (*by_source.items(), ("fused", _fused(by_source, sigma))):
+            found[name][which] = metrics(estimates, a, chosen, intrinsics)
+            if which == "in_sample":
+                found[name]["truth"] = _truth_metrics(estimates, chosen, intrinsics, truth)
+    on_both = {name: {"in_sample": f["in_sample"], "cross_validated": f["cross_validated"],
+                      "cross_validation": {"samples": len(judged)}, "truth": f["truth"]} for name, f in found.items()}
     return ({"samples": len(both), "metrics": on_both["fused"],
              "sources_on_the_same_samples": {s: on_both[s] for s in SOURCES}}, rejection)

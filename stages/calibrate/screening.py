@@ -187,15 +187,28 @@ def check_inliers(name: str, inliers: int, total: int) -> None:
             "and the pairing of images and poses")
 
 
-def check_result(name: str, cross_validated: dict[str, list[float]], intrinsics: obs.EstimatedCamera,
-                 limits: CalibrateConfig) -> None:
-    """Refuse a calibration whose cross-validated errors are absurd for any real set-up
-    (the thresholds and why: ``CalibrateConfig`` and docs/accuracy.md)."""
-    e_r, e_p = cross_validated["E_R_rad"][0], cross_validated["E_p_px"][0]
+def check_result(name: str, in_sample: dict[str, list[float]], cross_validated: dict[str, list[float]] | None,
+                 intrinsics: obs.EstimatedCamera, limits: CalibrateConfig,
+                 cross_validation: dict[str, Any] | None = None) -> None:
+    """Refuse a calibration whose errors are absurd for any real set-up (the thresholds and
+    why: ``CalibrateConfig`` and docs/accuracy.md): the in-sample fit's, and the
+    cross-validated ones of the folds that determine the offsets (``cross_validated`` None:
+    too few such folds to judge, ``cross_validation`` says which were left out)."""
     diagonal = float(np.hypot(intrinsics.width, intrinsics.height))
-    if e_r > limits.max_rotation_error_rad or e_p > limits.max_reprojection_fraction * diagonal:
-        raise InconsistentPatternError(
-            f"calibration refused: {name} cross-validated E_R {np.degrees(e_r):.3g} deg, E_p {e_p:.4g} px (at most "
-            f"{np.degrees(limits.max_rotation_error_rad):g} deg and {limits.max_reprojection_fraction:g} of the "
-            f"{diagonal:.0f} px diagonal): the offsets do not predict the pattern; check the pose file's "
-            "units and transform, the pairing of images and poses, and the [pattern] definition")
+    left_out = (cross_validation or {}).get("undetermined_folds") or []
+    folds = (cross_validation or {}).get("folds")
+    note = (f"; fold(s) {', '.join(map(str, left_out))} of {folds} could not be judged (their training samples do "
+            "not determine the offsets) and are left out" if left_out else "")
+    judged = [("in-sample", in_sample)]
+    if cross_validated is not None:
+        judged.append(("cross-validated", cross_validated))
+    elif left_out:
+        note += "; too few folds are determined to judge, so the in-sample fit alone does"
+    for kind, values in judged:
+        e_r, e_p = values["E_R_rad"][0], values["E_p_px"][0]
+        if e_r > limits.max_rotation_error_rad or e_p > limits.max_reprojection_fraction * diagonal:
+            raise InconsistentPatternError(
+                f"calibration refused: {name} {kind} E_R {np.degrees(e_r):.3g} deg, E_p {e_p:.4g} px (at most "
+                f"{np.degrees(limits.max_rotation_error_rad):g} deg and {limits.max_reprojection_fraction:g} of the "
+                f"{diagonal:.0f} px diagonal): the offsets do not predict the pattern; check the pose file's "
+                f"units and transform, the pairing of images and poses, and the [pattern] definition{note}")

@@ -41,7 +41,8 @@ def rows(calibration: Calibration, with_paper: bool = True) -> list[tuple[str, l
             cells = []
             for source, _ in COLUMNS:
                 metrics = _column_metrics(calibration, source)
-                cells.append(_cell(metrics[kind] if metrics else None, key, scale))
+                cell = _cell(metrics[kind] if metrics else None, key, scale)
+                cells.append(cell + (_folds_note(metrics) if kind == "cross_validated" and metrics else ""))
             out.append((f"{unit} {label}", cells))
     if not with_paper:
         return out
@@ -49,6 +50,17 @@ def rows(calibration: Calibration, with_paper: bool = True) -> list[tuple[str, l
         out.append((f"{unit} paper (TRON)", [f"{PAPER[s][index][0]:.3f} ± {PAPER[s][index][1]:.3f}"
                                              for s, _ in COLUMNS]))
     return out
+
+
+def _folds_note(metrics: dict[str, Any]) -> str:
+    """Beside a cross-validated mean: how many folds it is over, when some could not be judged."""
+    cross = metrics.get("cross_validation") or {}
+    left_out, folds = cross.get("undetermined_folds") or [], cross.get("folds")
+    if left_out and folds:
+        return f" ({folds - len(left_out)} of {folds} folds)"
+    if cross.get("samples") is not None and metrics.get("in_sample") and metrics.get("cross_validated") is None:
+        return " (no fold determined)"
+    return ""
 
 
 def _column_metrics(calibration: Calibration, column: str) -> dict[str, Any] | None:
@@ -66,8 +78,17 @@ def print_table(calibration: Calibration) -> None:
     for label, cells in rows(calibration):
         table.add_row(escape(label), *cells)
     Console().print(table)
+    for source, label in COLUMNS:
+        metrics = _column_metrics(calibration, source) if source != "fused" else None
+        cross = (metrics or {}).get("cross_validation") or {}
+        if cross.get("undetermined_folds"):
+            judged = ("the refusal check used the others" if cross.get("judged")
+                      else "too few were determined to judge: the in-sample fit alone was")
+            Console().print(f"{label}: fold(s) {', '.join(map(str, cross['undetermined_folds']))} of {cross['folds']} "
+                            "could not determine the offsets and are left out of the cross-validated means; "
+                            f"{judged}", highlight=False)
     fused = calibration.fused
-    if fused:
+    if fused and (fused["metrics"]["truth"] or fused["metrics"]["cross_validated"]):
         kind = "truth" if fused["metrics"]["truth"] else "cross_validated"
         same = {**fused["sources_on_the_same_samples"], "fused": fused["metrics"]}
         Console().print(f"On the {fused['samples']} samples both sources measured, E_T {kind.replace('_', '-')}: "

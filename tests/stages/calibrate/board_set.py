@@ -50,36 +50,45 @@ def render(cam_from_board: np.ndarray, texture: np.ndarray) -> np.ndarray:
     return cv2.GaussianBlur(image, (0, 0), 0.7)
 
 
-def views(n_grid: int = 11, tilted: int = 4, tilt_rad: float = 0.35) -> list[np.ndarray]:
+def views(n_grid: int = 11, tilted: int = 4, tilt_rad: float = 0.35,
+          tilts: list[tuple[float, float]] | None = None) -> list[np.ndarray]:
     """``cam_from_board`` of each view: ``n_grid`` in one orientation over a grid of positions
     (the camera square to the board, 0.45-0.55 m away), then ``tilted`` views turned by
-    ``tilt_rad`` about the board's x and y axes, both ways."""
+    ``tilt_rad`` about the board's x and y axes, both ways; or, with ``tilts``, one view per
+    (about x, about y) turn (rad)."""
     centre = np.array([(SIZE[0] - 1) * SQUARE_M / 2, (SIZE[1] - 1) * SQUARE_M / 2, 0.0])
     facing = g.rotvec_to_matrix([0.0, 0.0, 0.1])
     out = []
     offsets = [(dx, dy) for dy in (-0.04, 0.0, 0.04) for dx in (-0.06, -0.02, 0.02, 0.06)][:n_grid]
     for k, (dx, dy) in enumerate(offsets):
         out.append(g.make_transform(facing, facing @ -centre + [dx, dy, 0.45 + 0.05 * (k % 3)]))
-    for rotvec in ([tilt_rad, 0.0, 0.1], [-tilt_rad, 0.0, 0.1], [0.0, tilt_rad, 0.1], [0.0, -tilt_rad, 0.1])[:tilted]:
+    turns = [(tilt_rad, 0.0), (-tilt_rad, 0.0), (0.0, tilt_rad), (0.0, -tilt_rad)][:tilted] if tilts is None else tilts
+    for rotvec in ([x, y, 0.1] for x, y in turns):
         rotation = g.rotvec_to_matrix(rotvec)
         out.append(g.make_transform(rotation, rotation @ -centre + [0.0, 0.0, 0.5]))
     return out
 
 
 def write(folder: Path, n_grid: int = 11, tilted: int = 4, robot_noise: tuple[float, float] = (0.0, 0.0),
-          seed: int = 0, tilt_rad: float = 0.35, sag_rad: float = 0.0) -> dict[str, np.ndarray]:
+          seed: int = 0, tilt_rad: float = 0.35, sag_rad: float = 0.0,
+          tilts: list[tuple[float, float]] | None = None, scale: float = 1.0) -> dict[str, np.ndarray]:
     """The hand-eye folder; returns the truth (``cam_from_flange``, ``cam_from_board`` per view).
     ``robot_noise``: sigmas of the pose file's position (m) and angle (rad) per axis;
     ``sag_rad``: an error the robot does not report in the tilted views only (a bracket
-    that sags when the flange tilts), which makes them the worst fitted."""
+    that sags when the flange tilts), which makes them the worst fitted; ``scale``: every
+    length times this (the board's squares, the views' distances, the camera's offset on the
+    flange; ``robot_noise`` as given): the same images of a larger board seen from farther."""
     rng = np.random.default_rng(seed)
     images = folder / "images"
     images.mkdir(parents=True)
     texture = board_texture()
     lines, truth = [], []
-    for k, cam_from_board in enumerate(views(n_grid, tilted, tilt_rad)):
-        cv2.imwrite(str(images / f"view{k:02d}.png"), render(cam_from_board, texture))
-        base_from_flange = BASE_FROM_BOARD @ g.invert(cam_from_board) @ CAM_FROM_FLANGE
+    cam_from_flange = g.make_transform(CAM_FROM_FLANGE[:3, :3], CAM_FROM_FLANGE[:3, 3] * scale)
+    base_from_board = g.make_transform(BASE_FROM_BOARD[:3, :3], BASE_FROM_BOARD[:3, 3] * scale)
+    for k, view in enumerate(views(n_grid, tilted, tilt_rad, tilts)):
+        cv2.imwrite(str(images / f"view{k:02d}.png"), render(view, texture))
+        cam_from_board = g.make_transform(view[:3, :3], view[:3, 3] * scale)
+        base_from_flange = base_from_board @ g.invert(cam_from_board) @ cam_from_flange
         error = g.make_transform(g.rotvec_to_matrix(rng.normal(scale=robot_noise[1], size=3)),
                                  rng.normal(scale=robot_noise[0], size=3))
         base_from_flange = base_from_flange @ error
@@ -88,11 +97,12 @@ def write(folder: Path, n_grid: int = 11, tilted: int = 4, robot_noise: tuple[fl
         lines.append(" ".join(f"{v:.12g}" for v in base_from_flange.ravel()))
         truth.append(cam_from_board)
     (folder / "poses.txt").write_text("\n".join(lines) + "\n")
+    square_m = SQUARE_M * scale
     k = ", ".join("[" + ", ".join(f"{v:g}" for v in row) + "]" for row in CAMERA)
     (folder / "dataset.toml").write_text(
         "format_version = 1\n[robot]\nfile = \"poses.txt\"\nlayout = \"rowmajor4x4\"\n"
         "transform = \"base_from_flange\"\nlength_unit = \"m\"\n[setup]\ncamera_on = \"flange\"\n"
         "[images]\nglob = \"images/*.png\"\n"
-        f"[pattern]\nkind = \"chessboard\"\nsize = [{SIZE[0]}, {SIZE[1]}]\nsquare_m = {SQUARE_M}\n"
+        f"[pattern]\nkind = \"chessboard\"\nsize = [{SIZE[0]}, {SIZE[1]}]\nsquare_m = {square_m:.12g}\n"
         f"[camera]\nwidth = {WIDTH}\nheight = {HEIGHT}\nK = [{k}]\ndist = [0, 0, 0, 0, 0]\n")
-    return {"cam_from_flange": CAM_FROM_FLANGE, "cam_from_board": np.stack(truth)}
+    return {"cam_from_flange": cam_from_flange, "cam_from_board": np.stack(truth)}

@@ -155,13 +155,13 @@ def test_absurd_results_and_solves_that_keep_few_samples_are_refused():
     limits = load_config("smoke").calibrate
     intrinsics = obs.EstimatedCamera(CAMERA, np.zeros(5), 640, 480, 0.0, False)
     real = {"E_T_m": [1.7e-3, 0.6e-3], "E_R_rad": [np.radians(0.5), 0.0], "E_p_px": [4.3, 1.0]}  # Tabb-like
-    screening.check_result("kuka", real, intrinsics, limits)
+    screening.check_result("kuka", real, real, intrinsics, limits)
     garbage = {"E_T_m": [0.107, 0.0], "E_R_rad": [np.radians(95.0), 0.0], "E_p_px": [583.0, 0.0]}  # the case
     with pytest.raises(screening.InconsistentPatternError, match=r"kuka cross-validated E_R 95 deg, E_p 583 px"):
-        screening.check_result("kuka", garbage, intrinsics, limits)
+        screening.check_result("kuka", real, garbage, intrinsics, limits)
     far = {**real, "E_p_px": [17.0, 0.0]}  # beyond 2% of the 800 px diagonal
     with pytest.raises(screening.InconsistentPatternError, match="0.02 of the 800 px diagonal"):
-        screening.check_result("kuka", far, intrinsics, limits)
+        screening.check_result("kuka", real, far, intrinsics, limits)
     screening.check_inliers("kuka", 15, 30)
     with pytest.raises(screening.InconsistentPatternError, match="fit only 11 of 30 samples"):
         screening.check_inliers("kuka", 11, 30)

@@ -163,3 +163,67 @@ def test_one_grid_view_with_a_wrong_pose_is_rejected_not_taken_for_a_scale(tmp_p
     assert screened["rejected"] == ["cal000003"] and abs(screened["pitch_scale"] - 1) < 0.005
     rows = {row["sample_id"]: row for row in read_manifest(Workspace(ws), "calibration_samples").to_pylist()}
     assert "travels without turning by" in rows["cal000003"]["reason"]
+
+
+# ------------------------------------------------------------------ undetermined folds (issue 42)
+#: one orientation on a grid, then views tilted about two axes where only one turns about y:
+#: the fold that holds it trains on turns about x alone
+ONE_Y_TILT = [(0.35, 0.0), (-0.35, 0.0), (0.2, 0.0), (0.0, 0.35)]
+
+
+def test_a_fold_that_cannot_determine_the_offsets_is_named_and_left_out():
+    config = load_config("smoke", overrides=["calibrate.solver=frobenius"])  # no images: the poses alone
+    rng = np.random.default_rng(8)
+    a, b, names, z, x = grid_and_tilts(rng, axes=((1.0, 0, 0),))
+    turned = b[-1] @ g.make_transform(g.rotvec_to_matrix([0.0, 0.3, 0.0]), np.zeros(3))  # the only turn about y
+    a, b = np.concatenate([a, [z @ turned @ g.invert(x["fixed"])]]), np.concatenate([b, [turned]])
+    names = [*names, "fixed"]
+    folds = fitting.folds_of(config, b)
+    cross = fitting.cross_validate(config, a, b, names, [None] * len(a), None)
+    assert cross.undetermined_folds == (int(folds[-1]) + 1,) and "one axis only" in cross.why[folds[-1] + 1]
+    np.testing.assert_array_equal(cross.determined, folds != folds[-1])
+    # noise free: every determined fold predicts its samples exactly
+    np.testing.assert_allclose(cross.predicted[cross.determined], a[cross.determined], atol=1e-7)
+    assert cross.judged and cross.record() == {"folds": 5, "undetermined_folds": [int(folds[-1]) + 1],
+                                               "samples": int(cross.determined.sum()), "judged": True}
+
+
+def test_too_few_determined_folds_leave_the_judgement_to_the_in_sample_fit():
+    from stages.calibrate import observations as obs
+    from stages.calibrate import screening
+
+    limits = load_config("smoke").calibrate
+    camera = obs.EstimatedCamera(board_set.CAMERA, np.zeros(5), 1920, 1080, 0.0, False)
+    fine = {"E_T_m": [1e-3, 0.0], "E_R_rad": [1e-3, 0.0], "E_p_px": [0.5, 0.1]}
+    absurd = {"E_T_m": [1e3, 0.0], "E_R_rad": [0.01, 0.0], "E_p_px": [3.087e6, 0.0]}  # the issue's figure
+    screening.check_result("kuka", fine, None, camera, limits, {"folds": 5, "undetermined_folds": [1, 2, 3, 5]})
+    with pytest.raises(screening.InconsistentPatternError, match=r"kuka in-sample E_R .* fold\(s\) 1, 5 of 5 could"):
+        screening.check_result("kuka", {**fine, "E_p_px": absurd["E_p_px"]}, fine, camera, limits,
+                               {"folds": 5, "undetermined_folds": [1, 5]})
+    with pytest.raises(screening.InconsistentPatternError, match="kuka cross-validated E_R"):
+        screening.check_result("kuka", fine, absurd, camera, limits, {"folds": 5, "undetermined_folds": []})
+
+
+@pytest.mark.parametrize("folds", [5, 2])
+def test_a_set_with_undetermined_folds_is_calibrated_near_the_truth(tmp_path, folds):
+    """Issue 42's set, rendered with its truth: a 9 x 6 board of 200 mm squares, 11 views in
+    one orientation and 4 tilted about two axes. One fold cannot be judged: of 5 folds, the
+    other 4 judge the data; of 2, one is too few, and the in-sample fit is judged. The
+    hand-eye translation lands within a few mm of the truth either way."""
+    truth = board_set.write(tmp_path / "recording", robot_noise=(3e-4, 2e-4), tilts=ONE_Y_TILT, scale=8.0)
+    ws = acquired(tmp_path / "recording", tmp_path / "w")
+    result = speedplus("calibrate", "--workspace", str(ws), "--set", f"calibrate.folds={folds}")
+    assert result.returncode == 0, result.stderr
+    said = " ".join((result.stdout + result.stderr).split())
+    saved = json.loads((ws / "calibration.json").read_text())["kuka"]
+    cross = saved["metrics"]["cross_validation"]
+    assert cross["folds"] == folds and len(cross["undetermined_folds"]) == 1
+    assert f"of {folds} could not determine the offsets" in said
+    if folds == 5:
+        assert cross["judged"] and cross["samples"] < 15 and "(4 of 5 folds)" in said
+        assert saved["metrics"]["cross_validated"]["E_T_m"][0] < 5e-3  # the noise, not an extrapolation
+    else:
+        assert not cross["judged"] and cross["samples"] < 15 and "(1 of 2 folds)" in said
+        assert "the in-sample fit alone" in said
+    z = g.transform_from_qt(saved["cam_from_camee"]["q"], saved["cam_from_camee"]["t"])
+    assert np.linalg.norm(z[:3, 3] - truth["cam_from_flange"][:3, 3]) < 5e-3
