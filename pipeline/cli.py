@@ -131,6 +131,8 @@ def _workspace(location: str, root: Path | None = None) -> Workspace:
     """The workspace a ``--workspace`` names: a local folder, or a working copy (this
     machine's, or ``root``) of one on object storage."""
     if not is_remote(location):
+        if Path(location).exists() and not Path(location).is_dir():
+            raise InputError(f"{location}: --workspace names a file, not a folder; give a folder (a new one is made)")
         return Workspace(location)
     remote = Remote(location)
     root = root or working_copy_for(remote)
@@ -275,7 +277,7 @@ def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspac
 
     for name in stages:
         outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force,
-                                   on_start=lambda name=name: starting(name), redo=redo)
+                                   on_start=lambda name=name: starting(name), redo=redo, follow=len(stages) > 1)
         rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
         if outcome.action == "skipped":
             out.print(f"[green]{name}[/]: up to date ({rows})")

@@ -30,7 +30,8 @@ class StageEntry:
     preflight: bool = False
     chained: bool = True  # a step of `speedplus run`
     #: results made with another configuration are replaced without --force (they only
-    #: record copies made elsewhere: an export to another folder or in another format)
+    #: record copies made elsewhere, an export to another folder, or a view of other
+    #: results, the report)
     replace_stale: bool = False
     #: which target's digest is in the fingerprint: the configured folder's (the plan, which
     #: copies it into the workspace) or the workspace's copy (every later stage)
@@ -91,7 +92,7 @@ STAGES: tuple[StageEntry, ...] = (
                "stages.render", own_command=True),
     StageEntry("evaluate", "ONNX model scores on twins and testbed images (Table 2)", "stages.evaluate",
                preflight=True, own_command=True),
-    StageEntry("report", "static HTML report (W/report/index.html)", "stages.report"),
+    StageEntry("report", "static HTML report (W/report/index.html)", "stages.report", replace_stale=True),
     StageEntry("export", "the labels and images as a SPEED+, BOP or SHIRT dataset", "stages.export", chained=False,
                replace_stale=True, own_command=True, views=True),
     StageEntry("train-reference", "train the reference keypoint CNNs (plain and augmented) on the synthetic "

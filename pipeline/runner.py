@@ -40,6 +40,7 @@ from manifests.integrity import compact, damage, damaged_files, file_records, pa
 from manifests.schema import MANIFESTS
 from pipeline import progress
 from pipeline.config import Config
+from pipeline.engines import limit_native_threads, threads_per_worker
 from pipeline.progress import console
 from pipeline.registry import StageEntry
 from speedplus.errors import InputError
@@ -214,11 +215,29 @@ class Interrupted(KeyboardInterrupt):
         return f"interrupted: {self.kept}{of} rows kept ({self.stage}); run the same command to resume"
 
 
+def redone_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> list[str]:
+    """The inputs redone since the stage's results were made, when nothing else differs (its
+    configuration, extras, target and schema are those it was made with); else none."""
+    recorded = [(read_success(workspace, name) or {}).get("made_with") for name in stage.resolved(config,
+                                                                                                  workspace).outputs]
+    current = fingerprint_payload(stage, config, workspace)
+    if current is None or not recorded or not all(isinstance(r, dict) for r in recorded):
+        return []
+    same = ("stage", "schema_version", "config", "extra", "target")
+    if any({k: r.get(k) for k in same} != {k: current.get(k) for k in same} for r in recorded):
+        return []
+    old, new = recorded[0].get("inputs", {}), current.get("inputs", {})
+    return sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+
+
 def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False,
-              on_start: Callable[[], None] | None = None, redo: tuple[str, ...] = ()) -> StageOutcome:
+              on_start: Callable[[], None] | None = None, redo: tuple[str, ...] = (),
+              follow: bool = False) -> StageOutcome:
     """Run (or resume, or skip) one stage; see the module docstring. ``on_start`` is called
     once every check has passed, just before anything in the workspace changes. ``redo``
-    with ``force``: redo only these members (evaluate's models) and keep the others'."""
+    with ``force``: redo only these members (evaluate's models) and keep the others'.
+    ``follow`` (a chain of stages): results stale only because an input was redone (an
+    earlier stage's ``--force``) are redone, saying so, instead of refused."""
     resolved = stage.resolved(config, workspace)
     inputs, outputs = resolved.inputs, resolved.outputs
     made_with = fingerprint_payload(stage, config, workspace)
@@ -242,10 +261,18 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
     force, state, forget = _member_redo(stage.name, state, resolved, force, redo)
     replacing = state.state == "stale" and stage.replace_stale
+    if state.state == "stale" and follow and not (force or replacing):
+        redone = redone_inputs(stage, config, workspace)
+        if redone:
+            console.print(f"{stage.name}: its input{'s' if len(redone) > 1 else ''} {', '.join(redone)} "
+                          f"{'were' if len(redone) > 1 else 'was'} redone; redoing it")
+            replacing = True
     if state.state == "stale" and not (force or replacing):
         raise StageError(
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
-            f"made with another configuration or other inputs ({state.detail}); rerun with --force to discard them")
+            f"made with another configuration or other inputs ({state.detail}); rerun it with --force to discard "
+            f"them (`speedplus {stage.name} -w {workspace.location} --force`; a later `speedplus run` redoes the "
+            "stages after it)")
     if state.state == "damaged" and not force:
         raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
     previous = None if force else read_success(workspace, outputs[0]) if outputs else None
@@ -265,6 +292,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             if forget and resolved.member_column is not None:
                 _forget_members(workspace, name, current, resolved.member_column, forget)
     run = stage.function()
+    limit_native_threads(threads_per_worker(config.run.workers))  # this process is one of run.workers
     workspace.root.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     progress.reset()

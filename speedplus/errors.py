@@ -3,6 +3,11 @@
 Their messages name the file, row, field or key at fault and say what was expected.
 """
 
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
 
 class InputError(ValueError):
     """Bad input or configuration (exit code 1)."""
@@ -17,3 +22,14 @@ class RefusalError(InputError):
     def __init__(self, message: str, keep: tuple[str, ...] = ()) -> None:
         super().__init__(message)
         self.keep = keep
+
+
+def unknown_keys(unknown: Iterable[str], known: Iterable[str]) -> str:
+    """The unknown keys of a file, each with the known key it most likely meant:
+    ``lenght_unit (did you mean length_unit?)``; every file format's message uses it."""
+    choices = sorted(known)
+    said = []
+    for key in sorted(unknown):
+        close = difflib.get_close_matches(key, choices, n=1)
+        said.append(f"{key} (did you mean {close[0]}?)" if close else key)
+    return ", ".join(said)

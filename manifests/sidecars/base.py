@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
 from manifests.files import write_json_atomic
-from speedplus.errors import InputError
+from speedplus.errors import InputError, unknown_keys
 
 T = TypeVar("T")
 
@@ -81,7 +81,8 @@ class Fields:
     def only(self, *names: str) -> None:
         unknown = sorted(set(self.data) - set(names))
         if unknown:
-            raise SidecarError(f"{self.where}: unknown key(s) {', '.join(self.key(n) for n in unknown)}")
+            where = f" in {self.prefix.rstrip('.')}" if self.prefix else ""
+            raise SidecarError(f"{self.where}: unknown key(s){where} {unknown_keys(unknown, names)}")
 
     def raw(self, name: str) -> Any:
         if name not in self.data:

@@ -137,10 +137,9 @@ def _check_trajectory(config: Config) -> None:
     t = config.trajectory
     if not t.presets or len(set(t.presets)) != len(t.presets):
         raise ConfigError(f"trajectory.presets: expected distinct presets, got {list(t.presets)}")
-    if t.max_replans < 0:
-        raise ConfigError("trajectory.max_replans: expected a count of at least 0")
-    if t.frames < 1 or not t.cam_step_s > 0:
-        raise ConfigError("trajectory.frames/cam_step_s: expected at least one frame and a positive step (s)")
+    _at_least(config, {"trajectory.max_replans": 0, "trajectory.frames": 1})
+    if not t.cam_step_s > 0:
+        raise ConfigError(f"trajectory.cam_step_s: expected a positive step (s), got {t.cam_step_s}")
     try:
         epoch = datetime.fromisoformat(t.epoch_utc.replace("Z", "+00:00"))
     except ValueError:
@@ -171,14 +170,22 @@ def _check_trajectory(config: Config) -> None:
                               "not a rigid body's (all positive, the largest at most the sum of the others)")
 
 
+def _at_least(config: Config, minimums: dict[str, int]) -> None:
+    """Each ``section.key`` at least its minimum; the message names the key and its value."""
+    for dotted, minimum in minimums.items():
+        section, key = dotted.split(".")
+        value = getattr(config.section(section), key)
+        if value < minimum:
+            raise ConfigError(f"{dotted}: expected at least {minimum}, got {value!r}")
+
+
 def _check(config: Config) -> Config:
     """Cross-field rules that types cannot express; a relative ``target.path`` is made
     absolute (the saved configuration must name the same folder from any directory)."""
     if config.target.path and not Path(config.target.path).is_absolute():
         config = replace(config, target=replace(config.target, path=str(Path(config.target.path).resolve())))
     c, p = config.camera, config.plan
-    if c.width_px <= 0 or c.height_px <= 0:
-        raise ConfigError("camera.width_px/height_px: must be positive")
+    _at_least(config, {"camera.width_px": 1, "camera.height_px": 1})
     if abs(c.width_px / c.reference_width_px - c.height_px / c.reference_height_px) > 1e-9:
         raise ConfigError(
             f"camera.width_px/height_px: {c.width_px}x{c.height_px} does not have the aspect of the reference "
@@ -191,8 +198,7 @@ def _check(config: Config) -> Config:
                            ("plan.dataset_range_diameters", *p.dataset_range_diameters)):
         if not 0 <= low <= high or (key == "plan.calibration_distance_m" and low == 0) or high == 0:
             raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got ({low}, {high})")
-    if p.n_calibration < 0 or p.n_dataset < 0:
-        raise ConfigError("plan.n_calibration/n_dataset: must not be negative")
+    _at_least(config, {"plan.n_calibration": 0, "plan.n_dataset": 0})
     if not set(p.lights) <= set(DOMAINS) or not p.lights:
         raise ConfigError(f"plan.lights: expected a non-empty subset of lightbox, sunlamp, got {p.lights}")
     if not set(p.calibration_mounts) <= set(MOUNTS) or not p.calibration_mounts:
@@ -201,14 +207,19 @@ def _check(config: Config) -> Config:
     if not 1 <= low <= high <= p.n_light_boxes:
         raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
     if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
-        raise ConfigError("plan.calibration_max_tilt_rad: expected [0, pi/2)")
+        raise ConfigError(f"plan.calibration_max_tilt_rad: expected [0, pi/2), got {p.calibration_max_tilt_rad}")
     if p.mode == "trajectory":
         _check_trajectory(config)
     if not 0.0 <= config.export.validation_fraction <= 1.0:
-        raise ConfigError("export.validation_fraction: expected a share in [0, 1]")
-    if config.export.format == "shirt" and (p.mode != "trajectory" or "train" in config.export.sets):
-        raise ConfigError("export.format: shirt exports sequences (plan.mode = trajectory) of the testbed and the "
-                          "twins (export.sets without train); export the training set with speedplus or bop")
+        raise ConfigError(f"export.validation_fraction: expected a share in [0, 1], got "
+                          f"{config.export.validation_fraction}")
+    if config.export.format == "shirt" and p.mode != "trajectory":
+        raise ConfigError(f"export.format: shirt exports rendezvous sequences, and plan.mode is {p.mode!r} "
+                          "(independent poses): export them with speedplus or bop, or plan sequences "
+                          "(plan.mode = \"trajectory\")")
+    if config.export.format == "shirt" and "train" in config.export.sets:
+        raise ConfigError(f"export.sets: {list(config.export.sets)}: shirt exports the sequences' testbed images "
+                          "and twins, not the training set; drop train, or export it with speedplus or bop")
     if not config.export.sets or len(set(config.export.sets)) != len(config.export.sets):
         raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:
@@ -220,21 +231,15 @@ def _check(config: Config) -> Config:
     if not 0 < e.tracking_gate_probability < 1:
         raise ConfigError(f"evaluate.tracking_gate_probability: expected a probability in (0, 1), got "
                           f"{e.tracking_gate_probability}")
-    if config.evaluate.threads < 0 or config.evaluate.batch_size < 1 or config.evaluate.ransac_seed < 0:
-        raise ConfigError("evaluate.threads/batch_size/ransac_seed: expected a count of threads (0: the worker's "
-                          "share of the cores), a batch size of at least 1 and a seed of at least 0")
-    if config.run.workers < 0:
-        raise ConfigError("run.workers: expected a count, or 0 for as many as there are CPUs")
-    if config.run.worker_max_tasks < 1 or config.run.worker_cpus < 1:
-        raise ConfigError("run.worker_max_tasks/worker_cpus: must be at least 1")
+    _at_least(config, {"evaluate.threads": 0, "evaluate.batch_size": 1, "evaluate.ransac_seed": 0,
+                       "run.workers": 0, "run.worker_max_tasks": 1, "run.worker_cpus": 1, "run.part_rows": 1,
+                       "virtual.spp": 1, "virtual.max_depth": 1, "virtual.rr_depth": 1, "calibrate.folds": 2,
+                       "render.spp": 1, "render.train_spp": 1, "render.max_depth": 1, "render.train_count": 0})
     if not config.run.start_timeout_s > 0:
         raise ConfigError("run.start_timeout_s: expected a positive number of seconds")
-    if min(config.virtual.spp, config.virtual.max_depth, config.virtual.rr_depth) < 1:
-        raise ConfigError("virtual.spp/max_depth/rr_depth: at least 1")
     if not 0 <= config.virtual.vicon_ghost_rate <= 1:
-        raise ConfigError("virtual.vicon_ghost_rate: expected a probability in [0, 1]")
-    if config.calibrate.folds < 2:
-        raise ConfigError("calibrate.folds: at least 2")
+        raise ConfigError(f"virtual.vicon_ghost_rate: expected a probability in [0, 1], got "
+                          f"{config.virtual.vicon_ghost_rate}")
     if min(config.calibrate.arm_prior_joint_rad, config.calibrate.arm_prior_length_m, config.calibrate.arm_prior_base_m,
            config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale,
            *config.calibrate.arm_prior_compliance_rad_per_nm) <= 0:
@@ -246,8 +251,6 @@ def _check(config: Config) -> Config:
     if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):
         raise ConfigError(f"calibrate.world_up: expected a unit vector, got {config.calibrate.world_up}")
     r = config.render
-    if r.spp < 1 or r.train_spp < 1 or r.max_depth < 1 or r.train_count < 0:
-        raise ConfigError("render.spp/max_depth: at least 1; render.train_count: not negative")
     if len(r.train_distance_m) not in (0, 2):
         raise ConfigError(f"render.train_distance_m: expected [] (SPEED+'s, in the target's diameters) or [min, max], "
                           f"got {list(r.train_distance_m)}")
@@ -257,8 +260,10 @@ def _check(config: Config) -> Config:
             raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got {(low, high)}")
     if not 0 < r.train_irradiance[0] <= r.train_irradiance[1]:
         raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {r.train_irradiance}")
-    if not 0 <= r.train_earth_fraction <= 1 or not 0 < r.train_resolution_scale <= 4:
-        raise ConfigError("render.train_earth_fraction: expected [0, 1]; render.train_resolution_scale: (0, 4]")
+    if not 0 <= r.train_earth_fraction <= 1:
+        raise ConfigError(f"render.train_earth_fraction: expected [0, 1], got {r.train_earth_fraction}")
+    if not 0 < r.train_resolution_scale <= 4:
+        raise ConfigError(f"render.train_resolution_scale: expected (0, 4], got {r.train_resolution_scale}")
     template = config.label.filename_template
     try:
         example = PurePosixPath(template.format(sample_id="img000000"))
@@ -268,8 +273,6 @@ def _check(config: Config) -> Config:
     if example.is_absolute() or ".." in example.parts or "\\" in template or "{sample_id}" not in template:
         raise ConfigError(f"label.filename_template: {template!r} must name a file inside the export folder and "
                           "contain {sample_id}")
-    if config.run.part_rows < 1:
-        raise ConfigError("run.part_rows: must be at least 1")
     for section, key in (("testbed", "camee_from_cam_q"), ("virtual", "vicon_world_from_world_q")):
         q = np.asarray(getattr(config.section(section), key))
         if abs(np.linalg.norm(q) - 1.0) > 1e-6:

@@ -21,6 +21,7 @@ import numpy as np
 
 from manifests import Workspace, sample_ids
 from manifests.sidecars import Session, SessionCamera
+from speedplus.errors import unknown_keys
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import (
     IngestError,
@@ -92,7 +93,8 @@ def _camera_table(table: Any, where: Path) -> dict[str, Any] | None:
         raise IngestError(where, "[camera] must be a table")
     unknown = sorted(set(table) - {"width", "height", "K", "dist"})
     if unknown:
-        raise IngestError(where, f"[camera] unknown key(s) {', '.join(unknown)}; expected width, height, K, dist")
+        raise IngestError(where, f"[camera] unknown key(s) {unknown_keys(unknown, ('width', 'height', 'K', 'dist'))}; "
+                                 "expected width, height, K, dist")
     for key in ("width", "height"):
         if not isinstance(table.get(key), int) or table[key] < 1:
             raise IngestError(where, f"[camera] {key} must be a positive integer (px), got {table.get(key)!r}")
@@ -125,16 +127,18 @@ def read_dataset_toml(source: Path) -> HandEyeDataset:
         raise IngestError(path, f"not valid TOML ({error})") from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise IngestError(path, f"format_version must be {FORMAT_VERSION}, got {meta.get('format_version')!r}")
-    unknown = sorted(set(meta) - {"format_version", "robot", "setup", "images", "pattern", "camera"})
+    tables = {"format_version", "robot", "setup", "images", "pattern", "camera"}
+    unknown = sorted(set(meta) - tables)
     if unknown:
-        raise IngestError(path, f"unknown key(s) or table(s) {', '.join(unknown)}")
+        raise IngestError(path, f"unknown key(s) or table(s) {unknown_keys(unknown, tables)}")
     values: dict[str, Any] = dict(DEFAULTS)
     for table, keys in CHOICES.items():
         given = meta.get(table, {})
         if not isinstance(given, dict):
             raise IngestError(path, f"[{table}] must be a table")
         for key in sorted(set(given) - set(keys)):
-            raise IngestError(path, f"[{table}] unknown key {key}; expected some of {', '.join(keys)}")
+            raise IngestError(path, f"[{table}] unknown key {unknown_keys([key], keys)}; expected some of "
+                                    f"{', '.join(keys)}")
         for key, allowed in keys.items():
             if key not in given:
                 continue

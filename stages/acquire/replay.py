@@ -34,6 +34,7 @@ import numpy as np
 from manifests import Workspace
 from manifests.schema import SESSIONS
 from manifests.sidecars import Session, SessionCamera
+from speedplus.errors import unknown_keys
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.handeye import check_images, inside
 from stages.acquire.ingest import (
@@ -66,7 +67,7 @@ def read_session_toml(path: Path) -> dict[str, Any]:
         raise IngestError(path, f"not valid TOML ({error})") from None
     unknown = sorted(set(meta) - SESSION_KEYS)
     if unknown:
-        raise IngestError(path, f"unknown key(s) or table(s) {', '.join(unknown)}")
+        raise IngestError(path, f"unknown key(s) or table(s) {unknown_keys(unknown, SESSION_KEYS)}")
     setup = meta.setdefault("setup", {})
     if not isinstance(setup, dict) or set(setup) - set(SETUP_BODIES):
         raise IngestError(path, f"[setup] may hold camera_on and target_on only, got {setup!r}")

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from pipeline.config import TestbedConfig
+from speedplus.errors import unknown_keys
 from stages.common import layout
 from stages.common.image_io import to_uint8
 from stages.common.target import Target
@@ -80,7 +81,8 @@ def pattern_from_table(table: Any, where: str) -> PatternSpec:
         raise fail("must be a table")
     unknown = sorted(set(table) - PATTERN_KEYS)
     if unknown:
-        raise fail(f"unknown key(s) {', '.join(unknown)}; expected some of {', '.join(sorted(PATTERN_KEYS))}")
+        raise fail(f"unknown key(s) {unknown_keys(unknown, PATTERN_KEYS)}; expected some of "
+                   f"{', '.join(sorted(PATTERN_KEYS))}")
     kind = table.get("kind")
     if kind not in ("chessboard", "charuco"):
         raise fail(f"kind must be chessboard or charuco, got {kind!r}")

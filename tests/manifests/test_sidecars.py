@@ -66,7 +66,8 @@ def test_missing_or_corrupt_sessions_say_what_to_rerun(tmp_path):
 # ----------------------------------------------------------------- calibration, fusion, truth
 POSE = Pose((0.5, 0.5, -0.5, 0.5), (0.1, -0.2, 0.3))
 METRIC = {"E_T_m": [1e-4, 5e-5], "E_R_rad": [3e-4, 1e-4], "E_p_px": [0.2, 0.1]}
-METRICS = {"in_sample": METRIC, "cross_validated": METRIC, "truth": None}
+METRICS = {"in_sample": METRIC, "cross_validated": METRIC, "truth": None,
+           "cross_validation": {"folds": 5, "undetermined_folds": [], "samples": 40, "judged": True}}
 
 
 def source(name: str, kinematics: dict) -> SourceCalibration:
@@ -116,7 +117,7 @@ def _edit(data: dict, path: str, value) -> dict:
 
 
 @pytest.mark.parametrize("path, value, message", [
-    ("version", KeyError, r"version None, this program reads version 2 .*rerun calibrate with --force"),
+    ("version", KeyError, r"version None, this program reads version 3 .*rerun calibrate with --force"),
     ("kuka.fixture_compliance.anisotropy_by_fixture.minus_x", [0.1, 0.2],
      "key kuka.fixture_compliance.anisotropy_by_fixture.minus_x: expected"),
     ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),
@@ -128,8 +129,12 @@ def _edit(data: dict, path: str, value) -> dict:
                                                                r"plus_x: expected a list of 3"),
     ("kuka.arm_kinematics.covariance", [[1.0]], r"key kuka.arm_kinematics.covariance: expected a 2 x 2"),
     ("vicon.metrics.in_sample.E_T_m", [0.1], r"key vicon.metrics.in_sample.E_T_m: expected a list of 2"),
+    ("kuka.metrics.cross_validation.undetermined_folds", [6], r"key kuka.metrics.cross_validation."
+                                                              r"undetermined_folds: expected a list of fold numbers"),
+    ("kuka.metrics.cross_validated", None, r"key kuka.metrics.cross_validated: expected an object"),
     ("rejection", None, r"keys vicon, fused and rejection: all null or all present"),
-    ("kuka.pose", 1, r"unknown key\(s\) kuka.pose"),
+    ("kuka.pose", 1, r"unknown key\(s\) in kuka pose"),
+    ("kuka.samplez", 1, r"unknown key\(s\) in kuka samplez \(did you mean samples\?\)"),
 ])
 def test_a_malformed_calibration_names_the_file_and_the_key(tmp_path, path, value, message):
     workspace = Workspace(tmp_path)

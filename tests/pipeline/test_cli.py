@@ -124,14 +124,35 @@ def test_an_unexpected_error_is_one_line_and_a_crash_log(monkeypatch, tmp_path, 
     assert "Traceback" in log.read_text() and "ZeroDivisionError" in log.read_text()
 
 
-def test_export_refuses_a_folder_holding_other_files(smoke_labelled, tmp_path):
+def test_export_refuses_a_folder_holding_other_files_even_with_force(smoke_labelled, tmp_path):
     out = tmp_path / "thesis"
     out.mkdir()
     (out / "chapter1.tex").write_text("mine")
     testbed = ("--set", 'export.sets=["testbed"]')  # the smoke workspace has no renders
-    refused = speedplus("export", "-w", str(smoke_labelled.root), "--out", str(out), *testbed)
-    assert refused.returncode == 1 and "not empty" in refused.stderr and "--force" in refused.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["chapter1.tex"]
-    forced = speedplus("export", "-w", str(smoke_labelled.root), "--out", str(out), "--force", *testbed)
-    assert forced.returncode == 0, forced.stderr
-    assert (out / "chapter1.tex").read_text() == "mine" and (out / "camera.json").is_file()
+    for force in ((), ("--force",)):
+        refused = speedplus("export", "-w", str(smoke_labelled.root), "--out", str(out), *force, *testbed)
+        said = " ".join(refused.stderr.split())
+        assert refused.returncode == 1 and "not empty: it holds files speedplus did not write" in said, said
+        assert sorted(p.name for p in out.iterdir()) == ["chapter1.tex"]
+
+
+def test_each_export_format_keeps_its_own_folder_and_status_shows_each(smoke_labelled, tmp_path):
+    """Issue 42: `export --format bop --out X`, then `export --format speedplus` wrote into X,
+    and `--force` replaced BOP's camera.json with SPEED+'s."""
+    ws = tmp_path / "w"
+    shutil.copytree(smoke_labelled.root, ws)
+    testbed = ("--set", 'export.sets=["testbed"]')
+    bop = tmp_path / "bop"
+    assert speedplus("export", "-w", str(ws), "--format", "bop", "--out", str(bop), *testbed).returncode == 0
+    camera = (bop / "camera.json").read_bytes()
+    plain = speedplus("export", "-w", str(ws), "--format", "speedplus", *testbed)
+    assert plain.returncode == 0, plain.stderr
+    assert (ws / "export" / "speedplus" / "camera.json").is_file() and (bop / "camera.json").read_bytes() == camera
+    into_bop = speedplus("export", "-w", str(ws), "--format", "speedplus", "--out", str(bop), "--force", *testbed)
+    said = " ".join(into_bop.stderr.split())
+    assert into_bop.returncode == 1 and f"it holds a bop export of {ws}" in said, said
+    assert (bop / "camera.json").read_bytes() == camera
+    status = " ".join(speedplus("status", "-w", str(ws)).stdout.split())
+    assert "export bop │ done" in status and "export speedplus │ done" in status, status
+
+

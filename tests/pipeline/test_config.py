@@ -65,13 +65,17 @@ def test_overrides_are_typed():
         ("plann.seed=3", "unknown configuration key 'plann'"),
         ("plan.n_dataset=many", "plan.n_dataset: expected an integer, got 'many'"),
         ("plan.n_dataset=2.5", "plan.n_dataset: expected an integer"),
-        ("plan.dataset_range_m=[1, 2, 3]", "plan.dataset_range_m: expected 2 values"),
+        ("plan.dataset_range_m=[1, 2, 3]", "plan.dataset_range_m: expected [] (SPEED+'s, in the target's diameters) "
+                                           "or [min, max]"),
         ("plan.dataset_range_m=[9, 7]", "plan.dataset_range_m: expected 0 <= min <= max"),
         ("camera.width_px=1000", "does not have the aspect"),
         ("plan.lights=['moon']", "plan.lights"),
-        ("virtual.rr_depth=0", "virtual.spp/max_depth/rr_depth"),
-        ("evaluate.threads=-1", "evaluate.threads/batch_size/ransac_seed"),
-        ("evaluate.ransac_seed=-2", "evaluate.threads/batch_size/ransac_seed"),
+        ("virtual.rr_depth=0", "virtual.rr_depth: expected at least 1, got 0"),
+        ("evaluate.threads=-1", "evaluate.threads: expected at least 0, got -1"),
+        ("evaluate.ransac_seed=-2", "evaluate.ransac_seed: expected at least 0, got -2"),
+        ("render.spp=-5", "render.spp: expected at least 1, got -5"),  # the bad value echoed, one key named
+        ("render.train_resolution_scale=9", "render.train_resolution_scale: expected (0, 4], got 9"),
+        ("export.format=shirt", "plan.mode is 'poses'"),  # the setting that decides
         ("plan", "expected section.key=value"),
     ],
 )

@@ -64,3 +64,28 @@ def test_errors_cross_process_boundaries_with_their_message():
     for error in (ManifestError("a.parquet", "bad", row=2, column="q"), ImageReadError("images/x.png", "truncated")):
         again = pickle.loads(pickle.dumps(error))
         assert type(again) is type(error) and str(again) == str(error)
+
+
+class BlasThreads:
+    """A worker context that reports its BLAS libraries' thread counts."""
+
+    def work(self, item: int) -> list[int]:
+        from threadpoolctl import threadpool_info
+
+        return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+
+def test_a_worker_and_the_driver_hold_blas_to_their_share_of_the_cores(monkeypatch):
+    """Issue 42: the arms' fit spun a BLAS thread per core in every process; beside another
+    job, calibrate took 31.7 s instead of 12.0 s (``python -m bench threads``)."""
+    import os
+
+    from pipeline.engines import limit_native_threads, threads_per_worker
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    assert threads_per_worker(2) == 2 and threads_per_worker(4) == 1 and threads_per_worker(0) == 1
+    monkeypatch.undo()
+    for item in map_local(BlasThreads, (), "work", [0, 1, 2], workers=2, max_tasks=5):
+        assert item and set(item) == {threads_per_worker(2)}
+    limit_native_threads(1)
+    assert set(BlasThreads().work(0)) == {1}

@@ -190,3 +190,35 @@ def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_p
     assert "Traceback" not in err and "winding down" not in err
     resumed = speedplus("acquire", "--workspace", str(ws))
     assert resumed.returncode == 0 and "acquire: resumed" in resumed.stdout
+
+
+def test_run_after_a_stages_force_redoes_what_depends_on_it_and_says_so(finished):
+    """Issue 42: after `render --force`, `run` stopped at evaluate, then at report."""
+    assert speedplus("render", "--workspace", str(finished), "--force").returncode == 0
+    alone = speedplus("evaluate", "--workspace", str(finished))
+    said = " ".join(alone.stderr.split())
+    assert alone.returncode == 1 and f"`speedplus evaluate -w {finished} --force`" in said, said
+    result = speedplus("run", "--workspace", str(finished))
+    assert result.returncode == 0, result.stderr
+    out = " ".join(result.stdout.split())
+    assert "evaluate: its input renders was redone; redoing it" in out
+    assert "evaluate: ran in" in out and "report: ran in" in out
+    again = speedplus("run", "--workspace", str(finished))
+    assert again.returncode == 0 and "report: up to date" in again.stdout and "redoing" not in again.stdout
+
+
+def test_the_report_is_a_view_made_anew_without_force(finished):
+    assert speedplus("evaluate", "--workspace", str(finished), "--force").returncode == 0
+    result = speedplus("report", "--workspace", str(finished))
+    assert result.returncode == 0, result.stderr
+    assert "report: ran in" in result.stdout
+
+
+def test_a_file_given_as_the_workspace_is_named(tmp_path):
+    file = tmp_path / "notes.txt"
+    file.write_text("mine")
+    for command in ("run", "status"):
+        result = speedplus(command, "--workspace", str(file))
+        said = " ".join(result.stderr.split())
+        assert result.returncode == 1 and f"{file}: --workspace names a file" in said and "bug" not in said, said
+    assert file.read_text() == "mine"

@@ -84,11 +84,11 @@ def test_export_records_every_copy_resumes_and_stays_in_its_folder(labelled, tmp
     ws.success_path("export_speedplus").unlink()
     (out / rows[0]["file"]).unlink()
     (out / "lightbox" / "test.json").unlink()
-    again = speedplus("export", "-w", str(ws.root))  # the folder and sets are remembered in W/config.toml
+    again = speedplus("export", "-w", str(ws.root), "--out", str(out))  # the same command resumes
     assert again.returncode == 0, again.stderr
     assert all((out / r["file"]).is_file() for r in rows)
     assert (out / "lightbox" / "test.json").read_bytes() == annotations
-    assert "up to date" in speedplus("export", "-w", str(ws.root)).stdout
+    assert "up to date" in speedplus("export", "-w", str(ws.root), "--out", str(out)).stdout
     # a labels file edited to climb out of the export folder
     part = list_parts(ws, "labels")[0]
     table = pq.read_table(part)
@@ -96,7 +96,7 @@ def test_export_records_every_copy_resumes_and_stays_in_its_folder(labelled, tmp
     names[0] = "../../escaped.png"
     pq.write_table(table.set_column(table.schema.get_field_index("filename"), "filename", pa.array(names)), part)
     reseal(ws, "labels")
-    bad = speedplus("export", "-w", str(ws.root), "--force")
+    bad = speedplus("export", "-w", str(ws.root), "--out", str(out), "--force")
     message = " ".join(bad.stderr.split())
     assert bad.returncode == 1 and "would leave the export folder" in message and "Traceback" not in message
     assert not (tmp_path / "escaped.png").exists() and not (out.parent.parent / "escaped.png").exists()

@@ -103,6 +103,8 @@ def small_kuka(tmp_path):
     ("dataset.toml", "format_version = 1", "format_version = 2", r"dataset.toml: format_version must be 1"),
     ("dataset.toml", 'layout = "rowmajor4x4"', 'layout = "rowmajor"', r"dataset.toml: \[robot\] layout must be"),
     ("dataset.toml", "[setup]", "[setup]\nexposure = 3", r"dataset.toml: \[setup\] unknown key exposure"),
+    ("dataset.toml", "[setup]", "[setup]\ncamera_onn = 3",
+     r"\[setup\] unknown key camera_onn \(did you mean camera_on\?\)"),
     ("dataset.toml", 'camera_on = "flange"', 'camera_on = "hand"', r"\[setup\] camera_on must be flange or world"),
     ("dataset.toml", 'file = "RobotPosesVec.txt"', 'file = "../RobotPosesVec.txt"', r"\[robot\] file .* inside"),
     ("dataset.toml", "square_m = 0.02", "square_m = 20", r"\[pattern\] square_m must be .* metres"),

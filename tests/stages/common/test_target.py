@@ -84,6 +84,8 @@ GOOD = ('format_version = 1\nname = "box"\nmesh = "boulder.stl"\nlength_unit = "
 
 @pytest.mark.parametrize("text, expected", [
     ("colour = 3\n" + GOOD, "unknown key(s) colour"),
+    (GOOD.replace("length_unit", "lenght_unit"), "unknown key(s) lenght_unit (did you mean length_unit?)"),
+    (GOOD.replace("mass_kg", "mas_kg"), "unknown key(s) in mockup mas_kg (did you mean mass_kg?)"),
     (GOOD.replace('"box"', '"My Box"'), "key name"),
     (GOOD.replace("format_version = 1", "format_version = 2"), "key format_version"),
     (GOOD.replace("length_unit = \"m\"", "length_unit = \"inch\""), "key length_unit"),
