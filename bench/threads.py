@@ -1,7 +1,7 @@
 """BLAS threads under a second load: calibrate on a smoke workspace with its BLAS held to
-the process's share of the cores (``run.workers = 2`` on 2 cores: 1 thread, the default)
-against every core (``run.workers = 1``: the cores, as OpenBLAS takes them unlimited),
-idle and beside ``LOAD`` busy processes (another job holding the cores).
+one thread (``pipeline.engines.single_threaded_blas``, as shipped) against a thread per
+core (OpenBLAS's own choice, as before issue 42), idle and beside ``LOAD`` busy processes
+(another job holding the cores).
 
     python -m bench threads [REPEATS] [LOAD]
 
@@ -23,12 +23,16 @@ import numpy as np
 from bench.common import report
 
 SPIN = "while True: pass"
+#: the CLI with BLAS left to its own thread count (the pipeline's limit switched off)
+UNLIMITED = ("import sys, pipeline.engines as engines; engines.single_threaded_blas = lambda: None; "
+             "from pipeline.cli import main; sys.argv[0] = 'speedplus'; main()")
 
 
-def _calibrate(workspace: Path, workers: int) -> float:
+def _calibrate(workspace: Path, one_thread: bool) -> float:
+    command = ["-m", "pipeline.cli"] if one_thread else ["-c", UNLIMITED]
     started = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "pipeline.cli", "calibrate", "-w", str(workspace), "--force", "--set",
-                    f"run.workers={workers}"], check=True, capture_output=True)
+    subprocess.run([sys.executable, *command, "calibrate", "-w", str(workspace), "--force"], check=True,
+                   capture_output=True)
     return time.perf_counter() - started
 
 
@@ -42,9 +46,9 @@ def main(repeats: str = "3", load: str = "2") -> None:
         for busy in (0, int(load)):
             spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
             try:
-                for workers, threads in ((2, max(1, cores // 2)), (1, cores)):
-                    times = np.array([_calibrate(workspace, workers) for _ in range(int(repeats))])
-                    rows.append({"busy processes": busy, "run.workers": workers, "BLAS threads": threads,
+                for one_thread in (True, False):
+                    times = np.array([_calibrate(workspace, one_thread) for _ in range(int(repeats))])
+                    rows.append({"busy processes": busy, "BLAS threads": 1 if one_thread else cores,
                                  "median s": float(np.median(times)), "min s": float(times.min()),
                                  "max s": float(times.max())})
             finally:

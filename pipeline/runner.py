@@ -40,7 +40,7 @@ from manifests.integrity import compact, damage, damaged_files, file_records, pa
 from manifests.schema import MANIFESTS
 from pipeline import progress
 from pipeline.config import Config
-from pipeline.engines import limit_native_threads, threads_per_worker
+from pipeline.engines import single_threaded_blas
 from pipeline.progress import console
 from pipeline.registry import StageEntry
 from speedplus.errors import InputError
@@ -292,7 +292,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             if forget and resolved.member_column is not None:
                 _forget_members(workspace, name, current, resolved.member_column, forget)
     run = stage.function()
-    limit_native_threads(threads_per_worker(config.run.workers))  # this process is one of run.workers
+    single_threaded_blas()
     workspace.root.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     progress.reset()
@@ -457,7 +457,7 @@ def publish_destinations(config: Config, workspace: Workspace, names: list[str],
     ours = _current_model_digests(workspace)
     for name, destination in destinations.items():
         for file in (destination, destination.with_suffix(".json")):
-            if file.exists() and ours.get(name) != sha256_of(destination):
+            if file.exists() and (name not in ours or ours[name] != sha256_of(destination)):
                 raise StageError(f"{file}: exists, and train-reference never replaces a file it did not make; "
                                  f"choose another --out, move the file, or rerun with --force to retrain and "
                                  f"replace it (the models stay in {workspace.location}/models either way)")

@@ -95,16 +95,22 @@ def threads_per_worker(workers: int) -> int:
     return max(1, cores // (workers or cores))
 
 
-def limit_native_threads(threads: int) -> None:
-    """Hold the BLAS libraries (NumPy's and SciPy's OpenBLAS) of this process to ``threads``.
-    Their threads spin while they wait: beside another job that keeps the cores busy, the
-    smoke profile's calibrate took a median 31.7 s (24.6-34.9, 3 runs) with a BLAS thread per
-    core against 12.0 s (10.4-12.9) with one, and 6.8 s against 6.5 s idle (2 cores, two busy
-    processes beside it; ``python -m bench threads``)."""
+def single_threaded_blas() -> None:
+    """Hold the BLAS libraries (NumPy's and SciPy's OpenBLAS) of this process to one thread,
+    whatever share of the cores it is given: OpenBLAS splits its sums by thread, so with a
+    thread per core calibrate's bytes changed with ``run.workers`` and with the machine; and
+    its threads spin while they wait: beside two busy processes, the smoke profile's
+    calibrate took a median 141 s (78.5-142.3, 3 runs) with a thread per core against
+    10.6 s (10.4-10.6) with one, and idle 8.5 s (8.4-8.6) against 7.1 s (7.0-8.0) (2 cores;
+    ``python -m bench threads``). The pipeline's BLAS work is small solves that more
+    threads do not speed up; ONNX Runtime, torch and Mitsuba take their threads from the
+    worker's share (``threads_per_worker``, ``reserved_cpus``)."""
     from threadpoolctl import threadpool_limits
 
     global _limits
-    _limits = threadpool_limits(limits=max(1, threads), user_api="blas")
+    for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[variable] = "1"  # the libraries loaded later in this process, and its children
+    _limits = threadpool_limits(limits=1, user_api="blas")  # those loaded already
 
 
 _limits: Any = None  # kept: the limit holds while its object lives

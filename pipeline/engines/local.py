@@ -27,11 +27,11 @@ def _exit_with_parent(parent: int) -> None:
     os._exit(1)
 
 
-def _initialise(factory: Callable[..., Any], args: tuple[Any, ...], parent: int, threads: int) -> None:
+def _initialise(factory: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
     global _context
-    from pipeline.engines import limit_native_threads
+    from pipeline.engines import single_threaded_blas
 
-    limit_native_threads(threads)
+    single_threaded_blas()
     # Ctrl-C reaches the whole process group: the driver stops the pool and says what was
     # kept; a worker's KeyboardInterrupt traceback would only bury that line
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -51,8 +51,6 @@ def map_local(factory: Callable[..., Any], args: tuple[Any, ...], method: str, i
     At most ``2 * workers`` items are in flight, so an interruption loses little work and
     ``prepare`` (run here, just before an item is sent: reading its image) holds little memory.
     """
-    from pipeline.engines import threads_per_worker
-
     prepare = prepare or (lambda item: item)
     if workers <= 1 or len(items) <= 1:
         context = factory(*args)
@@ -60,8 +58,7 @@ def map_local(factory: Callable[..., Any], args: tuple[Any, ...], method: str, i
             yield getattr(context, method)(prepare(item))
         return
     executor = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_initialise,
-                                   initargs=(factory, args, os.getpid(), threads_per_worker(workers)),
+                                   initializer=_initialise, initargs=(factory, args, os.getpid()),
                                    max_tasks_per_child=max_tasks)
     pending: set[Future] = set()
     queue = list(reversed(items))

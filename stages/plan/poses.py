@@ -88,7 +88,9 @@ def dataset_position(rng: np.random.Generator, plan: PlanConfig, target: Target,
     raise PlanningError(
         f"plan.dataset_range_m={list(plan.dataset_range_m)}, plan.dataset_range_diameters="
         f"{list(plan.dataset_range_diameters)}: the target ({target.diameter_m:.3g} m across) does not fit in a "
-        f"{camera.width_px}x{camera.height_px} image at {chosen.describe(target)}; increase the range")
+        f"{camera.width_px}x{camera.height_px} image at {chosen.describe(target)}; "
+        + ("the room holds no farther: make the mock-up smaller ([mockup] scale in target.toml)"
+           if chosen.origin == "room" else "increase the range"))
 
 
 #: SPEED+'s camera-to-target distances, full scale (m): the paper's 6.5-9.5 m, of Tango

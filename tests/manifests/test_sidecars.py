@@ -96,7 +96,7 @@ def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(
     write_calibration(workspace, CALIBRATION)
     assert read_calibration(workspace) == CALIBRATION
     stored = json.loads(workspace.calibration_path.read_text())
-    assert stored["version"] == 2
+    assert stored["version"] == 3
     assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
     assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
     # the first fixture's offset stands for the source's target offset

@@ -70,22 +70,19 @@ class BlasThreads:
     """A worker context that reports its BLAS libraries' thread counts."""
 
     def work(self, item: int) -> list[int]:
+        import scipy.linalg  # noqa: F401 - SciPy's own OpenBLAS, loaded after the limit was set
         from threadpoolctl import threadpool_info
 
         return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
 
 
-def test_a_worker_and_the_driver_hold_blas_to_their_share_of_the_cores(monkeypatch):
+def test_blas_runs_on_one_thread_in_every_worker_and_the_driver():
     """Issue 42: the arms' fit spun a BLAS thread per core in every process; beside another
-    job, calibrate took 31.7 s instead of 12.0 s (``python -m bench threads``)."""
-    import os
+    job, calibrate took 141 s instead of 10.6 s (``python -m bench threads``). One thread,
+    not a share of the cores: OpenBLAS's sums then give the same bytes whatever the workers."""
+    from pipeline.engines import single_threaded_blas
 
-    from pipeline.engines import limit_native_threads, threads_per_worker
-
-    monkeypatch.setattr(os, "cpu_count", lambda: 4)
-    assert threads_per_worker(2) == 2 and threads_per_worker(4) == 1 and threads_per_worker(0) == 1
-    monkeypatch.undo()
     for item in map_local(BlasThreads, (), "work", [0, 1, 2], workers=2, max_tasks=5):
-        assert item and set(item) == {threads_per_worker(2)}
-    limit_native_threads(1)
+        assert len(item) >= 2 and set(item) == {1}  # NumPy's and SciPy's
+    single_threaded_blas()
     assert set(BlasThreads().work(0)) == {1}

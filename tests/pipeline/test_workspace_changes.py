@@ -193,8 +193,9 @@ def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_p
 
 
 def test_run_after_a_stages_force_redoes_what_depends_on_it_and_says_so(finished):
-    """Issue 42: after `render --force`, `run` stopped at evaluate, then at report."""
-    assert speedplus("render", "--workspace", str(finished), "--force").returncode == 0
+    """Issue 42: after `render --force` (here with another spp), `run` stopped at evaluate,
+    then at report."""
+    assert speedplus("render", "--workspace", str(finished), "--force", "--set", "render.spp=3").returncode == 0
     alone = speedplus("evaluate", "--workspace", str(finished))
     said = " ".join(alone.stderr.split())
     assert alone.returncode == 1 and f"`speedplus evaluate -w {finished} --force`" in said, said
@@ -208,7 +209,8 @@ def test_run_after_a_stages_force_redoes_what_depends_on_it_and_says_so(finished
 
 
 def test_the_report_is_a_view_made_anew_without_force(finished):
-    assert speedplus("evaluate", "--workspace", str(finished), "--force").returncode == 0
+    redone = speedplus("evaluate", "--workspace", str(finished), "--force", "--set", "evaluate.batch_size=3")
+    assert redone.returncode == 0, redone.stderr
     result = speedplus("report", "--workspace", str(finished))
     assert result.returncode == 0, result.stderr
     assert "report: ran in" in result.stdout

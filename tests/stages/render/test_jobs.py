@@ -45,7 +45,9 @@ def test_training_poses_follow_the_specified_distributions():
     angles = g.quat_angular_distance(quats, np.array([1.0, 0.0, 0.0, 0.0]))
     assert stats.kstest(angles, lambda x: (x - np.sin(x)) / np.pi).pvalue > 0.01
     camera = train_camera(config)
-    low, high = config.render.train_distance_m
+    from stages.render.jobs import SPEEDPLUS_TRAIN_DISTANCE_M
+
+    low, high = SPEEDPLUS_TRAIN_DISTANCE_M  # the default: SPEED+'s, Tango's own apparent size
     lights_facing = 0
     for job in jobs:
         centre = job.cam_from_target()[:3, :3] @ tango.BODY_CENTRE_M + np.asarray(job.r_Vo2To_vbs_true)
