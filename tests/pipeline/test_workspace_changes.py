@@ -201,7 +201,7 @@ def test_run_after_a_stages_force_redoes_what_depends_on_it_and_says_so(finished
     assert alone.returncode == 1 and f"`speedplus evaluate -w {finished} --force`" in said, said
     result = speedplus("run", "--workspace", str(finished))
     assert result.returncode == 0, result.stderr
-    out = " ".join(result.stdout.split())
+    out = " ".join((result.stdout + result.stderr).split())
     assert "evaluate: its input renders was redone; redoing it" in out
     assert "evaluate: ran in" in out and "report: ran in" in out
     again = speedplus("run", "--workspace", str(finished))
