@@ -271,8 +271,8 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         raise StageError(
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
             f"made with another configuration or other inputs ({state.detail}); rerun it with --force to discard "
-            f"them (`speedplus {stage.name} -w {workspace.location} --force`; a later `speedplus run` redoes the "
-            "stages after it)")
+            f"them (`speedplus {stage.name} -w {workspace.location} --force`, with this command's --set and "
+            "--config; a later `speedplus run` redoes the stages after it)")
     if state.state == "damaged" and not force:
         raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
     previous = None if force else read_success(workspace, outputs[0]) if outputs else None

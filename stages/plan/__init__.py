@@ -136,7 +136,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     if config.plan.mode == "trajectory":
         rows, record = trajectory_rows(config, target)
         sequences = {row["sample_id"]: row for row in rows}
-    if config.plan.mode != "trajectory" and config.plan.n_dataset:
+    if config.plan.n_dataset or config.plan.mode == "trajectory":  # sequences: the presets scale with it
         print(f"plan: {dataset_range(config.plan, target, config.testbed).describe(target)}")
     with open_sink(workspace, "plan", config.run.part_rows) as sink:
         for session, index, sample_id in track(todo, len(todo), "plan"):
