@@ -16,12 +16,13 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.9"  # 1.9: trajectory columns of the plan, captures' move_s
+SCHEMA_VERSION = "1.10"  # 1.10: captures' vicon_targetrb_used and _residual_m
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
 #: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
-#: plan's trajectory columns and captures' move_s; a kept recording reads as it is
-READABLE_VERSIONS = ("1.7", "1.8")
+#: plan's trajectory columns and captures' move_s, 1.9 the target body's used markers and
+#: residual; a kept recording reads as it is
+READABLE_VERSIONS = ("1.7", "1.8", "1.9")
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -168,6 +169,11 @@ CAPTURES = ManifestSpec(
         *pose("vicon_world_from_targetrb", "motion capture, frame V; null when not tracked", nullable=True),
         Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body"),
         Column("vicon_targetrb_markers", pa.int8(), "count", "markers used for the target rigid body"),
+        Column("vicon_targetrb_used", pa.list_(pa.int8()), "", "which markers the target rigid body's fit used: "
+               "indices into the target's markers (W/markers.json, target.toml [mockup] markers); null when not "
+               "recorded (fuse then takes motion capture's calibrated sigma as it is)", nullable=True),
+        Column("vicon_targetrb_residual_m", pa.float64(), "m", "RMS distance of those markers from the fitted "
+               "model, as the system reports it; null when not recorded", nullable=True),
         Column("status", pa.string(), "", "capture outcome", kind="enum", allowed=("ok", "failed")),
     ),
     files=("image_path",),

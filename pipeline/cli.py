@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from dataclasses import fields
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -519,7 +519,7 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
     ambiguous. Exit 1 naming the file and key when it cannot be used."""
     from stages.common.markers import markers  # the shared layer: meshes load only here
     from stages.common.symmetry import ambiguities
-    from stages.common.target import load_target, main_body_part
+    from stages.common.target import load_target
 
     target = load_target(folder)
     placed = markers(target)
@@ -542,9 +542,11 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
             ("views", f"{target.view_names[0]} / {target.view_names[1]}: the camera's side of the plane "
                       f"through the centre normal to ({', '.join(f'{v:.3f}' for v in target.view_axis)})"),
             ("motion-capture markers", f"{len(placed.centres_m)} "
-             + (f"chosen on the surface of part {main_body_part(target).name!r}" if placed.chosen else "declared")
+             + (f"chosen on parts {', '.join(dict.fromkeys(placed.parts))} for the best fit over the whole target"
+                if placed.chosen else "declared")
              + "; centres on the mock-up, body frame (mm): "
              + "; ".join("(" + ", ".join(f"{v * 1000:.1f}" for v in c) + ")" for c in placed.centres_m)),
+            ("motion capture to expect", _expected_mocap(target, placed)),
             ("symmetries", "; ".join(
                 f"{a.symmetry} maps the mesh onto itself and moves keypoints "
                 f"({', '.join(f'{i}<->{j}' for i, j in a.swapped)}"
@@ -558,6 +560,31 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
     for what, value in rows:
         table.add_row(what, escape(value))
     out.print(table)
+
+
+def _expected_mocap(target: Any, placed: Any) -> str:
+    """``speedplus target``'s motion-capture accuracy at the plan's default range, with the
+    default profile's motion capture (``stages.common.marker_fit.expected_accuracy``)."""
+    import numpy as np
+
+    from stages.common.marker_fit import expected_accuracy
+    from stages.common.workspace_target import SPEEDPLUS_RANGE_M, apparent_size_ratio
+
+    config = load_config("default")
+    v = config.virtual
+    ranges = tuple(r * apparent_size_ratio(target) * target.mockup_scale for r in SPEEDPLUS_RANGE_M)
+    accuracy = expected_accuracy(placed.centres_m, placed.normals, np.zeros(3),
+                                 v.vicon_marker_sigma_m * v.vicon_model_noise_factor, np.asarray(v.camera_markers_m),
+                                 v.vicon_marker_sigma_m, config.fuse.vicon_scale_sigma,
+                                 float(np.mean(config.plan.calibration_distance_m)), ranges)
+    untracked = (f"; from {accuracy.untracked_share:.0%} of attitudes fewer than three markers are seen"
+                 if accuracy.untracked_share > 0 else "")
+    return (f"{accuracy.total_m[0] * 1000:.2f}-{accuracy.total_m[1] * 1000:.2f} mm (3D RMS of the target's origin) at "
+            f"{ranges[0]:.2f}-{ranges[1]:.2f} m, the plan's default range before the room's limit: its markers' fit "
+            f"{accuracy.fit_position_m * 1000:.2f} mm and {accuracy.fit_rotation_rad * 1000:.2f} mrad (median over "
+            f"attitudes{untracked}), the camera body's pointing {accuracy.pointing_rad * 1000:.2f} mrad, the wand's "
+            f"scale; with the default profile's marker noise, {v.vicon_marker_sigma_m * 1000:.2f} mm "
+            f"(x{v.vicon_model_noise_factor:g} on the mock-up)")
 
 
 def _crash_log(error: BaseException) -> Path:

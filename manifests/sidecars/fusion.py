@@ -1,5 +1,6 @@
 """``W/fusion.json``: the dataset session's a posteriori variance factor, which scales the
-calibrated sigmas in fuse, and the offset between the sources it removed before fusing
+calibrated sigmas in fuse, the offset between the sources it removed before fusing, and
+what else shaped the sigmas (motion capture's marker noise and fit, a short session's widening)
 (docs/architecture.md section 6). Written by fuse; read by the
 benchmarks and tests that judge the sigmas."""
 
@@ -11,7 +12,7 @@ from typing import Any
 from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
-FUSION_VERSION = 4  # 3: the session offset; 4: the factor as measured beside the one applied
+FUSION_VERSION = 5  # 3: the session offset; 4: the factor as measured beside the one applied; 5: the sigmas' notes
 #: where a position axis's label comes from: both sources fused, or one of them alone
 AXIS_SOURCES = ("fused", "kuka", "vicon")
 SOURCES = ("kuka", "vicon")
@@ -41,6 +42,10 @@ class FusionRecord:
     offset_sigma_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     offset_from: tuple[str, str, str] = ("vicon", "vicon", "vicon")
     offset_why: str = ""
+    #: motion capture's marker noise (m) measured from its fits' residuals (None: not
+    #: recorded), and what else shaped the sigmas (its fit's geometry, a short session's widening)
+    marker_sigma_m: float | None = None
+    sigma_why: str = ""
 
     def to_json(self) -> dict[str, Any]:
         return {"version": FUSION_VERSION,
@@ -49,11 +54,12 @@ class FusionRecord:
                 "why": self.why, "rejection_k": self.rejection_k,
                 "axes": {"sources": list(self.axis_sources), "why": self.axis_why},
                 "offset": {"t_m": list(self.offset_m), "sigma_m": list(self.offset_sigma_m),
-                           "removed_from": list(self.offset_from), "why": self.offset_why}}
+                           "removed_from": list(self.offset_from), "why": self.offset_why},
+                "sigmas": {"marker_sigma_m": self.marker_sigma_m, "why": self.sigma_why}}
 
     @classmethod
     def from_fields(cls, f: Fields) -> FusionRecord:
-        f.only("version", "variance_factor", "why", "rejection_k", "axes", "offset")
+        f.only("version", "variance_factor", "why", "rejection_k", "axes", "offset", "sigmas")
         factor = f.child("variance_factor")
         factor.only("t", "measured_t", "r", "samples")
         t, measured_t = factor.vector("t", 3), factor.vector("measured_t", 3)
@@ -72,9 +78,13 @@ class FusionRecord:
             raise offset.fail("removed_from", f"a list of three of {', '.join(SOURCES)}")
         if min(offset.vector("sigma_m", 3)) < 0:
             raise offset.fail("sigma_m", "three standard errors >= 0")
+        sigmas = f.child("sigmas")
+        sigmas.only("marker_sigma_m", "why")
+        marker = None if sigmas.raw("marker_sigma_m") is None else sigmas.number("marker_sigma_m", positive=True)
         return cls(t, factor.number("r", positive=True), factor.integer("samples"), f.text("why"),
                    f.number("rejection_k", positive=True), tuple(sources), axes.text("why"), measured_t,
-                   offset.vector("t_m", 3), offset.vector("sigma_m", 3), tuple(removed_from), offset.text("why"))
+                   offset.vector("t_m", 3), offset.vector("sigma_m", 3), tuple(removed_from), offset.text("why"),
+                   marker, sigmas.text("why"))
 
 
 def write_fusion(workspace: Workspace, record: FusionRecord) -> None:

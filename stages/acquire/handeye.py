@@ -322,6 +322,7 @@ class HandEyeReplay:
             "kuka_camera_joints_rad": None, "kuka_target_joints_rad": None, "kuka_rail_m": None, "capture_time_s": None,
             "move_s": None,
             **pose_columns("vicon_world_from_camrb", None), **pose_columns("vicon_world_from_targetrb", None),
-            "vicon_camrb_markers": 0, "vicon_targetrb_markers": 0, "status": "ok",
+            "vicon_camrb_markers": 0, "vicon_targetrb_markers": 0,
+            "vicon_targetrb_used": None, "vicon_targetrb_residual_m": None, "status": "ok",
         }
         return CaptureRecord(captures, None)

@@ -262,6 +262,6 @@ class SessionReplay:
             **pose_columns("vicon_world_from_camrb", camera_body["pose"]),
             **pose_columns("vicon_world_from_targetrb", target_body["pose"]),
             "vicon_camrb_markers": camera_body["markers"], "vicon_targetrb_markers": target_body["markers"],
-            "status": "ok",
+            "vicon_targetrb_used": None, "vicon_targetrb_residual_m": None, "status": "ok",
         }
         return CaptureRecord(captures, None)

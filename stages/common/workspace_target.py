@@ -120,6 +120,10 @@ def digest(config: Config, workspace: Workspace | None) -> str:
     return target_digest(configured_folder(config) if workspace is None else workspace_folder(config, workspace))
 
 
+#: SPEED+'s camera-to-target distances, full scale (m): the paper's 6.5-9.5 m, of Tango
+SPEEDPLUS_RANGE_M = (6.5, 9.5)
+
+
 def apparent_size_ratio(target: Target) -> float:
     """``target``'s diameter over the built-in Tango's: a distance range of SPEED+'s (made
     for Tango) times this shows ``target`` at the same apparent size (1.0 for Tango)."""

@@ -7,10 +7,13 @@ captures they grow with the lever of the line of sight, with the calibrated arms
 parameter uncertainty propagated to each capture's configuration, and by the session's
 a posteriori variance factor: how much the two sources disagree on its own captures
 beyond what those sigmas predict (``W/fusion.json``). On an axis where that disagreement
-fails a 95% test of consistency, the source with the smaller sigma there is kept alone
-(``axis_sources``): two sources cannot tell which of them is off, and fusing would let the
-worse pull the better. The median difference of the two over the session is first
-removed from the source with the larger sigma (``session_offset``), so that only the
+fails a 95% test of consistency, the better source there is kept alone (``axis_sources``):
+fusing would let the worse pull the better, and which is the better is what the session's
+differences show of each (``evidence.py``). Motion capture's sigma at each capture carries
+its rigid-body fit's geometry there (``marker_geometry.py``); a session too short to
+measure the factor widens the sigmas to the calibration's cross-validated errors
+(``short_session.py``). The median difference of the two over the session is first
+removed from the worse source (``session_offset``), so that only the
 capture-to-capture errors are fused, with a factor measured on them (``applied_factor``).
 The session-level measures are in ``session.py``.
 """
@@ -24,7 +27,14 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
+from manifests.sidecars import (
+    Calibration,
+    FusionRecord,
+    SourceCalibration,
+    read_calibration,
+    read_markers,
+    write_fusion,
+)
 from pipeline.config import Config, FuseConfig, TestbedConfig
 from pipeline.progress import track
 from pipeline.stage_io import Resolved
@@ -33,9 +43,12 @@ from stages.common import arms
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejection_reason, with_scale_error
 from stages.common.json_arrays import matrix
+from stages.common.markers import markers
 from stages.common.rwhe import fixture_tilt
 from stages.common.sources import measured_b, up_targetee
+from stages.common.target import Target
 from stages.common.workspace_target import workspace_target
+from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, marker_geometry, mean_variance, without_fit
 from stages.fuse.session import (
     NO_OFFSET,
     SessionOffset,
@@ -44,6 +57,7 @@ from stages.fuse.session import (
     session_factor,
     session_offset,
 )
+from stages.fuse.short_session import cross_validated, widened_rejection
 
 __all__ = ["Estimates", "SessionOffset", "applied_factor", "axis_sources", "fuse_capture", "resolve", "run",
            "session_factor", "session_offset"]
@@ -64,6 +78,7 @@ class SourceModel:
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
         self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
         self.sigma = Sigma.from_record(entry.sigma)
+        self.metrics, self.samples = entry.metrics, entry.samples
         self.calibration_lever_sq = np.array(calibration.calibration_lever_sq_m2, float)
         self.calibration_distance_m = calibration.calibration_distance_m
         self.world_up = np.asarray(calibration.world_up, float)  # the up the compliance was fitted with
@@ -150,11 +165,19 @@ class Estimates:
     kuka: np.ndarray
     vicon: np.ndarray | None
     arm: ArmUncertainty | None  # from the calibrated arms' parameters and joints
+    fit: FitVariance | None = None  # motion capture's target-body fit here (None: not recorded)
 
     @property
     def tracked(self) -> bool:
-        """Motion capture gave a finite pose of this capture."""
-        return self.vicon is not None and bool(np.all(np.isfinite(self.vicon)))
+        """Motion capture gave a finite pose of this capture, from markers that determine it."""
+        return (self.vicon is not None and bool(np.all(np.isfinite(self.vicon)))
+                and (self.fit is None or bool(np.all(np.isfinite(self.fit.t_m2)))))
+
+    def vicon_sigma(self, vicon: SourceModel, pose: np.ndarray, sigma: Sigma | None = None) -> Sigma:
+        """Motion capture's sigma (or ``sigma``, measured at the calibration) at this capture:
+        grown to ``pose`` (``SourceModel.sigma_at``), plus its target-body fit's here."""
+        grown = vicon.sigma_at(pose, sigma)
+        return grown if self.fit is None else self.fit.add_to(grown)
 
     def plus_parameters(self, sigma: Sigma) -> Sigma:
         """``sigma`` with the robots' parameter uncertainty at this capture added."""
@@ -166,12 +189,14 @@ class Estimates:
 
 
 def estimate(row: dict[str, Any], kuka: SourceModel, vicon: SourceModel | None,
-             arm: ArmUncertainty | None) -> Estimates:
+             arm: ArmUncertainty | None, geometry: MarkerGeometry | None = None) -> Estimates:
     vicon_pose = None
     if vicon is not None:
         b = measured_b(row, "vicon")
         vicon_pose = None if b is None else vicon.estimate(b, row)
-    return Estimates(row, kuka.estimate(measured_b(row, "kuka"), row), vicon_pose, arm)
+    kuka_pose = kuka.estimate(measured_b(row, "kuka"), row)
+    fit = None if geometry is None or vicon_pose is None else geometry.variance(row, kuka_pose)
+    return Estimates(row, kuka_pose, vicon_pose, arm, fit)
 
 
 def offset_variance(e: Estimates, factor: VarianceFactor, offset: SessionOffset,
@@ -204,18 +229,20 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
     """One ``poses`` row; ``sources``: per camera axis, fused or one source alone
     (``axis_sources``); ``offset``: removed before fusing (``session_offset``)."""
     calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
-    # both in the offset of the source with the smaller sigma: tested and fused on what
+    # both in the offset of the better source: tested and fused on what
     # varies from capture to capture only, and a robots-only label in the session's offset
     kuka_pose = offset.robots(e.kuka)
     vicon_pose = offset.motion_capture(e.vicon) if e.tracked else e.vicon
     reason = "no motion capture in this session"
-    if vicon is not None:
-        predicted = e.plus_parameters(vicon.sigma_at(e.kuka, rejection))
+    if vicon is not None and e.vicon is not None and not e.tracked:
+        reason = "the markers its fit used cannot determine the pose (three in a line)"
+    elif vicon is not None:
+        predicted = e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection))
         reason = rejection_reason(kuka_pose, vicon_pose, factor.scale(predicted), rejection_k)
     # per axis, the share of the label that comes from motion capture
     vicon_weight = np.zeros(3)
     if reason is None:
-        calibrated_vicon = vicon.sigma_at(e.vicon)
+        calibrated_vicon = e.vicon_sigma(vicon, e.vicon)
         scaled_kuka, scaled_vicon = factor.scale(calibrated_kuka), factor.scale(calibrated_vicon)
         fused, sigma = fuse(kuka_pose, scaled_kuka, vicon_pose, scaled_vicon)
         vicon_weight = scaled_kuka.t_m**2 / (scaled_kuka.t_m**2 + scaled_vicon.t_m**2)
@@ -236,6 +263,49 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 
 
 
+def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
+                              rejection: Sigma | None) -> tuple[Sigma | None, str]:
+    """Each source's calibrated sigma widened to its cross-validated error
+    (``short_session.cross_validated``), and the rejection sigma with them."""
+    sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
+    before = {name: source.sigma for name, source in sources.items()}
+    words = []
+    for name, source in sources.items():
+        source.sigma, how = cross_validated(source.sigma, source.metrics, source.samples)
+        words.append(f"{name} {how}")
+    if rejection is not None:
+        rejection = widened_rejection(rejection, before, {name: s.sigma for name, s in sources.items()})
+    return rejection, f"; too short a session to measure the factor, so the sigmas are widened: {'; '.join(words)}"
+
+
+def with_marker_geometry(workspace: Workspace, captured: list[dict[str, Any]], target: Target,
+                         kuka: SourceModel, vicon: SourceModel,
+                         rejection: Sigma | None) -> tuple[MarkerGeometry | None, str, Sigma | None]:
+    """The session's marker geometry (``marker_geometry``), with motion capture's calibrated
+    sigma and the rejection sigma reduced by the fit's mean variance over the calibration
+    captures (``without_fit``): the fit's own variance is added back capture by capture."""
+    # where the markers were when the captures were made (acquire records it), else the target's
+    layout = (np.array(read_markers(workspace).centres_m) if workspace.markers_path.exists()
+              else markers(target).centres_m)
+    geometry = marker_geometry(layout, captured)
+    if geometry is None:
+        return None, "not recorded (which markers each fit used): the calibrated sigma as it is", rejection
+    calibration = []
+    for row in captured:
+        b = measured_b(row, "vicon")
+        if row["session"] == "calibration" and b is not None and row["fixture"] in kuka.x:
+            calibration.append(geometry.variance(row, kuka.estimate(measured_b(row, "kuka"), row)))
+    mean = mean_variance(calibration)
+    if mean is None:
+        return geometry, f"{geometry.words()}; no calibration capture to take its share from the calibrated sigma", \
+            rejection
+    vicon.sigma = without_fit(vicon.sigma, mean)
+    rejection = None if rejection is None else without_fit(rejection, mean)
+    return geometry, (f"{geometry.words()}; its mean at the calibration x/y/z "
+                      f"{'/'.join(f'{v:.2f}' for v in np.sqrt(mean.t_m2) * 1000)} mm taken from the calibrated "
+                      "sigma, each capture's added"), rejection
+
+
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the dataset session's captures and the calibration; writes ``poses`` and
     ``W/fusion.json``."""
@@ -243,15 +313,24 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
-    payload = arms.Payload.of(workspace_target(config, workspace))
+    target = workspace_target(config, workspace)
+    payload = arms.Payload.of(target)
     kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma)
     # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
-    rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
-                   if r["session"] == "dataset" and r["status"] == "ok"), key=lambda r: r["sample_id"])
+    captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
+                      key=lambda r: r["sample_id"])
+    rows = [r for r in captured if r["session"] == "dataset"]
+    short_why = ""
+    two_source = sum(measured_b(r, "vicon") is not None for r in rows) if vicon is not None else 0
+    if config.fuse.sigma_scale == "dataset" and two_source < config.fuse.min_scale_samples:
+        rejection, short_why = widened_for_short_session(kuka, vicon, rejection)
+    geometry, geometry_why = None, "no motion capture in this session"
+    if vicon is not None:
+        geometry, geometry_why, rejection = with_marker_geometry(workspace, captured, target, kuka, vicon, rejection)
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
     covariances = kuka.parameter_covariances(rows, config.fuse)
-    estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
+    estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]
     measured, why = session_factor(config, estimates, vicon, rejection)
     sources, axis_why = axis_sources(config, estimates, kuka, vicon, measured)
     offset = session_offset(config, estimates, kuka, vicon)
@@ -261,10 +340,12 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         rejection_k=config.fuse.rejection_k, axis_sources=sources, axis_why=axis_why,
         measured_t=tuple(float(v) for v in measured.t), offset_m=tuple(float(v) for v in offset.t_m),
         offset_sigma_m=tuple(float(v) for v in offset.sigma_m), offset_from=offset.removed_from,
-        offset_why=offset.why))
+        offset_why=offset.why, marker_sigma_m=None if geometry is None else geometry.marker_sigma_m,
+        sigma_why=f"motion capture's fit: {geometry_why}{short_why}"))
     print(f"fuse: sigma factors: position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f} "
           f"(as measured {measured.t[0]:.2f} {measured.t[1]:.2f} {measured.t[2]:.2f}), rotation {factor.r:.2f} "
-          f"({why}); position x, y, z: {', '.join(sources)} ({axis_why}); offset: {offset.why}")
+          f"({why}); position x, y, z: {', '.join(sources)} ({axis_why}); offset: {offset.why}; motion capture's "
+          f"fit: {geometry_why}{short_why}")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]
     with open_sink(workspace, "poses", config.run.part_rows) as sink:

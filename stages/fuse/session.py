@@ -18,8 +18,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+from scipy.stats import chi2, norm
+from scipy.stats import t as student_t
 
 from pipeline.config import Config
+from stages.common import geometry as g
 from stages.common.fusion import (
     CONSISTENCY_LEVEL,
     UNIT_FACTOR,
@@ -28,6 +31,7 @@ from stages.common.fusion import (
     consistency_bound,
     variance_factor,
 )
+from stages.fuse.evidence import source_evidence
 
 if TYPE_CHECKING:
     from stages.fuse import Estimates
@@ -55,29 +59,59 @@ def session_factor(config: Config, estimates: list[Estimates], vicon: Source | N
     if config.fuse.sigma_scale == "calibration":
         return UNIT_FACTOR, "fuse.sigma_scale = calibration"
     both = two_source(estimates)
+    if not both:
+        return UNIT_FACTOR, "no capture with both sources: the widened calibrated sigmas"
+    predicted = [e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection)) for e in both]
     if len(both) < config.fuse.min_scale_samples:
-        return UNIT_FACTOR, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
-                             f"({config.fuse.min_scale_samples}): the calibrated sigmas")
-    predicted = [e.plus_parameters(vicon.sigma_at(e.kuka, rejection)) for e in both]
+        factor = short_session_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
+        return factor, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
+                        f"({config.fuse.min_scale_samples}): their disagreement with a weak prior at the widened "
+                        f"calibrated sigmas ({PRIOR_DOF} degrees of freedom), and a Student-t allowance")
     factor = variance_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
     return factor, f"robust spread of motion capture against the robots on {len(both)} dataset captures"
 
 
-def smaller_sigma(estimates: list[Estimates], kuka: Source, vicon: Source) -> tuple[np.ndarray, str]:
-    """Per camera axis (3,) the source whose sigma is smaller (median over the two-source
-    captures; "kuka" or "vicon"), and the medians in words."""
+#: degrees of freedom of the prior that the (widened) calibrated sigmas hold, in a session
+#: too short to measure its factor: weak, two samples' worth
+PRIOR_DOF = 2
+
+
+def short_session_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_difference: list[Sigma]) -> VarianceFactor:
+    """The variance factor of a short session (fewer captures than a robust factor needs):
+    the squared normalised disagreements (each capped at the 99.9% point, so that one
+    ghost does not decide) pooled with a scaled inverse chi-square prior at 1 of
+    ``PRIOR_DOF`` degrees of freedom (Gelman et al., Bayesian Data Analysis, 3rd ed., 2.6),
+    times the Student-t allowance of the predictive interval on that many degrees of
+    freedom; never below 1."""
+    n = len(pose_a)
+    normalised = (pose_b[:, :3, 3] - pose_a[:, :3, 3]) / np.stack([s.t_m for s in sigma_difference])
+    squares = np.minimum(normalised**2, chi2.ppf(0.999, 1))
+    dof_t = PRIOR_DOF + n
+    t = np.sqrt((PRIOR_DOF + squares.sum(axis=0)) / dof_t) * student_t.ppf(0.975, dof_t) / norm.ppf(0.975)
+    angle = g.angular_distance(pose_b[:, :3, :3], pose_a[:, :3, :3])
+    # an isotropic rotation error's squared angle over its mean square is chi2_3 / 3
+    chi = np.minimum(3 * (angle / np.array([s.r_rad for s in sigma_difference])) ** 2, chi2.ppf(0.999, 3))
+    dof_r = PRIOR_DOF + 3 * n
+    r = np.sqrt((PRIOR_DOF + chi.sum()) / dof_r) * student_t.ppf(0.975, dof_r) / norm.ppf(0.975)
+    return VarianceFactor(np.maximum(t, 1.0), max(float(r), 1.0), n)
+
+
+def better_source(estimates: list[Estimates], kuka: Source, vicon: Source) -> tuple[np.ndarray, str]:
+    """Per camera axis (3,) the better source on this session ("kuka" or "vicon";
+    ``evidence.source_evidence``: what the two-source captures' differences show of each
+    source's error, its propagated sigma the prior), and the evidence in words."""
     both = two_source(estimates)
-    sigma_kuka = np.median([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in both], axis=0)
-    sigma_vicon = np.median([vicon.sigma_at(e.vicon).t_m for e in both], axis=0)
-    words = ", ".join(f"{a} {k * 1000:.2f}/{v * 1000:.2f}" for a, k, v in zip("xyz", sigma_kuka, sigma_vicon,
-                                                                              strict=True))
-    return np.where(sigma_kuka <= sigma_vicon, "kuka", "vicon"), f"median sigma robots/motion capture (mm): {words}"
+    robots_m2 = np.stack([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m ** 2 for e in both])
+    vicon_m2 = np.stack([e.vicon_sigma(vicon, e.vicon).t_m ** 2 for e in both])
+    differences = np.stack([e.vicon[:3, 3] - e.kuka[:3, 3] for e in both])
+    evidence = source_evidence(differences, robots_m2, vicon_m2)
+    return evidence.better, evidence.words()
 
 
 @dataclass(frozen=True)
 class SessionOffset:
     """Per camera axis (m): motion capture's median excess over the robots on the session,
-    its standard error, and the source it is removed from (the one whose sigma is larger)."""
+    its standard error, and the source it is removed from (the worse one, ``better_source``)."""
 
     t_m: np.ndarray  # (3,)
     sigma_m: np.ndarray  # (3,)
@@ -89,13 +123,13 @@ class SessionOffset:
     mean_jacobian_t: np.ndarray | None = None
 
     def robots(self, pose: np.ndarray) -> np.ndarray:
-        """The robots' ``cam_from_target`` (4, 4), the offset added where their sigma is larger."""
+        """The robots' ``cam_from_target`` (4, 4), the offset added where they are the worse source."""
         out = pose.copy()
         out[:3, 3] += np.where([source == "kuka" for source in self.removed_from], self.t_m, 0.0)
         return out
 
     def motion_capture(self, pose: np.ndarray) -> np.ndarray:
-        """Motion capture's ``cam_from_target`` (4, 4), the offset removed where its sigma is larger."""
+        """Motion capture's ``cam_from_target`` (4, 4), the offset removed where it is the worse source."""
         out = pose.copy()
         out[:3, 3] -= np.where([source == "vicon" for source in self.removed_from], self.t_m, 0.0)
         return out
@@ -112,7 +146,7 @@ def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vic
     Why: inverse-variance fusion treats errors as independent from capture to capture;
     fusing two session offsets helps on average but harms wherever the better source drew
     the smaller one, which two sources cannot see. With the difference of the offsets
-    removed from the larger-sigma source, the labels keep that source's own offset and fuse
+    removed from the worse source (``better_source``), the labels keep the better's own offset and fuse
     only what varies between captures, which the session's many captures do average. The
     standard error is the median's, ``sqrt(pi / 2)`` times the mean's, from the differences'
     own robust spread (their median absolute deviation)."""
@@ -126,7 +160,7 @@ def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vic
     offset = np.median(difference, axis=0)
     spread = _MAD_TO_SIGMA * np.median(np.abs(difference - offset), axis=0)
     sigma = np.sqrt(np.pi / 2) * spread / np.sqrt(len(both))
-    larger = tuple("vicon" if source == "kuka" else "kuka" for source in smaller_sigma(estimates, kuka, vicon)[0])
+    larger = tuple("vicon" if source == "kuka" else "kuka" for source in better_source(estimates, kuka, vicon)[0])
     words = ", ".join(f"{a} {o * 1000:+.2f} +- {e * 1000:.2f}" for a, o, e in zip("xyz", offset, sigma, strict=True))
     jacobians = [e.arm.jacobian_t for e in both if e.arm is not None]
     return SessionOffset(offset, sigma, larger, f"median of motion capture minus robots on {len(both)} captures "
@@ -140,20 +174,22 @@ def axis_sources(config: Config, estimates: list[Estimates], kuka: Source, vicon
 
     Where the two sources disagree on the dataset captures beyond their sigmas (``factor``,
     as measured, fails ``VarianceFactor.inconsistent``), one of them errs beyond its sigma,
-    and two sources cannot tell which; fusing would let the worse pull the better. The
-    source with the smaller sigma on that axis (median over the two-source captures) is kept
-    alone: the calibration's ranking is the only evidence left."""
+    and fusing would let the worse pull the better. The better source on that axis, as the
+    session's differences show it (``better_source``), is kept alone."""
     if vicon is None or config.fuse.inconsistent_axes == "fuse":
         return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
+    if factor.samples < config.fuse.min_scale_samples:  # a short session's factor is not the test's median
+        return ("fused",) * 3, (f"{factor.samples} two-source captures < fuse.min_scale_samples: too few to test "
+                                "the sources' consistency; fused with the widened sigmas")
     inconsistent = factor.inconsistent()
-    smaller, medians = smaller_sigma(estimates, kuka, vicon)
-    sources = tuple(str(smaller[axis]) if inconsistent[axis] else "fused" for axis in range(3))
+    better, evidence = better_source(estimates, kuka, vicon)
+    sources = tuple(str(better[axis]) if inconsistent[axis] else "fused" for axis in range(3))
     reasons = [f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
                f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures): "
                f"{sources[axis]} alone" for axis, name in enumerate("xyz") if inconsistent[axis]]
     if not reasons:
         return sources, "the sources agree within their sigmas on every axis"
-    return sources, f"{'; '.join(reasons)} ({medians})"
+    return sources, f"{'; '.join(reasons)} ({evidence})"
 
 
 def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: Sigma | None,
@@ -171,9 +207,9 @@ def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: 
     in depth), so the expected square of the kept offset barely exceeds its prior. The
     rotation's factor is as measured (no offset is removed from the rotations)."""
     both = two_source(estimates)
-    if vicon is None or rejection is None or measured.samples == 0 or not both:
+    if vicon is None or rejection is None or measured.samples == 0 or not both or not offset.estimated:
         return measured
-    predicted = [e.plus_parameters(vicon.sigma_at(e.kuka, rejection)) for e in both]
+    predicted = [e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection)) for e in both]
     centred = variance_factor(np.stack([offset.robots(e.kuka) for e in both]),
                               np.stack([offset.motion_capture(e.vicon) for e in both]), predicted)
     return VarianceFactor(centred.t, measured.r, measured.samples)

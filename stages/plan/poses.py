@@ -17,7 +17,7 @@ from stages.common import layout
 from stages.common.kinematics import arm_model
 from stages.common.patterns import board_pattern
 from stages.common.target import Target
-from stages.common.workspace_target import apparent_size_ratio
+from stages.common.workspace_target import SPEEDPLUS_RANGE_M, apparent_size_ratio
 
 #: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
 _MAX_VISIBILITY_DRAWS = 1000
@@ -93,8 +93,6 @@ def dataset_position(rng: np.random.Generator, plan: PlanConfig, target: Target,
            if chosen.origin == "room" else "increase the range"))
 
 
-#: SPEED+'s camera-to-target distances, full scale (m): the paper's 6.5-9.5 m, of Tango
-SPEEDPLUS_RANGE_M = (6.5, 9.5)
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,8 @@ from stages.common.arms import Payload
 from stages.common.geometry import pose_columns
 from stages.common.image_io import encode_png
 from stages.common.kinematics import link_points
-from stages.common.markers import main_body_hull, markers
+from stages.common.markers import markers, occluders
 from stages.common.patterns import board_pattern
-from stages.common.target import main_body_part
 from stages.common.workspace_target import workspace_target
 
 
@@ -35,7 +34,7 @@ class VirtualTestbed:
     def __init__(self, config: Config, workspace: Workspace, plan: list[dict[str, Any]] | None = None) -> None:
         self.config, self.workspace, self._plan = config, workspace, plan
         self.target = workspace_target(config, workspace)
-        self.body = main_body_hull(self.target)
+        self.body = occluders(self.target)
         self.markers = markers(self.target)
         self.payload = Payload.of(self.target)
         self.truth: Truth = draw_truth(config, self.target)
@@ -56,7 +55,7 @@ class VirtualTestbed:
 
     def markers_record(self) -> MarkersRecord:
         """Where this testbed stuck the model's markers (``W/markers.json``)."""
-        return MarkersRecord("chosen" if self.markers.chosen else "declared", main_body_part(self.target).name,
+        return MarkersRecord("chosen" if self.markers.chosen else "declared", self.markers.parts,
                              tuple(tuple(map(float, c)) for c in self.markers.centres_m),
                              tuple(tuple(map(float, n)) for n in self.markers.normals))
 
@@ -128,6 +127,8 @@ class VirtualTestbed:
             **pose_columns("vicon_world_from_camrb", camera_body.vicon_world_from_rb),
             **pose_columns("vicon_world_from_targetrb", target_body.vicon_world_from_rb),
             "vicon_camrb_markers": camera_body.markers, "vicon_targetrb_markers": target_body.markers,
+            "vicon_targetrb_used": list(target_body.used) if target_body.used else None,
+            "vicon_targetrb_residual_m": target_body.residual_m,
             "status": "ok",
         }
         truth_row = {

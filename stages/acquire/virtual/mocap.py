@@ -2,10 +2,11 @@
 
 A marker counts when at least two cameras see it: inside the camera's field of view and
 range, and with the line of sight clear of the robot links (capsules) and of the model
-(its main body's convex hull). Each counted marker is triangulated with noise growing as fewer cameras
+(each of its parts' convex hulls). Each counted marker is triangulated with noise growing as fewer cameras
 see it. With a configured probability a rigid body's observation includes one ghost or
 mislabelled marker. The pose of a rigid body is the least-squares fit (Kabsch) of its
-marker model to the observed markers; with fewer than 3 markers it is not tracked.
+marker model to the observed markers; with fewer than 3 markers it is not tracked. Like a
+real system it reports which markers the fit used and their RMS residual.
 All positions here are in the robot world K; reported poses are in the motion-capture
 world V.
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from pipeline.config import Config
 from stages.common import geometry as g
-from stages.common.markers import Hull
+from stages.common.markers import Occluders
 
 MIN_CAMERAS = 2
 MIN_MARKERS = 3
@@ -46,11 +47,15 @@ class SystemErrors:
 
 @dataclass(frozen=True)
 class RigidBodyObservation:
-    """``vicon_world_from_rb`` (4, 4) or None when untracked; markers used; ghost injected."""
+    """``vicon_world_from_rb`` (4, 4) or None when untracked; markers used (their indices in
+    the body's marker model) and the fit's RMS residual (m; None when untracked); ghost
+    injected."""
 
     vicon_world_from_rb: np.ndarray | None
     markers: int
     ghost: bool
+    used: tuple[int, ...] = ()
+    residual_m: float | None = None
 
 
 def camera_positions(config: Config) -> np.ndarray:
@@ -115,9 +120,9 @@ def triangulate(cameras: np.ndarray, seen: np.ndarray, markers_world: np.ndarray
 
 
 def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndarray,
-               world_from_target: np.ndarray, body: Hull) -> np.ndarray:
+               world_from_target: np.ndarray, body: Occluders) -> np.ndarray:
     """(cameras, markers) boolean: which camera sees which marker, past the arms' links and
-    the mock-up's main ``body`` (``stages.common.markers.main_body_hull``)."""
+    the mock-up's parts (``stages.common.markers.occluders``)."""
     v = config.virtual
     cams = camera_positions(config)
     aim = camera_aim(config)
@@ -148,10 +153,10 @@ def kabsch(model: np.ndarray, observed: np.ndarray) -> np.ndarray:
 
 def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, world_from_rb: np.ndarray,
             vicon_world_from_world: np.ndarray, link_segments: np.ndarray,
-            world_from_target: np.ndarray, body: Hull, noise_factor: float = 1.0,
+            world_from_target: np.ndarray, body: Occluders, noise_factor: float = 1.0,
             errors: SystemErrors | None = None, normals_world: np.ndarray | None = None) -> RigidBodyObservation:
     """Track one rigid body: markers_rb (M, 3) in its frame, true ``world_from_rb``; the
-    mock-up's main ``body`` (its convex hull) at ``world_from_target`` hides markers;
+    mock-up's parts (``body``) at ``world_from_target`` hide markers;
     ``noise_factor`` scales the marker noise (markers on reflective surfaces); ``errors``
     of the system's calibration, and the markers' surface normals (M, 3) in K when they sit
     on reflective skin."""
@@ -172,8 +177,10 @@ def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, wo
         victim = rng.choice(visible)
         direction = rng.normal(size=3)
         noisy[victim] += rng.uniform(*v.vicon_ghost_offset_m) * direction / np.linalg.norm(direction)
-    if errors is None or errors.scale == 1.0:
-        world_from_rb_measured = kabsch(markers_rb[visible], noisy[visible])
-        return RigidBodyObservation(vicon_world_from_world @ world_from_rb_measured, int(len(visible)), ghost)
-    reported = errors.scale * g.apply(vicon_world_from_world, noisy[visible])  # scaled about V's origin
-    return RigidBodyObservation(kabsch(markers_rb[visible], reported), int(len(visible)), ghost)
+    reported = g.apply(vicon_world_from_world, noisy[visible])
+    if errors is not None:
+        reported = errors.scale * reported  # scaled about V's origin
+    vicon_world_from_rb = kabsch(markers_rb[visible], reported)
+    residual = reported - g.apply(vicon_world_from_rb, markers_rb[visible])
+    return RigidBodyObservation(vicon_world_from_rb, int(len(visible)), ghost, tuple(int(i) for i in visible),
+                                float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))))

@@ -1,14 +1,29 @@
-"""Motion-capture markers on a target's mock-up: chosen on the main body's surface where a
-folder declares none (spread out, seen from a whole half-space each, clear of the
-fixtures), declared ones kept, and the convex hull that hides them."""
+"""Motion-capture markers on a target's mock-up: chosen where a folder declares none, on
+every part wide enough, for the best fit over the whole target (spread out, seen from a
+whole half-space each, clear of the fixtures); declared ones kept, and the convex hulls
+that hide them."""
+
+import dataclasses
 
 import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
+from manifests.sidecars import MarkersRecord
+from manifests.sidecars.base import Fields, SidecarError
 from manifests.target import TARGET_FILE, TargetError
 from stages.common import layout
-from stages.common.markers import CHOSEN_MARKERS, FIXTURE_CLEARANCE, STAND_OFF_M, Hull, main_body_hull, markers
+from stages.common.marker_fit import mean_point_variance
+from stages.common.markers import (
+    CHOSEN_MARKERS,
+    FIXTURE_CLEARANCE,
+    STAND_OFF_M,
+    Hull,
+    markers,
+    occluders,
+    seen_from_room,
+    up_directions,
+)
 from stages.common.target import load_target, main_body_box, main_body_part
 from stages.common.targets import builtin_folder
 from tests.target_folders import boulder, cubesat
@@ -30,26 +45,61 @@ def test_a_segment_is_hidden_exactly_when_it_passes_through_the_hull():
 
 
 @pytest.mark.parametrize("make", [cubesat, boulder], ids=["cubesat", "boulder"])
-def test_chosen_markers_stand_off_the_body_spread_out_and_seen_from_a_half_space(make, tmp_path):
+def test_chosen_markers_stand_off_their_part_spread_out_and_seen_from_a_half_space(make, tmp_path):
     target = load_target(make(tmp_path / "t"))
-    placed, body = markers(target), main_body_hull(target)
+    placed = markers(target)
     assert placed.chosen and len(placed.centres_m) == CHOSEN_MARKERS
-    # each stands STAND_OFF_M outside one face of the body's hull, inside the others' planes
-    np.testing.assert_allclose(np.max(placed.centres_m @ body.normals.T + body.offsets, axis=1), STAND_OFF_M,
-                               atol=1e-9)
+    hulls = dict(zip(target.parts, occluders(target).hulls, strict=True))
     vertices = main_body_part(target).vertices * target.mockup_scale
     diameter = 2 * np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1))
     apart = np.linalg.norm(placed.centres_m[:, None] - placed.centres_m[None], axis=2)
-    assert apart[~np.eye(len(apart), dtype=bool)].min() > 0.2 * diameter
+    assert apart[~np.eye(len(apart), dtype=bool)].min() > 0.1 * diameter
     flanges = np.stack([layout.target_from_targetee(target, mount)[:3, 3] for mount in layout.MOUNT_NAMES])
     assert np.linalg.norm(placed.centres_m[:, None] - flanges[None], axis=2).min() > FIXTURE_CLEARANCE * diameter
     rng = np.random.default_rng(3)
-    for centre, normal in zip(placed.centres_m, placed.normals, strict=True):
+    for centre, normal, part in zip(placed.centres_m, placed.normals, placed.parts, strict=True):
+        body = hulls[part]
+        # it stands STAND_OFF_M outside its own part's hull, off the face it is stuck on
+        assert np.max(centre @ body.normals.T + body.offsets) == pytest.approx(STAND_OFF_M, abs=1e-3)
         directions = rng.normal(size=(500, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
         directions[directions @ normal < 0] *= -1  # the outward half-space
-        far = centre + 5.0 * directions
-        assert not body.hides(centre + 1e-6 * directions, far).any()  # a camera anywhere there sees it
+        assert not body.hides(centre + 1e-6 * directions, centre + 5.0 * directions).any()
+
+
+def fit_over_attitudes(target, placed) -> float:
+    """The mean over attitudes of the fit's position variance at the centre, per unit noise."""
+    seen = seen_from_room(placed.normals, up_directions())
+    return float(mean_point_variance(placed.centres_m[None], seen.T[None], target.centre_m * target.mockup_scale,
+                                     unseen_m2=1e6)[0])
+
+
+def test_a_bus_with_long_panels_gets_markers_on_its_panels_and_a_better_fit(tmp_path):
+    """Issue 43's mock-up: a 0.32 m bus, panels 1 m tip to tip. On the bus alone the
+    markers sit within 0.2 m of each other; chosen over the whole target, some go on the
+    panels and the fit at the centre is better than the old rule's (the main body's
+    hull, farthest points); an antenna whip takes none."""
+    from bench.targets import bus_panels, cubesat3u
+
+    target = load_target(bus_panels(tmp_path / "bus"))
+    placed = markers(target)
+    assert {"panel_minus", "panel_plus"} & set(placed.parts), placed.parts
+    body = main_body_part(target)
+    old = markers(dataclasses.replace(target, parts={body.name: body}))  # the main body's alone
+    assert set(old.parts) == {"bus"}
+    assert fit_over_attitudes(target, placed) < fit_over_attitudes(target, old)
+    whips = markers(load_target(cubesat3u(tmp_path / "cubesat")))
+    assert not any(part.startswith("whip") for part in whips.parts)
+
+
+def test_declared_or_chosen_markers_are_what_acquire_records(tmp_path):
+    record = MarkersRecord("chosen", ("bus", "panel"), ((0.0, 0.0, 0.1), (0.1, 0.0, 0.0), (0.0, 0.1, 0.0)),
+                           ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
+    data = record.to_json()
+    with pytest.raises(SidecarError, match="key parts: expected one per marker"):
+        MarkersRecord.from_fields(Fields(data, "markers.json", ""))
+    data["parts"] = ["bus", "panel", "panel"]
+    assert MarkersRecord.from_fields(Fields(data, "markers.json", "")).parts == ("bus", "panel", "panel")
 
 
 def test_tangos_declared_markers_are_where_the_body_box_rule_put_them():

@@ -4,6 +4,7 @@ mistake a lab makes is refused naming the file and the key."""
 
 import dataclasses
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -161,8 +162,17 @@ def test_speedplus_target_checks_a_folder(tmp_path):
 
     good = speedplus("target", str(cubesat(tmp_path / "cubesat")))
     assert good.returncode == 0, good.stderr
-    for said in ("cubesat6u", "11, chosen on the mesh", "0.5401 m full scale", "body, wing_minus, wing_plus"):
+    for said in ("cubesat6u", "11, chosen on the mesh", "0.5401 m full scale", "body, wing_minus, wing_plus",
+                 "for the best fit over the whole target", "motion capture to expect"):
         assert said in good.stdout, good.stdout
+    # the motion-capture accuracy to expect at the plan's range: a figure in mm, its parts named
+    said = " ".join(good.stdout.split())
+    expected = re.search(r"motion capture to expect │ ([\d.]+)-([\d.]+) mm \(3D RMS of the target's origin\) at "
+                         r"([\d.]+)-([\d.]+) m", said)
+    assert expected, said
+    near, far, low, high = map(float, expected.groups())
+    assert 0.1 < near < far < 50 and low < high
+    assert "its markers' fit" in said and "the camera body's pointing" in said
     bad = speedplus("target", str(write(tmp_path / "bad", "colour = 3\n" + GOOD)))
     assert bad.returncode == 1 and "unknown key(s) colour" in bad.stderr and "Traceback" not in bad.stderr
 
