@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.10"  # 1.10: captures' vicon_targetrb_used and _residual_m
+SCHEMA_VERSION = "1.10"  # 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
 #: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
 #: plan's trajectory columns and captures' move_s, 1.9 the target body's used markers and
-#: residual; a kept recording reads as it is
+#: residual and the poses' per-source sigmas; a kept recording reads as it is
 READABLE_VERSIONS = ("1.7", "1.8", "1.9")
 
 QUAT = pa.list_(pa.float64(), 4)
@@ -228,6 +228,10 @@ POSES = ManifestSpec(
         *pose("cam_from_target", "fused estimate, mock-up scale"),
         Column("sigma_t_m", VEC3, "m", "1-sigma of the fused translation per camera axis"),
         Column("sigma_r_rad", pa.float64(), "rad", "1-sigma of the fused rotation angle"),
+        Column("kuka_sigma_t_m", VEC3, "m", "1-sigma of the robots' translation per camera axis at this capture "
+               "(calibrated, grown to it, scaled by the session's factor)", nullable=True),
+        Column("vicon_sigma_t_m", VEC3, "m", "1-sigma of motion capture's translation per camera axis at this "
+               "capture, its target body's fit there included; null when not tracked", nullable=True),
     ),
 )
 

@@ -212,12 +212,14 @@ class FuseConfig:
         "captures themselves (robust a posteriori variance factor; the dataset's poses are farther and more "
         "varied than the calibration's); calibration: use the calibrated sigmas as they are (the paper)", "")
     min_scale_samples: int = param(
-        10, "two-source dataset captures needed to estimate the variance factor (else the calibrated sigmas)",
-        "count")
+        10, "two-source dataset captures needed to estimate the variance factor robustly and test the sources' "
+        "consistency; fewer: each source's sigma widened to its calibration's cross-validated error with a "
+        "Student-t allowance, and the factor from the few captures with a weak prior", "count")
     inconsistent_axes: Literal["fall_back", "fuse"] = param(
         "fall_back", "on a position axis where the two sources disagree on the dataset captures beyond their "
-        "sigmas (the variance factor fails a 95% test), fall_back: keep only the source whose sigma there is "
-        "smaller, as which one is off cannot be told from two; fuse: fuse it anyway, both sigmas scaled", "")
+        "sigmas (the variance factor fails a 95% test), fall_back: keep only the better source there, as the "
+        "session's differences show it (two variance components, each source's propagated sigma a weak prior); "
+        "fuse: fuse it anyway, both sigmas scaled", "")
     session_offset: Literal["on", "off"] = param(
         "on", "on: before fusing, remove from the source whose sigma on an axis is larger the median by which it "
         "differs there from the other over the session's two-source captures: at the dataset's range each "

@@ -256,10 +256,12 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
             fused[axis, 3], t_m[axis] = pose[axis, 3], factor.t[axis] * alone.t_m[axis]
             vicon_weight[axis] = float(mocap)
     t_m = np.sqrt(t_m**2 + offset_variance(e, factor, offset, vicon_weight))
+    vicon_sigma = factor.scale(e.vicon_sigma(vicon, e.vicon)).t_m if vicon is not None and e.tracked else None
     return {"sample_id": e.row["sample_id"], **g.pose_columns("kuka_cam_from_target", e.kuka),
             **g.pose_columns("vicon_cam_from_target", e.vicon if e.tracked else None), "vicon_accepted": reason is None,
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
-            "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad}
+            "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad, "kuka_sigma_t_m": factor.scale(calibrated_kuka).t_m,
+            "vicon_sigma_t_m": vicon_sigma}
 
 
 

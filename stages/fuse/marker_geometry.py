@@ -82,13 +82,14 @@ def marker_geometry(markers_m: np.ndarray, rows: list[dict[str, Any]]) -> Marker
 
 def without_fit(sigma: Sigma, mean: FitVariance) -> Sigma:
     """``sigma`` (calibrated) less the fit's ``mean`` variance over the calibration
-    captures: what of it is not the target body's fit, never below ``REST_FLOOR`` of it."""
+    captures: what of it is not the target body's fit, never below ``REST_FLOOR`` of it.
+    The pointing is kept whole (all of the rotation where unknown): the target body's
+    rotation error turns the target about itself and moves its origin by the lever, which
+    the fit's position variance holds; it does not turn the line of sight."""
     t_m2 = np.maximum(sigma.t_m**2 - mean.t_m2, REST_FLOOR * sigma.t_m**2)
     r_rad2 = max(sigma.r_rad**2 - mean.r_rad2, REST_FLOOR * sigma.r_rad**2)
-    pointing = sigma.pointing_rad
-    if pointing is not None:
-        pointing = float(min(pointing, np.sqrt(r_rad2)))
-    return Sigma(np.sqrt(t_m2), float(np.sqrt(r_rad2)), pointing)
+    pointing = sigma.r_rad if sigma.pointing_rad is None else sigma.pointing_rad
+    return Sigma(np.sqrt(t_m2), float(np.sqrt(r_rad2)), float(pointing))
 
 
 def mean_variance(variances: list[FitVariance | None]) -> FitVariance | None:

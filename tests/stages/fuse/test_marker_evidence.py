@@ -153,6 +153,8 @@ def test_the_calibrated_sigma_keeps_at_least_a_floor_when_the_fit_is_taken_out()
     rest = without_fit(sigma, FitVariance(np.array([0.5e-6, 2e-6, 0.0]), 1e-6))
     np.testing.assert_allclose(rest.t_m, [np.sqrt(0.5e-6), np.sqrt(0.1e-6), 1e-3])
     assert rest.r_rad == pytest.approx(np.sqrt(3e-6))
+    assert rest.pointing_rad == 1e-3  # the line of sight turns as much as before
+    assert without_fit(Sigma(sigma.t_m, 2e-3, None), FitVariance(np.zeros(3), 3e-6)).pointing_rad == 2e-3
 
 
 SHORT = 8
