@@ -24,7 +24,7 @@ from manifests.sidecars import read_fusion
 from pipeline.config import load_config
 from stages.common import arms
 from stages.common.workspace_target import workspace_target
-from stages.fuse import estimate, load_models
+from stages.fuse import estimate, load_models, with_marker_geometry
 
 #: the issue's bands for honest sigmas per facility (pooled: 90-99% inside, rms 0.8-1.2)
 FACILITY_BANDS = {"inside": (0.85, 1.0), "rms": (0.7, 1.4)}
@@ -76,8 +76,14 @@ def facility_model(root: Path) -> FacilityModel:
     workspace = Workspace(root)
     config = load_config(None, root / "config.toml")
     payload = arms.Payload.of(workspace_target(config, workspace))
+    target = workspace_target(config, workspace)
     kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma)
     accepted = {r["sample_id"]: r["vicon_accepted"] for r in read_manifest(workspace, "poses").to_pylist()}
+    captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
+                      key=lambda r: r["sample_id"])
+    geometry = None
+    if vicon is not None:  # motion capture's sigma as fuse has it: its fit's geometry at each capture
+        geometry = with_marker_geometry(workspace, captured, target, kuka, vicon, rejection)[0]
     rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
                    if r["session"] == "dataset" and r["status"] == "ok" and r["sample_id"] in accepted),
                   key=lambda r: r["sample_id"])
@@ -89,12 +95,12 @@ def facility_model(root: Path) -> FacilityModel:
     flanks = arms.flank_variances(config.testbed, readings, config.fuse.lost_motion_rad,
                                   config.fuse.backlash_preload_nm)
     covariances = kuka.parameter_covariances(rows, config.fuse)
-    estimates = [estimate(row, kuka, vicon, c) for row, c in zip(rows, covariances, strict=True)]
+    estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]
     sigma_kuka = np.stack([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in estimates])
     fusion = read_fusion(workspace)
     fused = np.array([accepted[r["sample_id"]] for r in rows])[:, None] & np.array(
         [source == "fused" for source in fusion.axis_sources])[None]  # (N, 3)
-    sigma_vicon = np.stack([vicon.sigma_at(e.vicon).t_m if vicon is not None and e.tracked else np.zeros(3)
+    sigma_vicon = np.stack([e.vicon_sigma(vicon, e.vicon).t_m if vicon is not None and e.tracked else np.zeros(3)
                             for e in estimates])
     weight = np.where(fused, sigma_kuka**2 / np.maximum(sigma_kuka**2 + sigma_vicon**2, 1e-300), 0.0)
     return FacilityModel(jacobian, np.asarray(kuka.kinematics["covariance"]), flanks,

@@ -79,6 +79,8 @@ class SourceModel:
         self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
         self.sigma = Sigma.from_record(entry.sigma)
         self.metrics, self.samples = entry.metrics, entry.samples
+        #: how much wider the arms' parameters are than their fit says (a short session's widening)
+        self.parameter_scale = 1.0
         self.calibration_lever_sq = np.array(calibration.calibration_lever_sq_m2, float)
         self.calibration_distance_m = calibration.calibration_distance_m
         self.world_up = np.asarray(calibration.world_up, float)  # the up the compliance was fitted with
@@ -123,7 +125,7 @@ class SourceModel:
         flanks = arms.flank_variances(self.testbed, readings, fuse.lost_motion_rad, fuse.backlash_preload_nm)
         jacobians = arms.pose_jacobians(self.testbed, self.kinematics, readings, [r["fixture"] for r in rows],
                                         self.world_up)
-        parameters = np.asarray(self.kinematics["covariance"])
+        parameters = np.asarray(self.kinematics["covariance"]) * self.parameter_scale**2
         shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks)
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
 
@@ -273,7 +275,7 @@ def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
     before = {name: source.sigma for name, source in sources.items()}
     words = []
     for name, source in sources.items():
-        source.sigma, how = cross_validated(source.sigma, source.metrics, source.samples)
+        source.sigma, how, source.parameter_scale = cross_validated(source.sigma, source.metrics, source.samples)
         words.append(f"{name} {how}")
     if rejection is not None:
         rejection = widened_rejection(rejection, before, {name: s.sigma for name, s in sources.items()})

@@ -9,8 +9,9 @@ not see. The calibration's cross-validation measured exactly that error: each fo
 predicted by a fit without it. So, where the dataset cannot measure the factor, each
 source's sigma is scaled by the ratio of its cross-validated to its in-sample RMS error
 (never below 1), position and rotation apart (the whole rotation error then taken to turn
-the line of sight: the share that does was regressed on the same in-sample residuals), and
-by a Student-t allowance for the few
+the line of sight: the share that does was regressed on the same in-sample residuals; the
+arms' parameter covariance, fitted on the same samples, by the position's), and by a
+Student-t allowance for the few
 samples behind it: ``t(0.975, n - 1) / z(0.975)``, the widening that keeps 1.96 sigma a 95%
 interval when the variance is estimated from ``n`` samples. A longer session measures
 its factor on its own captures instead (``session.session_factor``).
@@ -32,9 +33,11 @@ def _rms(metric: list[float]) -> float:
     return float(np.hypot(metric[0], metric[1]))
 
 
-def cross_validated(sigma: Sigma, metrics: dict[str, Any], samples: int) -> tuple[Sigma, str]:
+def cross_validated(sigma: Sigma, metrics: dict[str, Any], samples: int) -> tuple[Sigma, str, float]:
     """``sigma`` (calibrated, in-sample) widened to what the calibration's cross-validation
-    measured (module docstring), and how, in words; ``samples``: those the calibration used."""
+    measured (module docstring), how, in words, and the position's widening (its ratio
+    times the allowance: the arms' parameter covariance, fitted on the same samples, is as
+    much too narrow); ``samples``: those the calibration used."""
     cross, inside, record = metrics.get("cross_validated"), metrics["in_sample"], metrics.get("cross_validation", {})
     if cross is None or not record.get("judged", False):
         ratio_t = ratio_r = 1.0
@@ -48,7 +51,7 @@ def cross_validated(sigma: Sigma, metrics: dict[str, Any], samples: int) -> tupl
     # in-sample residuals; unknown here, all of it is taken (``fusion.at_position``: conservative)
     widened = Sigma(sigma.t_m * ratio_t * allowance, sigma.r_rad * ratio_r * allowance, None)
     return widened, (f"{basis} position x{ratio_t:.2f}, rotation x{ratio_r:.2f}, Student-t on {count} samples "
-                     f"x{allowance:.2f}")
+                     f"x{allowance:.2f}"), ratio_t * allowance
 
 
 def widened_rejection(rejection: Sigma, before: dict[str, Sigma], after: dict[str, Sigma]) -> Sigma:
