@@ -27,14 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests import Workspace, open_sink, read_keys, read_manifest
-from manifests.sidecars import (
-    Calibration,
-    FusionRecord,
-    SourceCalibration,
-    read_calibration,
-    read_markers,
-    write_fusion,
-)
+from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
 from pipeline.config import Config, FuseConfig, TestbedConfig
 from pipeline.progress import track
 from pipeline.stage_io import Resolved
@@ -43,12 +36,10 @@ from stages.common import arms
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejection_reason, with_scale_error
 from stages.common.json_arrays import matrix
-from stages.common.markers import markers
 from stages.common.rwhe import fixture_tilt
 from stages.common.sources import measured_b, up_targetee
-from stages.common.target import Target
 from stages.common.workspace_target import workspace_target
-from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, marker_geometry, mean_variance, without_fit
+from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, with_marker_geometry
 from stages.fuse.session import (
     NO_OFFSET,
     SessionOffset,
@@ -57,10 +48,10 @@ from stages.fuse.session import (
     session_factor,
     session_offset,
 )
-from stages.fuse.short_session import cross_validated, widened_rejection
+from stages.fuse.short_session import widened_for_short_session
 
 __all__ = ["Estimates", "SessionOffset", "applied_factor", "axis_sources", "fuse_capture", "resolve", "run",
-           "session_factor", "session_offset"]
+           "session_factor", "session_offset", "widened_for_short_session", "with_marker_geometry"]
 
 
 class SourceModel:
@@ -264,50 +255,6 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
             "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad, "kuka_sigma_t_m": factor.scale(calibrated_kuka).t_m,
             "vicon_sigma_t_m": vicon_sigma}
-
-
-
-def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
-                              rejection: Sigma | None) -> tuple[Sigma | None, str]:
-    """Each source's calibrated sigma widened to its cross-validated error
-    (``short_session.cross_validated``), and the rejection sigma with them."""
-    sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
-    before = {name: source.sigma for name, source in sources.items()}
-    words = []
-    for name, source in sources.items():
-        source.sigma, how, source.parameter_scale = cross_validated(source.sigma, source.metrics, source.samples)
-        words.append(f"{name} {how}")
-    if rejection is not None:
-        rejection = widened_rejection(rejection, before, {name: s.sigma for name, s in sources.items()})
-    return rejection, f"; too short a session to measure the factor, so the sigmas are widened: {'; '.join(words)}"
-
-
-def with_marker_geometry(workspace: Workspace, captured: list[dict[str, Any]], target: Target,
-                         kuka: SourceModel, vicon: SourceModel,
-                         rejection: Sigma | None) -> tuple[MarkerGeometry | None, str, Sigma | None]:
-    """The session's marker geometry (``marker_geometry``), with motion capture's calibrated
-    sigma and the rejection sigma reduced by the fit's mean variance over the calibration
-    captures (``without_fit``): the fit's own variance is added back capture by capture."""
-    # where the markers were when the captures were made (acquire records it), else the target's
-    layout = (np.array(read_markers(workspace).centres_m) if workspace.markers_path.exists()
-              else markers(target).centres_m)
-    geometry = marker_geometry(layout, captured)
-    if geometry is None:
-        return None, "not recorded (which markers each fit used): the calibrated sigma as it is", rejection
-    calibration = []
-    for row in captured:
-        b = measured_b(row, "vicon")
-        if row["session"] == "calibration" and b is not None and row["fixture"] in kuka.x:
-            calibration.append(geometry.variance(row, kuka.estimate(measured_b(row, "kuka"), row)))
-    mean = mean_variance(calibration)
-    if mean is None:
-        return geometry, f"{geometry.words()}; no calibration capture to take its share from the calibrated sigma", \
-            rejection
-    vicon.sigma = without_fit(vicon.sigma, mean)
-    rejection = None if rejection is None else without_fit(rejection, mean)
-    return geometry, (f"{geometry.words()}; its mean at the calibration x/y/z "
-                      f"{'/'.join(f'{v:.2f}' for v in np.sqrt(mean.t_m2) * 1000)} mm taken from the calibrated "
-                      "sigma, each capture's added"), rejection
 
 
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:

@@ -22,12 +22,20 @@ keeps the calibrated sigma as it is, and fuse says so.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from manifests import Workspace
+from manifests.sidecars import read_markers
 from stages.common.fusion import Sigma
 from stages.common.marker_fit import fit_covariance, marker_sigma
+from stages.common.markers import markers
+from stages.common.sources import measured_b
+from stages.common.target import Target
+
+if TYPE_CHECKING:
+    from stages.fuse import SourceModel
 
 #: the calibrated variance's share kept for what is not the target body's fit, at least
 REST_FLOOR = 0.1
@@ -98,3 +106,31 @@ def mean_variance(variances: list[FitVariance | None]) -> FitVariance | None:
     if not finite:
         return None
     return FitVariance(np.mean([v.t_m2 for v in finite], axis=0), float(np.mean([v.r_rad2 for v in finite])))
+
+
+def with_marker_geometry(workspace: Workspace, captured: list[dict[str, Any]], target: Target,
+                         kuka: SourceModel, vicon: SourceModel,
+                         rejection: Sigma | None) -> tuple[MarkerGeometry | None, str, Sigma | None]:
+    """The session's marker geometry (``marker_geometry``), with motion capture's calibrated
+    sigma and the rejection sigma reduced by the fit's mean variance over the calibration
+    captures (``without_fit``): the fit's own variance is added back capture by capture."""
+    # where the markers were when the captures were made (acquire records it), else the target's
+    layout = (np.array(read_markers(workspace).centres_m) if workspace.markers_path.exists()
+              else markers(target).centres_m)
+    geometry = marker_geometry(layout, captured)
+    if geometry is None:
+        return None, "not recorded (which markers each fit used): the calibrated sigma as it is", rejection
+    calibration = []
+    for row in captured:
+        b = measured_b(row, "vicon")
+        if row["session"] == "calibration" and b is not None and row["fixture"] in kuka.x:
+            calibration.append(geometry.variance(row, kuka.estimate(measured_b(row, "kuka"), row)))
+    mean = mean_variance(calibration)
+    if mean is None:
+        return geometry, f"{geometry.words()}; no calibration capture to take its share from the calibrated sigma", \
+            rejection
+    vicon.sigma = without_fit(vicon.sigma, mean)
+    rejection = None if rejection is None else without_fit(rejection, mean)
+    return geometry, (f"{geometry.words()}; its mean at the calibration x/y/z "
+                      f"{'/'.join(f'{v:.2f}' for v in np.sqrt(mean.t_m2) * 1000)} mm taken from the calibrated "
+                      "sigma, each capture's added"), rejection

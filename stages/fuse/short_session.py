@@ -19,13 +19,16 @@ its factor on its own captures instead (``session.session_factor``).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
 from stages.common.fusion import Sigma
+
+if TYPE_CHECKING:
+    from stages.fuse import SourceModel
 
 
 def _rms(metric: list[float]) -> float:
@@ -65,3 +68,18 @@ def widened_rejection(rejection: Sigma, before: dict[str, Sigma], after: dict[st
     ratio_r = float(np.sqrt(r_after / max(r_before, 1e-30)))
     pointing = None if rejection.pointing_rad is None else rejection.pointing_rad * ratio_r
     return Sigma(rejection.t_m * ratio_t, rejection.r_rad * ratio_r, pointing)
+
+
+def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
+                              rejection: Sigma | None) -> tuple[Sigma | None, str]:
+    """Each source's calibrated sigma widened to its cross-validated error
+    (``short_session.cross_validated``), and the rejection sigma with them."""
+    sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
+    before = {name: source.sigma for name, source in sources.items()}
+    words = []
+    for name, source in sources.items():
+        source.sigma, how, source.parameter_scale = cross_validated(source.sigma, source.metrics, source.samples)
+        words.append(f"{name} {how}")
+    if rejection is not None:
+        rejection = widened_rejection(rejection, before, {name: s.sigma for name, s in sources.items()})
+    return rejection, f"; too short a session to measure the factor, so the sigmas are widened: {'; '.join(words)}"
