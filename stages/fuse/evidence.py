@@ -14,8 +14,8 @@ the robots' ``a_i`` with their configuration: a motion capture that errs where i
 are poorly placed shows in ``beta``, not in ``alpha``.
 
 The factors are estimated by iteratively reweighted least squares on the squared
-differences (``Var(d^2) = 2 E(d^2)^2`` for a normal ``d``), each capped at the 99.9% point so
-that a ghost marker does not decide, with a weak prior at 1 for each (``PRIOR_DOF``
+differences (``Var(d^2) = 2 E(d^2)^2`` for a normal ``d``), the differences taken as
+Student-t so that a ghost marker does not decide, with a weak prior at 1 for each (``PRIOR_DOF``
 degrees of freedom: the propagated sigmas hold until the session shows otherwise). Each
 source's expected squared error on the session is then its factor times its median
 predicted variance, and the source with the smaller one is the better: a Bayes decision
@@ -28,14 +28,20 @@ smaller sigma claimed once at the calibration, as before, no longer decides alon
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.integrate import quad
+from scipy.optimize import brentq
+from scipy.stats import norm
 
 #: degrees of freedom of each factor's prior at 1 (weak: two captures' worth)
 PRIOR_DOF = 2.0
-_ITERATIONS = 30
+#: degrees of freedom of the Student-t the differences are taken to follow (heavy tails:
+#: ghost markers, a fit of three markers)
+TAIL_DOF = 4.0
+_ITERATIONS = 200
 
 
 @dataclass(frozen=True)
@@ -61,31 +67,47 @@ class SourceEvidence:
 
 def two_components(squares: np.ndarray, robots_m2: np.ndarray, vicon_m2: np.ndarray) -> tuple[float, float]:
     """``(alpha, beta)`` >= 0 of ``E(squares) = alpha robots_m2 + beta vicon_m2`` (all (N,)),
-    by reweighted least squares with the prior (module docstring): first on the squares as
-    they are, then twice more with each capped at the 99.9% point of what the fit expects
-    of it (a cap from the start, at the prior, would hold the factors down)."""
+    by reweighted least squares with the prior (module docstring), the differences taken
+    as Student-t (``TAIL_DOF``) rather than normal: each square is weighted down by how far
+    it lies beyond what the factors expect of it (the EM algorithm of Lange, Little and
+    Taylor, JASA 84(408), 1989), so that a ghost marker's 250 mm counts as a few sigma."""
     # the prior as PRIOR_DOF pseudo-captures of each source alone at its median variance,
     # each showing its factor at 1: weighted as captures are, it holds as much as they do
     prior = np.diag([np.median(robots_m2), np.median(vicon_m2)])
     design = np.concatenate([np.stack([robots_m2, vicon_m2], axis=1), prior])
     counts = np.concatenate([np.ones(len(squares)), np.full(2, PRIOR_DOF)])
-    factors = np.ones(2)
-    for cap in (np.inf, chi2.ppf(0.999, 1), chi2.ppf(0.999, 1)):
-        capped = np.minimum(squares, cap * np.maximum(design[:len(squares)] @ factors, 1e-30))
-        factors = _reweighted(design, np.concatenate([capped, np.diag(prior)]), counts, factors)
-    return float(factors[0]), float(factors[1])
+    # iterated on the Student-t scale, which is ``consistency`` times the variance of
+    # normal differences; the prior's pseudo-captures are on that scale too
+    consistency = _normal_consistency()
+    factors = np.full(2, consistency)
+    for _ in range(_ITERATIONS):
+        expected = np.maximum(design[:len(squares)] @ factors, 1e-30)
+        weight = (TAIL_DOF + 1.0) / (TAIL_DOF + squares / expected)  # the E-step's expected precision
+        updated = _reweighted(design, np.concatenate([weight * squares, consistency * np.diag(prior)]), counts,
+                              factors)
+        if np.allclose(updated, factors, rtol=1e-6, atol=1e-12):
+            break
+        factors = updated
+    return float(updated[0] / consistency), float(updated[1] / consistency)
+
+
+@functools.cache
+def _normal_consistency() -> float:
+    """``c``: the Student-t scale's fixed point on normal differences of unit variance,
+    ``c = E[(nu + 1) z^2 / (nu + z^2 / c)]`` (the M-step's mean with the E-step's weights):
+    the scale divided by it is the variance, so that the factors are 1 where the sigmas hold."""
+    def excess(c: float) -> float:
+        mean = quad(lambda z: (TAIL_DOF + 1) * z**2 / (TAIL_DOF + z**2 / c) * norm.pdf(z), -np.inf, np.inf)[0]
+        return mean - c
+
+    return float(brentq(excess, 0.05, 1.0))
 
 
 def _reweighted(design: np.ndarray, squares: np.ndarray, counts: np.ndarray, factors: np.ndarray) -> np.ndarray:
-    """The factors (2,) that rounds of weights ``counts / (2 E^2)`` converge to."""
-    for _ in range(_ITERATIONS):
-        weights = counts / (2.0 * np.maximum(design @ factors, 1e-30) ** 2)
-        normal = design.T @ (design * weights[:, None])
-        updated = np.maximum(np.linalg.solve(normal, design.T @ (squares * weights)), 1e-6)
-        if np.allclose(updated, factors, rtol=1e-9, atol=1e-12):
-            return updated
-        factors = updated
-    return factors
+    """One weighted least-squares step (2,): weights ``counts / (2 E^2)`` at ``factors``."""
+    weights = counts / (2.0 * np.maximum(design @ factors, 1e-30) ** 2)
+    normal = design.T @ (design * weights[:, None])
+    return np.maximum(np.linalg.solve(normal, design.T @ (squares * weights)), 1e-6)
 
 
 def source_evidence(differences: np.ndarray, robots_m2: np.ndarray, vicon_m2: np.ndarray) -> SourceEvidence:
