@@ -8,7 +8,9 @@ follows their noise, and the residuals are far smaller than the error at a captu
 not see. The calibration's cross-validation measured exactly that error: each fold is
 predicted by a fit without it. So, where the dataset cannot measure the factor, each
 source's sigma is scaled by the ratio of its cross-validated to its in-sample RMS error
-(never below 1), position and rotation apart (the whole rotation error then taken to turn
+(never below 1; both sources by the larger of the two ratios, so that the fusion's weights
+stay the calibration's: a fit that follows its samples more says little of which source
+errs more at the dataset's range), position and rotation apart (the whole rotation error then taken to turn
 the line of sight: the share that does was regressed on the same in-sample residuals; the
 arms' parameter covariance, fitted on the same samples, by the position's), and by a
 Student-t allowance for the few
@@ -19,6 +21,7 @@ its factor on its own captures instead (``session.session_factor``).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -36,11 +39,25 @@ def _rms(metric: list[float]) -> float:
     return float(np.hypot(metric[0], metric[1]))
 
 
-def cross_validated(sigma: Sigma, metrics: dict[str, Any], samples: int) -> tuple[Sigma, str, float]:
-    """``sigma`` (calibrated, in-sample) widened to what the calibration's cross-validation
-    measured (module docstring), how, in words, and the position's widening (its ratio
-    times the allowance: the arms' parameter covariance, fitted on the same samples, is as
-    much too narrow); ``samples``: those the calibration used."""
+@dataclass(frozen=True)
+class Widening:
+    """How much wider a source's sigma is than its calibration says: position and rotation
+    (each ratio times the Student-t allowance), and how, in words."""
+
+    position: float
+    rotation: float
+    words: str
+
+    def of(self, sigma: Sigma) -> Sigma:
+        """``sigma`` widened; the share of its rotation that turns the line of sight was
+        regressed on the same in-sample residuals, so all of it is taken (conservative,
+        ``fusion.at_position``)."""
+        return Sigma(sigma.t_m * self.position, sigma.r_rad * self.rotation, None)
+
+
+def cross_validated(metrics: dict[str, Any], samples: int) -> Widening:
+    """A source's widening to what its calibration's cross-validation measured (module
+    docstring), from its Table 1 ``metrics``; ``samples``: those the calibration used."""
     cross, inside, record = metrics.get("cross_validated"), metrics["in_sample"], metrics.get("cross_validation", {})
     if cross is None or not record.get("judged", False):
         ratio_t = ratio_r = 1.0
@@ -50,36 +67,25 @@ def cross_validated(sigma: Sigma, metrics: dict[str, Any], samples: int) -> tupl
         ratio_r = max(_rms(cross["E_R_rad"]) / max(_rms(inside["E_R_rad"]), 1e-12), 1.0)
         basis, count = "cross-validated / in-sample", int(record.get("samples", samples))
     allowance = float(student_t.ppf(0.975, count - 1) / norm.ppf(0.975)) if count >= 2 else 1.0
-    # the share of the rotation error that turns the line of sight was regressed on the same
-    # in-sample residuals; unknown here, all of it is taken (``fusion.at_position``: conservative)
-    widened = Sigma(sigma.t_m * ratio_t * allowance, sigma.r_rad * ratio_r * allowance, None)
-    return widened, (f"{basis} position x{ratio_t:.2f}, rotation x{ratio_r:.2f}, Student-t on {count} samples "
-                     f"x{allowance:.2f}"), ratio_t * allowance
-
-
-def widened_rejection(rejection: Sigma, before: dict[str, Sigma], after: dict[str, Sigma]) -> Sigma:
-    """The rejection sigma (of the two sources' difference) widened as the sources' sigmas
-    were: the difference's variance is the sum of theirs."""
-    t_before = sum(s.t_m**2 for s in before.values())
-    t_after = sum(s.t_m**2 for s in after.values())
-    r_before = sum(s.r_rad**2 for s in before.values())
-    r_after = sum(s.r_rad**2 for s in after.values())
-    ratio_t = np.sqrt(t_after / np.maximum(t_before, 1e-30))
-    ratio_r = float(np.sqrt(r_after / max(r_before, 1e-30)))
-    pointing = None if rejection.pointing_rad is None else rejection.pointing_rad * ratio_r
-    return Sigma(rejection.t_m * ratio_t, rejection.r_rad * ratio_r, pointing)
+    return Widening(ratio_t * allowance, ratio_r * allowance,
+                    f"{basis} position x{ratio_t:.2f}, rotation x{ratio_r:.2f}, Student-t on {count} samples "
+                    f"x{allowance:.2f}")
 
 
 def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
                               rejection: Sigma | None) -> tuple[Sigma | None, str]:
-    """Each source's calibrated sigma widened to its cross-validated error
-    (``short_session.cross_validated``), and the rejection sigma with them."""
+    """Both sources' calibrated sigmas (and the arms' parameter covariance, and the rejection
+    sigma) widened by the larger of their cross-validated widenings (``cross_validated``):
+    which of two sources overfits its calibration more says nothing of which errs more at
+    the dataset's range, so the weights of the fusion stay the calibration's."""
     sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
-    before = {name: source.sigma for name, source in sources.items()}
-    words = []
-    for name, source in sources.items():
-        source.sigma, how, source.parameter_scale = cross_validated(source.sigma, source.metrics, source.samples)
-        words.append(f"{name} {how}")
-    if rejection is not None:
-        rejection = widened_rejection(rejection, before, {name: s.sigma for name, s in sources.items()})
-    return rejection, f"; too short a session to measure the factor, so the sigmas are widened: {'; '.join(words)}"
+    each = {name: cross_validated(source.metrics, source.samples) for name, source in sources.items()}
+    common = Widening(max(w.position for w in each.values()), max(w.rotation for w in each.values()),
+                      "; ".join(f"{name} {w.words}" for name, w in each.items()))
+    for source in sources.values():
+        source.sigma = common.of(source.sigma)
+        source.parameter_scale = common.position
+    rejection = None if rejection is None else common.of(rejection)
+    return rejection, (f"; too short a session to measure the factor, so both sigmas are widened by the larger of "
+                       f"the sources' (position x{common.position:.2f}, rotation x{common.rotation:.2f}): "
+                       f"{common.words}")

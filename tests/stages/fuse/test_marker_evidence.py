@@ -185,7 +185,7 @@ def test_a_short_sessions_sigmas_cover():
         for how in covered:
             kuka_sigma = Sigma(np.array([1.2, 1.2, 0.6]) / 1000, 1e-4)
             if how == "widened":
-                kuka_sigma = cross_validated(kuka_sigma, metrics, 16)[0]
+                kuka_sigma = cross_validated(metrics, 16).of(kuka_sigma)
             _, normalised, _ = fuse_session(truths, estimates, kuka_sigma_mm=tuple(kuka_sigma.t_m * 1000))
             covered[how].append(normalised)
     widened = np.mean(np.abs(np.concatenate(covered["widened"])) <= 1.96, axis=0)
