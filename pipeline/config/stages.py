@@ -217,9 +217,9 @@ class FuseConfig:
         "Student-t allowance, and the factor from the few captures with a weak prior", "count")
     inconsistent_axes: Literal["fall_back", "fuse"] = param(
         "fall_back", "on a position axis where the two sources disagree on the dataset captures beyond their "
-        "sigmas (the variance factor fails a 95% test), fall_back: keep only the better source there, as the "
-        "session's differences show it (two variance components, each source's propagated sigma a weak prior); "
-        "fuse: fuse it anyway, both sigmas scaled", "")
+        "sigmas (the variance factor fails a 95% test), fall_back: keep only the better source there: the one "
+        "whose error its own measurements at the captures predict the smaller (the robots' arms at each "
+        "configuration, motion capture's marker fit at each capture); fuse: fuse it anyway, both sigmas scaled", "")
     session_offset: Literal["on", "off"] = param(
         "on", "on: before fusing, remove from the source whose sigma on an axis is larger the median by which it "
         "differs there from the other over the session's two-source captures: at the dataset's range each "

@@ -8,8 +8,9 @@ parameter uncertainty propagated to each capture's configuration, and by the ses
 a posteriori variance factor: how much the two sources disagree on its own captures
 beyond what those sigmas predict (``W/fusion.json``). On an axis where that disagreement
 fails a 95% test of consistency, the better source there is kept alone (``axis_sources``):
-fusing would let the worse pull the better, and which is the better is what the session's
-differences show of each (``evidence.py``). Motion capture's sigma at each capture carries
+fusing would let the worse pull the better, and the better is the one whose error each
+source's own measurements at the captures predict the smaller (``session.better_source``).
+Motion capture's sigma at each capture carries
 its rigid-body fit's geometry there (``marker_geometry.py``); a session too short to
 measure the factor widens the sigmas to the calibration's cross-validated errors
 (``short_session.py``). The median difference of the two over the session is first

@@ -14,7 +14,6 @@ from stages.common import geometry as g
 from stages.common.fusion import Sigma
 from stages.common.marker_fit import fit_covariance
 from stages.fuse import Estimates, applied_factor, axis_sources, fuse_capture, session_factor, session_offset
-from stages.fuse.evidence import source_evidence, two_components
 from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, marker_geometry, without_fit
 from stages.fuse.short_session import cross_validated
 from tests.stages.fuse.test_axis_sources import Calibrated
@@ -27,11 +26,12 @@ CLUSTERED = np.array([[0.04, 0.04, 0.04], [-0.04, 0.04, 0.04], [0.04, -0.04, 0.0
 
 
 def clustered_session(seed: int, marker_sigma_m: float, claimed_marker_sigma_m: float, captures: int = CAPTURES,
-                      robots_mm=(1.2, 1.2, 0.6), ghosts: int = 0):
+                      robots_mm=(1.2, 1.2, 0.6), ghosts: int = 0, pointing_rad: float = 0.0):
     """Captures 3-5 m away. Motion capture sees 3-6 of the clustered markers at random and
     errs as its fit there does with the true marker noise (plus 0.3 mm of everything else);
     fuse is told ``claimed_marker_sigma_m``. The robots err as their sigma says. ``ghosts``
-    captures of motion capture are off by 30-250 mm (a ghost marker in a three-marker fit)."""
+    captures of motion capture are off by 30-250 mm (a ghost marker in a three-marker fit);
+    its line of sight turns by ``pointing_rad`` (1-sigma per axis) at every capture."""
     rng = np.random.default_rng(seed)
     geometry = MarkerGeometry(CLUSTERED, claimed_marker_sigma_m)
     truths, estimates = [], []
@@ -45,6 +45,8 @@ def clustered_session(seed: int, marker_sigma_m: float, claimed_marker_sigma_m: 
         fitted = kabsch(CLUSTERED[used], noisy)  # the fitted body's error, in T
         vicon = true @ fitted
         vicon[:3, 3] += rng.normal(scale=3e-4, size=3)
+        if pointing_rad:
+            vicon[:3, 3] += np.cross(rng.normal(scale=pointing_rad, size=3), vicon[:3, 3])
         if index < ghosts:
             direction = rng.normal(size=3)
             vicon[:3, 3] += rng.uniform(0.03, 0.25) * direction / np.linalg.norm(direction)
@@ -95,43 +97,26 @@ def test_the_fits_geometry_keeps_clustered_markers_from_pulling_the_labels():
     assert np.mean(worse) > 1.01, worse
 
 
-def test_the_fall_back_keeps_the_source_the_session_shows_better_not_the_smaller_claim():
-    """Motion capture's markers are 5x noisier than fuse is told: its claimed sigma is the
-    smaller sideways, its errors (14-20 mm) far the larger, and they swing with its fit's
-    geometry; three ghost markers among the 48 captures. The consistency test fails
-    sideways; the smaller claimed sigma would keep motion capture there every time. The
-    session's evidence keeps the robots on at least 2 in 3 of those axes over 12 seeds
-    (17 of 24 when written): 48 captures of two sources whose predicted variances swing
-    this little together cannot always tell them apart."""
+def test_the_fall_back_keeps_the_source_its_markers_say_is_better_not_the_smaller_claim():
+    """The markers cluster on the small bus; motion capture's camera body also turns more
+    than calibrated, so its lateral errors exceed every sigma and the consistency test
+    fails there; three ghost markers among the 48 captures. Its sigma measured at the
+    calibration (every marker in view) is the smaller, and would keep it alone; its fit's
+    geometry at each capture says otherwise, and the fall-back keeps the robots. The labels
+    stay within 1% of the robots on average (an axis the test passes is fused: 2% worse on
+    one seed of six when written)."""
     robots = (2.0, 2.0, 0.6)
-    kept, claimed_smaller = [], []
-    for seed in range(12):
-        truths, estimates = clustered_session(seed, 1.5e-3, 3e-4, robots_mm=robots, ghosts=3)
-        claimed = np.median([e.vicon_sigma(Calibrated(Sigma(np.full(3, 3e-4), 1e-3)), e.vicon).t_m
-                             for e in estimates], axis=0)
-        _, _, sources = fuse_session(truths, estimates, kuka_sigma_mm=robots)
-        for axis in (0, 1):
-            if sources[axis] != "fused":
-                kept.append(sources[axis])
-                claimed_smaller.append("vicon" if claimed[axis] < robots[axis] / 1000 else "kuka")
-    assert len(kept) >= 18, kept  # it fires on most lateral axes
-    assert claimed_smaller.count("vicon") == len(kept)  # the case: the claims favour motion capture
-    assert kept.count("kuka") >= 2 / 3 * len(kept), kept
-
-
-def test_variance_components_separate_two_sources_whose_sigmas_swing_apart():
-    """Seeded: differences of two sources with factors 1 and 9 on predicted variances that
-    vary independently are attributed to the second; equal predictions stay at the prior."""
-    rng = np.random.default_rng(5)
-    a, b = rng.uniform(0.5, 2.0, 200) ** 2, rng.uniform(0.2, 3.0, 200) ** 2
-    d = rng.normal(size=200) * np.sqrt(1.0 * a) - rng.normal(size=200) * np.sqrt(9.0 * b)
-    alpha, beta = two_components(d**2, a, b)
-    assert alpha == pytest.approx(1.0, abs=0.5) and beta == pytest.approx(9.0, rel=0.25)
-    evidence = source_evidence(np.stack([d] * 3, axis=1), np.stack([a] * 3, axis=1), np.stack([b] * 3, axis=1))
-    assert list(evidence.better) == ["kuka"] * 3
-    same = np.full(200, 1.0)
-    alpha, beta = two_components(rng.normal(size=200) ** 2 * 2.0, same, same)
-    assert alpha + beta == pytest.approx(2.0, rel=0.25)  # only their sum is determined
+    ratios = []
+    for seed in SEEDS:
+        truths, estimates = clustered_session(seed, 1e-3, 1e-3, robots_mm=robots, ghosts=3, pointing_rad=1.5e-3)
+        e_t, _, sources = fuse_session(truths, estimates, kuka_sigma_mm=robots, vicon_rest_mm=1.5)
+        inconsistent = [axis for axis in (0, 1) if sources[axis] != "fused"]
+        assert inconsistent, sources
+        assert all(sources[axis] == "kuka" for axis in inconsistent), sources
+        ratios.append(e_t["fused"] / e_t["kuka"])
+        _, _, claimed = fuse_session(truths, without_geometry(estimates), kuka_sigma_mm=robots, vicon_rest_mm=1.5)
+        assert all(claimed[axis] == "vicon" for axis in inconsistent if claimed[axis] != "fused"), claimed
+    assert np.mean(ratios) <= 1.01 and max(ratios) <= 1.03, ratios
 
 
 def test_the_fit_covariance_matches_monte_carlo_fits():
