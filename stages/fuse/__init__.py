@@ -272,13 +272,13 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
                       key=lambda r: r["sample_id"])
     rows = [r for r in captured if r["session"] == "dataset"]
-    short_why = ""
-    two_source = sum(measured_b(r, "vicon") is not None for r in rows) if vicon is not None else 0
-    if config.fuse.sigma_scale == "dataset" and two_source < config.fuse.min_scale_samples:
-        rejection, short_why = widened_for_short_session(kuka, vicon, rejection)
     geometry, geometry_why = None, "no motion capture in this session"
     if vicon is not None:
         geometry, geometry_why, rejection = with_marker_geometry(workspace, captured, target, kuka, vicon, rejection)
+    short_why = ""
+    two_source = sum(measured_b(r, "vicon") is not None for r in rows) if vicon is not None else 0
+    if config.fuse.sigma_scale == "dataset" and two_source < config.fuse.min_scale_samples:
+        rejection, geometry, short_why = widened_for_short_session(kuka, vicon, rejection, geometry)
     # every capture's estimates first: the session's variance factor depends on all of them,
     # so an interrupted run resumes with the same factor
     covariances = kuka.parameter_covariances(rows, config.fuse)

@@ -21,6 +21,7 @@ its factor on its own captures instead (``session.session_factor``).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +33,7 @@ from stages.common.fusion import Sigma
 
 if TYPE_CHECKING:
     from stages.fuse import SourceModel
+    from stages.fuse.marker_geometry import MarkerGeometry
 
 
 def _rms(metric: list[float]) -> float:
@@ -72,12 +74,13 @@ def cross_validated(metrics: dict[str, Any], samples: int) -> Widening:
                     f"x{allowance:.2f}")
 
 
-def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
-                              rejection: Sigma | None) -> tuple[Sigma | None, str]:
-    """Both sources' calibrated sigmas (and the arms' parameter covariance, and the rejection
-    sigma) widened by the larger of their cross-validated widenings (``cross_validated``):
-    which of two sources overfits its calibration more says nothing of which errs more at
-    the dataset's range, so the weights of the fusion stay the calibration's."""
+def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
+                              geometry: MarkerGeometry | None) -> tuple[Sigma | None, MarkerGeometry | None, str]:
+    """Both sources' calibrated sigmas (and the arms' parameter covariance, motion capture's
+    marker fit, and the rejection sigma) widened by the larger of their cross-validated
+    widenings (``cross_validated``): which of two sources overfits its calibration more says
+    nothing of which errs more at the dataset's range, so the weights of the fusion stay
+    what they were."""
     sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
     each = {name: cross_validated(source.metrics, source.samples) for name, source in sources.items()}
     common = Widening(max(w.position for w in each.values()), max(w.rotation for w in each.values()),
@@ -86,6 +89,8 @@ def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None,
         source.sigma = common.of(source.sigma)
         source.parameter_scale = common.position
     rejection = None if rejection is None else common.of(rejection)
-    return rejection, (f"; too short a session to measure the factor, so both sigmas are widened by the larger of "
-                       f"the sources' (position x{common.position:.2f}, rotation x{common.rotation:.2f}): "
-                       f"{common.words}")
+    if geometry is not None:
+        geometry = dataclasses.replace(geometry, marker_sigma_m=geometry.marker_sigma_m * common.position)
+    return rejection, geometry, (f"; too short a session to measure the factor, so both sigmas are widened by "
+                                 f"the larger of the sources' (position x{common.position:.2f}, rotation "
+                                 f"x{common.rotation:.2f}): {common.words}")
