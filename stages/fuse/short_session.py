@@ -76,9 +76,9 @@ def cross_validated(metrics: dict[str, Any], samples: int) -> Widening:
 
 def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
                               geometry: MarkerGeometry | None) -> tuple[Sigma | None, MarkerGeometry | None, str]:
-    """Both sources' calibrated sigmas (and the arms' parameter covariance, motion capture's
-    marker fit, and the rejection sigma) widened by the larger of their cross-validated
-    widenings (``cross_validated``): which of two sources overfits its calibration more says
+    """Both sources' calibrated sigmas (and the arms' parameter covariance and motion
+    capture's marker fit; not the rejection test's sigma) widened by the larger of their
+    cross-validated widenings (``cross_validated``): which of two sources overfits its calibration more says
     nothing of which errs more at the dataset's range, so the weights of the fusion stay
     what they were."""
     sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
@@ -88,7 +88,8 @@ def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None, reje
     for source in sources.values():
         source.sigma = common.of(source.sigma)
         source.parameter_scale = common.position
-    rejection = None if rejection is None else common.of(rejection)
+    # the rejection test keeps the calibrated sigmas: widened, it would let a motion
+    # capture that errs by a centimetre into labels whose robots were the better
     if geometry is not None:
         geometry = dataclasses.replace(geometry, marker_sigma_m=geometry.marker_sigma_m * common.position)
     return rejection, geometry, (f"; too short a session to measure the factor, so both sigmas are widened by "
