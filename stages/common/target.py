@@ -93,7 +93,7 @@ class Target:
     symmetries_discrete: tuple[np.ndarray, ...] = ()
     symmetries_continuous: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
     #: the motion-capture markers' centres (M, 3) in T, full scale, when [mockup] declares
-    #: them; else None: ``stages.common.markers`` chooses them on the main body
+    #: them; else None: ``stages.common.markers`` chooses them on the parts
     markers_m: np.ndarray | None = None
 
     def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
@@ -122,8 +122,8 @@ def derived_fixture(target: Target) -> Pose:
 def main_body_part(target: Target) -> MeshPart:
     """The target's main body: the part whose axis-aligned box is largest by volume (the
     first on a tie). Thin appendages (antennas, wings, booms) have flat boxes, so they never
-    win over a body; a single-part mesh is its own. The virtual testbed sticks
-    motion-capture markers on it and lets it hide them (``stages.common.markers``)."""
+    win over a body; a single-part mesh is its own. The fixtures hold it; declared
+    motion-capture markers take their normals from its hull (``stages.common.markers``)."""
     parts = list(target.parts.values())
     volumes = [float(np.prod(part.vertices.max(axis=0) - part.vertices.min(axis=0))) for part in parts]
     return parts[int(np.argmax(volumes))]
