@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from manifests.target import TargetError
 from stages.common import layout
 from stages.common.marker_fit import mean_point_variance
 from stages.common.target import MeshPart, Target, farthest_points, main_body_part
@@ -151,7 +152,7 @@ def candidates(target: Target) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         owners.append(np.full(int(keep.sum()), index))
         areas.append(area[keep])
     if not centres:
-        raise ValueError(f"target {target.name}: no part is {MIN_SURFACE_M * 1000:.0f} mm wide at mock-up scale: "
+        raise TargetError(f"target {target.name}: no part is {MIN_SURFACE_M * 1000:.0f} mm wide at mock-up scale: "
                          "declare [mockup] markers")
     centre, normal, owner = np.concatenate(centres), np.concatenate(normals), np.concatenate(owners)
     area = np.concatenate(areas)

@@ -10,10 +10,10 @@ predicted by a fit without it. So, where the dataset cannot measure the factor, 
 source's sigma is scaled by the ratio of its cross-validated to its in-sample RMS error
 (never below 1; both sources by the larger of the two ratios, so that the fusion's weights
 stay the calibration's: a fit that follows its samples more says little of which source
-errs more at the dataset's range), position and rotation apart (the whole rotation error then taken to turn
-the line of sight: the share that does was regressed on the same in-sample residuals; the
-arms' parameter covariance, fitted on the same samples, by the position's), and by a
-Student-t allowance for the few
+errs more at the dataset's range), position and rotation apart (the whole rotation error
+then taken to turn the line of sight: the share that does was regressed on the same
+in-sample residuals; the arms' parameter covariance, fitted on the same samples, and
+motion capture's marker fit by the position's), and by a Student-t allowance for the few
 samples behind it: ``t(0.975, n - 1) / z(0.975)``, the widening that keeps 1.96 sigma a 95%
 interval when the variance is estimated from ``n`` samples. A longer session measures
 its factor on its own captures instead (``session.session_factor``).
@@ -78,9 +78,9 @@ def widened_for_short_session(kuka: SourceModel, vicon: SourceModel | None, reje
                               geometry: MarkerGeometry | None) -> tuple[Sigma | None, MarkerGeometry | None, str]:
     """Both sources' calibrated sigmas (and the arms' parameter covariance and motion
     capture's marker fit; not the rejection test's sigma) widened by the larger of their
-    cross-validated widenings (``cross_validated``): which of two sources overfits its calibration more says
-    nothing of which errs more at the dataset's range, so the weights of the fusion stay
-    what they were."""
+    cross-validated widenings (``cross_validated``): which of two sources overfits its
+    calibration more says nothing of which errs more at the dataset's range, so the
+    weights of the fusion stay what they were."""
     sources = {"robots": kuka} if vicon is None else {"robots": kuka, "motion capture": vicon}
     each = {name: cross_validated(source.metrics, source.samples) for name, source in sources.items()}
     common = Widening(max(w.position for w in each.values()), max(w.rotation for w in each.values()),

@@ -143,3 +143,24 @@ def test_declared_markers_are_checked(tmp_path):
     placed = markers(target)
     assert not placed.chosen
     np.testing.assert_allclose(placed.centres_m, [[0.41, 0, 0], [-0.41, 0, 0], [0, 0.33, 0], [0, 0, 0.25]])
+
+
+def test_a_target_with_no_face_wide_enough_for_a_marker_is_an_error_naming_it(tmp_path):
+    """A mock-up of thin rods only (a truss of three parts): no marker can be chosen; the
+    error says to declare them, it is not a crash. (One mesh of rods is one part whose
+    box is wide: the rule judges parts, not faces.)"""
+    import trimesh
+
+    from manifests.target import TargetSpec, write_target_spec
+
+    folder = tmp_path / "truss"
+    folder.mkdir()
+    scene = trimesh.Scene()
+    for index, turn in enumerate((np.eye(4), trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)),
+                                  trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))):
+        scene.add_geometry(trimesh.creation.cylinder(radius=0.004, height=0.6, transform=turn),
+                           geom_name=f"rod{index}", node_name=f"rod{index}")
+    (folder / "truss.glb").write_bytes(scene.export(file_type="glb"))
+    write_target_spec(folder, TargetSpec("truss", "truss.glb", "m", 1.0, 1.0))
+    with pytest.raises(TargetError, match=r"target truss: no part is 20 mm wide.*declare \[mockup\] markers"):
+        markers(load_target(folder))
