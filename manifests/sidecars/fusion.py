@@ -12,7 +12,9 @@ from typing import Any
 from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
-FUSION_VERSION = 5  # 3: the session offset; 4: the factor as measured beside the one applied; 5: the sigmas' notes
+#: 3: the session offset; 4: the factor as measured beside the one applied; 5: the sigmas'
+#: notes; 6: the rejection test's count and its bound
+FUSION_VERSION = 6
 #: where a position axis's label comes from: both sources fused, or one of them alone
 AXIS_SOURCES = ("fused", "kuka", "vicon")
 SOURCES = ("kuka", "vicon")
@@ -46,13 +48,18 @@ class FusionRecord:
     #: recorded), and what else shaped the sigmas (its fit's geometry, a short session's widening)
     marker_sigma_m: float | None = None
     sigma_why: str = ""
+    #: two-source captures the rejection test refused, and the count that consistent
+    #: sources stay under at the tails' test level (None: the session was too short to test)
+    rejected: int = 0
+    rejected_bound: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"version": FUSION_VERSION,
                 "variance_factor": {"t": list(self.factor_t), "measured_t": list(self.measured_t), "r": self.factor_r,
                                     "samples": self.samples},
                 "why": self.why, "rejection_k": self.rejection_k,
-                "axes": {"sources": list(self.axis_sources), "why": self.axis_why},
+                "axes": {"sources": list(self.axis_sources), "why": self.axis_why, "rejected": self.rejected,
+                         "rejected_bound": self.rejected_bound},
                 "offset": {"t_m": list(self.offset_m), "sigma_m": list(self.offset_sigma_m),
                            "removed_from": list(self.offset_from), "why": self.offset_why},
                 "sigmas": {"marker_sigma_m": self.marker_sigma_m, "why": self.sigma_why}}
@@ -67,7 +74,7 @@ class FusionRecord:
             if min(value) <= 0:
                 raise factor.fail(key, "three positive factors")
         axes = f.child("axes")
-        axes.only("sources", "why")
+        axes.only("sources", "why", "rejected", "rejected_bound")
         sources = axes.raw("sources")
         if not isinstance(sources, list) or len(sources) != 3 or any(s not in AXIS_SOURCES for s in sources):
             raise axes.fail("sources", f"a list of three of {', '.join(AXIS_SOURCES)}")
@@ -84,7 +91,8 @@ class FusionRecord:
         return cls(t, factor.number("r", positive=True), factor.integer("samples"), f.text("why"),
                    f.number("rejection_k", positive=True), tuple(sources), axes.text("why"), measured_t,
                    offset.vector("t_m", 3), offset.vector("sigma_m", 3), tuple(removed_from), offset.text("why"),
-                   marker, sigmas.text("why"))
+                   marker, sigmas.text("why"), axes.integer("rejected"),
+                   None if axes.raw("rejected_bound") is None else axes.integer("rejected_bound"))
 
 
 def write_fusion(workspace: Workspace, record: FusionRecord) -> None:

@@ -46,13 +46,16 @@ from stages.fuse.session import (
     SessionOffset,
     applied_factor,
     axis_sources,
+    rejections,
     session_factor,
+    session_fusion,
     session_offset,
 )
 from stages.fuse.short_session import widened_for_short_session
 
-__all__ = ["Estimates", "SessionOffset", "applied_factor", "axis_sources", "fuse_capture", "resolve", "run",
-           "session_factor", "session_offset", "widened_for_short_session", "with_marker_geometry"]
+__all__ = ["Estimates", "SessionOffset", "applied_factor", "axis_sources", "fuse_capture", "rejections", "resolve",
+           "run", "session_factor", "session_fusion", "session_offset", "widened_for_short_session",
+           "with_marker_geometry"]
 
 
 class SourceModel:
@@ -173,6 +176,19 @@ class Estimates:
         grown = vicon.sigma_at(pose, sigma)
         return grown if self.fit is None else self.fit.add_to(grown)
 
+    def rejection(self, vicon: SourceModel | None, rejection: Sigma | None, factor: VarianceFactor,
+                  k: float, offset: SessionOffset = NO_OFFSET) -> str | None:
+        """Why motion capture is not fused at this capture, or None: untracked, or beyond
+        ``k`` of the difference's sigma (the rejection sigma grown here, scaled by
+        ``factor``) from the robots, both in the better source's offset."""
+        if vicon is None:
+            return "no motion capture in this session"
+        if self.vicon is not None and not self.tracked:
+            return "the markers its fit used cannot determine the pose (three in a line)"
+        predicted = self.plus_parameters(self.vicon_sigma(vicon, self.kuka, rejection))
+        vicon_pose = offset.motion_capture(self.vicon) if self.tracked else self.vicon
+        return rejection_reason(offset.robots(self.kuka), vicon_pose, factor.scale(predicted), k)
+
     def plus_parameters(self, sigma: Sigma) -> Sigma:
         """``sigma`` with the robots' parameter uncertainty at this capture added."""
         if self.arm is None:
@@ -227,12 +243,7 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
     # varies from capture to capture only, and a robots-only label in the session's offset
     kuka_pose = offset.robots(e.kuka)
     vicon_pose = offset.motion_capture(e.vicon) if e.tracked else e.vicon
-    reason = "no motion capture in this session"
-    if vicon is not None and e.vicon is not None and not e.tracked:
-        reason = "the markers its fit used cannot determine the pose (three in a line)"
-    elif vicon is not None:
-        predicted = e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection))
-        reason = rejection_reason(kuka_pose, vicon_pose, factor.scale(predicted), rejection_k)
+    reason = e.rejection(vicon, rejection, factor, rejection_k, offset)
     # per axis, the share of the label that comes from motion capture
     vicon_weight = np.zeros(3)
     if reason is None:
@@ -283,13 +294,13 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     # so an interrupted run resumes with the same factor
     covariances = kuka.parameter_covariances(rows, config.fuse)
     estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]
-    measured, why = session_factor(config, estimates, vicon, rejection)
-    sources, axis_why = axis_sources(config, estimates, kuka, vicon, measured)
-    offset = session_offset(config, estimates, kuka, vicon)
-    factor = applied_factor(estimates, vicon, rejection, measured, offset)
+    session = session_fusion(config, estimates, kuka, vicon, rejection)
+    measured, why, offset, factor = session.measured, session.why, session.offset, session.factor
+    refused, sources, axis_why = session.refused, session.sources, session.sources_why
     write_fusion(workspace, FusionRecord(
         factor_t=tuple(float(v) for v in factor.t), factor_r=float(factor.r), samples=factor.samples, why=why,
-        rejection_k=config.fuse.rejection_k, axis_sources=sources, axis_why=axis_why,
+        rejection_k=config.fuse.rejection_k, axis_sources=sources, axis_why=axis_why, rejected=refused.count,
+        rejected_bound=refused.bound,
         measured_t=tuple(float(v) for v in measured.t), offset_m=tuple(float(v) for v in offset.t_m),
         offset_sigma_m=tuple(float(v) for v in offset.sigma_m), offset_from=offset.removed_from,
         offset_why=offset.why, marker_sigma_m=None if geometry is None else geometry.marker_sigma_m,

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import binom, chi2, norm
 from scipy.stats import t as student_t
 
 from pipeline.config import Config
@@ -178,25 +178,71 @@ def session_offset(config: Config, estimates: list[Estimates], kuka: Source, vic
                          mean_jacobian_t=np.mean(jacobians, axis=0) if jacobians else None)
 
 
+#: the level of the test of the disagreements' tails (``Rejections``): stricter than the
+#: median's (``CONSISTENCY_LEVEL``), since a ghost or two is the rejection test's job, not a
+#: reason to give up fusion
+TAIL_LEVEL = 0.975
+
+
+@dataclass(frozen=True)
+class Rejections:
+    """How many of the session's two-source captures the rejection test refuses, against
+    what sources whose (factor-scaled) sigmas hold would give: each capture is refused with
+    probability ``p = 1 - (1 - 2 Q(k))^3 P(chi2_3 <= 3 k^2)`` (three position components
+    and the angle, whose square over its mean square is chi2_3 / 3), so the count is
+    Binomial(n, p); ``bound`` is its ``TAIL_LEVEL`` quantile (None: not tested)."""
+
+    count: int
+    samples: int
+    bound: int | None
+
+    @property
+    def inconsistent(self) -> bool:
+        return self.bound is not None and self.count > self.bound
+
+
+def rejections(estimates: list[Estimates], vicon: Source | None, rejection: Sigma | None,
+               factor: VarianceFactor, k: float, offset: SessionOffset, min_samples: int) -> Rejections:
+    """The rejection test's count on the session (``Estimates.rejection``, with the factor
+    and offset that fusion applies), and its bound when there are ``min_samples`` or more."""
+    both = two_source(estimates)
+    if vicon is None or rejection is None or not both:
+        return Rejections(0, len(both), None)
+    count = sum(e.rejection(vicon, rejection, factor, k, offset) is not None for e in both)
+    if len(both) < min_samples:
+        return Rejections(count, len(both), None)
+    refused = 1.0 - (1.0 - 2.0 * norm.sf(k)) ** 3 * chi2.cdf(3.0 * k**2, 3)
+    return Rejections(count, len(both), int(binom.ppf(TAIL_LEVEL, len(both), refused)))
+
+
 def axis_sources(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
-                 factor: VarianceFactor) -> tuple[tuple[str, str, str], str]:
+                 factor: VarianceFactor, refused: Rejections) -> tuple[tuple[str, str, str], str]:
     """Per camera axis, where the labels' position comes from (``AXIS_SOURCES``), and why.
 
-    Where the two sources disagree on the dataset captures beyond their sigmas (``factor``,
-    as measured, fails ``VarianceFactor.inconsistent``), one of them errs beyond its sigma,
-    and fusing would let the worse pull the better. The better source on that axis, as the
-    session's differences show it (``better_source``), is kept alone."""
+    Inverse-variance fusion holds where both sources err as normal laws at their sigmas.
+    Two tests ask whether they do on this session: the core of the disagreements (``factor``,
+    as measured, fails ``VarianceFactor.inconsistent`` on that axis) and their tails (more
+    captures refused by the rejection test than ``refused.bound``, on every axis). Failing
+    either, one source errs beyond its sigma; where it is the tails, the captures the test
+    accepts come from the same heavy-tailed law (the test cuts at ``k`` sigma, and a gross
+    error of a few sigma passes it), so fusing would let the worse pull the better. The
+    better source on that axis, as each source's own measurements predict it
+    (``better_source``), is kept alone."""
     if vicon is None or config.fuse.inconsistent_axes == "fuse":
         return ("fused",) * 3, ("one source" if vicon is None else "fuse.inconsistent_axes = fuse")
     if factor.samples < config.fuse.min_scale_samples:  # a short session's factor is not the test's median
         return ("fused",) * 3, (f"{factor.samples} two-source captures < fuse.min_scale_samples: too few to test "
                                 "the sources' consistency; fused with the widened sigmas")
-    inconsistent = factor.inconsistent()
+    inconsistent = factor.inconsistent() | refused.inconsistent
     better, evidence = better_source(estimates, kuka, vicon)
     sources = tuple(str(better[axis]) if inconsistent[axis] else "fused" for axis in range(3))
     reasons = [f"{name}: factor {factor.t[axis]:.3f} > {consistency_bound(factor.samples):.3f} (what "
                f"{CONSISTENCY_LEVEL:.0%} of consistent sources stay under on {factor.samples} captures): "
-               f"{sources[axis]} alone" for axis, name in enumerate("xyz") if inconsistent[axis]]
+               f"{sources[axis]} alone" for axis, name in enumerate("xyz") if factor.inconsistent()[axis]]
+    if refused.inconsistent:
+        reasons.append(f"{refused.count} of {refused.samples} captures refused by the rejection test > "
+                       f"{refused.bound} (what {TAIL_LEVEL:.0%} of consistent sources stay under): "
+                       f"{'/'.join(sources)}")
     if not reasons:
         return sources, "the sources agree within their sigmas on every axis"
     return sources, f"{'; '.join(reasons)} ({evidence})"
@@ -223,3 +269,29 @@ def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: 
     centred = variance_factor(np.stack([offset.robots(e.kuka) for e in both]),
                               np.stack([offset.motion_capture(e.vicon) for e in both]), predicted)
     return VarianceFactor(centred.t, measured.r, measured.samples)
+
+
+@dataclass(frozen=True)
+class SessionFusion:
+    """Everything fuse decides on the session as a whole, before any capture is fused."""
+
+    measured: VarianceFactor  # the consistency test's (offset included)
+    why: str
+    offset: SessionOffset
+    factor: VarianceFactor  # what scales the sigmas (``applied_factor``)
+    refused: Rejections
+    sources: tuple[str, str, str]
+    sources_why: str
+
+
+def session_fusion(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
+                   rejection: Sigma | None) -> SessionFusion:
+    """The session's measures in the order they depend on each other: the factor as
+    measured, the offset, the factor applied, the rejection test's count, the axes' sources."""
+    measured, why = session_factor(config, estimates, vicon, rejection)
+    offset = session_offset(config, estimates, kuka, vicon)
+    factor = applied_factor(estimates, vicon, rejection, measured, offset)
+    refused = rejections(estimates, vicon, rejection, factor, config.fuse.rejection_k, offset,
+                         config.fuse.min_scale_samples)
+    sources, sources_why = axis_sources(config, estimates, kuka, vicon, measured, refused)
+    return SessionFusion(measured, why, offset, factor, refused, sources, sources_why)

@@ -18,7 +18,9 @@ from stages.fuse import (
     applied_factor,
     axis_sources,
     fuse_capture,
+    rejections,
     session_factor,
+    session_fusion,
     session_offset,
 )
 
@@ -38,11 +40,13 @@ class Calibrated:
         return self.sigma if sigma is None else sigma
 
 
-def session(seed: int, kuka_true_mm, vicon_true_mm, vicon_offset_mm=(0.0, 0.0, 0.0), arm=None):
+def session(seed: int, kuka_true_mm, vicon_true_mm, vicon_offset_mm=(0.0, 0.0, 0.0), arm=None, gross=None):
     """48 captures 3-5 m away; each source errs with the given 1-sigma per camera axis, and
     motion capture also by one offset for the whole session (its wand's scale at range).
     ``arm``: the robots' uncertainty from their calibrated parameters, drawn once for the
-    session (``ArmUncertainty``: the position block of its covariance)."""
+    session (``ArmUncertainty``: the position block of its covariance). ``gross``: (share,
+    low mm, high mm): that share of motion capture's captures errs instead by a length
+    drawn between the two, in any direction (a fit on few markers with a short lever)."""
     rng = np.random.default_rng(seed)
     shared = np.zeros(3) if arm is None else arm.jacobian_t @ rng.multivariate_normal(np.zeros(len(arm.parameters)),
                                                                                         arm.parameters)
@@ -53,6 +57,9 @@ def session(seed: int, kuka_true_mm, vicon_true_mm, vicon_offset_mm=(0.0, 0.0, 0
         kuka, vicon = true.copy(), true.copy()
         kuka[:3, 3] += rng.normal(size=3) * np.asarray(kuka_true_mm) / 1000 + shared
         vicon[:3, 3] += (rng.normal(size=3) * np.asarray(vicon_true_mm) + vicon_offset_mm) / 1000
+        if gross is not None and rng.uniform() < gross[0]:
+            direction = rng.normal(size=3)
+            vicon[:3, 3] = true[:3, 3] + rng.uniform(*gross[1:]) / 1000 * direction / np.linalg.norm(direction)
         truths.append(true)
         estimates.append(Estimates({"sample_id": f"d{index:03d}"}, kuka, vicon, arm))
     return truths, estimates
@@ -60,7 +67,7 @@ def session(seed: int, kuka_true_mm, vicon_true_mm, vicon_offset_mm=(0.0, 0.0, 0
 
 def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_offset_mm=(0.0, 0.0, 0.0),
                   offset="on", vicon_sigma_mm=(3.5, 3.5, 0.9), scale_by="applied", arm=None, kuka_sigma_mm=None,
-                  declared=True):
+                  declared=True, gross=None):
     """Mean E_T (mm) of fused, robots, motion capture (and their depth's rms error, mm);
     errors / sigmas (N, 3); sources. ``scale_by``: the factor fuse applies, or the one as
     measured (offset included)."""
@@ -69,10 +76,12 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_o
     kuka = Calibrated(Sigma(np.asarray(kuka_sigma_mm or (1.2, 1.2, 0.6)) / 1000, 1e-4))
     vicon = Calibrated(Sigma(np.asarray(vicon_sigma_mm) / 1000, 1e-3))
     rejection = Sigma(np.hypot(kuka.sigma.t_m, vicon.sigma.t_m), float(np.hypot(1e-4, 1e-3)))
-    truths, estimates = session(seed, kuka_true_mm, vicon_true_mm, vicon_offset_mm, arm)
+    truths, estimates = session(seed, kuka_true_mm, vicon_true_mm, vicon_offset_mm, arm, gross)
     factor, _ = session_factor(config, estimates, vicon, rejection)
-    sources, _ = axis_sources(config, estimates, kuka, vicon, factor)
     removed = session_offset(config, estimates, kuka, vicon)
+    refused = rejections(estimates, vicon, rejection, applied_factor(estimates, vicon, rejection, factor, removed),
+                         1.96, removed, config.fuse.min_scale_samples)
+    sources, _ = axis_sources(config, estimates, kuka, vicon, factor, refused)
     if not declared:  # no shared part: each capture's own Jacobian against a mean that is zero
         removed = dataclasses.replace(removed, mean_jacobian_t=np.zeros_like(removed.mean_jacobian_t))
         estimates = [dataclasses.replace(e, arm=dataclasses.replace(e.arm, jacobian_t=np.zeros_like(
@@ -198,3 +207,49 @@ def test_the_robots_error_shared_by_the_session_stays_in_the_labels_sigma():
     honest = shared_depth_rms(declared=True)
     assert 0.85 <= honest <= 1.15, honest
     assert shared_depth_rms(declared=False) > 1.15 * honest  # taken as independent: overconfident
+
+
+# the panelled bus of ``bench targets`` on facility 92: motion capture at its sigma on two
+# captures in three, and 6-30 mm off on the third (markers on a small body, a short lever);
+# the robots err by two thirds of their sigma
+HEAVY_TAIL = dict(kuka_true_mm=[0.8, 0.8, 0.4], vicon_true_mm=[3.5, 3.5, 0.9], gross=(0.35, 6.0, 30.0))
+
+
+def refused_count(seed: int, kuka_true_mm, vicon_true_mm, gross=None):
+    """The consistency tests' verdicts on a session: the median's per axis, the tails'."""
+    config = Config()
+    kuka = Calibrated(Sigma(np.array([1.2, 1.2, 0.6]) / 1000, 1e-4))
+    vicon = Calibrated(Sigma(np.array([3.5, 3.5, 0.9]) / 1000, 1e-3))
+    rejection = Sigma(np.hypot(kuka.sigma.t_m, vicon.sigma.t_m), float(np.hypot(1e-4, 1e-3)))
+    _, estimates = session(seed, kuka_true_mm, vicon_true_mm, gross=gross)
+    fusion = session_fusion(config, estimates, kuka, vicon, rejection)
+    return fusion.measured.inconsistent(), fusion.refused
+
+
+def test_a_motion_capture_with_a_heavy_tail_is_not_fused():
+    """Where the rejection test refuses more captures than consistent sources would, the
+    accepted ones' gross errors inside 1.96 sigma would pull the labels: fuse keeps the
+    robots on every axis. On most of these sessions the median of the disagreements passes
+    on some axis, and the tails' test is what keeps the robots there."""
+    caught = 0
+    for seed in range(12):
+        median_fails, refused = refused_count(seed, **HEAVY_TAIL)
+        e_t, _, sources = fused_session(seed, **HEAVY_TAIL)
+        assert e_t["fused"] <= 1.01 * e_t["kuka"], (seed, e_t)
+        if refused.inconsistent:
+            assert sources == ("kuka", "kuka", "kuka"), (seed, sources)
+            caught += not median_fails.all()
+    assert caught >= 6, caught
+
+
+def test_fusing_a_heavy_tailed_motion_capture_does_harm():
+    """What the tails' test prevents: the same sessions fused on every axis."""
+    ratios = [(lambda e: e["fused"] / e["kuka"])(fused_session(seed, **HEAVY_TAIL, policy="fuse")[0])
+              for seed in range(12)]
+    assert np.mean(ratios) > 1.02, ratios
+
+
+def test_the_tails_test_seldom_refuses_consistent_sources():
+    """At its 97.5% level, over 200 sessions whose sources err as their sigmas say."""
+    flagged = [refused_count(seed, [1.2, 1.2, 0.6], [3.5, 3.5, 0.9])[1].inconsistent for seed in range(200)]
+    assert np.mean(flagged) <= 0.03, np.mean(flagged)

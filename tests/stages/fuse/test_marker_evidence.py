@@ -13,7 +13,7 @@ from stages.acquire.virtual.mocap import kabsch
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
 from stages.common.marker_fit import fit_covariance
-from stages.fuse import Estimates, applied_factor, axis_sources, fuse_capture, session_factor, session_offset
+from stages.fuse import Estimates, fuse_capture, session_fusion
 from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, marker_geometry, without_fit
 from stages.fuse.short_session import cross_validated
 from tests.stages.fuse.test_axis_sources import Calibrated
@@ -62,11 +62,10 @@ def fuse_session(truths, estimates, kuka_sigma_mm=(1.2, 1.2, 0.6), vicon_rest_mm
     kuka = Calibrated(Sigma(np.asarray(kuka_sigma_mm) / 1000, 1e-4))
     vicon = Calibrated(Sigma(np.full(3, vicon_rest_mm / 1000), 1e-3))
     rejection = Sigma(np.hypot(kuka.sigma.t_m, vicon.sigma.t_m), float(np.hypot(1e-4, 1e-3)))
-    factor, _ = session_factor(config, estimates, vicon, rejection)
-    sources, why = axis_sources(config, estimates, kuka, vicon, factor)
-    removed = session_offset(config, estimates, kuka, vicon)
-    applied = applied_factor(estimates, vicon, rejection, factor, removed)
-    rows = [fuse_capture(e, kuka, vicon, rejection, applied, 1.96, sources, removed) for e in estimates]
+    session = session_fusion(config, estimates, kuka, vicon, rejection)
+    sources = session.sources
+    rows = [fuse_capture(e, kuka, vicon, rejection, session.factor, 1.96, sources, session.offset)
+            for e in estimates]
     true_t = np.stack([t[:3, 3] for t in truths])
     fused = np.stack([r["cam_from_target_t"] for r in rows])
     e_t = {name: float(np.linalg.norm(p - true_t, axis=1).mean() * 1000)
