@@ -16,13 +16,16 @@ from dataclasses import dataclass
 
 import pyarrow as pa
 
-SCHEMA_VERSION = "1.10"  # 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas
+#: 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas; 1.11: scores'
+#: intervals, median and failure share
+SCHEMA_VERSION = "1.11"
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
 #: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
 #: plan's trajectory columns and captures' move_s, 1.9 the target body's used markers and
-#: residual and the poses' per-source sigmas; a kept recording reads as it is
-READABLE_VERSIONS = ("1.7", "1.8", "1.9")
+#: residual and the poses' per-source sigmas, 1.10 the scores' intervals (a scores part of
+#: 1.10 does not read: evaluate writes it again); a kept recording reads as it is
+READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10")
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -337,12 +340,51 @@ SCORES = ManifestSpec(
         Column("count", pa.int64(), "count", "images"),
         Column("pose_found_share", pa.float64(), "1", "share of images that gave a pose"),
         Column("mean_score_speed", pa.float64(), "1", "mean SPEED score"),
+        Column("mean_score_speed_low", pa.float64(), "1", "lower end of its 95% interval: BCa bootstrap over the "
+               "images, stratified by configuration (stages/evaluate/intervals.py)"),
+        Column("mean_score_speed_high", pa.float64(), "1", "upper end of that interval"),
+        Column("median_score_speed", pa.float64(), "1", "median SPEED score"),
         Column("mean_score_speedplus", pa.float64(), "1", "mean SPEED+ score"),
+        Column("mean_score_speedplus_low", pa.float64(), "1", "lower end of its 95% interval (as for SPEED)"),
+        Column("mean_score_speedplus_high", pa.float64(), "1", "upper end of that interval"),
+        Column("failure_share", pa.float64(), "1", "share of images whose pose misses: rotation error over 10 deg "
+               "or translation error over 10% of the range (no pose included)"),
         Column("mean_err_q_deg", pa.float64(), "deg", "mean rotation error"),
         Column("median_err_q_deg", pa.float64(), "deg", "median rotation error"),
         Column("mean_err_t_norm", pa.float64(), "1", "mean normalised translation error"),
         Column("mean_box_iou", pa.float64(), "1", "self crop: mean intersection over union of the found box with "
                "the label's box", nullable=True),
+    ),
+    key="group",
+)
+
+COMPARISONS = ManifestSpec(
+    "comparisons",
+    "each model against the reference model on the same images: the mean of the paired differences of their "
+    "scores (model minus reference; below zero, the model scores lower, which is better), per domain and "
+    "configuration",
+    (
+        Column("group", pa.string(), "", "<model>/<crop>/<reference>/<reference_crop>/<domain>/<view>/<light>"),
+        Column("model", pa.string(), "", "the model compared"),
+        Column("crop", pa.string(), "", "its crop (see predictions)", kind="enum",
+               allowed=("full", "oracle_box", "self")),
+        Column("reference", pa.string(), "", "the model it is compared with: 'reference' when scored, else the "
+               "first of evaluate.models"),
+        Column("reference_crop", pa.string(), "", "the reference's crop: the model's own when the reference has "
+               "it, else the reference's first", kind="enum", allowed=("full", "oracle_box", "self")),
+        Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
+               allowed=("synthetic", "testbed")),
+        Column("view", pa.string(), "", "one of the target's view names, or all", kind="name"),
+        Column("light", pa.string(), "", "light set-up or all", kind="enum", allowed=("lightbox", "sunlamp", "all")),
+        Column("count", pa.int64(), "count", "images scored by both"),
+        Column("mean_difference_speed", pa.float64(), "1", "mean of the per-image SPEED score differences"),
+        Column("mean_difference_speed_low", pa.float64(), "1", "lower end of its 95% paired-bootstrap interval, "
+               "stratified by configuration (stages/evaluate/intervals.py)"),
+        Column("mean_difference_speed_high", pa.float64(), "1", "upper end of that interval"),
+        Column("mean_difference_speedplus", pa.float64(), "1", "mean of the per-image SPEED+ score differences"),
+        Column("mean_difference_speedplus_low", pa.float64(), "1", "lower end of its 95% interval"),
+        Column("mean_difference_speedplus_high", pa.float64(), "1", "upper end of that interval"),
+        Column("better_share", pa.float64(), "1", "share of the images where the model's SPEED score is lower"),
     ),
     key="group",
 )
@@ -413,6 +455,6 @@ MODELS = ManifestSpec(
 
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
-                                  PREDICTIONS, SCORES, TRACKS, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
+                                  PREDICTIONS, SCORES, COMPARISONS, TRACKS, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
                                   MODELS)
 }

@@ -1,6 +1,7 @@
 """Every stage, end to end, on the smoke profile with the committed reference model; the
 report page opened in headless Chromium."""
 
+import itertools
 import re
 import shutil
 import subprocess
@@ -42,6 +43,20 @@ def test_every_stage_is_done(finished):
     for model in ("reference", "reference_augmented"):
         assert scores[f"{model}/oracle_box/synthetic/all/all"]["count"] == 8
         assert scores[f"{model}/self/testbed/all/all"]["count"] == 8
+    for row in scores.values():  # every figure with its interval
+        assert row["mean_score_speed_low"] <= row["mean_score_speed"] <= row["mean_score_speed_high"], row["group"]
+    # the augmented model against the plain one, paired on the same images, per crop and domain
+    compared = {row["group"]: row for row in read_manifest(ws, "comparisons").to_pylist()}
+    for crop, domain in itertools.product(("oracle_box", "self"), ("synthetic", "testbed")):
+        row = compared[f"reference_augmented/{crop}/reference/{crop}/{domain}/all/all"]
+        assert row["count"] == 8
+        own = [p for p in predictions if p["model"] == "reference_augmented" and p["crop"] == crop
+               and (p["domain"] == "synthetic") == (domain == "synthetic")]
+        plain = {p["prediction_id"].split(":", 2)[2]: p["score_speed"] for p in predictions
+                 if p["model"] == "reference" and p["crop"] == crop}
+        differences = [p["score_speed"] - plain[p["prediction_id"].split(":", 2)[2]] for p in own]
+        assert row["mean_difference_speed"] == pytest.approx(np.mean(differences))
+    assert not any(row["model"] == "reference" for row in compared.values())
 
 
 def test_report_references_only_existing_files(finished):
@@ -53,8 +68,9 @@ def test_report_references_only_existing_files(finished):
         assert not reference.startswith(("http:", "https:", "//")), reference  # no network
         assert (ws.root / "report" / reference).is_file(), reference
     for section in ("Table 1", "Table 2", "Calibration residuals", "Pose distribution", "Rotation-error CDFs",
-                    "Provenance", "rejection"):
+                    "Provenance", "rejection", "Each model against the reference", "What the figures mean"):
         assert section in page
+    assert page.index("Table 2") < page.index("Calibration captures")  # the gap before the thumbnails
 
 
 def test_report_is_browsable_every_sample_and_calibration_capture_in_it(finished):

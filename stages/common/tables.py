@@ -109,3 +109,13 @@ def table2_groups(scores: list[dict[str, Any]], model: str, crop: str) -> list[t
             continue
         out.append((f"{view}, {light}", (testbed or synthetic)["count"], synthetic, testbed))
     return out
+
+
+def verdict(low: float, high: float) -> str:
+    """What a 95% interval of ``model - reference`` (scores: lower is better) says, to be
+    followed by the reference's name."""
+    if high < 0:
+        return "better than"
+    if low > 0:
+        return "worse than"
+    return "not shown different from"

@@ -5,8 +5,10 @@ Every labelled capture is one ``lightbox`` or ``sunlamp`` image; its twin is one
 ``synthetic`` image. Both are scored against the label with the label camera, by every
 model of ``evaluate.models`` (by default the plain and the augmented reference models), and
 for a model of oracle crops also on its own crop (``self``). Writes the ``predictions``
-manifest (per model, crop and image) and the ``scores`` manifest (per model, crop, domain
-and configuration), and prints Table 2 for each.
+manifest (per model, crop and image), the ``scores`` manifest (per model, crop, domain
+and configuration, each mean with its interval: ``intervals.py``) and the ``comparisons``
+manifest (each model minus the reference on the same images: ``comparisons.py``), and
+prints Table 2 for each and each comparison.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from stages.common.image_io import ImageReadError
 from stages.common.json_arrays import calibrated_camera
 from stages.common.pose_model import BUILTIN_TARGET, PoseModel
 from stages.common.workspace_target import workspace_target
+from stages.evaluate.comparisons import compare, print_comparison, reference_model
 from stages.evaluate.scorer import Decoding, open_scorer
 from stages.evaluate.table import print_table2, summarise
 from stages.evaluate.tracks import tracking_tables, tracks
@@ -87,7 +90,7 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     redone) without redoing the others."""
     sequences = config.plan.mode == "trajectory"  # the tracking baseline: frames in order, and the orbit
     return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate",), {},
-                    ("predictions", "scores") + (("tracks",) if sequences else ()),
+                    ("predictions", "scores", "comparisons") + (("tracks",) if sequences else ()),
                     members={path.stem: _digest(path) for path in model_paths(config, workspace)},
                     member_key="evaluate.models", member_column="model")
 
@@ -180,8 +183,15 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     write_part(workspace, "scores", table, workspace.output_fingerprint("scores"))
     scored = sorted(set(zip(table.column("model").to_pylist(), table.column("crop").to_pylist(), strict=True)))
     shown += [pair for pair in scored if pair not in shown]  # every model scored here, also earlier ones
+    models = list(dict.fromkeys(model for model, _ in shown))
+    compared = compare(predictions.to_pylist(), target.view_names, models)
+    clear_manifest(workspace, "comparisons")  # like scores, a summary of all predictions
+    write_part(workspace, "comparisons", compared, workspace.output_fingerprint("comparisons"))
     for model, crop in shown:  # results: standard output
         Console().print(print_table2(table, model, crop))
+    for model, crop in shown:
+        if model != reference_model(models):
+            Console().print(print_comparison(compared, model, crop))
     if config.plan.mode == "trajectory":
         tracked = tracks(config, workspace, predictions.to_pylist())
         clear_manifest(workspace, "tracks")  # like scores, a summary of all predictions

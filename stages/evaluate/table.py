@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from itertools import product
 from typing import Any
 
 import numpy as np
 from rich import box
+from rich.console import Group
 from rich.table import Table
 
 from manifests import to_table
 from manifests.schema import SCORES
 from stages.common.tables import TESTBED, table2_groups
+from stages.evaluate.intervals import failed, mean_interval
 
 
 def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view: str,
@@ -22,11 +25,19 @@ def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view:
     if not chosen:
         return None
     err_q = np.degrees([r["err_q_rad"] for r in chosen])
-    return {"group": f"{model}/{crop}/{domain}/{view}/{light}", "model": model, "crop": crop, "domain": domain,
+    group = f"{model}/{crop}/{domain}/{view}/{light}"
+    strata = [f"{r['view']}, {r['light']}" for r in chosen]
+    speed = mean_interval([r["score_speed"] for r in chosen], strata, f"{group}/speed")
+    speedplus = mean_interval([r["score_speedplus"] for r in chosen], strata, f"{group}/speedplus")
+    return {"group": group, "model": model, "crop": crop, "domain": domain,
             "view": view, "light": light, "count": len(chosen),
             "pose_found_share": float(np.mean([r["pose_found"] for r in chosen])),
-            "mean_score_speed": float(np.mean([r["score_speed"] for r in chosen])),
-            "mean_score_speedplus": float(np.mean([r["score_speedplus"] for r in chosen])),
+            "mean_score_speed": speed.value, "mean_score_speed_low": speed.low, "mean_score_speed_high": speed.high,
+            "median_score_speed": float(np.median([r["score_speed"] for r in chosen])),
+            "mean_score_speedplus": speedplus.value, "mean_score_speedplus_low": speedplus.low,
+            "mean_score_speedplus_high": speedplus.high,
+            "failure_share": float(np.mean(failed([r["err_q_rad"] for r in chosen],
+                                                   [r["err_t_norm"] for r in chosen]))),
             "mean_err_q_deg": float(err_q.mean()), "median_err_q_deg": float(np.median(err_q)),
             "mean_err_t_norm": float(np.mean([r["err_t_norm"] for r in chosen])),
             "mean_box_iou": float(np.mean([r["box_iou"] for r in chosen])) if crop == "self" else None}
@@ -47,27 +58,39 @@ def summarise(predictions: list[dict[str, Any]], views: tuple[str, ...]) -> Any:
     return to_table(rows, SCORES)
 
 
-def print_table2(scores: Any, model: str, crop: str) -> Table:
-    """Configuration (view, light) x {synthetic, testbed}: mean SPEED (and SPEED+) scores of
-    one model and crop, in 80 columns (abbreviated headers, a legend below)."""
+def print_table2(scores: Any, model: str, crop: str) -> Group:
+    """Configuration (view, light) x {synthetic, testbed} of one model and crop, in 80
+    columns: the mean SPEED score and its 95% interval; then the medians, the SPEED+ means
+    and the shares of failures (an image without a pose among them)."""
     how = {"oracle_box": "oracle crop", "self": "its own crop", "full": "whole image"}.get(crop, crop)
-    table = Table(title=f"Table 2: {model} ({how}), mean SPEED score", box=box.SIMPLE_HEAD, title_justify="left",
-                  caption="syn / test: the twins / the testbed images; +: SPEED+ score; no pose: share of images "
-                  "without one (syn / test)", caption_justify="left")
-    table.add_column("view", overflow="fold")  # a long view name folds; the numbers never shrink
-    table.add_column("light", no_wrap=True)
-    for column, width in (("n", 3), ("syn", 6), ("test", 6), ("syn+", 6), ("test+", 6), ("no pose", 9)):
-        table.add_column(column, no_wrap=True, justify="right", min_width=width)
+    means = Table(title=f"Table 2: {model} ({how}), mean SPEED score [95% interval]", box=box.SIMPLE_HEAD,
+                  title_justify="left", caption="syn / test: the twins / the testbed images; intervals: "
+                  "bootstrap over the images, stratified by configuration", caption_justify="left")
+    more = Table(title=f"{model} ({how}): medians, SPEED+ and failures, syn/test", box=box.SIMPLE_HEAD,
+                 title_justify="left", caption="median: SPEED score; SPEED+: mean SPEED+ score; failed: rotation over "
+                 "10 deg or translation over 10% of the range, or no pose (scored as the worst case)",
+                 caption_justify="left")
+    for table in (means, more):
+        table.add_column("view", overflow="fold")  # a long view name folds; the numbers never shrink
+        table.add_column("light", no_wrap=True)
+        table.add_column("n", no_wrap=True, justify="right", min_width=3)
+    for column in ("syn", "test"):
+        means.add_column(column, no_wrap=True, justify="right", min_width=20)
+    for column in ("median", "SPEED+", "failed"):
+        more.add_column(column, no_wrap=True, justify="right")
 
-    def cell(row: dict[str, Any] | None, key: str) -> str:
-        return "-" if row is None else f"{row[key]:.4f}"
+    def interval(row: dict[str, Any] | None) -> str:
+        if row is None:
+            return "-"
+        return f"{row['mean_score_speed']:.4f} [{row['mean_score_speed_low']:.3f}, {row['mean_score_speed_high']:.3f}]"
 
-    def no_pose(row: dict[str, Any] | None) -> str:
-        return "-" if row is None else f"{100 * (1 - row['pose_found_share']):.0f}%"
+    def pair(synthetic: dict[str, Any] | None, testbed: dict[str, Any] | None, show: Callable[[dict], str]) -> str:
+        return "/".join("-" if row is None else show(row) for row in (synthetic, testbed))
 
     for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist(), model, crop):
         view, light = configuration.split(", ")
-        table.add_row(view, light, str(count), cell(synthetic, "mean_score_speed"),
-                      cell(testbed, "mean_score_speed"), cell(synthetic, "mean_score_speedplus"),
-                      cell(testbed, "mean_score_speedplus"), f"{no_pose(synthetic)} / {no_pose(testbed)}")
-    return table
+        means.add_row(view, light, str(count), interval(synthetic), interval(testbed))
+        more.add_row(view, light, str(count), pair(synthetic, testbed, lambda r: f"{r['median_score_speed']:.3f}"),
+                     pair(synthetic, testbed, lambda r: f"{r['mean_score_speedplus']:.3f}"),
+                     pair(synthetic, testbed, lambda r: f"{100 * r['failure_share']:.0f}%"))
+    return Group(means, more)

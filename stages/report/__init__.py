@@ -27,6 +27,8 @@ from stages.common.workspace_target import workspace_target
 from stages.report import figures
 from stages.report.gallery import calibration_overlays, sample_gallery
 from stages.report.sections import (
+    DEFINITIONS,
+    comparisons_section,
     per_sample_table,
     provenance,
     rejection_table,
@@ -76,7 +78,7 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads everything a run made (a trajectory plan's tracks too); writes ``W/report/``
     (its marker: ``report``)."""
     tracks = ("tracks",) if config.plan.mode == "trajectory" else ()
-    return Resolved(("labels", "renders", "predictions", "scores", *tracks), (), {}, ("report",))
+    return Resolved(("labels", "renders", "predictions", "scores", "comparisons", *tracks), (), {}, ("report",))
 
 
 def run(config: Config, workspace: Workspace) -> None:
@@ -89,6 +91,7 @@ def run(config: Config, workspace: Workspace) -> None:
     captures = {row["sample_id"]: row for row in read_manifest(workspace, "captures").to_pylist()}
     predictions = read_manifest(workspace, "predictions").to_pylist()
     scores = read_manifest(workspace, "scores").to_pylist()
+    comparisons = read_manifest(workspace, "comparisons").to_pylist()
     samples = read_manifest(workspace, "calibration_samples").to_pylist()
     camera = calibrated_camera(workspace)
 
@@ -108,17 +111,19 @@ def run(config: Config, workspace: Workspace) -> None:
     }
     wireframe = feature_edges(workspace_target(config, workspace))
     sections = [
-        ("Table 1: calibration accuracy", table1(calibration)),
-        ("Calibration residuals", f'<img src="figures/{made["residuals"]}" alt="calibration residuals">'),
-        ("Calibration captures", calibration_overlays(workspace, out, samples, captures, camera)),
-        ("Pose distribution of the labels", f'<img src="figures/{made["poses"]}" alt="pose distribution">'),
-        ("Motion-capture rejection and label sources", rejection_table(list(poses.values()), labels)),
         *((f"Table 2: domain gap of the models ({crop.replace('_', ' ')})", table2(scores, models, crop))
           for crop in crops),
+        ("Each model against the reference", comparisons_section(comparisons)),
+        ("What the figures mean", f"<p>{html.escape(DEFINITIONS)}</p>"),
+        ("Table 1: calibration accuracy", table1(calibration)),
+        ("Calibration residuals", f'<img src="figures/{made["residuals"]}" alt="calibration residuals">'),
+        ("Pose distribution of the labels", f'<img src="figures/{made["poses"]}" alt="pose distribution">'),
+        ("Motion-capture rejection and label sources", rejection_table(list(poses.values()), labels)),
         ("Every sample", per_sample_table(labels, poses, predictions, runs)),
         (f"Per-sample scores ({models[0] if models else '-'})",
          f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
         ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
+        ("Calibration captures", calibration_overlays(workspace, out, samples, captures, camera)),
         ("Pictures of every sample", sample_gallery(workspace, out, labels, captures, renders, camera, wireframe)),
         *tracking_section(config, workspace, figure_dir),
         ("Provenance", provenance(config, workspace)),

@@ -57,65 +57,83 @@ def solver_line(solver: dict[str, Any]) -> str:
     return "; ".join(parts) + ". Mean ± standard deviation over the calibration samples."
 
 
-def _cell(row: dict[str, Any] | None, key: str) -> str:
-    return "-" if row is None else f"{row[key]:.4f}"
+def _mean(row: dict[str, Any] | None) -> str:
+    if row is None:
+        return "-"
+    return f"{row['mean_score_speed']:.4f} [{row['mean_score_speed_low']:.3f}, {row['mean_score_speed_high']:.3f}]"
+
+
+def _pair(synthetic: dict[str, Any] | None, testbed: dict[str, Any] | None, text: Any) -> str:
+    return " / ".join("-" if row is None else text(row) for row in (synthetic, testbed))
+
+
+DEFINITIONS = (
+    "E_T: the label's position error (mm); E_R: its rotation error (deg); E_p: the reprojection error of the "
+    "calibration board's corners (px). e_q = 2 arccos |<q_pred, q_true>| (rad); e_t = |t_true - t_pred| / |t_true|. "
+    "SPEED score: e_q + e_t. SPEED+ score: the same, each term set to zero under its threshold (0.169 deg, "
+    "2.173e-3). Failed: e_q over 10 deg or e_t over 10%, or no pose (scored as the worst case, pi + 1). Intervals: "
+    "95%, bootstrap over the images, stratified by configuration.")
 
 
 def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
-    """Table 2 of every model side by side for one crop, and how much of the domain gap (testbed
-    minus synthetic mean SPEED score) each model other than the first closes per light."""
+    """Table 2 for one crop, a row per configuration and model (any number of models stays
+    in view): mean SPEED score with its interval on the twins and the testbed images, the
+    gap between them, medians, failures and images without a pose."""
+    by_group = {row["group"]: row for row in scores}
     rows = []
     for configuration, count, *_ in tables.table2_groups(scores, models[0], crop):
         view, light = configuration.split(", ")
-        cells: list[Any] = [configuration, count]
         for model in models:
-            by_group = {row["group"]: row for row in scores}
             synthetic = by_group.get(f"{model}/{crop}/synthetic/{view}/{light}")
             testbed = by_group.get(f"{model}/{crop}/testbed/{view}/{light}")
+            if synthetic is None and testbed is None:
+                continue
             gap = ("-" if synthetic is None or testbed is None
                    else f"{testbed['mean_score_speed'] - synthetic['mean_score_speed']:+.4f}")
-            cells += [_cell(synthetic, "mean_score_speed"), _cell(testbed, "mean_score_speed"), gap,
-                      f"{_no_pose(synthetic)} / {_no_pose(testbed)}"]
-        rows.append(cells)
-    header = ["configuration (view, light)", "images"]
-    for model in models:
-        header += [f"{model}: synthetic", f"{model}: testbed", f"{model}: gap", f"{model}: no pose (syn / test)"]
+            rows.append([configuration, model, count, _mean(synthetic), _mean(testbed), gap,
+                         _pair(synthetic, testbed, lambda r: f"{r['median_score_speed']:.3f}"),
+                         _pair(synthetic, testbed, lambda r: f"{100 * r['failure_share']:.0f}%"),
+                         f"{_no_pose(synthetic)} / {_no_pose(testbed)}"])
+    header = ["configuration (view, light)", "model", "images", "synthetic: mean [95%]", "testbed: mean [95%]",
+              "gap", "median (syn / test)", "failed (syn / test)", "no pose (syn / test)"]
     how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a search over windows "
            "of the whole image, then passes around what it found", "full": "the whole image"}.get(crop, crop)
-    closing = []
-    by_group = {row["group"]: row for row in scores}
-    for model in models[1:]:
-        for light in ("lightbox", "sunlamp"):
-            gaps = []
-            for name in (models[0], model):
-                synthetic = by_group.get(f"{name}/{crop}/synthetic/all/{light}")
-                testbed = by_group.get(f"{name}/{crop}/testbed/all/{light}")
-                if synthetic and testbed:
-                    gaps.append(testbed["mean_score_speed"] - synthetic["mean_score_speed"])
-            if len(gaps) == 2:
-                closing.append(f"<li>{html.escape(light)}: gap {gaps[0]:.3f} ({html.escape(models[0])}) against "
-                               f"{gaps[1]:.3f} ({html.escape(model)}): {gap_change(gaps[0], gaps[1])}</li>")
+    notes = []
     if crop == "self":
         for model in models:
             row = by_group.get(f"{model}/{crop}/testbed/all/all")
             twin = by_group.get(f"{model}/{crop}/synthetic/all/all")
             if row and twin:
-                closing.append(f"<li>{html.escape(model)}: the boxes it found overlap the labels' by a mean IoU of "
-                               f"{twin['mean_box_iou']:.2f} on the twins, {row['mean_box_iou']:.2f} on the testbed "
-                               "images</li>")
-    return (f"<p>Mean SPEED scores, {html.escape(how)}; gap: testbed minus synthetic. An image without a pose "
-            "(non-finite model output) scores the worst case, pi + 1.</p>" + _table(header, rows)
-            + (f"<ul>{''.join(closing)}</ul>" if closing else ""))
+                notes.append(f"<li>{html.escape(model)}: the boxes it found overlap the labels' by a mean IoU of "
+                             f"{twin['mean_box_iou']:.2f} on the twins, {row['mean_box_iou']:.2f} on the testbed "
+                             "images</li>")
+    return (f"<p>Mean SPEED scores, {html.escape(how)}; gap: testbed minus synthetic.</p>" + _table(header, rows)
+            + (f"<ul>{''.join(notes)}</ul>" if notes else ""))
 
 
-def gap_change(first: float, second: float) -> str:
-    """How the second model's domain gap compares with the first's, in words."""
-    if first <= 0:
-        return "no gap to close"
-    change = 100 * (first - second) / first
-    if round(change) == 0:
-        return "the same gap"
-    return f"{change:.0f}% of it closed" if change > 0 else f"{-change:.0f}% wider"
+def comparisons_section(comparisons: list[dict[str, Any]]) -> str:
+    """Each model against the reference on the same images: the paired mean difference of
+    the SPEED scores with its interval per configuration, and what the interval says."""
+    if not comparisons:
+        return "<p>One model: nothing to compare.</p>"
+    rows, sentences = [], []
+    for row in comparisons:
+        words = tables.verdict(row["mean_difference_speed_low"], row["mean_difference_speed_high"])
+        rows.append([f"{row['model']} ({row['crop']})", f"{row['reference']} ({row['reference_crop']})",
+                     row["domain"], f"{row['view']}, {row['light']}", row["count"],
+                     f"{row['mean_difference_speed']:+.4f} [{row['mean_difference_speed_low']:+.4f}, "
+                     f"{row['mean_difference_speed_high']:+.4f}]", f"{100 * row['better_share']:.0f}%", words])
+        if row["view"] == "all":
+            sentences.append(f"<li>{html.escape(row['model'])} ({html.escape(row['crop'])}) on the "
+                             f"{html.escape(row['domain'])} images: {html.escape(words)} "
+                             f"{html.escape(row['reference'])} ({html.escape(row['reference_crop'])}) at 95%, mean "
+                             f"SPEED difference {row['mean_difference_speed']:+.3f} "
+                             f"[{row['mean_difference_speed_low']:+.3f}, {row['mean_difference_speed_high']:+.3f}]"
+                             "</li>")
+    header = ["model (crop)", "reference (crop)", "domain", "configuration", "images",
+              "mean SPEED difference [95%]", "images where better", "at 95%"]
+    return ("<p>Model minus reference on the same images: below zero, the model scores lower (better). Paired "
+            "bootstrap, stratified by configuration.</p>" + f"<ul>{''.join(sentences)}</ul>" + _table(header, rows))
 
 
 def per_sample_table(labels: list[dict[str, Any]], poses: dict[str, dict], predictions: list[dict[str, Any]],

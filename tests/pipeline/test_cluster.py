@@ -57,7 +57,8 @@ def cluster(places):
 
 def _copy(smoke_labelled: Workspace, hidden: Path, name: str) -> Workspace:
     root = hidden / name
-    shutil.copytree(smoke_labelled.root, root, ignore=shutil.ignore_patterns("renders", "predictions", "scores"))
+    shutil.copytree(smoke_labelled.root, root, ignore=shutil.ignore_patterns("renders", "predictions", "scores",
+                                                                                "comparisons"))
     return Workspace(root)
 
 

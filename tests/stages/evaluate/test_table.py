@@ -1,4 +1,5 @@
-"""Table 2 in a terminal of 80 columns: every view and light name whole, nothing cut."""
+"""Table 2 in a terminal of 80 columns: every view and light name whole, nothing cut, every
+mean with its interval."""
 
 import itertools
 
@@ -35,7 +36,8 @@ def test_table2_fits_80_columns_with_every_name_whole():
     assert max(len(line) for line in text.splitlines()) <= 80 and "…" not in text
     for name in (*views, "lightbox", "sunlamp", "reference_augmented"):
         assert name in text
-    assert len(text.splitlines()) <= 14  # a line per configuration, not three
+    # a line per configuration in each of the two tables (means with intervals; medians, SPEED+, failures)
+    assert sum(" lightbox " in line for line in text.splitlines()) == 4
 
 
 def test_a_long_view_name_folds_and_no_number_is_cut():
@@ -44,4 +46,5 @@ def test_a_long_view_name_folds_and_no_number_is_cut():
     shown = [r for r in scores.to_pylist() if (r["view"] == "all") == (r["light"] == "all")]  # Table 2's rows
     assert len(shown) == 10
     for row in shown:
-        assert f"{row['mean_score_speed']:.4f}" in text
+        assert f"{row['mean_score_speed']:.4f} [{row['mean_score_speed_low']:.3f}, " in text
+        assert f"{row['median_score_speed']:.3f}/" in text or f"/{row['median_score_speed']:.3f}" in text
