@@ -305,8 +305,11 @@ PREDICTIONS = ManifestSpec(
                allowed=("full", "oracle_box", "self")),
         Column("box_iou", pa.float64(), "1", "self crop: intersection over union of the box the model found with "
                "the label's box", nullable=True),
-        Column("pose_found", pa.bool_(), "", "the model's output gave a pose (else scored as the worst case: "
-               "only non-finite outputs)"),
+        Column("pose_found", pa.bool_(), "", "the model's output gave a pose that the image supports (else scored "
+               "as the worst case, e_q = pi and e_t = 1: non-finite outputs, and refused poses)"),
+        Column("pose_refused", pa.string(), "", "why a decoded pose was refused: the target drawn at it outside the "
+               "crop the model saw, or not about the crop's size (stages/evaluate/support.py); null when not",
+               nullable=True),
         Column("pnp_method", pa.string(), "", "how the pose was found: AP3P in RANSAC, EPnP on all points "
                "(no consensus), the model's own pose output, or none", kind="enum",
                allowed=("ransac", "all_points", "direct", "none")),
@@ -338,7 +341,10 @@ SCORES = ManifestSpec(
         Column("view", pa.string(), "", "one of the target's view names, or all", kind="name"),
         Column("light", pa.string(), "", "light set-up or all", kind="enum", allowed=("lightbox", "sunlamp", "all")),
         Column("count", pa.int64(), "count", "images"),
-        Column("pose_found_share", pa.float64(), "1", "share of images that gave a pose"),
+        Column("pose_found_share", pa.float64(), "1", "share of images that gave a pose the image supports; the "
+               "others are scored as the worst case, e_q = pi and e_t = 1"),
+        Column("refused_share", pa.float64(), "1", "share of images whose decoded pose was refused (see "
+               "predictions.pose_refused)"),
         Column("mean_score_speed", pa.float64(), "1", "mean SPEED score"),
         Column("mean_score_speed_low", pa.float64(), "1", "lower end of its 95% interval: BCa bootstrap over the "
                "images, stratified by configuration (stages/evaluate/intervals.py)"),

@@ -24,6 +24,7 @@ from stages.common.pose_model import (
     pose_from_keypoints,
 )
 from stages.common.scores import score
+from stages.evaluate.support import refusal
 
 
 @dataclass(frozen=True)
@@ -197,8 +198,12 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
                                                                     strict=True)]
     seconds = (time.perf_counter() - started) / len(items)
     rows = []
-    for item, solution, crop, box, label_box in zip(items, solutions, crops, boxes, labelled, strict=True):
-        found = solution is not None
+    for item, solution, crop, box, label_box, image in zip(items, solutions, crops, boxes, labelled, images,
+                                                           strict=True):
+        refused = None if solution is None else refusal(
+            solution, model.contract.keypoints_m, None if crop == "full" else box, camera_matrix, dist,
+            image.shape[1], image.shape[0])
+        found = solution is not None and refused is None
         if found:
             numbers = {k: float(v) for k, v in score(solution.q, solution.t, item["q_true"], item["t_true"]).items()}
         else:
@@ -209,7 +214,8 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
                      "model": item["model"], "sample_id": item["sample_id"], "domain": item["domain"],
                      "view": item["view"], "light": item["light"], "crop": crop,
                      "box_iou": _box_iou(box, label_box) if crop == "self" else None,
-                     "pose_found": found, "pnp_method": solution.method if found else "none",
+                     "pose_found": found, "pose_refused": refused,
+                     "pnp_method": solution.method if found else "none",
                      "pnp_inliers": solution.inliers if keypoint_pose else None,
                      "reprojection_rms_px": solution.rms_px if keypoint_pose else None,
                      "q_pred": solution.q if found else None, "t_pred": solution.t if found else None,

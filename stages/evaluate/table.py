@@ -32,6 +32,7 @@ def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view:
     return {"group": group, "model": model, "crop": crop, "domain": domain,
             "view": view, "light": light, "count": len(chosen),
             "pose_found_share": float(np.mean([r["pose_found"] for r in chosen])),
+            "refused_share": float(np.mean([r.get("pose_refused") is not None for r in chosen])),
             "mean_score_speed": speed.value, "mean_score_speed_low": speed.low, "mean_score_speed_high": speed.high,
             "median_score_speed": float(np.median([r["score_speed"] for r in chosen])),
             "mean_score_speedplus": speedplus.value, "mean_score_speedplus_low": speedplus.low,
