@@ -100,7 +100,7 @@ def parse_contract(metadata: dict[str, str], source: str) -> ModelContract:
         if key not in metadata:
             raise InputError(f"{source}: ONNX metadata key {key!r} missing; a model must state "
                              "speedplus.contract/input_size/channels/normalize/output/keypoints/crop "
-                             "(see stages/common/pose_model.py)")
+                             "(docs/models.md, \"the ONNX model contract\", gives each key and an export recipe)")
         return metadata[key]
 
     def fail(key: str, expected: str) -> InputError:
