@@ -83,6 +83,11 @@ def compare(predictions: list[dict[str, Any]], views: tuple[str, ...], models: l
     return to_table(rows, COMPARISONS)
 
 
+def signed(value: float) -> str:
+    """A difference with its sign: one decimal from 10 on, so the names keep their width."""
+    return f"{value:+.{3 if abs(value) < 10 else 1}f}"
+
+
 def print_comparison(comparisons: Any, model: str, crop: str) -> Table:
     """One model and crop against the reference, per configuration: the mean SPEED score
     difference and its 95% interval, on the twins and on the testbed images."""
@@ -105,7 +110,8 @@ def print_comparison(comparisons: Any, model: str, crop: str) -> Table:
         for domain in ("synthetic", "testbed"):
             row = by_key.get((domain, view, light))
             count = max(count, row["count"] if row else 0)
-            cells.append("-" if row is None else f"{row['mean_difference_speed']:+.3f} "
-                         f"[{row['mean_difference_speed_low']:+.3f}, {row['mean_difference_speed_high']:+.3f}]")
+            cells.append("-" if row is None else " ".join((
+                signed(row["mean_difference_speed"]), f"[{signed(row['mean_difference_speed_low'])},",
+                f"{signed(row['mean_difference_speed_high'])}]")))
         table.add_row(view, light, str(count), *cells)
     return table

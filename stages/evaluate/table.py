@@ -59,6 +59,12 @@ def summarise(predictions: list[dict[str, Any]], views: tuple[str, ...]) -> Any:
     return to_table(rows, SCORES)
 
 
+def figure(value: float, decimals: int) -> str:
+    """A score in a column that holds whatever a model scores: two decimals fewer from 10 on
+    (a random model scores 10 and more), so the numbers never squeeze the names."""
+    return f"{value:.{decimals if abs(value) < 10 else decimals - 2}f}"
+
+
 def print_table2(scores: Any, model: str, crop: str) -> Group:
     """Configuration (view, light) x {synthetic, testbed} of one model and crop, in 80
     columns: the mean SPEED score and its 95% interval; then the medians, the SPEED+ means
@@ -83,7 +89,8 @@ def print_table2(scores: Any, model: str, crop: str) -> Group:
     def interval(row: dict[str, Any] | None) -> str:
         if row is None:
             return "-"
-        return f"{row['mean_score_speed']:.4f} [{row['mean_score_speed_low']:.3f}, {row['mean_score_speed_high']:.3f}]"
+        return (f"{figure(row['mean_score_speed'], 4)} [{figure(row['mean_score_speed_low'], 3)}, "
+                f"{figure(row['mean_score_speed_high'], 3)}]")
 
     def pair(synthetic: dict[str, Any] | None, testbed: dict[str, Any] | None, show: Callable[[dict], str]) -> str:
         return "/".join("-" if row is None else show(row) for row in (synthetic, testbed))
@@ -91,7 +98,7 @@ def print_table2(scores: Any, model: str, crop: str) -> Group:
     for configuration, count, synthetic, testbed in table2_groups(scores.to_pylist(), model, crop):
         view, light = configuration.split(", ")
         means.add_row(view, light, str(count), interval(synthetic), interval(testbed))
-        more.add_row(view, light, str(count), pair(synthetic, testbed, lambda r: f"{r['median_score_speed']:.3f}"),
-                     pair(synthetic, testbed, lambda r: f"{r['mean_score_speedplus']:.3f}"),
+        more.add_row(view, light, str(count), pair(synthetic, testbed, lambda r: figure(r['median_score_speed'], 3)),
+                     pair(synthetic, testbed, lambda r: figure(r['mean_score_speedplus'], 3)),
                      pair(synthetic, testbed, lambda r: f"{100 * r['failure_share']:.0f}%"))
     return Group(means, more)

@@ -6,7 +6,7 @@ import itertools
 import numpy as np
 from rich.console import Console
 
-from stages.evaluate.table import print_table2, summarise
+from stages.evaluate.table import figure, print_table2, summarise
 
 
 def predictions(views):
@@ -46,5 +46,18 @@ def test_a_long_view_name_folds_and_no_number_is_cut():
     shown = [r for r in scores.to_pylist() if (r["view"] == "all") == (r["light"] == "all")]  # Table 2's rows
     assert len(shown) == 10
     for row in shown:
-        assert f"{row['mean_score_speed']:.4f} [{row['mean_score_speed_low']:.3f}, " in text
-        assert f"{row['median_score_speed']:.3f}/" in text or f"/{row['median_score_speed']:.3f}" in text
+        assert f"{figure(row['mean_score_speed'], 4)} [{figure(row['mean_score_speed_low'], 3)}, " in text
+        assert f"{figure(row['median_score_speed'], 3)}/" in text or f"/{figure(row['median_score_speed'], 3)}" in text
+
+
+def test_scores_of_ten_or_more_fold_no_name():
+    """A random model scores 10 and more: its intervals widen the numbers, never the names."""
+    rows = predictions(("solar_panel", "rear_panel"))
+    for row in rows:
+        row.update(score_speed=10.0 + 3 * row["score_speed"], score_speedplus=10.0 + 3 * row["score_speedplus"])
+    scores = summarise(rows, ("solar_panel", "rear_panel"))
+    console = Console(width=80, record=True)
+    console.print(print_table2(scores, "reference_augmented", "oracle_box"))
+    text = console.export_text()
+    assert max(len(line) for line in text.splitlines()) <= 80 and "…" not in text
+    assert sum("solar_panel" in line for line in text.splitlines()) == 4, text
