@@ -35,6 +35,7 @@ from pipeline.config import (
     SECTION_TYPES,
     Config,
     Override,
+    documented,
     layered,
     load_config,
     parse_override,
@@ -48,7 +49,7 @@ class _PipelineOrder(TyperGroup):
     """Lists the commands in the pipeline's order, then the ones about a workspace or a target."""
 
     def list_commands(self, ctx: typer.Context) -> list[str]:
-        order = [*registry.STAGE_NAMES, "run", "status", "verify", "target"]
+        order = [*registry.STAGE_NAMES, "run", "status", "verify", "target", "keys"]
         return sorted(super().list_commands(ctx), key=lambda name: order.index(name) if name in order else len(order))
 
 
@@ -508,6 +509,24 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
         raise InputError(f"{ws.location}: damaged results; redo {', '.join(damaged)} with --force "
                          f"(`speedplus {damaged[0]} -w {ws.location} --force`, then `speedplus run`)")
     out.print(f"{len(findings)} completed manifests intact" if findings else "nothing completed yet")
+
+
+@app.command("keys")
+def keys_command(sections: Annotated[list[str] | None, typer.Argument(
+        help=f"configuration sections ({', '.join(SECTION_TYPES)}); none: every one")] = None) -> None:
+    """Print the configuration keys of SECTIONS: default, unit and meaning, as
+    ``--set SECTION.KEY=VALUE`` and a TOML file take them. Exit 1 naming an unknown section."""
+    unknown = [name for name in sections or [] if name not in SECTION_TYPES]
+    if unknown:
+        raise InputError(f"keys: no configuration section {unknown[0]!r}; the sections: {', '.join(SECTION_TYPES)}")
+    for name in sections or list(SECTION_TYPES):
+        table = Table(title=escape(f"[{name}]"), title_justify="left")
+        for column, options in (("key", {"no_wrap": True}), ("default", {"overflow": "fold", "max_width": 24}),
+                                ("unit", {}), ("meaning", {"ratio": 1})):
+            table.add_column(column, **options)
+        for key, default, unit, meaning in documented(SECTION_TYPES[name]):
+            table.add_row(escape(f"{name}.{key}"), escape(repr(default)), escape(unit), escape(meaning))
+        out.print(table)
 
 
 @app.command("target")

@@ -91,6 +91,11 @@ def test_report_is_browsable_every_sample_and_calibration_capture_in_it(finished
         assert f'id="sample-{sample_id}"' in page and f'href="#sample-{sample_id}"' in page
         assert f'href="../images/dataset/{sample_id}.png"' in page
         assert f'href="../renders/twins/{sample_id}.png"' in page
+        # its caption with both scores of the first model, as the predictions hold them
+        scored = {p["domain"] == "synthetic": p["score_speed"] for p in read_manifest(ws, "predictions").to_pylist()
+                  if p["sample_id"] == sample_id and p["model"] == "reference" and p["crop"] == "oracle_box"}
+        assert (f"reference (oracle_box) SPEED score: testbed {scored[False]:.3f}, twin {scored[True]:.3f}"
+                in page), sample_id
     samples = [r for r in read_manifest(ws, "calibration_samples").to_pylist() if r["corners_px"] is not None]
     shown = re.findall(r'href="calibration/(cal\d+)\.png"', page)
     assert sorted(shown) == sorted(r["sample_id"] for r in samples)

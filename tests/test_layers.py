@@ -1,4 +1,4 @@
-"""The import contract of the layers (docs/architecture.md section 1): a stage package
+"""The import contract of the layers (docs/architecture.md section 2): a stage package
 imports the shared layer ``stages.common``, ``manifests`` and ``pipeline`` (configuration,
 errors, progress, engines), never another stage; ``stages.common`` imports no stage;
 ``manifests`` imports nothing under ``stages``; ``pipeline`` imports no stage, and its

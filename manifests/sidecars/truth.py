@@ -1,5 +1,5 @@
 """``W/truth.json``: the hidden truth of the virtual testbed, what a real facility never
-tells (docs/architecture.md section 3). Written by acquire's virtual backend; read only by
+tells (docs/architecture.md section 5). Written by acquire's virtual backend; read only by
 tests and benchmarks that judge the estimates, never by a stage after acquire."""
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ from pipeline.config.loading import (
     write_config,
 )
 from pipeline.config.model import SECTION_TYPES, Config
-from pipeline.config.params import ConfigError, param
+from pipeline.config.params import ConfigError, documented, param
 from pipeline.config.stages import (
     AcquireConfig,
     CalibrateConfig,
@@ -46,6 +46,7 @@ from pipeline.config.stages import (
 )
 
 __all__ = [
+    "documented",
     "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
     "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
     "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TargetConfig", "TestbedConfig", "TrajectoryConfig",

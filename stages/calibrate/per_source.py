@@ -1,4 +1,4 @@
-"""One source's calibration as named steps (docs/architecture.md section 5): gather its
+"""One source's calibration as named steps (docs/architecture.md section 6): gather its
 samples (``SourceSamples``), solve robustly and drop its outliers, cross-validate, fit the
 arms where they are calibrated, and measure Table 1 (``SourceFit``); then the fused column
 of Table 1 and the rejection sigma from both sources' fits."""

@@ -8,7 +8,7 @@ and ids and coordinates are never interpolated across an edge. Used by render (t
 ground truth of every synthetic image), acquire (depth and masks at the true pose) and
 export (BOP masks at the label's pose).
 
-Conventions (docs/architecture.md section 5): ``cam_from_target`` (4, 4) maps body
+Conventions (docs/architecture.md section 3): ``cam_from_target`` (4, 4) maps body
 coordinates (T, full scale, metres) into the OpenCV camera frame (x right, y down, z along
 the boresight); depth is z in that frame, not the distance along the ray.
 """

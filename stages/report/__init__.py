@@ -124,7 +124,8 @@ def run(config: Config, workspace: Workspace) -> None:
          f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
         ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
         ("Calibration captures", calibration_overlays(workspace, out, samples, captures, camera)),
-        ("Pictures of every sample", sample_gallery(workspace, out, labels, captures, renders, camera, wireframe)),
+        ("Pictures of every sample", sample_gallery(workspace, out, labels, captures, renders, camera, wireframe,
+                                                     (f"{models[0]} ({crops[0]})" if primary else "", primary))),
         *tracking_section(config, workspace, figure_dir),
         ("Provenance", provenance(config, workspace)),
     ]

@@ -28,9 +28,13 @@ def _write(path: Path, image: np.ndarray) -> str:
 
 
 def sample_gallery(workspace: Workspace, out: Path, labels: list[dict[str, Any]], captures: dict[str, dict],
-                   renders: dict[str, dict], camera: LensCamera, wireframe: Any) -> str:
+                   renders: dict[str, dict], camera: LensCamera, wireframe: Any,
+                   scored: tuple[str, list[dict[str, Any]]] = ("", [])) -> str:
     """A figure per label: the testbed image (brightened), its twin and the label's
-    wireframe on the image, each a thumbnail linking to the full-size picture."""
+    wireframe on the image, each a thumbnail linking to the full-size picture; its caption
+    gives both SPEED scores of ``scored`` (a model and crop's name, its predictions)."""
+    name, predictions = scored
+    score = {(p["sample_id"], p["domain"] == "synthetic"): p["score_speed"] for p in predictions}
     figures_html = []
     for label in sorted(labels, key=lambda r: r["sample_id"]):
         sample_id = label["sample_id"]
@@ -51,6 +55,10 @@ def sample_gallery(workspace: Workspace, out: Path, labels: list[dict[str, Any]]
                                                                   figures.thumbnail(drawn, 240)),
                            f"label wireframe on {sample_id}"))
         caption = f'{sample_id}: {label["view"]}, {label["domain"]}, {label["label_source"]}'
+        if (sample_id, False) in score or (sample_id, True) in score:
+            caption += "; " + name + " SPEED score: " + ", ".join(
+                f"{where} {score[(sample_id, twin)]:.3f}" for where, twin in (("testbed", False), ("twin", True))
+                if (sample_id, twin) in score)
         figures_html.append(f'<figure id="sample-{html.escape(sample_id)}" class="sample">{"".join(cells)}'
                             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
     return ("<p>Every labelled sample: the testbed image (brightened), its synthetic twin and the label's "

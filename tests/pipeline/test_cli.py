@@ -156,3 +156,18 @@ def test_each_export_format_keeps_its_own_folder_and_status_shows_each(smoke_lab
     assert "export bop │ done" in status and "export speedplus │ done" in status, status
 
 
+
+
+def test_keys_prints_every_key_of_a_section_with_its_meaning_and_refuses_an_unknown_one():
+    from dataclasses import fields
+
+    from pipeline.config import SECTION_TYPES
+
+    result = speedplus("keys", "trajectory")
+    assert result.returncode == 0, result.stderr
+    for item in fields(SECTION_TYPES["trajectory"]):
+        assert f"trajectory.{item.name}" in result.stdout
+    assert "sequences to plan" in result.stdout
+    wrong = speedplus("keys", "trajectorie")
+    assert wrong.returncode == 1 and "no configuration section 'trajectorie'" in wrong.stderr
+    assert "Traceback" not in wrong.stderr
