@@ -3,8 +3,9 @@
     python -m bench model_cards data/default17
 
 Reads the workspace's ``scores`` manifest (``speedplus evaluate`` with the shipped models)
-and writes, into each model's card, the mean SPEED score, median rotation error and share
-without a pose per crop, domain and configuration, with the workspace's profile and the
+and writes, into each model's card, the mean SPEED score with its 95% interval, the median
+SPEED score and rotation error, and the shares of failures and without a pose per crop,
+domain and configuration, with the workspace's profile and the
 digest of the model that was scored (a card never describes another model's results).
 """
 
@@ -40,6 +41,9 @@ def main(*args: str) -> None:
         for row in mine:
             table[row["group"].split("/", 1)[1]] = {
                 "images": row["count"], "mean_speed_score": round(row["mean_score_speed"], 4),
+                "mean_speed_score_95": [round(row["mean_score_speed_low"], 4), round(row["mean_score_speed_high"], 4)],
+                "median_speed_score": round(row["median_score_speed"], 4),
+                "failure_share": round(row["failure_share"], 4),
                 "median_rotation_error_deg": round(row["median_err_q_deg"], 3),
                 "no_pose_share": round(1 - row["pose_found_share"], 4),
                 **({"mean_box_iou": round(row["mean_box_iou"], 3)} if row["mean_box_iou"] is not None else {})}
