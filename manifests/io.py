@@ -30,6 +30,7 @@ from manifests.files import fsync_dir, write_json_atomic, write_table_file
 from manifests.integrity import damage
 from manifests.schema import MANIFESTS, NAME_PATTERN, READABLE_VERSIONS, SCHEMA_VERSION, Column, ManifestSpec
 from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
+from speedplus.errors import InputError
 
 QUATERNION_TOLERANCE = 1e-6
 _PART_RE = re.compile(r"^part-(\d{5})\.parquet$")
@@ -39,7 +40,7 @@ _FAULT_ENV = "SPEEDPLUS_FAULT_KILL_AT_PART"
 _parts_written_in_process = 0
 
 
-class ManifestError(Exception):
+class ManifestError(InputError):
     """Invalid manifest content; the message names the file, row and column."""
 
     def __init__(self, source: str, message: str, *, row: int | None = None, column: str | None = None,

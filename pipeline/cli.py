@@ -25,7 +25,7 @@ from rich.markup import escape
 from rich.table import Table
 from typer.core import TyperGroup
 
-from manifests import ManifestError, Workspace
+from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
 from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
 from manifests.snapshot import Snapshot
@@ -628,7 +628,7 @@ def main() -> None:
     unexpected error is one line too, with its traceback in a crash log."""
     try:
         app()
-    except (InputError, ManifestError) as error:
+    except InputError as error:  # ManifestError among them
         err.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False)
         sys.exit(1)
     except KeyboardInterrupt:

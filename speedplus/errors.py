@@ -13,6 +13,17 @@ class InputError(ValueError):
     """Bad input or configuration (exit code 1)."""
 
 
+class FileError(InputError):
+    """Bad content of one file; the message starts with the file (and row)."""
+
+    def __init__(self, path: object, message: str) -> None:
+        super().__init__(f"{path}: {message}")
+        self.path, self.message = str(path), message
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:  # crosses process boundaries (engines)
+        return type(self), (self.path, self.message)
+
+
 class RefusalError(InputError):
     """A stage refuses its inputs after looking at them, and leaves what it found out
     (``keep``: manifests written as diagnostics, such as calibrate's per-image reasons).

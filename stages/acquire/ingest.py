@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from speedplus.errors import InputError
+from speedplus.errors import FileError
 
 #: Plausible distances of a flange or rigid body from its world origin, per unit: an
 #: industrial cell is metres across (at most 30 m), and a flange never stays within 50 mm of
@@ -16,15 +16,8 @@ PLAUSIBLE_RANGE = {"mm": (50.0, 30_000.0), "m": (0.05, 30.0)}
 ORTHONORMAL_TOLERANCE = 1e-3
 
 
-class IngestError(InputError):
+class IngestError(FileError):
     """Bad recorded data; the message starts with the file (and row)."""
-
-    def __init__(self, path: Path | str, message: str) -> None:
-        super().__init__(f"{path}: {message}")
-        self.path, self.message = str(path), message
-
-    def __reduce__(self) -> tuple[type, tuple[str, str]]:  # crosses process boundaries (engines)
-        return type(self), (self.path, self.message)
 
 
 def read_text(path: Path) -> str:

@@ -16,21 +16,14 @@ import cv2
 import numpy as np
 
 from manifests.files import write_bytes_atomic
-from speedplus.errors import InputError
+from speedplus.errors import FileError
 
 #: file types the readers accept (by suffix, case-insensitive)
 IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg", ".exr")
 
 
-class ImageReadError(InputError):
+class ImageReadError(FileError):
     """A missing, truncated or undecodable image; the message starts with the file."""
-
-    def __init__(self, path: Path | str, message: str) -> None:
-        super().__init__(f"{path}: {message}")
-        self.path, self.message = str(path), message
-
-    def __reduce__(self) -> tuple[type, tuple[str, str]]:  # crosses process boundaries (engines)
-        return type(self), (self.path, self.message)
 
 
 @dataclass(frozen=True)
