@@ -350,7 +350,8 @@ def main(*arguments: str) -> None:
             try:
                 papers: Workspace | str = papers_method(ours.root, str(copy))
             except SystemExit as refused:  # the paper's method cannot calibrate every facility
-                papers = str(refused).strip().splitlines()[-1][:200]
+                said = str(refused).splitlines() or ["refused"]  # the first "error:" line says why
+                papers = next((line[7:] for line in said if line.startswith("error: ")), said[-1])[:300]
             row, raw = facility_row(seed, ours, papers)
             rows.append({"target": name, **row})
             raws.append((name, seed, raw))
