@@ -1,7 +1,8 @@
 """What fuse measures on the dataset session as a whole, before it fuses any capture
 (docs/architecture.md section 6): how much the two sources disagree beyond their sigmas
 (the variance factor, as measured and as applied), which source a position axis keeps
-where they disagree beyond a consistency test, and the session offset between them.
+where they disagree beyond a consistency test (of the differences' median, and of their
+tails: how many captures the rejection test refuses), and the session offset between them.
 
 At the dataset's 3-5 m each source errs mostly by one offset per session (the rail's and
 the wand's scale, offsets extrapolated from the calibration's lever), and only the rest
