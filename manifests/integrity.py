@@ -112,7 +112,7 @@ def compact(directory: Path, table: pa.Table, key: str) -> None:
     # a manifest without rows keeps one empty part: readers still find a dataset with its schema
     for index, start in enumerate(range(0, max(ordered.num_rows, 1), COMPACT_ROWS)):
         write_table_file(staging / PART_TEMPLATE.format(index=index), ordered.slice(start, COMPACT_ROWS))
-    for entry in directory.iterdir():  # other files (a marker of another run) stay with the manifest
+    for entry in directory.iterdir() if directory.is_dir() else ():  # other files (a marker) stay with it
         if not entry.name.startswith(("part-", ".part-")):
             shutil.copy2(entry, staging / entry.name)
     fsync_dir(staging)

@@ -98,3 +98,17 @@ def test_verify_rehashes_images_and_names_the_stage_to_redo(smoke_labelled, tmp_
     result = speedplus("verify", "-w", str(ws.root))
     message = " ".join((result.stdout + result.stderr).split())
     assert result.returncode == 1 and "changed since it was written" in message and "redo acquire" in message
+
+
+def test_a_manifest_without_rows_is_compacted_into_one_empty_part_it_can_be_read_from(tmp_path):
+    """evaluate with one model writes no comparisons: the manifest still completes, and reads
+    as a dataset of its schema with no rows."""
+    from manifests import to_table
+    from manifests.integrity import compact
+    from manifests.schema import COMPARISONS
+
+    workspace = Workspace(tmp_path)
+    compact(workspace.manifest_dir("comparisons"), to_table([], COMPARISONS), COMPARISONS.key)
+    assert [p.name for p in list_parts(workspace, "comparisons")] == ["part-00000.parquet"]
+    table = read_manifest(workspace, "comparisons")
+    assert table.num_rows == 0 and table.schema.names == [c.name for c in COMPARISONS.columns]
