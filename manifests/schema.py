@@ -90,6 +90,15 @@ def pose(prefix: str, frame_note: str, *, nullable: bool = False) -> tuple[Colum
     )
 
 
+def _configuration_columns() -> tuple[Column, ...]:
+    """Table 2's grouping of a summary row (``scores``, ``comparisons``): domain, view, light."""
+    return (Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
+                   allowed=("synthetic", "testbed")),
+            Column("view", pa.string(), "", "one of the target's view names, or all", kind="name"),
+            Column("light", pa.string(), "", "light set-up or all", kind="enum",
+                   allowed=("lightbox", "sunlamp", "all")))
+
+
 def _sample_id() -> Column:
     return Column("sample_id", pa.string(), "", "unique sample identifier, e.g. cal000003 or img000012")
 
@@ -336,10 +345,7 @@ SCORES = ManifestSpec(
         Column("model", pa.string(), "", "the model's name"),
         Column("crop", pa.string(), "", "full, oracle_box or self (see predictions)", kind="enum",
                allowed=("full", "oracle_box", "self")),
-        Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
-               allowed=("synthetic", "testbed")),
-        Column("view", pa.string(), "", "one of the target's view names, or all", kind="name"),
-        Column("light", pa.string(), "", "light set-up or all", kind="enum", allowed=("lightbox", "sunlamp", "all")),
+        *_configuration_columns(),
         Column("count", pa.int64(), "count", "images"),
         Column("pose_found_share", pa.float64(), "1", "share of images that gave a pose the image supports; the "
                "others are scored as the worst case, e_q = pi and e_t = 1"),
@@ -378,10 +384,7 @@ COMPARISONS = ManifestSpec(
                "first of evaluate.models"),
         Column("reference_crop", pa.string(), "", "the reference's crop: the model's own when the reference has "
                "it, else the reference's first", kind="enum", allowed=("full", "oracle_box", "self")),
-        Column("domain", pa.string(), "", "image domain; testbed = lightbox and sunlamp together", kind="enum",
-               allowed=("synthetic", "testbed")),
-        Column("view", pa.string(), "", "one of the target's view names, or all", kind="name"),
-        Column("light", pa.string(), "", "light set-up or all", kind="enum", allowed=("lightbox", "sunlamp", "all")),
+        *_configuration_columns(),
         Column("count", pa.int64(), "count", "images scored by both"),
         Column("mean_difference_speed", pa.float64(), "1", "mean of the per-image SPEED score differences"),
         Column("mean_difference_speed_low", pa.float64(), "1", "lower end of its 95% paired-bootstrap interval, "

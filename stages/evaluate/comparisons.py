@@ -67,6 +67,8 @@ def compare(predictions: list[dict[str, Any]], views: tuple[str, ...], models: l
     if reference is None:
         return to_table(rows, COMPARISONS)
     reference_crops = list(dict.fromkeys(r["crop"] for r in predictions if r["model"] == reference))
+    if not reference_crops:  # the reference scored no image: nothing to pair with
+        return to_table(rows, COMPARISONS)
     for model in models:
         if model == reference:
             continue
