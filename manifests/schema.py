@@ -270,7 +270,8 @@ LABELS = ManifestSpec(
 _RENDER_COLUMNS = (
     _sample_id(),
     Column("set", pa.string(), "", "twin of a label or training image", kind="enum", allowed=("twin", "train")),
-    Column("image_path", pa.string(), "", "8-bit RGB PNG relative to the workspace", kind="path"),
+    Column("image_path", pa.string(), "", "8-bit PNG relative to the workspace, in the camera's channels: "
+           "grey (mono) or RGB (colour)", kind="path"),
     Column("mask_path", pa.string(), "", "8-bit mask PNG (255: the target covers the pixel centre)", kind="path"),
     Column("ground_truth_path", pa.string(), "", "EXR of per-pixel depth, normals, body coordinates, part index and "
            "linear radiance (stages/common/ground_truth.py); null when render.ground_truth is off", kind="path",

@@ -66,6 +66,11 @@ class CameraConfig:
         "OpenCV distortion (k1, k2, p1, p2, k3) of the SPEED+ camera; scale-free", "1")
     width_px: int = param(960, "image width of this run", "px")
     height_px: int = param(600, "image height of this run", "px")
+    sensor: Literal["mono", "colour"] = param(
+        "mono", "mono: one grey channel (SPEED+'s IMX174, and so the twins and the training images: "
+        "stages/common/tone.py); colour: RGB (replayed recordings only: the virtual testbed is mono)", "")
+    gamma: float = param(1.0, "output gamma of the camera: 1 is linear, as machine-vision cameras deliver by "
+                         "default; the virtual testbed's sensor and the rendered images use it", "1")
 
     @property
     def scale(self) -> float:
@@ -183,7 +188,6 @@ class VirtualConfig:
     full_well_e: float = param(32513.0, "sensor full-well capacity (Sony IMX174 of the Grasshopper3 GS3-U3-23S6M)",
                                "e-")
     read_noise_e: float = param(6.8, "sensor read noise (IMX174, EMVA 1288 data)", "e-")
-    gamma: float = param(1.0, "output gamma: 1 is linear, as machine-vision cameras deliver by default", "1")
     exposure_lightbox: float = param(5.0, "exposure scale (radiance to full well) under light boxes", "1")
     exposure_sunlamp: float = param(0.12, "exposure scale under the sun lamp", "1")
     exposure_ambient: float = param(2.5, "exposure scale under the room's ambient light (calibration)", "1")

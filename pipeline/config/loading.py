@@ -75,7 +75,8 @@ def _unknown(key: str, known: list[str]) -> ConfigError:
 
 
 #: keys older versions wrote into W/config.toml -> (the key now, how its value converts)
-RENAMED: dict[str, tuple[str, Any]] = {"evaluate.model": ("evaluate.models", lambda value: [value])}
+RENAMED: dict[str, tuple[str, Any]] = {"evaluate.model": ("evaluate.models", lambda value: [value]),
+                                       "virtual.gamma": ("camera.gamma", lambda value: value)}
 #: keys that moved into the target folder (target.toml) -> (the value older versions wrote,
 #: the built-in Tango's, which is dropped; where another value now belongs)
 RETIRED: dict[str, tuple[Any, str]] = {
@@ -96,10 +97,27 @@ def _frozen(value: Any) -> Any:
     return tuple(_frozen(v) for v in value) if isinstance(value, list | tuple) else value
 
 
+def _renamed(updates: dict[str, Any]) -> dict[str, Any]:
+    """``updates`` with the keys of ``RENAMED`` under their names now (in their sections now);
+    a key written under both names keeps the new one's value."""
+    out = {name: dict(values) if isinstance(values, dict) else values for name, values in updates.items()}
+    for old, (new, convert) in RENAMED.items():
+        old_section, old_name = old.split(".")
+        new_section, new_name = new.split(".")
+        values = out.get(old_section)
+        if not isinstance(values, dict) or old_name not in values:
+            continue
+        value = values.pop(old_name)
+        target = out.setdefault(new_section, {})
+        if isinstance(target, dict):
+            target.setdefault(new_name, convert(value))
+    return out
+
+
 def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
     known_keys = [f"{s}.{f.name}" for s, t in SECTION_TYPES.items() for f in fields(t)]
     changes: dict[str, Any] = {}
-    for section_name, values in updates.items():
+    for section_name, values in _renamed(updates).items():
         if section_name == "profile":
             continue
         if section_name not in SECTION_TYPES:
@@ -112,8 +130,6 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
         coerced = {}
         for name, value in values.items():
             key = f"{section_name}.{name}"
-            if key in RENAMED and RENAMED[key][0].split(".")[1] not in values:  # written by an older version
-                name, value = RENAMED[key][0].split(".")[1], RENAMED[key][1](value)
             if key in RETIRED:
                 builtin, moved_to = RETIRED[key]
                 if _frozen(value) == builtin:
@@ -224,6 +240,11 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
     if config.acquire.backend == "replay" and not config.acquire.source:
         raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
+    if config.acquire.backend == "virtual" and config.camera.sensor == "colour":
+        raise ConfigError("camera.sensor: the virtual testbed's camera is mono (an IMX174); colour is for replayed "
+                          "recordings (acquire.backend = replay)")
+    if not 0.2 <= config.camera.gamma <= 5.0:
+        raise ConfigError(f"camera.gamma: {config.camera.gamma} is not an output gamma (0.2-5; 1 is linear)")
     e = config.evaluate
     if min(e.tracking_rotation_sigma_rad, e.tracking_lateral_sigma, e.tracking_depth_sigma) <= 0 \
             or min(e.tracking_angular_acceleration_sigma, e.tracking_roe_walk) < 0:

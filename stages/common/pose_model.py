@@ -41,7 +41,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -62,13 +62,16 @@ IR_VERSION = 8  # onnxruntime 1.31 reads IR versions up to 13
 MIN_CONSENSUS = 5
 #: an oracle_box crop is a square of this many times the box's larger side
 CROP_MARGIN = 1.25
+#: what a model takes: three channels, or one grey channel (a mono camera's image; a colour
+#: model given a mono camera's image sees its grey in all three channels)
+Channels = Literal["rgb", "gray"]
 
 
 @dataclass(frozen=True)
 class ModelContract:
     width: int
     height: int
-    channels: str
+    channels: Channels
     mean: tuple[float, ...]
     std: tuple[float, ...]
     output: str

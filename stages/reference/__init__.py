@@ -36,7 +36,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     target = workspace_target(config, workspace)
     done = read_keys(workspace, "models")
     todo = [v for v in config.reference.variants if train.VARIANTS[v][0] not in done]
-    data = train.load_training_set(workspace, config.reference, target) if todo else None
+    data = train.load_training_set(workspace, config.reference, target, train.channels_of(config)) if todo else None
     for variant in todo:
         name = train.VARIANTS[variant][0]
         relpath = workspace.model_relpath(name)

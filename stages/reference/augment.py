@@ -17,6 +17,11 @@ changes handedness, which no pose of the body explains. Then one of two recipes:
   a streak through it and ghosts towards the image centre), Gaussian blur, the photometric
   jitter, and stronger noise (Gaussian and shot). Neural style transfer is not used: it
   needs a pretrained network this project cannot download.
+
+Grey images (a mono camera's, C = 1) take the same recipe: the robust steps run on the grey
+repeated in three channels, and the result is taken back to its luminance
+(``stages.common.tone``), as the mono camera would see a tinted glare or a coloured Earth;
+the photometric jitter and the noise then act on the one channel, as on a mono sensor.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import cv2
 import numpy as np
 
 from stages.common.earth import albedo_map
+from stages.common.tone import luminance
 
 Augmentation = Literal["photometric", "robust"]
 AUGMENTATIONS: tuple[Augmentation, ...] = ("photometric", "robust")
@@ -38,7 +44,7 @@ def geometric(images: np.ndarray, masks: np.ndarray, keypoints: np.ndarray, rng:
               rotation: bool = True, scale: float = 0.15, shift: float = 0.06,
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotated (uniform angle), scaled (1 +- ``scale``) and shifted (+- ``shift`` of the
-    size) copies of images (N, H, W, 3) uint8, masks (N, H, W) uint8 and keypoints (N, K, 2)
+    size) copies of images (N, H, W, C) uint8, masks (N, H, W) uint8 and keypoints (N, K, 2)
     input pixels (pixel centres at integers); what comes into view from outside is black,
     as space is."""
     n, height, width = images.shape[:3]
@@ -51,7 +57,7 @@ def geometric(images: np.ndarray, masks: np.ndarray, keypoints: np.ndarray, rng:
         warp = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), angle, zoom)
         warp[:, 2] += offset
         out_images[index] = cv2.warpAffine(images[index], warp, (width, height), flags=cv2.INTER_LINEAR,
-                                           borderMode=cv2.BORDER_CONSTANT)
+                                           borderMode=cv2.BORDER_CONSTANT).reshape(images.shape[1:])
         out_masks[index] = cv2.warpAffine(masks[index], warp, (width, height), flags=cv2.INTER_LINEAR,
                                           borderMode=cv2.BORDER_CONSTANT)
         out_keypoints[index] = keypoints[index] @ warp[:, :2].T + warp[:, 2]
@@ -59,7 +65,7 @@ def geometric(images: np.ndarray, masks: np.ndarray, keypoints: np.ndarray, rng:
 
 
 def photometric(x: np.ndarray, rng: np.random.Generator, noise_max: float = 0.04) -> np.ndarray:
-    """Gain, gamma, offset and Gaussian noise on images (N, H, W, 3) float32 in [0, 1]."""
+    """Gain, gamma, offset and Gaussian noise on images (N, H, W, C) float32 in [0, 1]."""
     n = len(x)
     gain = rng.uniform(0.6, 1.6, (n, 1, 1, 1)).astype(np.float32)
     gamma = rng.uniform(0.7, 1.4, (n, 1, 1, 1)).astype(np.float32)
@@ -117,12 +123,12 @@ def _glare(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
 
 
 def robust(x: np.ndarray, masks: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The robust recipe on images (N, H, W, 3) float32 in [0, 1] with the target's masks
-    (N, H, W) float32 in [0, 1] (the render's mask, cropped as the image)."""
+    """The robust recipe on images (N, H, W, C) float32 in [0, 1] (C = 3, or 1: grey) with the
+    target's masks (N, H, W) float32 in [0, 1] (the render's mask, cropped as the image)."""
     out = np.empty_like(x)
-    n, height, width = x.shape[:3]
+    n, height, width, channels = x.shape
     for index in range(n):
-        image, alpha = x[index].copy(), masks[index][..., None]
+        image, alpha = np.broadcast_to(x[index], (height, width, 3)).copy(), masks[index][..., None]
         if rng.random() < ROBUST["texture"]:
             image = image * (alpha * (0.5 + _smooth_field(rng, height, width, 3, int(rng.integers(3, 12))))
                              + (1 - alpha))
@@ -137,7 +143,8 @@ def robust(x: np.ndarray, masks: np.ndarray, rng: np.random.Generator) -> np.nda
             image = image + _glare(rng, height, width) * rng.uniform(0.8, 1.0, 3).astype(np.float32)
         if rng.random() < ROBUST["blur"]:
             image = cv2.GaussianBlur(np.clip(image, 0, 1), (0, 0), rng.uniform(0.4, 1.6))
-        out[index] = np.clip(image, 0.0, 1.0)
+        image = np.clip(image, 0.0, 1.0)
+        out[index] = luminance(image)[..., None] if channels == 1 else image
     return _sensor(out, rng)
 
 
@@ -150,7 +157,7 @@ def _sensor(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def augment(kind: Augmentation, images: np.ndarray, masks: np.ndarray | None,
             rng: np.random.Generator) -> np.ndarray:
-    """Augmented copies (N, H, W, 3) float32 in [0, 1] of images (N, H, W, 3) uint8."""
+    """Augmented copies (N, H, W, C) float32 in [0, 1] of images (N, H, W, C) uint8."""
     x = images.astype(np.float32) / 255.0
     if kind == "photometric":
         return photometric(x, rng)

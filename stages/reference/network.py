@@ -2,7 +2,8 @@
 keypoint at half (``stride`` 2) or a quarter (4) of the input resolution (torch; imported
 only by training).
 
-Input (N, 3, 192, 192) normalised RGB; output (N, 11, 96, 96) or (N, 11, 48, 48). About
+Input (N, 1, 192, 192) normalised grey (a mono camera's, as SPEED+'s) or (N, 3, ...) RGB;
+output (N, 11, 96, 96) or (N, 11, 48, 48). About
 0.2 G multiply-adds per image at stride 4: small enough to train on two CPU cores.
 """
 
@@ -29,13 +30,13 @@ class _Residual(nn.Module):
 
 
 class KeypointNet(nn.Module):
-    """Heatmaps (N, K, H/4, W/4) of K keypoints for images (N, 3, H, W)."""
+    """Heatmaps (N, K, H/4, W/4) of K keypoints for images (N, C, H, W): C = 1 (grey) or 3."""
 
-    def __init__(self, keypoints: int = 11, width: int = 16, stride: int = 4) -> None:
+    def __init__(self, keypoints: int = 11, width: int = 16, stride: int = 4, channels: int = 1) -> None:
         super().__init__()
         c1, c2, c3, c4 = width, 2 * width, 3 * width, 4 * width
         self.stride = stride
-        self.first = _conv(3, c1, 2)                                                         # 1/2
+        self.first = _conv(channels, c1, 2)                                                         # 1/2
         self.stem = _conv(c1, c2, 2)                                                         # 1/4
         self.down1 = nn.Sequential(_conv(c2, c3, 2), _Residual(c3), _Residual(c3))           # 1/8
         self.down2 = nn.Sequential(_conv(c3, c4, 2), _Residual(c4, 2), _Residual(c4, 4))     # 1/16

@@ -32,6 +32,7 @@ from stages.common.image_io import read_image, to_uint8
 from stages.common.pose_model import (
     IR_VERSION,
     OPSET,
+    Channels,
     ModelContract,
     PoseModel,
     apply_affine,
@@ -43,18 +44,27 @@ from stages.common.scores import score
 from stages.common.target import Target
 from stages.reference.augment import augment, geometric
 
-MEAN = (0.485, 0.456, 0.406)
-STD = (0.229, 0.224, 0.225)
+#: ImageNet's normalisation per channel; for grey, the means of its three channels'
+NORMALISATION: dict[Channels, tuple[tuple[float, ...], tuple[float, ...]]] = {
+    "rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)), "gray": ((0.449,), (0.226,))}
 #: model name of each variant (W/models/<name>.onnx) and its augmentation
 VARIANTS: dict[str, tuple[str, str]] = {"plain": ("reference", "photometric"),
                                         "augmented": ("reference_augmented", "robust")}
 
 
-def contract(recipe: ReferenceConfig, target: Target) -> ModelContract:
-    """The evaluation contract of a model of ``target``: a heatmap per target keypoint."""
+def channels_of(config: Config) -> Channels:
+    """What the camera gives, which the training images follow (``stages.common.tone``):
+    ``gray`` for a mono camera, ``rgb`` for a colour one."""
+    return "gray" if config.camera.sensor == "mono" else "rgb"
+
+
+def contract(recipe: ReferenceConfig, target: Target, channels: Channels = "gray") -> ModelContract:
+    """The evaluation contract of a model of ``target``: a heatmap per target keypoint, of
+    images of ``channels``."""
     # trained at every rotation, a square model asks evaluate to average its quarter turns
     turns = 4 if recipe.rotation and recipe.input_width == recipe.input_height else 1
-    return ModelContract(recipe.input_width, recipe.input_height, "rgb", MEAN, STD, "heatmaps",
+    mean, std = NORMALISATION[channels]
+    return ModelContract(recipe.input_width, recipe.input_height, channels, mean, std, "heatmaps",
                          np.array(target.keypoints_m, float), "oracle_box", turns, target.name)
 
 
@@ -68,20 +78,22 @@ def wide_box(box: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([shifted - scale * half.max(), shifted + scale * half.max()])
 
 
-def load_training_set(workspace: Workspace, recipe: ReferenceConfig, target: Target) -> dict[str, np.ndarray]:
-    """Inputs (N, H, W, 3) uint8 RGB cropped and resized as ``evaluate`` will, the target's
+def load_training_set(workspace: Workspace, recipe: ReferenceConfig, target: Target,
+                      channels: Channels = "gray") -> dict[str, np.ndarray]:
+    """Inputs (N, H, W, C) uint8 (RGB, or grey: C = 1) cropped and resized as ``evaluate`` will, the target's
     masks (N, H, W) uint8 cropped alike, keypoints (N, K, 2) in input pixels, the
     input-to-image maps (N, 3, 3) and the manifest rows; and a wide crop of each image
     (``wide_box``: ``wide_images``, ``wide_masks``, ``wide_keypoints``)."""
     rows = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
     if not rows:
         raise ValueError(f"{workspace.manifest_dir('train')}: no training images; run render --set train")
-    terms = contract(recipe, target)
+    terms = contract(recipe, target, channels)
     rng = np.random.default_rng(recipe.seed + 1)
     shape = (len(rows), recipe.input_height, recipe.input_width)
-    out = {"images": np.empty((*shape, 3), np.uint8), "masks": np.empty(shape, np.uint8),
+    depth = 3 if channels == "rgb" else 1
+    out = {"images": np.empty((*shape, depth), np.uint8), "masks": np.empty(shape, np.uint8),
            "keypoints": np.empty((len(rows), len(target.keypoints_m), 2)), "maps": np.empty((len(rows), 3, 3)),
-           "wide_images": np.empty((*shape, 3), np.uint8), "wide_masks": np.empty(shape, np.uint8),
+           "wide_images": np.empty((*shape, depth), np.uint8), "wide_masks": np.empty(shape, np.uint8),
            "wide_keypoints": np.empty((len(rows), len(target.keypoints_m), 2))}
     for index, row in enumerate(track(rows, len(rows), "load training images", rows=[0] * len(rows))):
         image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
@@ -144,13 +156,15 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, target: Target, 
 
     from stages.reference.network import KeypointNet
 
-    terms = contract(recipe, target)
+    channels: Channels = "gray" if data["images"].shape[-1] == 1 else "rgb"  # what the images are
+    terms = contract(recipe, target, channels)
     torch.manual_seed(recipe.seed)
     torch.set_num_threads(recipe.threads)
     rng = np.random.default_rng(recipe.seed)
     # a GPU when there is one (never required); the random streams stay on the CPU
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    model = KeypointNet(len(target.keypoints_m), recipe.width, recipe.heatmap_stride).to(device)
+    model = KeypointNet(len(target.keypoints_m), recipe.width, recipe.heatmap_stride,
+                        len(terms.mean)).to(device)
     images, masks, keypoints = data["images"], data["masks"], data["keypoints"]
     name, augmentation = VARIANTS[variant]
     steps_per_epoch = max(1, len(images) // recipe.batch_size)
@@ -210,14 +224,16 @@ def train(data: dict[str, np.ndarray], recipe: ReferenceConfig, target: Target, 
     return model.cpu(), log
 
 
-def export(model: Any, recipe: ReferenceConfig, out: Path, target: Target, extra_metadata: dict[str, str]) -> None:
+def export(model: Any, recipe: ReferenceConfig, out: Path, target: Target, extra_metadata: dict[str, str],
+           channels: Channels = "gray") -> None:
     """ONNX (opset ``OPSET``, IR version ``IR_VERSION``) with the contract's metadata."""
     import onnx
     import torch
 
     out.parent.mkdir(parents=True, exist_ok=True)
     temporary = temporary_name(out)
-    dummy = torch.zeros(1, 3, recipe.input_height, recipe.input_width)
+    terms = contract(recipe, target, channels)
+    dummy = torch.zeros(1, len(terms.mean), recipe.input_height, recipe.input_width)
     torch.onnx.export(model, (dummy,), str(temporary), input_names=["image"], output_names=["heatmaps"],
                       dynamic_axes={"image": {0: "batch"}, "heatmaps": {0: "batch"}}, opset_version=OPSET,
                       dynamo=False)
@@ -225,7 +241,7 @@ def export(model: Any, recipe: ReferenceConfig, out: Path, target: Target, extra
     proto.ir_version = IR_VERSION
     proto.producer_name = "speedplus train-reference"
     del proto.metadata_props[:]
-    for key, value in {**contract(recipe, target).metadata(), **extra_metadata}.items():
+    for key, value in {**terms.metadata(), **extra_metadata}.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.checker.check_model(proto)
@@ -271,15 +287,17 @@ def run(config: Config, data: dict[str, np.ndarray], variant: ReferenceVariant, 
     split = split_held_out(data)
     held = len(split[1]["images"])
     started = time.perf_counter()
+    channels = channels_of(config)
     model, log = train(split[0], recipe, target, variant, checkpoint=checkpoint, tag=tag)
     seconds = time.perf_counter() - started
     export(model, recipe, out, target, {"speedplus.recipe": json.dumps(asdict(recipe)), "speedplus.variant": variant,
-                                "speedplus.augmentation": VARIANTS[variant][1]})
+                                "speedplus.augmentation": VARIANTS[variant][1]}, channels)
     camera = train_camera(config)
     scores = held_out_scores(out, split[1], camera.camera_matrix, camera.dist)
     card = {"model": str(out.name), "variant": variant, "augmentation": VARIANTS[variant][1],
             "training_images": len(split[0]["images"]), "held_out_images": held,
             "train_seconds": round(seconds, 1), "recipe": asdict(recipe), "held_out": scores,
+            "camera": {"sensor": config.camera.sensor, "gamma": config.camera.gamma},
             "render": {"count": config.render.train_count, "seed": config.render.seed,
                        "resolution_scale": config.render.train_resolution_scale, "spp": config.render.train_spp},
             "log": log}

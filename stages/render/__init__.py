@@ -9,7 +9,7 @@ pixels and an interrupted run resumes with the missing ``sample_id``s.
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import asdict, fields
 
 import pyarrow as pa
 
@@ -22,6 +22,7 @@ from pipeline.stage_io import Resolved
 from stages.common.cameras import train_camera
 from stages.common.dispatch import map_config
 from stages.common.json_arrays import calibrated_camera
+from stages.common.tone import Response
 from stages.common.workspace_target import workspace_target
 from stages.render.jobs import SET_DIRECTORIES, train_jobs, twin_jobs
 from stages.render.worker import open_worker
@@ -44,7 +45,13 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     inputs = ("labels", "captures", "calibration_samples")
     if config.acquire.backend == "virtual":
         inputs += ("plan",)  # the light set-up of each sample
-    return Resolved(inputs, ("testbed",), {"render": {key: render[key] for key in TWIN_KEYS}}, (output_name(config),))
+    extra = {"render": {key: render[key] for key in TWIN_KEYS}, "camera": asdict(response(config))}
+    return Resolved(inputs, ("testbed",), extra, (output_name(config),))
+
+
+def response(config: Config) -> Response:
+    """The configured camera's sensor and tone, which every rendered image follows."""
+    return Response(config.camera.sensor, config.camera.gamma)
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
@@ -63,7 +70,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     run_config = config.run
     threads = threads_per_worker(run_config.workers)
     spp = config.render.spp if config.render.set == "twin" else config.render.train_spp
-    args = (camera, target, spp, config.render.max_depth, threads, config.render.ground_truth)
+    args = (camera, target, spp, config.render.max_depth, threads, config.render.ground_truth, response(config))
     produced = map_config(config, open_worker, args, "render", todo, renders=True, remote=workspace.remote)
     with open_sink(workspace, name, run_config.part_rows) as sink:
         for output in track(produced, len(todo), f"render {config.render.set} ({run_config.engine})"):

@@ -1,4 +1,4 @@
-"""A render worker: turns a ``RenderJob`` into an 8-bit RGB PNG, a mask PNG, the per-pixel
+"""A render worker: turns a ``RenderJob`` into an 8-bit PNG, a mask PNG, the per-pixel
 ground truth (``stages.common.ground_truth``) and a ``renders`` row. One per process
 (local engine) or Ray actor; the scene loads once. It never touches the workspace: the
 files go back to the driver with the row (``pipeline.engines.Produced``).
@@ -7,8 +7,10 @@ The mask and the ground truth are ray-cast at the output pixel centres through t
 (``stages.common.surface``) in the render's own scene: exact per pixel, where remapping a
 rendered AOV image would blend ids and coordinates across edges.
 
-Tone mapping is fixed (linear radiance x ``EXPOSURE``, sRGB curve, 8 bits) so that an
-image's brightness follows its light, as in SPEED+'s synthetic images.
+The image is what the camera would make of the radiance (``stages.common.tone``): grey for a
+mono camera (SPEED+'s), colour for a colour one, through the camera's gamma; the exposure
+is fixed (``EXPOSURE``) so that an image's brightness follows its light, as in SPEED+'s
+synthetic images.
 """
 
 from __future__ import annotations
@@ -25,17 +27,13 @@ from stages.common.image_io import encode_png
 from stages.common.lens import LensCamera
 from stages.common.surface import TargetSurfaces
 from stages.common.target import Target
+from stages.common.tone import Response
 from stages.render.jobs import RenderJob
 from stages.render.scene import TargetRenderer
 
 EXPOSURE = 1.0
-
-
-def to_srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear RGB (..., 3) in [0, 1] -> 8-bit sRGB."""
-    x = np.clip(linear, 0.0, 1.0)
-    encoded = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.round(encoded * 255.0).astype(np.uint8)
+#: SPEED+'s camera, the default
+MONO_LINEAR = Response("mono", 1.0)
 
 
 def mask_bbox(mask: np.ndarray) -> np.ndarray:
@@ -47,11 +45,11 @@ def mask_bbox(mask: np.ndarray) -> np.ndarray:
 
 
 class RenderWorker:
-    """Renders jobs of one camera."""
+    """Renders jobs of one camera, as that camera's ``response`` would see them."""
 
     def __init__(self, camera: LensCamera, target: Target, spp: int, max_depth: int, threads: int,
-                 with_ground_truth: bool = True) -> None:
-        self.camera, self.spp, self.keypoints_m = camera, spp, target.keypoints_m
+                 with_ground_truth: bool = True, response: Response = MONO_LINEAR) -> None:
+        self.camera, self.spp, self.keypoints_m, self.response = camera, spp, target.keypoints_m, response
         self.renderer = TargetRenderer(camera, target, spp=spp, max_depth=max_depth, threads=threads)
         self.surfaces = TargetSurfaces(target.parts, self.renderer.scene)
         self.with_ground_truth = with_ground_truth
@@ -82,7 +80,8 @@ class RenderWorker:
         mask = maps.mask
         if not mask.any():
             return Produced({"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"})
-        files = {job.image_path: encode_png(np.ascontiguousarray(to_srgb8(radiance * EXPOSURE)[..., ::-1])),
+        pixels = self.response.image(radiance, EXPOSURE)
+        files = {job.image_path: encode_png(np.ascontiguousarray(pixels if pixels.ndim == 2 else pixels[..., ::-1])),
                  job.mask_path: encode_png(mask.astype(np.uint8) * 255)}
         ground_truth_path = None
         if self.with_ground_truth:
@@ -102,7 +101,7 @@ class RenderWorker:
 
 
 def open_worker(camera: LensCamera, target: Target, spp: int, max_depth: int, threads: int,
-                with_ground_truth: bool = True) -> RenderWorker:
+                with_ground_truth: bool = True, response: Response = MONO_LINEAR) -> RenderWorker:
     """Picklable factory for the engines (the target travels whole: a cluster's workers
     may not see the workspace's files)."""
-    return RenderWorker(camera, target, spp, max_depth, threads, with_ground_truth)
+    return RenderWorker(camera, target, spp, max_depth, threads, with_ground_truth, response)

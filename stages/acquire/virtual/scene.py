@@ -30,6 +30,7 @@ from stages.common.mitsuba_adapter import (
 from stages.common.patterns import board_image, board_pattern
 from stages.common.surface import shape_id
 from stages.common.target import Target
+from stages.common.tone import luminance
 
 BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
 _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)
@@ -170,7 +171,7 @@ class TestbedScene:
             dr.make_opaque(self.params[key])
         self.params.update()
         image = np.array(mi.render(self.scene, spp=self.config.virtual.spp, seed=seed))
-        return image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
+        return luminance(image)
 
     def _pose(self, world_from_cam: np.ndarray, world_from_target: np.ndarray) -> None:
         """The camera and the mock-up at these true poses (the mesh moves: the room is static)."""

@@ -12,6 +12,7 @@ import numpy as np
 from pipeline.config import CameraConfig, VirtualConfig
 from stages.common import geometry as g
 from stages.common.lens import Lens, LensCamera, RenderGeometry
+from stages.common.tone import encode8
 
 __all__ = ["RenderGeometry", "Sensor", "lens_camera"]
 
@@ -70,6 +71,4 @@ class Sensor:
         # consumes a varying amount of randomness); read noise dominates where n is small.
         shot, read = rng.standard_normal((2, *expected.shape))
         electrons = expected + np.sqrt(expected) * shot + self.virtual.read_noise_e * read
-        linear = np.clip(electrons / full_well, 0.0, 1.0)
-        encoded = np.power(linear, 1.0 / self.virtual.gamma)
-        return np.round(encoded * 255.0).astype(np.uint8)
+        return encode8(electrons / full_well, self.camera.gamma)

@@ -27,6 +27,22 @@ def test_the_same_seed_gives_the_same_images_and_another_seed_others():
         assert first.min() >= 0.0 and first.max() <= 1.0
 
 
+def test_grey_images_take_the_same_recipe_in_one_channel():
+    """A mono camera's crops (C = 1) come out grey and seeded; a glare or an Earth added in
+    colour reaches them as its luminance, so the grey of a grey image stays grey."""
+    images, masks = _batch()
+    grey = images[..., :1].copy()
+    for kind in aug.AUGMENTATIONS:
+        first = aug.augment(kind, grey, masks, np.random.default_rng(7))
+        assert first.shape == grey.shape and first.dtype == np.float32
+        assert np.array_equal(first, aug.augment(kind, grey, masks, np.random.default_rng(7)))
+        assert not np.array_equal(first, aug.augment(kind, grey, masks, np.random.default_rng(8)))
+        assert first.min() >= 0.0 and first.max() <= 1.0
+    keypoints = np.full((len(grey), 3, 2), 32.0)
+    turned, _, _ = aug.geometric(grey, masks, keypoints, np.random.default_rng(2))
+    assert turned.shape == grey.shape and turned.any()
+
+
 def test_robust_steps_change_what_they_claim(monkeypatch):
     images, masks = _batch()
     x, alpha = images.astype(np.float32) / 255, masks.astype(np.float32) / 255

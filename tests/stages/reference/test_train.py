@@ -41,7 +41,8 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
         model = PoseModel(path)
         assert (model.contract.width, model.contract.height) == (recipe.input_width, recipe.input_height)
         assert model.contract.output == "heatmaps" and model.contract.crop == "oracle_box"
-        batch = np.zeros((2, 3, recipe.input_height, recipe.input_width), np.float32)
+        assert model.contract.channels == "gray" and model.contract.mean == (0.449,)  # the smoke camera is mono
+        batch = np.zeros((2, 1, recipe.input_height, recipe.input_width), np.float32)
         (heatmaps,) = model.infer(batch)
         stride = recipe.heatmap_stride
         assert heatmaps.shape == (2, 11, recipe.input_height // stride, recipe.input_width // stride)

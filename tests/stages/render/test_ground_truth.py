@@ -17,9 +17,10 @@ from stages.common.cameras import train_camera
 from stages.common.ground_truth import GroundTruthError
 from stages.common.tango import KEYPOINTS_M
 from stages.common.tango_mesh import tango_parts
+from stages.common.tone import Response, luminance
 from stages.common.workspace_target import planned_target
 from stages.render.jobs import train_jobs
-from stages.render.worker import EXPOSURE, RenderWorker, to_srgb8
+from stages.render.worker import EXPOSURE, RenderWorker
 
 ALL = ground_truth.RADIANCE + ground_truth.GEOMETRY
 
@@ -123,13 +124,34 @@ def test_part_ids_mean_their_parts_and_match_the_mask(rendered):
                     file.cam_from_target[:3, :3] @ normal, normals[part == index].shape), atol=1e-4)
 
 
-def test_radiance_is_the_png_before_its_tone_map(rendered):
+def test_radiance_is_the_png_before_the_mono_cameras_tone(rendered):
+    """The default camera is mono and linear (SPEED+'s): each image is one grey channel, the
+    luminance of its radiance at the fixed exposure, clipped and quantised, nothing more."""
     root, _, rows, files = rendered
     for row, file in zip(rows, files, strict=True):
-        png = cv2.imread(str(root / row["image_path"]), cv2.IMREAD_COLOR)
-        tone_mapped = to_srgb8(file.stack(ground_truth.RADIANCE) * EXPOSURE)[..., ::-1]
-        assert (tone_mapped == png).all()
-        assert np.isfinite(file.stack(ground_truth.RADIANCE)).all()
+        png = cv2.imread(str(root / row["image_path"]), cv2.IMREAD_UNCHANGED)
+        radiance = file.stack(ground_truth.RADIANCE)
+        assert png.ndim == 2 and np.isfinite(radiance).all()
+        expected = np.round(np.clip(luminance(radiance.astype(np.float64)) * EXPOSURE, 0, 1) * 255)
+        assert (expected.astype(np.uint8) == png).all()
+        assert png.max() > 100  # lit, not black
+
+
+def test_a_cameras_gamma_and_colour_reach_the_image(rendered):
+    """The same radiance through a gamma-2.2 mono camera is brighter in the mid-tones and
+    never darker; a colour camera keeps three channels whose luminance is
+    the mono image where no channel clips."""
+    _, _, _, files = rendered
+    radiance = files[0].stack(ground_truth.RADIANCE)
+    linear, bent = Response("mono", 1.0).image(radiance), Response("mono", 2.2).image(radiance)
+    middle = (linear > 20) & (linear < 200)
+    assert middle.any() and (bent[middle] > linear[middle]).all()
+    assert (bent >= linear).all() and (bent[linear == 255] == 255).all()
+    colour = Response("colour", 1.0).image(radiance)
+    assert colour.shape == (*linear.shape, 3)
+    unclipped = (colour < 255).all(axis=-1)
+    assert unclipped.mean() > 0.9
+    assert np.abs(luminance(colour.astype(float)) - linear)[unclipped].max() <= 1.0
 
 
 def test_the_switch_turns_the_ground_truth_off(tmp_path):
