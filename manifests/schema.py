@@ -17,15 +17,16 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 #: 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas; 1.11: scores'
-#: intervals, median and failure share
-SCHEMA_VERSION = "1.11"
+#: intervals, median and failure share; 1.12: models' detector rows (the box IoU; no SPEED score)
+SCHEMA_VERSION = "1.12"
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
 #: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
 #: plan's trajectory columns and captures' move_s, 1.9 the target body's used markers and
 #: residual and the poses' per-source sigmas, 1.10 the scores' intervals (a scores part of
-#: 1.10 does not read: evaluate writes it again); a kept recording reads as it is
-READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10")
+#: 1.10 does not read: evaluate writes it again), 1.11 the models' box IoU; a kept recording
+#: reads as it is
+READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10", "1.11")
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -455,9 +456,13 @@ MODELS = ManifestSpec(
         Column("sha256", pa.string(), "", "SHA-256 of the ONNX file"),
         Column("training_images", pa.int64(), "count", "synthetic images trained on"),
         Column("held_out_images", pa.int64(), "count", "synthetic images held out"),
-        Column("held_out_mean_speed_score", pa.float64(), "1", "mean SPEED score on the held-out images"),
-        Column("held_out_median_rotation_error_deg", pa.float64(), "deg", "median rotation error, held out"),
+        Column("held_out_mean_speed_score", pa.float64(), "1", "mean SPEED score on the held-out images "
+               "(null for the detector)", nullable=True),
+        Column("held_out_median_rotation_error_deg", pa.float64(), "deg", "median rotation error, held out "
+               "(null for the detector)", nullable=True),
         Column("train_seconds", pa.float64(), "s", "training wall time (this run's share when resumed)"),
+        Column("held_out_median_box_iou", pa.float64(), "1", "the detector's median box IoU on the held-out "
+               "images (null for keypoint models)", nullable=True),
     ),
     key="model",
     files=("path",),

@@ -409,9 +409,10 @@ def train_reference_command(
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the train-reference stage: render the synthetic training set its recipe asks for
-    (section [reference]), train the reference keypoint CNNs on it (reference.variants: plain
-    and augmented) and export them to ONNX with the evaluation contract (W/models/<name>.onnx,
-    which evaluate then scores); with --out, copy them there too, named by target."""
+    (section [reference]), train the reference keypoint CNNs on it and the detector of their
+    own crop (reference.variants: plain, augmented, detector) and export them to ONNX with
+    their contracts (W/models/<name>.onnx, which evaluate then uses); with --out, copy them
+    there too, named by target."""
     overrides = _parsed(set_)
     resolved, ws, _ = _context(workspace, profile, config, overrides)
     recipe = resolved.reference
@@ -428,9 +429,11 @@ def train_reference_command(
         row = runner.publish_model(ws, name, destinations[name]) if name in destinations else \
             runner.model_row(ws, name)
         where = destinations[name] if name in destinations else ws.display(ws.resolve(ws.model_relpath(name)))
+        held = (f"median box IoU {row['held_out_median_box_iou']:.3f}" if row["held_out_mean_speed_score"] is None
+                else f"mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation error "
+                     f"{row['held_out_median_rotation_error_deg']:.2f} deg")
         out.print(escape(f"{where}: trained on {row['training_images']} images in {row['train_seconds']:.0f} "
-                         f"s; held-out synthetic: mean SPEED score {row['held_out_mean_speed_score']:.4f}, median "
-                         f"rotation error {row['held_out_median_rotation_error_deg']:.2f} deg"), highlight=False)
+                         f"s; held-out synthetic: {held}"), highlight=False)
 
 
 @app.command("run")

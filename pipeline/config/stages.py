@@ -17,7 +17,7 @@ TrajectoryPreset = Literal["vbar_hold_spin", "approach_tumble", "custom"]
 TRAJECTORY_PRESETS: tuple[TrajectoryPreset, ...] = ("vbar_hold_spin", "approach_tumble", "custom")
 #: the reference models: ``plain`` (photometric jitter) and ``augmented`` (the robust recipe of
 #: stages/reference/augment.py), named reference and reference_augmented
-ReferenceVariant = Literal["plain", "augmented"]
+ReferenceVariant = Literal["plain", "augmented", "detector"]
 
 
 @dataclass(frozen=True)
@@ -305,8 +305,13 @@ class ReferenceConfig:
     rotation: bool = param(True, "rotate every training crop by a random angle in the image plane (with a random "
                            "scale of 1 +- 0.15 and shift of +- 6%); off: scale and shift only", "")
     variants: tuple[ReferenceVariant, ...] = param(
-        ("plain", "augmented"), "models to train: plain (photometric jitter: models/reference.onnx) and augmented "
-        "(style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx)", "")
+        ("plain", "augmented", "detector"), "models to train: plain (photometric jitter: models/reference.onnx), "
+        "augmented (style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx) and "
+        "detector (the target's box in the whole image, the self crop: models/detector.onnx)", "")
+    detector_input_width: int = param(
+        256, "detector: the whole image is resized to this width (the height keeps the camera's aspect, in "
+        "multiples of 16)", "px")
+    detector_epochs: int = param(30, "detector: passes over the training images", "count")
     seed: int = param(0, "seed of initialisation, shuffling and augmentation", "")
     threads: int = param(2, "torch threads", "count")
     max_steps: int = param(0, "stop after this many optimiser steps (a quick check of the recipe); 0: the "
@@ -322,8 +327,14 @@ class EvaluateConfig:
         "relative paths: from the current directory, else from the repository. Empty: the models train-reference "
         "made in this workspace (W/models/*.onnx), else, for the built-in Tango, the shipped reference models "
         "(models/reference.onnx, models/reference_augmented.onnx)", "")
-    self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: a coarse pass on "
-                            "the whole image, then the keypoint pass around what it found", "")
+    self_crop: bool = param(True, "a model of oracle_box crops is also scored on its own crop: the detector's box "
+                            "(evaluate.detector) or its own search over windows, then two keypoint passes, each "
+                            "around what the previous one found", "")
+    detector: str = param(
+        "", "ONNX object detector (the contract of stages/common/detector.py) whose box starts the self crop; "
+        "relative paths as evaluate.models. Empty: the detector train-reference made in this workspace "
+        "(W/models/detector.onnx), else, for the built-in Tango, the shipped models/detector.onnx; \"search\": "
+        "no detector, the keypoint model's own search over windows of the image", "")
     batch_size: int = param(16, "images per inference call", "count")
     threads: int = param(0, "ONNX Runtime intra-op threads of each worker; 0: the worker's share of the cores (CPUs "
                          "/ run.workers; on Ray, the CPUs reserved for it). The scores do not depend on it", "count")

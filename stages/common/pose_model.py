@@ -255,7 +255,7 @@ class PoseModel:
         return outputs
 
 
-def _parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def parabola_offset(lo: np.ndarray, mid: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Sub-pixel position of a peak from its value and its two neighbours, in [-0.5, 0.5]."""
     curvature = lo - 2 * mid + hi
     safe = np.where(np.abs(curvature) > 1e-12, curvature, -1.0)
@@ -351,8 +351,8 @@ def peak_positions(heatmaps: np.ndarray, ys: np.ndarray, xs: np.ndarray, width: 
     peak = heatmaps[i, j, ys, xs]
     left, right = heatmaps[i, j, ys, np.maximum(xs - 1, 0)], heatmaps[i, j, ys, np.minimum(xs + 1, w - 1)]
     up, down = heatmaps[i, j, np.maximum(ys - 1, 0), xs], heatmaps[i, j, np.minimum(ys + 1, h - 1), xs]
-    x = xs + _parabola_offset(left, peak, right) * ((xs > 0) & (xs < w - 1))
-    y = ys + _parabola_offset(up, peak, down) * ((ys > 0) & (ys < h - 1))
+    x = xs + parabola_offset(left, peak, right) * ((xs > 0) & (xs < w - 1))
+    y = ys + parabola_offset(up, peak, down) * ((ys > 0) & (ys < h - 1))
     points = np.stack([(x + 0.5) * width / w - 0.5, (y + 0.5) * height / h - 0.5], axis=-1)
     return points, peak
 

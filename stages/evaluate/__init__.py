@@ -29,6 +29,7 @@ from pipeline.engines import threads_per_worker
 from pipeline.progress import track
 from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
+from stages.common.detector import DETECTOR_NAME, Detector
 from stages.common.dispatch import map_config
 from stages.common.image_io import ImageReadError
 from stages.common.json_arrays import calibrated_camera
@@ -44,6 +45,8 @@ REPOSITORY = Path(__file__).resolve().parents[2]
 
 #: the reference models shipped for the built-in Tango (``evaluate.models`` empty)
 SHIPPED_MODELS = ("models/reference.onnx", "models/reference_augmented.onnx")
+#: and their detector (``evaluate.detector`` empty)
+SHIPPED_DETECTOR = f"models/{DETECTOR_NAME}.onnx"
 
 
 def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
@@ -51,11 +54,7 @@ def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
     Empty: the models trained in this workspace (``W/models/*.onnx``, by train-reference),
     else, for the built-in Tango, the shipped reference models; for another target none,
     which ``preflight`` refuses naming the target and the command that trains one."""
-    texts = list(config.evaluate.models) or _default_models(config, workspace)
-    paths = []
-    for text in texts:
-        path = Path(text).expanduser()
-        paths.append(path.resolve() if path.is_absolute() or path.exists() else (REPOSITORY / path).resolve())
+    paths = [_located(text) for text in list(config.evaluate.models) or _default_models(config, workspace)]
     names = [path.stem for path in paths]
     if len(set(names)) != len(names):
         raise InputError(f"evaluate.models {list(config.evaluate.models)}: give each model its own file name (a "
@@ -63,9 +62,32 @@ def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
     return paths
 
 
+def _located(text: str) -> Path:
+    path = Path(text).expanduser()
+    return path.resolve() if path.is_absolute() or path.exists() else (REPOSITORY / path).resolve()
+
+
+def detector_path(config: Config, workspace: Workspace | None) -> Path | None:
+    """``evaluate.detector``: the detector whose box starts the self crop, located as
+    ``evaluate.models``; empty: this workspace's (train-reference), else the shipped one for
+    the built-in Tango; ``search`` (or none to be found): None, the model's own search."""
+    text = config.evaluate.detector
+    if text == "search":
+        return None
+    if text:
+        return _located(text)
+    trained = None if workspace is None else workspace.resolve(workspace.model_relpath(DETECTOR_NAME))
+    if trained is not None and trained.is_file():
+        return trained
+    shipped = REPOSITORY / SHIPPED_DETECTOR
+    builtin = workspace_target(config, workspace).name == BUILTIN_TARGET
+    return shipped if builtin and shipped.is_file() else None
+
+
 def _default_models(config: Config, workspace: Workspace | None) -> list[str]:
     trained = [] if workspace is None else sorted(
-        str(path) for path in workspace.resolve(MODELS_DIR).glob("*.onnx") if path.is_file())
+        str(path) for path in workspace.resolve(MODELS_DIR).glob("*.onnx")
+        if path.is_file() and path.stem != DETECTOR_NAME)
     if trained:
         return trained
     return list(SHIPPED_MODELS) if workspace_target(config, workspace).name == BUILTIN_TARGET else []
@@ -89,7 +111,10 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     each model is a member, known by its file's bytes, so that a model is added (or one
     redone) without redoing the others."""
     sequences = config.plan.mode == "trajectory"  # the tracking baseline: frames in order, and the orbit
-    return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate",), {},
+    detector = detector_path(config, workspace)
+    # the detector starts every model's self crop: a new one redoes them all
+    extra = {"detector": "search" if detector is None else _digest(detector)}
+    return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate",), extra,
                     ("predictions", "scores", "comparisons") + (("tracks",) if sequences else ()),
                     members={path.stem: _digest(path) for path in model_paths(config, workspace)},
                     member_key="evaluate.models", member_column="model")
@@ -104,6 +129,14 @@ def preflight(config: Config, workspace: Workspace | None = None) -> None:
         raise _no_model(config, workspace)
     for path in paths:
         PoseModel(path, threads=1).check()
+    detector = detector_path(config, workspace)
+    if detector is not None:
+        target = workspace_target(config, workspace).name
+        found = Detector(detector).contract.target
+        if found != target:
+            raise InputError(f"{detector}: a detector of target {found!r} (its speedplus.target), but this "
+                             f"workspace's target is {target!r}: name this target's (evaluate.detector), or "
+                             "search (--set evaluate.detector=search)")
 
 
 def _items(workspace: Workspace) -> list[dict[str, Any]]:
@@ -155,6 +188,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                              f"workspace's target is {target.name!r}: train one for it (speedplus train-reference "
                              f"-w {workspace.location} --out DIR), then score it alone (--set 'evaluate.models="
                              f"[\"{trained}\"]')")
+    detector = detector_path(config, workspace)
     done = read_keys(workspace, "predictions")
     images = _items(workspace)
     batch = config.evaluate.batch_size
@@ -170,7 +204,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             batches = [items[i:i + batch] for i in range(0, len(items), batch)]
             threads = config.evaluate.threads or -threads_per_worker(config.run.workers)
             decoding = Decoding(config.evaluate.ransac_fraction, config.evaluate.turns, config.evaluate.ransac_seed)
-            args = (path.read_bytes(), str(path), threads, camera.camera_matrix, camera.dist, decoding)
+            args = (path.read_bytes(), str(path), threads, camera.camera_matrix, camera.dist, decoding,
+                    None if detector is None else detector.read_bytes())
             results = map_config(config, open_scorer, args, "score", batches, renders=False,
                                  prepare=_with_images(workspace))
             for rows in track(results, len(batches), f"evaluate {path.name} (batches of {batch}, "

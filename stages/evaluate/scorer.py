@@ -12,6 +12,7 @@ import numpy as np
 
 from pipeline.engines import reserved_cpus
 from stages.common import geometry as g
+from stages.common.detector import Detector
 from stages.common.heatmap_pnp import explained_value, poses_from_heatmaps
 from stages.common.image_io import decode_image, to_uint8
 from stages.common.pose_model import (
@@ -46,20 +47,22 @@ class Scorer:
     cores for each worker, unless this worker runs on a cluster that reserved it CPUs."""
 
     def __init__(self, model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
-                 decoding: Decoding) -> None:
-        self.model = PoseModel(model, threads if threads > 0 else reserved_cpus(-threads), name)
+                 decoding: Decoding, detector: bytes | None = None) -> None:
+        threads = threads if threads > 0 else reserved_cpus(-threads)
+        self.model = PoseModel(model, threads, name)
+        self.detector = None if detector is None else Detector(detector, threads)
         self.camera_matrix, self.dist = np.asarray(camera_matrix, float), np.asarray(dist, float)
         self.decoding = decoding
 
     def score(self, items: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """``predictions`` rows of a batch, in its order."""
-        return predict(self.model, items, self.camera_matrix, self.dist, self.decoding)
+        return predict(self.model, items, self.camera_matrix, self.dist, self.decoding, self.detector)
 
 
 def open_scorer(model: bytes, name: str, threads: int, camera_matrix: np.ndarray, dist: np.ndarray,
-                decoding: Decoding) -> Scorer:
+                decoding: Decoding, detector: bytes | None = None) -> Scorer:
     """Picklable factory for the engines."""
-    return Scorer(model, name, threads, camera_matrix, dist, decoding)
+    return Scorer(model, name, threads, camera_matrix, dist, decoding, detector)
 
 
 #: passes of the self crop: the search over windows, then twice around what the previous pass found
@@ -172,23 +175,43 @@ def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.nda
     return np.clip(box, [-width, -height, -width, -height], [2 * width, 2 * height, 2 * width, 2 * height])
 
 
+def _first_boxes(model: PoseModel, images: list[np.ndarray], labelled: list[np.ndarray], crops: list[str],
+                 camera_matrix: np.ndarray, dist: np.ndarray, decoding: Decoding,
+                 detector: Detector | None) -> list[np.ndarray]:
+    """The box of each item's first pass: the label's for the contract's crop; for ``self``,
+    the detector's box, else the model's own search, else (a model that cannot search) the
+    whole image."""
+    own = [index for index, crop in enumerate(crops) if crop == "self"]
+    found = dict(zip(own, detector.boxes([images[i] for i in own])[0], strict=True)) \
+        if detector is not None and own else {}
+    searchable = model.contract.crop == "oracle_box" and model.contract.output == "heatmaps"
+    boxes = []
+    for index, (image, box, crop) in enumerate(zip(images, labelled, crops, strict=True)):
+        if crop != "self":
+            boxes.append(box)
+        elif index in found:
+            boxes.append(found[index])
+        elif searchable:
+            boxes.append(_search(model, image, camera_matrix, dist, decoding))
+        else:
+            boxes.append(np.array([0.0, 0.0, image.shape[1] - 1.0, image.shape[0] - 1.0]))
+    return boxes
+
+
 def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.ndarray, dist: np.ndarray,
-            decoding: Decoding) -> list[dict[str, Any]]:
+            decoding: Decoding, detector: Detector | None = None) -> list[dict[str, Any]]:
     """Prediction rows for a batch of items, each scored with its ``crop``: the contract's
-    (``full``, or ``oracle_box`` from the label's box), or ``self``: the model's own crop, a
-    search over windows of the whole image (``_search``) then ``SELF_PASSES - 1`` passes
-    around what the last one found."""
+    (``full``, or ``oracle_box`` from the label's box), or ``self``: the model's own crop,
+    started by the detector's box (or a search over windows of the whole image,
+    ``_search``), then ``SELF_PASSES - 1`` passes, each around what the last one found."""
     started = time.perf_counter()
     images = [to_uint8(decode_image(item["image_bytes"], item["image_path"], "bgr")) for item in items]
     labelled = [np.asarray(item["box"], float) for item in items]
     crops = [item.get("crop", model.contract.crop) for item in items]
     searchable = model.contract.crop == "oracle_box" and model.contract.output == "heatmaps"
-    whole = [np.array([0.0, 0.0, image.shape[1] - 1.0, image.shape[0] - 1.0]) for image in images]
-    boxes = [(_search(model, image, camera_matrix, dist, decoding) if searchable
-              else everything) if crop == "self" else box
-             for image, box, crop, everything in zip(images, labelled, crops, whole, strict=True)]
-    # the search is the self crop's first pass; without it, the first is on the whole image
-    passes = (SELF_PASSES - 1 if searchable else SELF_PASSES) if "self" in crops else 1
+    boxes = _first_boxes(model, images, labelled, crops, camera_matrix, dist, decoding, detector)
+    # the detector's box or the search is the self crop's first pass; without them, the whole image
+    passes = (SELF_PASSES - 1 if searchable or detector is not None else SELF_PASSES) if "self" in crops else 1
     for index in range(passes):
         solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, decoding)
         if index < passes - 1:

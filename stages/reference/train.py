@@ -27,6 +27,7 @@ from manifests.files import temporary_name, write_json_atomic
 from pipeline.config import Config, ReferenceConfig
 from pipeline.config.stages import ReferenceVariant
 from pipeline.progress import console, track
+from stages.common.detector import DETECTOR_NAME
 from stages.common.heatmap_pnp import poses_from_heatmaps
 from stages.common.image_io import read_image, to_uint8
 from stages.common.pose_model import (
@@ -49,7 +50,8 @@ NORMALISATION: dict[Channels, tuple[tuple[float, ...], tuple[float, ...]]] = {
     "rgb": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)), "gray": ((0.449,), (0.226,))}
 #: model name of each variant (W/models/<name>.onnx) and its augmentation
 VARIANTS: dict[str, tuple[str, str]] = {"plain": ("reference", "photometric"),
-                                        "augmented": ("reference_augmented", "robust")}
+                                        "augmented": ("reference_augmented", "robust"),
+                                        DETECTOR_NAME: (DETECTOR_NAME, "robust")}
 
 
 def channels_of(config: Config) -> Channels:

@@ -52,3 +52,60 @@ def test_predictions_do_not_depend_on_the_thread_count(tmp_path):
 def test_threads_per_worker_share_the_cores(workers, monkeypatch):
     monkeypatch.setattr("os.cpu_count", lambda: 8)
     assert threads_per_worker(workers) == {0: 1, 1: 8, 2: 4, 64: 1}[workers]
+
+
+def fixed_box_detector(path, box_input_px, width: int = 64, height: int = 40) -> None:
+    """An ONNX detector (stages/common/detector.py's contract) that finds the same box, in
+    input pixels, in every image."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from stages.common.detector import DetectorContract
+
+    rows, cols = height // 4, width // 4
+    box = np.asarray(box_input_px, float)
+    centre = ((box[:2] + box[2:]) / 2 + 0.5) / 4 - 0.5
+    ys, xs = np.arange(rows)[:, None], np.arange(cols)[None, :]
+    heat = np.exp(-((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2) / 2.0)[None, None].astype(np.float32)
+    size = np.broadcast_to((box[2:] - box[:2])[None, :, None, None], (1, 2, rows, cols)).astype(np.float32)
+    nodes = [helper.make_node("ReduceMean", ["image"], ["mean"], axes=[1, 2, 3], keepdims=1),
+             helper.make_node("Mul", ["mean", "zero"], ["nothing"]),
+             helper.make_node("Add", ["nothing", "heat"], ["centre"]),
+             helper.make_node("Add", ["nothing", "size_map"], ["size"])]
+    graph = helper.make_graph(
+        nodes, "fixed_box", [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["N", 1, height, width])],
+        [helper.make_tensor_value_info("centre", TensorProto.FLOAT, ["N", 1, rows, cols]),
+         helper.make_tensor_value_info("size", TensorProto.FLOAT, ["N", 2, rows, cols])],
+        [numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero"),
+         numpy_helper.from_array(heat, "heat"), numpy_helper.from_array(size, "size_map")])
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    proto.ir_version = 8
+    for key, value in DetectorContract(width, height, "gray", (0.5,), (0.25,)).metadata().items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(proto, str(path))
+
+
+def test_the_detector_s_box_starts_the_self_crop(tmp_path):
+    """The self crop starts from the detector's box (mapped from its input to the image),
+    replacing the model's own search; the oracle crop never asks it."""
+    from stages.common.detector import Detector
+    from stages.common.pose_model import PoseModel
+    from stages.evaluate.scorer import _first_boxes
+
+    model_path, detector_path = tmp_path / "conv.onnx", tmp_path / "detector.onnx"
+    _conv_heatmap_model(model_path, "4")
+    # 320 x 200 images, a 64 x 40 input: 5 image pixels per input pixel
+    fixed_box_detector(detector_path, (20.0, 10.0, 36.0, 20.0))
+    items = _items(2)
+    images = [np.zeros((200, 320, 3), np.uint8)] * len(items)
+    crops = [item["crop"] for item in items]
+    labelled = [np.asarray(item["box"], float) for item in items]
+    boxes = _first_boxes(PoseModel(model_path), images, labelled, crops, K, DIST, Decoding(0.01),
+                         Detector(detector_path))
+    for box, crop, label in zip(boxes, crops, labelled, strict=True):
+        expected = (np.array([20.0, 10.0, 36.0, 20.0]) + 0.5) * 5 - 0.5 if crop == "self" else label
+        np.testing.assert_allclose(box, expected, atol=0.05)
+    scorer = Scorer(model_path.read_bytes(), "conv.onnx", 1, K, DIST, Decoding(0.01), detector_path.read_bytes())
+    rows = scorer.score(items)
+    assert [row["crop"] for row in rows] == crops and all(np.isfinite(row["score_speed"]) for row in rows)

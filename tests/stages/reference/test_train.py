@@ -10,6 +10,7 @@ import pytest
 
 from manifests import Workspace, read_manifest
 from pipeline.config import load_config
+from stages.common.detector import Detector
 from stages.common.pose_model import PoseModel
 from stages.common.workspace_target import planned_target
 from stages.reference.train import heatmap_targets
@@ -32,7 +33,7 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
     recipe = load_config("smoke").reference
     ws = Workspace(tmp_path / "w")
     rows = {row["model"]: row for row in read_manifest(ws, "models").to_pylist()}
-    assert set(rows) == {"reference", "reference_augmented"}
+    assert set(rows) == {"reference", "reference_augmented", "detector"}
     for name, augmentation in (("reference", "photometric"), ("reference_augmented", "robust")):
         path = out / f"tango_{name}.onnx"  # named by target: never the shipped models' names
         proto = onnx.load(str(path))
@@ -50,7 +51,14 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
         assert card["training_images"] == 9 and card["held_out"]["images"] == 1
         assert card["augmentation"] == augmentation
         assert ws.resolve(rows[name]["path"]).read_bytes() == path.read_bytes()
-    assert result.stdout.count("held-out synthetic") == 2
+    detector = Detector(out / "tango_detector.onnx")
+    assert detector.contract.channels == "gray" and detector.contract.width == recipe.detector_input_width
+    boxes, peaks = detector.boxes([np.zeros((200, 320, 3), np.uint8)] * 2)
+    assert boxes.shape == (2, 4) and np.all(np.isfinite(boxes)) and np.all((peaks >= 0) & (peaks <= 1))
+    card = json.loads((out / "tango_detector.json").read_text())
+    assert card["held_out"]["images"] == 1 and 0 <= card["held_out"]["median_box_iou"] <= 1
+    assert rows["detector"]["held_out_mean_speed_score"] is None
+    assert result.stdout.count("held-out synthetic") == 3
     again = speedplus("train-reference", "--workspace", str(ws.root), "--steps", "2", "--out", str(out))
     assert again.returncode == 0 and "train-reference: up to date" in again.stdout, again.stderr
     assert sorted(p.name for p in out.iterdir()) == sorted(f"tango_{n}.{e}" for n in rows for e in ("json", "onnx"))

@@ -1,0 +1,253 @@
+"""The detector's recipe (``reference.variants`` ``detector``): a centre heatmap and the
+box's size (``stages.common.detector``) learnt on the same rendered training set as the
+keypoint models, from whole images at reduced resolution, exported to ONNX with the
+detector contract.
+
+The network is ``KeypointNet``'s encoder-decoder with three output maps: the centre's
+logit and the log of the box's width and height. Losses after CenterNet (Zhou et al. 2019):
+the penalty-reduced focal loss on the centre heatmap (a Gaussian at the box's centre, of a
+sixth of the box's smaller side, at least one heatmap pixel) and an L1 loss on the log
+size at the centre's pixel and its eight neighbours. Augmentation: a random zoom (0.7 to
+1.4) about a random point and a shift, which move the box exactly (no in-plane rotation: it
+would not; the SO(3)-uniform poses already turn the target every way), then the keypoint
+model's robust recipe (Earth backgrounds, texture, style, glare, blur, noise): the testbed's
+room, lamp and sensor are what the detector has to see through.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from manifests import Workspace, read_manifest
+from manifests.files import temporary_name, write_json_atomic
+from pipeline.config import Config, ReferenceConfig
+from pipeline.progress import console, track
+from stages.common.detector import Detector, DetectorContract, decode_boxes, whole_image
+from stages.common.image_io import read_image, to_uint8
+from stages.common.pose_model import IR_VERSION, OPSET, Channels, normalise
+from stages.common.target import Target
+from stages.reference.augment import augment
+
+STRIDE = 4
+#: the log-size output is log(size / SIZE_UNIT) input pixels
+SIZE_UNIT = 32.0
+
+
+def detector_contract(recipe: ReferenceConfig, aspect: float, target: Target, channels: Channels,
+                      normalisation: tuple[tuple[float, ...], tuple[float, ...]]) -> DetectorContract:
+    """The contract of a detector of images of ``aspect`` (width / height)."""
+    height = max(16, int(round(recipe.detector_input_width / aspect / 16)) * 16)
+    return DetectorContract(recipe.detector_input_width, height, channels, *normalisation, target.name)
+
+
+def load_whole_images(workspace: Workspace, terms: DetectorContract) -> dict[str, np.ndarray]:
+    """Whole training images resized to the detector's input (N, H, W, C) uint8, their masks
+    (N, H, W) uint8 and boxes (N, 4) in input pixels (the mask's box, as a label's)."""
+    rows = sorted(read_manifest(workspace, "train").to_pylist(), key=lambda r: r["sample_id"])
+    if not rows:
+        raise ValueError(f"{workspace.manifest_dir('train')}: no training images; run render --set train")
+    depth = 3 if terms.channels == "rgb" else 1
+    out = {"images": np.empty((len(rows), terms.height, terms.width, depth), np.uint8),
+           "masks": np.empty((len(rows), terms.height, terms.width), np.uint8), "boxes": np.empty((len(rows), 4))}
+    for index, row in enumerate(track(rows, len(rows), "load whole training images", rows=[0] * len(rows))):
+        image = to_uint8(read_image(workspace.fetch(row["image_path"]), "bgr"))
+        mask = to_uint8(read_image(workspace.fetch(row["mask_path"]), "bgr"))
+        out["images"][index] = whole_image(image, terms)
+        out["masks"][index] = whole_image(mask, terms)[..., 0]
+        scale = np.array([terms.width / image.shape[1], terms.height / image.shape[0]] * 2)
+        out["boxes"][index] = (np.asarray(row["bbox_px"], float) + 0.5) * scale - 0.5
+    return out
+
+
+def zoom(images: np.ndarray, masks: np.ndarray, boxes: np.ndarray, rng: np.random.Generator,
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Images (N, H, W, C), masks (N, H, W) and boxes (N, 4) [px] zoomed by 0.7 to 1.4 about
+    a random point and shifted by up to a fifth of the image; black comes in from outside."""
+    n, height, width = images.shape[:3]
+    out_images, out_masks, out_boxes = np.empty_like(images), np.empty_like(masks), np.empty_like(boxes)
+    for index in range(n):
+        factor = math.exp(rng.uniform(math.log(0.7), math.log(1.4)))
+        about = rng.uniform((0, 0), (width - 1, height - 1))
+        warp = np.array([[factor, 0.0, 0.0], [0.0, factor, 0.0]])
+        warp[:, 2] = about * (1 - factor) + rng.uniform(-0.2, 0.2, 2) * (width, height)
+        out_images[index] = cv2.warpAffine(images[index], warp, (width, height), flags=cv2.INTER_LINEAR,
+                                           borderMode=cv2.BORDER_CONSTANT).reshape(images.shape[1:])
+        out_masks[index] = cv2.warpAffine(masks[index], warp, (width, height), flags=cv2.INTER_LINEAR,
+                                          borderMode=cv2.BORDER_CONSTANT)
+        out_boxes[index] = boxes[index] * factor + np.tile(warp[:, 2], 2)
+    return out_images, out_masks, out_boxes
+
+
+def targets(boxes: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The centre heatmaps (N, 1, h, w) (a Gaussian at the box's centre, which the decoding's
+    parabola through the logarithms recovers exactly), the log sizes (N, 2) and each box's
+    centre pixel (N, 2) (row, column; -1 when outside: the focal loss's one positive) for
+    boxes (N, 4) in input pixels."""
+    rows, cols = height // STRIDE, width // STRIDE
+    centres = ((boxes[:, :2] + boxes[:, 2:]) / 2 + 0.5) / STRIDE - 0.5
+    sizes = np.maximum(boxes[:, 2:] - boxes[:, :2], 1.0)
+    sigma = np.maximum(1.0, sizes.min(axis=1) / STRIDE / 6)
+    ys, xs = np.arange(rows, dtype=np.float64), np.arange(cols, dtype=np.float64)
+    heat = (np.exp(-((ys[None, :, None] - centres[:, None, None, 1]) ** 2) / (2 * sigma[:, None, None] ** 2))
+            * np.exp(-((xs[None, None, :] - centres[:, None, None, 0]) ** 2) / (2 * sigma[:, None, None] ** 2)))
+    cells = np.round(centres[:, ::-1]).astype(int)
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < rows) & (cells[:, 1] >= 0) & (cells[:, 1] < cols)
+    heat[~inside] = 0.0
+    cells[~inside] = -1
+    return heat[:, None].astype(np.float32), np.log(sizes / SIZE_UNIT).astype(np.float32), cells
+
+
+def _losses(output: Any, heat: Any, log_sizes: Any, cells: np.ndarray) -> Any:
+    """Focal loss on the centre plus L1 on the log size around each centre (torch)."""
+    import torch
+
+    probability = torch.sigmoid(output[:, :1]).clamp(1e-4, 1 - 1e-4)
+    positive = torch.zeros_like(heat)
+    for index, (row, col) in enumerate(cells):
+        if row >= 0:
+            positive[index, 0, row, col] = 1.0
+    focal = -(positive * (1 - probability) ** 2 * torch.log(probability)
+              + (1 - positive) * (1 - heat) ** 4 * probability ** 2 * torch.log(1 - probability)).sum()
+    count = max(1.0, float(positive.sum()))
+    size_terms = []
+    rows, cols = output.shape[-2:]
+    for index, (row, col) in enumerate(cells):
+        if row < 0:
+            continue
+        window = output[index, 1:3, max(0, row - 1):min(rows, row + 2), max(0, col - 1):min(cols, col + 2)]
+        size_terms.append((window - log_sizes[index][:, None, None]).abs().mean())
+    size = torch.stack(size_terms).mean() if size_terms else output.sum() * 0
+    return focal / count + size
+
+
+def train_detector(data: dict[str, np.ndarray], recipe: ReferenceConfig, terms: DetectorContract) -> tuple[Any, list]:
+    """The trained network (torch, eval mode: three maps at a quarter of the input) and its log."""
+    import torch
+
+    from stages.reference.network import KeypointNet
+
+    torch.manual_seed(recipe.seed)
+    torch.set_num_threads(recipe.threads)
+    rng = np.random.default_rng(recipe.seed)
+    model = KeypointNet(3, recipe.width, STRIDE, len(terms.mean))
+    steps_per_epoch = max(1, len(data["images"]) // recipe.batch_size)
+    total = recipe.detector_epochs * steps_per_epoch if recipe.max_steps == 0 else recipe.max_steps
+    optimiser = torch.optim.Adam(model.parameters(), lr=recipe.learning_rate)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda step: 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
+    log, step, started = [], 0, time.perf_counter()
+    model.train()
+    while step < total:
+        order = rng.permutation(len(data["images"]))
+        for first in range(0, steps_per_epoch * recipe.batch_size, recipe.batch_size):
+            if step >= total:
+                break
+            batch = order[first:first + recipe.batch_size]
+            images, masks, boxes = zoom(data["images"][batch], data["masks"][batch], data["boxes"][batch], rng)
+            x = torch.from_numpy(normalise(augment("robust", images, masks, rng), terms))
+            heat, log_sizes, cells = targets(boxes, terms.height, terms.width)
+            loss = _losses(model(x), torch.from_numpy(heat), torch.from_numpy(log_sizes), cells)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            step += 1
+            if step % steps_per_epoch == 0 or step == total:
+                log.append({"step": step, "epoch": step / steps_per_epoch, "loss": loss.item(),
+                            "seconds": time.perf_counter() - started})
+                console.print(f"train-reference detector: epoch {step / steps_per_epoch:.1f}/"
+                              f"{total / steps_per_epoch:.0f} loss {loss.item():.4f} "
+                              f"({time.perf_counter() - started:.0f} s)")
+    model.eval()
+    return model, log
+
+
+def export_detector(model: Any, terms: DetectorContract, out: Path, extra_metadata: dict[str, str]) -> None:
+    """ONNX (opset ``OPSET``, IR version ``IR_VERSION``) with outputs ``centre`` (the
+    heatmap, after its sigmoid) and ``size`` (input pixels) and the detector contract."""
+    import onnx
+    import torch
+
+    class Exported(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.net = model
+
+        def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            maps = self.net(x)
+            return torch.sigmoid(maps[:, :1]), torch.exp(maps[:, 1:3]) * SIZE_UNIT
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    temporary = temporary_name(out)
+    dummy = torch.zeros(1, len(terms.mean), terms.height, terms.width)
+    axes = {name: {0: "batch"} for name in ("image", "centre", "size")}
+    torch.onnx.export(Exported().eval(), (dummy,), str(temporary), input_names=["image"],
+                      output_names=["centre", "size"], dynamic_axes=axes, opset_version=OPSET, dynamo=False)
+    proto = onnx.load(str(temporary))
+    proto.ir_version = IR_VERSION
+    proto.producer_name = "speedplus train-reference"
+    del proto.metadata_props[:]
+    for key, value in {**terms.metadata(), **extra_metadata}.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.checker.check_model(proto)
+    onnx.save(proto, str(temporary))
+    temporary.replace(out)
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection over union of boxes (N, 4) and (N, 4) (x_min, y_min, x_max, y_max)."""
+    width = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0, None)
+    height = np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0, None)
+    inter = width * height
+    union = np.prod(a[:, 2:] - a[:, :2], axis=1) + np.prod(b[:, 2:] - b[:, :2], axis=1) - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1), 0.0)
+
+
+def held_out_boxes(path: Path, data: dict[str, np.ndarray]) -> dict[str, float]:
+    """The exported detector's box IoU on held-out whole images (in input pixels)."""
+    detector = Detector(path, threads=2)
+    found = []
+    for first in range(0, len(data["images"]), 32):
+        pixels = data["images"][first:first + 32]
+        centre, size = detector.session.run(None, {detector.input_name: normalise(pixels / 255.0, detector.contract)})
+        found.append(decode_boxes(centre, size, detector.contract.width, detector.contract.height)[0])
+    iou = box_iou(np.concatenate(found), data["boxes"])
+    return {"images": len(iou), "median_box_iou": float(np.median(iou)), "mean_box_iou": float(np.mean(iou)),
+            "share_box_iou_0.9": float(np.mean(iou >= 0.9)), "share_box_iou_0.5": float(np.mean(iou >= 0.5))}
+
+
+def run(config: Config, workspace: Workspace, out: Path, target: Target, channels: Channels,
+        normalisation: tuple[tuple[float, ...], tuple[float, ...]]) -> dict[str, Any]:
+    """Train the detector on the training set (the last tenth held out, as the keypoint
+    models'), export it to ``out`` and write its card beside it; returns the card."""
+    from stages.common.cameras import train_camera
+
+    camera = train_camera(config)
+    terms = detector_contract(config.reference, camera.width / camera.height, target, channels, normalisation)
+    data = load_whole_images(workspace, terms)
+    held = max(1, len(data["images"]) // 10)
+    training = {key: value[:-held] for key, value in data.items()}
+    held_out = {key: value[-held:] for key, value in data.items()}
+    started = time.perf_counter()
+    model, log = train_detector(training, config.reference, terms)
+    seconds = time.perf_counter() - started
+    export_detector(model, terms, out, {"speedplus.recipe": json.dumps(asdict(config.reference))})
+    card = {"model": str(out.name), "variant": "detector", "augmentation": "robust",
+            "training_images": len(training["images"]), "held_out_images": held,
+            "train_seconds": round(seconds, 1), "recipe": asdict(config.reference),
+            "held_out": held_out_boxes(out, held_out),
+            "camera": {"sensor": config.camera.sensor, "gamma": config.camera.gamma},
+            "render": {"count": config.render.train_count, "seed": config.render.seed,
+                       "resolution_scale": config.render.train_resolution_scale, "spp": config.render.train_spp},
+            "log": log}
+    write_json_atomic(out.with_suffix(".json"), card)
+    return card

@@ -1,0 +1,74 @@
+"""The detector's contract: boxes decoded from its maps, mapped to the image, and the
+metadata it is refused without."""
+
+import numpy as np
+import pytest
+
+from speedplus.errors import InputError
+from stages.common.detector import DetectorContract, decode_boxes, parse_detector_contract, to_image, whole_image
+from stages.reference.detect import SIZE_UNIT, box_iou, targets, zoom
+
+
+def test_the_training_targets_decode_to_their_boxes():
+    """Seeded: a box's centre heatmap and size decode back to it within a hundredth of a
+    pixel (the parabola through the logarithms is exact at a Gaussian) and its size exactly."""
+    rng = np.random.default_rng(3)
+    height, width = 160, 256
+    for _ in range(50):
+        centre = rng.uniform((20, 20), (width - 20, height - 20))
+        size = rng.uniform(20, 120, 2)
+        box = np.concatenate([centre - size / 2, centre + size / 2])[None]
+        heat, log_sizes, cells = targets(box, height, width)
+        size_map = np.broadcast_to((np.exp(log_sizes) * SIZE_UNIT)[:, :, None, None], (1, 2, *heat.shape[2:]))
+        decoded, peaks = decode_boxes(heat, size_map, width, height)
+        assert peaks[0] > 0.5 and tuple(cells[0]) != (-1, -1)
+        np.testing.assert_allclose(decoded[0, 2:] - decoded[0, :2], size, rtol=1e-5)
+        assert np.abs((decoded[0, :2] + decoded[0, 2:]) / 2 - centre).max() < 0.01
+        assert box_iou(decoded, box)[0] > 0.999
+
+
+def test_boxes_map_to_the_image_with_pixel_centres_aligned():
+    contract = DetectorContract(256, 160, "gray", (0.449,), (0.226,))
+    whole = np.array([[-0.5, -0.5, 255.5, 159.5]])  # the input's whole extent
+    np.testing.assert_allclose(to_image(whole, contract, 960, 600), [[-0.5, -0.5, 959.5, 599.5]])
+
+
+def test_a_white_square_is_where_the_whole_image_puts_it():
+    contract = DetectorContract(256, 160, "gray", (0.449,), (0.226,))
+    image = np.zeros((600, 960, 3), np.uint8)
+    image[150:300, 375:600] = 255
+    pixels = whole_image(image, contract)
+    assert pixels.shape == (160, 256, 1)
+    rows, cols = np.nonzero(pixels[..., 0] > 127)
+    box = to_image(np.array([[cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5]]), contract,
+                   960, 600)[0]
+    np.testing.assert_allclose(box, [374.5, 149.5, 599.5, 299.5], atol=2.0)
+
+
+def test_zoom_moves_each_box_with_its_mask():
+    rng = np.random.default_rng(5)
+    masks = np.zeros((6, 160, 256), np.uint8)
+    boxes = np.empty((6, 4))
+    for index in range(6):
+        x0, y0 = rng.integers(40, 150), rng.integers(30, 90)
+        masks[index, y0:y0 + 40, x0:x0 + 60] = 255
+        boxes[index] = (x0 - 0.5, y0 - 0.5, x0 + 59.5, y0 + 39.5)
+    images = np.repeat(masks[..., None], 1, axis=-1)
+    _, zoomed, moved = zoom(images, masks, boxes, rng)
+    for mask, box in zip(zoomed, moved, strict=True):
+        rows, cols = np.nonzero(mask > 127)
+        if len(rows) == 0:
+            continue
+        seen = np.array([cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5])
+        clipped = np.clip(box, [-0.5, -0.5, -0.5, -0.5], [255.5, 159.5, 255.5, 159.5])
+        assert np.abs(seen - clipped).max() <= 1.5
+
+
+def test_metadata_without_the_contract_is_refused_naming_the_file_and_key():
+    good = DetectorContract(256, 160, "gray", (0.449,), (0.226,)).metadata()
+    assert parse_detector_contract(good, "d.onnx") == DetectorContract(256, 160, "gray", (0.449,), (0.226,))
+    for key in good:
+        with pytest.raises(InputError, match=f"d.onnx: .*{key}"):
+            parse_detector_contract({k: v for k, v in good.items() if k != key}, "d.onnx")
+    with pytest.raises(InputError, match="speedplus.channels=rgb"):
+        parse_detector_contract({**good, "speedplus.channels": "rgb"}, "d.onnx")
