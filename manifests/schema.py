@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 #: 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas; 1.11: scores'
-#: intervals, median and failure share; 1.12: models' detector rows (the box IoU; no SPEED score)
+#: intervals, median and failure share; 1.12: models' detector rows (the box IoU; no SPEED score),
+#: predictions' scores under each RANSAC seed
 SCHEMA_VERSION = "1.12"
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
@@ -334,6 +335,11 @@ PREDICTIONS = ManifestSpec(
         Column("err_t_norm", pa.float64(), "1", "|t_true - t_pred| / |t_true| (1 when no pose)"),
         Column("score_speed", pa.float64(), "1", "SPEED (2019) score, err_q_rad + err_t_norm"),
         Column("score_speedplus", pa.float64(), "1", "SPEED+ (2021) score, terms zeroed under thresholds"),
+        Column("score_speed_seeds", pa.list_(pa.float64()), "1", "SPEED score of the pose decoded under each RANSAC "
+               "seed (evaluate.ransac_seeds; the first is score_speed): Table 2 averages them and its intervals "
+               "draw among them", nullable=True),
+        Column("score_speedplus_seeds", pa.list_(pa.float64()), "1", "SPEED+ score under each seed, as "
+               "score_speed_seeds", nullable=True),
         Column("seconds", pa.float64(), "s", "inference time of this image (its share of the batch)"),
     ),
     key="prediction_id",
@@ -353,11 +359,11 @@ SCORES = ManifestSpec(
                "others are scored as the worst case, e_q = pi and e_t = 1"),
         Column("refused_share", pa.float64(), "1", "share of images whose decoded pose was refused (see "
                "predictions.pose_refused)"),
-        Column("mean_score_speed", pa.float64(), "1", "mean SPEED score"),
+        Column("mean_score_speed", pa.float64(), "1", "mean SPEED score (of each image's mean over its RANSAC seeds)"),
         Column("mean_score_speed_low", pa.float64(), "1", "lower end of its 95% interval: BCa bootstrap over the "
                "images, stratified by configuration (stages/evaluate/intervals.py)"),
         Column("mean_score_speed_high", pa.float64(), "1", "upper end of that interval"),
-        Column("median_score_speed", pa.float64(), "1", "median SPEED score"),
+        Column("median_score_speed", pa.float64(), "1", "median SPEED score (of each image's mean over its seeds)"),
         Column("mean_score_speedplus", pa.float64(), "1", "mean SPEED+ score"),
         Column("mean_score_speedplus_low", pa.float64(), "1", "lower end of its 95% interval (as for SPEED)"),
         Column("mean_score_speedplus_high", pa.float64(), "1", "upper end of that interval"),
@@ -395,7 +401,8 @@ COMPARISONS = ManifestSpec(
         Column("mean_difference_speedplus", pa.float64(), "1", "mean of the per-image SPEED+ score differences"),
         Column("mean_difference_speedplus_low", pa.float64(), "1", "lower end of its 95% interval"),
         Column("mean_difference_speedplus_high", pa.float64(), "1", "upper end of that interval"),
-        Column("better_share", pa.float64(), "1", "share of the images where the model's SPEED score is lower"),
+        Column("better_share", pa.float64(), "1", "share of the images where the model's SPEED score (mean over "
+               "its seeds) is lower"),
     ),
     key="group",
 )

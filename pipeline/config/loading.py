@@ -253,6 +253,7 @@ def _check(config: Config) -> Config:
         raise ConfigError(f"evaluate.tracking_gate_probability: expected a probability in (0, 1), got "
                           f"{e.tracking_gate_probability}")
     _at_least(config, {"evaluate.threads": 0, "evaluate.batch_size": 1, "evaluate.ransac_seed": 0,
+                       "evaluate.ransac_seeds": 1,
                        "run.workers": 0, "run.worker_max_tasks": 1, "run.worker_cpus": 1, "run.part_rows": 1,
                        "virtual.spp": 1, "virtual.max_depth": 1, "virtual.rr_depth": 1, "calibrate.folds": 2,
                        "render.spp": 1, "render.train_spp": 1, "render.max_depth": 1, "render.train_count": 0})

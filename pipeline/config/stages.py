@@ -344,6 +344,9 @@ class EvaluateConfig:
                         "quarter turns and its heatmaps, turned back, are averaged; off: one pass", "")
     ransac_seed: int = param(0, "seed of the RANSAC draws that turn heatmaps into poses: the scores of another seed "
                              "show how much of a difference between models or runs is the draw's", "")
+    ransac_seeds: int = param(4, "each image's final pass is decoded under this many RANSAC seeds (ransac_seed, "
+                              "ransac_seed + 1, ...): a prediction's pose is the first's; Table 2's means average "
+                              "them and its intervals draw among them, so that they hold the decoder's spread", "count")
     tracking_rotation_sigma_rad: float = param(
         math.radians(3.0), "plan.mode = trajectory, the tracking filter: a per-frame rotation's error, per axis", "rad")
     tracking_lateral_sigma: float = param(

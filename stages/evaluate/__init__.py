@@ -203,7 +203,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
             # fixed batches (in label order): a batch's outputs do not depend on the engine or the workers
             batches = [items[i:i + batch] for i in range(0, len(items), batch)]
             threads = config.evaluate.threads or -threads_per_worker(config.run.workers)
-            decoding = Decoding(config.evaluate.ransac_fraction, config.evaluate.turns, config.evaluate.ransac_seed)
+            decoding = Decoding(config.evaluate.ransac_fraction, config.evaluate.turns, config.evaluate.ransac_seed,
+                                config.evaluate.ransac_seeds)
             args = (path.read_bytes(), str(path), threads, camera.camera_matrix, camera.dist, decoding,
                     None if detector is None else detector.read_bytes())
             results = map_config(config, open_scorer, args, "score", batches, renders=False,

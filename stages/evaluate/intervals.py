@@ -10,7 +10,15 @@ configuration gets), so each resample draws every configuration's mean from that
 configuration's images only: ``n - 1`` draws of its ``n`` (McCarthy and Snowden 1985: the
 mean of ``n`` draws would show ``(n - 1) / n`` of its mean's variance, 0.92 for 12 images),
 so that a resample stays among the values seen (a mean score is never negative). A
-configuration of one image adds no spread. The
+configuration of one image adds no spread.
+
+The decoder draws too (RANSAC). An image's value is its score averaged over the poses
+decoded under ``evaluate.ransac_seeds`` seeds, an estimate of its expected score over the
+decoder's draws; resampling the images resamples their draws with them, which is the
+nearly unbiased way to bootstrap such two-stage data (Davison and Hinkley, Bootstrap
+Methods and their Application, 1997, section 3.8: resampling the draws again within each
+image would count their spread twice). So each interval holds the decoder's spread, and
+averaging seeds makes the figure itself move less from one seed to another. The
 resamples are seeded from the figure's name, so an interval is the same bytes whatever
 the order the figures are computed in or the images come in.
 """
@@ -68,6 +76,9 @@ def mean_interval(values: Sequence[float], strata: Sequence[str], name: str) -> 
     values = np.asarray(values, float)
     if len(values) == 0:
         raise ValueError(f"{name}: no values")
+    # one canonical order (stratum, value): the last bits never depend on the rows' order
+    order = np.lexsort((values, np.asarray(strata)))
+    values, strata = values[order], [strata[i] for i in order]
     mean = math.fsum(values) / len(values)
     means = _resampled_means(values, strata, seed_of(name))
     low, high = np.quantile(means, _bca_levels(values, strata, means, mean))
@@ -104,6 +115,14 @@ def paired_interval(model: Sequence[float], reference: Sequence[float], strata: 
     interval: below zero where the model scores lower (better) than the reference."""
     difference = np.asarray(model, float) - np.asarray(reference, float)
     return mean_interval(difference, strata, name)
+
+
+def seed_means(rows: Sequence[dict], key: str) -> np.ndarray:
+    """Each prediction's score ``key`` (``speed`` or ``speedplus``) averaged over the poses
+    decoded under its RANSAC seeds (N,); a row without them (written before they were
+    recorded), its one score."""
+    return np.array([math.fsum(row[f"score_{key}_seeds"]) / len(row[f"score_{key}_seeds"])
+                     if row.get(f"score_{key}_seeds") else row[f"score_{key}"] for row in rows], float)
 
 
 def failed(err_q_rad: Sequence[float], err_t_norm: Sequence[float]) -> np.ndarray:

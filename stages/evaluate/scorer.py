@@ -38,6 +38,9 @@ class Decoding:
     turns: bool = True
     #: seed of RANSAC's draws
     ransac_seed: int = 0
+    #: the final pass is decoded with this many seeds (ransac_seed, ransac_seed + 1, ...): the
+    #: row's pose is the first's; the others' scores carry the decoder's spread into the intervals
+    seeds: int = 1
 
 
 class Scorer:
@@ -128,10 +131,26 @@ def _search(model: PoseModel, image: np.ndarray, camera_matrix: np.ndarray, dist
 
 
 def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
-           dist: np.ndarray, decoding: Decoding) -> tuple[list[PnPSolution | None], list[np.ndarray]]:
+           dist: np.ndarray, decoding: Decoding, seeds: int = 1) -> tuple[list[list[PnPSolution | None]],
+                                                                         list[np.ndarray]]:
     """One pass of the model on crops around ``boxes`` (the contract's crop), its heatmaps
-    averaged over quarter turns when the model asks for it and ``turns``: the poses, and the
-    keypoints (K, 2) in image pixels."""
+    averaged over quarter turns when the model asks for it and ``turns``: the poses under
+    each of ``seeds`` RANSAC seeds (the first ``decoding.ransac_seed``; a decoding that
+    draws nothing gives the same poses for each), and the keypoints (K, 2) in image pixels."""
+    solutions, keypoints, heatmaps, affines = _solve_once(model, images, boxes, camera_matrix, dist, decoding)
+    by_seed = [solutions]
+    if model.contract.output == "heatmaps" and seeds > 1:
+        thresholds = [decoding.ransac_fraction * image.shape[1] for image in images]
+        by_seed += [poses_from_heatmaps(heatmaps, affines, model.contract, camera_matrix, dist, thresholds,
+                                        decoding.ransac_seed + offset)[0] for offset in range(1, seeds)]
+    return by_seed + [solutions] * (seeds - len(by_seed)), keypoints
+
+
+def _solve_once(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], camera_matrix: np.ndarray,
+                dist: np.ndarray, decoding: Decoding) -> tuple[list[PnPSolution | None], list[np.ndarray],
+                                                               np.ndarray, list[np.ndarray]]:
+    """``_solve`` under the one seed ``decoding.ransac_seed``, with the model's first output
+    and the crops' input-to-image maps."""
     contract = model.contract
     tensors, affines = model.preprocess(images, boxes)
     outputs = model.infer(tensors, decoding.turns)
@@ -141,12 +160,12 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
             direct = bool(np.all(np.isfinite(q)) and np.all(np.isfinite(t)) and np.linalg.norm(q) > 0)
             solutions.append(PnPSolution(g.quat_normalize(q), np.asarray(t, float), "direct", 0, float("nan"))
                              if direct else None)
-        return solutions, [np.full((len(contract.keypoints_m), 2), np.nan)] * len(images)
+        return solutions, [np.full((len(contract.keypoints_m), 2), np.nan)] * len(images), outputs[0], affines
     if contract.output == "heatmaps":
         solutions, in_images = poses_from_heatmaps(outputs[0], affines, contract, camera_matrix, dist,
                                                    [decoding.ransac_fraction * image.shape[1] for image in images],
                                                    decoding.ransac_seed)
-        return solutions, list(in_images)
+        return solutions, list(in_images), outputs[0], affines
     points = np.asarray(outputs[0], float)
     confidences = np.ones(points.shape[:2])
     solutions, in_images = [], []
@@ -155,7 +174,7 @@ def _solve(model: PoseModel, images: list[np.ndarray], boxes: list[np.ndarray], 
         in_images.append(in_image)
         solutions.append(pose_from_keypoints(in_image, contract.keypoints_m, camera_matrix, dist,
                                              decoding.ransac_fraction * image.shape[1], confidence))
-    return solutions, in_images
+    return solutions, in_images, outputs[0], affines
 
 
 def _found_box(model: PoseModel, solution: PnPSolution | None, keypoints: np.ndarray, camera_matrix: np.ndarray,
@@ -213,7 +232,9 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
     # the detector's box or the search is the self crop's first pass; without them, the whole image
     passes = (SELF_PASSES - 1 if searchable or detector is not None else SELF_PASSES) if "self" in crops else 1
     for index in range(passes):
-        solutions, keypoints = _solve(model, images, boxes, camera_matrix, dist, decoding)
+        by_seed, keypoints = _solve(model, images, boxes, camera_matrix, dist, decoding,
+                                    decoding.seeds if index == passes - 1 else 1)
+        solutions = by_seed[0]
         if index < passes - 1:
             boxes = [_found_box(model, solution, points, camera_matrix, dist, image.shape[1], image.shape[0])
                      if crop == "self" else box
@@ -221,17 +242,13 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
                                                                     strict=True)]
     seconds = (time.perf_counter() - started) / len(items)
     rows = []
-    for item, solution, crop, box, label_box, image in zip(items, solutions, crops, boxes, labelled, images,
-                                                           strict=True):
-        refused = None if solution is None else refusal(
-            solution, model.contract.keypoints_m, None if crop == "full" else box, camera_matrix, dist,
-            image.shape[1], image.shape[0])
+    for index, (item, solution, crop, box, label_box, image) in enumerate(zip(items, solutions, crops, boxes, labelled,
+                                                                              images, strict=True)):
+        seen = None if crop == "full" else box
+        refused, numbers = _scored(solution, item, model, seen, camera_matrix, dist, image.shape)
         found = solution is not None and refused is None
-        if found:
-            numbers = {k: float(v) for k, v in score(solution.q, solution.t, item["q_true"], item["t_true"]).items()}
-        else:
-            numbers = {"err_q_rad": float(np.pi), "err_t_norm": 1.0}
-            numbers |= {"score_speed": np.pi + 1.0, "score_speedplus": np.pi + 1.0}
+        draws = [numbers] + [_scored(other[index], item, model, seen, camera_matrix, dist, image.shape)[1]
+                             for other in by_seed[1:]]
         keypoint_pose = found and solution.method != "direct"
         rows.append({"prediction_id": f"{item['model']}:{crop}:{item['domain']}:{item['sample_id']}",
                      "model": item["model"], "sample_id": item["sample_id"], "domain": item["domain"],
@@ -242,5 +259,18 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
                      "pnp_inliers": solution.inliers if keypoint_pose else None,
                      "reprojection_rms_px": solution.rms_px if keypoint_pose else None,
                      "q_pred": solution.q if found else None, "t_pred": solution.t if found else None,
-                     **numbers, "seconds": seconds})
+                     **numbers, "score_speed_seeds": [d["score_speed"] for d in draws],
+                     "score_speedplus_seeds": [d["score_speedplus"] for d in draws], "seconds": seconds})
     return rows
+
+
+def _scored(solution: PnPSolution | None, item: dict[str, Any], model: PoseModel, box: np.ndarray | None,
+            camera_matrix: np.ndarray, dist: np.ndarray, shape: tuple[int, ...]) -> tuple[str | None, dict[str, float]]:
+    """Why the image cannot support ``solution`` (None: it can) and its scores: a pose
+    refused or missing scores the worst case, ``e_q = pi``, ``e_t = 1`` (support.py)."""
+    refused = None if solution is None else refusal(solution, model.contract.keypoints_m, box, camera_matrix, dist,
+                                                    shape[1], shape[0])
+    if solution is not None and refused is None:
+        return None, {k: float(v) for k, v in score(solution.q, solution.t, item["q_true"], item["t_true"]).items()}
+    return refused, {"err_q_rad": float(np.pi), "err_t_norm": 1.0, "score_speed": np.pi + 1.0,
+                     "score_speedplus": np.pi + 1.0}

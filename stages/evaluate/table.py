@@ -14,7 +14,7 @@ from rich.table import Table
 from manifests import to_table
 from manifests.schema import SCORES
 from stages.common.tables import TESTBED, table2_groups
-from stages.evaluate.intervals import failed, mean_interval
+from stages.evaluate.intervals import failed, mean_interval, seed_means
 
 
 def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view: str,
@@ -27,14 +27,15 @@ def _group(rows: list[dict[str, Any]], model: str, crop: str, domain: str, view:
     err_q = np.degrees([r["err_q_rad"] for r in chosen])
     group = f"{model}/{crop}/{domain}/{view}/{light}"
     strata = [f"{r['view']}, {r['light']}" for r in chosen]
-    speed = mean_interval([r["score_speed"] for r in chosen], strata, f"{group}/speed")
-    speedplus = mean_interval([r["score_speedplus"] for r in chosen], strata, f"{group}/speedplus")
+    speed_values = seed_means(chosen, "speed")
+    speed = mean_interval(speed_values, strata, f"{group}/speed")
+    speedplus = mean_interval(seed_means(chosen, "speedplus"), strata, f"{group}/speedplus")
     return {"group": group, "model": model, "crop": crop, "domain": domain,
             "view": view, "light": light, "count": len(chosen),
             "pose_found_share": float(np.mean([r["pose_found"] for r in chosen])),
             "refused_share": float(np.mean([r.get("pose_refused") is not None for r in chosen])),
             "mean_score_speed": speed.value, "mean_score_speed_low": speed.low, "mean_score_speed_high": speed.high,
-            "median_score_speed": float(np.median([r["score_speed"] for r in chosen])),
+            "median_score_speed": float(np.median(speed_values)),
             "mean_score_speedplus": speedplus.value, "mean_score_speedplus_low": speedplus.low,
             "mean_score_speedplus_high": speedplus.high,
             "failure_share": float(np.mean(failed([r["err_q_rad"] for r in chosen],

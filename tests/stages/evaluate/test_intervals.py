@@ -3,7 +3,7 @@ itself differs by nothing, and an interval does not depend on the order it is co
 
 import numpy as np
 
-from stages.evaluate.intervals import failed, mean_interval, paired_interval
+from stages.evaluate.intervals import failed, mean_interval, paired_interval, seed_means
 
 STRATA = ["solar_panel, lightbox"] * 12 + ["solar_panel, sunlamp"] * 12 + ["rear_panel, lightbox"] * 12 + \
     ["rear_panel, sunlamp"] * 12
@@ -64,3 +64,30 @@ def test_an_interval_stays_among_the_values_seen_even_on_two_images_a_configurat
         values = rng.gamma(0.5, 0.3, size=8)
         interval = mean_interval(values, strata, f"smoke {draw}")
         assert values.min() <= interval.low <= interval.value <= interval.high <= values.max()
+
+
+def test_averaging_seeds_keeps_the_expected_score_covered_and_steadies_the_figure():
+    """Images of random difficulty, each decoded under 4 seeds whose draws go wrong with
+    some chance (as RANSAC's): the interval of the seed-averaged mean covers the expected
+    score over images and draws (known here) in 90-98% of 300 draws, and over seed sets of
+    the same images the seed-averaged mean moves less than one seed's."""
+    rng = np.random.default_rng(13)
+    inside, averaged, single = [], [], []
+    for draw in range(300):
+        difficulty = rng.gamma(1.0, 0.1, size=48)
+        draws = difficulty[:, None] + (rng.random((48, 4)) < 0.15) * 2.0
+        rows = [{"score_speed": d[0], "score_speed_seeds": list(d)} for d in draws]
+        interval = mean_interval(seed_means(rows, "speed"), STRATA, f"draw {draw}")
+        inside.append(interval.low <= 0.1 + 0.15 * 2.0 <= interval.high)
+    assert 0.90 <= np.mean(inside) <= 0.98, np.mean(inside)
+    difficulty = rng.gamma(1.0, 0.1, size=48)
+    for _ in range(200):
+        draws = difficulty[:, None] + (rng.random((48, 4)) < 0.15) * 2.0
+        averaged.append(draws.mean())
+        single.append(draws[:, 0].mean())
+    assert np.std(averaged) < 0.6 * np.std(single)
+
+
+def test_the_seed_mean_of_a_row_without_seeds_is_its_score():
+    rows = [{"score_speed": 0.5, "score_speed_seeds": None}, {"score_speed": 0.1, "score_speed_seeds": [0.1, 0.3]}]
+    np.testing.assert_allclose(seed_means(rows, "speed"), [0.5, 0.2])

@@ -109,3 +109,15 @@ def test_the_detector_s_box_starts_the_self_crop(tmp_path):
     scorer = Scorer(model_path.read_bytes(), "conv.onnx", 1, K, DIST, Decoding(0.01), detector_path.read_bytes())
     rows = scorer.score(items)
     assert [row["crop"] for row in rows] == crops and all(np.isfinite(row["score_speed"]) for row in rows)
+
+
+def test_each_image_is_decoded_under_every_seed_and_its_pose_is_the_first_seed_s(tmp_path):
+    path = tmp_path / "conv.onnx"
+    _conv_heatmap_model(path, "4")
+    items = _items(3)
+    one = Scorer(path.read_bytes(), "conv.onnx", 1, K, DIST, Decoding(0.01, ransac_seed=5)).score(items)
+    three = Scorer(path.read_bytes(), "conv.onnx", 1, K, DIST, Decoding(0.01, ransac_seed=5, seeds=3)).score(items)
+    for single, row in zip(one, three, strict=True):
+        assert row["score_speed_seeds"][0] == row["score_speed"] == single["score_speed"]
+        assert len(row["score_speed_seeds"]) == len(row["score_speedplus_seeds"]) == 3
+        assert row["q_pred"] is None or np.array_equal(row["q_pred"], single["q_pred"])
