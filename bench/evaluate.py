@@ -38,7 +38,8 @@ def main(*args: str) -> None:
     export(model, recipe, path, planned_target(load_config("default")), {})
     onnx_model = PoseModel(path, threads=threads)
     c = onnx_model.contract
-    x = np.random.default_rng(0).normal(size=(batch, 3, c.height, c.width)).astype(np.float32)
+    depth = 3 if c.channels == "rgb" else 1
+    x = np.random.default_rng(0).normal(size=(batch, depth, c.height, c.width)).astype(np.float32)
     onnx_model.infer(x)  # warm-up
     started = time.perf_counter()
     for _ in range(repeats):
