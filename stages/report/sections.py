@@ -71,8 +71,9 @@ DEFINITIONS = (
     "E_T: the label's position error (mm); E_R: its rotation error (deg); E_p: the reprojection error of the "
     "calibration board's corners (px). e_q = 2 arccos |<q_pred, q_true>| (rad); e_t = |t_true - t_pred| / |t_true|. "
     "SPEED score: e_q + e_t. SPEED+ score: the same, each term set to zero under its threshold (0.169 deg, "
-    "2.173e-3). Failed: e_q over 10 deg or e_t over 10%, or no pose (scored as the worst case, pi + 1). Intervals: "
-    "95%, bootstrap over the images, stratified by configuration.")
+    "2.173e-3). Failed: e_q over 10 deg or e_t over 10%, or no pose (scored as the worst case, pi + 1). An image's "
+    "score in the means: its mean over the poses decoded under several RANSAC seeds (evaluate.ransac_seeds). "
+    "Intervals: 95%, bootstrap over the images, stratified by configuration; they hold the decoder's spread too.")
 
 
 def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
@@ -96,8 +97,9 @@ def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
                          f"{_no_pose(synthetic)} / {_no_pose(testbed)}"])
     header = ["configuration (view, light)", "model", "images", "synthetic: mean [95%]", "testbed: mean [95%]",
               "gap", "median (syn / test)", "failed (syn / test)", "no pose (syn / test)"]
-    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a search over windows "
-           "of the whole image, then passes around what it found", "full": "the whole image"}.get(crop, crop)
+    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: the detector's box "
+           "(without a detector, a search over windows of the whole image), then passes around what it found",
+           "full": "the whole image"}.get(crop, crop)
     notes = []
     if crop == "self":
         for model in models:
