@@ -309,9 +309,9 @@ class ReferenceConfig:
         "augmented (style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx) and "
         "detector (the target's box in the whole image, the self crop: models/detector.onnx)", "")
     detector_input_width: int = param(
-        256, "detector: the whole image is resized to this width (the height keeps the camera's aspect, in "
-        "multiples of 16)", "px")
-    detector_epochs: int = param(30, "detector: passes over the training images", "count")
+        192, "detector: the whole image is resized to this width (the height keeps the camera's aspect, in "
+        "multiples of 16); the keypoint passes after it refine its box", "px")
+    detector_epochs: int = param(20, "detector: passes over the training images", "count")
     seed: int = param(0, "seed of initialisation, shuffling and augmentation", "")
     threads: int = param(2, "torch threads", "count")
     max_steps: int = param(0, "stop after this many optimiser steps (a quick check of the recipe); 0: the "
