@@ -311,7 +311,7 @@ class ReferenceConfig:
     detector_input_width: int = param(
         192, "detector: the whole image is resized to this width (the height keeps the camera's aspect, in "
         "multiples of 16); the keypoint passes after it refine its box", "px")
-    detector_epochs: int = param(20, "detector: passes over the training images", "count")
+    detector_epochs: int = param(15, "detector: passes over the training images", "count")
     seed: int = param(0, "seed of initialisation, shuffling and augmentation", "")
     threads: int = param(2, "torch threads", "count")
     max_steps: int = param(0, "stop after this many optimiser steps (a quick check of the recipe); 0: the "

@@ -1,17 +1,15 @@
-"""The detector's recipe (``reference.variants`` ``detector``): a centre heatmap and the
-box's size (``stages.common.detector``) learnt on the same rendered training set as the
+"""The detector's recipe (``reference.variants`` ``detector``): a heatmap of the target's
+pixels (``stages.common.detector``) learnt on the same rendered training set as the
 keypoint models, from whole images at reduced resolution, exported to ONNX with the
 detector contract.
 
-The network is ``KeypointNet``'s encoder-decoder with three output maps: the centre's
-logit and the log of the box's width and height. Losses after CenterNet (Zhou et al. 2019):
-the penalty-reduced focal loss on the centre heatmap (a Gaussian at the box's centre, of a
-sixth of the box's smaller side, at least one heatmap pixel) and an L1 loss on the log
-size at the centre's pixel and its eight neighbours. Augmentation: a random zoom (0.7 to
-1.4) about a random point and a shift, which move the box exactly (no in-plane rotation: it
-would not; the SO(3)-uniform poses already turn the target every way), then the keypoint
-model's robust recipe (Earth backgrounds, texture, style, glare, blur, noise): the testbed's
-room, lamp and sensor are what the detector has to see through.
+The network is ``KeypointNet``'s encoder-decoder with one output map at half the input's
+resolution; its target is the render's mask averaged over each heatmap pixel (the share of
+it the target covers), its loss the binary cross-entropy. Augmentation: a random zoom (0.7
+to 1.4) about a random point and a shift, applied alike to the image and the mask (no
+in-plane rotation: the SO(3)-uniform poses already turn the target every way), then the
+keypoint model's robust recipe (Earth backgrounds, texture, style, glare, blur, noise): the
+testbed's room, lamp and sensor are what the detector has to see through.
 """
 
 from __future__ import annotations
@@ -36,9 +34,8 @@ from stages.common.pose_model import IR_VERSION, OPSET, Channels, normalise
 from stages.common.target import Target
 from stages.reference.augment import augment
 
-STRIDE = 4
-#: the log-size output is log(size / SIZE_UNIT) input pixels
-SIZE_UNIT = 32.0
+#: input pixels per mask pixel
+STRIDE = 2
 
 
 def detector_contract(recipe: ReferenceConfig, aspect: float, target: Target, channels: Channels,
@@ -86,50 +83,17 @@ def zoom(images: np.ndarray, masks: np.ndarray, boxes: np.ndarray, rng: np.rando
     return out_images, out_masks, out_boxes
 
 
-def targets(boxes: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The centre heatmaps (N, 1, h, w) (a Gaussian at the box's centre, which the decoding's
-    parabola through the logarithms recovers exactly), the log sizes (N, 2) and each box's
-    centre pixel (N, 2) (row, column; -1 when outside: the focal loss's one positive) for
-    boxes (N, 4) in input pixels."""
-    rows, cols = height // STRIDE, width // STRIDE
-    centres = ((boxes[:, :2] + boxes[:, 2:]) / 2 + 0.5) / STRIDE - 0.5
-    sizes = np.maximum(boxes[:, 2:] - boxes[:, :2], 1.0)
-    sigma = np.maximum(1.0, sizes.min(axis=1) / STRIDE / 6)
-    ys, xs = np.arange(rows, dtype=np.float64), np.arange(cols, dtype=np.float64)
-    heat = (np.exp(-((ys[None, :, None] - centres[:, None, None, 1]) ** 2) / (2 * sigma[:, None, None] ** 2))
-            * np.exp(-((xs[None, None, :] - centres[:, None, None, 0]) ** 2) / (2 * sigma[:, None, None] ** 2)))
-    cells = np.round(centres[:, ::-1]).astype(int)
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < rows) & (cells[:, 1] >= 0) & (cells[:, 1] < cols)
-    heat[~inside] = 0.0
-    cells[~inside] = -1
-    return heat[:, None].astype(np.float32), np.log(sizes / SIZE_UNIT).astype(np.float32), cells
-
-
-def _losses(output: Any, heat: Any, log_sizes: Any, cells: np.ndarray) -> Any:
-    """Focal loss on the centre plus L1 on the log size around each centre (torch)."""
-    import torch
-
-    probability = torch.sigmoid(output[:, :1]).clamp(1e-4, 1 - 1e-4)
-    positive = torch.zeros_like(heat)
-    for index, (row, col) in enumerate(cells):
-        if row >= 0:
-            positive[index, 0, row, col] = 1.0
-    focal = -(positive * (1 - probability) ** 2 * torch.log(probability)
-              + (1 - positive) * (1 - heat) ** 4 * probability ** 2 * torch.log(1 - probability)).sum()
-    count = max(1.0, float(positive.sum()))
-    size_terms = []
-    rows, cols = output.shape[-2:]
-    for index, (row, col) in enumerate(cells):
-        if row < 0:
-            continue
-        window = output[index, 1:3, max(0, row - 1):min(rows, row + 2), max(0, col - 1):min(cols, col + 2)]
-        size_terms.append((window - log_sizes[index][:, None, None]).abs().mean())
-    size = torch.stack(size_terms).mean() if size_terms else output.sum() * 0
-    return focal / count + size
+def mask_targets(masks: np.ndarray) -> np.ndarray:
+    """The share of each heatmap pixel the target covers (N, 1, H / STRIDE, W / STRIDE)
+    float32, of masks (N, H, W) uint8."""
+    n, height, width = masks.shape
+    small = [cv2.resize(mask, (width // STRIDE, height // STRIDE), interpolation=cv2.INTER_AREA) for mask in masks]
+    return (np.stack(small)[:, None] / 255.0).astype(np.float32)
 
 
 def train_detector(data: dict[str, np.ndarray], recipe: ReferenceConfig, terms: DetectorContract) -> tuple[Any, list]:
-    """The trained network (torch, eval mode: three maps at a quarter of the input) and its log."""
+    """The trained network (torch, eval mode: the mask's logits at half the input's
+    resolution) and its log."""
     import torch
 
     from stages.reference.network import KeypointNet
@@ -137,7 +101,7 @@ def train_detector(data: dict[str, np.ndarray], recipe: ReferenceConfig, terms: 
     torch.manual_seed(recipe.seed)
     torch.set_num_threads(recipe.threads)
     rng = np.random.default_rng(recipe.seed)
-    model = KeypointNet(3, recipe.width, STRIDE, len(terms.mean))
+    model = KeypointNet(1, recipe.width, STRIDE, len(terms.mean))
     steps_per_epoch = max(1, len(data["images"]) // recipe.batch_size)
     total = recipe.detector_epochs * steps_per_epoch if recipe.max_steps == 0 else recipe.max_steps
     optimiser = torch.optim.Adam(model.parameters(), lr=recipe.learning_rate)
@@ -153,8 +117,8 @@ def train_detector(data: dict[str, np.ndarray], recipe: ReferenceConfig, terms: 
             batch = order[first:first + recipe.batch_size]
             images, masks, boxes = zoom(data["images"][batch], data["masks"][batch], data["boxes"][batch], rng)
             x = torch.from_numpy(normalise(augment("robust", images, masks, rng), terms))
-            heat, log_sizes, cells = targets(boxes, terms.height, terms.width)
-            loss = _losses(model(x), torch.from_numpy(heat), torch.from_numpy(log_sizes), cells)
+            target = torch.from_numpy(mask_targets(masks))
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(model(x), target)
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
@@ -164,15 +128,15 @@ def train_detector(data: dict[str, np.ndarray], recipe: ReferenceConfig, terms: 
                 log.append({"step": step, "epoch": step / steps_per_epoch, "loss": loss.item(),
                             "seconds": time.perf_counter() - started})
                 console.print(f"train-reference detector: epoch {step / steps_per_epoch:.1f}/"
-                              f"{total / steps_per_epoch:.0f} loss {loss.item():.4f} "
+                              f"{total / steps_per_epoch:.0f} loss {loss.item():.5f} "
                               f"({time.perf_counter() - started:.0f} s)")
     model.eval()
     return model, log
 
 
 def export_detector(model: Any, terms: DetectorContract, out: Path, extra_metadata: dict[str, str]) -> None:
-    """ONNX (opset ``OPSET``, IR version ``IR_VERSION``) with outputs ``centre`` (the
-    heatmap, after its sigmoid) and ``size`` (input pixels) and the detector contract."""
+    """ONNX (opset ``OPSET``, IR version ``IR_VERSION``) with the output ``mask`` (after its
+    sigmoid) and the detector contract."""
     import onnx
     import torch
 
@@ -181,16 +145,15 @@ def export_detector(model: Any, terms: DetectorContract, out: Path, extra_metada
             super().__init__()
             self.net = model
 
-        def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            maps = self.net(x)
-            return torch.sigmoid(maps[:, :1]), torch.exp(maps[:, 1:3]) * SIZE_UNIT
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return torch.sigmoid(self.net(x))
 
     out.parent.mkdir(parents=True, exist_ok=True)
     temporary = temporary_name(out)
     dummy = torch.zeros(1, len(terms.mean), terms.height, terms.width)
-    axes = {name: {0: "batch"} for name in ("image", "centre", "size")}
+    axes = {name: {0: "batch"} for name in ("image", "mask")}
     torch.onnx.export(Exported().eval(), (dummy,), str(temporary), input_names=["image"],
-                      output_names=["centre", "size"], dynamic_axes=axes, opset_version=OPSET, dynamo=False)
+                      output_names=["mask"], dynamic_axes=axes, opset_version=OPSET, dynamo=False)
     proto = onnx.load(str(temporary))
     proto.ir_version = IR_VERSION
     proto.producer_name = "speedplus train-reference"
@@ -218,8 +181,8 @@ def held_out_boxes(path: Path, data: dict[str, np.ndarray]) -> dict[str, float]:
     found = []
     for first in range(0, len(data["images"]), 32):
         pixels = data["images"][first:first + 32]
-        centre, size = detector.session.run(None, {detector.input_name: normalise(pixels / 255.0, detector.contract)})
-        found.append(decode_boxes(centre, size, detector.contract.width, detector.contract.height)[0])
+        (masks,) = detector.session.run(None, {detector.input_name: normalise(pixels / 255.0, detector.contract)})
+        found.append(decode_boxes(masks, detector.contract.width, detector.contract.height)[0])
     iou = box_iou(np.concatenate(found), data["boxes"])
     return {"images": len(iou), "median_box_iou": float(np.median(iou)), "mean_box_iou": float(np.mean(iou)),
             "share_box_iou_0.9": float(np.mean(iou >= 0.9)), "share_box_iou_0.5": float(np.mean(iou >= 0.5))}

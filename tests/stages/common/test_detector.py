@@ -6,25 +6,33 @@ import pytest
 
 from speedplus.errors import InputError
 from stages.common.detector import DetectorContract, decode_boxes, parse_detector_contract, to_image, whole_image
-from stages.reference.detect import SIZE_UNIT, box_iou, targets, zoom
+from stages.reference.detect import STRIDE, box_iou, mask_targets, zoom
 
 
-def test_the_training_targets_decode_to_their_boxes():
-    """Seeded: a box's centre heatmap and size decode back to it within a hundredth of a
-    pixel (the parabola through the logarithms is exact at a Gaussian) and its size exactly."""
+def test_a_mask_decodes_to_its_box_within_a_fifth_of_a_mask_pixel():
+    """Seeded: a target's mask at the input's resolution, averaged over the heatmap's
+    pixels as the training targets are, decodes to the box of the mask's pixels (their
+    centres) within a fifth of a heatmap pixel, wherever its edges fall in a pixel; a
+    smaller, fainter blob elsewhere does not move it."""
     rng = np.random.default_rng(3)
-    height, width = 160, 256
+    height, width = 128, 192
     for _ in range(50):
-        centre = rng.uniform((20, 20), (width - 20, height - 20))
-        size = rng.uniform(20, 120, 2)
-        box = np.concatenate([centre - size / 2, centre + size / 2])[None]
-        heat, log_sizes, cells = targets(box, height, width)
-        size_map = np.broadcast_to((np.exp(log_sizes) * SIZE_UNIT)[:, :, None, None], (1, 2, *heat.shape[2:]))
-        decoded, peaks = decode_boxes(heat, size_map, width, height)
-        assert peaks[0] > 0.5 and tuple(cells[0]) != (-1, -1)
-        np.testing.assert_allclose(decoded[0, 2:] - decoded[0, :2], size, rtol=1e-5)
-        assert np.abs((decoded[0, :2] + decoded[0, 2:]) / 2 - centre).max() < 0.01
-        assert box_iou(decoded, box)[0] > 0.999
+        x0, y0 = rng.integers(2, 100), rng.integers(2, 60)
+        x1, y1 = x0 + rng.integers(12, 80), y0 + rng.integers(10, 60)
+        mask = np.zeros((1, height, width), np.uint8)
+        mask[0, y0:y1 + 1, x0:x1 + 1] = 255
+        heat = mask_targets(mask)
+        heat[0, 0, 60:62, 2:4] = np.maximum(heat[0, 0, 60:62, 2:4], 0.7)  # a false blob, smaller
+        boxes, confidence = decode_boxes(heat, width, height)
+        assert confidence[0] == pytest.approx(1.0)
+        assert np.abs(boxes[0] - [x0, y0, x1, y1]).max() <= 0.2 * STRIDE + 1e-9, (boxes[0], (x0, y0, x1, y1))
+        assert box_iou(boxes, np.array([[x0, y0, x1, y1]], float))[0] > 0.9
+
+
+def test_an_empty_mask_gives_the_whole_input_at_no_confidence():
+    boxes, confidence = decode_boxes(np.zeros((1, 1, 64, 96)), 192, 128)
+    np.testing.assert_allclose(boxes[0], [0.0, 0.0, 191.0, 127.0])
+    assert confidence[0] == 0.0
 
 
 def test_boxes_map_to_the_image_with_pixel_centres_aligned():

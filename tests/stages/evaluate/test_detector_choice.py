@@ -19,18 +19,18 @@ def test_the_workspace_s_detector_comes_before_the_shipped_one_and_search_names_
     assert detector_path(config, workspace) == (shipped if shipped.is_file() else None)
     own = workspace.resolve(workspace.model_relpath("detector"))
     own.parent.mkdir(parents=True)
-    fixed_box_detector(own, (10.0, 10.0, 20.0, 20.0))
+    fixed_box_detector(own, (5, 5, 10, 10))
     assert detector_path(config, workspace) == own
     assert detector_path(load_config("smoke", overrides=["evaluate.detector=search"]), workspace) is None
     named = tmp_path / "mine.onnx"
-    fixed_box_detector(named, (10.0, 10.0, 20.0, 20.0))
+    fixed_box_detector(named, (5, 5, 10, 10))
     assert detector_path(load_config("smoke", overrides=[f"evaluate.detector={named}"]), workspace) == named
 
 
 def test_a_detector_of_another_target_or_none_at_all_is_refused_by_name(tmp_path, monkeypatch):
     workspace = Workspace(tmp_path / "w")
     other = tmp_path / "other.onnx"
-    fixed_box_detector(other, (10.0, 10.0, 20.0, 20.0))
+    fixed_box_detector(other, (5, 5, 10, 10))
     import onnx
 
     proto = onnx.load(str(other))

@@ -54,30 +54,26 @@ def test_threads_per_worker_share_the_cores(workers, monkeypatch):
     assert threads_per_worker(workers) == {0: 1, 1: 8, 2: 4, 64: 1}[workers]
 
 
-def fixed_box_detector(path, box_input_px, width: int = 64, height: int = 40) -> None:
-    """An ONNX detector (stages/common/detector.py's contract) that finds the same box, in
-    input pixels, in every image."""
+def fixed_box_detector(path, cells, width: int = 64, height: int = 40) -> None:
+    """An ONNX detector (stages/common/detector.py's contract) whose mask is 1 on the same
+    mask pixels ``cells`` (column, row, last column, last row) in every image: the box of
+    input pixels 2 * column to 2 * last column + 1 (rows alike)."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
     from stages.common.detector import DetectorContract
 
-    rows, cols = height // 4, width // 4
-    box = np.asarray(box_input_px, float)
-    centre = ((box[:2] + box[2:]) / 2 + 0.5) / 4 - 0.5
-    ys, xs = np.arange(rows)[:, None], np.arange(cols)[None, :]
-    heat = np.exp(-((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2) / 2.0)[None, None].astype(np.float32)
-    size = np.broadcast_to((box[2:] - box[:2])[None, :, None, None], (1, 2, rows, cols)).astype(np.float32)
+    rows, cols = height // 2, width // 2
+    col0, row0, col1, row1 = cells
+    mask = np.zeros((1, 1, rows, cols), np.float32)
+    mask[0, 0, row0:row1 + 1, col0:col1 + 1] = 1.0
     nodes = [helper.make_node("ReduceMean", ["image"], ["mean"], axes=[1, 2, 3], keepdims=1),
              helper.make_node("Mul", ["mean", "zero"], ["nothing"]),
-             helper.make_node("Add", ["nothing", "heat"], ["centre"]),
-             helper.make_node("Add", ["nothing", "size_map"], ["size"])]
+             helper.make_node("Add", ["nothing", "fixed"], ["mask"])]
     graph = helper.make_graph(
         nodes, "fixed_box", [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["N", 1, height, width])],
-        [helper.make_tensor_value_info("centre", TensorProto.FLOAT, ["N", 1, rows, cols]),
-         helper.make_tensor_value_info("size", TensorProto.FLOAT, ["N", 2, rows, cols])],
-        [numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero"),
-         numpy_helper.from_array(heat, "heat"), numpy_helper.from_array(size, "size_map")])
+        [helper.make_tensor_value_info("mask", TensorProto.FLOAT, ["N", 1, rows, cols])],
+        [numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero"), numpy_helper.from_array(mask, "fixed")])
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     proto.ir_version = 8
     for key, value in DetectorContract(width, height, "gray", (0.5,), (0.25,)).metadata().items():
@@ -96,7 +92,7 @@ def test_the_detector_s_box_starts_the_self_crop(tmp_path):
     model_path, detector_path = tmp_path / "conv.onnx", tmp_path / "detector.onnx"
     _conv_heatmap_model(model_path, "4")
     # 320 x 200 images, a 64 x 40 input: 5 image pixels per input pixel
-    fixed_box_detector(detector_path, (20.0, 10.0, 36.0, 20.0))
+    fixed_box_detector(detector_path, (10, 5, 17, 9))
     items = _items(2)
     images = [np.zeros((200, 320, 3), np.uint8)] * len(items)
     crops = [item["crop"] for item in items]
@@ -104,7 +100,8 @@ def test_the_detector_s_box_starts_the_self_crop(tmp_path):
     boxes = _first_boxes(PoseModel(model_path), images, labelled, crops, K, DIST, Decoding(0.01),
                          Detector(detector_path))
     for box, crop, label in zip(boxes, crops, labelled, strict=True):
-        expected = (np.array([20.0, 10.0, 36.0, 20.0]) + 0.5) * 5 - 0.5 if crop == "self" else label
+        # mask pixels 10-17 x 5-9: input pixels 20-35 x 10-19; an input pixel is 5 x 5 image pixels
+        expected = (np.array([20.0, 10.0, 35.0, 19.0]) + 0.5) * 5 - 0.5 if crop == "self" else label
         np.testing.assert_allclose(box, expected, atol=0.05)
     scorer = Scorer(model_path.read_bytes(), "conv.onnx", 1, K, DIST, Decoding(0.01), detector_path.read_bytes())
     rows = scorer.score(items)
