@@ -45,7 +45,7 @@ REPOSITORY = Path(__file__).resolve().parents[2]
 
 #: the reference models shipped for the built-in Tango (``evaluate.models`` empty)
 SHIPPED_MODELS = ("models/reference.onnx", "models/reference_augmented.onnx")
-#: and their detector (``evaluate.detector`` empty)
+#: and their detector (``evaluate.detector = auto``)
 SHIPPED_DETECTOR = f"models/{DETECTOR_NAME}.onnx"
 
 
@@ -69,12 +69,12 @@ def _located(text: str) -> Path:
 
 def detector_path(config: Config, workspace: Workspace | None) -> Path | None:
     """``evaluate.detector``: the detector whose box starts the self crop, located as
-    ``evaluate.models``; empty: this workspace's (train-reference), else the shipped one for
-    the built-in Tango; ``search`` (or none to be found): None, the model's own search."""
+    ``evaluate.models``; ``auto``: this workspace's (train-reference), else the shipped one
+    for the built-in Tango; ``search`` (or none to be found): None, the model's own search."""
     text = config.evaluate.detector
-    if text == "search":
+    if text in ("search", ""):
         return None
-    if text:
+    if text != "auto":
         return _located(text)
     trained = None if workspace is None else workspace.resolve(workspace.model_relpath(DETECTOR_NAME))
     if trained is not None and trained.is_file():

@@ -1,5 +1,6 @@
-"""Which detector starts the own crop: the one named, the workspace's own, the shipped one
-for Tango, or none (the search); a detector of another target is refused by name."""
+"""Which detector starts the own crop: none (the search, the default), the one named, or
+(auto) the workspace's own, else the shipped one for Tango; a detector of another target
+is refused by name."""
 
 from pathlib import Path
 
@@ -12,9 +13,10 @@ from stages.evaluate import REPOSITORY, SHIPPED_DETECTOR, detector_path, preflig
 from tests.stages.evaluate.test_scorer import fixed_box_detector
 
 
-def test_the_workspace_s_detector_comes_before_the_shipped_one_and_search_names_none(tmp_path):
+def test_auto_takes_the_workspace_s_detector_before_the_shipped_one_and_search_names_none(tmp_path):
     workspace = Workspace(tmp_path / "w")
-    config = load_config("smoke")
+    assert detector_path(load_config("smoke"), workspace) is None  # the default: the model's own search
+    config = load_config("smoke", overrides=["evaluate.detector=auto"])
     shipped = (REPOSITORY / SHIPPED_DETECTOR).resolve()
     assert detector_path(config, workspace) == (shipped if shipped.is_file() else None)
     own = workspace.resolve(workspace.model_relpath("detector"))

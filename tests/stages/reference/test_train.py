@@ -23,12 +23,14 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
     theirs = out / "tango_reference_augmented.json"  # a file the command did not make
     theirs.write_text("{}")
     refused = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"),
-                        "--set", "reference.images=10", "--steps", "2", "--out", str(out))
+                        "--set", "reference.images=10", "--steps", "2", "--out", str(out),
+                        "--set", 'reference.variants=["plain", "augmented", "detector"]')
     assert refused.returncode == 1 and f"{theirs}: exists" in refused.stderr, refused.stderr
     assert not (tmp_path / "w").exists() and theirs.read_text() == "{}"  # refused before training anything
     theirs.unlink()
     result = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"),
-                       "--set", "reference.images=10", "--steps", "2", "--out", str(out))
+                       "--set", "reference.images=10", "--steps", "2", "--out", str(out),
+                       "--set", 'reference.variants=["plain", "augmented", "detector"]')
     assert result.returncode == 0, result.stderr
     recipe = load_config("smoke").reference
     ws = Workspace(tmp_path / "w")
