@@ -9,7 +9,8 @@ key                        value
 ``speedplus.contract``     ``1``
 ``speedplus.input_size``   ``WxH`` of the input tensor, e.g. ``256x160``; input is
                            ``(N, C, H, W)`` float32
-``speedplus.channels``     ``rgb`` (C = 3) or ``gray`` (C = 1)
+``speedplus.channels``     ``rgb`` (C = 3) or ``gray`` (C = 1); a mono camera gives grey
+                           (seen by an ``rgb`` model in all three channels)
 ``speedplus.normalize``    ``mean/std`` per channel on pixel values scaled to [0, 1], e.g.
                            ``0.485,0.456,0.406/0.229,0.224,0.225``
 ``speedplus.output``       ``keypoints`` (N, K, 2) input pixels; ``heatmaps`` (N, K, h, w),
