@@ -305,10 +305,9 @@ class ReferenceConfig:
     rotation: bool = param(True, "rotate every training crop by a random angle in the image plane (with a random "
                            "scale of 1 +- 0.15 and shift of +- 6%); off: scale and shift only", "")
     variants: tuple[ReferenceVariant, ...] = param(
-        ("plain", "augmented"), "models to train: plain (photometric jitter: models/reference.onnx), augmented "
-        "(style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx), detector (the "
-        "target's pixels in the whole image, for the self crop with evaluate.detector = auto: models/detector.onnx)",
-        "")
+        ("plain", "augmented", "detector"), "models to train: plain (photometric jitter: models/reference.onnx), "
+        "augmented (style, texture, Earth backgrounds, glare, blur, noise: models/reference_augmented.onnx), "
+        "detector (the target's pixels in the whole image, the start of the self crop: models/detector.onnx)", "")
     detector_input_width: int = param(
         192, "detector: the whole image is resized to this width (the height keeps the camera's aspect, in "
         "multiples of 16); the keypoint passes after it refine its box", "px")
@@ -332,11 +331,10 @@ class EvaluateConfig:
                             "(evaluate.detector) or its own search over windows, then two keypoint passes, each "
                             "around what the previous one found", "")
     detector: str = param(
-        "search", "what starts the self crop: search (the keypoint model's own search over windows of the image: on "
-        "the default profile it finds better boxes than the shipped detector, docs/models.md), an ONNX detector "
-        "(the contract of stages/common/detector.py; relative paths as evaluate.models), or auto: the detector "
-        "train-reference made in this workspace (W/models/detector.onnx), else, for the built-in Tango, the shipped "
-        "models/detector.onnx", "")
+        "auto", "what starts the self crop: auto (the detector train-reference made in this workspace, "
+        "W/models/detector.onnx, else, for the built-in Tango, the shipped models/detector.onnx, else the search), "
+        "an ONNX detector (the contract of stages/common/detector.py; relative paths as evaluate.models), or search "
+        "(the keypoint model's own search over windows of the image)", "")
     batch_size: int = param(16, "images per inference call", "count")
     threads: int = param(0, "ONNX Runtime intra-op threads of each worker; 0: the worker's share of the cores (CPUs "
                          "/ run.workers; on Ray, the CPUs reserved for it). The scores do not depend on it", "count")

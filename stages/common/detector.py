@@ -21,6 +21,10 @@ key                        value
 ``speedplus.channels``     ``rgb`` or ``gray``
 ``speedplus.normalize``    ``mean/std`` per channel on pixel values in [0, 1]
 ``speedplus.target``       optional: the target it was made for (absent: Tango)
+``speedplus.box_scale``    optional: each box is scaled about its centre by this factor
+                           (absent: 1): train-reference sets it to the median ratio of the
+                           held-out labels' box sides to the detector's, since the label's
+                           box holds parts no image shows (unlit faces, thin antennas)
 =========================  ==============================================================
 
 Output: ``mask`` (N, 1, h, w) in [0, 1], heatmap pixels tiling the input evenly (each
@@ -53,12 +57,14 @@ class DetectorContract:
     mean: tuple[float, ...]
     std: tuple[float, ...]
     target: str = BUILTIN_TARGET
+    box_scale: float = 1.0
 
     def metadata(self) -> dict[str, str]:
         return {"speedplus.detector": CONTRACT, "speedplus.input_size": f"{self.width}x{self.height}",
                 "speedplus.channels": self.channels,
                 "speedplus.normalize": ",".join(map(str, self.mean)) + "/" + ",".join(map(str, self.std)),
-                **({"speedplus.target": self.target} if self.target != BUILTIN_TARGET else {})}
+                **({"speedplus.target": self.target} if self.target != BUILTIN_TARGET else {}),
+                **({"speedplus.box_scale": repr(self.box_scale)} if self.box_scale != 1.0 else {})}
 
 
 def parse_detector_contract(metadata: dict[str, str], source: str) -> DetectorContract:
@@ -80,7 +86,15 @@ def parse_detector_contract(metadata: dict[str, str], source: str) -> DetectorCo
     channels = need("speedplus.channels")
     if channels not in ("rgb", "gray") or len(mean) != len(std) or len(mean) != (3 if channels == "rgb" else 1):
         raise InputError(f"{source}: speedplus.channels={channels} with {len(mean)} means, {len(std)} stds")
-    return DetectorContract(width, height, channels, mean, std, metadata.get("speedplus.target", BUILTIN_TARGET))
+    try:
+        box_scale = float(metadata.get("speedplus.box_scale", "1"))
+    except ValueError:
+        box_scale = float("nan")
+    if not 0.5 <= box_scale <= 2.0:
+        raise InputError(f"{source}: speedplus.box_scale={metadata['speedplus.box_scale']}: expected a factor in "
+                         "0.5-2")
+    return DetectorContract(width, height, channels, mean, std, metadata.get("speedplus.target", BUILTIN_TARGET),
+                            box_scale)
 
 
 def whole_image(image_bgr: np.ndarray, contract: DetectorContract) -> np.ndarray:
@@ -175,5 +189,7 @@ class Detector:
         pixels = np.stack([whole_image(image, self.contract) for image in images_bgr])
         (masks,) = self.session.run(None, {self.input_name: normalise_uint8(pixels, self.contract)})
         boxes, peaks = decode_boxes(np.asarray(masks, float), self.contract.width, self.contract.height)
+        centres, halves = (boxes[:, :2] + boxes[:, 2:]) / 2, (boxes[:, 2:] - boxes[:, :2]) / 2 * self.contract.box_scale
+        boxes = np.concatenate([centres - halves, centres + halves], axis=1)
         return np.stack([to_image(box[None], self.contract, image.shape[1], image.shape[0])[0]
                          for box, image in zip(boxes, images_bgr, strict=True)]), peaks

@@ -97,8 +97,8 @@ def table2(scores: list[dict[str, Any]], models: list[str], crop: str) -> str:
                          f"{_no_pose(synthetic)} / {_no_pose(testbed)}"])
     header = ["configuration (view, light)", "model", "images", "synthetic: mean [95%]", "testbed: mean [95%]",
               "gap", "median (syn / test)", "failed (syn / test)", "no pose (syn / test)"]
-    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: a search over windows "
-           "of the whole image (or a detector's box: evaluate.detector), then passes around what it found",
+    how = {"oracle_box": "oracle crop: boxes from the labels", "self": "each model's own crop: the detector's box "
+           "(without a detector, a search over windows of the whole image), then passes around what it found",
            "full": "the whole image"}.get(crop, crop)
     notes = []
     if crop == "self":

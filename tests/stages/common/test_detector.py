@@ -80,3 +80,17 @@ def test_metadata_without_the_contract_is_refused_naming_the_file_and_key():
             parse_detector_contract({k: v for k, v in good.items() if k != key}, "d.onnx")
     with pytest.raises(InputError, match="speedplus.channels=rgb"):
         parse_detector_contract({**good, "speedplus.channels": "rgb"}, "d.onnx")
+
+
+def test_the_box_scale_is_the_held_out_median_ratio_and_is_bounded():
+    from stages.reference.detect import box_scale, scaled
+
+    rng = np.random.default_rng(2)
+    truth = np.concatenate([rng.uniform(0, 50, (40, 2)), rng.uniform(100, 150, (40, 2))], axis=1)
+    found = scaled(truth, 1 / 1.25)  # the detector sees 80% of each side
+    assert box_scale(found, truth) == pytest.approx(1.25)
+    np.testing.assert_allclose(scaled(found, 1.25), truth)
+    good = DetectorContract(256, 160, "gray", (0.449,), (0.226,), box_scale=1.25).metadata()
+    assert parse_detector_contract(good, "d.onnx").box_scale == 1.25
+    with pytest.raises(InputError, match="d.onnx: speedplus.box_scale=5.0"):
+        parse_detector_contract({**good, "speedplus.box_scale": "5.0"}, "d.onnx")

@@ -1,6 +1,6 @@
-"""Which detector starts the own crop: none (the search, the default), the one named, or
-(auto) the workspace's own, else the shipped one for Tango; a detector of another target
-is refused by name."""
+"""Which detector starts the own crop: (auto, the default) the workspace's own, else the
+shipped one for Tango, else none (the search); the one named; or none (search); a
+detector of another target is refused by name."""
 
 from pathlib import Path
 
@@ -15,8 +15,7 @@ from tests.stages.evaluate.test_scorer import fixed_box_detector
 
 def test_auto_takes_the_workspace_s_detector_before_the_shipped_one_and_search_names_none(tmp_path):
     workspace = Workspace(tmp_path / "w")
-    assert detector_path(load_config("smoke"), workspace) is None  # the default: the model's own search
-    config = load_config("smoke", overrides=["evaluate.detector=auto"])
+    config = load_config("smoke")  # auto, the default
     shipped = (REPOSITORY / SHIPPED_DETECTOR).resolve()
     assert detector_path(config, workspace) == (shipped if shipped.is_file() else None)
     own = workspace.resolve(workspace.model_relpath("detector"))
