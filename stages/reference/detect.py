@@ -115,7 +115,7 @@ def train_detector(data: dict[str, np.ndarray], recipe: ReferenceConfig, terms: 
             if step >= total:
                 break
             batch = order[first:first + recipe.batch_size]
-            images, masks, boxes = zoom(data["images"][batch], data["masks"][batch], data["boxes"][batch], rng)
+            images, masks, _ = zoom(data["images"][batch], data["masks"][batch], data["boxes"][batch], rng)
             x = torch.from_numpy(normalise(augment("robust", images, masks, rng), terms))
             target = torch.from_numpy(mask_targets(masks))
             loss = torch.nn.functional.binary_cross_entropy_with_logits(model(x), target)
