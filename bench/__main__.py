@@ -5,10 +5,11 @@ import sys
 
 BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "budget", "unmodelled", "render",
               "cluster", "storage", "ground_truth", "evaluate", "pnp", "identity", "model_cards", "pipeline",
-              "ransac_noise", "stranger_model", "trajectory", "tracking", "threads", "targets", "detector")
+              "ransac_noise", "stranger_model", "trajectory", "tracking", "threads", "targets", "detector",
+              "paper_table")
 #: need arguments or take long; not part of `python -m bench`
 ON_REQUEST = ("identity", "model_cards", "pipeline", "ransac_noise", "stranger_model", "tracking", "threads", "targets",
-              "detector")
+              "detector", "paper_table")
 
 if __name__ == "__main__":
     names = sys.argv[1:2] or [name for name in BENCHMARKS if name not in ON_REQUEST]
