@@ -20,9 +20,9 @@ import numpy as np
 from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION
 from bench.common import report
 from bench.honesty import calibration_samples, dataset, run_facility
+from core.config import UNMODELLED_SOURCES, CameraConfig
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_session, read_truth
-from pipeline.config import UNMODELLED_SOURCES, CameraConfig
 from stages.common import geometry as g
 from stages.common import tango
 

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
+from core.config import Override, load_config, with_overrides
+from core.engines.local_cluster import ENV, LocalCluster
 from manifests import Workspace
-from pipeline.config import Override, load_config, with_overrides
-from pipeline.engines.local_cluster import ENV, LocalCluster
 from stages.acquire.virtual.sensor import lens_camera
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera

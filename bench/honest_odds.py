@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from core.config import load_config
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_fusion
-from pipeline.config import load_config
 from stages.common import arms
 from stages.common.workspace_target import workspace_target
 from stages.fuse import estimate, load_models, with_marker_geometry

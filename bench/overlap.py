@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from core.config import Config
 from manifests import Workspace, read_manifest
-from pipeline.config import Config
 from stages.common.image_io import read_image
 from stages.common.json_arrays import calibrated_camera
 from stages.common.workspace_target import workspace_target

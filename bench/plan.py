@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from bench.common import report
-from pipeline.config import load_config
+from core.config import load_config
 from stages.common import geometry as g
 from stages.plan import plan_sample
 

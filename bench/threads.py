@@ -1,5 +1,5 @@
 """BLAS threads under a second load: calibrate on a smoke workspace with its BLAS held to
-one thread (``pipeline.engines.single_threaded_blas``, as shipped) against a thread per
+one thread (``core.engines.single_threaded_blas``, as shipped) against a thread per
 core (OpenBLAS's own choice, as before issue 42), idle and beside ``LOAD`` busy processes
 (another job holding the cores).
 
@@ -24,7 +24,7 @@ from bench.common import report
 
 SPIN = "while True: pass"
 #: the CLI with BLAS left to its own thread count (the pipeline's limit switched off)
-UNLIMITED = ("import sys, pipeline.engines as engines; engines.single_threaded_blas = lambda: None; "
+UNLIMITED = ("import sys, core.engines as engines; engines.single_threaded_blas = lambda: None; "
              "from pipeline.cli import main; sys.argv[0] = 'speedplus'; main()")
 
 

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from bench.common import report
-from pipeline.config import load_config
+from core.config import load_config
 from stages.common.attitude import angular_momentum_eci, torque_free
 from stages.common.orbits import Elements, RoeModel, relative_two_body
 from stages.common.workspace_target import planned_target

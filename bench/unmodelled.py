@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import report
-from pipeline.config import UNMODELLED_SOURCES, Config, load_config, parse_override, with_overrides
+from core.config import UNMODELLED_SOURCES, Config, load_config, parse_override, with_overrides
 from stages.acquire.virtual import robots
 from stages.acquire.virtual.timeline import timeline
 from stages.acquire.virtual.truth import draw_truth

@@ -37,6 +37,7 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from manifests.files import write_bytes_atomic, write_json_atomic
+from manifests.store import StoredFile
 from manifests.workspace import CONFIG_FILE, STATE_DIR, PathEscapeError, check_relative
 from speedplus.errors import InputError
 
@@ -73,14 +74,6 @@ def _syncs(relpath: str) -> bool:
     parts, temporaries or compaction folders (every such name starts with a dot)."""
     return not any(part.startswith(".") for part in relpath.split("/")) and not relpath.startswith(
         f"manifests/{STATE_DIR}/staging/")
-
-
-@dataclass(frozen=True)
-class StoredFile:
-    """A file a worker wrote to the store itself: its size [bytes] and SHA-256 (hex)."""
-
-    size: int
-    sha256: str
 
 
 _FILESYSTEMS: dict[str, tuple[Any, str]] = {}

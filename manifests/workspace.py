@@ -22,12 +22,10 @@ Paths stored in manifests are relative to ``W`` and may never leave it.
 from __future__ import annotations
 
 from pathlib import Path, PurePosixPath
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from manifests.store import ObjectStore, Store, StoredFile
 from speedplus.errors import InputError
-
-if TYPE_CHECKING:
-    from manifests.remote import Remote, RemoteCopy
 
 CONFIG_FILE = "config.toml"
 SESSION_FILE = "session.json"
@@ -68,9 +66,10 @@ def check_relative(path: str) -> PurePosixPath:
 class LocalStore:
     """Where a workspace on this machine's file system keeps its files: where the manifests
     say, under ``root``. The same interface as ``manifests.remote.RemoteCopy`` (a working
-    copy of a workspace on object storage), with nothing to fetch, pull or push."""
+    copy of a workspace on object storage), with nothing to fetch, pull or push: a
+    ``manifests.store.Store``."""
 
-    remote: Remote | None = None
+    remote: ObjectStore | None = None
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -87,7 +86,7 @@ class LocalStore:
     def record(self, relpath: str) -> dict[str, Any] | None:
         return None  # every file is here: hash it
 
-    def accept(self, relpath: str, stored: Any) -> None:
+    def accept(self, relpath: str, stored: StoredFile) -> None:
         raise InputError(f"{relpath}: a worker uploaded it to object storage, but {self.root} is a local workspace")
 
     def started(self) -> bool:
@@ -107,13 +106,13 @@ class Workspace:
     from which ``fetch`` downloads a file on demand."""
 
     def __init__(self, root: str | Path, output_fingerprints: dict[str, str] | None = None,
-                 forced: bool = False, copy: RemoteCopy | None = None) -> None:
+                 forced: bool = False, copy: Store | None = None) -> None:
         self.root = Path(root).resolve()
         self._output_fingerprints = dict(output_fingerprints or {})
         #: the run was asked to redo its results (--force): a stage may then replace what it
         #: would otherwise refuse to touch (export: a folder holding other files)
         self.forced = forced
-        self.store: LocalStore | RemoteCopy = copy if copy is not None else LocalStore(self.root)
+        self.store: Store = copy if copy is not None else LocalStore(self.root)
 
     def for_run(self, output_fingerprints: dict[str, str], forced: bool = False) -> Workspace:
         """The same workspace as a stage run sees it: writers stamp each output manifest's
@@ -121,7 +120,7 @@ class Workspace:
         return Workspace(self.root, output_fingerprints, forced, self.store if self.remote is not None else None)
 
     @property
-    def remote(self) -> Remote | None:
+    def remote(self) -> ObjectStore | None:
         """The object store this workspace lives in (workers write there directly), or None."""
         return self.store.remote
 

@@ -25,13 +25,7 @@ from rich.markup import escape
 from rich.table import Table
 from typer.core import TyperGroup
 
-from manifests import Workspace
-from manifests.lock import WorkspaceLock, holder
-from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
-from manifests.snapshot import Snapshot
-from manifests.workspace import CONFIG_FILE
-from pipeline import registry, runner
-from pipeline.config import (
+from core.config import (
     SECTION_TYPES,
     Config,
     Override,
@@ -42,6 +36,12 @@ from pipeline.config import (
     with_overrides,
     write_config,
 )
+from manifests import Workspace
+from manifests.lock import WorkspaceLock, holder
+from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
+from manifests.snapshot import Snapshot
+from manifests.workspace import CONFIG_FILE
+from pipeline import registry, runner
 from speedplus.errors import InputError, RefusalError
 
 
@@ -143,7 +143,7 @@ def _workspace(location: str, root: Path | None = None) -> Workspace:
 def _context(workspace: str | None, profile: str | None, config: Path | None,
              overrides: list[Override]) -> tuple[Config, Workspace, str | None]:
     """The command's configuration, layered on the workspace's saved one
-    (``pipeline.config.layered``: saved or profile, then --config, then --set), its
+    (``core.config.layered``: saved or profile, then --config, then --set), its
     workspace, and the profile an explicit --profile switched from (None: no switch)."""
     if workspace is None:
         named = profile or (load_config(None, config).profile if config is not None else "default")
@@ -260,7 +260,7 @@ def _interrupted(interrupt: KeyboardInterrupt, force: bool) -> None:
 def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspace, force: bool,
                 switched_from: str | None, started: list[str], redo: tuple[str, ...]) -> None:
     if resolved.run.engine == "ray" and resolved.run.ray_address:
-        from pipeline.engines.cluster import reachable
+        from core.engines.cluster import reachable
 
         reachable(resolved.run.ray_address)  # before --force discards anything
     if resolved.acquire.backend == "replay" and len(stages) > 1:

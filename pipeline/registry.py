@@ -1,6 +1,6 @@
 """Every stage, by name (docs/architecture.md section 2): what it does, the package that
 runs it, and how it chains. What a stage reads, writes and depends on is the stage's own:
-its package's ``resolve(config, workspace) -> Resolved`` (``pipeline/stage_io.py``), which
+its package's ``resolve(config, workspace) -> Resolved`` (``core/stage_io.py``), which
 the runner (fingerprints, resume, status) and the CLI read; nothing here repeats it, so
 nothing here can disagree with it. Stages are named as strings and imported only when
 used; nothing else imports a stage.
@@ -13,9 +13,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from core.config import Config
+from core.stage_io import Resolved
 from manifests import Workspace
-from pipeline.config import Config
-from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 
 

@@ -23,6 +23,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pyarrow import ArrowInvalid
 
+from core import progress
+from core.config import Config
+from core.engines import single_threaded_blas
+from core.progress import console
 from manifests import (
     SCHEMA_VERSION,
     ManifestError,
@@ -38,10 +42,6 @@ from manifests import clear as clear_manifest
 from manifests.files import copy_atomic
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
 from manifests.schema import MANIFESTS
-from pipeline import progress
-from pipeline.config import Config
-from pipeline.engines import single_threaded_blas
-from pipeline.progress import console
 from pipeline.registry import StageEntry
 from speedplus.errors import InputError
 

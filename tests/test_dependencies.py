@@ -16,7 +16,7 @@ import pytest
 from tests.test_layers import imported_modules
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("pipeline", "stages", "manifests", "speedplus")
+PACKAGES = ("core", "pipeline", "stages", "manifests", "speedplus")
 EXTRA_NOTE = re.compile(r"the ``\[(\w+)\]`` extra")
 
 

@@ -1,8 +1,9 @@
-"""The import contract of the layers (docs/architecture.md section 2): a stage package
-imports the shared layer ``stages.common``, ``manifests`` and ``pipeline`` (configuration,
-errors, progress, engines), never another stage; ``stages.common`` imports no stage;
-``manifests`` imports nothing under ``stages``; ``pipeline`` imports no stage, and its
-registry names each stage's entry points as strings, imported only when the stage runs."""
+"""The import contract of the layers (docs/architecture.md section 2), bottom to top:
+``speedplus.errors``, ``manifests``, ``core`` (configuration, engines, progress), the
+shared ``stages.common``, each stage package, and ``pipeline`` (CLI, registry, runner) on
+top. A stage imports the layers below it, never another stage; nothing imports
+``pipeline``; the registry names each stage's entry points as strings, imported only when
+the stage runs; and the packages import one way (no cycle)."""
 
 import ast
 from pathlib import Path
@@ -52,7 +53,7 @@ def test_a_stage_imports_no_other_stage(stage):
     assert violations(sorted((ROOT / "stages" / stage).rglob("*.py")), {stage}) == []
 
 
-@pytest.mark.parametrize("package", ["stages/common", "manifests", "pipeline", "speedplus"])
+@pytest.mark.parametrize("package", ["stages/common", "manifests", "core", "pipeline", "speedplus"])
 def test_shared_layers_import_no_stage(package):
     assert violations(sorted((ROOT / package).rglob("*.py")), set()) == []
 
@@ -69,14 +70,83 @@ def test_the_loaders_read_files_not_stages():
     assert imports == []
 
 
-def test_manifests_and_pipeline_share_errors_not_a_cycle():
-    """manifests imports nothing from pipeline (pipeline's configuration reads manifests'
-    schema); the errors both raise live in speedplus.errors, which imports neither."""
-    upward = [(path.name, line, module) for path in sorted((ROOT / "manifests").rglob("*.py"))
+@pytest.mark.parametrize("package", ["stages", "manifests", "core", "speedplus"])
+def test_nothing_below_the_top_imports_pipeline(package):
+    upward = [(path.name, line, module) for path in sorted((ROOT / package).rglob("*.py"))
               for line, module in imported_modules(path) if module.split(".")[0] == "pipeline"]
     assert upward == []
+
+
+def test_core_and_manifests_sit_below_the_stages():
+    """core's configuration reads manifests' schema, never the other way; neither reads a
+    stage; the errors every layer raises live in speedplus.errors, which imports nothing."""
+    upward = [(path.name, line, module) for package, above in (("core", ("stages", "pipeline")),
+                                                                 ("manifests", ("core", "stages", "pipeline")))
+              for path in sorted((ROOT / package).rglob("*.py"))
+              for line, module in imported_modules(path) if module.split(".")[0] in above]
+    assert upward == []
     errors = [module for _, module in imported_modules(ROOT / "speedplus" / "errors.py")]
-    assert not [m for m in errors if m.split(".")[0] in ("pipeline", "manifests", "stages")]
+    assert not [m for m in errors if m.split(".")[0] in ("core", "pipeline", "manifests", "stages")]
+
+
+def package_of(module: str) -> str:
+    """The node of the package graph a module belongs to: ``stages.<name>`` for a stage or
+    the shared layer; ``speedplus.errors`` (the bottom) and ``speedplus.data`` (loaders
+    above manifests) apart, as ``speedplus`` only gathers public names; else its top-level
+    package."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] in ("stages", "speedplus") and len(parts) > 1 else parts[0]
+
+
+def package_cycles() -> list[list[str]]:
+    """Cycles of the graph of package imports (lazy ones included), each as its nodes."""
+    tops = ("core", "pipeline", "stages", "manifests", "speedplus")
+    edges: dict[str, set[str]] = {}
+    for top in tops:
+        for path in sorted((ROOT / top).rglob("*.py")):
+            source = package_of(".".join(path.relative_to(ROOT).with_suffix("").parts))
+            for _, module in imported_modules(path):
+                target = package_of(module)
+                if module.split(".")[0] in tops and target != source and target not in ("stages", "speedplus"):
+                    edges.setdefault(source, set()).add(target)
+    cycles, state = [], {}
+
+    def visit(node: str, trail: list[str]) -> None:
+        state[node] = "open"
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == "open":
+                cycles.append(trail[trail.index(nxt):] + [nxt] if nxt in trail else [node, nxt])
+            elif nxt not in state:
+                visit(nxt, [*trail, nxt])
+        state[node] = "done"
+
+    for node in sorted(edges):
+        if node not in state:
+            visit(node, [node])
+    return cycles
+
+
+def test_the_packages_import_one_way():
+    assert package_cycles() == []
+
+
+def test_the_cycle_check_finds_a_cycle(monkeypatch):
+    """The check is not vacuous: a stage imported back by core is a cycle."""
+    original = imported_modules
+
+    def with_cycle(path: Path) -> list[tuple[int, str]]:
+        extra = [(1, "stages.fuse")] if path.name == "progress.py" else []
+        return original(path) + extra
+
+    monkeypatch.setitem(globals(), "imported_modules", with_cycle)
+    assert any("core" in cycle and "stages.fuse" in cycle for cycle in package_cycles())
+
+
+def test_the_store_interface_ends_the_workspace_remote_cycle():
+    """The workspace is written against manifests.store's protocols; only manifests.remote
+    knows object storage."""
+    imports = {module for _, module in imported_modules(ROOT / "manifests" / "workspace.py")}
+    assert not any(module.startswith("manifests.remote") for module in imports)
 
 
 def test_only_the_registry_names_stages():

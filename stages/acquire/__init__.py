@@ -14,12 +14,12 @@ from typing import Any
 
 import pyarrow as pa
 
+from core.config import Config
+from core.engines import Produced, store
+from core.progress import track
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.sidecars import write_markers, write_session, write_truth
-from pipeline.config import Config
-from pipeline.engines import Produced, store
-from pipeline.progress import track
-from pipeline.stage_io import Resolved
 from stages.acquire.backend import Testbed
 from stages.common.dispatch import map_config
 from stages.common.workspace_target import install

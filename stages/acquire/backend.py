@@ -21,7 +21,7 @@ from manifests.sidecars import Session
 class CaptureRecord:
     captures: dict[str, Any]
     truth: dict[str, Any] | None
-    #: files still to be written, by workspace path (``pipeline.engines.store``)
+    #: files still to be written, by workspace path (``core.engines.store``)
     files: dict[str, bytes] = field(default_factory=dict)
 
 

@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from core.config import Config
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
 from manifests import clear as clear_manifest
 from manifests.sidecars import SOURCES, Calibration, Session, read_session, write_calibration
-from pipeline.config import Config
-from pipeline.stage_io import Resolved
 from speedplus.errors import InputError, RefusalError
 from stages.calibrate import observations as obs
 from stages.calibrate import per_source, screening

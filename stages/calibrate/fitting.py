@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from core import progress
+from core.config import Config
 from manifests import Workspace, read_manifest, read_success
-from pipeline import progress
-from pipeline.config import Config
 from stages.calibrate import observations as obs
 from stages.common import arms, rwhe
 from stages.common import geometry as g

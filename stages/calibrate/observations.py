@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from core.progress import track
 from manifests import Workspace, sidecars
-from pipeline.progress import track
 from stages.calibrate.consistency import board_continues
 from stages.common import geometry as g
 from stages.common.image_io import read_image, to_uint8

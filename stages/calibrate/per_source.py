@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
+from core import progress
+from core.config import Config
 from manifests import Workspace
 from manifests.sidecars import SOURCES, SigmaRecord, SourceCalibration
-from pipeline import progress
-from pipeline.config import Config
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.fitting import (

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import Config
+from core.config import Config
 from speedplus.errors import InputError
 from stages.common import arms, rwhe
 from stages.common import geometry as g

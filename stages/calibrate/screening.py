@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import CalibrateConfig
+from core.config import CalibrateConfig
 from stages.calibrate import observations as obs
 from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags, rotation_fit
 from stages.common import geometry as g

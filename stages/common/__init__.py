@@ -5,6 +5,6 @@ the fusion maths, the RWHE model of the measurement sources, image I/O (OpenImag
 the Mitsuba adapter.
 
 A stage package (``stages/<name>/``) imports this package, ``manifests`` and
-``pipeline.config`` (with ``errors``, ``progress``, ``engines``), never another stage;
+``core.config`` (with ``errors``, ``progress``, ``engines``), never another stage;
 ``tests/test_layers.py`` checks it.
 """

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from pipeline.config import CalibrateConfig, TestbedConfig
+from core.config import CalibrateConfig, TestbedConfig
 from stages.common import geometry as g
 from stages.common import layout, rwhe
 from stages.common.kinematics import arm_model, forward

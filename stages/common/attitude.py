@@ -5,7 +5,7 @@ its skin: panels, walls, solar arrays), which any mesh defines, watertight or no
 that knows its target's inertia declares it instead (``trajectory.inertia_kgm2``).
 Only the ratios of the principal moments shape torque-free motion; the mass scales the
 angular momentum. A declared inertia is checked where the configuration is read
-(``pipeline/config/loading.py``: positive moments, the triangle inequality).
+(``core/config/loading.py``: positive moments, the triangle inequality).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pipeline.config import Config, resize_camera_matrix
+from core.config import Config, resize_camera_matrix
 from stages.common.lens import LensCamera
 
 

@@ -1,4 +1,4 @@
-"""The engine as a stage asks for it: ``pipeline.engines.map_engine`` with the ``run``
+"""The engine as a stage asks for it: ``core.engines.map_engine`` with the ``run``
 section's engine, workers and cluster settings (docs/architecture.md section 10)."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import os
 from collections.abc import Callable, Iterator
 from typing import Any
 
+from core.config import Config
+from core.engines import map_engine
 from manifests.remote import Remote
-from pipeline.config import Config
-from pipeline.engines import map_engine
 from stages.common.mitsuba_adapter import PREFERRED_VARIANT, mitsuba_variant
 
 
@@ -19,7 +19,7 @@ def map_config(config: Config, factory: Callable[..., Any], args: tuple[Any, ...
     """``factory(*args).<method>(prepare(item))`` for every item on ``config.run``'s engine;
     on a cluster, a worker that ``renders`` must load Mitsuba's fast variant first (a node
     without LLVM is refused before it takes an item), and uploads its files to ``remote``,
-    the workspace's store, when it has one (``pipeline.engines.store`` checks them)."""
+    the workspace's store, when it has one (``core.engines.store`` checks them)."""
     run = config.run
     workers = run.workers if run.workers or run.engine == "ray" else os.cpu_count() or 1
     return map_engine(run.engine, factory, args, method, items, workers=workers,

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from core.config import TestbedConfig
 from manifests.schema import MOUNTS
-from pipeline.config import TestbedConfig
 from stages.common import geometry as g
 from stages.common.target import Target, main_body_box
 

@@ -93,7 +93,7 @@ def load_mitsuba() -> Any:
 
 
 def mitsuba_variant() -> dict[str, str]:
-    """What a render worker reports to the engine before it takes an item (``pipeline.engines.cluster``)."""
+    """What a render worker reports to the engine before it takes an item (``core.engines.cluster``)."""
     return {"mitsuba_variant": load_mitsuba().variant()}
 
 
@@ -114,7 +114,7 @@ def set_threads(threads: int) -> None:
     bit-identical with 1 and 2); the testbed's Gaussian filter does (``set_one_thread``)."""
     import drjit as dr
 
-    from pipeline.engines import reserved_cpus
+    from core.engines import reserved_cpus
 
     dr.set_thread_count(max(1, reserved_cpus(threads)))
 

@@ -14,7 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pipeline.config import TestbedConfig
+from core.config import TestbedConfig
 from speedplus.errors import unknown_keys
 from stages.common import layout
 from stages.common.image_io import to_uint8

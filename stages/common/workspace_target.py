@@ -12,10 +12,10 @@ import shutil
 from functools import lru_cache
 from pathlib import Path
 
+from core.config import Config
 from manifests import Workspace
 from manifests.target import TARGET_FILE, TargetError, target_digest, target_files
 from manifests.workspace import TARGET_DIR
-from pipeline.config import Config
 from stages.common.target import Target, load_target
 from stages.common.targets import builtin_folder
 

@@ -20,14 +20,14 @@ from typing import Any
 import pyarrow as pa
 from rich.console import Console
 
+from core.config import Config
+from core.engines import threads_per_worker
+from core.progress import track
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from manifests.integrity import sha256
 from manifests.workspace import MODELS_DIR
-from pipeline.config import Config
-from pipeline.engines import threads_per_worker
-from pipeline.progress import track
-from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common.detector import DETECTOR_NAME, Detector
 from stages.common.dispatch import map_config

@@ -1,6 +1,6 @@
 """An evaluate worker: one ONNX Runtime session that scores batches of images sent to it
 with their bytes (it never reads the workspace), in this process, a spawned one or a Ray
-actor (``pipeline.engines``)."""
+actor (``core.engines``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engines import reserved_cpus
+from core.engines import reserved_cpus
 from stages.common import geometry as g
 from stages.common.detector import Detector
 from stages.common.heatmap_pnp import explained_value, poses_from_heatmaps

@@ -11,10 +11,10 @@ import numpy as np
 from rich import box
 from rich.table import Table
 
+from core.config import Config
 from manifests import Workspace, read_manifest, to_table
 from manifests.schema import TRACKS
 from manifests.sidecars import read_trajectories
-from pipeline.config import Config
 from stages.common import geometry as g
 from stages.common.orbits import Elements, rtn_from_eci, two_body
 from stages.common.scores import score

@@ -18,15 +18,15 @@ from typing import Any
 
 import pyarrow as pa
 
+from core.config import Config
+from core.config.stages import EXPORT_FORMATS
+from core.progress import track
+from core.stage_io import Resolved
 from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest, read_success
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
 from manifests.sidecars import read_trajectories
 from manifests.workspace import PathEscapeError, check_relative
-from pipeline.config import Config
-from pipeline.config.stages import EXPORT_FORMATS
-from pipeline.progress import track
-from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common.cameras import train_camera
 from stages.common.json_arrays import calibrated_camera

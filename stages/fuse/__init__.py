@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from core.config import Config, FuseConfig, TestbedConfig
+from core.progress import track
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
-from pipeline.config import Config, FuseConfig, TestbedConfig
-from pipeline.progress import track
-from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common import arms
 from stages.common import geometry as g

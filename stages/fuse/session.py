@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import binom, chi2, norm
 from scipy.stats import t as student_t
 
-from pipeline.config import Config
+from core.config import Config
 from stages.common import geometry as g
 from stages.common.fusion import (
     CONSISTENCY_LEVEL,

@@ -13,11 +13,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from core.config import Config
+from core.progress import track
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
 from manifests.schema import DOMAINS
-from pipeline.config import Config
-from pipeline.progress import track
-from pipeline.stage_io import Resolved
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.json_arrays import calibrated_camera

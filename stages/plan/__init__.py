@@ -10,12 +10,12 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
+from core.config import Config
+from core.progress import track
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, sample_ids
 from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
-from pipeline.config import Config
-from pipeline.progress import track
-from pipeline.stage_io import Resolved
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.target import Target

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.config import CameraConfig, PlanConfig, TestbedConfig
+from core.config import CameraConfig, PlanConfig, TestbedConfig
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import layout

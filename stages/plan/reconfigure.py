@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.config import PlanConfig, TestbedConfig
+from core.config import PlanConfig, TestbedConfig
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.kinematics import arm_model, limit_margin, solve

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.config import Config
 from manifests import sample_ids
 from manifests.sidecars import SequenceRecord
-from pipeline.config import Config
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.attitude import MassProperties, shell_mass_properties, torque_free

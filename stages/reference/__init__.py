@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import pyarrow as pa
 
+from core.config import Config
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.integrity import sha256
-from pipeline.config import Config
-from pipeline.stage_io import Resolved
 from stages.common.target import Target
 from stages.common.workspace_target import workspace_target
 

@@ -24,10 +24,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from core.config import Config, ReferenceConfig
+from core.progress import console, track
 from manifests import Workspace, read_manifest
 from manifests.files import temporary_name, write_json_atomic
-from pipeline.config import Config, ReferenceConfig
-from pipeline.progress import console, track
 from stages.common.detector import Detector, DetectorContract, decode_boxes, whole_image
 from stages.common.image_io import read_image, to_uint8
 from stages.common.pose_model import IR_VERSION, OPSET, Channels, normalise

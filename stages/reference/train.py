@@ -22,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from core.config import Config, ReferenceConfig
+from core.config.stages import ReferenceVariant
+from core.progress import console, track
 from manifests import Workspace, read_manifest
 from manifests.files import temporary_name, write_json_atomic
-from pipeline.config import Config, ReferenceConfig
-from pipeline.config.stages import ReferenceVariant
-from pipeline.progress import console, track
 from stages.common.detector import DETECTOR_NAME
 from stages.common.heatmap_pnp import poses_from_heatmaps
 from stages.common.image_io import read_image, to_uint8

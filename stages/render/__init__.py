@@ -13,12 +13,12 @@ from dataclasses import asdict, fields
 
 import pyarrow as pa
 
+from core.config import Config
+from core.engines import store, threads_per_worker
+from core.progress import console, track
+from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.files import write_json_atomic
-from pipeline.config import Config
-from pipeline.engines import store, threads_per_worker
-from pipeline.progress import console, track
-from pipeline.stage_io import Resolved
 from stages.common.cameras import train_camera
 from stages.common.dispatch import map_config
 from stages.common.json_arrays import calibrated_camera

@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from core.config import Config
 from manifests import Workspace, read_manifest, read_success
 from manifests.sidecars import read_calibration, read_trajectories
 from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
-from pipeline.config import Config
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.cameras import train_camera

@@ -1,7 +1,7 @@
 """A render worker: turns a ``RenderJob`` into an 8-bit PNG, a mask PNG, the per-pixel
 ground truth (``stages.common.ground_truth``) and a ``renders`` row. One per process
 (local engine) or Ray actor; the scene loads once. It never touches the workspace: the
-files go back to the driver with the row (``pipeline.engines.Produced``).
+files go back to the driver with the row (``core.engines.Produced``).
 
 The mask and the ground truth are ray-cast at the output pixel centres through the lens
 (``stages.common.surface``) in the render's own scene: exact per pixel, where remapping a
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from pipeline.engines import Produced
+from core.engines import Produced
 from stages.common import geometry as g
 from stages.common import ground_truth
 from stages.common.earth import earth_background, earth_image

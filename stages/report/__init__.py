@@ -16,11 +16,11 @@ import html
 import re
 from pathlib import Path
 
+from core.config import Config
+from core.stage_io import Resolved
 from manifests import Workspace, read_manifest
 from manifests.files import write_bytes_atomic
 from manifests.sidecars import read_calibration
-from pipeline.config import Config
-from pipeline.stage_io import Resolved
 from stages.common.json_arrays import calibrated_camera
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target

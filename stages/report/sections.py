@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
+from core.config import Config
 from manifests import Workspace, read_manifest, read_success
 from manifests.sidecars import Calibration
-from pipeline.config import Config
 from stages.common import tables
 from stages.report import figures
 

@@ -6,8 +6,8 @@ import os
 
 import numpy as np
 
+from core.config import Config
 from manifests import Workspace, open_sink, read_keys
-from pipeline.config import Config
 from stages.plan import plan_sample, planned_samples
 from stages.plan import resolve as resolve  # the plan's inputs and outputs
 

@@ -6,10 +6,10 @@ from dataclasses import replace
 
 import pytest
 
+from core.config import load_config
 from manifests import ManifestError, Workspace, list_parts, read_manifest
 from manifests.integrity import recover
 from pipeline import registry, runner
-from pipeline.config import load_config
 from pipeline.registry import StageEntry
 from tests.conftest import speedplus
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
+from core.config import SECTION_TYPES, load_config
 from manifests import MANIFESTS, Workspace
 from pipeline import registry
 from pipeline.cli import app
-from pipeline.config import SECTION_TYPES, load_config
 
 TABB = Path(__file__).resolve().parents[3] / "shared" / "external" / "tabb_ds1"
 MARKERS = {"report"}  # completion markers without Parquet parts

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.config import load_config
+from core.config import load_config
 from stages.common import geometry as g
 from stages.common import layout, tango
 from stages.common.kinematics import KR16_2, forward, limit_margin

@@ -7,11 +7,11 @@ from typing import Any
 
 import numpy as np
 
+from core.config import Config
 from manifests import Workspace, read_manifest, sample_ids
 from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import MarkersRecord, Session, SessionCamera
 from manifests.workspace import TRUTH_MAPS_TEMPLATE
-from pipeline.config import Config
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, robots
 from stages.acquire.virtual.sensor import Sensor, lens_camera

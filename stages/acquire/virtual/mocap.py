@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.config import Config
+from core.config import Config
 from stages.common import geometry as g
 from stages.common.markers import Occluders
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import Config
+from core.config import Config
 from stages.acquire.virtual.timeline import Moment
 from stages.acquire.virtual.truth import Truth
 from stages.acquire.virtual.unmodelled import Unmodelled

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import Config
+from core.config import Config
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.lens import RenderGeometry

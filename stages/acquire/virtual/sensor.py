@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.config import CameraConfig, VirtualConfig
+from core.config import CameraConfig, VirtualConfig
 from stages.common import geometry as g
 from stages.common.lens import Lens, LensCamera, RenderGeometry
 from stages.common.tone import encode8

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import Config
+from core.config import Config
 
 #: KR 16-2 axis speeds at 100 % override (data sheet), A1-A6
 AXIS_SPEEDS_RAD_S = tuple(math.radians(v) for v in (156.0, 156.0, 156.0, 335.0, 355.0, 647.0))

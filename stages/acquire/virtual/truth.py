@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from core.config import Config
 from manifests.sidecars import TruthRecord
-from pipeline.config import Config
 from stages.acquire.virtual.unmodelled import Unmodelled, draw_unmodelled
 from stages.common import geometry as g
 from stages.common import layout

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import Config
+from core.config import Config
 from stages.common import geometry as g
 from stages.common.statics import LinkMasses, link_masses
 

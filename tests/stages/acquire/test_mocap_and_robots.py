@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.config import load_config
+from core.config import load_config
 from stages.acquire.virtual import VirtualTestbed, mocap, robots
 from stages.acquire.virtual.truth import draw_truth
 from stages.common import geometry as g

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.config import UNMODELLED_SOURCES, load_config, parse_override, with_overrides
+from core.config import UNMODELLED_SOURCES, load_config, parse_override, with_overrides
 from stages.acquire.virtual import mocap, robots
 from stages.acquire.virtual.timeline import Moment, timeline
 from stages.acquire.virtual.truth import draw_truth

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.config import load_config
+from core.config import load_config
 from speedplus.errors import InputError
 from stages.calibrate import arm_decision, compliance_decision
 from stages.common import arms, rwhe

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pipeline.config import load_config
+from core.config import load_config
 from stages.common import geometry as g
 from stages.common.orbits import rtn_from_eci, two_body
 from stages.common.scores import score

@@ -11,10 +11,10 @@ import sys
 import numpy as np
 import pytest
 
+from core.config import ConfigError, load_config
 from manifests import Workspace, read_manifest
 from manifests.target import TARGET_FILE, target_digest, target_files
 from pipeline import registry, runner
-from pipeline.config import ConfigError, load_config
 from stages.common import geometry as g
 from stages.common.workspace_target import digest, workspace_folder, workspace_target
 from stages.label import label_row

@@ -4,7 +4,7 @@ settings, not on how many threads ONNX Runtime has (``evaluate.threads`` 0 picks
 import numpy as np
 import pytest
 
-from pipeline.engines import threads_per_worker
+from core.engines import threads_per_worker
 from stages.common.image_io import encode_png
 from stages.evaluate.scorer import Decoding, Scorer
 from tests.stages.common.test_pose_model import _conv_heatmap_model

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from pipeline.config import Config, parse_override, with_overrides
+from core.config import Config, parse_override, with_overrides
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
 from stages.fuse import (

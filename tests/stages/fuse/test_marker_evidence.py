@@ -8,7 +8,7 @@ one that claims the smaller sigma; and a short session's sigmas must cover."""
 import numpy as np
 import pytest
 
-from pipeline.config import Config
+from core.config import Config
 from stages.acquire.virtual.mocap import kabsch
 from stages.common import geometry as g
 from stages.common.fusion import Sigma

@@ -8,8 +8,8 @@ import numpy as np
 import onnx
 import pytest
 
+from core.config import load_config
 from manifests import Workspace, read_manifest
-from pipeline.config import load_config
 from stages.common.detector import Detector
 from stages.common.pose_model import PoseModel
 from stages.common.workspace_target import planned_target

@@ -19,9 +19,9 @@ from typing import Any, Literal
 import numpy as np
 import tomli_w
 
+from core.config.model import SECTION_TYPES, Config
+from core.config.params import ConfigError
 from manifests.schema import DOMAINS, MOUNTS
-from pipeline.config.model import SECTION_TYPES, Config
-from pipeline.config.params import ConfigError
 
 PROFILES = ("smoke", "default", "paper")
 
@@ -315,7 +315,7 @@ def _read_toml(path: Path, label: str) -> dict[str, Any]:
 def profile_path(profile: str) -> Path:
     if profile not in PROFILES:
         raise ConfigError(f"unknown profile {profile!r}; choose one of {', '.join(PROFILES)}")
-    return Path(str(resources.files("pipeline") / "profiles" / f"{profile}.toml"))
+    return Path(str(resources.files("core") / "profiles" / f"{profile}.toml"))
 
 
 @dataclass(frozen=True)

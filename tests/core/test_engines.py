@@ -1,14 +1,14 @@
 """The engines' contract without a cluster: the local pool, the driver's file writes and
-the checks a Ray worker's report goes through (tests/pipeline/test_cluster.py runs Ray)."""
+the checks a Ray worker's report goes through (tests/core/test_cluster.py runs Ray)."""
 
 import pickle
 
 import pytest
 
+from core.engines import Produced, environment, map_local, store
+from core.engines.cluster import _refusal
 from manifests import Workspace
 from manifests.workspace import PathEscapeError
-from pipeline.engines import Produced, environment, map_local, store
-from pipeline.engines.cluster import _refusal
 
 
 class Squares:
@@ -80,7 +80,7 @@ def test_blas_runs_on_one_thread_in_every_worker_and_the_driver():
     """Issue 42: the arms' fit spun a BLAS thread per core in every process; beside another
     job, calibrate took 141 s instead of 10.6 s (``python -m bench threads``). One thread,
     not a share of the cores: OpenBLAS's sums then give the same bytes whatever the workers."""
-    from pipeline.engines import single_threaded_blas
+    from core.engines import single_threaded_blas
 
     for item in map_local(BlasThreads, (), "work", [0, 1, 2], workers=2, max_tasks=5):
         assert len(item) >= 2 and set(item) == {1}  # NumPy's and SciPy's

@@ -25,8 +25,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from pipeline.engines import WORKER_CPUS_ENV, EngineError, environment, single_threaded_blas, upload
-from pipeline.progress import console
+from core.engines import WORKER_CPUS_ENV, EngineError, environment, single_threaded_blas, upload
+from core.progress import console
 
 #: a sample is tried on at most this many workers before the stage gives up on it
 MAX_ATTEMPTS = 3

@@ -6,7 +6,7 @@ import typing
 import numpy as np
 import pytest
 
-from pipeline.config import PROFILES, SECTION_TYPES, ConfigError, load_config, write_config
+from core.config import PROFILES, SECTION_TYPES, ConfigError, load_config, write_config
 
 
 @pytest.mark.parametrize("profile", PROFILES)

@@ -8,7 +8,7 @@ from typing import Literal
 
 import numpy as np
 
-from pipeline.config.params import param
+from core.config.params import param
 
 UnmodelledSource = Literal["elasticity", "backlash", "thermal", "mocap_calibration", "intrinsics_drift", "mount"]
 #: every error source of the virtual testbed that calibrate and fuse do not model

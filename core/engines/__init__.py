@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Any, Literal
 
+from core.engines.local import map_local
 from manifests import Workspace
 from manifests.files import write_bytes_atomic
-from manifests.remote import Remote, StoredFile
-from pipeline.engines.local import map_local
+from manifests.remote import Remote
+from manifests.store import StoredFile
 from speedplus.errors import InputError
 
 #: set in a Ray worker to the CPUs Ray reserved for it: its renderer uses that many threads
@@ -132,7 +133,7 @@ def map_engine(engine: Literal["local", "ray"], factory: Callable[..., Any], arg
     must match the driver's ``environment`` and ``expect``; with ``remote``, it uploads its
     results' files there itself)."""
     if engine == "ray":
-        from pipeline.engines.cluster import map_ray
+        from core.engines.cluster import map_ray
 
         return map_ray(factory, args, method, items, workers=workers, max_tasks=max_tasks, address=ray_address,
                        worker_cpus=worker_cpus, prepare=prepare, probe=probe, expect=expect,

@@ -3,14 +3,14 @@
 
 Resolution order (``loading.layered``): the workspace's saved ``W/config.toml``, or for a new
 workspace (or an explicit ``--profile`` switch) the dataclass defaults and the profile shipped in
-``pipeline/profiles`` (``smoke``, ``default``, ``paper``); then ``--config FILE`` (its keys only);
+``core/profiles`` (``smoke``, ``default``, ``paper``); then ``--config FILE`` (its keys only);
 then ``--set section.key=value``. The resolved configuration is written to ``W/config.toml``
 when a command succeeds. Units follow docs/architecture.md section 3:
 metres and radians (field names end in ``_m``, ``_rad``, ``_px``; quaternions ``_q`` are
 Hamilton ``(w, x, y, z)``).
 """
 
-from pipeline.config.facility import (
+from core.config.facility import (
     UNMODELLED_SOURCES,
     CameraConfig,
     RunConfig,
@@ -19,7 +19,7 @@ from pipeline.config.facility import (
     VirtualConfig,
     resize_camera_matrix,
 )
-from pipeline.config.loading import (
+from core.config.loading import (
     PROFILES,
     Override,
     layered,
@@ -30,9 +30,9 @@ from pipeline.config.loading import (
     with_overrides,
     write_config,
 )
-from pipeline.config.model import SECTION_TYPES, Config
-from pipeline.config.params import ConfigError, documented, param
-from pipeline.config.stages import (
+from core.config.model import SECTION_TYPES, Config
+from core.config.params import ConfigError, documented, param
+from core.config.stages import (
     AcquireConfig,
     CalibrateConfig,
     EvaluateConfig,

@@ -29,7 +29,7 @@ def _exit_with_parent(parent: int) -> None:
 
 def _initialise(factory: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
     global _context
-    from pipeline.engines import single_threaded_blas
+    from core.engines import single_threaded_blas
 
     single_threaded_blas()
     # Ctrl-C reaches the whole process group: the driver stops the pool and says what was

@@ -22,9 +22,9 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from core.engines.local_cluster import ENV, LocalCluster, free_port
 from manifests import Workspace, list_parts
 from manifests.remote import Remote, RemoteCopy
-from pipeline.engines.local_cluster import ENV, LocalCluster, free_port
 from tests.conftest import speedplus
 
 VOLATILE = ("seconds",)

@@ -6,8 +6,8 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any
 
-from pipeline.config.facility import CameraConfig, RunConfig, TargetConfig, TestbedConfig, VirtualConfig
-from pipeline.config.stages import (
+from core.config.facility import CameraConfig, RunConfig, TargetConfig, TestbedConfig, VirtualConfig
+from core.config.stages import (
     AcquireConfig,
     CalibrateConfig,
     EvaluateConfig,

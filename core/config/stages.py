@@ -6,8 +6,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from core.config.params import param
 from manifests.schema import DOMAINS, MOUNTS
-from pipeline.config.params import param
 
 ExportSet = Literal["testbed", "twins", "train"]
 ExportFormat = Literal["speedplus", "bop", "shirt"]
