@@ -42,14 +42,14 @@ dataset: $(RUN_STAMP)
 	@echo "exports: $(WORKSPACE)/export/speedplus (SPEED+ layout); manifests: $(WORKSPACE)/manifests"
 
 test: setup
-	$(BIN)/ruff check pipeline stages manifests speedplus tests bench
+	$(BIN)/ruff check core pipeline stages manifests speedplus tests bench
 	$(BIN)/python -m pytest -q --durations=15
 
 bench: setup
 	$(BIN)/python -m bench
 
 lint: setup
-	$(BIN)/ruff check pipeline stages manifests speedplus tests bench
+	$(BIN)/ruff check core pipeline stages manifests speedplus tests bench
 
 clean:
 	rm -rf $(VENV) data

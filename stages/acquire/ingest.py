@@ -89,7 +89,3 @@ def check_translation(path: Path, label: str, translations: np.ndarray, unit: st
                                 f"implausible for {unit} (a flange is at least {low:g} {unit} from its base); "
                                 f"is the file in {other}?")
 
-
-def check_translation_mm(path: Path, label: str, translations: np.ndarray) -> None:
-    check_translation(path, label + " translation", translations, "mm",
-                      [f"matrix {i}" for i in range(len(translations))])
