@@ -10,22 +10,8 @@ must see all at once; whether a pixel is the target needs only its neighbourhood
 on the same 2,700 images and the same recipe, the centre-and-size detector found held-out
 boxes with a median IoU of 0.52 (docs/models.md, "The detector").
 
-Its metadata (``metadata_props``):
-
-=========================  ==============================================================
-key                        value
-=========================  ==============================================================
-``speedplus.detector``     ``1`` (this contract's version)
-``speedplus.input_size``   ``WxH``: the whole image is resized to it; input (N, C, H, W)
-                           float32
-``speedplus.channels``     ``rgb`` or ``gray``
-``speedplus.normalize``    ``mean/std`` per channel on pixel values in [0, 1]
-``speedplus.target``       optional: the target it was made for (absent: Tango)
-``speedplus.box_scale``    optional: each box is scaled about its centre by this factor
-                           (absent: 1): train-reference sets it to the median ratio of the
-                           held-out labels' box sides to the detector's, since the label's
-                           box holds parts no image shows (unlit faces, thin antennas)
-=========================  ==============================================================
+Its metadata (``metadata_props``): the keys of ``DETECTOR_KEYS`` (docs/models.md's table is
+generated from it by ``python -m stages.common.contract_tables``).
 
 Output: ``mask`` (N, 1, h, w) in [0, 1], heatmap pixels tiling the input evenly (each
 ``W / w`` x ``H / h`` input pixels). A box edge lies where the mask's profile across it
@@ -45,6 +31,18 @@ from speedplus.errors import InputError
 from stages.common.pose_model import BUILTIN_TARGET, Channels, normalise_uint8
 
 CONTRACT = "1"
+#: the detector contract's metadata keys -> what each holds (Markdown)
+DETECTOR_KEYS: dict[str, str] = {
+    "speedplus.detector": "`1` (this contract's version)",
+    "speedplus.input_size": "`WxH`: the whole image is resized to it; input (N, C, H, W) float32",
+    "speedplus.channels": "`rgb` or `gray`",
+    "speedplus.normalize": "`mean/std` per channel on pixel values in [0, 1]",
+    "speedplus.target": "optional: the target it was made for (absent: Tango)",
+    "speedplus.box_scale": "optional: each box is scaled about its centre by this factor (absent: 1): "
+                           "train-reference sets it to the median ratio of the held-out labels' box sides to the "
+                           "detector's, since the label's box holds parts no image shows (unlit faces, thin "
+                           "antennas)",
+}
 #: the file name a detector has beside the keypoint models (W/models/, models/)
 DETECTOR_NAME = "detector"
 

@@ -1,34 +1,8 @@
 """The ONNX model contract, preprocessing, output decoding and pose recovery.
 
 Any ONNX model can be scored if its metadata (``metadata_props``) says how to feed it and
-read it:
-
-=========================  ==============================================================
-key                        value
-=========================  ==============================================================
-``speedplus.contract``     ``1``
-``speedplus.input_size``   ``WxH`` of the input tensor, e.g. ``256x160``; input is
-                           ``(N, C, H, W)`` float32
-``speedplus.channels``     ``rgb`` (C = 3) or ``gray`` (C = 1); a mono camera gives grey
-                           (seen by an ``rgb`` model in all three channels)
-``speedplus.normalize``    ``mean/std`` per channel on pixel values scaled to [0, 1], e.g.
-                           ``0.485,0.456,0.406/0.229,0.224,0.225``
-``speedplus.output``       ``keypoints`` (N, K, 2) input pixels; ``heatmaps`` (N, K, h, w),
-                           heatmap pixel centres spread evenly over the input; or ``pose``
-                           (two outputs: q (N, 4) Hamilton w first, t (N, 3) metres, full
-                           scale, of ``cam_from_target``)
-``speedplus.keypoints``    ``tango11`` (the 11 keypoints of docs/architecture.md section 7, in order) or
-                           a JSON list of K body-frame points, metres, full scale
-``speedplus.crop``         ``full`` (the whole image, resized) or ``oracle_box`` (a square
-                           around the label's box, enlarged 1.25 times: reported as oracle)
-``speedplus.target``       optional: the name of the target it was made for (a target
-                           folder's ``name``); evaluate refuses it on another target's
-                           workspace. Absent: made for the built-in Tango
-``speedplus.turns``        optional: ``4`` for a heatmap model with a square input trained on
-                           crops at every rotation; ``evaluate`` then averages its heatmaps
-                           of the crop turned by 0, 90, 180 and 270 degrees, each turned
-                           back (exact: no resampling). Absent: ``1``, one pass
-=========================  ==============================================================
+read it: the keys of ``CONTRACT_KEYS`` (docs/models.md's table is generated from it by
+``python -m stages.common.contract_tables``).
 
 Keypoint outputs become poses by AP3P inside RANSAC, then Levenberg-Marquardt refinement
 on the inliers, with the label camera (intrinsics and distortion); without a consensus, by
@@ -53,6 +27,29 @@ from stages.common import geometry as g
 from stages.common import tango
 
 CONTRACT_VERSION = "1"
+#: the contract's metadata keys -> what each holds (Markdown); "optional" ones may be absent
+CONTRACT_KEYS: dict[str, str] = {
+    "speedplus.contract": "`1`",
+    "speedplus.input_size": "`WxH` of the single input `(N, C, H, W)` float32, e.g. `192x192`",
+    "speedplus.channels": "`rgb` (C = 3) or `gray` (C = 1): what the camera gives is `gray` for a mono camera "
+                          "(the default, as SPEED+: testbed images and twins are grey); an `rgb` model sees a grey "
+                          "image in all three channels, a `gray` model a colour image's luminance",
+    "speedplus.normalize": "`mean/std` per channel for pixel values scaled to [0, 1], e.g. "
+                           "`0.485,0.456,0.406/0.229,0.224,0.225`",
+    "speedplus.output": "`keypoints` (N, K, 2) in input pixels; `heatmaps` (N, K, h, w), heatmap pixel centres "
+                        "spread evenly over the input; or `pose` (two outputs, q (N, 4) Hamilton w first and t "
+                        "(N, 3) m, full scale, of `cam_from_target`)",
+    "speedplus.keypoints": "`tango11` (the 11 keypoints of docs/architecture.md section 7, in order) or a JSON list "
+                           "of K body-frame points (m, full scale)",
+    "speedplus.crop": "`full` (whole image resized to the input) or `oracle_box` (a square of 1.25 times the "
+                      "larger side of the label's keypoint box, resized; scores are then those of the pose network "
+                      "given a perfect detector, and the report says so)",
+    "speedplus.turns": "optional: `4` for a heatmap model with a square input trained at every rotation: its "
+                       "heatmaps of the crop turned by 0, 90, 180 and 270 deg, turned back, are averaged "
+                       "(`evaluate.turns = false`: one pass); absent: `1`",
+    "speedplus.target": "optional: the name of the target the model was trained on (its `target.toml` `name`); "
+                        "absent: `tango`. `evaluate` refuses a model of another target than the workspace's",
+}
 #: the target of a model whose contract names none (every model made before targets had names)
 BUILTIN_TARGET = "tango"
 OUTPUT_KINDS = ("keypoints", "heatmaps", "pose")
