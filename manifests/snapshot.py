@@ -24,6 +24,7 @@ from pathlib import Path
 from manifests.workspace import (
     CONFIG_FILE,
     MANIFESTS_DIR,
+    SNAPSHOT_DIR,
     STATE_DIR,
     TARGET_DIR,
     PathEscapeError,
@@ -31,7 +32,6 @@ from manifests.workspace import (
     check_relative,
 )
 
-SNAPSHOT_DIR = ".snapshot"
 #: files a command may write beside the manifests (the typed JSON files, the report, the
 #: target folder plan copies in)
 RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*", f"{TARGET_DIR}/**/*")

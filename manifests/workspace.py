@@ -1,22 +1,7 @@
-"""The on-disk layout of a run (docs/architecture.md section 4), as path templates.
-
-```
-W/config.toml                                  resolved configuration
-W/manifests/<name>/part-NNNNN.parquet          Parquet dataset per manifest: parts only, so that
-                                               any Parquet reader takes the folder (polars, DuckDB)
-W/manifests/_state/<name>.json                 completion marker (fingerprint, rows, parts, files)
-W/manifests/_state/staging/<name>/             parts being written (linked into <name>/ when whole)
-W/images/{calibration,dataset}/<sample_id>.png testbed captures
-W/renders/{twins,train}/<sample_id>.png        synthetic images (masks/, ground_truth/<id>.exr beside them)
-W/truth/<sample_id>.exr                        virtual testbed: depth and part ids at the true pose
-W/models/<name>.onnx, <name>.json              trained models and their cards
-W/target/                                      the target folder the plan was made for (target.toml, mesh)
-W/session.json  W/calibration.json  W/fusion.json  W/truth.json  W/markers.json
-W/trajectories.json                            typed sidecars (manifests.sidecars)
-W/report/index.html  W/export/
-W/.snapshot/                                   a writing command's undo record (manifests.snapshot)
-```
-Paths stored in manifests are relative to ``W`` and may never leave it.
+"""The on-disk layout of a run (docs/architecture.md section 4), as path templates and
+``LAYOUT``, the one description of the folder (docs/formats.md's "Workspace layout" is
+generated from it by ``python -m manifests.reference``). Paths stored in manifests are
+relative to ``W`` and may never leave it.
 """
 
 from __future__ import annotations
@@ -49,6 +34,34 @@ TRUTH_MAPS_TEMPLATE = "truth/{sample_id}.exr"
 MODELS_DIR = "models"
 MODEL_TEMPLATE = MODELS_DIR + "/{name}.onnx"
 TARGET_DIR = "target"
+REPORT_DIR = "report"
+REPORT_PAGE = "index.html"
+EXPORT_DIR = "export"
+SNAPSHOT_DIR = ".snapshot"
+
+#: every path of a workspace (``W/`` + template) and what it holds, in the order a run makes them
+LAYOUT: tuple[tuple[str, str], ...] = (
+    (CONFIG_FILE, "the resolved configuration"),
+    (TARGET_DIR + "/", "the target folder the plan copied (target.toml, the mesh)"),
+    (f"{MANIFESTS_DIR}/<name>/{PART_TEMPLATE.format(index=0).replace('00000', 'NNNNN')}",
+     "one Parquet dataset per manifest: parts only, so any Parquet reader takes the folder (polars, DuckDB)"),
+    (f"{MANIFESTS_DIR}/{STATE_DIR}/<name>.json", "completion marker: fingerprint, rows, parts, files, timings"),
+    (f"{MANIFESTS_DIR}/{STATE_DIR}/staging/<name>/", "parts being written (linked into <name>/ when whole)"),
+    (IMAGE_TEMPLATE.format(session="{calibration,dataset}", sample_id="<sample_id>"), "testbed captures"),
+    (RENDER_TEMPLATE.format(set="{twins,train}", sample_id="<sample_id>"),
+     "synthetic images; their masks/<sample_id>.png and ground_truth/<sample_id>.exr beside them"),
+    (TRUTH_MAPS_TEMPLATE.format(sample_id="<sample_id>"), "virtual testbed: depth and part ids at the true pose"),
+    (SESSION_FILE, "the capture session: backend, pattern, camera, sources"),
+    (CALIBRATION_FILE, "calibrated offsets, sigmas, Table 1"),
+    (FUSION_FILE, "the session's variance factor, each axis's source, the session offset, the sigmas' notes"),
+    (TRUTH_FILE, "virtual testbed only: the hidden true offsets"),
+    (MARKERS_FILE, "virtual testbed only: where the motion-capture markers sat on the mock-up"),
+    (TRAJECTORIES_FILE, "plan.mode = trajectory: each sequence's epoch, orbit, relative orbit, inertia and spin"),
+    (MODEL_TEMPLATE.format(name="<name>") + ", .json", "train-reference: a model and its card"),
+    (f"{REPORT_DIR}/{REPORT_PAGE}", "the report"),
+    (EXPORT_DIR + "/<format>/", "exports (speedplus, bop, shirt) unless --out names another folder"),
+    (SNAPSHOT_DIR + "/", "while a command writes: its undo record (hard links), gone when it ends"),
+)
 
 
 class PathEscapeError(InputError, ValueError):

@@ -26,7 +26,7 @@ from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
 from manifests.sidecars import read_trajectories
-from manifests.workspace import PathEscapeError, check_relative
+from manifests.workspace import EXPORT_DIR, PathEscapeError, check_relative
 from speedplus.errors import InputError
 from stages.common.cameras import train_camera
 from stages.common.json_arrays import calibrated_camera
@@ -54,7 +54,9 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
 
 def out_dir(config: Config, workspace: Workspace) -> Path:
     """``export.out``, else ``W/export/<format>``."""
-    return Path(config.export.out).resolve() if config.export.out else workspace.root / "export" / config.export.format
+    if config.export.out:
+        return Path(config.export.out).resolve()
+    return workspace.root / EXPORT_DIR / config.export.format
 
 
 def status_views(config: Config, workspace: Workspace) -> list[tuple[str, Config]]:

@@ -21,6 +21,7 @@ from core.stage_io import Resolved
 from manifests import Workspace, read_manifest
 from manifests.files import write_bytes_atomic
 from manifests.sidecars import read_calibration
+from manifests.workspace import REPORT_DIR, REPORT_PAGE
 from stages.common.json_arrays import calibrated_camera
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target
@@ -37,7 +38,6 @@ from stages.report.sections import (
     tracking_section,
 )
 
-REPORT_DIR = "report"
 STYLE = """
 body { font-family: sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; background: #fff; }
 h1 { border-bottom: 2px solid #444; font-size: 1.5em; overflow-wrap: anywhere; } h2 { margin-top: 1.6em; color: #334; }
@@ -131,4 +131,4 @@ def run(config: Config, workspace: Workspace) -> None:
     ]
     summary = (f"Profile {html.escape(config.profile)}, models {html.escape(', '.join(models))}; {len(labels)} "
                f"labels, {len(renders)} twins, {len(predictions)} predictions.")
-    write_bytes_atomic(out / "index.html", page(workspace, summary, sections).encode())
+    write_bytes_atomic(out / REPORT_PAGE, page(workspace, summary, sections).encode())

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from manifests.reference import markdown
+from manifests.reference import layout, markdown
 from manifests.schema import MANIFESTS
 
 FORMATS = Path(__file__).resolve().parents[2] / "docs" / "formats.md"
@@ -14,6 +14,13 @@ def test_the_formats_document_holds_the_schemas_tables_as_generated():
     for spec in MANIFESTS.values():
         assert f"### `{spec.name}`" in text
         assert all(f"| `{column.name}` |" in text for column in spec.columns)
+
+
+def test_the_formats_document_holds_the_layout_as_generated():
+    from manifests.workspace import LAYOUT
+
+    assert layout() in FORMATS.read_text(), "docs/formats.md is stale: paste `python -m manifests.reference` into it"
+    assert all(f"W/{path}" in layout() for path, _ in LAYOUT)
 
 
 def test_the_formats_document_gives_each_json_files_version_as_the_code_has_it():
