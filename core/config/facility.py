@@ -4,11 +4,14 @@ lights, and the virtual testbed's error model (units: docs/architecture.md secti
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from core.config.params import param
+from core.config.params import ConfigError, at_least, param, unit_quaternion
+
+if TYPE_CHECKING:
+    from core.config.model import Config
 
 UnmodelledSource = Literal["elasticity", "backlash", "thermal", "mocap_calibration", "intrinsics_drift", "mount"]
 #: every error source of the virtual testbed that calibrate and fuse do not model
@@ -48,6 +51,12 @@ class RunConfig:
         600.0, "how long a Ray worker may take to start (placement, code upload, Mitsuba) before the engine "
         "gives up on it", "s")
 
+    def check(self, config: Config) -> None:
+        """Counts of at least one (workers: 0 for as many as the cores) and a positive timeout."""
+        at_least("run", self, {"workers": 0, "worker_max_tasks": 1, "worker_cpus": 1, "part_rows": 1})
+        if not self.start_timeout_s > 0:
+            raise ConfigError("run.start_timeout_s: expected a positive number of seconds")
+
 
 @dataclass(frozen=True)
 class CameraConfig:
@@ -84,6 +93,20 @@ class CameraConfig:
     def dist_coeffs(self) -> np.ndarray:
         return np.asarray(self.dist, dtype=float)
 
+    def check(self, config: Config) -> None:
+        """A size of the reference's aspect, an output gamma, and a mono sensor on the virtual testbed."""
+        at_least("camera", self, {"width_px": 1, "height_px": 1})
+        if abs(self.width_px / self.reference_width_px - self.height_px / self.reference_height_px) > 1e-9:
+            raise ConfigError(
+                f"camera.width_px/height_px: {self.width_px}x{self.height_px} does not have the aspect of the "
+                f"reference {self.reference_width_px}x{self.reference_height_px}; intrinsics can only be scaled "
+                "uniformly")
+        if config.acquire.backend == "virtual" and self.sensor == "colour":
+            raise ConfigError("camera.sensor: the virtual testbed's camera is mono (an IMX174); colour is for "
+                              "replayed recordings (acquire.backend = replay)")
+        if not 0.2 <= self.gamma <= 5.0:
+            raise ConfigError(f"camera.gamma: {self.gamma} is not an output gamma (0.2-5; 1 is linear)")
+
 
 @dataclass(frozen=True)
 class TargetConfig:
@@ -92,6 +115,9 @@ class TargetConfig:
     stage reads; its content's digest is in their fingerprints."""
 
     path: str = param("", "the target folder (DIR holding target.toml); empty: the built-in Tango", "")
+
+    def check(self, config: Config) -> None:
+        """Nothing beyond the types: the folder itself is read and checked by the plan."""
 
 
 @dataclass(frozen=True)
@@ -132,6 +158,10 @@ class TestbedConfig:
     board_square_m: float = param(0.030, "ChArUco square side (TRON: 30 mm)", "m")
     board_marker_m: float = param(0.022, "ArUco marker side inside a square", "m")
     board_dictionary: str = param("DICT_5X5_100", "cv2.aruco predefined dictionary of the board")
+
+    def check(self, config: Config) -> None:
+        """Unit quaternions."""
+        unit_quaternion("testbed.camee_from_cam_q", self.camee_from_cam_q)
 
 
 @dataclass(frozen=True)
@@ -262,4 +292,10 @@ class VirtualConfig:
                                    "between the sessions (dowel-pinned plate)", "m")
     remount_sigma_rad: float = param(1e-4, "mount: 1-sigma rotation change at the remount", "rad")
 
-
+    def check(self, config: Config) -> None:
+        """Renderer counts of at least one, a ghost rate that is a probability, unit quaternions."""
+        at_least("virtual", self, {"spp": 1, "max_depth": 1, "rr_depth": 1})
+        if not 0 <= self.vicon_ghost_rate <= 1:
+            raise ConfigError(f"virtual.vicon_ghost_rate: expected a probability in [0, 1], got "
+                              f"{self.vicon_ghost_rate}")
+        unit_quaternion("virtual.vicon_world_from_world_q", self.vicon_world_from_world_q)

@@ -11,17 +11,14 @@ import types
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
-from datetime import datetime
 from importlib import resources
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 import tomli_w
 
 from core.config.model import SECTION_TYPES, Config
 from core.config.params import ConfigError
-from manifests.schema import DOMAINS, MOUNTS
 
 PROFILES = ("smoke", "default", "paper")
 
@@ -147,158 +144,14 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
     return replace(config, **changes)
 
 
-def _check_trajectory(config: Config) -> None:
-    """The [trajectory] section's physics: an orbit above the Earth, a time scale, an inertia
-    that a body can have (the message names the key)."""
-    t = config.trajectory
-    if not t.presets or len(set(t.presets)) != len(t.presets):
-        raise ConfigError(f"trajectory.presets: expected distinct presets, got {list(t.presets)}")
-    _at_least(config, {"trajectory.max_replans": 0, "trajectory.frames": 1})
-    if not t.cam_step_s > 0:
-        raise ConfigError(f"trajectory.cam_step_s: expected a positive step (s), got {t.cam_step_s}")
-    try:
-        epoch = datetime.fromisoformat(t.epoch_utc.replace("Z", "+00:00"))
-    except ValueError:
-        epoch = None
-    if epoch is None or epoch.tzinfo is None:
-        raise ConfigError(f"trajectory.epoch_utc: {t.epoch_utc!r} is not an ISO 8601 time in UTC, "
-                          "e.g. 2026-03-20T06:00:00Z")
-    if not 0 <= t.chief_e < 1:
-        raise ConfigError(f"trajectory.chief_e: expected an eccentricity in [0, 1), got {t.chief_e}")
-    if t.chief_a_m * (1 - t.chief_e) <= 6_478_137.0:
-        raise ConfigError(f"trajectory.chief_a_m: a perigee {t.chief_a_m * (1 - t.chief_e) / 1e3:.0f} km from the "
-                          "Earth's centre is below 100 km altitude (the value is in metres)")
-    if abs(math.sin(t.chief_i_rad)) < 1e-3:
-        raise ConfigError("trajectory.chief_i_rad: an equatorial orbit has no node; the relative elements dix, diy "
-                          "need an inclination away from 0 and pi")
-    if t.mass_kg <= 0 or min(t.pointing_sigma_rad, t.jitter_sigma_rad) < 0:
-        raise ConfigError("trajectory.mass_kg: positive; trajectory.pointing_sigma_rad/jitter_sigma_rad: at least 0")
-    if not 0 <= t.sunlamp_tolerance_rad <= math.pi:
-        raise ConfigError(f"trajectory.sunlamp_tolerance_rad: expected an angle in [0, pi], got "
-                          f"{t.sunlamp_tolerance_rad}")
-    if t.inertia_kgm2:
-        if len(t.inertia_kgm2) != 6:
-            raise ConfigError("trajectory.inertia_kgm2: expected (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) or empty")
-        ixx, iyy, izz, ixy, ixz, iyz = t.inertia_kgm2
-        moments = np.linalg.eigvalsh(np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], float))
-        if moments[0] <= 0 or moments[2] > moments[0] + moments[1] * (1 + 1e-9):
-            raise ConfigError(f"trajectory.inertia_kgm2: principal moments {moments.round(6).tolist()} kg m^2 are "
-                              "not a rigid body's (all positive, the largest at most the sum of the others)")
-
-
-def _at_least(config: Config, minimums: dict[str, int]) -> None:
-    """Each ``section.key`` at least its minimum; the message names the key and its value."""
-    for dotted, minimum in minimums.items():
-        section, key = dotted.split(".")
-        value = getattr(config.section(section), key)
-        if value < minimum:
-            raise ConfigError(f"{dotted}: expected at least {minimum}, got {value!r}")
-
-
 def _check(config: Config) -> Config:
-    """Cross-field rules that types cannot express; a relative ``target.path`` is made
-    absolute (the saved configuration must name the same folder from any directory)."""
+    """Each section's rules that types cannot express (its own ``check``, beside its fields);
+    a relative ``target.path`` is made absolute (the saved configuration must name the same
+    folder from any directory)."""
     if config.target.path and not Path(config.target.path).is_absolute():
         config = replace(config, target=replace(config.target, path=str(Path(config.target.path).resolve())))
-    c, p = config.camera, config.plan
-    _at_least(config, {"camera.width_px": 1, "camera.height_px": 1})
-    if abs(c.width_px / c.reference_width_px - c.height_px / c.reference_height_px) > 1e-9:
-        raise ConfigError(
-            f"camera.width_px/height_px: {c.width_px}x{c.height_px} does not have the aspect of the reference "
-            f"{c.reference_width_px}x{c.reference_height_px}; intrinsics can only be scaled uniformly")
-    if len(p.dataset_range_m) not in (0, 2):
-        raise ConfigError(f"plan.dataset_range_m: expected [] (SPEED+'s, in the target's diameters) or [min, max], "
-                          f"got {list(p.dataset_range_m)}")
-    for key, low, high in (("plan.calibration_distance_m", *p.calibration_distance_m),
-                           *((("plan.dataset_range_m", *p.dataset_range_m),) if p.dataset_range_m else ()),
-                           ("plan.dataset_range_diameters", *p.dataset_range_diameters)):
-        if not 0 <= low <= high or (key == "plan.calibration_distance_m" and low == 0) or high == 0:
-            raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got ({low}, {high})")
-    _at_least(config, {"plan.n_calibration": 0, "plan.n_dataset": 0})
-    if not set(p.lights) <= set(DOMAINS) or not p.lights:
-        raise ConfigError(f"plan.lights: expected a non-empty subset of lightbox, sunlamp, got {p.lights}")
-    if not set(p.calibration_mounts) <= set(MOUNTS) or not p.calibration_mounts:
-        raise ConfigError(f"plan.calibration_mounts: expected minus_x and/or plus_x, got {p.calibration_mounts}")
-    low, high = p.light_boxes_per_sample
-    if not 1 <= low <= high <= p.n_light_boxes:
-        raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {p.n_light_boxes}")
-    if not 0 <= p.calibration_max_tilt_rad < math.pi / 2:
-        raise ConfigError(f"plan.calibration_max_tilt_rad: expected [0, pi/2), got {p.calibration_max_tilt_rad}")
-    if p.mode == "trajectory":
-        _check_trajectory(config)
-    if not 0.0 <= config.export.validation_fraction <= 1.0:
-        raise ConfigError(f"export.validation_fraction: expected a share in [0, 1], got "
-                          f"{config.export.validation_fraction}")
-    if config.export.format == "shirt" and p.mode != "trajectory":
-        raise ConfigError(f"export.format: shirt exports rendezvous sequences, and plan.mode is {p.mode!r} "
-                          "(independent poses): export them with speedplus or bop, or plan sequences "
-                          "(plan.mode = \"trajectory\")")
-    if config.export.format == "shirt" and "train" in config.export.sets:
-        raise ConfigError(f"export.sets: {list(config.export.sets)}: shirt exports the sequences' testbed images "
-                          "and twins, not the training set; drop train, or export it with speedplus or bop")
-    if not config.export.sets or len(set(config.export.sets)) != len(config.export.sets):
-        raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {config.export.sets}")
-    if config.acquire.backend == "replay" and not config.acquire.source:
-        raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
-    if config.acquire.backend == "virtual" and config.camera.sensor == "colour":
-        raise ConfigError("camera.sensor: the virtual testbed's camera is mono (an IMX174); colour is for replayed "
-                          "recordings (acquire.backend = replay)")
-    if not 0.2 <= config.camera.gamma <= 5.0:
-        raise ConfigError(f"camera.gamma: {config.camera.gamma} is not an output gamma (0.2-5; 1 is linear)")
-    e = config.evaluate
-    if min(e.tracking_rotation_sigma_rad, e.tracking_lateral_sigma, e.tracking_depth_sigma) <= 0 \
-            or min(e.tracking_angular_acceleration_sigma, e.tracking_roe_walk) < 0:
-        raise ConfigError("evaluate.tracking_*: the measurement sigmas must be positive, the process noises at least 0")
-    if not 0 < e.tracking_gate_probability < 1:
-        raise ConfigError(f"evaluate.tracking_gate_probability: expected a probability in (0, 1), got "
-                          f"{e.tracking_gate_probability}")
-    _at_least(config, {"evaluate.threads": 0, "evaluate.batch_size": 1, "evaluate.ransac_seed": 0,
-                       "evaluate.ransac_seeds": 1,
-                       "run.workers": 0, "run.worker_max_tasks": 1, "run.worker_cpus": 1, "run.part_rows": 1,
-                       "virtual.spp": 1, "virtual.max_depth": 1, "virtual.rr_depth": 1, "calibrate.folds": 2,
-                       "render.spp": 1, "render.train_spp": 1, "render.max_depth": 1, "render.train_count": 0})
-    if not config.run.start_timeout_s > 0:
-        raise ConfigError("run.start_timeout_s: expected a positive number of seconds")
-    if not 0 <= config.virtual.vicon_ghost_rate <= 1:
-        raise ConfigError(f"virtual.vicon_ghost_rate: expected a probability in [0, 1], got "
-                          f"{config.virtual.vicon_ghost_rate}")
-    if min(config.calibrate.arm_prior_joint_rad, config.calibrate.arm_prior_length_m, config.calibrate.arm_prior_base_m,
-           config.calibrate.arm_prior_base_rad, config.calibrate.arm_prior_rail_scale,
-           *config.calibrate.arm_prior_compliance_rad_per_nm) <= 0:
-        raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
-    if min(*config.fuse.lost_motion_rad, config.fuse.backlash_preload_nm, config.fuse.vicon_scale_sigma) < 0:
-        raise ConfigError("fuse.lost_motion_rad/backlash_preload_nm/vicon_scale_sigma: expected values of at least 0")
-    if config.calibrate.fixture_anisotropy_prior <= 0:
-        raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
-    if not math.isclose(float(np.linalg.norm(config.calibrate.world_up)), 1.0, rel_tol=1e-6):
-        raise ConfigError(f"calibrate.world_up: expected a unit vector, got {config.calibrate.world_up}")
-    r = config.render
-    if len(r.train_distance_m) not in (0, 2):
-        raise ConfigError(f"render.train_distance_m: expected [] (SPEED+'s, in the target's diameters) or [min, max], "
-                          f"got {list(r.train_distance_m)}")
-    ranges = [("render.train_distance_m", r.train_distance_m)] if r.train_distance_m else []
-    for key, (low, high) in [*ranges, ("render.train_distance_diameters", r.train_distance_diameters)]:
-        if not 0 <= low <= high or high == 0:
-            raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got {(low, high)}")
-    if not 0 < r.train_irradiance[0] <= r.train_irradiance[1]:
-        raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {r.train_irradiance}")
-    if not 0 <= r.train_earth_fraction <= 1:
-        raise ConfigError(f"render.train_earth_fraction: expected [0, 1], got {r.train_earth_fraction}")
-    if not 0 < r.train_resolution_scale <= 4:
-        raise ConfigError(f"render.train_resolution_scale: expected (0, 4], got {r.train_resolution_scale}")
-    template = config.label.filename_template
-    try:
-        example = PurePosixPath(template.format(sample_id="img000000"))
-    except (KeyError, IndexError, ValueError) as error:
-        raise ConfigError(f"label.filename_template: {template!r} is not a template of {{sample_id}} "
-                          f"({error})") from None
-    if example.is_absolute() or ".." in example.parts or "\\" in template or "{sample_id}" not in template:
-        raise ConfigError(f"label.filename_template: {template!r} must name a file inside the export folder and "
-                          "contain {sample_id}")
-    for section, key in (("testbed", "camee_from_cam_q"), ("virtual", "vicon_world_from_world_q")):
-        q = np.asarray(getattr(config.section(section), key))
-        if abs(np.linalg.norm(q) - 1.0) > 1e-6:
-            raise ConfigError(f"{section}.{key}: quaternion norm {np.linalg.norm(q):.6f} is not 1")
+    for name in SECTION_TYPES:
+        config.section(name).check(config)
     return config
 
 

@@ -18,6 +18,24 @@ def param(default: Any, help: str, unit: str = "") -> Any:  # noqa: A002 - "help
 
 
 
+def at_least(section: str, values: Any, minimums: dict[str, int]) -> None:
+    """Each key of ``values`` (a section) at least its minimum; the message names
+    ``section.key`` and its value."""
+    for key, minimum in minimums.items():
+        value = getattr(values, key)
+        if value < minimum:
+            raise ConfigError(f"{section}.{key}: expected at least {minimum}, got {value!r}")
+
+
+def unit_quaternion(dotted: str, q: Any) -> None:
+    """A quaternion (4,) of norm 1 (within 1e-6); the message names the key and its norm."""
+    import numpy as np
+
+    norm = float(np.linalg.norm(np.asarray(q, float)))
+    if abs(norm - 1.0) > 1e-6:
+        raise ConfigError(f"{dotted}: quaternion norm {norm:.6f} is not 1")
+
+
 def documented(section: type) -> list[tuple[str, Any, str, str]]:
     """Every key of a configuration section (a dataclass of ``param`` fields): (name,
     default, unit, help), in declaration order; what ``speedplus keys`` prints."""

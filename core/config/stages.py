@@ -4,10 +4,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, get_args
+from datetime import datetime
+from pathlib import PurePosixPath
+from typing import TYPE_CHECKING, Literal, get_args
 
-from core.config.params import param
+import numpy as np
+
+from core.config.params import ConfigError, at_least, param
 from manifests.schema import DOMAINS, MOUNTS
+
+if TYPE_CHECKING:
+    from core.config.model import Config
 
 ExportSet = Literal["testbed", "twins", "train"]
 ExportFormat = Literal["speedplus", "bop", "shirt"]
@@ -69,6 +76,29 @@ class PlanConfig:
     joint_limit_margin_rad: float = param(
         math.radians(3.0), "commanded joints keep this distance from the data-sheet limits", "rad")
 
+    def check(self, config: Config) -> None:
+        """Ranges of 0 <= min <= max, counts, the lights, mounts and light boxes that exist."""
+        if len(self.dataset_range_m) not in (0, 2):
+            raise ConfigError(f"plan.dataset_range_m: expected [] (SPEED+'s, in the target's diameters) or "
+                              f"[min, max], got {list(self.dataset_range_m)}")
+        for key, low, high in (("plan.calibration_distance_m", *self.calibration_distance_m),
+                               *((("plan.dataset_range_m", *self.dataset_range_m),) if self.dataset_range_m else ()),
+                               ("plan.dataset_range_diameters", *self.dataset_range_diameters)):
+            if not 0 <= low <= high or (key == "plan.calibration_distance_m" and low == 0) or high == 0:
+                raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got ({low}, {high})")
+        at_least("plan", self, {"n_calibration": 0, "n_dataset": 0})
+        if not set(self.lights) <= set(DOMAINS) or not self.lights:
+            raise ConfigError(f"plan.lights: expected a non-empty subset of lightbox, sunlamp, got {self.lights}")
+        if not set(self.calibration_mounts) <= set(MOUNTS) or not self.calibration_mounts:
+            raise ConfigError(f"plan.calibration_mounts: expected minus_x and/or plus_x, got "
+                              f"{self.calibration_mounts}")
+        low, high = self.light_boxes_per_sample
+        if not 1 <= low <= high <= self.n_light_boxes:
+            raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {self.n_light_boxes}")
+        if not 0 <= self.calibration_max_tilt_rad < math.pi / 2:
+            raise ConfigError(f"plan.calibration_max_tilt_rad: expected [0, pi/2), got "
+                              f"{self.calibration_max_tilt_rad}")
+
 
 @dataclass(frozen=True)
 class TrajectoryConfig:
@@ -114,6 +144,47 @@ class TrajectoryConfig:
         math.radians(30.0), "a sunlit frame is taken under the sun lamp when the lamp's direction at the model is "
         "this close to the true sun's, else under the light boxes on the Earth's side", "rad")
 
+    def check(self, config: Config) -> None:
+        """Where plan.mode = trajectory: an orbit above the Earth, a time scale, an inertia
+        that a body can have (the message names the key)."""
+        if config.plan.mode != "trajectory":
+            return
+        t = self
+        if not t.presets or len(set(t.presets)) != len(t.presets):
+            raise ConfigError(f"trajectory.presets: expected distinct presets, got {list(t.presets)}")
+        at_least("trajectory", t, {"max_replans": 0, "frames": 1})
+        if not t.cam_step_s > 0:
+            raise ConfigError(f"trajectory.cam_step_s: expected a positive step (s), got {t.cam_step_s}")
+        try:
+            epoch = datetime.fromisoformat(t.epoch_utc.replace("Z", "+00:00"))
+        except ValueError:
+            epoch = None
+        if epoch is None or epoch.tzinfo is None:
+            raise ConfigError(f"trajectory.epoch_utc: {t.epoch_utc!r} is not an ISO 8601 time in UTC, "
+                              "e.g. 2026-03-20T06:00:00Z")
+        if not 0 <= t.chief_e < 1:
+            raise ConfigError(f"trajectory.chief_e: expected an eccentricity in [0, 1), got {t.chief_e}")
+        if t.chief_a_m * (1 - t.chief_e) <= 6_478_137.0:
+            raise ConfigError(f"trajectory.chief_a_m: a perigee {t.chief_a_m * (1 - t.chief_e) / 1e3:.0f} km from the "
+                              "Earth's centre is below 100 km altitude (the value is in metres)")
+        if abs(math.sin(t.chief_i_rad)) < 1e-3:
+            raise ConfigError("trajectory.chief_i_rad: an equatorial orbit has no node; the relative elements dix, diy "
+                              "need an inclination away from 0 and pi")
+        if t.mass_kg <= 0 or min(t.pointing_sigma_rad, t.jitter_sigma_rad) < 0:
+            raise ConfigError("trajectory.mass_kg: positive; trajectory.pointing_sigma_rad/jitter_sigma_rad: at "
+                              "least 0")
+        if not 0 <= t.sunlamp_tolerance_rad <= math.pi:
+            raise ConfigError(f"trajectory.sunlamp_tolerance_rad: expected an angle in [0, pi], got "
+                              f"{t.sunlamp_tolerance_rad}")
+        if t.inertia_kgm2:
+            if len(t.inertia_kgm2) != 6:
+                raise ConfigError("trajectory.inertia_kgm2: expected (Ixx, Iyy, Izz, Ixy, Ixz, Iyz) or empty")
+            ixx, iyy, izz, ixy, ixz, iyz = t.inertia_kgm2
+            moments = np.linalg.eigvalsh(np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]], float))
+            if moments[0] <= 0 or moments[2] > moments[0] + moments[1] * (1 + 1e-9):
+                raise ConfigError(f"trajectory.inertia_kgm2: principal moments {moments.round(6).tolist()} kg m^2 are "
+                                  "not a rigid body's (all positive, the largest at most the sum of the others)")
+
 
 @dataclass(frozen=True)
 class AcquireConfig:
@@ -126,6 +197,11 @@ class AcquireConfig:
         "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
         "preset of handeye); see docs/user-guide.md", "")
     source: str = param("", "replay: the recorded session directory", "")
+
+    def check(self, config: Config) -> None:
+        """A replay names its recording."""
+        if self.backend == "replay" and not self.source:
+            raise ConfigError("acquire.source: the replay backend needs the recorded session directory")
 
 
 @dataclass(frozen=True)
@@ -200,6 +276,17 @@ class CalibrateConfig:
         0.02, "a calibration whose cross-validated E_p exceeds this fraction of the image diagonal is refused as "
         "absurd (about 45 px at 1920 x 1200; real calibrations: 1-5 px)", "1")
 
+    def check(self, config: Config) -> None:
+        """At least two folds, positive prior sigmas, a unit up vector."""
+        at_least("calibrate", self, {"folds": 2})
+        if min(self.arm_prior_joint_rad, self.arm_prior_length_m, self.arm_prior_base_m, self.arm_prior_base_rad,
+               self.arm_prior_rail_scale, *self.arm_prior_compliance_rad_per_nm) <= 0:
+            raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
+        if self.fixture_anisotropy_prior <= 0:
+            raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
+        if not math.isclose(float(np.linalg.norm(self.world_up)), 1.0, rel_tol=1e-6):
+            raise ConfigError(f"calibrate.world_up: expected a unit vector, got {self.world_up}")
+
 
 @dataclass(frozen=True)
 class FuseConfig:
@@ -243,12 +330,30 @@ class FuseConfig:
         "whatever its last move, and gains no lost-motion variance. RV reducers' lost motion is specified "
         "within +-3% of the rated torque: 15 N m for a 500 N m main axis", "N m")
 
+    def check(self, config: Config) -> None:
+        """Lost motion, preload and scale sigma of at least 0."""
+        if min(*self.lost_motion_rad, self.backlash_preload_nm, self.vicon_scale_sigma) < 0:
+            raise ConfigError("fuse.lost_motion_rad/backlash_preload_nm/vicon_scale_sigma: expected values of at "
+                              "least 0")
+
 
 @dataclass(frozen=True)
 class LabelConfig:
     """The label stage: SPEED+ labels of the dataset captures."""
 
     filename_template: str = param("{sample_id}.png", "image file name of a label in exports", "")
+
+    def check(self, config: Config) -> None:
+        """A file name template of {sample_id} that stays inside the export folder."""
+        template = self.filename_template
+        try:
+            example = PurePosixPath(template.format(sample_id="img000000"))
+        except (KeyError, IndexError, ValueError) as error:
+            raise ConfigError(f"label.filename_template: {template!r} is not a template of {{sample_id}} "
+                              f"({error})") from None
+        if example.is_absolute() or ".." in example.parts or "\\" in template or "{sample_id}" not in template:
+            raise ConfigError(f"label.filename_template: {template!r} must name a file inside the export folder "
+                              "and contain {sample_id}")
 
 
 @dataclass(frozen=True)
@@ -284,6 +389,23 @@ class RenderConfig:
         True, "write each image's per-pixel ground truth (depth, normals, body coordinates, part index, linear "
         "radiance) as one EXR beside it (stages/common/ground_truth.py); off: PNG and mask only", "")
 
+    def check(self, config: Config) -> None:
+        """Renderer counts, the training set's ranges, irradiance, Earth share and scale."""
+        at_least("render", self, {"spp": 1, "train_spp": 1, "max_depth": 1, "train_count": 0})
+        if len(self.train_distance_m) not in (0, 2):
+            raise ConfigError(f"render.train_distance_m: expected [] (SPEED+'s, in the target's diameters) or "
+                              f"[min, max], got {list(self.train_distance_m)}")
+        ranges = [("render.train_distance_m", self.train_distance_m)] if self.train_distance_m else []
+        for key, (low, high) in [*ranges, ("render.train_distance_diameters", self.train_distance_diameters)]:
+            if not 0 <= low <= high or high == 0:
+                raise ConfigError(f"{key}: expected 0 <= min <= max (max > 0), got {(low, high)}")
+        if not 0 < self.train_irradiance[0] <= self.train_irradiance[1]:
+            raise ConfigError(f"render.train_irradiance: expected 0 < min <= max, got {self.train_irradiance}")
+        if not 0 <= self.train_earth_fraction <= 1:
+            raise ConfigError(f"render.train_earth_fraction: expected [0, 1], got {self.train_earth_fraction}")
+        if not 0 < self.train_resolution_scale <= 4:
+            raise ConfigError(f"render.train_resolution_scale: expected (0, 4], got {self.train_resolution_scale}")
+
 
 @dataclass(frozen=True)
 class ReferenceConfig:
@@ -316,6 +438,9 @@ class ReferenceConfig:
     threads: int = param(2, "torch threads", "count")
     max_steps: int = param(0, "stop after this many optimiser steps (a quick check of the recipe); 0: the "
                            "whole recipe", "count")
+
+    def check(self, config: Config) -> None:
+        """Nothing beyond the types."""
 
 
 @dataclass(frozen=True)
@@ -362,6 +487,17 @@ class EvaluateConfig:
         0.999, "a measurement whose innovation is less likely than this under the filter's covariance is not used",
         "1")
 
+    def check(self, config: Config) -> None:
+        """Positive tracking sigmas, a gate probability, counts of at least one."""
+        if min(self.tracking_rotation_sigma_rad, self.tracking_lateral_sigma, self.tracking_depth_sigma) <= 0 \
+                or min(self.tracking_angular_acceleration_sigma, self.tracking_roe_walk) < 0:
+            raise ConfigError("evaluate.tracking_*: the measurement sigmas must be positive, the process noises at "
+                              "least 0")
+        if not 0 < self.tracking_gate_probability < 1:
+            raise ConfigError(f"evaluate.tracking_gate_probability: expected a probability in (0, 1), got "
+                              f"{self.tracking_gate_probability}")
+        at_least("evaluate", self, {"threads": 0, "batch_size": 1, "ransac_seed": 0, "ransac_seeds": 1})
+
 
 @dataclass(frozen=True)
 class ExportConfig:
@@ -378,4 +514,17 @@ class ExportConfig:
         0.2, "share of the training set in SPEED+'s synthetic/validation.json (SPEED+: 0.2), chosen by a hash of "
         "each sample_id: the same image stays on its side whatever else is rendered", "1")
 
-
+    def check(self, config: Config) -> None:
+        """A validation share, distinct sets, and SHIRT only of sequences and their test images."""
+        if not 0.0 <= self.validation_fraction <= 1.0:
+            raise ConfigError(f"export.validation_fraction: expected a share in [0, 1], got "
+                              f"{self.validation_fraction}")
+        if self.format == "shirt" and config.plan.mode != "trajectory":
+            raise ConfigError(f"export.format: shirt exports rendezvous sequences, and plan.mode is "
+                              f"{config.plan.mode!r} (independent poses): export them with speedplus or bop, or plan "
+                              "sequences (plan.mode = \"trajectory\")")
+        if self.format == "shirt" and "train" in self.sets:
+            raise ConfigError(f"export.sets: {list(self.sets)}: shirt exports the sequences' testbed images and "
+                              "twins, not the training set; drop train, or export it with speedplus or bop")
+        if not self.sets or len(set(self.sets)) != len(self.sets):
+            raise ConfigError(f"export.sets: expected distinct sets among testbed, twins, train, got {self.sets}")

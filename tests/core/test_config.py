@@ -112,3 +112,18 @@ def test_resolved_config_round_trips_through_toml(tmp_path):
 def test_a_label_filename_that_could_leave_the_export_folder_is_refused(template):
     with pytest.raises(ConfigError, match="label.filename_template"):
         load_config("smoke", overrides=[f"label.filename_template={template!r}"])
+
+
+def test_each_section_holds_its_own_rules():
+    """Every section's rules live beside its fields: each dataclass defines ``check``, and
+    loading has no rules of its own but calls them."""
+    import inspect
+
+    from core.config import loading
+    from core.config.model import SECTION_TYPES
+
+    for name, section in SECTION_TYPES.items():
+        assert "check" in vars(section), f"{name}: no check() beside its fields"
+        assert list(inspect.signature(section.check).parameters) == ["self", "config"]
+    source = inspect.getsource(loading._check)
+    assert "raise" not in source and "ConfigError" not in source
