@@ -16,7 +16,6 @@ import json
 import os
 import re
 import shutil
-import signal
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -34,10 +33,6 @@ from speedplus.errors import InputError
 
 QUATERNION_TOLERANCE = 1e-6
 _PART_RE = re.compile(r"^part-(\d{5})\.parquet$")
-# Test hook: SIGKILL this process while writing its Nth part (after the temporary file is
-# complete, before the rename), to prove that interrupted stages resume cleanly.
-_FAULT_ENV = "SPEEDPLUS_FAULT_KILL_AT_PART"
-_parts_written_in_process = 0
 
 
 class ManifestError(InputError):
@@ -237,7 +232,6 @@ def list_parts(workspace: Workspace, name: str) -> list[Path]:
 def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | Iterable[Mapping[str, Any]],
                fingerprint: str) -> Path | None:
     """Validate and atomically write one part; returns its path (None for no rows)."""
-    global _parts_written_in_process
     spec = spec_for(spec)
     table = rows if isinstance(rows, pa.Table) else to_table(rows, spec)
     if table.num_rows == 0:
@@ -252,9 +246,6 @@ def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | 
     index = max(existing, default=-1) + 1
     temporary = staging / f"part-{index:05d}.parquet.{os.getpid()}.tmp"
     write_table_file(temporary, table)
-    _parts_written_in_process += 1
-    if os.environ.get(_FAULT_ENV) == str(_parts_written_in_process):
-        os.kill(os.getpid(), signal.SIGKILL)
     while True:  # link, unlike rename, never replaces a part another process may have written
         final = directory / PART_TEMPLATE.format(index=index)
         try:

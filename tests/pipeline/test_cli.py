@@ -1,9 +1,6 @@
 """The speedplus command end to end, in subprocesses, as a user runs it."""
 
-import os
 import shutil
-import subprocess
-import sys
 import tomllib
 
 import pyarrow as pa
@@ -11,11 +8,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import Workspace, list_parts, read_manifest
-
-
-def speedplus(*args, env=None, cwd=None):
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
-                          env={**os.environ, "COLUMNS": "200", **(env or {})}, cwd=cwd, timeout=300)
+from tests.conftest import speedplus
 
 
 def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):

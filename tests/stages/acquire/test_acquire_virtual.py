@@ -1,9 +1,6 @@
 """The virtual acquisition end to end (smoke profile): manifests, images, truth, resume."""
 
 import json
-import os
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -13,11 +10,7 @@ from manifests import Workspace, list_parts, read_manifest
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.patterns import PatternSpec, detect
-
-
-def speedplus(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
-                          env={**os.environ, "COLUMNS": "200", **(env or {})}, timeout=900)
+from tests.conftest import speedplus
 
 
 @pytest.fixture(scope="module")
