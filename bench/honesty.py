@@ -53,7 +53,7 @@ from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION, papers
 from bench.common import report
 from bench.honest_odds import pooled_range, simulate
 from core.config import load_config, parse_override, with_overrides, write_config
-from manifests import Workspace, read_manifest, read_success
+from manifests import Workspace, read_manifest, read_marker
 from manifests.sidecars import read_calibration, read_fusion, read_session
 from stages.common import geometry as g
 from stages.common.patterns import pattern_from_table
@@ -119,7 +119,7 @@ def run_facility(workspace: Path, seed: int, settings: list[str], target: Path |
 
     # a facility's acquisition is its data, not the method under test: one already complete
     # is kept as it is, even when a later commit would plan (and so acquire) it afresh
-    if read_success(Workspace(workspace), "captures") is None or read_success(Workspace(workspace), "truth") is None:
+    if read_marker(Workspace(workspace), "captures") is None or read_marker(Workspace(workspace), "truth") is None:
         speedplus("run", "--profile", "default", "--until", "acquire", *args)
     current_method(workspace, settings)
     for stage in METHOD_SECTIONS:

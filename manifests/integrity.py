@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from manifests.files import fsync_dir, write_table_file
+from manifests.marker import CompletionMarker, FileRecord, PartRecord
 from manifests.schema import ManifestSpec
 from manifests.workspace import PART_TEMPLATE, Workspace
 
@@ -35,12 +36,12 @@ def sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def part_records(parts: list[Path]) -> list[dict[str, Any]]:
+def part_records(parts: list[Path]) -> tuple[PartRecord, ...]:
     """Name, rows (from the Parquet footer) and SHA-256 of each part."""
-    return [{"name": p.name, "rows": pq.ParquetFile(p).metadata.num_rows, "sha256": sha256(p)} for p in parts]
+    return tuple(PartRecord(p.name, pq.ParquetFile(p).metadata.num_rows, sha256(p)) for p in parts)
 
 
-def file_records(workspace: Workspace, spec: ManifestSpec, rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+def file_records(workspace: Workspace, spec: ManifestSpec, rows: list[dict[str, Any]]) -> dict[str, FileRecord]:
     """Size and SHA-256 of every existing workspace file the rows name in ``spec.files`` (for
     a file a worker uploaded to the store: what it reported, its size checked by the driver)."""
     out = {}
@@ -50,39 +51,39 @@ def file_records(workspace: Workspace, spec: ManifestSpec, rows: list[dict[str, 
             if relpath and relpath not in out:
                 stored = workspace.stored_record(relpath)  # a worker wrote it to the store directly
                 if stored is not None:
-                    out[relpath] = {"bytes": stored["bytes"], "sha256": stored["sha256"]}
+                    out[relpath] = FileRecord(stored["bytes"], stored["sha256"])
                     continue
                 path = workspace.fetch(relpath)
                 if path.is_file():
-                    out[relpath] = {"bytes": path.stat().st_size, "sha256": sha256(path)}
+                    out[relpath] = FileRecord(path.stat().st_size, sha256(path))
     return out
 
 
-def damage(parts: list[Path], marker: dict[str, Any]) -> str | None:
+def damage(parts: list[Path], marker: CompletionMarker) -> str | None:
     """What differs between a manifest's parts and its completion marker, or None. Markers
     written before parts were recorded are trusted as they are."""
-    recorded = {entry["name"]: entry for entry in marker.get("parts", [])} if "parts" in marker else None
-    if recorded is None:
+    if marker.parts is None:
         return None
+    recorded = {entry.name: entry for entry in marker.parts}
     present = {p.name: p for p in parts}
     for name in sorted(set(recorded) - set(present)):
         return f"{name} is missing"
     for name in sorted(set(present) - set(recorded)):
         return f"{name} was not written by the stage that completed it"
     for name, path in sorted(present.items()):
-        if sha256(path) != recorded[name]["sha256"]:
+        if sha256(path) != recorded[name].sha256:
             return f"{name} changed since the stage completed"
     return None
 
 
-def damaged_files(workspace: Workspace, marker: dict[str, Any]) -> list[str]:
+def damaged_files(workspace: Workspace, marker: CompletionMarker) -> list[str]:
     """The recorded files that are missing or differ in size or content, as messages."""
     problems = []
-    for relpath, record in sorted(marker.get("files", {}).items()):
+    for relpath, record in sorted((marker.files or {}).items()):
         path = workspace.fetch(relpath)
         if not path.is_file():
             problems.append(f"{relpath} is missing")
-        elif path.stat().st_size != record["bytes"] or sha256(path) != record["sha256"]:
+        elif path.stat().st_size != record.bytes or sha256(path) != record.sha256:
             problems.append(f"{relpath} changed since it was written")
     return problems
 

@@ -12,7 +12,6 @@ its marker (``manifests.integrity``).
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
@@ -25,8 +24,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from manifests.files import fsync_dir, write_json_atomic, write_table_file
+from manifests.files import fsync_dir, write_table_file
 from manifests.integrity import damage
+from manifests.marker import read_marker
 from manifests.schema import MANIFESTS, NAME_PATTERN, READABLE_VERSIONS, SCHEMA_VERSION, Column, ManifestSpec
 from manifests.workspace import PART_TEMPLATE, PathEscapeError, Workspace, check_relative
 from speedplus.errors import InputError
@@ -367,7 +367,7 @@ def read_manifest(workspace: Workspace, name: str | ManifestSpec, *, validate: b
     spec = spec_for(name)
     parts = list_parts(workspace, spec.name)
     check_layout(workspace, spec.name)
-    marker = read_success(workspace, spec.name)
+    marker = read_marker(workspace, spec.name)
     problem = damage(parts, marker) if marker is not None else None
     if problem is not None:
         raise ManifestError(workspace.display(workspace.manifest_dir(spec.name)),
@@ -399,50 +399,12 @@ def read_keys(workspace: Workspace, name: str | ManifestSpec) -> set[str]:
     return set(read_manifest(workspace, spec).column(spec.key).to_pylist())
 
 
-# ------------------------------------------------------------------------- success marker
+# ------------------------------------------------------------------------- completion marker
 def check_layout(workspace: Workspace, name: str) -> None:
     """Refuse a manifest written before schema 1.6, whose marker sat inside its folder."""
-    legacy = workspace.legacy_success_path(name)
+    legacy = workspace.legacy_marker_path(name)
     if legacy.exists():
         raise ManifestError(workspace.display(legacy), f"written by an older version of this program (schema before "
                             f"{SCHEMA_VERSION}: the completion marker sat inside the data folder, which polars and "
                             "DuckDB cannot read); redo the stage that writes it with --force, or start a new "
                             "workspace")
-
-
-def write_success(workspace: Workspace, name: str, payload: Mapping[str, Any]) -> None:
-    write_json_atomic(workspace.success_path(name), dict(sorted(payload.items())))
-
-
-def read_success(workspace: Workspace, name: str) -> dict[str, Any] | None:
-    """A manifest's completion marker, or None while the stage has not completed; the keys
-    readers rely on are checked, and an error names the file and the key."""
-    path = workspace.success_path(name)
-    if not path.exists():
-        return None
-    where = workspace.display(path)
-    try:
-        marker = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ManifestError(where, f"not valid JSON ({error}); redo the stage that writes it with --force") from None
-
-    def fail(key: str, expected: str) -> ManifestError:
-        return ManifestError(where, f"key {key}: expected {expected}; redo the stage that writes it with --force")
-
-    if not isinstance(marker, dict):
-        raise fail("(top level)", "a JSON object")
-    if not isinstance(marker.get("fingerprint"), str):
-        raise fail("fingerprint", "a string")
-    if not isinstance(marker.get("rows"), int) or marker["rows"] < 0:
-        raise fail("rows", "a row count")
-    parts = marker.get("parts", [])
-    if not isinstance(parts, list) or not all(
-            isinstance(p, dict) and isinstance(p.get("name"), str) and _PART_RE.match(p["name"])
-            and isinstance(p.get("rows"), int) and isinstance(p.get("sha256"), str) for p in parts):
-        raise fail("parts", "a list of {name: part-NNNNN.parquet, rows, sha256}")
-    files = marker.get("files", {})
-    if not isinstance(files, dict) or not all(
-            isinstance(f, dict) and isinstance(f.get("bytes"), int) and isinstance(f.get("sha256"), str)
-            for f in files.values()):
-        raise fail("files", "an object of {bytes, sha256} by workspace path")
-    return marker

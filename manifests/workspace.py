@@ -24,7 +24,7 @@ PART_TEMPLATE = "part-{index:05d}.parquet"
 STATE_DIR = "_state"
 #: where schema versions before 1.6 kept the completion marker: inside the data folder,
 #: which polars and DuckDB refuse to read as a Parquet dataset
-LEGACY_SUCCESS_FILE = "_SUCCESS.json"
+LEGACY_MARKER_FILE = "_SUCCESS.json"
 IMAGE_TEMPLATE = "images/{session}/{sample_id}.png"
 RENDER_TEMPLATE = "renders/{set}/{sample_id}.png"
 MASK_TEMPLATE = "renders/{set}/masks/{sample_id}.png"
@@ -207,12 +207,12 @@ class Workspace:
     def manifest_dir(self, name: str) -> Path:
         return self.root / MANIFESTS_DIR / name
 
-    def success_path(self, name: str) -> Path:
+    def marker_path(self, name: str) -> Path:
         """Completion marker of manifest ``name``, outside its data folder."""
         return self.root / MANIFESTS_DIR / STATE_DIR / f"{name}.json"
 
-    def legacy_success_path(self, name: str) -> Path:
-        return self.manifest_dir(name) / LEGACY_SUCCESS_FILE
+    def legacy_marker_path(self, name: str) -> Path:
+        return self.manifest_dir(name) / LEGACY_MARKER_FILE
 
     def staging_dir(self, name: str) -> Path:
         """Where parts of ``name`` are written before they are linked into its folder (the

@@ -34,13 +34,14 @@ from manifests import (
     list_parts,
     part_fingerprints,
     read_manifest,
-    read_success,
+    read_marker,
     remove_temporaries,
-    write_success,
+    write_marker,
 )
 from manifests import clear as clear_manifest
 from manifests.files import copy_atomic
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
+from manifests.marker import CompletionMarker, FileRecord, PartRecord
 from manifests.schema import MANIFESTS
 from pipeline.registry import StageEntry
 from speedplus.errors import InputError
@@ -61,10 +62,10 @@ def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace)
     resolved = stage.resolved(config, workspace)
     inputs = {}
     for name in resolved.inputs:
-        marker = read_success(workspace, name)
+        marker = read_marker(workspace, name)
         if marker is None:
             return None
-        inputs[name] = {"fingerprint": marker["fingerprint"], "rows": marker["rows"]}
+        inputs[name] = {"fingerprint": marker.fingerprint, "rows": marker.rows}
     sections = {name: _section_dict(config, name) for name in resolved.sections}
     if resolved.member_key is not None:  # members are tracked one by one (markers' "members")
         section, key = resolved.member_key.split(".")
@@ -157,8 +158,8 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
     inputs, outputs = resolved.inputs, resolved.outputs
     rows = {name: row_count(workspace, name) for name in outputs}
     current = fingerprint(stage, config, workspace)
-    markers = [read_success(workspace, name) for name in outputs]
-    if current is not None and all(m is not None and m["fingerprint"] == current for m in markers):
+    markers = [read_marker(workspace, name) for name in outputs]
+    if current is not None and all(m is not None and m.fingerprint == current for m in markers):
         for name, marker in zip(outputs, markers, strict=True):
             problem = damage(list_parts(workspace, name), marker)
             if problem is not None:
@@ -168,23 +169,23 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
         recorded = set().union(*(part_fingerprints(workspace, name) for name in outputs)) if outputs else set()
     except ManifestError as error:
         return StageStatus(stage.name, "damaged", rows, f"{error}")
-    recorded |= {m["fingerprint"] for m in markers if m}
+    recorded |= {m.fingerprint for m in markers if m}
     if not recorded:
         detail = "waiting for " + ", ".join(inputs) if current is None else "not run"
         return StageStatus(stage.name, "missing", rows, detail)
     if current is None or recorded != {current}:
-        made = next((m.get("made_with") for m in markers if m and m.get("fingerprint") != current), None)
+        made = next((m.made_with for m in markers if m and m.fingerprint != current), None)
         return StageStatus(stage.name, "stale", rows,
                            differences(made, fingerprint_payload(stage, config, workspace)))
     return StageStatus(stage.name, "partial", rows,
                        "incomplete (interrupted, or refused: see its message); rerun to resume")
 
 
-def _member_status(name: str, members: dict[str, str], markers: list[dict[str, Any] | None],
+def _member_status(name: str, members: dict[str, str], markers: list[CompletionMarker | None],
                    rows: dict[str, int]) -> StageStatus:
     """Done, unless a member (evaluate: a model) is new (partial: it is added) or changed
     (stale: ``--force`` with its name redoes it alone)."""
-    scored = markers[0].get("members", {}) if markers and markers[0] else {}
+    scored = markers[0].members if markers and markers[0] else {}
     changed = sorted(m for m, digest in members.items() if m in scored and scored[m] != digest)
     if changed:
         return StageStatus(name, "stale", rows, f"{', '.join(changed)} changed since scored (another file's bytes); "
@@ -218,8 +219,8 @@ class Interrupted(KeyboardInterrupt):
 def redone_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> list[str]:
     """The inputs redone since the stage's results were made, when nothing else differs (its
     configuration, extras, target and schema are those it was made with); else none."""
-    recorded = [(read_success(workspace, name) or {}).get("made_with") for name in stage.resolved(config,
-                                                                                                  workspace).outputs]
+    markers = [read_marker(workspace, name) for name in stage.resolved(config, workspace).outputs]
+    recorded = [None if marker is None else marker.made_with for marker in markers]
     current = fingerprint_payload(stage, config, workspace)
     if current is None or not recorded or not all(isinstance(r, dict) for r in recorded):
         return []
@@ -243,11 +244,11 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     made_with = fingerprint_payload(stage, config, workspace)
     current = None if made_with is None else _digest(made_with)
     if current is None:
-        missing = [name for name in inputs if read_success(workspace, name) is None]
+        missing = [name for name in inputs if read_marker(workspace, name) is None]
         raise StageError(f"stage {stage.name!r} needs the complete manifest(s) {', '.join(missing)} in "
                          f"{workspace.root}; run the stage(s) before it first (or `speedplus run`)")
     for name in inputs:  # before anything is discarded: a damaged input stops the stage
-        problem = damage(list_parts(workspace, name), read_success(workspace, name))
+        problem = damage(list_parts(workspace, name), read_marker(workspace, name))
         if problem is not None:
             raise StageError(f"stage {stage.name!r} needs manifest {name}, which is damaged ({problem}); redo "
                              "the stage that writes it with --force (speedplus status names it)")
@@ -275,7 +276,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             "--config; a later `speedplus run` redoes the stages after it)")
     if state.state == "damaged" and not force:
         raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
-    previous = None if force else read_success(workspace, outputs[0]) if outputs else None
+    previous = None if force else read_marker(workspace, outputs[0]) if outputs else None
     if on_start is not None:
         on_start()
     if force or replacing:
@@ -286,7 +287,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         recover(workspace.manifest_dir(name))
         remove_temporaries(workspace, name)
         # this run's rows are checked against this run's marker, never a previous one's
-        workspace.success_path(name).unlink(missing_ok=True)
+        workspace.marker_path(name).unlink(missing_ok=True)
         if resumed:
             _forget_rows_without_files(workspace, name, current)
             if forget and resolved.member_column is not None:
@@ -304,7 +305,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         raise Interrupted(stage.name, kept, None if remaining is None else kept + remaining) from None
     seconds = time.perf_counter() - started
     rows = {name: row_count(workspace, name) for name in outputs}
-    members = {**(previous or {}).get("members", {}), **resolved.members} if resolved.members else None
+    members = {**(previous.members if previous else {}), **resolved.members} if resolved.members else None
     _write_markers(stage, workspace, outputs, current, made_with, rows, members, seconds, resumed)
     workspace.sync()  # a workspace on object storage: the store gets the stage's results now
     return StageOutcome(stage.name, "resumed" if resumed else "ran", rows, seconds)
@@ -328,19 +329,11 @@ def _write_markers(stage: StageEntry, workspace: Workspace, outputs: tuple[str, 
                    seconds: float, resumed: bool) -> None:
     """Each output's completion marker (docs/architecture.md section 4), after compaction."""
     for name in outputs:
-        write_success(workspace, name, {
-            **({"members": dict(sorted(members.items()))} if members else {}),
-            "stage": stage.name,
-            "fingerprint": current,
-            "rows": rows[name],
-            "schema_version": SCHEMA_VERSION,
-            "package_version": metadata.version("speedplus-builder"),
-            "seconds": round(seconds, 3),
-            "resumed": resumed,
-            "completed_at": datetime.now(UTC).isoformat(timespec="seconds"),
-            "made_with": made_with,
-            **_complete(workspace, name, current),
-        })
+        parts, files = _complete(workspace, name, current)
+        write_marker(workspace, name, CompletionMarker(
+            current, rows[name], stage.name, SCHEMA_VERSION, metadata.version("speedplus-builder"),
+            round(seconds, 3), resumed, datetime.now(UTC).isoformat(timespec="seconds"), made_with, parts, files,
+            dict(members or {})))
 
 
 def _only_members_differ(state: StageStatus, resolved: Any) -> bool:
@@ -381,17 +374,18 @@ def _forget_rows_without_files(workspace: Workspace, name: str, current: str) ->
                   f"{', ...' if len(missing) > 1 else ''}); they are redone[/]")
 
 
-def _complete(workspace: Workspace, name: str, current: str) -> dict[str, Any]:
+def _complete(workspace: Workspace, name: str, current: str,
+              ) -> tuple[tuple[PartRecord, ...] | None, dict[str, FileRecord] | None]:
     """Compact a finished manifest into key order and record its parts and files for the
-    marker (``manifests.integrity``): same inputs, same bytes, whatever order the rows came in."""
-    if name not in MANIFESTS:  # a completion marker without rows (report)
-        return {}
+    marker (``manifests.integrity``): same inputs, same bytes, whatever order the rows came
+    in. (None, None) for a marker without rows (report)."""
+    if name not in MANIFESTS:
+        return None, None
     spec = MANIFESTS[name]
     table = read_manifest(workspace, name)
     stamped = {**spec.schema().metadata, b"speedplus.fingerprint": current.encode()}
     compact(workspace.manifest_dir(name), table.replace_schema_metadata(stamped), spec.key)
-    return {"parts": part_records(list_parts(workspace, name)),
-            "files": file_records(workspace, spec, table.to_pylist())}
+    return part_records(list_parts(workspace, name)), file_records(workspace, spec, table.to_pylist())
 
 
 def redo_plan(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...]) -> list[tuple[str, str]]:
@@ -426,7 +420,7 @@ def verify(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...])
     findings = []
     for stage in stages:
         for name in stage.resolved(config, workspace).outputs:
-            marker = read_success(workspace, name)
+            marker = read_marker(workspace, name)
             if marker is None:
                 continue
             problem = damage(list_parts(workspace, name), marker)
@@ -466,7 +460,7 @@ def publish_destinations(config: Config, workspace: Workspace, names: list[str],
 
 def _current_model_digests(workspace: Workspace) -> dict[str, str]:
     """model -> sha256 of this workspace's completed ``models`` manifest (none while incomplete)."""
-    if read_success(workspace, "models") is None:
+    if read_marker(workspace, "models") is None:
         return {}
     return {row["model"]: row["sha256"] for row in read_manifest(workspace, "models").to_pylist()}
 

@@ -69,15 +69,13 @@ def smoke_labelled(tmp_path_factory):
 def reseal(workspace, name):
     """Record a manifest's current parts in its completion marker, as if the stage had
     written them: for tests of what readers make of bad content (not of damage)."""
-    import json
+    from dataclasses import replace
 
-    from manifests import list_parts
+    from manifests import list_parts, read_marker, write_marker
     from manifests.integrity import part_records
 
-    path = workspace.success_path(name)
-    marker = json.loads(path.read_text())
-    marker["parts"] = part_records(list_parts(workspace, name))
-    path.write_text(json.dumps(marker))
+    parts = part_records(list_parts(workspace, name))
+    write_marker(workspace, name, replace(read_marker(workspace, name), parts=parts))
 
 
 class ObjectStore:

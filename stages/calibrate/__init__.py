@@ -14,7 +14,7 @@ import pyarrow as pa
 
 from core.config import Config
 from core.stage_io import Resolved
-from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from manifests import Workspace, open_sink, read_keys, read_manifest, read_marker
 from manifests import clear as clear_manifest
 from manifests.sidecars import SOURCES, Calibration, Session, read_session, write_calibration
 from speedplus.errors import InputError, RefusalError
@@ -48,7 +48,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     # solvers' sums and the screening's medians must not depend on that
     captures = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
                        if r["session"] == "calibration" and r["status"] == "ok"), key=lambda r: r["sample_id"])
-    if read_success(workspace, "plan") is not None and session.backend == "virtual":
+    if read_marker(workspace, "plan") is not None and session.backend == "virtual":
         unknown = sorted({r["sample_id"] for r in captures} - read_keys(workspace, "plan"))
         if unknown:
             raise InputError(f"captures: sample(s) {', '.join(unknown[:5])} are not in the plan")

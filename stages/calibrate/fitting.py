@@ -12,7 +12,7 @@ import numpy as np
 
 from core import progress
 from core.config import Config
-from manifests import Workspace, read_manifest, read_success
+from manifests import Workspace, read_manifest, read_marker
 from stages.calibrate import observations as obs
 from stages.common import arms, rwhe
 from stages.common import geometry as g
@@ -228,7 +228,7 @@ def pnp_variance(used: list[obs.Observation]) -> tuple[np.ndarray, float]:
 
 def load_truth(workspace: Workspace) -> dict[str, np.ndarray] | None:
     """True ``cam_from_target`` per sample, when the backend knows it (virtual testbed)."""
-    if read_success(workspace, "truth") is None:
+    if read_marker(workspace, "truth") is None:
         return None
     return {r["sample_id"]: g.transform_from_qt(r["cam_from_target_q"], r["cam_from_target_t"])
             for r in read_manifest(workspace, "truth").to_pylist()}

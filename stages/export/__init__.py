@@ -22,7 +22,7 @@ from core.config import Config
 from core.config.stages import EXPORT_FORMATS
 from core.progress import track
 from core.stage_io import Resolved
-from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest, read_success
+from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest, read_marker
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
 from manifests.sidecars import read_trajectories
@@ -66,10 +66,10 @@ def status_views(config: Config, workspace: Workspace) -> list[tuple[str, Config
     views = []
     for export_format in EXPORT_FORMATS:
         name = f"export_{export_format}"
-        marker = read_success(workspace, name)
+        marker = read_marker(workspace, name)
         if marker is None and not list_parts(workspace, name):
             continue
-        made = marker.get("made_with", {}) if marker else {}
+        made = (marker.made_with or {}) if marker else {}
         recorded = made.get("config", {}).get("export", {}) if isinstance(made, dict) else {}
         section = replace(config.export, format=export_format, out=recorded.get("out", config.export.out),
                           sets=tuple(recorded.get("sets", config.export.sets)))

@@ -16,7 +16,7 @@ import pyarrow as pa
 from core.config import Config
 from core.progress import track
 from core.stage_io import Resolved
-from manifests import Workspace, open_sink, read_keys, read_manifest, read_success
+from manifests import Workspace, open_sink, read_keys, read_manifest, read_marker
 from manifests.schema import DOMAINS
 from speedplus.errors import InputError
 from stages.common import geometry as g
@@ -63,7 +63,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     camera_matrix, dist = camera.camera_matrix, camera.dist
     target = workspace_target(config, workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
-            if read_success(workspace, "plan") is not None else {})
+            if read_marker(workspace, "plan") is not None else {})
     done = read_keys(workspace, "labels")
     poses = sorted((p for p in read_manifest(workspace, "poses").to_pylist() if p["sample_id"] not in done),
                    key=lambda p: p["sample_id"])

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from core.config import Config
-from manifests import Workspace, read_manifest, read_success
+from manifests import Workspace, read_manifest, read_marker
 from manifests.sidecars import read_calibration, read_trajectories
 from manifests.workspace import GROUND_TRUTH_TEMPLATE, MASK_TEMPLATE, RENDER_TEMPLATE
 from speedplus.errors import InputError
@@ -115,7 +115,7 @@ def twin_jobs(config: Config, workspace: Workspace) -> tuple[list[RenderJob], li
     scale = target.mockup_scale
     world_from_cam = _world_from_cam(workspace)
     plan = ({r["sample_id"]: r for r in read_manifest(workspace, "plan").to_pylist()}
-            if read_success(workspace, "plan") is not None else {})
+            if read_marker(workspace, "plan") is not None else {})
     sequences = ({s.sequence_id: s for s in read_trajectories(workspace).sequences}
                  if config.plan.mode == "trajectory" else {})
     # unvalidated read: a bad row is rejected with its reason, the valid ones still render

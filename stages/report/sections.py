@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from core.config import Config
-from manifests import Workspace, read_manifest, read_success
+from manifests import Workspace, read_manifest, read_marker
 from manifests.sidecars import Calibration
 from stages.common import tables
 from stages.report import figures
@@ -188,10 +188,10 @@ def provenance(config: Config, workspace: Workspace) -> str:
     versions.append(["python", platform.python_version()])
     timings = []
     for name in ("plan", "captures", "calibration_samples", "poses", "labels", "renders", "predictions"):
-        marker = read_success(workspace, name)
+        marker = read_marker(workspace, name)
         if marker:
-            timings.append([marker.get("stage", name), name, marker.get("rows"), marker.get("seconds"),
-                            marker.get("completed_at"), marker.get("fingerprint")])
+            timings.append([marker.stage or name, name, marker.rows, marker.seconds, marker.completed_at or None,
+                            marker.fingerprint])
     config_text = workspace.config_path.read_text() if workspace.config_path.exists() else ""
     return (_table(["package", "version"], versions)
             + _table(["stage", "manifest", "rows", "seconds", "completed", "fingerprint"], timings)

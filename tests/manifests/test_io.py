@@ -8,8 +8,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from manifests import ManifestError, Workspace, read_manifest, read_success, write_part, write_success
+from manifests import CompletionMarker, ManifestError, Workspace, read_manifest, read_marker, write_marker, write_part
 from manifests.io import list_parts, part_fingerprints, remove_temporaries, to_table
+from manifests.marker import MarkerError
 from manifests.schema import MANIFESTS, SCHEMA_VERSION, TRUTH
 
 
@@ -29,7 +30,7 @@ def test_round_trip_through_parts_and_pandas(tmp_path):
     ws = Workspace(tmp_path)
     write_part(ws, "truth", truth_rows(3), "fp")
     write_part(ws, "truth", truth_rows(2, start=3), "fp")
-    write_success(ws, "truth", {"fingerprint": "fp", "rows": 5})
+    write_marker(ws, "truth", CompletionMarker("fp", 5))
     table = read_manifest(ws, "truth")
     assert table.num_rows == 5
     assert [p.name for p in list_parts(ws, "truth")] == ["part-00000.parquet", "part-00001.parquet"]
@@ -37,7 +38,7 @@ def test_round_trip_through_parts_and_pandas(tmp_path):
     frame = pd.read_parquet(ws.manifest_dir("truth"))
     assert sorted(frame.sample_id) == [f"img{i:06d}" for i in range(5)]
     assert part_fingerprints(ws, "truth") == {"fp"}
-    assert read_success(ws, "truth")["rows"] == 5
+    assert read_marker(ws, "truth").rows == 5
 
 
 def test_schema_carries_units_and_version():
@@ -128,7 +129,7 @@ def test_keys_must_be_unique_across_parts(tmp_path):
 def test_half_written_parts_stay_outside_the_folder_and_are_removable(tmp_path):
     ws = Workspace(tmp_path)
     write_part(ws, "truth", truth_rows(2), "fp")
-    write_success(ws, "truth", {"fingerprint": "fp", "rows": 2})
+    write_marker(ws, "truth", CompletionMarker("fp", 2))
     # what a writer killed mid-part leaves
     (ws.staging_dir("truth") / "part-00001.parquet.123.tmp").write_bytes(b"half a file")
     assert sorted(p.name for p in ws.manifest_dir("truth").iterdir()) == ["part-00000.parquet"]
@@ -139,7 +140,7 @@ def test_half_written_parts_stay_outside_the_folder_and_are_removable(tmp_path):
 def test_a_workspace_of_an_older_layout_is_refused_with_the_reason(tmp_path):
     ws = Workspace(tmp_path)
     write_part(ws, "truth", truth_rows(2), "fp")
-    ws.legacy_success_path("truth").write_text('{"fingerprint": "fp", "rows": 2}')
+    ws.legacy_marker_path("truth").write_text('{"fingerprint": "fp", "rows": 2}')
     with pytest.raises(ManifestError, match=r"truth/_SUCCESS.json: written by an older version.*--force"):
         read_manifest(ws, "truth")
 
@@ -161,10 +162,33 @@ def test_a_truncated_part_is_reported_by_name(tmp_path):
 ])
 def test_a_malformed_completion_marker_names_the_file_and_key(tmp_path, text, key):
     ws = Workspace(tmp_path)
-    ws.success_path("truth").parent.mkdir(parents=True)
-    ws.success_path("truth").write_text(text)
-    with pytest.raises(ManifestError, match=rf"_state/truth.json: key {re.escape(key)}: expected"):
-        read_success(ws, "truth")
+    ws.marker_path("truth").parent.mkdir(parents=True)
+    ws.marker_path("truth").write_text(text)
+    with pytest.raises(MarkerError, match=rf"_state/truth.json: key {re.escape(key)}: expected"):
+        read_marker(ws, "truth")
+
+
+def test_a_marker_reads_back_as_written_and_an_older_one_with_defaults(tmp_path):
+    """Seeded: a marker's JSON round trip is the identity; one written before a key existed
+    (no parts, files, members or timing) reads with that key's default."""
+    import random
+
+    from manifests.marker import FileRecord, PartRecord
+
+    ws = Workspace(tmp_path)
+    rng = random.Random(4)
+    for _ in range(20):
+        marker = CompletionMarker(
+            f"{rng.getrandbits(64):016x}", rng.randrange(100), "plan", "1.12", "0.1", rng.random(), rng.random() < 0.5,
+            "2026-12-04T17:00:00+00:00", {"config": {"plan": {"seed": rng.randrange(9)}}},
+            tuple(PartRecord(f"part-{i:05d}.parquet", rng.randrange(9), "ab") for i in range(rng.randrange(3))),
+            {f"images/{i}.png": FileRecord(rng.randrange(999), "cd") for i in range(rng.randrange(3))},
+            {"reference": "ef"} if rng.random() < 0.5 else {})
+        write_marker(ws, "plan", marker)
+        assert read_marker(ws, "plan") == marker
+    ws.marker_path("plan").write_text('{"fingerprint": "fp", "rows": 2}')
+    old = read_marker(ws, "plan")
+    assert (old.parts, old.files, old.members, old.made_with, old.seconds) == (None, None, {}, None, None)
 
 
 def _restamp(path, version, schema=None):

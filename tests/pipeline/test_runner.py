@@ -6,7 +6,7 @@ import pyarrow.compute as pc
 import pytest
 
 from core.config import load_config
-from manifests import Workspace, part_fingerprints, read_manifest, read_success, write_part
+from manifests import Workspace, part_fingerprints, read_manifest, read_marker, write_part
 from pipeline import registry, runner
 from stages.plan import plan_sample, planned_samples
 
@@ -36,8 +36,8 @@ def test_run_then_skip_then_status(smoke, tmp_path):
     assert runner.status(PLAN, smoke, ws).state == "missing"
     outcome = runner.run_stage(PLAN, smoke, ws)
     assert outcome.action == "ran" and outcome.rows == {"plan": 24}
-    marker = read_success(ws, "plan")
-    assert marker["rows"] == 24 and marker["fingerprint"] == runner.fingerprint(PLAN, smoke, ws)
+    marker = read_marker(ws, "plan")
+    assert marker.rows == 24 and marker.fingerprint == runner.fingerprint(PLAN, smoke, ws)
     before = sorted(p.stat().st_mtime_ns for p in ws.manifest_dir("plan").iterdir())
     assert runner.run_stage(PLAN, smoke, ws).action == "skipped"
     assert sorted(p.stat().st_mtime_ns for p in ws.manifest_dir("plan").iterdir()) == before

@@ -81,7 +81,7 @@ def test_export_records_every_copy_resumes_and_stays_in_its_folder(labelled, tmp
     # a killed export: some images copied but not recorded, the marker not written
     for part in list_parts(ws, "export_speedplus"):
         part.unlink()
-    ws.success_path("export_speedplus").unlink()
+    ws.marker_path("export_speedplus").unlink()
     (out / rows[0]["file"]).unlink()
     (out / "lightbox" / "test.json").unlink()
     again = speedplus("export", "-w", str(ws.root), "--out", str(out))  # the same command resumes
