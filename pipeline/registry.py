@@ -33,9 +33,9 @@ class StageEntry:
     #: record copies made elsewhere, an export to another folder, or a view of other
     #: results, the report)
     replace_stale: bool = False
-    #: which target's digest is in the fingerprint: the configured folder's (the plan, which
-    #: copies it into the workspace) or the workspace's copy (every later stage)
-    target: Literal["configured", "workspace"] = "workspace"
+    #: which target folder's digest is in the fingerprint: the configured folder's (the plan,
+    #: which copies it into the workspace) or the workspace's copy (every later stage)
+    target_folder: Literal["configured", "workspace"] = "workspace"
     #: the CLI has a command of its own for it (options beyond the common ones)
     own_command: bool = False
     #: the package reports several results side by side (``status_views(config, workspace)``
@@ -75,13 +75,14 @@ def trained_models(config: Config) -> list[str]:
     return list(_load("stages.reference:model_names")(config))
 
 
-def _load(target: str) -> Callable[..., Any]:
-    module, name = target.split(":")
+def _load(entry_point: str) -> Callable[..., Any]:
+    """The function ``package.module:name`` names, imported now."""
+    module, name = entry_point.split(":")
     return getattr(importlib.import_module(module), name)
 
 
 STAGES: tuple[StageEntry, ...] = (
-    StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target="configured",
+    StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
                own_command=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire", own_command=True),

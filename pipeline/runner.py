@@ -72,7 +72,7 @@ def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace)
         sections[section].pop(key)
     from stages.common.workspace_target import digest  # the shared layer; meshes load there only
 
-    target = digest(config, workspace if stage.target == "workspace" else None)
+    target = digest(config, workspace if stage.target_folder == "workspace" else None)
     return json.loads(json.dumps({
         "stage": stage.name,
         "schema_version": SCHEMA_VERSION,

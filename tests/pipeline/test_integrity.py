@@ -13,7 +13,8 @@ from pipeline import registry, runner
 from pipeline.registry import StageEntry
 from tests.conftest import speedplus
 
-FAKE = StageEntry("plan", "plan rows in a shuffled order", "tests.pipeline.fake_stage", target="configured")
+FAKE = StageEntry("plan", "plan rows in a shuffled order", "tests.pipeline.fake_stage",
+                  target_folder="configured")
 
 
 def parts_bytes(ws):

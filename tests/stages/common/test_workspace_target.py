@@ -89,7 +89,7 @@ def test_the_target_content_is_in_every_fingerprint(planned, tmp_path):
     try:
         assert runner.fingerprint_payload(plan, config, ws)["target"] != before  # the plan is stale
         # a later stage reads W/target, unchanged until the plan is made again
-        assert label.target == "workspace" and digest(config, ws) == before
+        assert label.target_folder == "workspace" and digest(config, ws) == before
     finally:
         (source / TARGET_FILE).write_text((source / TARGET_FILE).read_text().replace("mass_kg = 9.5", "mass_kg = 9.0"))
 
