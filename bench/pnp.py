@@ -1,5 +1,5 @@
 """PnP from heatmaps: time per image and accuracy of the highest-peak decoding
-(``pose_model.pose_from_keypoints``) against the multi-peak one (``heatmap_pnp``) on
+(``keypoint_pnp.pose_from_keypoints``) against the multi-peak one (``heatmap_pnp``) on
 heatmaps where a share of the keypoints' highest peak sits on a wrong pose's keypoint and
 the true one is the second peak, as a nearly symmetric body's views produce.
 
@@ -23,7 +23,9 @@ from stages.common import geometry as g
 from stages.common import tango
 from stages.common.cameras import train_camera
 from stages.common.heatmap_pnp import poses_from_heatmaps
-from stages.common.pose_model import CROP_MARGIN, ModelContract, apply_affine, decode_heatmaps, pose_from_keypoints
+from stages.common.keypoint_pnp import decode_heatmaps, pose_from_keypoints
+from stages.common.model_contract import CROP_MARGIN, ModelContract
+from stages.common.model_input import apply_affine
 
 SIZE, STRIDE = 192, 4
 

@@ -448,7 +448,7 @@ class EvaluateConfig:
     """The evaluate stage: an ONNX model scored on twins and testbed images."""
 
     models: tuple[str, ...] = param(
-        (), "ONNX models following the contract of stages/common/pose_model.py, each scored on every image; "
+        (), "ONNX models following the contract of stages/common/model_contract.py, each scored on every image; "
         "relative paths: from the current directory, else from the repository. Empty: the models train-reference "
         "made in this workspace (W/models/*.onnx), else, for the built-in Tango, the shipped reference models "
         "(models/reference.onnx, models/reference_augmented.onnx)", "")

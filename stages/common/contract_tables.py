@@ -1,12 +1,12 @@
 """The ONNX contracts' tables for docs/models.md, generated from the keys the code reads
-(``pose_model.CONTRACT_KEYS``, ``detector.DETECTOR_KEYS``), so the document cannot drift
+(``model_contract.CONTRACT_KEYS``, ``detector.DETECTOR_KEYS``), so the document cannot drift
 from them: ``python -m stages.common.contract_tables`` prints both blocks, and
 tests/stages/common/test_contract_tables.py fails when docs/models.md holds others."""
 
 from __future__ import annotations
 
 from stages.common.detector import DETECTOR_KEYS
-from stages.common.pose_model import CONTRACT_KEYS
+from stages.common.model_contract import CONTRACT_KEYS
 
 #: block name -> the keys it tabulates
 BLOCKS = {"model contract": CONTRACT_KEYS, "detector contract": DETECTOR_KEYS}

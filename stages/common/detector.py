@@ -28,7 +28,8 @@ import cv2
 import numpy as np
 
 from speedplus.errors import InputError
-from stages.common.pose_model import BUILTIN_TARGET, Channels, normalise_uint8
+from stages.common.model_contract import BUILTIN_TARGET, Channels
+from stages.common.model_input import normalise_uint8
 
 CONTRACT = "1"
 #: the detector contract's metadata keys -> what each holds (Markdown)

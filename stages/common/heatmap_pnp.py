@@ -2,7 +2,7 @@
 
 A keypoint's heatmap on a nearly symmetric body often has two peaks: the keypoint and its
 mirror (a left corner where the right one is). Taking each heatmap's highest peak and
-then RANSAC over keypoints (``pose_model.pose_from_keypoints``) cannot recover when the
+then RANSAC over keypoints (``keypoint_pnp.pose_from_keypoints``) cannot recover when the
 wrong peak is higher; here every keypoint keeps up to ``CANDIDATES`` peaks, RANSAC draws a
 candidate per keypoint, and a pose is worth the heatmap values of the candidates it
 explains (within the reprojection threshold), so the geometry decides between a peak and
@@ -23,12 +23,9 @@ import cv2
 import numpy as np
 
 from stages.common import geometry as g
-from stages.common.pose_model import (
-    CROP_MARGIN,
+from stages.common.keypoint_pnp import (
     MIN_CONSENSUS,
-    ModelContract,
     PnPSolution,
-    apply_affine,
     farthest_plausible_m,
     in_reach,
     peak_positions,
@@ -36,6 +33,8 @@ from stages.common.pose_model import (
     pose_from_keypoints,
     spans,
 )
+from stages.common.model_contract import CROP_MARGIN, ModelContract
+from stages.common.model_input import apply_affine
 
 #: peaks kept per keypoint heatmap, highest first
 CANDIDATES = 3

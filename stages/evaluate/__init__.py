@@ -33,7 +33,8 @@ from stages.common.detector import DETECTOR_NAME, Detector
 from stages.common.dispatch import map_config
 from stages.common.image_io import ImageReadError
 from stages.common.json_arrays import calibrated_camera
-from stages.common.pose_model import BUILTIN_TARGET, PoseModel
+from stages.common.model_contract import BUILTIN_TARGET
+from stages.common.pose_model import PoseModel
 from stages.common.workspace_target import workspace_target
 from stages.evaluate.comparisons import compare, print_comparison, reference_model
 from stages.evaluate.scorer import Decoding, open_scorer

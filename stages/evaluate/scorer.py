@@ -15,15 +15,10 @@ from stages.common import geometry as g
 from stages.common.detector import Detector
 from stages.common.heatmap_pnp import explained_value, poses_from_heatmaps
 from stages.common.image_io import decode_image, to_uint8
-from stages.common.pose_model import (
-    CROP_MARGIN,
-    PnPSolution,
-    PoseModel,
-    apply_affine,
-    plausible,
-    points_box,
-    pose_from_keypoints,
-)
+from stages.common.keypoint_pnp import PnPSolution, plausible, pose_from_keypoints
+from stages.common.model_contract import CROP_MARGIN
+from stages.common.model_input import apply_affine, points_box
+from stages.common.pose_model import PoseModel
 from stages.common.scores import score
 from stages.evaluate.support import refusal
 

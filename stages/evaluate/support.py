@@ -21,7 +21,9 @@ from __future__ import annotations
 import numpy as np
 
 from stages.common import geometry as g
-from stages.common.pose_model import CROP_MARGIN, PnPSolution, points_box
+from stages.common.keypoint_pnp import PnPSolution
+from stages.common.model_contract import CROP_MARGIN
+from stages.common.model_input import points_box
 
 #: the projected target's box's larger side over the crop box's, outside which a pose is
 #: refused: a target half the box's size or twice it is not what the crop showed

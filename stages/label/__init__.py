@@ -21,7 +21,7 @@ from manifests.schema import DOMAINS
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.json_arrays import calibrated_camera
-from stages.common.pose_model import points_box
+from stages.common.model_input import points_box
 from stages.common.target import Target
 from stages.common.workspace_target import workspace_target
 

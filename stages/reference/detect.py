@@ -30,7 +30,8 @@ from manifests import Workspace, read_manifest
 from manifests.files import temporary_name, write_json_atomic
 from stages.common.detector import Detector, DetectorContract, decode_boxes, whole_image
 from stages.common.image_io import read_image, to_uint8
-from stages.common.pose_model import IR_VERSION, OPSET, Channels, normalise
+from stages.common.model_contract import IR_VERSION, OPSET, Channels
+from stages.common.model_input import normalise
 from stages.common.target import Target
 from stages.reference.augment import augment
 

@@ -3,7 +3,7 @@
 score it on held-out synthetic images through ONNX Runtime (never through torch).
 
 Data: every image is cropped and resized exactly as ``evaluate`` will crop testbed images
-and twins (``stages.common.pose_model.prepare``, crop ``oracle_box``: a square around the
+and twins (``stages.common.model_input.prepare``, crop ``oracle_box``: a square around the
 keypoints' box, so scores are those of the pose network given a perfect detector, as the
 report says); targets are Gaussian heatmaps at the keypoints' projections, at half
 (``heatmap_stride`` 2) or a quarter of the input's resolution. Augmentation
@@ -30,17 +30,9 @@ from manifests.files import temporary_name, write_json_atomic
 from stages.common.detector import DETECTOR_NAME
 from stages.common.heatmap_pnp import poses_from_heatmaps
 from stages.common.image_io import read_image, to_uint8
-from stages.common.pose_model import (
-    IR_VERSION,
-    OPSET,
-    Channels,
-    ModelContract,
-    PoseModel,
-    apply_affine,
-    normalise,
-    points_box,
-    prepare,
-)
+from stages.common.model_contract import IR_VERSION, OPSET, Channels, ModelContract
+from stages.common.model_input import apply_affine, normalise, points_box, prepare
+from stages.common.pose_model import PoseModel
 from stages.common.scores import score
 from stages.common.target import Target
 from stages.reference.augment import augment, geometric

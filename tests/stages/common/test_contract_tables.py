@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.common import contract_tables, detector, pose_model
+from stages.common import contract_tables, detector, model_contract
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -19,14 +19,14 @@ def test_the_models_document_holds_the_generated_tables():
 
 
 def test_the_tables_name_every_key_the_code_reads_or_writes():
-    for module, keys in ((pose_model, pose_model.CONTRACT_KEYS), (detector, detector.DETECTOR_KEYS)):
+    for module, keys in ((model_contract, model_contract.CONTRACT_KEYS), (detector, detector.DETECTOR_KEYS)):
         source = Path(module.__file__).read_text()
         code = source[source.index('"""', 3) + 3:]  # past the module docstring
         used = set(re.findall(r'"(speedplus\.[a-z_]+)"', code)) - {"speedplus.recipe", "speedplus.variant",
                                                                    "speedplus.augmentation"}
         assert used == set(keys), (module.__name__, used ^ set(keys))
-    written = pose_model.ModelContract(192, 192, "gray", (0.5,), (0.25,), "heatmaps", np.zeros((11, 3)),
+    written = model_contract.ModelContract(192, 192, "gray", (0.5,), (0.25,), "heatmaps", np.zeros((11, 3)),
                                        "oracle_box", 4, "boulder").metadata()
-    assert set(written) <= set(pose_model.CONTRACT_KEYS)
+    assert set(written) <= set(model_contract.CONTRACT_KEYS)
     written = detector.DetectorContract(192, 128, "gray", (0.5,), (0.25,), "boulder", 1.2).metadata()
     assert set(written) == set(detector.DETECTOR_KEYS)

@@ -18,7 +18,8 @@ from stages.common.heatmap_pnp import (
     poses_from_heatmaps,
     target_extent,
 )
-from stages.common.pose_model import CROP_MARGIN, ModelContract, decode_heatmaps, pose_from_keypoints
+from stages.common.keypoint_pnp import decode_heatmaps, pose_from_keypoints
+from stages.common.model_contract import CROP_MARGIN, ModelContract
 
 K = np.array([[1494.3, 0, 479.5], [0, 1494.2, 299.5], [0, 0, 1.0]])
 DIST = np.array([-0.2238, 0.5141, -0.000665, -0.000214, -0.1312])

@@ -7,16 +7,9 @@ import pytest
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import tango
-from stages.common.pose_model import (
-    ModelContract,
-    crop_window,
-    decode_heatmaps,
-    normalise,
-    normalise_uint8,
-    parse_contract,
-    pose_from_keypoints,
-    prepare,
-)
+from stages.common.keypoint_pnp import decode_heatmaps, pose_from_keypoints
+from stages.common.model_contract import ModelContract, parse_contract
+from stages.common.model_input import crop_window, normalise, normalise_uint8, prepare
 
 CONTRACT = ModelContract(192, 192, "rgb", (0.5, 0.5, 0.5), (0.25, 0.25, 0.25), "heatmaps", tango.KEYPOINTS_M.copy(),
                          "oracle_box")
