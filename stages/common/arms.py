@@ -53,10 +53,28 @@ LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 UNIT_SHARE = 7 / 12
 #: the joints whose compliance is estimated (A2, A3, A5: those gravity loads)
 COMPLIANT_JOINTS = (1, 2, 4)
+
+
+class ArmLayout:
+    """Where each of the arms' parameters sits in their packed vector (``ArmErrors.params``,
+    (N_ARM,)): one named slice per group, in this order."""
+
+    camera_joint_offsets = slice(0, 6)  # rad, A1-A6
+    target_joint_offsets = slice(6, 12)
+    camera_link_deltas = slice(12, 18)  # m, in the order of LENGTHS
+    target_link_deltas = slice(18, 24)
+    camera_base = slice(24, 30)  # rotation vector (rad) then translation (m) of the base's correction
+    target_base = slice(30, 36)
+    rail_scale = slice(36, 37)  # the rail's scale error (1)
+    camera_compliance = slice(37, 40)  # rad / (N m), of the COMPLIANT_JOINTS
+    target_compliance = slice(40, 43)
+    compliance = slice(37, 43)  # both robots'
+    joint_offsets = slice(0, 12)  # both robots'
+
+
 #: parameters of the arms: joint offsets (6 + 6), link lengths (6 + 6), bases (6 + 6), rail scale,
 #: joint compliances (3 + 3)
-N_ARM = 43
-_COMPLIANCE = slice(37, 43)
+N_ARM = ArmLayout.target_compliance.stop
 
 
 @dataclass(frozen=True)
@@ -146,14 +164,17 @@ class ArmErrors:
     # compliances of A2, A3, A5 (camera, target)
 
     def to_json(self) -> dict[str, Any]:
-        p = [float(v) for v in self.params]
-        return {"camera_joint_offsets_rad": p[0:6], "target_joint_offsets_rad": p[6:12],
-                "camera_link_deltas_m": dict(zip(LENGTHS, p[12:18], strict=True)),
-                "target_link_deltas_m": dict(zip(LENGTHS, p[18:24], strict=True)),
-                "camera_base_correction": {"rotvec_rad": p[24:27], "t_m": p[27:30]},
-                "target_base_correction": {"rotvec_rad": p[30:33], "t_m": p[33:36]}, "rail_scale_error": p[36],
-                "camera_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[37:40], strict=True)),
-                "target_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[40:43], strict=True))}
+        p, at = [float(v) for v in self.params], ArmLayout
+        camera_base, target_base = p[at.camera_base], p[at.target_base]
+        return {"camera_joint_offsets_rad": p[at.camera_joint_offsets], "target_joint_offsets_rad":
+                p[at.target_joint_offsets],
+                "camera_link_deltas_m": dict(zip(LENGTHS, p[at.camera_link_deltas], strict=True)),
+                "target_link_deltas_m": dict(zip(LENGTHS, p[at.target_link_deltas], strict=True)),
+                "camera_base_correction": {"rotvec_rad": camera_base[:3], "t_m": camera_base[3:]},
+                "target_base_correction": {"rotvec_rad": target_base[:3], "t_m": target_base[3:]},
+                "rail_scale_error": p[at.rail_scale][0],
+                "camera_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[at.camera_compliance], strict=True)),
+                "target_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[at.target_compliance], strict=True))}
 
     @classmethod
     def from_json(cls, entry: dict[str, Any]) -> ArmErrors:
@@ -179,19 +200,21 @@ def flanges(testbed: TestbedConfig, errors: ArmErrors, r: Readings) -> tuple[np.
 def _flanges(testbed: TestbedConfig, p: np.ndarray, r: Readings) -> tuple[np.ndarray, np.ndarray]:
     """``flanges`` (K, N, 4, 4) of a batch of arm parameters (K, N_ARM) at once."""
     nominal = arm_model(testbed.robot_model)
-    camera_links = r.camera_joints_rad + p[:, None, 0:6]
-    target_links = r.target_joints_rad + p[:, None, 6:12]
-    if np.any(p[:, _COMPLIANCE]):
+    at = ArmLayout
+    camera_links = r.camera_joints_rad + p[:, None, at.camera_joint_offsets]
+    target_links = r.target_joints_rad + p[:, None, at.target_joint_offsets]
+    if np.any(p[:, at.compliance]):
         camera_torque, target_torque = torques(testbed, r)
         compliance = np.zeros((len(p), 2, 6))
-        compliance[:, :, COMPLIANT_JOINTS] = p[:, _COMPLIANCE].reshape(-1, 2, 3)
+        compliance[:, :, COMPLIANT_JOINTS] = p[:, at.compliance].reshape(-1, 2, 3)
         camera_links = camera_links + compliance[:, None, 0] * camera_torque
         target_links = target_links + compliance[:, None, 1] * target_torque
-    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[:, 36:37]))
-                        @ rwhe.transform_from_vector(p[:, None, 24:30])
-                        @ forward(nominal, camera_links, p[:, None, 12:18]))
-    world_from_targetee = (layout.world_from_target_base(testbed) @ rwhe.transform_from_vector(p[:, None, 30:36])
-                           @ forward(nominal, target_links, p[:, None, 18:24]))
+    world_from_camee = (layout.world_from_camera_base(testbed, r.rail_m * (1.0 + p[:, at.rail_scale]))
+                        @ rwhe.transform_from_vector(p[:, None, at.camera_base])
+                        @ forward(nominal, camera_links, p[:, None, at.camera_link_deltas]))
+    world_from_targetee = (layout.world_from_target_base(testbed)
+                           @ rwhe.transform_from_vector(p[:, None, at.target_base])
+                           @ forward(nominal, target_links, p[:, None, at.target_link_deltas]))
     return world_from_camee, world_from_targetee
 
 
@@ -206,10 +229,14 @@ def corrected_b(testbed: TestbedConfig, errors: ArmErrors, r: Readings,
 
 def priors(c: CalibrateConfig) -> np.ndarray:
     """1-sigma of each arm parameter before calibration (N_ARM,)."""
-    base = [c.arm_prior_base_rad] * 3 + [c.arm_prior_base_m] * 3
-    compliance = list(c.arm_prior_compliance_rad_per_nm) * 2
-    return np.array([c.arm_prior_joint_rad] * 12 + [c.arm_prior_length_m] * 12 + base * 2 + [c.arm_prior_rail_scale]
-                    + compliance)
+    at, sigma = ArmLayout, np.empty(N_ARM)
+    sigma[at.joint_offsets] = c.arm_prior_joint_rad
+    sigma[at.camera_link_deltas] = sigma[at.target_link_deltas] = c.arm_prior_length_m
+    for base in (at.camera_base, at.target_base):
+        sigma[base] = [c.arm_prior_base_rad] * 3 + [c.arm_prior_base_m] * 3
+    sigma[at.rail_scale] = c.arm_prior_rail_scale
+    sigma[at.compliance] = list(c.arm_prior_compliance_rad_per_nm) * 2
+    return sigma
 
 
 def predict(testbed: TestbedConfig, params: np.ndarray, names: list[str], compliant: bool, r: Readings,
@@ -304,7 +331,7 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
     shared = jacobian @ parameters @ np.swapaxes(jacobian, -1, -2)
     own = np.zeros_like(shared)
     if joint_variance_rad2 is not None:
-        joints = jacobian[:, :, :12]  # the camera's then the target's joint offsets (``ArmErrors.params``)
+        joints = jacobian[:, :, ArmLayout.joint_offsets]  # the camera's then the target's
         own = np.einsum("nij,nj,nkj->nik", joints, joint_variance_rad2, joints)
     return tuple(0.5 * (c + np.swapaxes(c, -1, -2)) for c in (shared, own))  # exactly symmetric despite rounding
 
@@ -357,7 +384,7 @@ def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, 
     shape = slice(N_ARM + shape.start, N_ARM + shape.stop)
     # switched-off models stay at zero: they are not estimated, and carry no covariance
     free = np.ones(len(params), bool)
-    free[_COMPLIANCE] = c.joint_compliance == "on"
+    free[ArmLayout.compliance] = c.joint_compliance == "on"
     free[shape] = c.fixture_anisotropy == "on"
     prior = np.concatenate([sigma_prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
     priored = np.concatenate([np.arange(N_ARM), np.arange(shape.start, shape.stop)])

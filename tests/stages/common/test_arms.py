@@ -156,3 +156,19 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     np.testing.assert_allclose(np.sqrt(np.mean(normalised**2, axis=0)), 1.0, atol=0.12)
     without = arms.pose_covariances(testbed, entry, readings, fixtures, world_up)
     assert np.abs(without).max() == 0.0
+
+
+def test_the_named_layout_tiles_the_packed_vector_and_round_trips_json():
+    """Seeded: the layout's groups tile 0..N_ARM in order without overlap, and an ArmErrors
+    reads back from its JSON as it was, each group under its own key."""
+    at = arms.ArmLayout
+    groups = [at.camera_joint_offsets, at.target_joint_offsets, at.camera_link_deltas, at.target_link_deltas,
+              at.camera_base, at.target_base, at.rail_scale, at.camera_compliance, at.target_compliance]
+    assert [g.start for g in groups[1:]] == [g.stop for g in groups[:-1]] and groups[-1].stop == arms.N_ARM
+    assert (at.compliance.start, at.compliance.stop) == (at.camera_compliance.start, at.target_compliance.stop)
+    rng = np.random.default_rng(12)
+    errors = arms.ArmErrors(rng.normal(size=arms.N_ARM))
+    entry = errors.to_json()
+    np.testing.assert_array_equal(arms.ArmErrors.from_json(entry).params, errors.params)
+    assert entry["rail_scale_error"] == errors.params[at.rail_scale][0]
+    assert entry["target_base_correction"]["t_m"] == list(errors.params[at.target_base][3:])
