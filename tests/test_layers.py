@@ -164,3 +164,26 @@ def test_the_contract_catches_lazy_imports_of_another_stage(tmp_path):
     assert violations([offender], {"fuse"}) == ["offender.py:6 imports stages.calibrate"]
     assert violations([offender], set()) == ["offender.py:2 imports stages.fuse.x",
                                              "offender.py:6 imports stages.calibrate"]
+
+
+def test_mitsuba_is_called_from_one_module():
+    """Every Mitsuba and Dr.Jit call goes through stages/common/mitsuba_adapter.py (its
+    ``LoadedScene``, ``bsdf``, ``mesh``, ray casts): no other module imports them or calls
+    an attribute of the module it hands out (``mi``)."""
+    adapter = ROOT / "stages" / "common" / "mitsuba_adapter.py"
+    found = []
+    for path in sorted(p for package in ("stages", "core", "pipeline", "manifests", "bench")
+                       for p in (ROOT / package).rglob("*.py")):
+        if path == adapter:
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        for line, module in imported_modules(path):
+            if module.split(".")[0] in ("mitsuba", "drjit"):
+                found.append(f"{path.name}:{line} imports {module}")
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "mi" \
+                    and isinstance(node.ctx, ast.Load) and node.attr[:1].isupper() or (
+                    isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and isinstance(node.func.value, ast.Name) and node.func.value.id == "mi"):
+                found.append(f"{path.name}:{node.lineno} calls mi.{getattr(node, 'attr', '') or node.func.attr}")
+    assert found == []

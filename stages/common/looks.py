@@ -1,4 +1,5 @@
-"""The looks of a target's parts as Mitsuba 3 BSDFs (``manifests.target.LOOK_PRESETS``):
+"""The looks of a target's parts as Mitsuba 3 BSDF dictionaries (``manifests.target.LOOK_PRESETS``;
+bitmaps as arrays, which ``mitsuba_adapter.bsdf`` loads: no Mitsuba call here):
 each preset has the flight model's ideal look, which the renderer gives the synthetic
 twin, and the physical mock-up's, which the virtual testbed photographs. Their difference
 is the domain gap the paper measures, so a mock-up look is never the synthetic one:
@@ -38,52 +39,48 @@ def _rgb(value: Any) -> dict[str, Any]:
     return {"type": "rgb", "value": [float(v) for v in value]}
 
 
-def synthetic_bsdf(mi: Any, look: Look | None, colour: tuple[float, float, float] | None) -> Any:
+def synthetic_look(look: Look | None, colour: tuple[float, float, float] | None) -> dict[str, Any]:
     """The twin's BSDF of a part with ``look`` (None: its mesh ``colour``, linear RGB)."""
     preset = None if look is None else look.synthetic
     if preset == "gold_mli":  # multi-layer insulation: gold foil, a rough conductor, evenly stretched
-        return mi.load_dict({"type": "blendbsdf", "weight": 0.25,
-                             "bsdf_0": {"type": "roughconductor", "material": "Au", "alpha": 0.35},
-                             "bsdf_1": {"type": "diffuse", "reflectance": _rgb([0.55, 0.4, 0.12])}})
+        return {"type": "blendbsdf", "weight": 0.25,
+                "bsdf_0": {"type": "roughconductor", "material": "Au", "alpha": 0.35},
+                "bsdf_1": {"type": "diffuse", "reflectance": _rgb([0.55, 0.4, 0.12])}}
     if preset == "solar_cells":
-        return mi.load_dict({"type": "roughplastic", "alpha": 0.06, "int_ior": 1.5,
-                             "diffuse_reflectance": {"type": "bitmap",
-                                                     "bitmap": mi.Bitmap(textures.clean_solar_cells())}})
+        return {"type": "roughplastic", "alpha": 0.06, "int_ior": 1.5,
+                "diffuse_reflectance": {"type": "bitmap", "bitmap": textures.clean_solar_cells()}}
     if preset == "white_paint":
-        return mi.load_dict({"type": "diffuse", "reflectance": _rgb([0.8, 0.8, 0.8])})
+        return {"type": "diffuse", "reflectance": _rgb([0.8, 0.8, 0.8])}
     if preset == "aluminium":
-        return mi.load_dict({"type": "roughconductor", "material": "Al", "alpha": 0.2})
+        return {"type": "roughconductor", "material": "Al", "alpha": 0.2}
     if preset == "black_paint":
-        return mi.load_dict({"type": "diffuse", "reflectance": _rgb([0.04, 0.04, 0.04])})
+        return {"type": "diffuse", "reflectance": _rgb([0.04, 0.04, 0.04])}
     if preset == "rock":
-        return mi.load_dict({"type": "diffuse", "reflectance": _rgb([0.3, 0.27, 0.24])})
+        return {"type": "diffuse", "reflectance": _rgb([0.3, 0.27, 0.24])}
     if preset is not None:
         raise ValueError(f"unknown look {preset!r}")  # manifests.target refuses it on read
-    return mi.load_dict({"type": "diffuse", "reflectance": _rgb(colour or MESH_DEFAULT_GREY)})
+    return {"type": "diffuse", "reflectance": _rgb(colour or MESH_DEFAULT_GREY)}
 
 
-def mockup_bsdf(mi: Any, look: Look | None, rng: np.random.Generator) -> Any:
+def mockup_look(look: Look | None, rng: np.random.Generator) -> dict[str, Any]:
     """The mock-up's BSDF of a part with ``look`` (None: white paint); textures from ``rng``."""
     preset = "white_paint" if look is None else look.mockup
     if preset == "gold_mli":  # crumpled MLI: a rough gold mirror with a diffuse share from the creases
         inner = {"type": "blendbsdf", "weight": 0.35,
                  "bsdf_0": {"type": "roughconductor", "material": "Au", "alpha": 0.25},
                  "bsdf_1": {"type": "diffuse", "reflectance": _rgb([0.75, 0.6, 0.3])}}
-        return mi.load_dict({"type": "normalmap", "bsdf": inner,
-                             "normalmap": {"type": "bitmap", "raw": True,
-                                           "bitmap": mi.Bitmap(textures.foil_normal_map(rng))}})
+        return {"type": "normalmap", "bsdf": inner,
+                "normalmap": {"type": "bitmap", "raw": True, "bitmap": textures.foil_normal_map(rng)}}
     if preset == "solar_cells":
-        return mi.load_dict({"type": "roughplastic", "alpha": 0.04, "int_ior": 1.5,
-                             "diffuse_reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(textures.solar_cells(rng))}})
+        return {"type": "roughplastic", "alpha": 0.04, "int_ior": 1.5,
+                "diffuse_reflectance": {"type": "bitmap", "bitmap": textures.solar_cells(rng)}}
     if preset == "aluminium":
-        return mi.load_dict({"type": "roughconductor", "material": "Al", "alpha": 0.09,
-                             "specular_reflectance": {"type": "bitmap",
-                                                      "bitmap": mi.Bitmap(textures.rear_panel(rng))}})
+        return {"type": "roughconductor", "material": "Al", "alpha": 0.09,
+                "specular_reflectance": {"type": "bitmap", "bitmap": textures.rear_panel(rng)}}
     if preset == "white_paint":
-        return mi.load_dict({"type": "diffuse", "reflectance": _rgb([0.55, 0.55, 0.55])})
+        return {"type": "diffuse", "reflectance": _rgb([0.55, 0.55, 0.55])}
     if preset == "black_paint":
-        return mi.load_dict({"type": "diffuse", "reflectance": _rgb([0.07, 0.07, 0.07])})
+        return {"type": "diffuse", "reflectance": _rgb([0.07, 0.07, 0.07])}
     if preset == "rock":
-        return mi.load_dict({"type": "diffuse", "reflectance": {"type": "bitmap",
-                                                               "bitmap": mi.Bitmap(textures.mottled_rock(rng))}})
+        return {"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": textures.mottled_rock(rng)}}
     raise ValueError(f"unknown look {preset!r}")  # manifests.target refuses it on read

@@ -1,9 +1,11 @@
-"""The one adapter between this project's cameras and Mitsuba 3, used by the virtual
-testbed's camera and by the synthetic twins (docs/architecture.md section 3): loading the
-LLVM variant (an error naming what to install when it is missing: there is no fallback)
-and a per-process kernel cache, the thread split, the
-sensor built from a pinhole ``RenderGeometry``, the camera pose through
-``OPENCV_FROM_MITSUBA``, meshes, deterministic scene loading, and ray-cast silhouettes.
+"""The one module that calls Mitsuba 3 and Dr.Jit (docs/architecture.md section 3; a test
+holds every other module to it), used by the virtual testbed's camera, the synthetic twins
+and the training set: loading the LLVM variant (an error naming what to install when it is
+missing: there is no fallback) and a per-process kernel cache, the thread split, the sensor
+built from a pinhole ``RenderGeometry``, the camera pose through ``OPENCV_FROM_MITSUBA``,
+meshes and BSDFs from dictionaries (``bsdf``), deterministic scene loading, the loaded
+scene's parameters and rendering (``LoadedScene``: load, set the camera, transforms, lights
+and vertices, render), and ray casts (silhouettes, surface hits).
 
 Mitsuba is imported here lazily, so that stages which never render never load it.
 """
@@ -202,3 +204,80 @@ def sensor_pixel_rays(mi: Any, scene: Any, geometry: RenderGeometry) -> Any:
                           ((ys.ravel() + 0.5) / height).astype(np.float32))
     ray_batch, _ = scene.sensors()[0].sample_ray(0.0, 0.0, position, mi.Point2f(0.5, 0.5))
     return ray_batch
+
+
+def bsdf(mi: Any, spec: dict[str, Any]) -> Any:
+    """A BSDF from its Mitsuba dictionary ``spec``, in which every ``bitmap`` given as an array
+    (H, W, C) becomes a Mitsuba bitmap (``stages.common.looks`` describes looks as such
+    dictionaries, without Mitsuba)."""
+    return mi.load_dict(_with_bitmaps(mi, spec))
+
+
+def _with_bitmaps(mi: Any, spec: dict[str, Any]) -> dict[str, Any]:
+    return {key: mi.Bitmap(value) if key == "bitmap" and isinstance(value, np.ndarray)
+            else _with_bitmaps(mi, value) if isinstance(value, dict) else value for key, value in spec.items()}
+
+
+def surface_hits(mi: Any, scene: Any, origins: np.ndarray, directions: np.ndarray, shape_index: dict[str, int],
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first surface of each ray (origins (3,) or (N, 3), directions (N, 3), the scene's
+    frame): the index ``shape_index`` gives its shape (N,) uint8 (0: no shape of it), the
+    hit point (N, 3) and the surface normal (N, 3), float64 (meaningful where hit)."""
+    hit = scene.ray_intersect(rays(mi, origins, directions))
+    part = np.zeros(len(directions), np.uint8)
+    for shape in scene.shapes():
+        if shape.id() in shape_index:
+            part[np.array(hit.is_valid() & (hit.shape == mi.ShapePtr(shape)), dtype=bool)] = shape_index[shape.id()]
+    points = np.stack([np.array(hit.p[i], dtype=np.float64) for i in range(3)], 1)
+    normals = np.stack([np.array(hit.n[i], dtype=np.float64) for i in range(3)], 1)
+    return part, points, normals
+
+
+class LoadedScene:
+    """A scene loaded from its dictionary (``load_scene``) and the one way the project changes
+    and renders it, as kubric's ``View`` keeps its renderer: the camera, transforms, colours,
+    scalars and vertex positions set by key, then ``render`` with the keys that must stay
+    opaque (one compiled kernel whatever their values: the noise never depends on which
+    capture compiled it)."""
+
+    def __init__(self, mi: Any, objects: dict[str, Any]) -> None:
+        self.mi = mi
+        self.scene = load_scene(mi, objects)
+        self._params = mi.traverse(self.scene)
+
+    def keys(self) -> list[str]:
+        """Every parameter's key (``shape.vertex_positions``, ``sensor.to_world``, ...)."""
+        return list(self._params.keys())
+
+    def set_camera(self, world_from_cam: np.ndarray) -> None:
+        """The sensor's pose (4, 4), OpenCV camera axes."""
+        self._params["sensor.to_world"] = sensor_to_world(self.mi, world_from_cam)
+
+    def set_transform(self, key: str, matrix: np.ndarray) -> None:
+        """A ``to_world`` (4, 4)."""
+        self._params[key] = transform(self.mi, matrix)
+
+    def set_grey(self, key: str, value: float) -> None:
+        """An RGB parameter (a radiance, an irradiance) to ``value`` in all three channels."""
+        self._params[key] = self.mi.Color3f(value, value, value)
+
+    def set_scalar(self, key: str, value: float) -> None:
+        self._params[key] = value
+
+    def set_vertices(self, key: str, vertices: np.ndarray) -> None:
+        """A mesh's vertex positions (N, 3), stored as float32."""
+        self._params[key] = self.mi.Float(np.asarray(vertices).astype(np.float32).ravel())
+
+    def update(self) -> None:
+        """Apply what was set (before a ray cast; ``render`` does it itself)."""
+        self._params.update()
+
+    def render(self, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
+        """The film (H, W, C) as numpy, after making ``opaque`` keys opaque and applying what
+        was set."""
+        import drjit as dr
+
+        for key in opaque:
+            dr.make_opaque(self._params[key])
+        self._params.update()
+        return np.array(self.mi.render(self.scene, spp=spp, seed=seed))

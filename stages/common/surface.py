@@ -22,7 +22,7 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common.lens import LensCamera, pixel_rays
-from stages.common.mitsuba_adapter import load_mitsuba, load_scene, mesh, rays
+from stages.common.mitsuba_adapter import bsdf, load_mitsuba, load_scene, mesh, surface_hits
 from stages.common.target import MeshPart
 
 BACKGROUND = "background"
@@ -76,28 +76,21 @@ class TargetSurfaces:
     def __init__(self, parts: dict[str, MeshPart], scene: Any = None) -> None:
         self.mi = mi = load_mitsuba()
         if scene is None:
-            bsdf = mi.load_dict({"type": "diffuse"})
+            grey = bsdf(mi, {"type": "diffuse"})
             objects: dict[str, Any] = {"type": "scene"}
             for index, part in enumerate(parts.values()):
-                objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices, part.faces, part.uv, bsdf)
+                objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices, part.faces, part.uv, grey)
             scene = load_scene(mi, objects)
         self.scene = scene
         self.ids = part_ids(parts)
-        wanted = {shape_id(index): index + 1 for index in range(len(parts))}
-        self._ids = [(shape, wanted[shape.id()]) for shape in scene.shapes() if shape.id() in wanted]
+        self._index = {shape_id(index): index + 1 for index in range(len(parts))}
 
     def cast(self, cam_from_target: np.ndarray, directions_cam: np.ndarray, shape: tuple[int, int]) -> SurfaceMaps:
         """Maps of ``shape`` (H, W) from unit ray directions (H * W, 3) in the camera frame."""
-        mi = self.mi
         target_from_cam = g.invert(np.asarray(cam_from_target, float))
         directions = directions_cam @ target_from_cam[:3, :3].T
-        hit = self.scene.ray_intersect(rays(mi, target_from_cam[:3, 3], directions))
-        part = np.zeros(len(directions), np.uint8)
-        for shape_ptr, index in self._ids:
-            part[np.array(hit.is_valid() & (hit.shape == mi.ShapePtr(shape_ptr)), dtype=bool)] = index
+        part, body, normal = surface_hits(self.mi, self.scene, target_from_cam[:3, 3], directions, self._index)
         valid = part > 0  # another shape of the scene (none in the renderers') is not the model
-        body = np.stack([np.array(hit.p[i], dtype=np.float64) for i in range(3)], 1)
-        normal = np.stack([np.array(hit.n[i], dtype=np.float64) for i in range(3)], 1)
         camera_points = g.apply(cam_from_target, body)
         normal_cam = normal @ np.asarray(cam_from_target, float)[:3, :3].T
         normal_cam *= np.where(np.sum(normal_cam * directions_cam, axis=1, keepdims=True) > 0, -1.0, 1.0)

@@ -3,7 +3,8 @@
 antennas), black space, one directional light.
 
 The model stays in its body frame T; each image moves the camera (``target_from_cam``)
-and turns the light through ``mi.traverse``, so the acceleration structure is built once.
+and turns the light through the scene's parameters (``mitsuba_adapter.LoadedScene``), so
+the acceleration structure is built once.
 The render is an RGBA pinhole image wider than the camera's; ``stages.common.lens`` remaps it
 through the label camera's distortion.
 """
@@ -16,18 +17,8 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common.lens import Lens, LensCamera, pixel_rays
-from stages.common.looks import synthetic_bsdf
-from stages.common.mitsuba_adapter import (
-    first_hit_on,
-    load_mitsuba,
-    load_scene,
-    mesh,
-    rays,
-    sensor,
-    sensor_to_world,
-    set_threads,
-    transform,
-)
+from stages.common.looks import synthetic_look
+from stages.common.mitsuba_adapter import LoadedScene, bsdf, first_hit_on, load_mitsuba, mesh, rays, sensor, set_threads
 from stages.common.surface import shape_id
 from stages.common.target import Target
 
@@ -53,31 +44,26 @@ class TargetRenderer:
         }
         for index, (name, part) in enumerate(target.parts.items()):  # the part ids' order (stages.common.surface)
             objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices, part.faces, part.uv,
-                                            synthetic_bsdf(mi, target.looks.get(name), part.colour))
-        self.scene = load_scene(mi, objects)
-        self.params = mi.traverse(self.scene)
+                                            bsdf(mi, synthetic_look(target.looks.get(name), part.colour)))
+        self.loaded = LoadedScene(mi, objects)
+        self.scene = self.loaded.scene
 
     def render(self, cam_from_target: np.ndarray, light_dir_cam: np.ndarray, irradiance: float,
                seed: int) -> np.ndarray:
         """cam_from_target (4, 4) full scale; light_dir_cam (3,) unit, from the target towards
         the light; irradiance W/m^2; returns (H, W, 4) float32 through the lens."""
-        mi = self.mi
-        import drjit as dr
-
         target_from_cam = g.invert(cam_from_target)
         travel = -(target_from_cam[:3, :3] @ np.asarray(light_dir_cam, float))
         # the directional emitter sends its light along its local +z axis
         sun_rotation = g.look_at_rotation(travel, np.array([0.0, 0.0, 1.0]) if abs(travel[2]) < 0.9
                                           else np.array([1.0, 0.0, 0.0]))
-        self.params["sensor.to_world"] = sensor_to_world(mi, target_from_cam)
-        self.params["sun.to_world"] = transform(mi, g.make_transform(sun_rotation, np.zeros(3)))
-        self.params["sun.irradiance.value"] = mi.Color3f(irradiance, irradiance, irradiance)
+        self.loaded.set_camera(target_from_cam)
+        self.loaded.set_transform("sun.to_world", g.make_transform(sun_rotation, np.zeros(3)))
+        self.loaded.set_grey("sun.irradiance.value", irradiance)
         # opaque: one compiled kernel for every pose and light, whatever rendered before
-        for key in ("sensor.to_world", "sun.to_world", "sun.irradiance.value"):
-            dr.make_opaque(self.params[key])
-        self.params.update()
-        pinhole = np.array(mi.render(self.scene, spp=self.spp, seed=seed), dtype=np.float32)
-        return self.lens.distort(pinhole)
+        pinhole = self.loaded.render(self.spp, seed, opaque=("sensor.to_world", "sun.to_world",
+                                                             "sun.irradiance.value"))
+        return self.lens.distort(np.asarray(pinhole, dtype=np.float32))
 
 
 def ray_traced_mask(renderer: TargetRenderer, cam_from_target: np.ndarray) -> np.ndarray:

@@ -2,7 +2,8 @@
 ceiling panels for calibration, the mock-up (with its own look) and the ChArUco board.
 
 The scene is built once per worker process; each capture moves the camera, the model and
-the board, and switches lights, through ``mi.traverse``. Coordinates: robot world K.
+the board, and switches lights, through the scene's parameters
+(``mitsuba_adapter.LoadedScene``). Coordinates: robot world K.
 """
 
 from __future__ import annotations
@@ -15,15 +16,15 @@ from core.config import Config
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.lens import RenderGeometry
-from stages.common.looks import mockup_bsdf
+from stages.common.looks import mockup_look
 from stages.common.mitsuba_adapter import (
+    LoadedScene,
+    bsdf,
     first_hit_on,
     load_mitsuba,
-    load_scene,
     mesh,
     sensor,
     sensor_pixel_rays,
-    sensor_to_world,
     set_one_thread,
     transform,
 )
@@ -70,12 +71,12 @@ class TestbedScene:
         self._parts = {}
         for index, (name, part) in enumerate(target.parts.items()):  # textures drawn in the mesh's order
             objects[shape_id(index)] = mesh(mi, shape_id(index), part.vertices * self.scale, part.faces, part.uv,
-                                            mockup_bsdf(mi, target.looks.get(name), rng))
+                                            bsdf(mi, mockup_look(target.looks.get(name), rng)))
             self._parts[shape_id(index)] = part.vertices * self.scale
         self._board_vertices = self._board(mi, objects, target)
-        self.scene = load_scene(mi, objects)
-        self.params = mi.traverse(self.scene)
-        names = list(self.params.keys())
+        self.loaded = LoadedScene(mi, objects)
+        self.scene = self.loaded.scene
+        names = self.loaded.keys()
         self._opaque_keys = [key for key in names if key == "sensor.to_world"
                              or key.endswith(("emitter.radiance.value", "emitter.sampling_weight"))]
 
@@ -135,14 +136,14 @@ class TestbedScene:
         uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
         faces = np.array([[0, 2, 1], [0, 3, 2]])  # front faces -z of the board frame, towards the camera
         corners_target = g.apply(layout.target_from_board(self.config.testbed, target), corners_board)
-        bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(reflectance)}})
-        objects["board"] = mesh(mi, "board", corners_target + _HIDDEN_OFFSET, faces, uv, bsdf)
+        plate = bsdf(mi, {"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": reflectance}})
+        objects["board"] = mesh(mi, "board", corners_target + _HIDDEN_OFFSET, faces, uv, plate)
         return corners_target
 
     # --------------------------------------------------------------------------- per capture
     def _set_emitter(self, name: str, radiance: float, key: str = "emitter.radiance.value") -> None:
-        self.params[f"{name}.{key}"] = self.mi.Color3f(radiance, radiance, radiance)
-        self.params[f"{name}.emitter.sampling_weight"] = 1.0 if radiance > 0 else 0.0
+        self.loaded.set_grey(f"{name}.{key}", radiance)
+        self.loaded.set_scalar(f"{name}.emitter.sampling_weight", 1.0 if radiance > 0 else 0.0)
 
     def set_lights(self, light: str, boxes: list[int]) -> None:
         virtual = self.config.virtual
@@ -156,37 +157,29 @@ class TestbedScene:
     def render(self, world_from_cam: np.ndarray, world_from_target: np.ndarray, light: str, boxes: list[int],
                show_board: bool, seed: int) -> np.ndarray:
         """Linear luminance (H_render, W_render) of the pinhole render at these true poses."""
-        mi = self.mi
         self._pose(world_from_cam, world_from_target)
         board = (g.apply(world_from_target, self._board_vertices) if show_board
                  else self._board_vertices + _HIDDEN_OFFSET)
-        self.params["board.vertex_positions"] = mi.Float(board.astype(np.float32).ravel())
+        self.loaded.set_vertices("board.vertex_positions", board)
         self.set_lights(light, boxes)
         # Opaque parameters: literal values would be folded into the compiled kernel, whose
         # random-number use (and so the image's noise) would then depend on the light set-up
         # of whichever capture compiled it; opaque ones give one kernel for every capture.
-        import drjit as dr
-
-        for key in self._opaque_keys:
-            dr.make_opaque(self.params[key])
-        self.params.update()
-        image = np.array(mi.render(self.scene, spp=self.config.virtual.spp, seed=seed))
+        image = self.loaded.render(self.config.virtual.spp, seed, opaque=self._opaque_keys)
         return luminance(image)
 
     def _pose(self, world_from_cam: np.ndarray, world_from_target: np.ndarray) -> None:
         """The camera and the mock-up at these true poses (the mesh moves: the room is static)."""
-        mi = self.mi
-        self.params["sensor.to_world"] = sensor_to_world(mi, world_from_cam)
+        self.loaded.set_camera(world_from_cam)
         for name, vertices in self._parts.items():
-            self.params[f"{name}.vertex_positions"] = mi.Float(
-                g.apply(world_from_target, vertices).astype(np.float32).ravel())
+            self.loaded.set_vertices(f"{name}.vertex_positions", g.apply(world_from_target, vertices))
 
     def silhouette(self, world_from_cam: np.ndarray, world_from_target: np.ndarray) -> np.ndarray:
         """Where the mock-up is the first surface seen (H_render, W_render) float32 (0 or 1),
         one ray per pixel centre through this scene's own camera: the model's silhouette in
         a capture at these poses (tests and benchmarks compare twins with it)."""
         self._pose(world_from_cam, world_from_target)
-        self.params.update()
+        self.loaded.update()
         hit = first_hit_on(self.mi, self.scene, sensor_pixel_rays(self.mi, self.scene, self.geometry),
                            set(self._parts))
         return hit.astype(np.float32).reshape(self.geometry.height, self.geometry.width)
