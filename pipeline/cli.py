@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from dataclasses import fields
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.console import Console
@@ -263,8 +263,8 @@ def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspac
         from core.engines.cluster import reachable
 
         reachable(resolved.run.ray_address)  # before --force discards anything
-    if resolved.acquire.backend == "replay" and len(stages) > 1:
-        stages = [name for name in stages if name != "plan"]  # a replayed session brings its own samples
+    if len(stages) > 1:
+        stages = [name for name in stages if not registry.stage(name).skipped_in_chain(resolved)]
     if switched_from is not None:
         plan = runner.redo_plan(resolved, ws, registry.STAGES)
         listed = "; ".join(f"{name} ({why})" for name, why in plan) or "none"
@@ -367,17 +367,11 @@ def evaluate_command(
     redo: tuple[str, ...] = ()
     if model is not None:
         resolved, ws, _ = _context(workspace, profile, config, overrides)
-        # an empty list stands for the models evaluate picks itself: the new one joins them
-        current = resolved.evaluate.models or tuple(str(path) for path in registry.evaluated_models(resolved, ws))
-        added = [str(path.expanduser().resolve()) for path in model]
-        by_name = {Path(path).stem: path for path in added}
-        names = set(by_name)
-        kept = [path for path in current if Path(path).stem not in names]
-        for path in sorted(set(current) - set(kept) - set(added)):  # another file under a scored model's name
-            out.print(escape(f"evaluate.models: {Path(path).stem} is now {by_name[Path(path).stem]} (was {path}): "
-                             "a model is named by its file name"), highlight=False)
-        overrides.append(Override.of("evaluate.models", [*kept, *added], "--model"))
-        redo = tuple(sorted(names)) if force else ()
+        models, notes = registry.with_added_models(resolved, ws, model)
+        for note in notes:
+            out.print(escape(note), highlight=False)
+        overrides.append(Override.of("evaluate.models", models, "--model"))
+        redo = tuple(sorted({path.expanduser().resolve().stem for path in model})) if force else ()
     _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers), redo)
 
 
@@ -416,8 +410,8 @@ def train_reference_command(
     overrides = _parsed(set_)
     resolved, ws, _ = _context(workspace, profile, config, overrides)
     recipe = resolved.reference
-    destinations = {} if out_dir is None else runner.publish_destinations(
-        resolved, ws, registry.trained_models(resolved), out_dir.expanduser().resolve(), force)
+    destinations = {} if out_dir is None else registry.publish_destinations(
+        resolved, ws, out_dir.expanduser().resolve(), force)
     transient = [Override.of("render.set", "train", "train-reference"),
                  Override.of("render.train_count", recipe.images, "reference.images"),
                  Override.of("render.train_resolution_scale", recipe.resolution_scale, "reference.resolution_scale")]
@@ -425,10 +419,8 @@ def train_reference_command(
         transient.append(Override.of("reference.max_steps", steps, "--steps"))
     transient += _engine(engine, ray_address, workers)
     ws = _run(["render", "train-reference"], workspace, profile, config, overrides, force, transient)
-    for name in runner.model_names(ws):
-        row = runner.publish_model(ws, name, destinations[name]) if name in destinations else \
-            runner.model_row(ws, name)
-        where = destinations[name] if name in destinations else ws.display(ws.resolve(ws.model_relpath(name)))
+    for name, path, row in registry.published(ws, destinations):
+        where = path if name in destinations else ws.display(path)
         held = (f"median box IoU {row['held_out_median_box_iou']:.3f}" if row["held_out_mean_speed_score"] is None
                 else f"mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation error "
                      f"{row['held_out_median_rotation_error_deg']:.2f} deg")
@@ -539,74 +531,15 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
     at full scale and as the mock-up, its keypoints (declared, or chosen on the mesh), its
     views, where the motion-capture markers go, and the symmetries that make its keypoints
     ambiguous. Exit 1 naming the file and key when it cannot be used."""
-    from stages.common.markers import markers  # the shared layer: meshes load only here
-    from stages.common.symmetry import ambiguities
-    from stages.common.target import load_target
+    from stages.common.target_report import describe  # the shared layer: meshes load only there
 
-    target = load_target(folder)
-    placed = markers(target)
-    ambiguous = ambiguities(target)
-    table = Table(title=escape(f"target {target.name} ({folder})"))
+    title, rows = describe(folder)
+    table = Table(title=escape(title))
     for column in ("what", "value"):
         table.add_column(column)
-    vertices = sum(len(p.vertices) for p in target.parts.values())
-    triangles = sum(len(p.faces) for p in target.parts.values())
-    rows = [("parts", ", ".join(f"{name} ({target.looks[name].synthetic} / {target.looks[name].mockup})"
-                                if name in target.looks else name for name in target.parts)),
-            ("mesh", f"{vertices} vertices, {triangles} triangles"),
-            ("diameter", f"{target.diameter_m:.4g} m full scale, {target.diameter_m * target.mockup_scale:.4g} m "
-                         f"mock-up (scale {target.mockup_scale:g}, {target.mockup_mass_kg:g} kg)"),
-            ("body centre", f"({', '.join(f'{v:.4f}' for v in target.centre_m)}) m; bounding sphere "
-                            f"{target.radius_m:.4g} m"),
-            ("keypoints", f"{len(target.keypoints_m)}, "
-                          + ("chosen on the mesh (farthest corners of its convex hull)" if target.keypoints_chosen
-                             else "declared")),
-            ("views", f"{target.view_names[0]} / {target.view_names[1]}: the camera's side of the plane "
-                      f"through the centre normal to ({', '.join(f'{v:.3f}' for v in target.view_axis)})"),
-            ("motion-capture markers", f"{len(placed.centres_m)} "
-             + (f"chosen on parts {', '.join(dict.fromkeys(placed.parts))} for the best fit over the whole target"
-                if placed.chosen else "declared")
-             + "; centres on the mock-up, body frame (mm): "
-             + "; ".join("(" + ", ".join(f"{v * 1000:.1f}" for v in c) + ")" for c in placed.centres_m)),
-            ("motion capture to expect", _expected_mocap(target, placed)),
-            ("symmetries", "; ".join(
-                f"{a.symmetry} maps the mesh onto itself and moves keypoints "
-                f"({', '.join(f'{i}<->{j}' for i, j in a.swapped)}"
-                + (f"{', ' if a.swapped else ''}{', '.join(map(str, a.unmatched))} onto none" if a.unmatched else "")
-                + ")" for a in ambiguous)
-             + (": a pose and the pose so turned look the same, and no model of the images can tell them apart; "
-                "declare it in [symmetries] (BOP's metrics then score them alike; the SPEED score does not), or give "
-                "the mock-up a feature that breaks it" if ambiguous
-                else "none moves a keypoint (half and quarter turns about the body axes, and the declared ones)")),
-            ("digest", target.digest[:16])]
     for what, value in rows:
         table.add_row(what, escape(value))
     out.print(table)
-
-
-def _expected_mocap(target: Any, placed: Any) -> str:
-    """``speedplus target``'s motion-capture accuracy at the plan's default range, with the
-    default profile's motion capture (``stages.common.marker_fit.expected_accuracy``)."""
-    import numpy as np
-
-    from stages.common.marker_fit import expected_accuracy
-    from stages.common.workspace_target import SPEEDPLUS_RANGE_M, apparent_size_ratio
-
-    config = load_config("default")
-    v = config.virtual
-    ranges = tuple(r * apparent_size_ratio(target) * target.mockup_scale for r in SPEEDPLUS_RANGE_M)
-    accuracy = expected_accuracy(placed.centres_m, placed.normals, np.zeros(3),
-                                 v.vicon_marker_sigma_m * v.vicon_model_noise_factor, np.asarray(v.camera_markers_m),
-                                 v.vicon_marker_sigma_m, config.fuse.vicon_scale_sigma,
-                                 float(np.mean(config.plan.calibration_distance_m)), ranges)
-    untracked = (f"; from {accuracy.untracked_share:.0%} of attitudes fewer than three markers are seen"
-                 if accuracy.untracked_share > 0 else "")
-    return (f"{accuracy.total_m[0] * 1000:.2f}-{accuracy.total_m[1] * 1000:.2f} mm (3D RMS of the target's origin) at "
-            f"{ranges[0]:.2f}-{ranges[1]:.2f} m, the plan's default range before the room's limit: its markers' fit "
-            f"{accuracy.fit_position_m * 1000:.2f} mm and {accuracy.fit_rotation_rad * 1000:.2f} mrad (median over "
-            f"attitudes{untracked}), the camera body's pointing {accuracy.pointing_rad * 1000:.2f} mrad, the wand's "
-            f"scale; with the default profile's marker noise, {v.vicon_marker_sigma_m * 1000:.2f} mm "
-            f"(x{v.vicon_model_noise_factor:g} on the mock-up)")
 
 
 def _crash_log(error: BaseException) -> Path:

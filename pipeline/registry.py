@@ -38,6 +38,9 @@ class StageEntry:
     target_folder: Literal["configured", "workspace"] = "workspace"
     #: the CLI has a command of its own for it (options beyond the common ones)
     own_command: bool = False
+    #: the package may leave itself out of a chain of stages (``skipped_in_chain(config)``:
+    #: the plan, when a replayed session brings its own samples)
+    may_skip: bool = False
     #: the package reports several results side by side (``status_views(config, workspace)``
     #: -> [(label, config)]: export, one per format written)
     views: bool = False
@@ -60,14 +63,39 @@ class StageEntry:
             return [(self.name, config)]
         return list(_load(f"{self.package}:status_views")(config, workspace))
 
+    def skipped_in_chain(self, config: Config) -> bool:
+        """Whether ``speedplus run`` (or any command of several stages) leaves it out."""
+        return self.may_skip and bool(_load(f"{self.package}:skipped_in_chain")(config))
+
     def function(self) -> Callable[..., Any]:
         return _load(f"{self.package}:run")
 
 
-def evaluated_models(config: Config, workspace: Workspace) -> list[Any]:
-    """The model files evaluate scores under ``config`` in ``workspace`` (paths; none when
-    it has none to pick): what ``evaluate --model`` adds to."""
-    return list(_load("stages.evaluate:model_paths")(config, workspace))
+def with_added_models(config: Config, workspace: Workspace, added: list[Any]) -> tuple[list[str], list[str]]:
+    """``evaluate.models`` with ``added`` files beside the scored ones, and notes of the
+    models they replace (``stages.evaluate.with_added_models``)."""
+    models, notes = _load("stages.evaluate:with_added_models")(config, workspace, added)
+    return list(models), list(notes)
+
+
+def publish_destinations(config: Config, workspace: Workspace, out_dir: Any, force: bool) -> dict[str, Any]:
+    """Where ``train-reference --out DIR`` copies each model it trains under ``config``
+    (``stages.reference.publish``); refused before training when a file there is not ours."""
+    names = trained_models(config)
+    return dict(_load("stages.reference.publish:publish_destinations")(config, workspace, names, out_dir, force))
+
+
+def published(workspace: Workspace, destinations: dict[str, Any]) -> list[tuple[str, Any, dict[str, Any]]]:
+    """After train-reference: each trained model's name, where it now is (copied to its
+    destination, or the workspace's file) and its ``models`` row."""
+    publish = importlib.import_module("stages.reference.publish")
+    out = []
+    for name in publish.trained_names(workspace):
+        if name in destinations:
+            out.append((name, destinations[name], publish.publish_model(workspace, name, destinations[name])))
+        else:
+            out.append((name, workspace.resolve(workspace.model_relpath(name)), publish.model_row(workspace, name)))
+    return out
 
 
 def trained_models(config: Config) -> list[str]:
@@ -83,7 +111,7 @@ def _load(entry_point: str) -> Callable[..., Any]:
 
 STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
-               own_command=True),
+               own_command=True, may_skip=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire", own_command=True),
     StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate"),

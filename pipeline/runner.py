@@ -16,7 +16,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from importlib import metadata
-from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
@@ -39,7 +38,6 @@ from manifests import (
     write_marker,
 )
 from manifests import clear as clear_manifest
-from manifests.files import copy_atomic
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
 from manifests.marker import CompletionMarker, FileRecord, PartRecord
 from manifests.schema import MANIFESTS
@@ -427,66 +425,3 @@ def verify(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...])
             findings.append(Finding(stage.name, name, ([problem] if problem else [])
                                     + damaged_files(workspace, marker)))
     return findings
-
-
-def model_names(workspace: Workspace) -> list[str]:
-    """The models of the ``models`` manifest, by name."""
-    return sorted(read_manifest(workspace, "models").column("model").to_pylist())
-
-
-def publish_destinations(config: Config, workspace: Workspace, names: list[str], out_dir: Path,
-                         force: bool) -> dict[str, Path]:
-    """Where ``train-reference --out DIR`` copies each model: ``DIR/<target>_<name>.onnx``
-    (and its card), so that a model of one target never takes another target's file. Refused
-    before anything is trained when a file is there that this workspace's current model did
-    not make, unless ``force``."""
-    from stages.common.workspace_target import workspace_target  # the shared layer
-
-    target = workspace_target(config, workspace).name
-    destinations = {name: out_dir / f"{target}_{name}.onnx" for name in names}
-    if force:
-        return destinations
-    if out_dir.exists() and not out_dir.is_dir():
-        raise StageError(f"{out_dir}: --out is a file, not a folder")
-    ours = _current_model_digests(workspace)
-    for name, destination in destinations.items():
-        for file in (destination, destination.with_suffix(".json")):
-            if file.exists() and (name not in ours or ours[name] != sha256_of(destination)):
-                raise StageError(f"{file}: exists, and train-reference never replaces a file it did not make; "
-                                 f"choose another --out, move the file, or rerun with --force to retrain and "
-                                 f"replace it (the models stay in {workspace.location}/models either way)")
-    return destinations
-
-
-def _current_model_digests(workspace: Workspace) -> dict[str, str]:
-    """model -> sha256 of this workspace's completed ``models`` manifest (none while incomplete)."""
-    if read_marker(workspace, "models") is None:
-        return {}
-    return {row["model"]: row["sha256"] for row in read_manifest(workspace, "models").to_pylist()}
-
-
-def sha256_of(path: Path) -> str | None:
-    from manifests.integrity import sha256
-
-    return sha256(path) if path.is_file() else None
-
-
-def model_row(workspace: Workspace, name: str) -> dict[str, Any]:
-    """Model ``name``'s row of the ``models`` manifest."""
-    rows = {row["model"]: row for row in read_manifest(workspace, "models").to_pylist()}
-    if name not in rows:
-        raise StageError(f"{workspace.display(workspace.manifest_dir('models'))}: no model {name!r}; run "
-                         "train-reference first")
-    return rows[name]
-
-
-def publish_model(workspace: Workspace, name: str, destination: Path) -> dict[str, Any]:
-    """Copy model ``name`` (``W/models/<name>.onnx`` and its card) to ``destination``,
-    atomically; returns its ``models`` row."""
-    row = model_row(workspace, name)
-    source = workspace.fetch(row["path"])
-    workspace.fetch(row["path"].removesuffix(".onnx") + ".json")
-    destination.parent.mkdir(parents=True, exist_ok=True)
-    copy_atomic(source, destination)
-    copy_atomic(source.with_suffix(".json"), destination.with_suffix(".json"))
-    return row

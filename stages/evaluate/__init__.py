@@ -63,6 +63,20 @@ def model_paths(config: Config, workspace: Workspace | None) -> list[Path]:
     return paths
 
 
+def with_added_models(config: Config, workspace: Workspace, added: list[Path]) -> tuple[list[str], list[str]]:
+    """``evaluate --model FILE``: ``evaluate.models`` with the files ``added`` beside the
+    models already scored (an empty list stands for those evaluate picks itself), a file
+    replacing a model of the same name; and a note for each model so replaced (a model is
+    named by its file name)."""
+    current = config.evaluate.models or tuple(str(path) for path in model_paths(config, workspace))
+    files = [str(path.expanduser().resolve()) for path in added]
+    by_name = {Path(path).stem: path for path in files}
+    kept = [path for path in current if Path(path).stem not in by_name]
+    notes = [f"evaluate.models: {Path(path).stem} is now {by_name[Path(path).stem]} (was {path}): a model is named "
+             "by its file name" for path in sorted(set(current) - set(kept) - set(files))]
+    return [*kept, *files], notes
+
+
 def _located(text: str) -> Path:
     path = Path(text).expanduser()
     return path.resolve() if path.is_absolute() or path.exists() else (REPOSITORY / path).resolve()

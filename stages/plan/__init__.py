@@ -50,6 +50,11 @@ def planned_samples(config: Config) -> list[tuple[str, int, str]]:
     return ids
 
 
+def skipped_in_chain(config: Config) -> bool:
+    """A replayed session brings its own samples: ``speedplus run`` goes on without a plan."""
+    return config.acquire.backend == "replay"
+
+
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the configuration only; the [trajectory] section counts when the plan is made of
     sequences. Writes ``plan`` (and ``W/trajectories.json``, ``W/target/``)."""

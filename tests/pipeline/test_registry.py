@@ -73,3 +73,15 @@ def test_what_a_stage_resolves_is_what_the_design_record_says(tmp_path):
             reads |= set(resolved.inputs)
             writes |= set(resolved.outputs)
         assert (reads, writes) == table[entry.name], entry.name
+
+
+def test_every_hook_an_entry_declares_is_in_its_package():
+    """A flag of a StageEntry promises a function of its package: preflight, status_views,
+    skipped_in_chain; and a package has none that its entry does not declare."""
+    import importlib
+
+    hooks = {"preflight": "preflight", "views": "status_views", "may_skip": "skipped_in_chain"}
+    for entry in registry.STAGES:
+        package = importlib.import_module(entry.package)
+        for flag, function in hooks.items():
+            assert getattr(entry, flag) == callable(getattr(package, function, None)), (entry.name, function)
