@@ -1,5 +1,9 @@
 """Bayesian fusion of pose estimates and the motion-capture rejection test (the paper's
-"Data Fusion" section), shared by calibrate (Table 1) and fuse (the dataset).
+"Data Fusion" section: Park, Bosse and D'Amico, "Robotic Testbed for Rendezvous and Optical
+Navigation: Multi-Source Calibration and Machine Learning Use Cases", AAS/AIAA
+Astrodynamics Specialist Conference, 2021), shared by calibrate (Table 1) and fuse (the
+dataset). The rotation mean is the chordal L2 mean (Hartley, Trumpf, Dai and Li,
+"Rotation Averaging", IJCV 103, 2013).
 
 Positions fuse per camera axis by inverse variance; rotations by the weighted chordal mean
 with the paper's weights ``w_K = s_V^2 / (s_K^2 + s_V^2)``; the fused variance is

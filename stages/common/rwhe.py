@@ -5,9 +5,15 @@ for the robots, ``camrb_from_targetrb`` for motion capture), ``Z`` = the camera-
 offset (``cam_from_camee``), ``X_f`` = the target-side offset of fixture f
 (``target_from_targetee``). Several fixtures share one ``Z``.
 
-Solvers: Shah's closed form (Kronecker null space, then linear translations), the
-paper's Levenberg-Marquardt on ``sum |A_i - Z B_i X^-1|_F^2`` over rotation vectors, and
-a refinement on the pattern's reprojection error (maximum likelihood for pixel noise).
+Solvers: Shah's closed form (Kronecker null space, then linear translations; Shah,
+"Solving the Robot-World/Hand-Eye Calibration Problem Using the Kronecker Product", ASME
+Journal of Mechanisms and Robotics 5(3), 2013), the paper's Levenberg-Marquardt on
+``sum |A_i - Z B_i X^-1|_F^2`` over rotation vectors (Tabb and Ahmad Yousef, "Solving the
+robot-world hand-eye(s) calibration problem with iterative methods", Machine Vision and
+Applications 28, 2017; Park, Bosse and D'Amico, "Robotic Testbed for Rendezvous and Optical
+Navigation: Multi-Source Calibration and Machine Learning Use Cases", AAS/AIAA
+Astrodynamics Specialist Conference, 2021), and a refinement on the pattern's reprojection
+error (maximum likelihood for pixel noise).
 
 Compliant fixtures: the model hangs off its flange on a fixture that tilts under the
 model's weight (the paper blames its KUKA-only rotation error on it). To first order

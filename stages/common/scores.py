@@ -1,4 +1,9 @@
-"""SPEED (2019) and SPEED+ (2021) pose scores (docs/architecture.md section 8).
+"""SPEED (2019) and SPEED+ (2021) pose scores (docs/architecture.md section 8): Kisantal,
+Sharma, Park, Izzo, Märtens and D'Amico, "Satellite Pose Estimation Challenge: Dataset,
+Competition Design and Results", IEEE Transactions on Aerospace and Electronic Systems
+56(5), 2020 (the SPEED score); Park, Märtens, Lecuyer, Izzo and D'Amico, "SPEED+:
+Next-Generation Dataset for Spacecraft Pose Estimation across Domain Gap", IEEE Aerospace
+Conference, 2022 (SPEED+ and its thresholds).
 
 ``e_q = 2 arccos |<q_pred, q_true>|`` (rad, sign-invariant: q and -q are one rotation),
 ``e_t = |t_true - t_pred| / |t_true|`` (translation error normalised by the true distance),
