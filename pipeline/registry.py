@@ -86,16 +86,9 @@ def publish_destinations(config: Config, workspace: Workspace, out_dir: Any, for
 
 
 def published(workspace: Workspace, destinations: dict[str, Any]) -> list[tuple[str, Any, dict[str, Any]]]:
-    """After train-reference: each trained model's name, where it now is (copied to its
-    destination, or the workspace's file) and its ``models`` row."""
-    publish = importlib.import_module("stages.reference.publish")
-    out = []
-    for name in publish.trained_names(workspace):
-        if name in destinations:
-            out.append((name, destinations[name], publish.publish_model(workspace, name, destinations[name])))
-        else:
-            out.append((name, workspace.resolve(workspace.model_relpath(name)), publish.model_row(workspace, name)))
-    return out
+    """After train-reference: each trained model's name, where it now is and its ``models``
+    row (``stages.reference.publish.published``)."""
+    return list(_load("stages.reference.publish:published")(workspace, destinations))
 
 
 def trained_models(config: Config) -> list[str]:

@@ -20,6 +20,18 @@ def trained_names(workspace: Workspace) -> list[str]:
     return sorted(read_manifest(workspace, "models").column("model").to_pylist())
 
 
+def published(workspace: Workspace, destinations: dict[str, Path]) -> list[tuple[str, Path, dict[str, Any]]]:
+    """After train-reference: each trained model's name, where it now is (copied to its
+    ``destinations`` entry, or the workspace's own file) and its ``models`` row."""
+    out = []
+    for name in trained_names(workspace):
+        if name in destinations:
+            out.append((name, destinations[name], publish_model(workspace, name, destinations[name])))
+        else:
+            out.append((name, workspace.resolve(workspace.model_relpath(name)), model_row(workspace, name)))
+    return out
+
+
 def publish_destinations(config: Config, workspace: Workspace, names: list[str], out_dir: Path,
                          force: bool) -> dict[str, Path]:
     """Where ``train-reference --out DIR`` copies each model: ``DIR/<target>_<name>.onnx``
