@@ -105,7 +105,10 @@ def main(*args: str) -> None:
         tree = scratch / "tree"
         subprocess.run(["git", "worktree", "add", "--detach", str(tree), ref], cwd=REPO, check=True)
         before = scratch / "before"
-        _run_default(tree, before)
+        try:
+            _run_default(tree, before)
+        finally:  # the repository keeps no stray worktree (its workspaces stay in scratch)
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, check=False)
     if after is None:
         after = scratch / "after"
         _run_default(REPO, after)
