@@ -54,6 +54,17 @@ def _section_dict(config: Config, name: str) -> dict[str, Any]:
     return {f.name: getattr(section, f.name) for f in fields(section)}
 
 
+def _declared(config: Config, declared: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    """The values of what a stage declares it depends on: whole sections (``plan``) or single
+    keys of another stage's section (``plan.mode``), as {section: {key: value}}."""
+    sections: dict[str, dict[str, Any]] = {}
+    for name in declared:
+        section, _, key = name.partition(".")
+        values = _section_dict(config, section)
+        sections.setdefault(section, {}).update(values if not key else {key: values[key]})
+    return sections
+
+
 def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace) -> dict[str, Any] | None:
     """What the stage's fingerprint hashes (recorded in its markers, so that ``status`` can say
     why results are stale), or None while an input manifest is incomplete."""
@@ -64,7 +75,7 @@ def fingerprint_payload(stage: StageEntry, config: Config, workspace: Workspace)
         if marker is None:
             return None
         inputs[name] = {"fingerprint": marker.fingerprint, "rows": marker.rows}
-    sections = {name: _section_dict(config, name) for name in resolved.sections}
+    sections = _declared(config, resolved.sections)
     if resolved.member_key is not None:  # members are tracked one by one (markers' "members")
         section, key = resolved.member_key.split(".")
         sections[section].pop(key)

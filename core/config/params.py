@@ -12,9 +12,18 @@ class ConfigError(InputError):
     """Bad configuration; the message names the key (and the file) at fault."""
 
 
-def param(default: Any, help: str, unit: str = "") -> Any:  # noqa: A002 - "help" reads best at call sites
-    """A documented field: ``help`` becomes CLI/TOML documentation, ``unit`` is shown with it."""
-    return field(default=default, metadata={"help": help, "unit": unit})
+def param(default: Any, help: str, unit: str = "", applies: tuple[str, ...] = ()) -> Any:  # noqa: A002
+    """A documented field: ``help`` becomes CLI/TOML documentation, ``unit`` is shown with it.
+    ``applies``: the outputs of its stage the key shapes, where a stage makes several (the
+    render stage's ``twin`` and ``train`` sets); empty: all of them."""
+    return field(default=default, metadata={"help": help, "unit": unit, "applies": applies})
+
+
+def keys_for(section: type, output: str) -> tuple[str, ...]:
+    """The keys of ``section`` (a dataclass of ``param`` fields) that shape ``output``: a
+    stage's fingerprint holds these and no others (docs/architecture.md section 1)."""
+    return tuple(item.name for item in fields(section)
+                 if not item.metadata.get("applies") or output in item.metadata["applies"])
 
 
 

@@ -129,7 +129,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     detector = detector_path(config, workspace)
     # the detector starts every model's self crop: a new one redoes them all
     extra = {"detector": "search" if detector is None else _digest(detector)}
-    return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate",), extra,
+    return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate", "plan.mode"),
+                    extra,
                     ("predictions", "scores", "comparisons") + (("tracks",) if sequences else ()),
                     members={path.stem: _digest(path) for path in model_paths(config, workspace)},
                     member_key="evaluate.models", member_column="model")

@@ -48,8 +48,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     if config.plan.mode == "trajectory":  # each image's sequence and frame
         needed = ("plan", *needed)
     # of the render section, only what sizes the training camera matters here
-    extra = {"train_resolution_scale": config.render.train_resolution_scale} if "train" in config.export.sets else {}
-    return Resolved(needed, ("export", "camera"), extra, (f"export_{config.export.format}",))
+    train = ("render.train_resolution_scale",) if "train" in config.export.sets else ()
+    return Resolved(needed, ("export", "camera", "plan.mode", *train), {}, (f"export_{config.export.format}",))
 
 
 def out_dir(config: Config, workspace: Workspace) -> Path:

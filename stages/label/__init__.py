@@ -55,7 +55,7 @@ def label_row(pose: dict[str, Any], plan: dict[str, Any] | None, camera_matrix: 
 
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the fused poses (and the calibration, the session); writes ``labels``."""
-    return Resolved(("poses",), ("label", "testbed"), {}, ("labels",))
+    return Resolved(("poses",), ("label",), {}, ("labels",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

@@ -20,8 +20,10 @@ from stages.common.workspace_target import workspace_target
 
 
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
-    """Reads the training set (render --set train); writes ``models`` and ``W/models/``."""
-    return Resolved(("train",), ("reference",), {}, ("models",))
+    """Reads the training set (render --set train); writes ``models`` and ``W/models/``, whose
+    metadata record the training set's camera (the input size) and render keys."""
+    recorded = ("camera", "render.seed", "render.train_count", "render.train_resolution_scale", "render.train_spp")
+    return Resolved(("train",), ("reference", *recorded), {}, ("models",))
 
 
 def model_names(config: Config) -> list[str]:

@@ -9,11 +9,11 @@ pixels and an interrupted run resumes with the missing ``sample_id``s.
 
 from __future__ import annotations
 
-from dataclasses import asdict, fields
-
 import pyarrow as pa
 
 from core.config import Config
+from core.config.params import keys_for
+from core.config.stages import RenderConfig
 from core.engines import store, threads_per_worker
 from core.progress import console, track
 from core.stage_io import Resolved
@@ -32,21 +32,20 @@ def output_name(config: Config) -> str:
     return "renders" if config.render.set == "twin" else "train"
 
 
-TWIN_KEYS = ("seed", "spp", "max_depth", "irradiance", "ground_truth")
-
-
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
-    """Each image set depends on its own render keys only (resizing the training set leaves
-    the twins done): the twins read the labels, the captures (the camera's place), the
-    calibration and the plan (each sample's light, a sequence's Earth)."""
-    render = {f.name: getattr(config.render, f.name) for f in fields(config.render) if f.name != "set"}
+    """Each image set depends on the render keys that shape it (``applies`` of each field:
+    resizing the training set leaves the twins done), the camera's sensor and tone, and on
+    its inputs: the twins read the labels, the captures (the camera's place), the calibration
+    and the plan (each sample's light, a sequence's Earth)."""
+    keys = tuple(f"render.{key}" for key in keys_for(RenderConfig, config.render.set))
     if config.render.set == "train":
-        return Resolved((), ("camera",), {"render": render}, (output_name(config),))
+        return Resolved((), ("camera", *keys), {}, (output_name(config),))
     inputs = ("labels", "captures", "calibration_samples")
     if config.acquire.backend == "virtual":
         inputs += ("plan",)  # the light set-up of each sample
-    extra = {"render": {key: render[key] for key in TWIN_KEYS}, "camera": asdict(response(config))}
-    return Resolved(inputs, ("testbed",), extra, (output_name(config),))
+    lights = ("testbed.light_box_centres_m", "testbed.sun_lamp_position_m")  # where the twin's light comes from
+    return Resolved(inputs, (*lights, "camera.sensor", "camera.gamma", "plan.mode", *keys), {},
+                    (output_name(config),))
 
 
 def response(config: Config) -> Response:

@@ -78,7 +78,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads everything a run made (a trajectory plan's tracks too); writes ``W/report/``
     (its marker: ``report``)."""
     tracks = ("tracks",) if config.plan.mode == "trajectory" else ()
-    return Resolved(("labels", "renders", "predictions", "scores", "comparisons", *tracks), (), {}, ("report",))
+    return Resolved(("labels", "renders", "predictions", "scores", "comparisons", *tracks),
+                    ("evaluate.models", "plan.mode"), {"profile": config.profile}, ("report",))
 
 
 def run(config: Config, workspace: Workspace) -> None:
