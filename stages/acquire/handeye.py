@@ -24,7 +24,7 @@ from manifests.sidecars import Session, SessionCamera
 from speedplus.errors import unknown_keys
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.ingest import (
-    IngestError,
+    FileError,
     check_angles,
     check_finite,
     check_rotation,
@@ -80,9 +80,9 @@ def inside(source: Path, relative: str, where: str, what: str) -> Path:
     ``..``, symbolic links pointing out)."""
     path = (source / relative)
     if Path(relative).is_absolute() or ".." in Path(relative).parts:
-        raise IngestError(where, f"{what} {relative!r} must be a path inside {source}")
+        raise FileError(where, f"{what} {relative!r} must be a path inside {source}")
     if not path.resolve().is_relative_to(source.resolve()):
-        raise IngestError(where, f"{what} {relative!r} leads outside {source} (a symbolic link?)")
+        raise FileError(where, f"{what} {relative!r} leads outside {source} (a symbolic link?)")
     return path
 
 
@@ -90,27 +90,27 @@ def _camera_table(table: Any, where: Path) -> dict[str, Any] | None:
     if table is None:
         return None
     if not isinstance(table, dict):
-        raise IngestError(where, "[camera] must be a table")
+        raise FileError(where, "[camera] must be a table")
     unknown = sorted(set(table) - {"width", "height", "K", "dist"})
     if unknown:
-        raise IngestError(where, f"[camera] unknown key(s) {unknown_keys(unknown, ('width', 'height', 'K', 'dist'))}; "
+        raise FileError(where, f"[camera] unknown key(s) {unknown_keys(unknown, ('width', 'height', 'K', 'dist'))}; "
                                  "expected width, height, K, dist")
     for key in ("width", "height"):
         if not isinstance(table.get(key), int) or table[key] < 1:
-            raise IngestError(where, f"[camera] {key} must be a positive integer (px), got {table.get(key)!r}")
+            raise FileError(where, f"[camera] {key} must be a positive integer (px), got {table.get(key)!r}")
     camera_matrix, dist = table.get("K"), table.get("dist")
     if camera_matrix is not None:
         array = np.asarray(camera_matrix, dtype=object)
         if array.shape != (3, 3) or not all(isinstance(v, int | float) for v in array.ravel()):
-            raise IngestError(where, "[camera] K must be a 3 x 3 matrix of numbers (px)")
+            raise FileError(where, "[camera] K must be a 3 x 3 matrix of numbers (px)")
         camera_matrix = np.asarray(camera_matrix, float)
         if camera_matrix[0, 0] <= 0 or camera_matrix[1, 1] <= 0 or not np.allclose(camera_matrix[2], [0, 0, 1]):
-            raise IngestError(where, "[camera] K needs positive fx, fy and a last row 0 0 1")
+            raise FileError(where, "[camera] K needs positive fx, fy and a last row 0 0 1")
     if dist is not None and (not isinstance(dist, list) or len(dist) not in (4, 5, 8)
                              or not all(isinstance(v, int | float) for v in dist)):
-        raise IngestError(where, "[camera] dist must be 4, 5 or 8 OpenCV distortion coefficients")
+        raise FileError(where, "[camera] dist must be 4, 5 or 8 OpenCV distortion coefficients")
     if (camera_matrix is None) != (dist is None):
-        raise IngestError(where, "[camera] give both K and dist, or neither (then they are estimated)")
+        raise FileError(where, "[camera] give both K and dist, or neither (then they are estimated)")
     return {"width": table["width"], "height": table["height"],
             "K": None if camera_matrix is None else camera_matrix.tolist(),
             "dist": None if dist is None else [float(v) for v in dist]}
@@ -120,24 +120,24 @@ def read_dataset_toml(source: Path) -> HandEyeDataset:
     """Parse and validate ``source/dataset.toml``; every error names the file and the key."""
     path = source / DATASET_FILE
     if not source.is_dir():
-        raise IngestError(source, "not a directory")
+        raise FileError(source, "not a directory")
     try:
         meta = tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as error:
-        raise IngestError(path, f"not valid TOML ({error})") from None
+        raise FileError(path, f"not valid TOML ({error})") from None
     if meta.get("format_version") != FORMAT_VERSION:
-        raise IngestError(path, f"format_version must be {FORMAT_VERSION}, got {meta.get('format_version')!r}")
+        raise FileError(path, f"format_version must be {FORMAT_VERSION}, got {meta.get('format_version')!r}")
     tables = {"format_version", "robot", "setup", "images", "pattern", "camera"}
     unknown = sorted(set(meta) - tables)
     if unknown:
-        raise IngestError(path, f"unknown key(s) or table(s) {unknown_keys(unknown, tables)}")
+        raise FileError(path, f"unknown key(s) or table(s) {unknown_keys(unknown, tables)}")
     values: dict[str, Any] = dict(DEFAULTS)
     for table, keys in CHOICES.items():
         given = meta.get(table, {})
         if not isinstance(given, dict):
-            raise IngestError(path, f"[{table}] must be a table")
+            raise FileError(path, f"[{table}] must be a table")
         for key in sorted(set(given) - set(keys)):
-            raise IngestError(path, f"[{table}] unknown key {unknown_keys([key], keys)}; expected some of "
+            raise FileError(path, f"[{table}] unknown key {unknown_keys([key], keys)}; expected some of "
                                     f"{', '.join(keys)}")
         for key, allowed in keys.items():
             if key not in given:
@@ -145,12 +145,12 @@ def read_dataset_toml(source: Path) -> HandEyeDataset:
             value = given[key]
             if not isinstance(value, str) or (allowed is not None and value not in allowed):
                 expected = " or ".join(allowed) if allowed else "a string"
-                raise IngestError(path, f"[{table}] {key} must be {expected}, got {value!r}")
+                raise FileError(path, f"[{table}] {key} must be {expected}, got {value!r}")
             values[key] = value
     if "file" not in values:
-        raise IngestError(path, "[robot] file is missing: the pose file, relative to the folder")
+        raise FileError(path, "[robot] file is missing: the pose file, relative to the folder")
     if "pattern" not in meta:
-        raise IngestError(path, "[pattern] is missing: kind, size and square_m of the calibration pattern")
+        raise FileError(path, "[pattern] is missing: kind, size and square_m of the calibration pattern")
     inside(source, values["file"], path, "[robot] file")
     return HandEyeDataset(source, values["file"], values["layout"], values["transform"], values["length_unit"],
                           values["angle_unit"], values["camera_on"], values["glob"],
@@ -169,7 +169,7 @@ def _number_lines(path: Path) -> list[tuple[int, list[float]]]:
             try:
                 values.append(float(token))
             except ValueError:
-                raise IngestError(path, f"line {line_number}: not a number: {token!r}") from None
+                raise FileError(path, f"line {line_number}: not a number: {token!r}") from None
         if values:
             out.append((line_number, values))
     return out
@@ -179,7 +179,7 @@ def _rowmajor(path: Path) -> tuple[np.ndarray, list[str]]:
     matrices, where = [], []
     for line_number, values in _number_lines(path):
         if len(values) != 16:
-            raise IngestError(path, f"line {line_number}: expected 16 numbers (a row-major 4 x 4 matrix), "
+            raise FileError(path, f"line {line_number}: expected 16 numbers (a row-major 4 x 4 matrix), "
                                     f"got {len(values)}")
         matrices.append(np.array(values).reshape(4, 4))
         where.append(f"line {line_number}")
@@ -189,11 +189,11 @@ def _rowmajor(path: Path) -> tuple[np.ndarray, list[str]]:
 def _counted(path: Path) -> tuple[np.ndarray, list[str]]:
     numbers = [(line, value) for line, values in _number_lines(path) for value in values]
     if not numbers or not np.isfinite(numbers[0][1]) or numbers[0][1] != int(numbers[0][1]) or numbers[0][1] < 1:
-        raise IngestError(path, f"line {numbers[0][0] if numbers else 1}: must start with the number of poses, "
+        raise FileError(path, f"line {numbers[0][0] if numbers else 1}: must start with the number of poses, "
                                 f"got {numbers[0][1] if numbers else 'nothing'}")
     count = int(numbers[0][1])
     if len(numbers) - 1 != 16 * count:
-        raise IngestError(path, f"announces {count} matrices but holds {(len(numbers) - 1) / 16:g}")
+        raise FileError(path, f"announces {count} matrices but holds {(len(numbers) - 1) / 16:g}")
     values = np.array([v for _, v in numbers[1:]]).reshape(count, 4, 4)
     return values, [f"matrix {k} (line {numbers[1 + 16 * k][0]})" for k in range(count)]
 
@@ -203,7 +203,7 @@ def _xyzabc(path: Path, angle_unit: str) -> tuple[np.ndarray, list[str]]:
     for line, row in read_csv(path, XYZABC_COLUMNS):
         sample = (row["sample"] or "").strip()
         if sample in seen:
-            raise IngestError(path, f"line {line}, column sample: duplicate {sample!r} (first at line {seen[sample]})")
+            raise FileError(path, f"line {line}, column sample: duplicate {sample!r} (first at line {seen[sample]})")
         seen[sample] = line
         values = np.array([number(path, line, row, c) for c in "xyzabc"])
         check_finite(path, f"line {line}", values)
@@ -228,11 +228,11 @@ def read_poses(dataset: HandEyeDataset) -> np.ndarray:
     else:
         matrices, where = _xyzabc(path, dataset.angle_unit)
     if not len(matrices):
-        raise IngestError(path, "no poses")
+        raise FileError(path, "no poses")
     for matrix, label in zip(matrices, where, strict=True):
         check_finite(path, label, matrix)
         if not np.allclose(matrix[3], [0, 0, 0, 1]):
-            raise IngestError(path, f"{label}: last row must be 0 0 0 1, got {matrix[3].tolist()}")
+            raise FileError(path, f"{label}: last row must be 0 0 0 1, got {matrix[3].tolist()}")
         check_rotation(path, label, matrix[:3, :3])
     check_translation(path, "translation", matrices[:, :3, 3], dataset.length_unit, where)
     matrices = matrices.copy()
@@ -249,16 +249,16 @@ def list_images(dataset: HandEyeDataset) -> list[Path]:
     where = dataset.source / dataset.label
     pattern = dataset.image_glob
     if not pattern.strip() or Path(pattern).is_absolute() or ".." in Path(pattern).parts:
-        raise IngestError(where, f"[images] glob {pattern!r} must be a non-empty pattern inside {dataset.source}")
+        raise FileError(where, f"[images] glob {pattern!r} must be a non-empty pattern inside {dataset.source}")
     try:
         found = [p for p in dataset.source.glob(pattern) if p.is_file()]
     except ValueError as error:  # pathlib's "Unacceptable pattern"
-        raise IngestError(where, f"[images] glob {pattern!r}: {error}") from None
+        raise FileError(where, f"[images] glob {pattern!r}: {error}") from None
     found.sort(key=lambda p: natural_key(str(p.relative_to(dataset.source))))
     for path in found:
         inside(dataset.source, str(path.relative_to(dataset.source)), where, "image")
         if path.suffix.lower() not in IMAGE_SUFFIXES:
-            raise IngestError(path, f"not an image type the pipeline reads ({', '.join(IMAGE_SUFFIXES)})")
+            raise FileError(path, f"not an image type the pipeline reads ({', '.join(IMAGE_SUFFIXES)})")
     return found
 
 
@@ -268,10 +268,10 @@ def check_images(images: list[Path], camera: dict[str, Any] | None, where: Path)
     first = infos[0]
     for path, info in zip(images, infos, strict=True):
         if (info.width, info.height) != (first.width, first.height):
-            raise IngestError(path, f"{info.width} x {info.height} px, but {images[0].name} is "
+            raise FileError(path, f"{info.width} x {info.height} px, but {images[0].name} is "
                                     f"{first.width} x {first.height}: one camera, one image size")
     if camera is not None and (camera["width"], camera["height"]) != (first.width, first.height):
-        raise IngestError(images[0], f"{first.width} x {first.height} px, but {where} declares the camera "
+        raise FileError(images[0], f"{first.width} x {first.height} px, but {where} declares the camera "
                                      f"[camera] width x height = {camera['width']} x {camera['height']}")
     return first
 
@@ -285,7 +285,7 @@ class HandEyeReplay:
         self.images = list_images(dataset)
         where = dataset.source / dataset.label
         if len(self.images) != len(self.base_from_flange):
-            raise IngestError(where, f"{len(self.images)} images match [images] glob {dataset.image_glob!r} but "
+            raise FileError(where, f"{len(self.images)} images match [images] glob {dataset.image_glob!r} but "
                                      f"{dataset.pose_file} holds {len(self.base_from_flange)} poses; the N-th "
                                      "image pairs with the N-th pose")
         self.info = check_images(self.images, dataset.camera, where)

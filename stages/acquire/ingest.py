@@ -16,20 +16,16 @@ PLAUSIBLE_RANGE = {"mm": (50.0, 30_000.0), "m": (0.05, 30.0)}
 ORTHONORMAL_TOLERANCE = 1e-3
 
 
-class IngestError(FileError):
-    """Bad recorded data; the message starts with the file (and row)."""
-
-
 def read_text(path: Path) -> str:
     """UTF-8 text; a byte-order mark (spreadsheets write one) is dropped."""
     try:
         return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
-        raise IngestError(path, "file not found") from None
+        raise FileError(path, "file not found") from None
     except UnicodeDecodeError as error:
-        raise IngestError(path, f"not UTF-8 text (byte {error.start})") from None
+        raise FileError(path, f"not UTF-8 text (byte {error.start})") from None
     except OSError as error:
-        raise IngestError(path, f"unreadable ({error.strerror})") from None
+        raise FileError(path, f"unreadable ({error.strerror})") from None
 
 
 def read_csv(path: Path, required: list[str]) -> list[tuple[int, dict[str, str]]]:
@@ -38,7 +34,7 @@ def read_csv(path: Path, required: list[str]) -> list[tuple[int, dict[str, str]]
     reader = csv.DictReader(lines)
     missing = [c for c in required if c not in (reader.fieldnames or [])]
     if missing:
-        raise IngestError(path, f"header lacks column(s) {', '.join(missing)}")
+        raise FileError(path, f"header lacks column(s) {', '.join(missing)}")
     return [(number, row) for number, row in enumerate(reader, start=2)]
 
 
@@ -48,12 +44,12 @@ def number(path: Path, line: int, row: dict[str, str], column: str) -> float:
     try:
         return float(text)
     except ValueError:
-        raise IngestError(path, f"line {line}, column {column}: expected a number, got {text!r}") from None
+        raise FileError(path, f"line {line}, column {column}: expected a number, got {text!r}") from None
 
 
 def check_finite(path: Path, where: str, values: np.ndarray) -> None:
     if not np.all(np.isfinite(values)):
-        raise IngestError(path, f"{where}: non-finite value")
+        raise FileError(path, f"{where}: non-finite value")
 
 
 def check_angles(path: Path, where: str, angles: np.ndarray, unit: str) -> None:
@@ -61,14 +57,14 @@ def check_angles(path: Path, where: str, angles: np.ndarray, unit: str) -> None:
     limit = 2 * np.pi + 1e-6 if unit == "rad" else 360.0 + 1e-6
     if np.abs(angles).max() > limit:
         hint = "; is the file in degrees (angle_unit = \"deg\")?" if unit == "rad" else ""
-        raise IngestError(path, f"{where}: angle {np.abs(angles).max():.6g} {unit} is more than a turn{hint}")
+        raise FileError(path, f"{where}: angle {np.abs(angles).max():.6g} {unit} is more than a turn{hint}")
 
 
 def check_rotation(path: Path, where: str, rotation: np.ndarray) -> None:
     """A proper rotation matrix (3, 3) within ``ORTHONORMAL_TOLERANCE``."""
     error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if error > ORTHONORMAL_TOLERANCE or np.linalg.det(rotation) <= 0:
-        raise IngestError(path, f"{where}: rotation is not orthonormal (|R^T R - I| = {error:.2g}, "
+        raise FileError(path, f"{where}: rotation is not orthonormal (|R^T R - I| = {error:.2g}, "
                                 f"det = {np.linalg.det(rotation):.4f})")
 
 
@@ -82,10 +78,10 @@ def check_translation(path: Path, label: str, translations: np.ndarray, unit: st
     norms = np.linalg.norm(translations, axis=-1)
     for norm, row in zip(norms, rows, strict=True):
         if norm > high:
-            raise IngestError(path, f"{row}: {label} {norm:.6g} {unit} from the origin is implausible for "
+            raise FileError(path, f"{row}: {label} {norm:.6g} {unit} from the origin is implausible for "
                                     f"{unit} (at most {high:g}); is the file in {other}?")
     if len(norms) and norms.max() < low:
-        raise IngestError(path, f"{label}: every position lies within {norms.max():.6g} {unit} of the origin, "
+        raise FileError(path, f"{label}: every position lies within {norms.max():.6g} {unit} of the origin, "
                                 f"implausible for {unit} (a flange is at least {low:g} {unit} from its base); "
                                 f"is the file in {other}?")
 

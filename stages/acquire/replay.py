@@ -38,7 +38,7 @@ from speedplus.errors import unknown_keys
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.handeye import check_images, inside
 from stages.acquire.ingest import (
-    IngestError,
+    FileError,
     check_angles,
     check_finite,
     check_translation,
@@ -64,30 +64,30 @@ def read_session_toml(path: Path) -> dict[str, Any]:
     try:
         meta = tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as error:
-        raise IngestError(path, f"not valid TOML ({error})") from None
+        raise FileError(path, f"not valid TOML ({error})") from None
     unknown = sorted(set(meta) - SESSION_KEYS)
     if unknown:
-        raise IngestError(path, f"unknown key(s) or table(s) {unknown_keys(unknown, SESSION_KEYS)}")
+        raise FileError(path, f"unknown key(s) or table(s) {unknown_keys(unknown, SESSION_KEYS)}")
     setup = meta.setdefault("setup", {})
     if not isinstance(setup, dict) or set(setup) - set(SETUP_BODIES):
-        raise IngestError(path, f"[setup] may hold camera_on and target_on only, got {setup!r}")
+        raise FileError(path, f"[setup] may hold camera_on and target_on only, got {setup!r}")
     for key in SETUP_BODIES:
         if setup.setdefault(key, "flange") not in ("flange", "world"):
-            raise IngestError(path, f"[setup] {key} must be flange or world, got {setup[key]!r}")
+            raise FileError(path, f"[setup] {key} must be flange or world, got {setup[key]!r}")
     if setup["camera_on"] == setup["target_on"] == "world":
-        raise IngestError(path, "[setup] camera_on and target_on are both world: nothing moves")
+        raise FileError(path, "[setup] camera_on and target_on are both world: nothing moves")
     if "pattern" in meta:
         meta["pattern"] = pattern_from_table(meta["pattern"], str(path))
     expected = {"length_unit": ("mm", "m"), "angle_unit": ("deg", "rad"), "euler": ("ZYX",)}
     for key, allowed in expected.items():
         if meta.get(key) not in allowed:
-            raise IngestError(path, f"{key} must be one of {', '.join(allowed)}, got {meta.get(key)!r}")
+            raise FileError(path, f"{key} must be one of {', '.join(allowed)}, got {meta.get(key)!r}")
     sources = meta.get("sources", ["kuka"])
     if not isinstance(sources, list) or "kuka" not in sources or not set(sources) <= {"kuka", "vicon"}:
-        raise IngestError(path, f"sources must list kuka and optionally vicon, got {sources!r}")
+        raise FileError(path, f"sources must list kuka and optionally vicon, got {sources!r}")
     camera = meta.get("camera", {})
     if not isinstance(camera.get("width"), int) or not isinstance(camera.get("height"), int):
-        raise IngestError(path, "[camera] needs integer width and height")
+        raise FileError(path, "[camera] needs integer width and height")
     return meta
 
 
@@ -101,7 +101,7 @@ class SessionReplay:
     def __init__(self, source: Path, workspace: Workspace) -> None:
         self.source, self.workspace = source, workspace
         if not source.is_dir():
-            raise IngestError(source, "not a directory")
+            raise FileError(source, "not a directory")
         self.meta = read_session_toml(source / "session.toml")
         self.moving = [body for key, body in SETUP_BODIES.items() if self.meta["setup"][key] == "flange"]
         self.robot = self._read_robot(source / "robot.csv")
@@ -116,10 +116,10 @@ class SessionReplay:
         found = [self.source / "images" / f"{sample_id}{suffix}" for suffix in IMAGE_SUFFIXES
                  if (self.source / "images" / f"{sample_id}{suffix}").is_file()]
         if not found:
-            raise IngestError(self.source / "robot.csv", f"sample {sample_id}: image images/{sample_id}.png "
+            raise FileError(self.source / "robot.csv", f"sample {sample_id}: image images/{sample_id}.png "
                                                          f"(or {', '.join(IMAGE_SUFFIXES[1:])}) is missing")
         if len(found) > 1:
-            raise IngestError(self.source / "robot.csv", f"sample {sample_id}: several images "
+            raise FileError(self.source / "robot.csv", f"sample {sample_id}: several images "
                                                          f"({', '.join(p.name for p in found)}); keep one")
         return inside(self.source, str(found[0].relative_to(self.source)), self.source / "robot.csv", "image")
 
@@ -131,7 +131,7 @@ class SessionReplay:
         header = set(rows[0][1]) if rows else set()
         still = [c for body in BODY_COLUMNS if body not in self.moving for c in BODY_COLUMNS[body] if c in header]
         if still:
-            raise IngestError(path, f"column(s) {', '.join(still)} given, but session.toml [setup] says that body "
+            raise FileError(path, f"column(s) {', '.join(still)} given, but session.toml [setup] says that body "
                                     "stands still in the robot world")
         positions: dict[str, list[np.ndarray]] = {body: [] for body in self.moving}
         labels: list[str] = []
@@ -139,14 +139,14 @@ class SessionReplay:
             sample_id = (row["sample_id"] or "").strip()
             where = f"line {line} (sample_id {sample_id})"
             if not sample_id:
-                raise IngestError(path, f"line {line}: empty sample_id")
+                raise FileError(path, f"line {line}: empty sample_id")
             if not SAMPLE_ID.fullmatch(sample_id):
-                raise IngestError(path, f"line {line}, column sample_id: {sample_id!r} must be letters, digits, "
+                raise FileError(path, f"line {line}, column sample_id: {sample_id!r} must be letters, digits, "
                                         "'_', '-' or '.' (it names the image file; no paths)")
             if sample_id in robot:
-                raise IngestError(path, f"{where}: duplicate sample_id (first at line {robot[sample_id]['line']})")
+                raise FileError(path, f"{where}: duplicate sample_id (first at line {robot[sample_id]['line']})")
             if row["session"] not in SESSIONS:
-                raise IngestError(path, f"{where}, column session: expected one of {', '.join(SESSIONS)}, "
+                raise FileError(path, f"{where}, column session: expected one of {', '.join(SESSIONS)}, "
                                         f"got {row['session']!r}")
             poses = {body: np.eye(4) for body in BODY_COLUMNS}
             for body in self.moving:
@@ -171,7 +171,7 @@ class SessionReplay:
                                 "rail_m": None if rail is None else _to_metres(rail, length), **poses,
                                 **self._joints(path, line, where, row, angle)}
         if not robot:
-            raise IngestError(path, "no samples")
+            raise FileError(path, "no samples")
         for body, values in positions.items():
             check_translation(path, f"{body} position", np.array(values), length, labels)
         return robot
@@ -183,11 +183,11 @@ class SessionReplay:
         if not present:
             return {"camera_joints_rad": None, "target_joints_rad": None}
         if len(self.moving) < 2:
-            raise IngestError(path, f"encoder readings ({columns[0]}..{columns[-1]}) need both robots: the arm "
+            raise FileError(path, f"encoder readings ({columns[0]}..{columns[-1]}) need both robots: the arm "
                                     "model is the testbed's pair of KUKA arms on their rail")
         missing = [c for c in columns if c not in row]
         if missing:
-            raise IngestError(path, f"encoder readings need all of {columns[0]}..{columns[-1]}; "
+            raise FileError(path, f"encoder readings need all of {columns[0]}..{columns[-1]}; "
                                     f"missing column(s) {', '.join(missing)}")
         out = {}
         for robot, names in JOINT_COLUMNS.items():
@@ -204,11 +204,11 @@ class SessionReplay:
             sample_id, body = (row["sample_id"] or "").strip(), (row["body"] or "").strip()
             where = f"line {line} (sample_id {sample_id}, body {body})"
             if sample_id not in self.robot:
-                raise IngestError(path, f"{where}: sample_id not in robot.csv")
+                raise FileError(path, f"{where}: sample_id not in robot.csv")
             if body not in BODIES:
-                raise IngestError(path, f"{where}, column body: expected camrb or targetrb")
+                raise FileError(path, f"{where}, column body: expected camrb or targetrb")
             if (sample_id, body) in mocap:
-                raise IngestError(path, f"{where}: duplicate row")
+                raise FileError(path, f"{where}: duplicate row")
             values = np.array([number(path, line, row, c) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")])
             markers = number(path, line, row, "markers")
             # a motion-capture system reports an untracked body as zeros or NaN: missing, not an error
@@ -217,7 +217,7 @@ class SessionReplay:
             if not untracked:
                 norm = np.linalg.norm(values[3:])
                 if abs(norm - 1.0) > 1e-3:
-                    raise IngestError(path, f"{where}: quaternion norm {norm:.6f} is not 1")
+                    raise FileError(path, f"{where}: quaternion norm {norm:.6f} is not 1")
                 positions.append(values[:3])
                 labels.append(where)
                 pose = g.transform_from_qt(values[3:], [_to_metres(v, length) for v in values[:3]])

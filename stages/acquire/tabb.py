@@ -13,8 +13,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from speedplus.errors import FileError
 from stages.acquire.handeye import HandEyeDataset
-from stages.acquire.ingest import IngestError, read_text
+from stages.acquire.ingest import read_text
 from stages.common.patterns import PatternSpec
 
 
@@ -25,18 +26,18 @@ def read_calibration_object(path: Path) -> PatternSpec:
             continue
         parts = line.split()
         if len(parts) != 2:
-            raise IngestError(path, f"line {number}: expected 'key value', got {line!r}")
+            raise FileError(path, f"line {number}: expected 'key value', got {line!r}")
         try:
             values[parts[0]] = float(parts[1])
         except ValueError:
-            raise IngestError(path, f"line {number}: {parts[0]} must be a number, got {parts[1]!r}") from None
+            raise FileError(path, f"line {number}: {parts[0]} must be a number, got {parts[1]!r}") from None
     for key in ("chess_width", "chess_height", "chess_mm_width", "chess_mm_height"):
         if key not in values:
-            raise IngestError(path, f"missing {key}")
+            raise FileError(path, f"missing {key}")
     if values["chess_mm_width"] != values["chess_mm_height"]:
-        raise IngestError(path, "chess_mm_width and chess_mm_height differ; only square squares are supported")
+        raise FileError(path, "chess_mm_width and chess_mm_height differ; only square squares are supported")
     if values["chess_mm_width"] <= 0 or values["chess_width"] < 2 or values["chess_height"] < 2:
-        raise IngestError(path, "the chessboard needs at least 2 x 2 inner corners and a positive square size")
+        raise FileError(path, "the chessboard needs at least 2 x 2 inner corners and a positive square size")
     return PatternSpec("chessboard", (int(values["chess_width"]), int(values["chess_height"])),
                        values["chess_mm_width"] / 1000.0)
 
@@ -46,7 +47,7 @@ def tabb_dataset(source: Path) -> HandEyeDataset:
     then ``hand_from_base`` matrices in mm (``counted4x4``, ``flange_from_base``), the camera
     rides the hand, image N (natural order) belongs to robot stop N."""
     if not source.is_dir():
-        raise IngestError(source, "not a directory")
+        raise FileError(source, "not a directory")
     return HandEyeDataset(source, "robot_cali.txt", "counted4x4", "flange_from_base", "mm", "deg", "flange",
                           "images/image*.png", read_calibration_object(source / "calibration_object.txt"), None,
                           label="robot_cali.txt")

@@ -22,10 +22,6 @@ from speedplus.errors import FileError
 IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg", ".exr")
 
 
-class ImageReadError(FileError):
-    """A missing, truncated or undecodable image; the message starts with the file."""
-
-
 @dataclass(frozen=True)
 class ImageInfo:
     """What a file holds: size (px), channels, pixel type (``uint8``, ``uint16``, ``float32``), format."""
@@ -44,10 +40,10 @@ def _open(path: Path):  # OpenImageIO.ImageInput
     import OpenImageIO as oiio  # noqa: N813 - the library's own documented alias
 
     if not path.is_file():
-        raise ImageReadError(path, "image file not found")
+        raise FileError(path, "image file not found")
     image_input = oiio.ImageInput.open(str(path))
     if image_input is None:
-        raise ImageReadError(path, f"not a readable image ({_one_line(oiio.geterror()) or 'unknown format'})")
+        raise FileError(path, f"not a readable image ({_one_line(oiio.geterror()) or 'unknown format'})")
     return image_input
 
 
@@ -85,7 +81,7 @@ def read_image(path: Path, mode: Literal["gray", "bgr", "unchanged"] = "unchange
         dtype = _dtype(spec)
         pixels = image_input.read_image(0, 0, 0, min(spec.nchannels, 4), "float" if dtype == "float32" else dtype)
         if pixels is None or image_input.has_error:
-            raise ImageReadError(path, f"truncated or corrupt image ({_one_line(image_input.geterror())})")
+            raise FileError(path, f"truncated or corrupt image ({_one_line(image_input.geterror())})")
     finally:
         image_input.close()
     pixels = np.asarray(pixels, dtype=dtype)
@@ -160,8 +156,8 @@ def decode_image(data: bytes, name: str, mode: Literal["gray", "bgr", "unchanged
         path.write_bytes(data)
         try:
             return read_image(path, mode)
-        except ImageReadError as error:
-            raise ImageReadError(name, str(error).split(": ", 1)[-1]) from None
+        except FileError as error:
+            raise FileError(name, str(error).split(": ", 1)[-1]) from None
 
 
 def ingest_image(source: Path, destination_png: Path) -> tuple[Path, str | None]:

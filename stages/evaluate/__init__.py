@@ -28,10 +28,9 @@ from manifests import Workspace, open_sink, read_keys, read_manifest, write_part
 from manifests import clear as clear_manifest
 from manifests.integrity import sha256
 from manifests.workspace import MODELS_DIR
-from speedplus.errors import InputError
+from speedplus.errors import FileError, InputError
 from stages.common.detector import DETECTOR_NAME, Detector
 from stages.common.dispatch import map_config
-from stages.common.image_io import ImageReadError
 from stages.common.json_arrays import calibrated_camera
 from stages.common.model_contract import BUILTIN_TARGET
 from stages.common.pose_model import PoseModel
@@ -180,7 +179,7 @@ def _with_images(workspace: Workspace) -> Callable[[list[dict[str, Any]]], list[
             try:
                 data = path.read_bytes()
             except OSError as error:
-                raise ImageReadError(workspace.display(path), f"missing or unreadable image ({error.strerror})") \
+                raise FileError(workspace.display(path), f"missing or unreadable image ({error.strerror})") \
                     from None
             out.append({**item, "image_bytes": data})
         return out

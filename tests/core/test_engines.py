@@ -59,9 +59,9 @@ def test_a_worker_with_another_variant_or_versions_is_refused():
 
 def test_errors_cross_process_boundaries_with_their_message():
     from manifests import ManifestError
-    from stages.common.image_io import ImageReadError
+    from speedplus.errors import FileError
 
-    for error in (ManifestError("a.parquet", "bad", row=2, column="q"), ImageReadError("images/x.png", "truncated")):
+    for error in (ManifestError("a.parquet", "bad", row=2, column="q"), FileError("images/x.png", "truncated")):
         again = pickle.loads(pickle.dumps(error))
         assert type(again) is type(error) and str(again) == str(error)
 

@@ -9,11 +9,9 @@ import pytest
 
 from bench.handeye import KUKA_TOML
 from manifests import Workspace, read_manifest
-from speedplus.errors import InputError
+from speedplus.errors import FileError, InputError
 from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
-from stages.acquire.ingest import IngestError
 from stages.common import geometry as g
-from stages.common.image_io import ImageReadError
 from tests.conftest import speedplus
 from tests.stages.acquire.test_replay import acquire
 
@@ -131,21 +129,21 @@ def test_bad_dataset_inputs_name_the_file_and_key(small_kuka, tmp_path, file, ol
 def test_a_counted_file_must_start_with_a_count(small_kuka, tmp_path, first_line):
     edit(small_kuka / "dataset.toml", 'layout = "rowmajor4x4"', 'layout = "counted4x4"')
     (small_kuka / "RobotPosesVec.txt").write_text(f"{first_line}\n" + (KUKA / "RobotPosesVec.txt").read_text())
-    with pytest.raises(IngestError, match="RobotPosesVec.txt: line 1: must start with the number of poses"):
+    with pytest.raises(FileError, match="RobotPosesVec.txt: line 1: must start with the number of poses"):
         HandEyeReplay(read_dataset_toml(small_kuka), Workspace(tmp_path / "w"))
 
 
 def test_counts_missing_corrupt_and_escaping_images_are_refused(small_kuka, tmp_path):
     (small_kuka / "03.png").unlink()
-    with pytest.raises(IngestError, match=r"2 images match \[images\] glob '\*.png' but RobotPosesVec.txt holds 3"):
+    with pytest.raises(FileError, match=r"2 images match \[images\] glob '\*.png' but RobotPosesVec.txt holds 3"):
         HandEyeReplay(read_dataset_toml(small_kuka), Workspace(tmp_path / "w"))
     data = (KUKA / "03.png").read_bytes()
     (small_kuka / "03.png").write_bytes(data[: len(data) // 3])
-    with pytest.raises(ImageReadError, match=r"03.png: truncated or corrupt image"):
+    with pytest.raises(FileError, match=r"03.png: truncated or corrupt image"):
         acquire(small_kuka, tmp_path, "handeye")
     (small_kuka / "03.png").unlink()
     (small_kuka / "03.png").symlink_to("/etc/hostname")
-    with pytest.raises(IngestError, match=r"image '03.png' leads outside"):
+    with pytest.raises(FileError, match=r"image '03.png' leads outside"):
         HandEyeReplay(read_dataset_toml(small_kuka), Workspace(tmp_path / "w"))
 
 

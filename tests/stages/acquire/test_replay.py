@@ -11,9 +11,8 @@ import pytest
 from core.config import load_config
 from manifests import Workspace, read_manifest
 from pipeline import registry, runner
-from speedplus.errors import InputError
+from speedplus.errors import FileError, InputError
 from stages.acquire.handeye import HandEyeReplay
-from stages.acquire.ingest import IngestError
 from stages.acquire.replay import SessionReplay
 from stages.acquire.tabb import tabb_dataset
 from stages.common import geometry as g
@@ -110,7 +109,7 @@ def test_session_without_images_or_with_bad_rows_is_refused(tmp_path):
     rows = recorded_rows()
     source = write_session(tmp_path / "s1", rows)
     (source / "images" / "cal000001.png").unlink()
-    with pytest.raises(IngestError, match=r"robot.csv: sample cal000001: image images/cal000001.png \(or .*\) is "
+    with pytest.raises(FileError, match=r"robot.csv: sample cal000001: image images/cal000001.png \(or .*\) is "
                                           r"missing"):
         acquire(source, tmp_path)
 
@@ -129,7 +128,7 @@ def test_session_without_images_or_with_bad_rows_is_refused(tmp_path):
     for index, (name, line, old, new, message) in enumerate(cases):
         directory = write_session(tmp_path / f"case{index}", rows)
         edit(name, line, old, new, directory)
-        with pytest.raises(IngestError, match=message):
+        with pytest.raises(FileError, match=message):
             acquire(directory, tmp_path, name=f"w{index}")
 
 
@@ -138,7 +137,7 @@ def test_wrong_units_and_rotations_are_refused(tmp_path):
     metres_declared_mm = write_session(tmp_path / "units", rows, "m")
     toml = metres_declared_mm / "session.toml"
     toml.write_text(toml.read_text().replace('length_unit = "m"', 'length_unit = "mm"'))
-    with pytest.raises(IngestError, match=r"robot.csv: camee position: every position lies within .* "
+    with pytest.raises(FileError, match=r"robot.csv: camee position: every position lies within .* "
                                           r"implausible for mm.*in m\?"):
         acquire(metres_declared_mm, tmp_path)
     quaternion = write_session(tmp_path / "quat", rows)
@@ -147,7 +146,7 @@ def test_wrong_units_and_rotations_are_refused(tmp_path):
     parts[5] = repr(float(parts[5]) * 1.5)
     text[1] = ",".join(parts)
     (quaternion / "mocap.csv").write_text("\n".join(text) + "\n")
-    with pytest.raises(IngestError, match=r"mocap.csv: line 2 .*quaternion norm"):
+    with pytest.raises(FileError, match=r"mocap.csv: line 2 .*quaternion norm"):
         acquire(quaternion, tmp_path, name="w2")
 
 
@@ -186,19 +185,19 @@ def test_tabb_hand_poses_invert_the_recorded_matrices():
 
 def test_tabb_bad_inputs_name_the_file(tabb_copy, tmp_path):
     (tabb_copy / "images" / "image40.png").unlink()
-    with pytest.raises(IngestError, match="87 images match .* but robot_cali.txt holds 88 poses"):
+    with pytest.raises(FileError, match="87 images match .* but robot_cali.txt holds 88 poses"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     fake_png(tabb_copy / "images" / "image40.png")
     robot = tabb_copy / "robot_cali.txt"
     original = robot.read_text()
     robot.write_text(original.replace("-0.178668", "-0.5", 1))
-    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(line 2\): rotation is not orthonormal"):
+    with pytest.raises(FileError, match=r"robot_cali.txt: matrix 0 \(line 2\): rotation is not orthonormal"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     robot.write_text(original.replace("-525.397105", "nan", 1))
-    with pytest.raises(IngestError, match=r"robot_cali.txt: matrix 0 \(line 2\): non-finite"):
+    with pytest.raises(FileError, match=r"robot_cali.txt: matrix 0 \(line 2\): non-finite"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     robot.write_text(original.replace("88", "89", 1))
-    with pytest.raises(IngestError, match="announces 89 matrices but holds 88"):
+    with pytest.raises(FileError, match="announces 89 matrices but holds 88"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     lines = original.splitlines()
     scaled = [lines[0]]
@@ -208,11 +207,11 @@ def test_tabb_bad_inputs_name_the_file(tabb_copy, tmp_path):
             values[3] = repr(float(values[3]) / 1000.0)
         scaled.append(" ".join(values))
     robot.write_text("\n".join(scaled))
-    with pytest.raises(IngestError, match="implausible for mm"):
+    with pytest.raises(FileError, match="implausible for mm"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
     robot.write_text(original)
     (tabb_copy / "calibration_object.txt").write_text("chess_width 8\nchess_height 6\n")
-    with pytest.raises(IngestError, match="calibration_object.txt: missing chess_mm_width"):
+    with pytest.raises(FileError, match="calibration_object.txt: missing chess_mm_width"):
         TabbReplay(tabb_copy, Workspace(tmp_path))
 
 
@@ -251,7 +250,7 @@ def test_recorded_capture_times_replay_and_bad_ones_name_the_line(tmp_path):
     lines = (source / "robot.csv").read_text().splitlines()
     lines[3] = lines[3].rsplit(",", 1)[0] + ",soon"
     (source / "robot.csv").write_text("\n".join(lines) + "\n")
-    with pytest.raises(IngestError, match="robot.csv.*line 4.*time_s"):
+    with pytest.raises(FileError, match="robot.csv.*line 4.*time_s"):
         SessionReplay(source, Workspace(tmp_path / "w2"))
 
 
@@ -259,7 +258,7 @@ def test_a_partial_set_of_encoder_columns_is_refused(tmp_path):
     rows = recorded_rows()
     source = write_session(tmp_path / "session", rows)
     add_joint_columns(source / "robot.csv", np.zeros((len(rows), 6)), [f"camera_j{k}" for k in range(1, 7)])
-    with pytest.raises(IngestError, match="robot.csv.*missing column\\(s\\) target_j1"):
+    with pytest.raises(FileError, match="robot.csv.*missing column\\(s\\) target_j1"):
         SessionReplay(source, Workspace(tmp_path / "w"))
 
 
@@ -307,7 +306,7 @@ def test_one_robot_sessions_refuse_columns_of_the_still_body_and_bad_patterns(tm
     text = (source / "robot.csv").read_text().splitlines()
     text = [text[0] + ",targetee_x"] + [line + ",1.0" for line in text[1:]]
     (source / "robot.csv").write_text("\n".join(text) + "\n")
-    with pytest.raises(IngestError, match=r"robot.csv: column\(s\) targetee_x given, but session.toml \[setup\]"):
+    with pytest.raises(FileError, match=r"robot.csv: column\(s\) targetee_x given, but session.toml \[setup\]"):
         acquire(source, tmp_path)
     source = one_robot_session(tmp_path / "two", rows, extra_pattern="target_from_pattern_q = [1, 0, 0]\n")
     with pytest.raises(InputError, match=r"session.toml: \[pattern\] target_from_pattern_q must be 4 finite numbers"):
@@ -324,6 +323,6 @@ def test_degrees_declared_as_radians_are_refused(tmp_path):
     edit_toml.write_text(edit_toml.read_text().replace('angle_unit = "deg"', 'angle_unit = "rad"'))
     angles = np.abs(g.transform_to_kuka(rows[0]["camee"])[3:])
     assert angles.max() > 2 * np.pi  # the fixture's rows turn by more than a turn in radians
-    with pytest.raises(IngestError, match=r"robot.csv: line 2 \(sample_id cal000000\), camee: angle .* rad is more "
+    with pytest.raises(FileError, match=r"robot.csv: line 2 \(sample_id cal000000\), camee: angle .* rad is more "
                                           r"than a turn; is the file in degrees"):
         acquire(source, tmp_path)

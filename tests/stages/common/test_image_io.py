@@ -8,7 +8,7 @@ import OpenImageIO as oiio  # noqa: N813 - the library's documented alias
 import pytest
 
 from stages.common.image_io import (
-    ImageReadError,
+    FileError,
     image_info,
     ingest_image,
     read_image,
@@ -86,7 +86,7 @@ def test_unreadable_files_are_errors_that_name_them(tmp_path):
     text.write_text("not an image")
     for path, message in ((truncated, "truncated or corrupt"), (text, "not a readable image"),
                           (tmp_path / "missing.png", "image file not found")):
-        with pytest.raises(ImageReadError, match=f"{path.name}: {message}") as raised:
+        with pytest.raises(FileError, match=f"{path.name}: {message}") as raised:
             read_image(path)
         assert "\n" not in str(raised.value)
 
