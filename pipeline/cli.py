@@ -542,6 +542,33 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
     out.print(table)
 
 
+@app.command("facility")
+def facility_command(
+    folder: Annotated[Path, typer.Argument(help="a facility folder: facility.toml beside its URDFs")],
+    target: Annotated[Path | None, typer.Option(
+        help="the target folder whose mock-up the distances are for (default: the built-in Tango)")] = None,
+    samples: Annotated[int, typer.Option(min=8, help="relative poses drawn to measure what it presents")] = 96,
+    distance: Annotated[tuple[float, float] | None, typer.Option(
+        help="camera-to-mock-up distances MIN MAX, m (default: SPEED+'s at the target's apparent size)")] = None,
+) -> None:
+    """Check a facility folder and print what the pipeline will use: the room, each robot's
+    chain, joint limits, reach, rail and inverse kinematics, static mounts, camera, lights
+    and motion capture, and the share of SO(3) and of the distance range the facility can
+    present to its camera (with its 95% interval). Exit 1 naming the file and key, or the
+    URDF element, when it cannot be used."""
+    from stages.common.facility_report import describe  # the shared layer: URDFs load only there
+
+    if distance is not None and not 0 < distance[0] <= distance[1]:
+        raise InputError(f"facility: --distance {distance[0]:g} {distance[1]:g}: expected 0 < MIN <= MAX (m)")
+    title, rows = describe(folder, target, samples, distance)
+    table = Table(title=escape(title))
+    for column in ("what", "value"):
+        table.add_column(column)
+    for what, value in rows:
+        table.add_row(escape(what), escape(value))
+    out.print(table)
+
+
 def _crash_log(error: BaseException) -> Path:
     """Where an unexpected error's traceback goes (the message names it): the user's cache,
     else the system's temporary folder."""

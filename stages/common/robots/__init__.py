@@ -1,0 +1,1 @@
+"""Robot arms from their URDFs: serial chains, numerical inverse kinematics, collisions."""

@@ -1,0 +1,253 @@
+"""A robot arm read from its URDF: the serial chain between two named links, its forward
+kinematics and Jacobian, its joint limits and a capsule per link for collision checks
+(docs/architecture.md section 10).
+
+The URDF is read with yourdfpy (it keeps every element typed: joint origins, axes, limits,
+collision geometry; pytransform3d's ``UrdfTransformManager`` gives a transform graph, one
+pose per query, where a planner needs batches). The kinematics are evaluated here, in
+numpy, over batches of joint vectors.
+
+Frames: ``base_from_flange`` (..., 4, 4) maps flange coordinates into the base link's
+frame; joint values are in the URDF's units (rad, m for a prismatic joint), which for a
+URDF written to match its controller (ROS-Industrial's convention) are the controller's.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from speedplus.errors import FileError
+from stages.common import geometry as g
+
+#: joint types a serial arm may have between base and flange (URDF names)
+MOVING = ("revolute", "continuous", "prismatic")
+#: a capsule's radius where the URDF gives a link no collision geometry, m
+DEFAULT_LINK_RADIUS_M = 0.06
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """A segment (a, b, m, in the frame of the joint that moves it) swept by a sphere."""
+
+    joint: int  # the index of the moving joint whose frame holds it; -1: the base link's
+    a_m: tuple[float, float, float]
+    b_m: tuple[float, float, float]
+    radius_m: float
+
+
+@dataclass(frozen=True)
+class SerialChain:
+    """The moving joints between base and flange, each after the fixed transforms before it."""
+
+    name: str
+    source: str  # the URDF file
+    joint_names: tuple[str, ...]
+    kinds: tuple[str, ...]  # revolute | continuous | prismatic
+    #: (J + 1, 4, 4): the fixed transform before each moving joint (a joint's origin, and any
+    #: fixed joints before it); the last: from the last moving joint to the flange
+    origins: np.ndarray
+    axes: np.ndarray  # (J, 3) unit axes in each joint's frame
+    lower: np.ndarray  # (J,) rad or m
+    upper: np.ndarray  # (J,)
+    capsules: tuple[Capsule, ...]
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    def frames(self, joints: np.ndarray) -> np.ndarray:
+        """(..., J + 1, 4, 4): each moving joint's frame after its motion, then the flange, in
+        the base frame, for joints (..., J)."""
+        joints = np.asarray(joints, dtype=np.float64)
+        current = np.broadcast_to(np.eye(4), joints.shape[:-1] + (4, 4))
+        out = []
+        for index in range(self.dof):
+            current = current @ self.origins[index] @ self._motion(index, joints[..., index])
+            out.append(current)
+        out.append(current @ self.origins[-1])
+        return np.stack(out, axis=-3)
+
+    def forward(self, joints: np.ndarray) -> np.ndarray:
+        """``base_from_flange`` (..., 4, 4) for joints (..., J)."""
+        return self.frames(joints)[..., -1, :, :]
+
+    def _motion(self, index: int, value: np.ndarray) -> np.ndarray:
+        axis = self.axes[index]
+        if self.kinds[index] == "prismatic":
+            return g.make_transform(np.broadcast_to(np.eye(3), value.shape + (3, 3)), value[..., None] * axis)
+        return g.make_transform(_rotation(axis, value), np.zeros(value.shape + (3,)))
+
+    def jacobian(self, joints: np.ndarray) -> np.ndarray:
+        """(6, J) geometric Jacobian at one joint vector (J,): rows linear (m) then angular
+        (rad) velocity of the flange in the base frame per unit joint rate."""
+        frames = self.frames(np.asarray(joints, dtype=np.float64))
+        flange = frames[-1, :3, 3]
+        columns = []
+        for index in range(self.dof):
+            axis_base = frames[index, :3, :3] @ self.axes[index]
+            if self.kinds[index] == "prismatic":
+                columns.append(np.concatenate([axis_base, np.zeros(3)]))
+            else:
+                columns.append(np.concatenate([np.cross(axis_base, flange - frames[index, :3, 3]), axis_base]))
+        return np.stack(columns, axis=1)
+
+    def within_limits(self, joints: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(...) whether every joint of (..., J) is inside its limits less ``margin``."""
+        joints = np.asarray(joints, dtype=np.float64)
+        return np.all((joints >= self.lower + margin) & (joints <= self.upper - margin), axis=-1)
+
+    def reach_m(self, samples: int = 4000, seed: int = 0) -> float:
+        """Farthest flange distance from the base over joints drawn within the limits."""
+        rng = np.random.default_rng(seed)
+        joints = rng.uniform(self.lower, self.upper, size=(samples, self.dof))
+        return float(np.linalg.norm(self.forward(joints)[:, :3, 3], axis=-1).max())
+
+    def capsules_in_base(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every link capsule at joints (..., J): ends a, b (..., C, 3) in the base frame, radii (C,)."""
+        frames = self.frames(joints)
+        base = np.broadcast_to(np.eye(4), frames.shape[:-3] + (4, 4))
+        held = [base if capsule.joint < 0 else frames[..., capsule.joint, :, :] for capsule in self.capsules]
+        def moved(frame: np.ndarray, point: tuple[float, float, float]) -> np.ndarray:
+            return frame[..., :3, :3] @ np.asarray(point) + frame[..., :3, 3]
+
+        ends_a = np.stack([moved(frame, c.a_m) for frame, c in zip(held, self.capsules, strict=True)], -2)
+        ends_b = np.stack([moved(frame, c.b_m) for frame, c in zip(held, self.capsules, strict=True)], -2)
+        return ends_a, ends_b, np.array([c.radius_m for c in self.capsules])
+
+
+def _rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation by ``angle`` (...) about a unit ``axis`` (3,) (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def load_chain(urdf_path: Path, base_link: str, flange_link: str) -> SerialChain:
+    """The serial chain from ``base_link`` to ``flange_link`` of a URDF file; errors name the
+    file and the element (or the line and column of an XML error)."""
+    import yourdfpy
+
+    path = Path(urdf_path)
+    try:
+        ElementTree.parse(path)  # strict: yourdfpy's parser would recover from broken XML
+    except ElementTree.ParseError as error:
+        line, column = error.position
+        raise FileError(path, f"line {line}, column {column + 1}: not valid XML ({error})") from None
+    except OSError as error:
+        raise FileError(path, f"cannot be read ({error.strerror or error})") from None
+    try:
+        urdf = yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=False,
+                                  build_collision_scene_graph=False, load_collision_meshes=False)
+    except Exception as error:  # yourdfpy raises what its XML walk meets
+        raise FileError(path, f"not a URDF that yourdfpy reads ({type(error).__name__}: {error})") from None
+    return _chain(path, urdf.robot, base_link, flange_link)
+
+
+def _chain(path: Path, robot: object, base_link: str, flange_link: str) -> SerialChain:
+    links = {link.name: link for link in robot.links}
+    for role, name in (("base_link", base_link), ("flange_link", flange_link)):
+        if name not in links:
+            raise FileError(path, f"no <link name=\"{name}\"> (the facility's {role}); links: "
+                                  f"{', '.join(sorted(links)) or 'none'}")
+    by_child = {joint.child: joint for joint in robot.joints}
+    path_joints = []
+    link = flange_link
+    while link != base_link:
+        joint = by_child.get(link)
+        if joint is None:
+            raise FileError(path, f"<link name=\"{flange_link}\"> does not hang below <link name=\"{base_link}\">: "
+                                  "no serial chain joins them")
+        path_joints.append(joint)
+        link = joint.parent
+    path_joints.reverse()
+    return _assemble(path, robot.name, path_joints, links)
+
+
+def _assemble(path: Path, name: str, joints: list, links: dict) -> SerialChain:
+    origins, axes, kinds, names, lower, upper = [], [], [], [], [], []
+    pending = np.eye(4)
+    capsules: list[Capsule] = list(_link_capsules(links[joints[0].parent], -1, pending) if joints else [])
+    for joint in joints:
+        origin = np.eye(4) if joint.origin is None else np.asarray(joint.origin, float)
+        pending = pending @ origin
+        if joint.type == "fixed":
+            capsules += _link_capsules(links[joint.child], len(names) - 1, pending)
+            continue
+        if joint.type not in MOVING:
+            raise FileError(path, f"<joint name=\"{joint.name}\"> is {joint.type!r}; a serial arm's joints are "
+                                  f"{', '.join(MOVING)} or fixed")
+        axis = np.asarray(joint.axis if joint.axis is not None else (1.0, 0.0, 0.0), float)
+        if np.linalg.norm(axis) < 1e-9:
+            raise FileError(path, f"<joint name=\"{joint.name}\">: <axis> is zero")
+        low, high = _limits(path, joint)
+        origins.append(pending)
+        pending = np.eye(4)
+        axes.append(axis / np.linalg.norm(axis))
+        kinds.append(joint.type)
+        names.append(joint.name)
+        lower.append(low)
+        upper.append(high)
+        capsules += _link_capsules(links[joint.child], len(names) - 1, np.eye(4))
+    if not names:
+        raise FileError(path, "no moving joint between the base and flange links")
+    origins.append(pending)
+    chain = SerialChain(name, str(path), tuple(names), tuple(kinds), np.stack(origins), np.stack(axes),
+                        np.array(lower), np.array(upper), ())
+    return SerialChain(**{**chain.__dict__, "capsules": tuple(capsules) or _segment_capsules(chain)})
+
+
+def _limits(path: Path, joint: object) -> tuple[float, float]:
+    if joint.type == "continuous":
+        return -2 * np.pi, 2 * np.pi
+    limit = joint.limit
+    if limit is None or limit.lower is None or limit.upper is None:
+        raise FileError(path, f"<joint name=\"{joint.name}\">: a {joint.type} joint needs <limit lower upper>")
+    if not limit.upper > limit.lower:
+        raise FileError(path, f"<joint name=\"{joint.name}\">: <limit> upper {limit.upper} is not above lower "
+                              f"{limit.lower}")
+    return float(limit.lower), float(limit.upper)
+
+
+def _link_capsules(link: object, joint: int, link_in_joint: np.ndarray) -> list[Capsule]:
+    """A bounding capsule per collision element of a link (a box or mesh: its longest axis;
+    a mesh without a size is left to the joint segments)."""
+    out = []
+    for collision in link.collisions or []:
+        pose = link_in_joint @ (np.eye(4) if collision.origin is None else np.asarray(collision.origin, float))
+        shape = collision.geometry
+        if shape.cylinder is not None:
+            half, radius = shape.cylinder.length / 2, shape.cylinder.radius
+            a, b = np.array([0, 0, -half]), np.array([0, 0, half])
+        elif shape.sphere is not None:
+            a = b = np.zeros(3)
+            radius = shape.sphere.radius
+        elif shape.box is not None:
+            size = np.asarray(shape.box.size, float)
+            long = int(np.argmax(size))
+            a, b = np.zeros(3), np.zeros(3)
+            a[long], b[long] = -size[long] / 2, size[long] / 2
+            radius = float(np.linalg.norm(np.delete(size, long)) / 2)
+        else:
+            continue
+        ends = pose[:3, :3] @ np.stack([a, b]).T + pose[:3, 3:]
+        out.append(Capsule(joint, _point(ends[:, 0]), _point(ends[:, 1]), float(radius)))
+    return out
+
+
+def _segment_capsules(chain: SerialChain) -> tuple[Capsule, ...]:
+    """Where the URDF has no collision geometry: one capsule from each moving joint to the
+    next (and to the flange), of ``DEFAULT_LINK_RADIUS_M``."""
+    capsules = []
+    for index in range(chain.dof):
+        end = chain.origins[index + 1][:3, 3]
+        if np.linalg.norm(end) > 1e-6:
+            capsules.append(Capsule(index, (0.0, 0.0, 0.0), _point(end), DEFAULT_LINK_RADIUS_M))
+    return tuple(capsules)
+
+
+def _point(values: np.ndarray) -> tuple[float, float, float]:
+    return float(values[0]), float(values[1]), float(values[2])
