@@ -1,6 +1,6 @@
 """A facility folder: the room, its robots (URDF), rails, static mounts, camera, lights and
 motion capture, as ``DIR/facility.toml`` beside the URDFs and obstacle meshes it names
-(docs/architecture.md section 10). Format version 1; every error names the file and the
+(docs/architecture.md section 11). Format version 1; every error names the file and the
 key (or the line and column of a TOML syntax error); the URDFs are checked where they are
 read (``stages.common.robots.chain``).
 

@@ -1,5 +1,5 @@
 """The engine as a stage asks for it: ``core.engines.map_engine`` with the ``run``
-section's engine, workers and cluster settings (docs/architecture.md section 10)."""
+section's engine, workers and cluster settings (docs/architecture.md section 11)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """A robot arm read from its URDF: the serial chain between two named links, its forward
 kinematics and Jacobian, its joint limits and a capsule per link for collision checks
-(docs/architecture.md section 10).
+(docs/architecture.md section 11).
 
 The URDF is read with yourdfpy (it keeps every element typed: joint origins, axes, limits,
 collision geometry; pytransform3d's ``UrdfTransformManager`` gives a transform graph, one

@@ -25,7 +25,8 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
         t = np.where(e > 1e-12, (b * s + f) / e, 0.0)
         # t outside [0, 1]: clamp it and recompute s for the clamped t
         t_clamped = np.clip(t, 0.0, 1.0)
-        s = np.where((t != t_clamped) & (a > 1e-12), np.clip((b * t_clamped - c) / a, 0.0, 1.0), s)
+        # (a point for the second segment: t = 0, and s is the first's closest point to it)
+        s = np.where(((t != t_clamped) | (e <= 1e-12)) & (a > 1e-12), np.clip((b * t_clamped - c) / a, 0.0, 1.0), s)
     closest1 = p1 + s[..., None] * d1
     closest2 = p2 + t_clamped[..., None] * d2
     return np.linalg.norm(closest1 - closest2, axis=-1)

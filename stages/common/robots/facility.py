@@ -1,6 +1,6 @@
 """A facility as the planner sees it: the folder's robots as serial chains placed in the
 room (frame K), on their rails, with their inverse kinematics and link capsules; static
-mounts; the room and its obstacles (docs/architecture.md section 10). ``present`` finds
+mounts; the room and its obstacles (docs/architecture.md section 11). ``present`` finds
 joints and rail positions that put the camera and the target at given poses in K, clear
 of the room, the obstacles and each other; ``presentable_share`` measures how much of
 SO(3) x the distance range a facility can show a camera.

@@ -42,7 +42,7 @@ def jacobians(chain: SerialChain, frames: np.ndarray) -> np.ndarray:
 
 
 def solve_numeric(chain: SerialChain, base_from_flange: np.ndarray, rng: np.random.Generator, *,
-                  starts: int = 8, seeds: np.ndarray | None = None, iterations: int = 80,
+                  starts: int = 16, seeds: np.ndarray | None = None, iterations: int = 80,
                   margin: float = 0.0) -> np.ndarray | None:
     """Joints (J,) that put the flange at ``base_from_flange`` (4, 4) within the limits less
     ``margin``, or None. Starts: ``seeds`` (S, J) and ``starts`` draws within the limits;

@@ -1,0 +1,33 @@
+"""``speedplus facility DIR`` as a user runs it: the table of what the pipeline will use,
+and bad folders ending with exit 1 and one line naming the file and the key or element."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from tests.conftest import speedplus
+
+TESTS = Path(__file__).resolve().parents[1] / "facilities"
+
+
+def test_a_facility_is_checked_and_measured():
+    result = speedplus("facility", str(TESTS / "ur10_tripod"), "--distance", "0.6", "1.2", "--samples", "24")
+    assert result.returncode == 0, result.stderr
+    text = " ".join(result.stdout.split())
+    for expected in ("ur10", "numerical", "tripod", "static mount", "presentable", "% of SO(3)", "95% interval"):
+        assert expected in text, expected
+
+
+def test_bad_folders_exit_1_naming_the_file_and_key(tmp_path):
+    folder = tmp_path / "lab"
+    shutil.copytree(TESTS / "ur10_tripod", folder)
+    (folder / "ur10.urdf").write_text((folder / "ur10.urdf").read_text().replace("</robot>", ""))
+    result = speedplus("facility", str(folder))
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    message = " ".join(result.stderr.split())
+    assert "facility.toml: key robot[0].urdf:" in message and "ur10.urdf: line" in message, message
+    result = speedplus("facility", str(tmp_path / "nowhere"))
+    assert result.returncode == 1 and "facility.toml: missing" in " ".join(result.stderr.split())
+    result = speedplus("facility", str(TESTS / "ur10_tripod"), "--distance", "2", "1")
+    assert result.returncode == 1 and "expected 0 < MIN <= MAX" in " ".join(result.stderr.split())

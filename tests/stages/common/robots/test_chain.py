@@ -1,0 +1,96 @@
+"""URDF serial chains (stages/common/robots/chain.py): the forward kinematics agree with an
+independent evaluation of the same URDF (yourdfpy's scene graph) and, for TRON's KR 16-2,
+with the closed-form arm model tested against ROS-Industrial's chain; broken URDFs are
+refused naming the file and the element."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from speedplus.errors import FileError
+from stages.common.facilities import builtin_folder
+from stages.common.kinematics import KR16_2, forward
+from stages.common.robots.chain import load_chain
+
+TESTS = Path(__file__).resolve().parents[3] / "facilities"
+ARMS = [(builtin_folder() / "kr16_2.urdf", "tool0"), (TESTS / "abb_rail" / "irb4600_60_205.urdf", "tool0"),
+        (TESTS / "ur10_tripod" / "ur10.urdf", "tool0")]
+
+
+def test_the_kr16_2_urdf_is_the_closed_form_arm():
+    chain = load_chain(builtin_folder() / "kr16_2.urdf", "base_link", "tool0")
+    joints = np.random.default_rng(3).uniform(KR16_2.lower, KR16_2.upper, size=(500, 6))
+    assert np.abs(chain.forward(joints) - forward(KR16_2, joints)).max() < 1e-12
+    assert np.allclose(chain.lower, KR16_2.lower, atol=1e-12) and np.allclose(chain.upper, KR16_2.upper, atol=1e-12)
+
+
+@pytest.mark.parametrize(("urdf", "flange"), ARMS, ids=lambda value: getattr(value, "stem", value))
+def test_forward_kinematics_agree_with_yourdfpys_scene_graph(urdf, flange):
+    import yourdfpy
+
+    chain = load_chain(urdf, "base_link", flange)
+    independent = yourdfpy.URDF.load(str(urdf), load_meshes=False, build_collision_scene_graph=False)
+    rng = np.random.default_rng(7)
+    for joints in rng.uniform(chain.lower, chain.upper, size=(25, chain.dof)):
+        independent.update_cfg(dict(zip(chain.joint_names, joints, strict=True)))
+        expected = independent.get_transform(flange, "base_link")
+        assert np.abs(chain.forward(joints) - expected).max() < 1e-9
+
+
+@pytest.mark.parametrize(("urdf", "flange"), ARMS, ids=lambda value: getattr(value, "stem", value))
+def test_the_jacobian_is_the_derivative_of_the_flange_pose(urdf, flange):
+    from stages.common import geometry as g
+
+    chain = load_chain(urdf, "base_link", flange)
+    joints = np.random.default_rng(11).uniform(chain.lower, chain.upper) * 0.5
+    jacobian, step = chain.jacobian(joints), 1e-6
+    base = chain.forward(joints)
+    for index in range(chain.dof):
+        moved = chain.forward(joints + step * np.eye(chain.dof)[index])
+        linear = (moved[:3, 3] - base[:3, 3]) / step
+        angular = g.matrix_to_rotvec(moved[:3, :3] @ base[:3, :3].T) / step
+        assert np.allclose(jacobian[:, index], np.concatenate([linear, angular]), atol=1e-5)
+
+
+def test_capsules_come_from_collision_elements_or_the_links(tmp_path):
+    abb = load_chain(TESTS / "abb_rail" / "irb4600_60_205.urdf", "base_link", "tool0")
+    assert [round(c.radius_m, 3) for c in abb.capsules] == [0.18, 0.12, 0.1, 0.07]  # its <collision> cylinders
+    ur10 = load_chain(TESTS / "ur10_tripod" / "ur10.urdf", "base_link", "tool0")
+    assert len(ur10.capsules) == 6 and {c.radius_m for c in ur10.capsules} == {0.06}  # one per link
+    # a capsule moves with its link: at any joints its ends stay where the link's frame takes them
+    a, b, _ = ur10.capsules_in_base(np.zeros(6))
+    assert np.allclose(b[-1], ur10.forward(np.zeros(6))[:3, 3], atol=1e-9)
+
+
+def _urdf(tmp_path: Path, body: str) -> Path:
+    path = tmp_path / "arm.urdf"
+    path.write_text(f'<robot name="arm">{body}</robot>')
+    return path
+
+
+LINKS = '<link name="base_link"/><link name="a"/><link name="tool0"/>'
+JOINT = ('<joint name="j1" type="{kind}"><parent link="base_link"/><child link="a"/><axis xyz="0 0 1"/>{limit}'
+         '</joint><joint name="j2" type="fixed"><parent link="a"/><child link="tool0"/>'
+         '<origin xyz="0.5 0 0"/></joint>')
+LIMIT = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
+
+
+@pytest.mark.parametrize(("body", "flange", "message"), [
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace("</robot>", ""), "nowhere",
+     'no <link name="nowhere">'),
+    (LINKS + JOINT.format(kind="floating", limit=""), "tool0", '<joint name="j1"> is \'floating\''),
+    (LINKS + JOINT.format(kind="revolute", limit=""), "tool0", '<joint name="j1">: a revolute joint needs <limit'),
+    (LINKS + JOINT.format(kind="revolute", limit='<limit lower="1" upper="-1" effort="1" velocity="1"/>'), "tool0",
+     "upper -1.0 is not above lower 1.0"),
+    (LINKS + '<link name="b"/>' + JOINT.format(kind="revolute", limit=LIMIT), "b", "no serial chain joins them"),
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace("</joint><joint", "</joint<joint"), "tool0",
+     "not valid XML"),
+])
+def test_a_bad_urdf_is_refused_naming_the_element(tmp_path, body, flange, message):
+    path = _urdf(tmp_path, body)
+    with pytest.raises(FileError) as raised:
+        load_chain(path, "base_link", flange)
+    assert str(raised.value).startswith(str(path)) and message in str(raised.value), raised.value
