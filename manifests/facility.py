@@ -22,6 +22,8 @@ read (``stages.common.robots.chain``).
     flange_from_tool_t = [0.0, 0.0, 0.12]        # optional: what it carries, in the flange frame
     flange_from_tool_q = [1.0, 0.0, 0.0, 0.0]    # (the camera's optical frame; the target's origin)
     payload_kg = 2.5                  # optional: what it carries, with its fixture
+    controller = "kuka"               # optional: kuka (KRL, degrees, rail as E1 in mm), ur
+                                      # (URScript, radians) or none; what export --format robot writes
     [robot.rail]                      # optional: a prismatic axis carrying the base
     axis = [1.0, 0.0, 0.0]            # in K
     travel = [0.0, 5.9]               # along axis, from the base's place above
@@ -67,6 +69,8 @@ OBSTACLE_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 ROOM_SIDE_M = (0.5, 100.0)
 IDENTITY = Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 Carried = Literal["camera", "target"]
+#: the robot programs ``export --format robot`` writes (stages/export/robot.py)
+CONTROLLERS = ("kuka", "ur", "none")
 
 
 class FacilityError(SidecarError):
@@ -90,6 +94,7 @@ class RobotSpec:
     flange_from_tool: Pose  # metres: the carried camera's frame, or the target's origin
     payload_kg: float
     rail: RailSpec | None
+    controller: str = "none"  # CONTROLLERS
 
 
 @dataclass(frozen=True)
@@ -284,7 +289,7 @@ def _name(f: Fields) -> str:
 
 def _robot(f: Fields, unit: float, directory: Path, room_m: tuple[float, float, float]) -> RobotSpec:
     f.only("name", "carries", "urdf", "base_link", "flange_link", "world_from_base_t", "world_from_base_q",
-           "flange_from_tool_t", "flange_from_tool_q", "payload_kg", "rail")
+           "flange_from_tool_t", "flange_from_tool_q", "payload_kg", "rail", "controller")
     base = _pose(f, "world_from_base", unit, room_m)
     rail = _rail(f.child("rail"), unit, base, room_m) if f.optional("rail") else None
     payload = f.number("payload_kg") if f.optional("payload_kg") else 0.0
@@ -292,7 +297,8 @@ def _robot(f: Fields, unit: float, directory: Path, room_m: tuple[float, float, 
         raise f.fail("payload_kg", "a mass of at least 0 kg")
     return RobotSpec(_name(f), _carries(f), inside(directory, f, "urdf", f.text("urdf"), (".urdf",)),
                      f.text("base_link"), f.text("flange_link"), base,
-                     _pose(f, "flange_from_tool", unit, default=IDENTITY), payload, rail)
+                     _pose(f, "flange_from_tool", unit, default=IDENTITY), payload, rail,
+                     f.text("controller", CONTROLLERS) if f.optional("controller") else "none")
 
 
 def _rail(f: Fields, unit: float, base: Pose, room_m: tuple[float, float, float]) -> RailSpec:

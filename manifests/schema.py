@@ -452,6 +452,22 @@ EXPORT_SPEEDPLUS = ManifestSpec("export_speedplus", "images written by export --
 EXPORT_BOP = ManifestSpec("export_bop", "images written by export --format bop", _EXPORT_COLUMNS, key="export_id")
 EXPORT_SHIRT = ManifestSpec("export_shirt", "images written by export --format shirt (sequences)", _EXPORT_COLUMNS,
                             key="export_id")
+EXPORT_ROBOT = ManifestSpec(
+    "export_robot",
+    "waypoints written by export --format robot: each robot's commands, in the order its program runs them",
+    (
+        Column("waypoint_id", pa.string(), "", "<robot>/<step, 6 digits>", kind="value"),
+        Column("robot", pa.string(), "", "the facility's robot", kind="name"),
+        Column("step", pa.int32(), "index", "place in the robot's program, from 1"),
+        _sample_id(),
+        Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
+        Column("capture", pa.bool_(), "", "the robot waits here for the logger to take an image"),
+        Column("joints_rad", pa.list_(pa.float64()), "rad", "commanded joints in the URDF's order (radians; the "
+               "program files carry the controller's units)"),
+        Column("rail_m", pa.float64(), "m", "commanded rail position; null for a robot without a rail", nullable=True),
+    ),
+    key="waypoint_id",
+)
 
 MODELS = ManifestSpec(
     "models",
@@ -478,5 +494,5 @@ MODELS = ManifestSpec(
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
                                   PREDICTIONS, SCORES, COMPARISONS, TRACKS, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
-                                  MODELS)
+                                  EXPORT_ROBOT, MODELS)
 }

@@ -31,8 +31,9 @@ from speedplus.errors import InputError
 from stages.common.cameras import train_camera
 from stages.common.json_arrays import calibrated_camera
 from stages.common.lens import LensCamera
+from stages.common.robots.facility import load_facility
 from stages.common.workspace_target import workspace_target
-from stages.export import bop, shirt, speedplus
+from stages.export import bop, robot, shirt, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
 #: {"version": EXPORT_MARK_VERSION, "workspace": W, "format": ...}, compared whole
@@ -42,7 +43,11 @@ EXPORT_MARK_VERSION = 1
 
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Per ``export.sets`` the labels with their captures, renders or the training set (and a
-    trajectory plan's sequences); one output manifest per format, so the exports coexist."""
+    trajectory plan's sequences); one output manifest per format, so the exports coexist.
+    The robot programs read the plan alone, and time its moves as the virtual testbed does."""
+    if config.export.format == "robot":
+        timing = ("virtual.speed_override", "virtual.rail_speed_m_s", "virtual.light_change_s")
+        return Resolved(("plan",), ("export.format", "export.out", *timing), {}, ("export_robot",))
     inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}
     needed = tuple(dict.fromkeys(name for chosen in config.export.sets for name in inputs[chosen]))
     if config.plan.mode == "trajectory":  # each image's sequence and frame
@@ -183,6 +188,8 @@ def cameras(config: Config, workspace: Workspace) -> dict[str, LensCamera]:
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Write every item missing from the manifest, then the annotation files."""
     out, name = out_dir(config, workspace), f"export_{config.export.format}"
+    if config.export.format == "robot":
+        return robot_programs(config, workspace, out)
     claim(out, workspace, config.export.format)
     chosen, by_set = items(config, workspace), cameras(config, workspace)
     if config.export.format == "speedplus" and "train" in by_set:
@@ -215,3 +222,29 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         counts = bop.write_annotations(out, chosen, by_set, target)
     print(f"export: {', '.join(f'{v} in {k}' for k, v in counts.items())} ({config.export.format}) in {out}")
     return read_manifest(workspace, name)
+
+
+def robot_programs(config: Config, workspace: Workspace, out: Path) -> pa.Table:
+    """The plan as each robot's waypoints (the ``export_robot`` rows) and its programs, in
+    the order ``stages.export.robot.ordered`` gives; the files are written last, from every row."""
+    facility = load_facility()  # the plan's room: TRON's (a facility folder for the plan: issue 46)
+    timing = robot.Timing(config.virtual.speed_override, config.virtual.rail_speed_m_s, config.virtual.light_change_s)
+    planned = robot.waypoints(read_manifest(workspace, "plan").to_pylist(), facility)
+    points = robot.ordered(planned, facility, timing)
+    claim(out, workspace, "robot")  # once the plan is known to be this facility's
+    done = read_keys(workspace, "export_robot")
+    with open_sink(workspace, "export_robot", config.run.part_rows) as sink:
+        for member in facility.robots:
+            for step, point in enumerate(points, start=1):
+                key = f"{member.spec.name}/{step:06d}"
+                if key in done:
+                    continue
+                joints, rail_m = point.commands[member.spec.name]
+                sink.add({"waypoint_id": key, "robot": member.spec.name, "step": step, "sample_id": point.sample_id,
+                          "session": point.session, "capture": True, "joints_rad": [float(v) for v in joints],
+                          "rail_m": rail_m})
+    times = robot.write_programs(out, facility, points, timing, robot.session_s(planned, facility, timing))
+    print(f"export: {len(points)} waypoints for {', '.join(r.spec.name for r in facility.robots)} (robot) in {out}; "
+          f"moves and light changes {times['moves_s'] / 60:.1f} min, {times['plan_order_moves_s'] / 60:.1f} in the "
+          "plan's order")
+    return read_manifest(workspace, "export_robot")

@@ -24,6 +24,7 @@ CONFIGS = {
     "bop": ["export.format=bop"],
     "sequences": ["plan.mode=trajectory", "export.format=shirt"],
     "export all sets": ['export.sets=["testbed", "twins", "train"]'],
+    "robot programs": ["export.format=robot"],
 }
 
 
@@ -52,7 +53,7 @@ def test_every_entry_runs_with_config_and_workspace_only():
 
 def test_the_cli_has_a_command_per_stage_and_no_unbuilt_path():
     commands = {command.name for command in app.registered_commands}
-    assert set(registry.STAGE_NAMES) | {"run", "status", "verify", "target", "keys"} == commands
+    assert set(registry.STAGE_NAMES) | {"run", "status", "verify", "target", "facility", "keys"} == commands
     assert registry.CHAIN == ("plan", "acquire", "calibrate", "fuse", "label", "render", "evaluate", "report")
     result = CliRunner().invoke(app, ["export", "--help"])
     help_text = " ".join(result.output.replace("│", " ").split())

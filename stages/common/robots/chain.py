@@ -54,6 +54,7 @@ class SerialChain:
     lower: np.ndarray  # (J,) rad or m
     upper: np.ndarray  # (J,)
     capsules: tuple[Capsule, ...]
+    velocity: np.ndarray | None = None  # (J,) rad/s or m/s, the URDF's <limit velocity>; NaN where absent
 
     @property
     def dof(self) -> int:
@@ -168,7 +169,7 @@ def _chain(path: Path, robot: object, base_link: str, flange_link: str) -> Seria
 
 
 def _assemble(path: Path, name: str, joints: list, links: dict) -> SerialChain:
-    origins, axes, kinds, names, lower, upper = [], [], [], [], [], []
+    origins, axes, kinds, names, lower, upper, velocity = [], [], [], [], [], [], []
     pending = np.eye(4)
     capsules: list[Capsule] = list(_link_capsules(links[joints[0].parent], -1, pending) if joints else [])
     for joint in joints:
@@ -191,12 +192,14 @@ def _assemble(path: Path, name: str, joints: list, links: dict) -> SerialChain:
         names.append(joint.name)
         lower.append(low)
         upper.append(high)
+        speed = getattr(joint.limit, "velocity", None) if joint.limit is not None else None
+        velocity.append(float(speed) if speed else float("nan"))
         capsules += _link_capsules(links[joint.child], len(names) - 1, np.eye(4))
     if not names:
         raise FileError(path, "no moving joint between the base and flange links")
     origins.append(pending)
     chain = SerialChain(name, str(path), tuple(names), tuple(kinds), np.stack(origins), np.stack(axes),
-                        np.array(lower), np.array(upper), ())
+                        np.array(lower), np.array(upper), (), np.array(velocity))
     return SerialChain(**{**chain.__dict__, "capsules": tuple(capsules) or _segment_capsules(chain)})
 
 
