@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from manifests.facility import StaticSpec
+from manifests.facility import FacilityError, StaticSpec
 from stages.common.robots.facility import Facility, Share, load_facility, presentable_share
 from stages.common.target import load_target
 from stages.common.targets import builtin_folder
@@ -49,7 +49,15 @@ def share_rows(share: Share) -> list[tuple[str, str]]:
                             f"({share.presented} of {share.samples} relative poses drawn)")]
     for (start, end), value in zip(share.bins_m, share.bin_shares, strict=True):
         rows.append((f"  at {start:.2f}-{end:.2f} m", "no draws" if math.isnan(value) else f"{value:.0%}"))
+    if share.limits:
+        rows.append(("limited by", limits_text(share)))
     return rows
+
+
+def limits_text(share: Share) -> str:
+    """What stopped the failed attempts, as shares of them."""
+    total = sum(count for _, count in share.limits)
+    return "; ".join(f"{why} ({count / total:.0%})" for why, count in share.limits)
 
 
 def describe(folder: Path, target_folder: Path | None = None, samples: int = 96,
@@ -75,5 +83,10 @@ def describe(folder: Path, target_folder: Path | None = None, samples: int = 96,
                  f"{spec.motion_capture.marker_sigma_m * 1e3:.2g} mm"))
     rows.append(("distances", f"{distances[0]:.3g}-{distances[1]:.3g} m camera to mock-up"
                               + ("" if distances_m else " (SPEED+'s, at the target's apparent size)")))
-    rows += share_rows(presentable_share(facility, distances, samples=samples))
+    share = presentable_share(facility, distances, samples=samples)
+    if share.presented == 0:
+        raise FacilityError(f"{facility.directory / 'facility.toml'}: the facility presents none of {share.samples} "
+                            f"relative poses at {distances[0]:.3g}-{distances[1]:.3g} m; what stops it: "
+                            f"{limits_text(share)}")
+    rows += share_rows(share)
     return f"facility {spec.name} ({folder})", rows

@@ -31,3 +31,11 @@ def test_bad_folders_exit_1_naming_the_file_and_key(tmp_path):
     assert result.returncode == 1 and "facility.toml: missing" in " ".join(result.stderr.split())
     result = speedplus("facility", str(TESTS / "ur10_tripod"), "--distance", "2", "1")
     assert result.returncode == 1 and "expected 0 < MIN <= MAX" in " ".join(result.stderr.split())
+
+
+def test_a_facility_that_presents_nothing_says_what_limits_it():
+    result = speedplus("facility", str(TESTS / "ur10_tripod"), "--distance", "2.5", "3.0", "--samples", "16")
+    message = " ".join(result.stderr.split())
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert "ur10_tripod/facility.toml: the facility presents none of 16 relative poses at 2.5-3 m" in message
+    assert "what stops it: the camera would leave the room (81%); ur10 cannot reach the camera's pose (19%)" in message

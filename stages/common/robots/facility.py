@@ -9,6 +9,7 @@ SO(3) x the distance range a facility can show a camera.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -162,24 +163,32 @@ def present(facility: Facility, world_from_cam: np.ndarray, world_from_target: n
             rng: np.random.Generator, margin: float = 0.0) -> Presentation | None:
     """Joints and rail positions that put the camera and the target at these poses in K,
     the target held by its fixture on the side away from the camera (``mount_away``), every
-    link clear; None where the facility cannot."""
+    link clear; None where the facility cannot (``attempt`` says why)."""
+    outcome = attempt(facility, world_from_cam, world_from_target, rng, margin)
+    return outcome if isinstance(outcome, Presentation) else None
+
+
+def attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: np.ndarray,
+            rng: np.random.Generator, margin: float = 0.0) -> Presentation | str:
+    """``present``'s answer, or what stopped it: the camera outside the room, a robot that
+    cannot reach (within its limits, on its rail), a static mount elsewhere, a collision."""
     if not inside_box(world_from_cam[None, :3, 3], world_from_cam[None, :3, 3], np.zeros(1), np.zeros(3),
                       np.asarray(facility.spec.room_m), CLEARANCE_M):
-        return None
+        return "the camera would leave the room"
     commands, placed = {}, []
     for carried, pose in (("target", world_from_target), ("camera", world_from_cam)):
         holder = facility.holder(carried)
         if isinstance(holder, StaticSpec):
             if not np.allclose(pose, pose_matrix(holder.world_from_mount), atol=1e-9):
-                return None
+                return f"{holder.name} holds the {carried} elsewhere"
             continue
         mount = mount_away(holder, g.invert(world_from_target) @ world_from_cam) if carried == "target" else None
         found = holder.reach(pose, rng, margin, mount)
         if found is None:
-            return None
+            return f"{holder.spec.name} cannot reach the {carried}'s pose"
         commands[holder.spec.name] = found
         placed.append((holder, *found))
-    return Presentation(commands) if facility.clear(placed) else None
+    return Presentation(commands) if facility.clear(placed) else "a link would hit the room, an obstacle or a robot"
 
 
 def mount_away(robot: Robot, target_from_cam: np.ndarray) -> np.ndarray:
@@ -207,6 +216,8 @@ class Share:
     interval: tuple[float, float]
     bins_m: tuple[tuple[float, float], ...]
     bin_shares: tuple[float, ...]
+    #: what stopped the attempts that failed, most frequent first: (why, attempts)
+    limits: tuple[tuple[str, int], ...] = ()
 
     @property
     def share(self) -> float:
@@ -234,17 +245,26 @@ def presentable_share(facility: Facility, distances_m: tuple[float, float], samp
     low, high = distances_m
     edges = np.linspace(low, high, bins + 1)
     hits, counts = np.zeros(bins, int), np.zeros(bins, int)
+    limits: Counter[str] = Counter()
     for quat in g.random_quats(rng, samples):
         distance = rng.uniform(low, high)
         cam_from_target = g.make_transform(g.quat_to_matrix(quat), [0.0, 0.0, distance])
         index = min(int(np.searchsorted(edges, distance, side="right")) - 1, bins - 1)
         counts[index] += 1
-        hits[index] += any(present(facility, *placement, rng) is not None
-                           for placement in _placements(facility, cam_from_target, points, rng, attempts))
+        placements = _placements(facility, cam_from_target, points, rng, attempts)
+        if not placements:
+            limits["the room cannot hold the camera at that distance"] += 1
+        for placement in placements:
+            outcome = attempt(facility, *placement, rng)
+            if isinstance(outcome, Presentation):
+                hits[index] += 1
+                break
+            limits[outcome] += 1
     presented = int(hits.sum())
     return Share(samples, presented, wilson(presented, samples),
                  tuple((float(edges[i]), float(edges[i + 1])) for i in range(bins)),
-                 tuple(float(h / c) if c else float("nan") for h, c in zip(hits, counts, strict=True)))
+                 tuple(float(h / c) if c else float("nan") for h, c in zip(hits, counts, strict=True)),
+                 tuple(limits.most_common()))
 
 
 def _placements(facility: Facility, cam_from_target: np.ndarray, points: np.ndarray, rng: np.random.Generator,

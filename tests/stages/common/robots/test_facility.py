@@ -96,6 +96,7 @@ def test_the_share_follows_what_the_robots_can_do(tmp_path):
     assert 0.0 < tripod.share < 0.5 and tripod.interval[1] < tron.interval[0]  # one arm round a fixed target
     far = presentable_share(load_facility(TESTS / "ur10_tripod"), (2.5, 3.0), samples=16)
     assert far.presented == 0  # the arm cannot stand 2.5 m from the tripod
+    assert {why for why, _ in far.limits} == {"the camera would leave the room", "ur10 cannot reach the camera's pose"}
 
 
 def test_wilson_interval():
