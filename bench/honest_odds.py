@@ -90,7 +90,7 @@ def facility_model(root: Path) -> FacilityModel:
     if kuka.arms is None:
         raise SystemExit(f"{root}: the arms were not calibrated; the model has no parameter covariance")
     readings = arms.readings(rows, payload)
-    jacobian = arms.pose_jacobians(config.testbed, kuka.kinematics, readings, [r["fixture"] for r in rows],
+    jacobian = arms.pose_jacobians(config.testbed, kuka.kinematics.fit, readings, [r["fixture"] for r in rows],
                                    kuka.world_up)[:, 3:]
     flanks = arms.flank_variances(config.testbed, readings, config.fuse.lost_motion_rad,
                                   config.fuse.backlash_preload_nm)
@@ -103,7 +103,7 @@ def facility_model(root: Path) -> FacilityModel:
     sigma_vicon = np.stack([e.vicon_sigma(vicon, e.vicon).t_m if vicon is not None and e.tracked else np.zeros(3)
                             for e in estimates])
     weight = np.where(fused, sigma_kuka**2 / np.maximum(sigma_kuka**2 + sigma_vicon**2, 1e-300), 0.0)
-    return FacilityModel(jacobian, np.asarray(kuka.kinematics["covariance"]), flanks,
+    return FacilityModel(jacobian, np.asarray(kuka.kinematics.covariance), flanks,
                          np.stack([kuka.sigma_at(e.kuka).t_m for e in estimates]), sigma_vicon, weight,
                          config.fuse.session_offset == "on" and vicon is not None)
 

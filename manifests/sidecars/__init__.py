@@ -16,7 +16,9 @@ from manifests.sidecars.base import Pose, SidecarError
 from manifests.sidecars.calibration import (
     CALIBRATION_VERSION,
     OFFSET_KEYS,
+    ArmKinematics,
     Calibration,
+    FixtureCompliance,
     Intrinsics,
     SigmaRecord,
     SourceCalibration,
@@ -47,7 +49,7 @@ from manifests.sidecars.truth import TRUTH_VERSION, TruthRecord, read_truth, wri
 __all__ = [
     "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "MARKERS_VERSION", "OFFSET_KEYS",
     "SESSION_VERSION", "SOURCES", "TRAJECTORIES_VERSION", "TRUTH_VERSION",
-    "Calibration", "FusionRecord", "Intrinsics", "MarkersRecord",
+    "ArmKinematics", "Calibration", "FixtureCompliance", "FusionRecord", "Intrinsics", "MarkersRecord",
     "Pose", "SequenceRecord", "Session", "SessionCamera", "SidecarError", "SigmaRecord", "SourceCalibration",
     "TrajectoriesRecord", "TruthRecord",
     "read_calibration", "read_fusion", "read_markers", "read_session", "read_trajectories", "read_truth",

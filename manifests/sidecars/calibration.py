@@ -93,15 +93,86 @@ def _metrics(f: Fields, name: str) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
+class FixtureCompliance:
+    """The model fixtures' gravity sag (stages.common.rwhe.fixture_tilt), when calibrate
+    estimated it: per fixture ``k`` (3,) rad and, with anisotropy, ``D_f`` (6,); the tilts
+    they imply over the calibration samples (rad)."""
+
+    estimated: bool
+    why: str | None  # the decision's reason (None: a file that did not record it)
+    k_rad_by_fixture: dict[str, tuple[float, ...]] | None = None
+    anisotropy_by_fixture: dict[str, tuple[float, ...]] | None = None
+    tilt_rad_mean: float | None = None
+    tilt_rad_max: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"estimated": self.estimated}
+        if self.why is not None:
+            out["why"] = self.why
+        out["k_rad_by_fixture"] = None if self.k_rad_by_fixture is None else {
+            name: list(k) for name, k in self.k_rad_by_fixture.items()}
+        if self.estimated:
+            out["anisotropy_by_fixture"] = None if self.anisotropy_by_fixture is None else {
+                name: list(d) for name, d in self.anisotropy_by_fixture.items()}
+            out["tilt_rad_mean"], out["tilt_rad_max"] = self.tilt_rad_mean, self.tilt_rad_max
+        return out
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> FixtureCompliance:
+        f.only("estimated", "why", "k_rad_by_fixture", "anisotropy_by_fixture", "tilt_rad_mean", "tilt_rad_max")
+        by_fixture: dict[str, dict[str, tuple[float, ...]] | None] = {}
+        for key, length in (("k_rad_by_fixture", 3), ("anisotropy_by_fixture", 6)):
+            entry = f.child(key) if f.optional(key) else None
+            by_fixture[key] = None if entry is None else {name: entry.vector(name, length) for name in entry.data}
+        return cls(f.boolean("estimated"), f.text("why") if f.optional("why") else None,
+                   by_fixture["k_rad_by_fixture"], by_fixture["anisotropy_by_fixture"],
+                   f.number("tilt_rad_mean") if f.optional("tilt_rad_mean") else None,
+                   f.number("tilt_rad_max") if f.optional("tilt_rad_max") else None)
+
+
+@dataclass(frozen=True)
+class ArmKinematics:
+    """The arms' identified kinematics, when calibrate estimated them: ``fit`` is
+    stages.common.arms' ``Fit.to_json()`` (the corrections, the fixtures, whether the joints
+    were compliant, the packed parameters and their covariance)."""
+
+    estimated: bool
+    why: str | None
+    fit: dict[str, Any] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"estimated": self.estimated, **({"why": self.why} if self.why is not None else {}),
+                **(self.fit or {})}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> ArmKinematics:
+        estimated = f.boolean("estimated")
+        why = f.text("why") if f.optional("why") else None
+        if not estimated:
+            f.only("estimated", "why")
+            return cls(False, why)
+        count = len(f.vector("parameters"))
+        f.matrix("covariance", count, count)
+        names = f.raw("fixtures")
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise f.fail("fixtures", "a list of fixture names")
+        f.boolean("compliant")
+        return cls(True, why, {key: value for key, value in f.data.items() if key not in ("estimated", "why")})
+
+    @property
+    def covariance(self) -> list[list[float]]:
+        return [] if self.fit is None else self.fit["covariance"]
+
+
+@dataclass(frozen=True)
 class SourceCalibration:
     """One source's calibrated offsets, fixture compliance, arm kinematics and sigmas."""
 
     source: str  # "kuka" or "vicon"
     cam_from_offset: Pose  # cam_from_camee (kuka) or cam_from_camrb (vicon)
     target_from_offset_by_fixture: dict[str, Pose]  # target_from_targetee / _targetrb per fixture
-    fixture_compliance: dict[str, Any]  # estimated, why, k_rad_by_fixture ({fixture: (3,) rad} or null),
-    # anisotropy_by_fixture ({fixture: (6,)} or null), tilts
-    arm_kinematics: dict[str, Any]  # estimated, why and, when estimated, stages.common.arms' Fit JSON
+    fixture_compliance: FixtureCompliance
+    arm_kinematics: ArmKinematics
     sigma: SigmaRecord
     samples: int
     outliers: tuple[str, ...]
@@ -110,19 +181,19 @@ class SourceCalibration:
 
     @property
     def compliance_k_rad(self) -> dict[str, tuple[float, ...]]:
-        return self.fixture_compliance.get("k_rad_by_fixture") or {}
+        return self.fixture_compliance.k_rad_by_fixture or {}
 
     @property
     def compliance_anisotropy(self) -> dict[str, tuple[float, ...]]:
         """Per fixture (6,): stages.common.rwhe.fixture_tilt's D_f; empty: isotropic."""
-        return self.fixture_compliance.get("anisotropy_by_fixture") or {}
+        return self.fixture_compliance.anisotropy_by_fixture or {}
 
     def to_json(self) -> dict[str, Any]:
         z_key, x_key = OFFSET_KEYS[self.source]
         first = self.target_from_offset_by_fixture[sorted(self.target_from_offset_by_fixture)[0]]
         out = {z_key: self.cam_from_offset.to_json(), x_key: first.to_json(),
                f"{x_key}_by_fixture": {k: p.to_json() for k, p in self.target_from_offset_by_fixture.items()},
-               "fixture_compliance": self.fixture_compliance, "arm_kinematics": self.arm_kinematics,
+               "fixture_compliance": self.fixture_compliance.to_json(), "arm_kinematics": self.arm_kinematics.to_json(),
                **self.sigma.to_json(), "samples": self.samples, "outliers": list(self.outliers),
                "metrics": self.metrics}
         if self.opencv_shah_in_sample is not None:
@@ -139,29 +210,13 @@ class SourceCalibration:
         if not by_fixture:
             raise f.fail(f"{x_key}_by_fixture", "at least one fixture")
         f.pose(x_key)
-        compliance = f.child("fixture_compliance")
-        compliance.boolean("estimated")
-        if compliance.optional("k_rad_by_fixture"):
-            k = compliance.child("k_rad_by_fixture")
-            for name in k.data:
-                k.vector(name, 3)
-        if compliance.optional("anisotropy_by_fixture"):
-            d = compliance.child("anisotropy_by_fixture")
-            for name in d.data:
-                d.vector(name, 6)
-        kinematics = f.child("arm_kinematics")
-        if kinematics.boolean("estimated"):
-            count = len(kinematics.vector("parameters"))
-            kinematics.matrix("covariance", count, count)
-            names = kinematics.raw("fixtures")
-            if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-                raise kinematics.fail("fixtures", "a list of fixture names")
-            kinematics.boolean("compliant")
+        compliance = FixtureCompliance.from_fields(f.child("fixture_compliance"))
+        kinematics = ArmKinematics.from_fields(f.child("arm_kinematics"))
         outliers = f.raw("outliers")
         if not isinstance(outliers, list) or not all(isinstance(s, str) for s in outliers):
             raise f.fail("outliers", "a list of sample ids")
         shah = f.child("opencv_shah_in_sample").data if f.optional("opencv_shah_in_sample") else None
-        return cls(source, f.pose(z_key), by_fixture, compliance.data, kinematics.data, SigmaRecord.from_fields(f),
+        return cls(source, f.pose(z_key), by_fixture, compliance, kinematics, SigmaRecord.from_fields(f),
                    f.integer("samples", minimum=1), tuple(outliers), _metrics(f, "metrics"), shah)
 
 

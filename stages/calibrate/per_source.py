@@ -13,7 +13,7 @@ import numpy as np
 from core import progress
 from core.config import Config
 from manifests import Workspace
-from manifests.sidecars import SOURCES, SigmaRecord, SourceCalibration
+from manifests.sidecars import SOURCES, ArmKinematics, SigmaRecord, SourceCalibration
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.fitting import (
@@ -25,7 +25,7 @@ from stages.calibrate.fitting import (
     pnp_variance,
     robust_solve,
 )
-from stages.calibrate.robots import arm_decision, compliance_decision, compliance_json
+from stages.calibrate.robots import arm_decision, compliance_decision, compliance_record
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, fuse, sigma_between, without_reference_noise
@@ -123,9 +123,8 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     calibration = SourceCalibration(
         source=source, cam_from_offset=record(solution.z),
         target_from_offset_by_fixture={f: record(x) for f, x in solution.x.items()},
-        fixture_compliance=compliance_json(solution, up, s.fixtures, s.compliance_note),
-        arm_kinematics={"estimated": fitted is not None, "why": s.arm_note,
-                        **(fitted.to_json() if fitted is not None else {})},
+        fixture_compliance=compliance_record(solution, up, s.fixtures, s.compliance_note),
+        arm_kinematics=ArmKinematics(fitted is not None, s.arm_note, fitted.to_json() if fitted is not None else None),
         sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,
         metrics={"in_sample": in_sample, "cross_validated": cross_metrics, "cross_validation": cross.record(),

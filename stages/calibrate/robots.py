@@ -3,11 +3,10 @@ compliance and the arms' kinematics, each with the reason recorded in ``calibrat
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from core.config import Config
+from manifests.sidecars import FixtureCompliance
 from speedplus.errors import InputError
 from stages.common import arms, rwhe
 from stages.common import geometry as g
@@ -57,16 +56,15 @@ def arm_decision(config: Config, readings: arms.Readings | None) -> tuple[bool, 
     return True, f"encoder readings of {len(readings.rail_m)} calibration captures"
 
 
-def compliance_json(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],
-                    note: str) -> dict[str, Any]:
+def compliance_record(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],
+                      note: str) -> FixtureCompliance:
     """The estimated compliances ``k_f`` (rad) and the tilts they imply over the samples."""
     if not solution.compliance or up is None:
-        return {"estimated": False, "why": note, "k_rad_by_fixture": None}
+        return FixtureCompliance(False, note)
     k = np.stack([solution.compliance[f] for f in fixtures])
     d = np.stack([solution.anisotropy[f] for f in fixtures]) if solution.anisotropy else None
     tilt = np.linalg.norm(g.matrix_to_rotvec(rwhe.fixture_tilt(up, k, d)[:, :3, :3]), axis=1)
-    return {"estimated": True, "why": note,
-            "k_rad_by_fixture": {f: [float(v) for v in k_f] for f, k_f in solution.compliance.items()},
-            "anisotropy_by_fixture": ({f: [float(v) for v in d_f] for f, d_f in solution.anisotropy.items()}
-                                      if solution.anisotropy else None),
-            "tilt_rad_mean": float(tilt.mean()), "tilt_rad_max": float(tilt.max())}
+    return FixtureCompliance(
+        True, note, {f: tuple(float(v) for v in k_f) for f, k_f in solution.compliance.items()},
+        {f: tuple(float(v) for v in d_f) for f, d_f in solution.anisotropy.items()} if solution.anisotropy else None,
+        float(tilt.mean()), float(tilt.max()))

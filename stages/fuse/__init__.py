@@ -65,7 +65,7 @@ class SourceModel:
                  payload: arms.Payload, scale_sigma: float = 0.0) -> None:
         self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
-        self.arms = arms.ArmErrors.from_json(kinematics) if kinematics["estimated"] else None
+        self.arms = arms.ArmErrors.from_json(kinematics.fit) if kinematics.fit is not None else None
         self.kinematics = kinematics
         self.testbed = testbed
         self.payload = payload
@@ -118,9 +118,9 @@ class SourceModel:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
         flanks = arms.flank_variances(self.testbed, readings, fuse.lost_motion_rad, fuse.backlash_preload_nm)
-        jacobians = arms.pose_jacobians(self.testbed, self.kinematics, readings, [r["fixture"] for r in rows],
+        jacobians = arms.pose_jacobians(self.testbed, self.kinematics.fit, readings, [r["fixture"] for r in rows],
                                         self.world_up)
-        parameters = np.asarray(self.kinematics["covariance"]) * self.parameter_scale**2
+        parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
         shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks)
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
 

@@ -6,7 +6,9 @@ import pytest
 
 from manifests import Workspace
 from manifests.sidecars import (
+    ArmKinematics,
     Calibration,
+    FixtureCompliance,
     FusionRecord,
     Intrinsics,
     Pose,
@@ -70,22 +72,20 @@ METRICS = {"in_sample": METRIC, "cross_validated": METRIC, "truth": None,
            "cross_validation": {"folds": 5, "undetermined_folds": [], "samples": 40, "judged": True}}
 
 
-def source(name: str, kinematics: dict) -> SourceCalibration:
+def source(name: str, kinematics: ArmKinematics) -> SourceCalibration:
+    compliance = FixtureCompliance(True, "spread", {"minus_x": (0.0, 1e-3, 0.0), "plus_x": (1e-3, 0.0, 0.0)},
+                                   {"minus_x": (0.1, -0.2, 0.0, 0.05, 0.0, 0.0), "plus_x": (0.0,) * 6}, 1e-3, 2e-3)
     return SourceCalibration(name, POSE, {"minus_x": POSE, "plus_x": Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.1))},
-                             {"estimated": True, "why": "spread", "k_rad_by_fixture": {"minus_x": [0.0, 1e-3, 0.0],
-                                                                                     "plus_x": [1e-3, 0.0, 0.0]},
-                              "anisotropy_by_fixture": {"minus_x": [0.1, -0.2, 0.0, 0.05, 0.0, 0.0],
-                                                        "plus_x": [0.0] * 6}},
-                             kinematics, SigmaRecord((1e-5, 2e-5, 3e-5), 1e-4, 5e-5), 60, ("cal000003",), METRICS)
+                             compliance, kinematics, SigmaRecord((1e-5, 2e-5, 3e-5), 1e-4, 5e-5), 60, ("cal000003",),
+                             METRICS)
 
 
 CALIBRATION = Calibration(
     Intrinsics(((1500.0, 0.0, 480.0), (0.0, 1500.0, 300.0), (0.0, 0.0, 1.0)), (-0.2, 0.5, 0.0, 0.0, -0.1), 960, 600,
                0.08, True),
-    source("kuka", {"estimated": True, "why": "encoders", "parameters": [0.0, 1.0], "covariance": [[1.0, 0.0],
-                                                                                                   [0.0, 1.0]],
-                    "fixtures": ["minus_x", "plus_x"], "compliant": True}),
-    source("vicon", {"estimated": False, "why": "motion capture tracks the model itself"}),
+    source("kuka", ArmKinematics(True, "encoders", {"parameters": [0.0, 1.0], "covariance": [[1.0, 0.0], [0.0, 1.0]],
+                                                    "fixtures": ["minus_x", "plus_x"], "compliant": True})),
+    source("vicon", ArmKinematics(False, "motion capture tracks the model itself")),
     0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
     {"samples": 55, "metrics": METRICS, "sources_on_the_same_samples": {"kuka": METRICS, "vicon": METRICS}},
     SigmaRecord((6e-4, 5e-4, 2e-4), 2e-3, None), {"method": "frobenius", "folds": 5}, {"backend": "virtual"}, {})
