@@ -18,16 +18,17 @@ import pyarrow as pa
 
 #: 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas; 1.11: scores'
 #: intervals, median and failure share; 1.12: models' detector rows (the box IoU; no SPEED score),
-#: predictions' scores under each RANSAC seed
-SCHEMA_VERSION = "1.12"
+#: predictions' scores under each RANSAC seed; 1.13: the plan's joints nullable (a static mount),
+#: the export_robot manifest
+SCHEMA_VERSION = "1.13"
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
 #: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
 #: plan's trajectory columns and captures' move_s, 1.9 the target body's used markers and
 #: residual and the poses' per-source sigmas, 1.10 the scores' intervals (a scores part of
-#: 1.10 does not read: evaluate writes it again), 1.11 the models' box IoU; a kept recording
-#: reads as it is
-READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10", "1.11")
+#: 1.10 does not read: evaluate writes it again), 1.11 the models' box IoU, 1.12 the same columns (nullability
+#: aside); a kept recording reads as it is
+READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10", "1.11", "1.12")
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -128,9 +129,11 @@ PLAN = ManifestSpec(
                "active Earth-albedo light boxes (0-9); empty unless lightbox"),
         Column("mount", pa.string(), "", "model fixture used: the face of T the target flange holds, "
                "always the side away from the camera", kind="enum", allowed=MOUNTS),
-        Column("rail_m", pa.float64(), "m", "commanded rail position of the camera robot"),
-        Column("camera_joints_rad", JOINTS, "rad", "commanded A1..A6 of the camera robot, KUKA joint convention"),
-        Column("target_joints_rad", JOINTS, "rad", "commanded A1..A6 of the target robot, KUKA joint convention"),
+        Column("rail_m", pa.float64(), "m", "commanded rail position of the camera robot (0 without a rail)"),
+        Column("camera_joints_rad", JOINTS, "rad", "commanded joints of the camera robot in its URDF's order (TRON: "
+               "A1..A6, KUKA joint convention); null: the camera stands on a static mount", nullable=True),
+        Column("target_joints_rad", JOINTS, "rad", "commanded joints of the target robot in its URDF's order (TRON: "
+               "A1..A6, KUKA joint convention); null: the target stands on a static mount", nullable=True),
         *pose("world_from_camee", "nominal, robot world frame K, camera flange C_K"),
         *pose("world_from_targetee", "nominal, robot world frame K, target flange T_K"),
         Column("reachable", pa.bool_(), "", "both robots reach the commands within joint limits"),

@@ -115,10 +115,19 @@ TargetOption = Annotated[Path | None, typer.Option("--target", help=key_help("ta
                                                    + "; the plan copies it into W/target")]
 
 
-def _target(overrides: list[Override], target: Path | None) -> list[Override]:
-    """``--target DIR`` as the override ``target.path`` (absolute: the saved configuration
-    must name the same folder from any directory)."""
-    return [*overrides, Override.of("target.path", str(target.resolve()), "--target")] if target else overrides
+FacilityOption = Annotated[Path | None, typer.Option("--facility", help=key_help("facility.path")
+                                                     + "; check one with speedplus facility DIR")]
+
+
+def _target(overrides: list[Override], target: Path | None, facility: Path | None = None) -> list[Override]:
+    """``--target DIR`` and ``--facility DIR`` as the overrides ``target.path`` and
+    ``facility.path`` (absolute: the saved configuration must name the same folders from
+    any directory)."""
+    if target:
+        overrides = [*overrides, Override.of("target.path", str(target.resolve()), "--target")]
+    if facility:
+        overrides = [*overrides, Override.of("facility.path", str(facility.resolve()), "--facility")]
+    return overrides
 
 
 def _engine(engine: str | None, ray_address: str | None, workers: int | None) -> list[Override]:
@@ -305,11 +314,13 @@ for _entry in registry.STAGES:
 def plan_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False, target: TargetOption = None,
+    facility: FacilityOption = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the plan stage: relative poses, view, light and robot/rail commands, for the target
-    (--target DIR, a target folder; default: the built-in Tango)."""
-    _run(["plan"], workspace, profile, config, _target(_parsed(set_), target), force,
+    (--target DIR, a target folder; default: the built-in Tango) in the facility (--facility
+    DIR, a facility folder; default: TRON as [testbed] describes it)."""
+    _run(["plan"], workspace, profile, config, _target(_parsed(set_), target, facility), force,
          _engine(engine, ray_address, workers))
 
 
@@ -433,7 +444,7 @@ def run_command(
     workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
     set_: SetOption = None, force: ForceOption = False,
     until: Annotated[str | None, typer.Option("--until", help="last stage to run: " + ", ".join(registry.CHAIN))]
-    = None, target: TargetOption = None,
+    = None, target: TargetOption = None, facility: FacilityOption = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
     """Run the stages of the chain in order, skipping those already up to date."""
@@ -442,7 +453,7 @@ def run_command(
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, _target(_parsed(set_), target), force,
+    _run(names, workspace, profile, config, _target(_parsed(set_), target, facility), force,
          _engine(engine, ray_address, workers))
 
 

@@ -13,6 +13,7 @@ Hamilton ``(w, x, y, z)``).
 from core.config.facility import (
     UNMODELLED_SOURCES,
     CameraConfig,
+    FacilityConfig,
     RunConfig,
     TargetConfig,
     TestbedConfig,
@@ -48,7 +49,8 @@ from core.config.stages import (
 __all__ = [
     "documented",
     "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
-    "EvaluateConfig", "ExportConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig", "ReferenceConfig",
+    "EvaluateConfig", "ExportConfig", "FacilityConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig",
+    "ReferenceConfig",
     "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TargetConfig", "TestbedConfig", "TrajectoryConfig",
     "VirtualConfig", "layered",
     "load_config", "param", "parse_override",

@@ -121,6 +121,22 @@ class TargetConfig:
 
 
 @dataclass(frozen=True)
+class FacilityConfig:
+    """The room, robots, rails and mounts the plan is made for: a facility folder
+    (``DIR/facility.toml`` beside its robots' URDFs; docs/user-guide.md, "Your own facility").
+    Its content's digest is in the fingerprints of the stages it changes (the plan, the
+    robot programs)."""
+
+    path: str = param(
+        "", "the facility folder (DIR holding facility.toml); empty: TRON, as [testbed] describes it (the virtual "
+        "testbed rehearses TRON only: another facility is planned and exported as robot programs, and its "
+        "recordings replayed)", "")
+
+    def check(self, config: Config) -> None:
+        """Nothing beyond the types: the folder itself is read and checked by the plan."""
+
+
+@dataclass(frozen=True)
 class TestbedConfig:
     """Geometry of the TRON-like room (frame K: x along the rail, y across, z up, origin on
     the floor in a corner). Nominal values: what the lab believes; the virtual testbed's

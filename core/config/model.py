@@ -6,7 +6,14 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any
 
-from core.config.facility import CameraConfig, RunConfig, TargetConfig, TestbedConfig, VirtualConfig
+from core.config.facility import (
+    CameraConfig,
+    FacilityConfig,
+    RunConfig,
+    TargetConfig,
+    TestbedConfig,
+    VirtualConfig,
+)
 from core.config.stages import (
     AcquireConfig,
     CalibrateConfig,
@@ -29,6 +36,7 @@ class Config:
     run: RunConfig = field(default_factory=RunConfig)
     target: TargetConfig = field(default_factory=TargetConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
+    facility: FacilityConfig = field(default_factory=FacilityConfig)
     testbed: TestbedConfig = field(default_factory=TestbedConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)

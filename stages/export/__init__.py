@@ -23,6 +23,7 @@ from core.config.stages import EXPORT_FORMATS
 from core.progress import track
 from core.stage_io import Resolved
 from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest, read_marker
+from manifests.facility import facility_digest
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
 from manifests.sidecars import read_trajectories
@@ -47,7 +48,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     The robot programs read the plan alone, and time its moves as the virtual testbed does."""
     if config.export.format == "robot":
         timing = ("virtual.speed_override", "virtual.rail_speed_m_s", "virtual.light_change_s")
-        return Resolved(("plan",), ("export.format", "export.out", *timing), {}, ("export_robot",))
+        extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
+        return Resolved(("plan",), ("export.format", "export.out", "facility.path", *timing), extra, ("export_robot",))
     inputs = {"testbed": ("labels", "captures"), "twins": ("labels", "renders"), "train": ("train",)}
     needed = tuple(dict.fromkeys(name for chosen in config.export.sets for name in inputs[chosen]))
     if config.plan.mode == "trajectory":  # each image's sequence and frame
@@ -227,7 +229,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
 def robot_programs(config: Config, workspace: Workspace, out: Path) -> pa.Table:
     """The plan as each robot's waypoints (the ``export_robot`` rows) and its programs, in
     the order ``stages.export.robot.ordered`` gives; the files are written last, from every row."""
-    facility = load_facility()  # the plan's room: TRON's (a facility folder for the plan: issue 46)
+    facility = load_facility(Path(config.facility.path) if config.facility.path else None)  # the plan's room
     timing = robot.Timing(config.virtual.speed_override, config.virtual.rail_speed_m_s, config.virtual.light_change_s)
     planned = robot.waypoints(read_manifest(workspace, "plan").to_pylist(), facility)
     points = robot.ordered(planned, facility, timing)

@@ -1,6 +1,7 @@
 """``export --format robot``: the plan as programs for the robots' controllers.
 
-Per robot of the facility (TRON's, the built-in folder, which the plan is made for):
+Per robot of the facility the plan is made for (``facility.path``; empty: TRON's, the
+built-in folder):
 - ``<robot>.csv`` and ``<robot>.json``: the ordered joint waypoints in the controller's
   units (KUKA: degrees, the rail as E1 in mm; UR and others: radians, the rail in m),
   each with the sample it captures and a capture flag;

@@ -125,10 +125,11 @@ def room_reach_m(testbed: TestbedConfig, plan: PlanConfig) -> float:
     return far - min(p[0] for p in testbed.target_presentation_m)
 
 
-def dataset_range(plan: PlanConfig, target: Target, testbed: TestbedConfig) -> DatasetRange:
+def dataset_range(plan: PlanConfig, target: Target, testbed: TestbedConfig, room: bool = True) -> DatasetRange:
     """Where the plan draws distances: ``plan.dataset_range_m`` when set, else SPEED+'s range
     at the same apparent size (scaled by the target's diameter over Tango's; Tango's own is
-    SPEED+'s to the bit), shrunk at its ratio when the room cannot hold it; then narrowed by
+    SPEED+'s to the bit), shrunk at its ratio when TRON's room cannot hold it (``room``; a
+    facility folder's poses are checked one by one instead); then narrowed by
     ``plan.dataset_range_diameters``."""
     origin = "metres"
     if plan.dataset_range_m:
@@ -136,9 +137,9 @@ def dataset_range(plan: PlanConfig, target: Target, testbed: TestbedConfig) -> D
     else:
         ratio = apparent_size_ratio(target)
         low, high, origin = SPEEDPLUS_RANGE_M[0] * ratio, SPEEDPLUS_RANGE_M[1] * ratio, "speedplus"
-        room = room_reach_m(testbed, plan) / target.mockup_scale
-        if high > room:
-            low, high, origin = room * SPEEDPLUS_RANGE_M[0] / SPEEDPLUS_RANGE_M[1], room, "room"
+        farthest = room_reach_m(testbed, plan) / target.mockup_scale if room else np.inf
+        if high > farthest:
+            low, high, origin = farthest * SPEEDPLUS_RANGE_M[0] / SPEEDPLUS_RANGE_M[1], farthest, "room"
     low = max(low, plan.dataset_range_diameters[0] * target.diameter_m)
     high = min(high, plan.dataset_range_diameters[1] * target.diameter_m)
     if low > high:
@@ -149,10 +150,10 @@ def dataset_range(plan: PlanConfig, target: Target, testbed: TestbedConfig) -> D
 
 
 def dataset_pose(rng: np.random.Generator, plan: PlanConfig, target: Target, camera: CameraConfig,
-                 view: str, chosen: DatasetRange) -> np.ndarray:
+                 view: str | None, chosen: DatasetRange) -> np.ndarray:
     """``cam_from_target`` (4, 4), mock-up scale: orientation uniform on SO(3) given that
-    the camera sees ``view``; the body centre placed by ``dataset_position``, every
-    keypoint inside the image."""
+    the camera sees ``view`` (None: either); the body centre placed by ``dataset_position``,
+    every keypoint inside the image."""
     centre_cam = dataset_position(rng, plan, target, camera, chosen)
     centre_target = target.centre_m * target.mockup_scale
     keypoints = target.keypoints_m * target.mockup_scale
@@ -160,7 +161,7 @@ def dataset_pose(rng: np.random.Generator, plan: PlanConfig, target: Target, cam
         rotation = g.quat_to_matrix(g.random_quats(rng, 1)[0])
         cam_from_target = g.make_transform(rotation, centre_cam - rotation @ centre_target)
         camera_in_target = g.invert(cam_from_target)[:3, 3]
-        if target.view_of(camera_in_target, target.mockup_scale) != view:
+        if view is not None and target.view_of(camera_in_target, target.mockup_scale) != view:
             continue  # conditioning on the side keeps SO(3)-uniformity within each half
         pixels = g.project(cam_from_target, keypoints, camera.camera_matrix(), camera.dist_coeffs())
         if np.all(_inside(pixels, camera, plan.image_margin_px)):

@@ -145,8 +145,8 @@ def _callee_reads(tree: ast.Module, imported: dict[str, tuple[str, str]], local:
 
 
 #: the registry's hooks: what they read decides what the stage declares (its inputs, whether
-#: it runs), so it is not itself a dependency of the stage's results
-HOOKS = frozenset({"resolve", "skipped_in_chain", "status_views"})
+#: it runs at all), so it is not itself a dependency of the stage's results
+HOOKS = frozenset({"resolve", "skipped_in_chain", "status_views", "preflight"})
 
 
 def package_reads(package: str) -> set[tuple[str, str]]:

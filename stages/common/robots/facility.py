@@ -241,7 +241,7 @@ def presentable_share(facility: Facility, distances_m: tuple[float, float], samp
     those the facility presents: a static target fixes the camera's pose; a target on a robot
     is tried at ``attempts`` attitudes in K, each at a point its robot reaches."""
     rng = np.random.default_rng(seed)
-    points = _presentation_points(facility, rng)
+    points = presentation_points(facility, rng)
     low, high = distances_m
     edges = np.linspace(low, high, bins + 1)
     hits, counts = np.zeros(bins, int), np.zeros(bins, int)
@@ -251,10 +251,10 @@ def presentable_share(facility: Facility, distances_m: tuple[float, float], samp
         cam_from_target = g.make_transform(g.quat_to_matrix(quat), [0.0, 0.0, distance])
         index = min(int(np.searchsorted(edges, distance, side="right")) - 1, bins - 1)
         counts[index] += 1
-        placements = _placements(facility, cam_from_target, points, rng, attempts)
-        if not placements:
+        candidates = placements(facility, cam_from_target, points, rng, attempts)
+        if not candidates:
             limits["the room cannot hold the camera at that distance"] += 1
-        for placement in placements:
+        for placement in candidates:
             outcome = attempt(facility, *placement, rng)
             if isinstance(outcome, Presentation):
                 hits[index] += 1
@@ -267,12 +267,14 @@ def presentable_share(facility: Facility, distances_m: tuple[float, float], samp
                  tuple(limits.most_common()))
 
 
-def _placements(facility: Facility, cam_from_target: np.ndarray, points: np.ndarray, rng: np.random.Generator,
-                attempts: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(world_from_cam, world_from_target) candidates for one relative pose."""
+def placements(facility: Facility, cam_from_target: np.ndarray, points: np.ndarray, rng: np.random.Generator,
+               attempts: int, mount_from_target: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(world_from_cam, world_from_target) candidates for one relative pose; a static
+    target sits at ``mount_from_target`` (4, 4; its fixture, default none) on its mount."""
     target_holder, camera_holder = facility.holder("target"), facility.holder("camera")
     if isinstance(target_holder, StaticSpec):
-        world_from_target = pose_matrix(target_holder.world_from_mount)
+        world_from_target = pose_matrix(target_holder.world_from_mount) @ (
+            np.eye(4) if mount_from_target is None else mount_from_target)
         return [(world_from_target @ g.invert(cam_from_target), world_from_target)]
     if isinstance(camera_holder, StaticSpec):
         world_from_cam = pose_matrix(camera_holder.world_from_mount)
@@ -314,7 +316,7 @@ def _aligning(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return g.rotvec_to_matrix(axis / sine * math.atan2(sine, cosine))
 
 
-def _presentation_points(facility: Facility, rng: np.random.Generator, count: int = 64) -> np.ndarray:
+def presentation_points(facility: Facility, rng: np.random.Generator, count: int = 64) -> np.ndarray:
     """(N, 3) points in K where the target's robot holds the target, drawn over its joint
     ranges (rail too) and kept where they are a metre clear of the walls, floor and ceiling
     (or half the room's side, where that is less)."""

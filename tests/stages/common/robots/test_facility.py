@@ -14,13 +14,13 @@ from core.config import load_config
 from stages.common import geometry as g
 from stages.common.layout import camee_from_cam, world_from_camera_base, world_from_target_base
 from stages.common.robots.facility import (
-    _placements,
-    _presentation_points,
     load_facility,
     mount_away,
+    placements,
     pose_matrix,
     present,
     presentable_share,
+    presentation_points,
     wilson,
 )
 
@@ -61,8 +61,8 @@ def test_presented_poses_are_reproduced_by_an_independent_forward_kinematics(fol
     found = 0
     for quat in g.random_quats(rng, 40):
         cam_from_target = g.make_transform(g.quat_to_matrix(quat), [0.0, 0.0, distance])
-        for world_from_cam, world_from_target in _placements(facility, cam_from_target,
-                                                             _presentation_points(facility, rng), rng, 4):
+        for world_from_cam, world_from_target in placements(facility, cam_from_target,
+                                                             presentation_points(facility, rng), rng, 4):
             presentation = present(facility, world_from_cam, world_from_target, rng)
             if presentation is None:
                 continue

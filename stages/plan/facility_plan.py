@@ -1,0 +1,136 @@
+"""Planning on a facility folder (``facility.path``; docs/architecture.md section 11): the
+robots' commands for a relative pose, found as ``stages.common.robots.facility`` finds
+them (rail positions nearest first, inverse kinematics verified by forward kinematics,
+every link clear of the room, the obstacles and the other robot), with the target held by
+the target folder's fixture on the side away from the camera. TRON's own room, as
+``[testbed]`` describes it, keeps its closed-form grid search (``reconfigure``).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from core.config import Config
+from manifests.facility import StaticSpec
+from speedplus.errors import InputError
+from stages.common import geometry as g
+from stages.common import layout
+from stages.common.robots.facility import (
+    Facility,
+    Robot,
+    load_facility,
+    placements,
+    pose_matrix,
+    presentation_points,
+    wilson,
+)
+from stages.common.target import Target
+from stages.plan.reconfigure import Reconfiguration
+
+#: attitudes in the room tried for one relative pose before it is redrawn
+ATTEMPTS = 8
+
+
+def planned_facility(config: Config) -> Facility | None:
+    """The configured facility folder, checked for what the plan records; None: TRON as
+    ``[testbed]`` describes it."""
+    if not config.facility.path:
+        return None
+    facility = load_facility(Path(config.facility.path))
+    where = facility.directory / "facility.toml"
+    for robot in facility.robots:
+        if robot.spec.rail is not None and robot.spec.carries == "target":
+            raise InputError(f"{where}: robot {robot.spec.name!r} carries the target on a rail; the plan records the "
+                             "rail of the camera's robot only")
+    needs = {"lightbox": bool(facility.spec.light_boxes), "sunlamp": facility.spec.sun_lamp is not None}
+    missing = [light for light in config.plan.lights if not needs.get(light, True)]
+    if missing and config.plan.n_dataset:
+        raise InputError(f"plan.lights: {', '.join(missing)} but {where} has no "
+                         f"{' and no '.join('light boxes' if m == 'lightbox' else 'sun lamp' for m in missing)}; "
+                         "set plan.lights to what the facility has")
+    if config.plan.mode == "trajectory":
+        raise InputError(f"plan.mode: sequences are planned in TRON's room only, not yet on {where}")
+    return facility
+
+
+_POINTS: dict[tuple[Path, int], np.ndarray] = {}
+
+
+def _points(facility: Facility, seed: int) -> np.ndarray:
+    """Where the target's robot may present the target (``presentation_points``), once per
+    facility and plan seed."""
+    key = (facility.directory, seed)
+    if key not in _POINTS:
+        _POINTS[key] = presentation_points(facility, np.random.default_rng([seed, 0xFAC]))
+    return _POINTS[key]
+
+
+def camera_fixture(facility: Facility) -> np.ndarray:
+    """(4, 4) the camera in its holder's flange (a robot's ``flange_from_tool``), or in its
+    static mount (identity)."""
+    holder = facility.holder("camera")
+    return np.eye(4) if isinstance(holder, StaticSpec) else pose_matrix(holder.spec.flange_from_tool)
+
+
+def reconfigure_on(facility: Facility, cam_from_target: np.ndarray, mount: str, target: Target, seed: int,
+                   rng: np.random.Generator, margin: float, limits: Counter[str]) -> Reconfiguration | None:
+    """Commands that realise ``cam_from_target`` (mock-up scale) with the target on fixture
+    ``mount``, or None, counting in ``limits`` what stopped each attempt."""
+    flange_from_target = g.invert(layout.target_from_targetee(target, mount))
+    candidates = placements(facility, cam_from_target, _points(facility, seed), rng, ATTEMPTS, flange_from_target)
+    if not candidates:
+        limits["the room cannot hold the camera at that distance"] += 1
+    for world_from_cam, world_from_target in candidates:
+        found = _attempt(facility, world_from_cam, world_from_target, flange_from_target, rng, margin)
+        if isinstance(found, Reconfiguration):
+            return found
+        limits[found] += 1
+    return None
+
+
+def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: np.ndarray,
+             flange_from_target: np.ndarray, rng: np.random.Generator, margin: float) -> Reconfiguration | str:
+    room = np.asarray(facility.spec.room_m)
+    if not np.all((world_from_cam[:3, 3] > 0) & (world_from_cam[:3, 3] < room)):
+        return "the camera would leave the room"
+    held: dict[str, tuple[Robot, np.ndarray, float]] = {}
+    for carried, pose, fixture in (("target", world_from_target, flange_from_target),
+                                   ("camera", world_from_cam, camera_fixture(facility))):
+        holder = facility.holder(carried)
+        if isinstance(holder, StaticSpec):
+            continue
+        found = holder.reach(pose, rng, margin, fixture)
+        if found is None:
+            return f"{holder.spec.name} cannot reach the {carried}'s pose"
+        held[carried] = (holder, *found)
+    if not facility.clear(list(held.values())):
+        return "a link would hit the room, an obstacle or a robot"
+    camera, target = held.get("camera"), held.get("target")
+    return Reconfiguration(
+        rail_m=camera[2] if camera is not None and camera[0].spec.rail is not None else 0.0,
+        camera_joints_rad=None if camera is None else camera[1],
+        target_joints_rad=None if target is None else target[1],
+        world_from_camee=world_from_cam @ g.invert(camera_fixture(facility)),
+        world_from_targetee=world_from_target @ g.invert(flange_from_target), margin_rad=margin)
+
+
+def light_box_centres(facility: Facility) -> np.ndarray:
+    """(B, 3) the facility's light boxes' centres in K, m."""
+    return np.array([box.centre_m for box in facility.spec.light_boxes]).reshape(-1, 3)
+
+
+def presented_share(rows: list[dict], facility: Facility) -> str:
+    """What share of the relative poses drawn for the dataset (uniform on SO(3) and over the
+    range) the facility presented, with its 95% Wilson interval, and the views it showed."""
+    dataset = [row for row in rows if row["session"] == "dataset"]
+    drawn = len(dataset) + sum(row["redraws"] for row in dataset)
+    if not dataset:
+        return f"{facility.spec.name}: no dataset samples"
+    low, high = wilson(len(dataset), drawn)
+    views = Counter(row["view"] for row in dataset)
+    return (f"{facility.spec.name} presented {len(dataset)} of {drawn} dataset poses drawn, "
+            f"{len(dataset) / drawn:.1%} [95% interval {low:.1%}, {high:.1%}] of SO(3) x the range; the dataset "
+            f"is uniform over that share; views {', '.join(f'{v} {n}' for v, n in sorted(views.items()))}")

@@ -1,0 +1,167 @@
+"""Planning on a facility folder (stages/plan/facility_plan.py), as a lab would: two labs
+besides TRON, written from published dimensions. Each plan's flange poses are reproduced by
+an independent forward kinematics of the URDFs (yourdfpy's), its configurations collide
+with nothing, its relative poses are the ones the rows state, the robot programs carry the
+same joints, and the virtual testbed refuses to rehearse it without touching the workspace."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from core.config import load_config
+from pipeline.registry import stage
+from stages.common import geometry as g
+from stages.common import layout
+from stages.common.robots.facility import load_facility, pose_matrix
+from stages.common.target import load_target
+from tests.conftest import speedplus
+from tests.target_folders import cubesat
+
+FACILITIES = Path(__file__).resolve().parents[1] / "facilities"
+
+
+def _plan(workspace: Path, facility: Path, *args: str) -> list[dict]:
+    result = speedplus("plan", "-w", str(workspace), "--profile", "smoke", "--facility", str(facility), *args)
+    assert result.returncode == 0, result.stderr
+    assert "presented" in result.stdout and "of SO(3) x the range" in result.stdout
+    return pq.read_table(workspace / "manifests" / "plan").to_pylist()
+
+
+@pytest.fixture(scope="module")
+def abb(tmp_path_factory):
+    workspace = tmp_path_factory.mktemp("abb") / "w"
+    return workspace, _plan(workspace, FACILITIES / "abb_rail")
+
+
+@pytest.fixture(scope="module")
+def tripod(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tripod")
+    target = cubesat(root / "cubesat")
+    workspace = root / "w"
+    rows = _plan(workspace, FACILITIES / "ur10_tripod", "--target", str(target), "--set", 'plan.lights=["lightbox"]',
+                 "--set", "plan.dataset_range_m=[1.3, 1.8]")
+    return workspace, rows, target
+
+
+def _independent_flange(robot, joints, rail_m):
+    import yourdfpy
+
+    urdf = yourdfpy.URDF.load(str(robot.chain.source), load_meshes=False, build_collision_scene_graph=False)
+    urdf.update_cfg(dict(zip(robot.chain.joint_names, joints, strict=True)))
+    return robot.world_from_base(rail_m) @ urdf.get_transform(robot.spec.flange_link, robot.spec.base_link)
+
+
+def _check_rows(rows: list[dict], facility_dir: Path, target_dir: Path | None) -> None:
+    facility = load_facility(facility_dir)
+    target = load_target(target_dir) if target_dir else load_target(
+        Path(__file__).resolve().parents[2] / "stages" / "common" / "targets" / "tango")
+    assert len(rows) == 24
+    for row in rows:
+        placed = []
+        for robot in facility.robots:
+            column = "camera" if robot.spec.carries == "camera" else "target"
+            joints = np.asarray(row[f"{column}_joints_rad"])
+            rail = row["rail_m"] if robot.spec.rail is not None else 0.0
+            flange = _independent_flange(robot, joints, rail)
+            flange_column = "world_from_camee" if column == "camera" else "world_from_targetee"
+            planned = g.transform_from_qt(row[f"{flange_column}_q"], row[f"{flange_column}_t"])
+            assert np.abs(flange - planned).max() < 1e-6
+            assert robot.chain.within_limits(joints)
+            low, high = robot.rail_travel_m
+            assert low - 1e-9 <= rail <= high + 1e-9
+            placed.append((robot, joints, rail))
+        assert facility.clear(placed)
+        world_from_camee = g.transform_from_qt(row["world_from_camee_q"], row["world_from_camee_t"])
+        world_from_targetee = g.transform_from_qt(row["world_from_targetee_q"], row["world_from_targetee_t"])
+        camera = facility.holder("camera")
+        world_from_cam = world_from_camee @ pose_matrix(camera.spec.flange_from_tool)
+        world_from_target = world_from_targetee @ g.invert(layout.target_from_targetee(target, row["mount"]))
+        cam_from_target = g.transform_from_qt(row["cam_from_target_q"], row["cam_from_target_t"])
+        assert np.abs(g.invert(world_from_cam) @ world_from_target - cam_from_target).max() < 1e-6
+
+
+def test_two_arms_on_a_floor_track_plan_what_they_reach(abb):
+    workspace, rows = abb
+    _check_rows(rows, FACILITIES / "abb_rail", None)
+    dataset = [row for row in rows if row["session"] == "dataset"]
+    assert {row["light"] for row in dataset} == {"lightbox", "sunlamp"}
+    assert all(set(row["light_boxes"]) <= {0, 1} for row in dataset)
+    assert any(row["rail_m"] > 0.1 for row in rows)  # the track is used
+
+
+def test_one_arm_round_a_tripod_plans_what_it_reaches_and_says_its_share(tripod):
+    workspace, rows, target = tripod
+    _check_rows(rows, FACILITIES / "ur10_tripod", target)
+    assert all(row["target_joints_rad"] is None for row in rows)  # the tripod stands still
+    mount = pose_matrix(load_facility(FACILITIES / "ur10_tripod").spec.statics[0].world_from_mount)
+    for row in rows:
+        assert np.abs(g.transform_from_qt(row["world_from_targetee_q"], row["world_from_targetee_t"])
+                      - mount).max() < 1e-9
+    dataset = [row for row in rows if row["session"] == "dataset"]
+    assert sum(row["redraws"] for row in dataset) > len(dataset)  # most of SO(3) is out of its reach
+
+
+def test_the_programs_carry_the_plans_joints(abb, tripod):
+    for workspace, column, robot, unit in ((abb[0], "camera_joints_rad", "camera_arm", "rad"),
+                                           (tripod[0], "camera_joints_rad", "ur10", "rad")):
+        result = speedplus("export", "-w", str(workspace), "--format", "robot")
+        assert result.returncode == 0, result.stderr
+        plan = {row["sample_id"]: row for row in pq.read_table(workspace / "manifests" / "plan").to_pylist()}
+        with open(workspace / "export" / "robot" / f"{robot}.csv", newline="") as handle:
+            for row in csv.DictReader(handle):
+                values = [float(v) for k, v in row.items() if k.endswith(f"_{unit}") and not k.startswith("rail")]
+                assert np.allclose(values, plan[row["sample_id"]][column], atol=1e-6)
+    assert (tripod[0] / "export" / "robot" / "speedplus_ur10.script").exists()
+
+
+def test_the_virtual_testbed_refuses_another_facility_untouched(abb):
+    workspace = abb[0]
+    before = sorted((str(p.relative_to(workspace)), p.stat().st_size) for p in workspace.rglob("*")
+                    if p.name != ".lock")
+    result = speedplus("acquire", "-w", str(workspace))
+    message = " ".join(result.stderr.split())
+    assert result.returncode == 1 and "rehearses TRON's room only" in message and "export --format robot" in message
+    assert sorted((str(p.relative_to(workspace)), p.stat().st_size) for p in workspace.rglob("*")
+                  if p.name != ".lock") == before
+
+
+def test_the_facilitys_files_are_in_the_plans_fingerprint(tmp_path):
+    folder = tmp_path / "lab"
+    shutil.copytree(FACILITIES / "abb_rail", folder)
+    config = load_config("smoke", overrides=[f"facility.path={folder}"])
+    before = stage("plan").resolved(config, None).extra["facility"]
+    urdf = folder / "irb4600_60_205.urdf"
+    urdf.write_text(urdf.read_text().replace('xyz="0 0 0.9"', 'xyz="0 0 0.91"'))
+    assert stage("plan").resolved(config, None).extra["facility"] != before
+    assert "facility" not in stage("plan").resolved(load_config("smoke"), None).extra  # TRON's stays as it was
+
+
+@pytest.mark.parametrize(("edit", "setting", "message"), [
+    (None, "plan.mode=trajectory", "sequences are planned in TRON's room only"),
+    (("[[light_box]]", "[[other_box]]"), None, "unknown key"),
+    ('travel = [0.0, 7000.0]\n', None, None),
+])
+def test_what_a_facility_plan_cannot_do_is_refused(tmp_path, edit, setting, message):
+    folder = tmp_path / "lab"
+    shutil.copytree(FACILITIES / "abb_rail", folder)
+    text = (folder / "facility.toml").read_text()
+    if edit is not None and isinstance(edit, tuple):
+        text = text.replace(*edit)
+    elif edit is not None:  # the rail moves to the target's arm
+        text = text.replace("[robot.rail]\naxis = [1.0, 0.0, 0.0]\n" + edit, "")
+        text = text.replace('flange_from_tool_q = [1.0, 0.0, 0.0, 0.0]\n\n[sun_lamp]',
+                            'flange_from_tool_q = [1.0, 0.0, 0.0, 0.0]\n[robot.rail]\naxis = [1.0, 0.0, 0.0]\n'
+                            'travel = [0.0, 1000.0]\n\n[sun_lamp]')
+        message = "carries the target on a rail"
+    (folder / "facility.toml").write_text(text)
+    args = ["--set", setting] if setting else []
+    result = speedplus("plan", "-w", str(tmp_path / "w"), "--profile", "smoke", "--facility", str(folder), *args)
+    assert result.returncode == 1 and message in " ".join(result.stderr.split()), result.stderr
+    assert not (tmp_path / "w" / "manifests" / "plan").exists() or not any((tmp_path / "w" / "manifests" /
+                                                                            "plan").glob("*.parquet"))
