@@ -471,6 +471,19 @@ EXPORT_ROBOT = ManifestSpec(
     ),
     key="waypoint_id",
 )
+EXPORT_SESSION = ManifestSpec(
+    "export_session",
+    "images written by export --format session: the captures as a lab's logger writes them (replay reads them)",
+    (
+        Column("export_id", pa.string(), "", "<session>/<sample_id>: one exported capture", kind="value"),
+        _sample_id(),
+        Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
+        Column("file", pa.string(), "", "the exported image, relative to the export folder (never leaves it)",
+               kind="path"),
+        Column("source_image", pa.string(), "", "the workspace image it was copied from, relative to W", kind="path"),
+    ),
+    key="export_id",
+)
 
 MODELS = ManifestSpec(
     "models",
@@ -497,5 +510,5 @@ MODELS = ManifestSpec(
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
                                   PREDICTIONS, SCORES, COMPARISONS, TRACKS, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
-                                  EXPORT_ROBOT, MODELS)
+                                  EXPORT_ROBOT, EXPORT_SESSION, MODELS)
 }

@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from core.config.model import Config
 
 ExportSet = Literal["testbed", "twins", "train"]
-ExportFormat = Literal["speedplus", "bop", "shirt", "robot"]
+ExportFormat = Literal["speedplus", "bop", "shirt", "robot", "session"]
 EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)
 PlanMode = Literal["poses", "trajectory"]
 TrajectoryPreset = Literal["vbar_hold_spin", "approach_tumble", "custom"]
@@ -511,7 +511,8 @@ class ExportConfig:
     format: ExportFormat = param(
         "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read), bop (bop_toolkit's scenes; a "
         "trajectory plan's sequences are its scenes), shirt (SHIRT's sequences, plan.mode = trajectory) or robot "
-        "(the plan as each robot's waypoints and controller program: KUKA KRL, URScript)", "")
+        "(the plan as each robot's waypoints and controller program: KUKA KRL, URScript) or session (the captures "
+        "in the layout of a lab's logger, which replay reads back)", "")
     out: str = param("", "export folder; empty: W/export/<format>", "")
     sets: tuple[ExportSet, ...] = param(
         ("testbed", "twins"), "image sets exported: testbed (the labelled captures), twins (their synthetic twins, "

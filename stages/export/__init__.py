@@ -26,7 +26,7 @@ from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest
 from manifests.facility import facility_digest
 from manifests.files import copy_atomic, write_json_atomic
 from manifests.schema import DOMAINS
-from manifests.sidecars import read_trajectories
+from manifests.sidecars import read_session, read_trajectories
 from manifests.workspace import EXPORT_DIR, PathEscapeError, check_relative
 from speedplus.errors import InputError
 from stages.common.cameras import train_camera
@@ -34,7 +34,7 @@ from stages.common.json_arrays import calibrated_camera
 from stages.common.lens import LensCamera
 from stages.common.robots.facility import load_facility
 from stages.common.workspace_target import workspace_target
-from stages.export import bop, robot, shirt, speedplus
+from stages.export import bop, robot, session, shirt, speedplus
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
 #: {"version": EXPORT_MARK_VERSION, "workspace": W, "format": ...}, compared whole
@@ -46,6 +46,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Per ``export.sets`` the labels with their captures, renders or the training set (and a
     trajectory plan's sequences); one output manifest per format, so the exports coexist.
     The robot programs read the plan alone, and time its moves as the virtual testbed does."""
+    if config.export.format == "session":
+        return Resolved(("captures",), ("export.format", "export.out"), {}, ("export_session",))
     if config.export.format == "robot":
         timing = ("virtual.speed_override", "virtual.rail_speed_m_s", "virtual.light_change_s")
         extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
@@ -192,6 +194,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     out, name = out_dir(config, workspace), f"export_{config.export.format}"
     if config.export.format == "robot":
         return robot_programs(config, workspace, out)
+    if config.export.format == "session":
+        return session_layout(config, workspace, out)
     claim(out, workspace, config.export.format)
     chosen, by_set = items(config, workspace), cameras(config, workspace)
     if config.export.format == "speedplus" and "train" in by_set:
@@ -250,3 +254,28 @@ def robot_programs(config: Config, workspace: Workspace, out: Path) -> pa.Table:
           f"moves and light changes {times['moves_s'] / 60:.1f} min, {times['plan_order_moves_s'] / 60:.1f} in the "
           "plan's order")
     return read_manifest(workspace, "export_robot")
+
+
+def session_layout(config: Config, workspace: Workspace, out: Path) -> pa.Table:
+    """The captures as a logger's session folder (``stages.export.session``): every image
+    missing from the ``export_session`` manifest, then the tables, from every capture."""
+    captures = sorted(read_manifest(workspace, "captures").to_pylist(),
+                      key=lambda row: (row["session"] != "calibration", row["sample_id"]))
+    recorded = read_session(workspace)
+    claim(out, workspace, "session")
+    done = read_keys(workspace, "export_session")
+    with open_sink(workspace, "export_session", config.run.part_rows) as sink:
+        todo = [r for r in captures if f"{r['session']}/{r['sample_id']}" not in done]
+        for row in track(todo, len(todo), "export"):
+            file = session.image_file(row)
+            try:
+                relative = check_relative(file)
+            except PathEscapeError:
+                raise InputError(f"captures: sample {row['sample_id']}: {file!r} leaves the export folder") from None
+            copy_atomic(workspace.fetch(row["image_path"]), out / relative)
+            sink.add({"export_id": f"{row['session']}/{row['sample_id']}", "sample_id": row["sample_id"],
+                      "session": row["session"], "file": file, "source_image": row["image_path"]})
+    session.write_tables(out, recorded, captures)
+    print(f"export: {len(captures)} captures as a logger's session (session) in {out}; replay it with `speedplus "
+          f"acquire -w W2 --backend replay --format session --source {out}`")
+    return read_manifest(workspace, "export_session")

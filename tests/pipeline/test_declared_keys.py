@@ -17,7 +17,8 @@ from tests.pipeline.config_reads import WHOLE, package_reads
 #: (not its configuration key) is in every fingerprint
 NOT_RESULTS = {"run", "target"}
 VARIANTS = ((), ("plan.mode=trajectory",), ("acquire.backend=replay", "acquire.source=somewhere"),
-            ("render.set=train",), ("export.sets=[\"testbed\",\"twins\",\"train\"]",), ("export.format=robot",))
+            ("render.set=train",), ("export.sets=[\"testbed\",\"twins\",\"train\"]",), ("export.format=robot",),
+            ("export.format=session",))
 
 
 def _config(overrides: tuple[str, ...]) -> Config:

@@ -25,6 +25,7 @@ CONFIGS = {
     "sequences": ["plan.mode=trajectory", "export.format=shirt"],
     "export all sets": ['export.sets=["testbed", "twins", "train"]'],
     "robot programs": ["export.format=robot"],
+    "logger's session": ["export.format=session"],
 }
 
 
