@@ -6,7 +6,7 @@ import sys
 BENCHMARKS = ("plan", "acquire", "accuracy", "solvers", "handeye", "honesty", "budget", "unmodelled", "render",
               "cluster", "storage", "ground_truth", "evaluate", "pnp", "identity", "model_cards", "pipeline",
               "ransac_noise", "stranger_model", "trajectory", "tracking", "threads", "targets", "detector",
-              "paper_table")
+              "paper_table", "facility")
 #: need arguments or take long; not part of `python -m bench`
 ON_REQUEST = ("identity", "model_cards", "pipeline", "ransac_noise", "stranger_model", "tracking", "threads", "targets",
               "detector", "paper_table")
