@@ -3,12 +3,15 @@ lights, and the virtual testbed's error model (units: docs/architecture.md secti
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from core.config.params import ConfigError, at_least, param, unit_quaternion
+from core.facilities import TRON_FOLDER
+from manifests.facility import read_facility_spec
 
 if TYPE_CHECKING:
     from core.config.model import Config
@@ -29,6 +32,11 @@ def resize_camera_matrix(camera_matrix: np.ndarray, scale_x: float, scale_y: flo
         [0.0, 0.0, 1.0],
     ])
 
+
+
+#: TRON's room (core/facilities/tron/facility.toml), where the geometry defaults below come from
+TRON = read_facility_spec(TRON_FOLDER)
+_CAMERA_ROBOT, _TARGET_ROBOT = TRON.carrier("camera"), TRON.carrier("target")
 
 
 @dataclass(frozen=True)
@@ -140,36 +148,42 @@ class FacilityConfig:
 class TestbedConfig:
     """Geometry of the TRON-like room (frame K: x along the rail, y across, z up, origin on
     the floor in a corner). Nominal values: what the lab believes; the virtual testbed's
-    true values differ from them."""
+    true values differ from them. The defaults of the room, bases, rail, camera fixture,
+    payload and lights are TRON's facility folder's (``TRON``)."""
 
     __test__ = False  # not a pytest test class despite the name
 
-    room_m: tuple[float, float, float] = param((8.0, 3.0, 3.0), "room size x, y, z (TRON: 8 x 3 x 3 m)", "m")
+    room_m: tuple[float, float, float] = param(TRON.room_m, "room size x, y, z (TRON: 8 x 3 x 3 m)", "m")
     robot_model: str = param("KR16-2", "KUKA arm model of both robots (see stages/common/kinematics.py)")
     target_base_m: tuple[float, float, float] = param(
-        (0.6, 1.5, 0.0), "position of the floor-mounted target robot's base in K", "m")
-    target_base_yaw_rad: float = param(0.0, "rotation of the target robot's base about K's z", "rad")
+        _TARGET_ROBOT.world_from_base.t, "position of the floor-mounted target robot's base in K", "m")
+    target_base_yaw_rad: float = param(
+        2 * math.atan2(_TARGET_ROBOT.world_from_base.q[3], _TARGET_ROBOT.world_from_base.q[0]),
+        "rotation of the target robot's base about K's z", "rad")
     rail_origin_m: tuple[float, float, float] = param(
-        (1.7, 1.5, 3.0), "camera robot base position in K at rail position 0 (hanging, A1 axis down)", "m")
-    rail_length_m: float = param(5.9, "usable rail travel along K's x (TRON: about 6 m)", "m")
+        _CAMERA_ROBOT.world_from_base.t, "camera robot base position in K at rail position 0 (hanging, A1 axis "
+        "down)", "m")
+    rail_length_m: float = param(_CAMERA_ROBOT.rail.travel_m[1] - _CAMERA_ROBOT.rail.travel_m[0],
+                                 "usable rail travel along K's x (TRON: about 6 m)", "m")
     target_presentation_m: tuple[tuple[float, float, float], ...] = param(
         ((1.55, 1.5, 1.25), (1.35, 1.5, 1.0)),
         "candidate positions in K where the target robot presents the model's origin", "m")
-    camera_payload_kg: float = param(2.5, "weighed camera, lens and marker plate on the camera flange", "kg")
+    camera_payload_kg: float = param(
+        _CAMERA_ROBOT.payload_kg, "weighed camera, lens and marker plate on the camera flange", "kg")
     camee_from_cam_q: tuple[float, float, float, float] = param(
-        (1.0, 0.0, 0.0, 0.0), "nominal rotation of the camera in the camera flange frame C_K", "1")
+        _CAMERA_ROBOT.flange_from_tool.q, "nominal rotation of the camera in the camera flange frame C_K", "1")
     camee_from_cam_t_m: tuple[float, float, float] = param(
-        (0.0, 0.0, 0.12), "nominal camera position in the flange frame (lens 12 cm out along flange z)", "m")
+        _CAMERA_ROBOT.flange_from_tool.t, "nominal camera position in the flange frame (lens 12 cm out along "
+        "flange z)", "m")
     light_box_centres_m: tuple[tuple[float, float, float], ...] = param(
-        ((0.5, 0.02, 1.3), (1.3, 0.02, 1.3), (2.1, 0.02, 1.3), (2.9, 0.02, 1.3),
-         (0.5, 2.98, 1.3), (1.3, 2.98, 1.3), (2.1, 2.98, 1.3), (2.9, 2.98, 1.3),
-         (0.02, 0.9, 1.3), (0.02, 2.1, 1.3)),
+        tuple(box.centre_m for box in TRON.light_boxes),
         "centres of the 10 Earth-albedo light boxes on the walls around the model (TRON: 10 boxes)", "m")
-    light_box_size_m: tuple[float, float] = param((0.6, 0.6), "light box diffuser width, height", "m")
+    light_box_size_m: tuple[float, float] = param(TRON.light_boxes[0].size_m, "light box diffuser width, height",
+                                                  "m")
     light_box_aim_m: tuple[float, float, float] = param(
-        (1.5, 1.5, 1.15), "point every light box faces (the model's working volume)", "m")
+        TRON.light_boxes[0].aim_m, "point every light box faces (the model's working volume)", "m")
     sun_lamp_position_m: tuple[float, float, float] = param(
-        (3.2, 0.25, 1.9), "sun lamp (metal-halide arc lamp) position in K", "m")
+        TRON.sun_lamp.position_m, "sun lamp (metal-halide arc lamp) position in K", "m")
     board_squares: tuple[int, int] = param((11, 11), "ChArUco board squares x, y (TRON: 11 x 11)", "count")
     board_square_m: float = param(0.030, "ChArUco square side (TRON: 30 mm)", "m")
     board_marker_m: float = param(0.022, "ArUco marker side inside a square", "m")
@@ -204,12 +218,13 @@ class VirtualConfig:
     model_compliance_rad_per_nm: float = param(
         1e-3, "fixture tilt per unit gravity moment; the paper blames its KUKA-only rotation error (0.64 deg) "
         "on the model tilting on its fixture", "rad/(N m)")
-    vicon_camera_height_m: float = param(2.8, "height of the 12 motion-capture cameras on the walls", "m")
+    vicon_camera_height_m: float = param(
+        TRON.motion_capture.cameras[0][0][2], "height of the 12 motion-capture cameras on the walls", "m")
     vicon_fov_rad: float = param(1.35, "full field of view of a motion-capture camera (Vicon Vero: 77 deg)", "rad")
     vicon_max_range_m: float = param(9.0, "farthest marker a motion-capture camera resolves", "m")
     vicon_marker_sigma_m: float = param(
-        0.0003, "1-sigma marker position noise seen by two cameras (Vicon systems: sub-millimetre); "
-        "scales with sqrt(2 / cameras)", "m")
+        TRON.motion_capture.marker_sigma_m, "1-sigma marker position noise seen by two cameras (Vicon systems: "
+        "sub-millimetre); scales with sqrt(2 / cameras)", "m")
     vicon_model_noise_factor: float = param(
         2.0, "marker noise on the mock-up relative to the camera's markers: its reflective foil and panels "
         "blur the marker images (the paper blames 'the reflective surfaces of the RSO model')", "1")
@@ -239,7 +254,7 @@ class VirtualConfig:
     exposure_ambient: float = param(2.5, "exposure scale under the room's ambient light (calibration)", "1")
     light_box_radiance: float = param(6.0, "radiance of an active light box (relative units)", "1")
     sun_lamp_radiance: float = param(4.0e4, "radiance of the sun lamp's arc (relative units)", "1")
-    sun_lamp_radius_m: float = param(0.04, "radius of the sun lamp's emitting sphere", "m")
+    sun_lamp_radius_m: float = param(TRON.sun_lamp.radius_m, "radius of the sun lamp's emitting sphere", "m")
     ambient_radiance: float = param(2.5, "radiance of the ceiling panels used for calibration", "1")
     glare_strength: float = param(0.6, "veiling glare of the sun lamp relative to full scale at its image point",
                                   "1")
