@@ -484,7 +484,8 @@ def _print_status(resolved: Config, ws: Workspace) -> None:
         for label, config in entry.status_views(resolved, ws):
             state = runner.status(entry, config, ws)
             rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
-            table.add_row(label, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(state.detail))
+            detail = state.detail or (entry.note(config, ws) if state.state == "done" else "")
+            table.add_row(label, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(detail))
     out.print(table)
     busy = holder(ws)
     if busy:

@@ -45,6 +45,9 @@ class StageEntry:
     #: the package reports several results side by side (``status_views(config, workspace)``
     #: -> [(label, config)]: export, one per format written)
     views: bool = False
+    #: the package says something of its finished results in ``status`` (``status_note(config,
+    #: workspace)`` -> str: the plan, the share of the poses drawn that the facility presents)
+    notes: bool = False
 
     def resolved(self, config: Config, workspace: Workspace) -> Resolved:
         resolved = _load(f"{self.package}:resolve")(config, workspace)
@@ -63,6 +66,10 @@ class StageEntry:
         if not self.views:
             return [(self.name, config)]
         return list(_load(f"{self.package}:status_views")(config, workspace))
+
+    def note(self, config: Config, workspace: Workspace) -> str:
+        """What ``status`` says of the stage's finished results (empty: nothing)."""
+        return str(_load(f"{self.package}:status_note")(config, workspace)) if self.notes else ""
 
     def skipped_in_chain(self, config: Config) -> bool:
         """Whether ``speedplus run`` (or any command of several stages) leaves it out."""
@@ -105,7 +112,7 @@ def _load(entry_point: str) -> Callable[..., Any]:
 
 STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
-               own_command=True, may_skip=True),
+               own_command=True, may_skip=True, notes=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire", preflight=True, own_command=True),
     StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate"),

@@ -17,7 +17,7 @@ from core.config import Config, PlanConfig
 from core.progress import track
 from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, sample_ids
-from manifests.facility import StaticSpec, facility_digest
+from manifests.facility import StaticSpec, facility_digest, read_facility_spec
 from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from stages.common import geometry as g
@@ -167,6 +167,13 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
     }
 
 
+def status_note(config: Config, workspace: Workspace) -> str:
+    """The share of the dataset poses drawn that the facility presented (``status``)."""
+    rows = read_manifest(workspace, "plan").select(["session", "redraws", "view"]).to_pylist()
+    name = read_facility_spec(Path(config.facility.path)).name if config.facility.path else "TRON"
+    return presented_share(rows, name)
+
+
 def _listed(joints: np.ndarray | None) -> list[float] | None:
     """A robot's commanded joints; None: a static mount holds that body."""
     return None if joints is None else [float(v) for v in joints]
@@ -211,5 +218,5 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     install(config, workspace)
     table = read_manifest(workspace, "plan")
     if facility is not None:
-        print(f"plan: {presented_share(table.to_pylist(), facility)}")
+        print(f"plan: {presented_share(table.to_pylist(), facility.spec.name)}")
     return table

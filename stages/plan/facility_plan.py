@@ -122,15 +122,15 @@ def light_box_centres(facility: Facility) -> np.ndarray:
     return np.array([box.centre_m for box in facility.spec.light_boxes]).reshape(-1, 3)
 
 
-def presented_share(rows: list[dict], facility: Facility) -> str:
+def presented_share(rows: list[dict], name: str) -> str:
     """What share of the relative poses drawn for the dataset (uniform on SO(3) and over the
-    range) the facility presented, with its 95% Wilson interval, and the views it showed."""
+    range) the facility ``name`` presented, with its 95% Wilson interval, and the views it showed."""
     dataset = [row for row in rows if row["session"] == "dataset"]
     drawn = len(dataset) + sum(row["redraws"] for row in dataset)
     if not dataset:
-        return f"{facility.spec.name}: no dataset samples"
+        return f"{name}: no dataset samples"
     low, high = wilson(len(dataset), drawn)
     views = Counter(row["view"] for row in dataset)
-    return (f"{facility.spec.name} presented {len(dataset)} of {drawn} dataset poses drawn, "
+    return (f"{name} presented {len(dataset)} of {drawn} dataset poses drawn, "
             f"{len(dataset) / drawn:.1%} [95% interval {low:.1%}, {high:.1%}] of SO(3) x the range; the dataset "
             f"is uniform over that share; views {', '.join(f'{v} {n}' for v, n in sorted(views.items()))}")
