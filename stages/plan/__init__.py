@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from core.config import Config, PlanConfig
+from core.config import Config, PlanConfig, TestbedConfig
 from core.progress import track
 from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, sample_ids
@@ -22,6 +22,7 @@ from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from stages.common import geometry as g
 from stages.common import layout
+from stages.common.robots.facility import Facility
 from stages.common.target import Target
 from stages.common.workspace_target import install, planned_target
 from stages.plan.facility_plan import (
@@ -32,6 +33,7 @@ from stages.plan.facility_plan import (
     reconfigure_on,
 )
 from stages.plan.poses import (
+    DatasetRange,
     PlanningError,
     calibration_pose,
     dataset_configuration,
@@ -122,19 +124,7 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
     cam_from_target, mount, commands = draw()
     while commands is None:
         if redraws == plan.max_redraws:
-            hint = ""
-            if facility is not None:
-                total = sum(limits.values()) or 1
-                hint = (f"; on {facility.directory / 'facility.toml'}: " + "; ".join(
-                    f"{why} ({count / total:.0%})" for why, count in limits.most_common()))
-            if chosen is not None:
-                room = testbed.room_m if facility is None else facility.spec.room_m
-                hint += (f"; the {chosen.describe(target)}, in a {' x '.join(f'{v:g}' for v in room)} m "
-                         "room (plan.dataset_range_m sets it in metres, plan.dataset_range_diameters narrows it)")
-            where = ("the facility's robots and room, plan.calibration_distance_m and plan.dataset_range_m"
-                     if facility is not None else "testbed.target_presentation_m, testbed.rail_* and plan.sight_*")
-            raise PlanningError(f"sample {sample_id}: no reachable robot configuration in {redraws + 1} draws; check "
-                                f"{where} (or raise plan.max_redraws){hint}")
+            raise _unreachable(sample_id, redraws + 1, testbed, target, chosen, facility, limits)
         redraws += 1
         cam_from_target, mount, commands = draw()
     if session == "dataset" and facility is not None:
@@ -165,6 +155,24 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         "redraws": redraws,
         **dict.fromkeys(SEQUENCE_COLUMNS),
     }
+
+
+def _unreachable(sample_id: str, draws: int, testbed: TestbedConfig, target: Target, chosen: DatasetRange | None,
+                 facility: Facility | None, limits: Counter[str]) -> PlanningError:
+    """The error of a sample no draw could place: what to check, and what stopped it."""
+    hint = ""
+    if facility is not None:
+        total = sum(limits.values()) or 1
+        hint = f"; on {facility.directory / 'facility.toml'}: " + "; ".join(
+            f"{why} ({count / total:.0%})" for why, count in limits.most_common())
+    if chosen is not None:
+        room = testbed.room_m if facility is None else facility.spec.room_m
+        hint += (f"; the {chosen.describe(target)}, in a {' x '.join(f'{v:g}' for v in room)} m "
+                 "room (plan.dataset_range_m sets it in metres, plan.dataset_range_diameters narrows it)")
+    where = ("the facility's robots and room, plan.calibration_distance_m and plan.dataset_range_m"
+             if facility is not None else "testbed.target_presentation_m, testbed.rail_* and plan.sight_*")
+    return PlanningError(f"sample {sample_id}: no reachable robot configuration in {draws} draws; check {where} "
+                         f"(or raise plan.max_redraws){hint}")
 
 
 def status_note(config: Config, workspace: Workspace) -> str:
