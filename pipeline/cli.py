@@ -394,7 +394,8 @@ def export_command(
     out_dir: Annotated[Path | None, typer.Option("--out", help=key_help("export.out"))] = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
 ) -> None:
-    """Run the export stage: the labels and their images as a SPEED+, BOP or SHIRT dataset, in
+    """Run the export stage: the labels and their images as a SPEED+, BOP or SHIRT dataset, the
+    plan as robot programs (robot) or the captures as a logger's session (session), in
     W/export/<format> or --out. The format and folder are this export's alone (a later export
     in another format never reuses them); `status` reports each format's export."""
     transient = [Override.of("export.format", format_, "--format"), *_engine(engine, ray_address, workers)]
