@@ -101,6 +101,15 @@ class SerialChain:
         joints = np.asarray(joints, dtype=np.float64)
         return np.all((joints >= self.lower + margin) & (joints <= self.upper - margin), axis=-1)
 
+    @property
+    def reach_bound_m(self) -> float:
+        """An upper bound on the flange's distance from the base origin (m): the links'
+        lengths and the prismatic joints' travel added up (the triangle inequality)."""
+        links = float(np.linalg.norm(self.origins[:, :3, 3], axis=1).sum())
+        prismatic = sum(max(abs(lo), abs(hi)) for lo, hi, kind in zip(self.lower, self.upper, self.kinds, strict=True)
+                        if kind == "prismatic")
+        return links + float(prismatic)
+
     def reach_m(self, samples: int = 4000, seed: int = 0) -> float:
         """Farthest flange distance from the base over joints drawn within the limits."""
         rng = np.random.default_rng(seed)

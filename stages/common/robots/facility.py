@@ -74,8 +74,8 @@ class Robot:
         world_from_flange = world_from_tool @ g.invert(mount)
         for rail_m in self._rail_candidates(world_from_flange[:3, 3]):
             base_from_flange = g.invert(self.world_from_base(rail_m)) @ world_from_flange
-            if np.linalg.norm(base_from_flange[:3, 3]) > self.reach_m:
-                continue
+            if np.linalg.norm(base_from_flange[:3, 3]) > self.chain.reach_bound_m:
+                continue  # out of any reach: no inverse to try
             joints = self.solver.solve(base_from_flange, rng, margin=margin)
             if joints is not None:
                 return joints, rail_m

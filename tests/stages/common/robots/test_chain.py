@@ -55,6 +55,14 @@ def test_the_jacobian_is_the_derivative_of_the_flange_pose(urdf, flange):
         assert np.allclose(jacobian[:, index], np.concatenate([linear, angular]), atol=1e-5)
 
 
+@pytest.mark.parametrize(("urdf", "flange"), ARMS, ids=lambda value: getattr(value, "stem", value))
+def test_the_reach_bound_holds_over_the_joint_ranges(urdf, flange):
+    chain = load_chain(urdf, "base_link", flange)
+    joints = np.random.default_rng(1).uniform(chain.lower, chain.upper, size=(5000, chain.dof))
+    distances = np.linalg.norm(chain.forward(joints)[:, :3, 3], axis=1)
+    assert distances.max() <= chain.reach_bound_m and chain.reach_m() <= chain.reach_bound_m
+
+
 def test_capsules_come_from_collision_elements_or_the_links(tmp_path):
     abb = load_chain(TESTS / "abb_rail" / "irb4600_60_205.urdf", "base_link", "tool0")
     assert [round(c.radius_m, 3) for c in abb.capsules] == [0.18, 0.12, 0.1, 0.07]  # its <collision> cylinders
