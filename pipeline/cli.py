@@ -46,10 +46,10 @@ from speedplus.errors import InputError, RefusalError
 
 
 class _PipelineOrder(TyperGroup):
-    """Lists the commands in the pipeline's order, then the ones about a workspace or a target."""
+    """Lists the commands in the pipeline's order, then the ones about a workspace, a target or a facility."""
 
     def list_commands(self, ctx: typer.Context) -> list[str]:
-        order = [*registry.STAGE_NAMES, "run", "status", "verify", "target", "keys"]
+        order = [*registry.STAGE_NAMES, "run", "status", "verify", "target", "facility", "keys"]
         return sorted(super().list_commands(ctx), key=lambda name: order.index(name) if name in order else len(order))
 
 
