@@ -55,3 +55,21 @@ def test_the_kr16_2_takes_its_closed_form_and_other_arms_the_numeric_path():
     wanted = chain.forward(rng.uniform(chain.lower, chain.upper) * 0.8)
     fast = Solver(chain).solve(wanted, rng)
     assert fast is not None and np.abs(chain.forward(fast) - wanted).max() < 1e-7
+
+
+TABB = Path(__file__).resolve().parents[5] / "shared" / "external" / "tabb_ds1" / "robot_cali.txt"
+
+
+def test_every_stop_of_a_real_ur10_is_reached_by_the_ur10_urdf():
+    """Tabb and Ahmad Yousef's UR10 (88 stops, recorded by others): each flange pose it stood
+    at (0.53-1.05 m from its base) is solved and verified by forward kinematics. UR's
+    controller base is ROS's base_link turned half a turn about z, so either frame is tried."""
+    values = TABB.read_text().split()
+    hand_from_base = np.array([float(v) for v in values[1:]]).reshape(int(values[0]), 4, 4)
+    base_from_hand = np.linalg.inv(hand_from_base)
+    base_from_hand[:, :3, 3] /= 1000.0  # mm
+    chain = load_chain(CHAINS["ur10"], "base_link", "tool0")
+    rng = np.random.default_rng(0)
+    half_turn = np.diag([-1.0, -1.0, 1.0, 1.0])
+    for stop, pose in enumerate(base_from_hand, start=1):
+        assert any(solve_numeric(chain, frame, rng) is not None for frame in (pose, half_turn @ pose)), f"stop {stop}"
