@@ -209,7 +209,8 @@ def _assemble(path: Path, name: str, joints: list, links: dict) -> SerialChain:
     origins.append(pending)
     chain = SerialChain(name, str(path), tuple(names), tuple(kinds), np.stack(origins), np.stack(axes),
                         np.array(lower), np.array(upper), (), np.array(velocity))
-    return SerialChain(**{**chain.__dict__, "capsules": tuple(capsules) or _segment_capsules(chain)})
+    covered = {capsule.joint for capsule in capsules}
+    return SerialChain(**{**chain.__dict__, "capsules": (*capsules, *_segment_capsules(chain, covered))})
 
 
 def _limits(path: Path, joint: object) -> tuple[float, float]:
@@ -250,13 +251,14 @@ def _link_capsules(link: object, joint: int, link_in_joint: np.ndarray) -> list[
     return out
 
 
-def _segment_capsules(chain: SerialChain) -> tuple[Capsule, ...]:
-    """Where the URDF has no collision geometry: one capsule from each moving joint to the
-    next (and to the flange), of ``DEFAULT_LINK_RADIUS_M``."""
+def _segment_capsules(chain: SerialChain, covered: set[int]) -> tuple[Capsule, ...]:
+    """Where a link has no collision geometry of its own (``covered``: the moving joints whose
+    links have some): one capsule from its joint to the next (or to the flange), of
+    ``DEFAULT_LINK_RADIUS_M``."""
     capsules = []
     for index in range(chain.dof):
         end = chain.origins[index + 1][:3, 3]
-        if np.linalg.norm(end) > 1e-6:
+        if index not in covered and np.linalg.norm(end) > 1e-6:
             capsules.append(Capsule(index, (0.0, 0.0, 0.0), _point(end), DEFAULT_LINK_RADIUS_M))
     return tuple(capsules)
 

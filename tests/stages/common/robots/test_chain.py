@@ -65,7 +65,9 @@ def test_the_reach_bound_holds_over_the_joint_ranges(urdf, flange):
 
 def test_capsules_come_from_collision_elements_or_the_links(tmp_path):
     abb = load_chain(TESTS / "abb_rail" / "irb4600_60_205.urdf", "base_link", "tool0")
-    assert [round(c.radius_m, 3) for c in abb.capsules] == [0.18, 0.12, 0.1, 0.07]  # its <collision> cylinders
+    # its <collision> cylinders and sphere, then a link capsule for each wrist link without one
+    assert [(c.joint, round(c.radius_m, 3)) for c in abb.capsules] == [(0, 0.18), (1, 0.12), (2, 0.1), (5, 0.07),
+                                                                        (3, 0.06), (4, 0.06)]
     ur10 = load_chain(TESTS / "ur10_tripod" / "ur10.urdf", "base_link", "tool0")
     assert len(ur10.capsules) == 6 and {c.radius_m for c in ur10.capsules} == {0.06}  # one per link
     # a capsule moves with its link: at any joints its ends stay where the link's frame takes them
