@@ -95,7 +95,8 @@ def _agree(robot: Robot, joints: np.ndarray, rail_m: float, row: dict[str, Any],
 
 
 def move_s(a: Waypoint, b: Waypoint, facility: Facility, timing: Timing) -> float:
-    """Seconds from ``a`` to ``b``: the slowest axis of any robot, or the light change."""
+    """Seconds from ``a`` to ``b``: the slowest axis of any robot (at its URDF's ``<limit
+    velocity>``, 1 rad/s or m/s where it gives none, times the override), plus the light change."""
     slowest = 0.0
     for robot in facility.robots:
         (joints_a, rail_a), (joints_b, rail_b) = a.commands[robot.spec.name], b.commands[robot.spec.name]
