@@ -52,13 +52,12 @@ from __future__ import annotations
 
 import hashlib
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
 from manifests.schema import NAME_PATTERN
-from manifests.sidecars.base import Fields, Pose, SidecarError
+from manifests.sidecars.base import Fields, Pose, SidecarError, read_toml
 
 FACILITY_FILE = "facility.toml"
 FACILITY_FORMAT_VERSION = 1
@@ -152,14 +151,7 @@ class FacilitySpec:
 def read_facility_spec(directory: Path) -> FacilitySpec:
     """``DIR/facility.toml``, validated (the URDFs: ``stages.common.robots``)."""
     path = Path(directory) / FACILITY_FILE
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FacilityError(f"{path}: missing; a facility folder holds facility.toml beside its URDFs") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
-        raise FacilityError(f"{path}: not valid TOML ({error})") from None
-    except OSError as error:
-        raise FacilityError(f"{path}: cannot be read ({error.strerror or error})") from None
+    data = read_toml(path, FacilityError, "a facility folder holds facility.toml beside its URDFs")
     try:
         return _parse(Fields(data, str(path), ""), Path(directory))
     except FacilityError:

@@ -48,7 +48,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -58,7 +57,7 @@ import tomli_w
 
 from manifests.files import write_bytes_atomic
 from manifests.schema import NAME_PATTERN
-from manifests.sidecars.base import Fields, Pose, SidecarError
+from manifests.sidecars.base import Fields, Pose, SidecarError, read_toml
 
 TARGET_FILE = "target.toml"
 TARGET_FORMAT_VERSION = 1
@@ -227,14 +226,7 @@ def target_digest(directory: Path) -> str:
 def read_target_spec(directory: Path) -> TargetSpec:
     """``DIR/target.toml``, validated (not the mesh: ``stages.common.target.load_target``)."""
     path = Path(directory) / TARGET_FILE
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise TargetError(f"{path}: missing; a target folder holds target.toml beside its mesh") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
-        raise TargetError(f"{path}: not valid TOML ({error})") from None
-    except OSError as error:  # a file given for the folder, no permission
-        raise TargetError(f"{path}: cannot be read ({error.strerror or error})") from None
+    data = read_toml(path, TargetError, "a target folder holds target.toml beside its mesh")
     try:
         return _parse(Fields(data, str(path), ""), Path(directory))
     except TargetError:

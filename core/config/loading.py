@@ -146,10 +146,12 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
 
 def _check(config: Config) -> Config:
     """Each section's rules that types cannot express (its own ``check``, beside its fields);
-    a relative ``target.path`` is made absolute (the saved configuration must name the same
-    folder from any directory)."""
-    if config.target.path and not Path(config.target.path).is_absolute():
-        config = replace(config, target=replace(config.target, path=str(Path(config.target.path).resolve())))
+    a relative ``target.path`` or ``facility.path`` is made absolute (the saved configuration
+    must name the same folder from any directory)."""
+    for name in ("target", "facility"):
+        section = config.section(name)
+        if section.path and not Path(section.path).is_absolute():
+            config = replace(config, **{name: replace(section, path=str(Path(section.path).resolve()))})
     for name in SECTION_TYPES:
         config.section(name).check(config)
     return config

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,6 +62,19 @@ class Pose(NamedTuple):
 
     def to_json(self) -> dict[str, list[float]]:
         return {"q": list(self.q), "t": list(self.t)}
+
+
+def read_toml(path: Path, error: type[SidecarError], missing: str) -> dict[str, Any]:
+    """A folder format's TOML file as a dict; ``error`` naming the file when it is missing
+    (``missing`` says what the folder should hold), not TOML (line and column) or unreadable."""
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise error(f"{path}: missing; {missing}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as failure:
+        raise error(f"{path}: not valid TOML ({failure})") from None
+    except OSError as failure:  # a file given for the folder, no permission
+        raise error(f"{path}: cannot be read ({failure.strerror or failure})") from None
 
 
 @dataclass(frozen=True)

@@ -176,6 +176,7 @@ def table(robot: Robot, points: list[Waypoint]) -> tuple[list[str], list[list[An
 
 
 def csv_text(header: list[str], rows: list[list[Any]]) -> str:
+    """A header and rows as CSV text (the export formats' tables)."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)

@@ -14,8 +14,6 @@ layout and units its own logger must write.
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +23,7 @@ import tomli_w
 from manifests.files import write_bytes_atomic
 from manifests.sidecars import Session
 from stages.common import geometry as g
+from stages.export.robot import csv_text
 
 JOINT_COLUMNS = [*(f"camera_j{k}" for k in range(1, 7)), *(f"target_j{k}" for k in range(1, 7))]
 MOCAP_COLUMNS = ["sample_id", "body", "x", "y", "z", "qw", "qx", "qy", "qz", "markers"]
@@ -92,20 +91,12 @@ def mocap_rows(captures: list[dict[str, Any]]) -> list[list[Any]]:
     return rows
 
 
-def csv_text(header: list[str], rows: list[list[Any]]) -> bytes:
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(header)
-    writer.writerows(rows)
-    return buffer.getvalue().encode()
-
-
 def write_tables(out: Path, session: Session, captures: list[dict[str, Any]]) -> None:
     """``session.toml``, ``robot.csv`` and (with motion capture) ``mocap.csv`` in ``out``."""
     write_bytes_atomic(out / "session.toml", session_toml(session).encode())
-    write_bytes_atomic(out / "robot.csv", csv_text(*robot_rows(captures, still(session))))
+    write_bytes_atomic(out / "robot.csv", csv_text(*robot_rows(captures, still(session))).encode())
     if "vicon" in session.sources:
-        write_bytes_atomic(out / "mocap.csv", csv_text(MOCAP_COLUMNS, mocap_rows(captures)))
+        write_bytes_atomic(out / "mocap.csv", csv_text(MOCAP_COLUMNS, mocap_rows(captures)).encode())
 
 
 def image_file(row: dict[str, Any]) -> str:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from core.config import Config
+from manifests import schema
 from manifests.facility import StaticSpec
 from speedplus.errors import InputError
 from stages.common import geometry as g
@@ -32,6 +33,8 @@ from stages.plan.reconfigure import Reconfiguration
 
 #: attitudes in the room tried for one relative pose before it is redrawn
 ATTEMPTS = 8
+#: joints the plan manifest records per robot
+JOINTS = schema.JOINTS.list_size
 
 
 def planned_facility(config: Config) -> Facility | None:
@@ -42,6 +45,9 @@ def planned_facility(config: Config) -> Facility | None:
     facility = load_facility(Path(config.facility.path))
     where = facility.directory / "facility.toml"
     for robot in facility.robots:
+        if robot.chain.dof != JOINTS:
+            raise InputError(f"{where}: robot {robot.spec.name!r} has {robot.chain.dof} moving joints; the plan "
+                             f"records {JOINTS} per robot (speedplus facility still checks and measures it)")
         if robot.spec.rail is not None and robot.spec.carries == "target":
             raise InputError(f"{where}: robot {robot.spec.name!r} carries the target on a rail; the plan records the "
                              "rail of the camera's robot only")

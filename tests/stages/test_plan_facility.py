@@ -168,3 +168,9 @@ def test_what_a_facility_plan_cannot_do_is_refused(tmp_path, edit, setting, mess
     assert result.returncode == 1 and message in " ".join(result.stderr.split()), result.stderr
     assert not (tmp_path / "w" / "manifests" / "plan").exists() or not any((tmp_path / "w" / "manifests" /
                                                                             "plan").glob("*.parquet"))
+
+
+def test_a_relative_facility_path_is_saved_absolute(tmp_path, monkeypatch):
+    monkeypatch.chdir(FACILITIES)
+    config = load_config("smoke", overrides=["facility.path=abb_rail"])
+    assert config.facility.path == str(FACILITIES / "abb_rail")  # the same folder from any directory

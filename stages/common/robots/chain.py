@@ -80,7 +80,7 @@ class SerialChain:
         axis = self.axes[index]
         if self.kinds[index] == "prismatic":
             return g.make_transform(np.broadcast_to(np.eye(3), value.shape + (3, 3)), value[..., None] * axis)
-        return g.make_transform(_rotation(axis, value), np.zeros(value.shape + (3,)))
+        return g.make_transform(g.rotvec_to_matrix(value[..., None] * axis), np.zeros(value.shape + (3,)))
 
     def jacobian(self, joints: np.ndarray) -> np.ndarray:
         """(6, J) geometric Jacobian at one joint vector (J,): rows linear (m) then angular
@@ -127,13 +127,6 @@ class SerialChain:
         ends_a = np.stack([moved(frame, c.a_m) for frame, c in zip(held, self.capsules, strict=True)], -2)
         ends_b = np.stack([moved(frame, c.b_m) for frame, c in zip(held, self.capsules, strict=True)], -2)
         return ends_a, ends_b, np.array([c.radius_m for c in self.capsules])
-
-
-def _rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation by ``angle`` (...) about a unit ``axis`` (3,) (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
-    return np.eye(3) + s * k + (1 - c) * (k @ k)
 
 
 def load_chain(urdf_path: Path, base_link: str, flange_link: str) -> SerialChain:
