@@ -174,3 +174,19 @@ def test_a_relative_facility_path_is_saved_absolute(tmp_path, monkeypatch):
     monkeypatch.chdir(FACILITIES)
     config = load_config("smoke", overrides=["facility.path=abb_rail"])
     assert config.facility.path == str(FACILITIES / "abb_rail")  # the same folder from any directory
+
+
+def test_an_arm_of_seven_joints_is_checked_but_not_planned(tmp_path):
+    folder = tmp_path / "lab"
+    shutil.copytree(FACILITIES / "ur10_tripod", folder)
+    urdf = folder / "ur10.urdf"
+    urdf.write_text(urdf.read_text().replace(
+        '<joint name="wrist_3-tool0" type="fixed">\n    <parent link="wrist_3_link"/>',
+        '<link name="extra"/><joint name="extra_joint" type="revolute"><parent link="wrist_3_link"/>'
+        '<child link="extra"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>\n'
+        '  <joint name="wrist_3-tool0" type="fixed">\n    <parent link="extra"/>'))
+    assert load_facility(folder).robots[0].chain.dof == 7
+    result = speedplus("plan", "-w", str(tmp_path / "w"), "--profile", "smoke", "--facility", str(folder))
+    message = " ".join(result.stderr.split())
+    assert result.returncode == 1 and "has 7 moving joints; the plan records 6" in message, message
+    assert not (tmp_path / "w").exists()
