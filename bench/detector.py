@@ -9,8 +9,9 @@ per domain and view, the images, the median and mean IoU and the shares at 0.9 a
 more (issue 44 asks for IoU >= 0.9 on >= 95% of the twins), and the detector's time per
 image. A last row, ``lit pixels``, bounds what any detector that reads the twins' pixels can
 reach: the box of every pixel above zero of each twin (its background is black), against
-the label's box, which holds unlit faces and antennas thinner than a pixel; with the shipped detector, writes them into its card (``models/detector.json``,
-``boxes``) with the workspace's profile.
+the label's box, which holds unlit faces and antennas thinner than a pixel. With the
+shipped detector, writes them into its card (``models/detector.json``, ``boxes``) with the
+workspace's profile.
 """
 
 from __future__ import annotations

@@ -29,6 +29,8 @@ same facilities (``bench/honest_odds.py``: the model's own errors, shared by a f
 labels as its calibration shares them).
 
     python -m bench honesty [SEEDS] [ROOT] [SET...] [--target DIR]...
+    python -m bench honesty --facility DIR [SEEDS] [ROOT] [SET...] [--target DIR] [--profile P]
+        (a facility folder rehearsed on the virtual testbed: bench/rehearsal.py)
         (default: seeds 11-19, 31-34, 41-44, 51-54, 61-64 and 81-84, data/honesty; ~3-8 min a seed to acquire,
         under a minute to recalibrate an acquisition kept from an earlier run; SET: extra --set overrides;
         --target DIR, repeatable: every seed for each of those target folders instead of Tango, in
@@ -104,12 +106,16 @@ def current_method(workspace: Path, settings: list[str]) -> None:
     write_config(with_overrides(method, [parse_override(s) for s in settings]), path)
 
 
-def run_facility(workspace: Path, seed: int, settings: list[str], target: Path | None = None) -> Workspace:
+def run_facility(workspace: Path, seed: int, settings: list[str], target: Path | None = None,
+                 facility: Path | None = None, profile: str = "default") -> Workspace:
     """Acquire (or keep a complete earlier acquisition) of the built-in Tango or ``target``
-    (a target folder), then calibrate, fuse and label afresh with this code's method."""
+    (a target folder), in TRON's room or ``facility``'s (a facility folder), then calibrate,
+    fuse and label afresh with this code's method."""
     args = [a for s in (f"virtual.seed={seed}", *settings) for a in ("--set", s)]
     if target is not None:
         args += ["--target", str(target)]
+    if facility is not None:
+        args += ["--facility", str(facility)]
 
     def speedplus(*command: str) -> None:
         result = subprocess.run([sys.executable, "-m", "pipeline.cli", *command, "--workspace", str(workspace)],
@@ -120,7 +126,7 @@ def run_facility(workspace: Path, seed: int, settings: list[str], target: Path |
     # a facility's acquisition is its data, not the method under test: one already complete
     # is kept as it is, even when a later commit would plan (and so acquire) it afresh
     if read_marker(Workspace(workspace), "captures") is None or read_marker(Workspace(workspace), "truth") is None:
-        speedplus("run", "--profile", "default", "--until", "acquire", *args)
+        speedplus("run", "--profile", profile, "--until", "acquire", *args)
     current_method(workspace, settings)
     for stage in METHOD_SECTIONS:
         speedplus(stage, "--force")
@@ -335,6 +341,16 @@ def split_targets(arguments: tuple[str, ...]) -> tuple[list[str], list[Path]]:
 
 
 def main(*arguments: str) -> None:
+    if "--facility" in arguments:  # issue 46's rehearsal of a facility folder (bench/rehearsal.py)
+        from bench import rehearsal
+
+        rest, facility = _option(list(arguments), "--facility")
+        profile = "default"
+        if "--profile" in rest:
+            rest, profile = _option(rest, "--profile")
+        positional, targets = split_targets(tuple(rest))
+        rehearsal.main(Path(facility).resolve(), positional, targets, profile)
+        return
     positional, targets = split_targets(arguments)
     seeds = positional[0] if positional else ",".join(str(s) for s in DEVELOPMENT_SEEDS + HELD_OUT)
     root = Path(positional[1] if len(positional) > 1 else "data/honesty")
@@ -378,6 +394,14 @@ def main(*arguments: str) -> None:
            {"settings": list(settings), "targets": [str(t) for t in targets]})
     report(f"{name}_axes", "the sigmas per axis against what honest sigmas would show on the same facilities "
            "(issue 28; bench/honest_odds.py)", axis_rows([raw for _, _, raw in raws]))
+
+
+def _option(arguments: list[str], name: str) -> tuple[list[str], str]:
+    """``arguments`` without ``name VALUE``, and VALUE."""
+    at = arguments.index(name)
+    if at + 1 >= len(arguments):
+        raise SystemExit(f"{name} needs a value")
+    return arguments[:at] + arguments[at + 2:], arguments[at + 1]
 
 
 def axis_rows(raws: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -26,8 +26,7 @@ class StageEntry:
     #: the stage's package: its ``run(config, workspace)`` and ``resolve(config, workspace)``
     package: str
     #: the package checks what it reads from outside the workspace (``preflight(config,
-    #: workspace)``: evaluate, every model against its contract; acquire, that the virtual
-    #: testbed can rehearse the plan's facility) before anything is discarded
+    #: workspace)``: evaluate, every model against its contract) before anything is discarded
     preflight: bool = False
     chained: bool = True  # a step of `speedplus run`
     #: results made with another configuration are replaced without --force (they only
@@ -114,7 +113,7 @@ STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
                own_command=True, may_skip=True, notes=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
-               "capture and images", "stages.acquire", preflight=True, own_command=True),
+               "capture and images", "stages.acquire", own_command=True),
     StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate"),
     StageEntry("fuse", "per-source poses, rejection, Bayesian fusion (W/fusion.json)", "stages.fuse"),
     StageEntry("label", "SPEED+ labels, keypoints, boxes", "stages.label"),

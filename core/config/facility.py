@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -130,18 +131,36 @@ class TargetConfig:
 
 @dataclass(frozen=True)
 class FacilityConfig:
-    """The room, robots, rails and mounts the plan is made for: a facility folder
+    """The room, robots, rails and mounts the plan is made for and the virtual testbed rehearses: a facility folder
     (``DIR/facility.toml`` beside its robots' URDFs; docs/user-guide.md, "Your own facility").
     Its content's digest is in the fingerprints of the stages it changes (the plan, the
     robot programs)."""
 
     path: str = param(
-        "", "the facility folder (DIR holding facility.toml); empty: TRON, as [testbed] describes it (the virtual "
-        "testbed rehearses TRON only: another facility is planned and exported as robot programs, and its "
-        "recordings replayed)", "")
+        "", "the facility folder (DIR holding facility.toml); empty: TRON, as [testbed] describes it (plan, the "
+        "virtual testbed, calibrate's arm model and the robot programs follow it)", "")
 
     def check(self, config: Config) -> None:
-        """Nothing beyond the types: the folder itself is read and checked by the plan."""
+        """The folder's ``[camera]``, where it has one, is the configuration's ``[camera]``:
+        the same sensor kind, size and pixel pitch (the intrinsics are ``[camera]``'s alone).
+        The rest of the folder is read and checked by the commands that use it."""
+        if not self.path or not (Path(self.path) / "facility.toml").is_file():
+            return  # no folder there: the command that reads it says so, naming the file
+        stated = read_facility_spec(Path(self.path)).camera
+        if stated is None:
+            return
+        camera = config.camera
+        where = Path(self.path) / "facility.toml"
+        for key, folder, configured, setting in (
+                ("sensor", stated.sensor, camera.sensor, "camera.sensor"),
+                ("size_px", list(stated.size_px), [camera.reference_width_px, camera.reference_height_px],
+                 "camera.reference_width_px and camera.reference_height_px"),
+                ("pixel_pitch", stated.pixel_pitch_m, camera.pixel_pitch_m, "camera.pixel_pitch_m")):
+            same = (np.isclose(folder, configured, rtol=1e-6) if key == "pixel_pitch" else folder == configured)
+            if not same:
+                raise ConfigError(f"{where}: key camera.{key} is {folder}, but the configuration's {setting} "
+                                  f"{'is' if key != 'size_px' else 'are'} {configured}; set [camera] to the "
+                                  "facility's camera (its intrinsics too), or mend the folder")
 
 
 @dataclass(frozen=True)

@@ -19,21 +19,11 @@ from core.engines import Produced, store
 from core.progress import track
 from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.facility import facility_digest
 from manifests.sidecars import write_markers, write_session, write_truth
-from speedplus.errors import InputError
 from stages.acquire.backend import Testbed
 from stages.common.dispatch import map_config
 from stages.common.workspace_target import install
-
-
-def preflight(config: Config, workspace: Workspace | None = None) -> None:
-    """The virtual testbed rehearses TRON's room only: a plan made on a facility folder is
-    refused before anything is written, saying what that facility can do instead."""
-    if config.acquire.backend == "virtual" and config.facility.path:
-        raise InputError(f"acquire: the virtual testbed rehearses TRON's room only, and facility.path is "
-                         f"{config.facility.path}; take that facility's plan to its robots (speedplus export "
-                         "--format robot) and replay the recorded session (acquire --backend replay --format "
-                         "session, docs/user-guide.md)")
 
 
 def open_testbed(config: Config, root: str, plan: list[dict[str, Any]] | None = None) -> Testbed:
@@ -71,10 +61,13 @@ def source_digest(source: Path) -> str:
 
 
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
-    """The virtual testbed follows the plan and draws a truth (``captures``, ``truth``); a
-    replayed session writes ``captures`` and is fingerprinted by its folder's content."""
+    """The virtual testbed follows the plan and draws a truth (``captures``, ``truth``) in
+    TRON's room or the facility folder's (whose digest it is fingerprinted by); a replayed
+    session writes ``captures`` and is fingerprinted by its folder's content."""
     if config.acquire.backend == "virtual":
-        return Resolved(("plan",), ("acquire", "virtual", "camera", "testbed"), {}, ("captures", "truth"))
+        extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
+        return Resolved(("plan",), ("acquire", "virtual", "camera", "testbed", "facility.path"), extra,
+                        ("captures", "truth"))
     source = Path(config.acquire.source).resolve()
     return Resolved((), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}, ("captures",))
 

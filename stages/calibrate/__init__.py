@@ -36,7 +36,7 @@ __all__ = ["arm_decision", "compliance_decision", "resolve", "run"]
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the calibration session's captures (and ``W/session.json``); writes
     ``calibration_samples`` and ``W/calibration.json``."""
-    return Resolved(("captures",), ("calibrate", "testbed"), {}, ("calibration_samples",))
+    return Resolved(("captures",), ("calibrate", "testbed", "facility.path"), {}, ("calibration_samples",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

@@ -44,6 +44,12 @@ def arm_decision(config: Config, readings: arms.Readings | None) -> tuple[bool, 
     mode = config.calibrate.arm_kinematics
     if mode == "off":
         return False, "calibrate.arm_kinematics = off"
+    if config.facility.path:  # arms.py parameterises the KR 16-2's geometry, not a URDF's
+        message = (f"the arms of {config.facility.path} are URDF chains; their kinematics are calibrated on "
+                   "TRON's KR 16-2 only")
+        if mode == "on":
+            raise InputError(f"calibrate.arm_kinematics = on: {message}")
+        return False, message
     if readings is None:
         if mode == "on":
             raise InputError("calibrate.arm_kinematics = on: the calibration captures lack the robots' encoder "

@@ -24,7 +24,6 @@ from stages.common.robots.facility import (
     Robot,
     load_facility,
     placements,
-    pose_matrix,
     presentation_points,
     wilson,
 )
@@ -57,8 +56,6 @@ def planned_facility(config: Config) -> Facility | None:
         raise InputError(f"plan.lights: {', '.join(missing)} but {where} has no "
                          f"{' and no '.join('light boxes' if m == 'lightbox' else 'sun lamp' for m in missing)}; "
                          "set plan.lights to what the facility has")
-    if config.plan.mode == "trajectory":
-        raise InputError(f"plan.mode: sequences are planned in TRON's room only, not yet on {where}")
     return facility
 
 
@@ -77,8 +74,7 @@ def _points(facility: Facility, seed: int) -> np.ndarray:
 def camera_fixture(facility: Facility) -> np.ndarray:
     """(4, 4) the camera in its holder's flange (a robot's ``flange_from_tool``), or in its
     static mount (identity)."""
-    holder = facility.holder("camera")
-    return np.eye(4) if isinstance(holder, StaticSpec) else pose_matrix(holder.spec.flange_from_tool)
+    return facility.fixture("camera")
 
 
 def reconfigure_on(facility: Facility, cam_from_target: np.ndarray, mount: str, target: Target, seed: int,
@@ -135,6 +131,10 @@ def presented_share(rows: list[dict], name: str) -> str:
     drawn = len(dataset) + sum(row["redraws"] for row in dataset)
     if not dataset:
         return f"{name}: no dataset samples"
+    sequences = {row["sequence_id"]: row["redraws"] for row in dataset if row.get("sequence_id") is not None}
+    if sequences:  # a sequence is held whole or re-planned whole (stages/plan/trajectory.py)
+        return (f"{name} held every frame of {len(sequences)} sequence(s), {len(dataset)} frames, after "
+                f"{sum(sequences.values())} re-plan(s) of their initial attitude")
     low, high = wilson(len(dataset), drawn)
     views = Counter(row["view"] for row in dataset)
     return (f"{name} presented {len(dataset)} of {drawn} dataset poses drawn, "

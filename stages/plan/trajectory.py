@@ -5,7 +5,7 @@ Per sequence: the chief's orbit (exact Keplerian, ``orbits.two_body``) gives the
 the sun's direction and the shadow; D'Amico's ROE model gives the servicer's position in
 RTN; Euler's equations give the target's attitude; the camera points at the target's
 centre of mass with a constant error and a jitter. ``cam_from_target`` follows, at mock-up
-scale, and the room placement (``reconfigure``) realises it. A frame the robots cannot
+scale, and the room placement (``reconfigure``, or a facility folder's robots) realises it. A frame the robots cannot
 reach, or whose target leaves the image, refuses the whole plan with the count and the
 frames: a sequence is never thinned silently.
 
@@ -15,19 +15,23 @@ any target's sequences fit the room its poses fit.
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
 
 from core.config import Config
 from manifests import sample_ids
+from manifests.facility import StaticSpec
 from manifests.sidecars import SequenceRecord
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.attitude import MassProperties, shell_mass_properties, torque_free
 from stages.common.orbits import Elements, RoeModel, rtn_from_eci, two_body
+from stages.common.robots.facility import Facility
 from stages.common.sun import in_shadow, parse_epoch, sun_eci
 from stages.common.target import Target
+from stages.plan.facility_plan import light_box_centres, planned_facility, reconfigure_on
 from stages.plan.poses import PlanningError, dataset_range, mount_away_from
 from stages.plan.reconfigure import reconfigure
 
@@ -130,26 +134,42 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def frame_light(config: Config, world_from_target: np.ndarray, centre_world: np.ndarray,
-                target_from_eci: np.ndarray, sun: np.ndarray, earth: np.ndarray, eclipse: bool
-                ) -> tuple[str, list[int], float]:
+                target_from_eci: np.ndarray, sun: np.ndarray, earth: np.ndarray, eclipse: bool,
+                lights: RoomLights) -> tuple[str, list[int], float]:
     """(light, active light boxes, angle of the testbed light from the true sun, rad): the sun
     lamp when the frame is sunlit and the lamp stands within ``sunlamp_tolerance_rad`` of the
     sun's direction, else the light boxes on the Earth's side."""
     rotation = world_from_target[:3, :3] @ target_from_eci
     sun_world, earth_world = rotation @ sun, rotation @ earth
-    lamp = np.asarray(config.testbed.sun_lamp_position_m, float) - centre_world
-    lamp_error = _angle(lamp, sun_world)
-    lights = config.plan.lights
-    if "lightbox" not in lights or ("sunlamp" in lights and not eclipse
+    wanted = config.plan.lights
+    lamp_error = np.pi if lights.sun_lamp_m is None else _angle(lights.sun_lamp_m - centre_world, sun_world)
+    if "lightbox" not in wanted or ("sunlamp" in wanted and not eclipse
                                     and lamp_error <= config.trajectory.sunlamp_tolerance_rad):
         return "sunlamp", [], lamp_error
-    directions = np.asarray(config.testbed.light_box_centres_m, float) - centre_world
+    directions = lights.box_centres_m - centre_world
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     order = np.argsort(-(directions @ earth_world), kind="stable")
     low, high = config.plan.light_boxes_per_sample
     facing = int(np.sum(directions @ earth_world > 0))
     boxes = sorted(int(i) for i in order[:min(high, max(low, facing))])
     return "lightbox", boxes, _angle(directions[boxes].mean(axis=0), sun_world)
+
+
+@dataclass(frozen=True)
+class RoomLights:
+    """Where the room's lights stand in K (m): the sun lamp's centre (None: none) and the
+    light boxes' centres (B, 3)."""
+
+    sun_lamp_m: np.ndarray | None
+    box_centres_m: np.ndarray
+
+    @classmethod
+    def of(cls, config: Config, facility: Facility | None) -> RoomLights:
+        if facility is None:
+            return cls(np.asarray(config.testbed.sun_lamp_position_m, float),
+                       np.asarray(config.testbed.light_box_centres_m, float))
+        lamp = facility.spec.sun_lamp
+        return cls(None if lamp is None else np.asarray(lamp.position_m, float), light_box_centres(facility))
 
 
 def sequence_record(config: Config, sequence_id: str, preset: str, first_sample_id: str, roe_m: np.ndarray,
@@ -175,10 +195,15 @@ def unplaceable(frames: list[int], why: str, sequence_id: str) -> PlanningError:
 
 
 def _placed(config: Config, target: Target, frames: Frames, sequence_id: str, first_index: int, redraws: int,
-            every: bool) -> tuple[list[dict], list[int], list[int]]:
+            every: bool, rng: np.random.Generator) -> tuple[list[dict], list[int], list[int]]:
     """(rows, frames outside the image, frames out of reach) of a propagated sequence; stops
-    at the first frame that cannot be placed unless ``every``."""
+    at the first frame that cannot be placed unless ``every``. On a facility folder each
+    frame is placed as the plan's poses are (``facility_plan.reconfigure_on``, drawing from
+    ``rng``); TRON's room keeps its grid search, nearest the frame before."""
     scale, camera = target.mockup_scale, config.camera
+    facility = planned_facility(config)
+    fixture = layout.camee_from_cam(config.testbed) if facility is None else facility.fixture("camera")
+    lights = RoomLights.of(config, facility)
     rows, outside, unreachable, previous = [], [], [], None
     for k in range(config.trajectory.frames):
         if (outside or unreachable) and not every:
@@ -191,17 +216,24 @@ def _placed(config: Config, target: Target, frames: Frames, sequence_id: str, fi
             outside.append(k)
             continue
         mount = mount_away_from(cam_from_target)
-        commands = reconfigure(cam_from_target, mount, config.plan, config.testbed, target, require_far_side=True,
-                               previous=previous)
+        if facility is None:
+            commands = reconfigure(cam_from_target, mount, config.plan, config.testbed, target, require_far_side=True,
+                                   previous=previous)
+        else:
+            if isinstance(facility.holder("target"), StaticSpec):
+                mount = config.plan.calibration_mounts[0]  # mounted once on its stand
+            commands = reconfigure_on(facility, cam_from_target, mount, target, config.plan.seed, rng,
+                                      config.plan.joint_limit_margin_rad, Counter())
         if commands is None:
             unreachable.append(k)
             continue
         previous = commands
-        world_from_target = commands.world_from_camee @ layout.camee_from_cam(config.testbed) @ cam_from_target
+        world_from_target = commands.world_from_camee @ fixture @ cam_from_target
         centre = g.apply(world_from_target, (target.centre_m * scale)[None])[0]
         target_from_eci = g.quat_to_matrix(frames.eci_from_target_q[k]).T
         light, boxes, light_error = frame_light(config, world_from_target, centre, target_from_eci,
-                                                frames.sun_eci[k], frames.earth_eci[k], bool(frames.in_eclipse[k]))
+                                                frames.sun_eci[k], frames.earth_eci[k], bool(frames.in_eclipse[k]),
+                                                lights)
         rows.append({
             "sample_id": sample_ids.make("dataset", first_index + k), "session": "dataset",
             **g.pose_columns("cam_from_target", cam_from_target),
@@ -236,7 +268,7 @@ def sequence_rows(config: Config, target: Target, index: int, preset: str, first
         tilts = bias + rng.normal(0.0, t.jitter_sigma_rad, (t.frames, 2))
         frames = propagate(config, roe_m, omega0, q0, tilts, masses)
         rows, outside, unreachable = _placed(config, target, frames, sequence_id, first_index, attempt,
-                                             every=attempt == t.max_replans)
+                                             attempt == t.max_replans, rng)
         if not outside and not unreachable:
             record = sequence_record(config, sequence_id, preset, sample_ids.make("dataset", first_index), roe_m,
                                      omega0, q0, bias, masses, source)

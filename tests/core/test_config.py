@@ -2,6 +2,7 @@
 
 import dataclasses
 import typing
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -127,3 +128,23 @@ def test_each_section_holds_its_own_rules():
         assert list(inspect.signature(section.check).parameters) == ["self", "config"]
     source = inspect.getsource(loading._check)
     assert "raise" not in source and "ConfigError" not in source
+
+
+def test_a_facility_folders_camera_must_be_the_configurations(tmp_path):
+    """The folder's [camera] states the sensor; [camera] gives the intrinsics. They must agree:
+    the configuration load refuses a mismatch, naming the folder's file and both keys."""
+    import shutil
+
+    folder = tmp_path / "lab"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "facilities" / "abb_rail", folder)
+    text = (folder / "facility.toml").read_text()
+    (folder / "facility.toml").write_text(text.replace(
+        "[sun_lamp]", '[camera]\nsensor = "mono"\nsize_px = [2448, 2048]\npixel_pitch = 0.00345\n\n[sun_lamp]', 1))
+    with pytest.raises(ConfigError) as refused:
+        load_config("smoke", overrides=[f"facility.path={folder}"])
+    message = str(refused.value)
+    assert str(folder / "facility.toml") in message and "camera.size_px" in message
+    assert "camera.reference_width_px" in message
+    agreeing = ["camera.reference_width_px=2448", "camera.reference_height_px=2048", "camera.pixel_pitch_m=3.45e-6",
+                "camera.width_px=1224", "camera.height_px=1024", "camera.cx_px=1224", "camera.cy_px=1024"]
+    assert load_config("smoke", overrides=[f"facility.path={folder}", *agreeing]).camera.reference_width_px == 2448

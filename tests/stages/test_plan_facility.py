@@ -2,7 +2,7 @@
 besides TRON, written from published dimensions. Each plan's flange poses are reproduced by
 an independent forward kinematics of the URDFs (yourdfpy's), its configurations collide
 with nothing, its relative poses are the ones the rows state, the robot programs carry the
-same joints, and the virtual testbed refuses to rehearse it without touching the workspace."""
+same joints. Their rehearsal on the virtual testbed: tests/stages/acquire/test_facility_rehearsal.py."""
 
 from __future__ import annotations
 
@@ -110,6 +110,20 @@ def test_one_arm_round_a_tripod_plans_what_it_reaches_and_says_its_share(tripod)
     assert f"ur10-tripod presented {len(dataset)} of {drawn} dataset poses drawn" in status, status
 
 
+def test_sequences_are_held_by_the_facilitys_robots(tmp_path):
+    """plan.mode = trajectory on a facility folder: every frame reached and clear as the
+    plan's poses are, the frames in order, and the plan says the sequences were held whole."""
+    workspace = tmp_path / "w"
+    result = speedplus("plan", "-w", str(workspace), "--profile", "smoke", "--facility", str(FACILITIES / "abb_rail"),
+                       "--set", "plan.mode=trajectory")
+    assert result.returncode == 0, result.stderr
+    assert "abb-rail held every frame of 2 sequence(s), 8 frames" in " ".join(result.stdout.split())
+    rows = pq.read_table(workspace / "manifests" / "plan").to_pylist()
+    _check_rows(rows, FACILITIES / "abb_rail", None)
+    frames = sorted((row["sample_id"], row["sequence_id"], row["frame"]) for row in rows if row["session"] == "dataset")
+    assert [frame for _, _, frame in frames] == [0, 1, 2, 3, 0, 1, 2, 3]
+
+
 def test_the_programs_carry_the_plans_joints(abb, tripod):
     for workspace, column, robot, unit in ((abb[0], "camera_joints_rad", "camera_arm", "rad"),
                                            (tripod[0], "camera_joints_rad", "ur10", "rad")):
@@ -121,17 +135,6 @@ def test_the_programs_carry_the_plans_joints(abb, tripod):
                 values = [float(v) for k, v in row.items() if k.endswith(f"_{unit}") and not k.startswith("rail")]
                 assert np.allclose(values, plan[row["sample_id"]][column], atol=1e-6)
     assert (tripod[0] / "export" / "robot" / "speedplus_ur10.script").exists()
-
-
-def test_the_virtual_testbed_refuses_another_facility_untouched(abb):
-    workspace = abb[0]
-    before = sorted((str(p.relative_to(workspace)), p.stat().st_size) for p in workspace.rglob("*")
-                    if p.name != ".lock")
-    result = speedplus("acquire", "-w", str(workspace))
-    message = " ".join(result.stderr.split())
-    assert result.returncode == 1 and "rehearses TRON's room only" in message and "export --format robot" in message
-    assert sorted((str(p.relative_to(workspace)), p.stat().st_size) for p in workspace.rglob("*")
-                  if p.name != ".lock") == before
 
 
 def test_the_facilitys_files_are_in_the_plans_fingerprint(tmp_path):
@@ -146,7 +149,6 @@ def test_the_facilitys_files_are_in_the_plans_fingerprint(tmp_path):
 
 
 @pytest.mark.parametrize(("edit", "setting", "message"), [
-    (None, "plan.mode=trajectory", "sequences are planned in TRON's room only"),
     (("[[light_box]]", "[[other_box]]"), None, "unknown key"),
     ('travel = [0.0, 7000.0]\n', None, None),
 ])

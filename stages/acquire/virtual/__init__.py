@@ -1,5 +1,6 @@
-"""The virtual TRON testbed: robots with true and nominal kinematics, compliant fixtures,
-motion capture, and a camera that photographs the room in Mitsuba at the TRUE pose."""
+"""The virtual testbed: robots with true and nominal kinematics, compliant fixtures, motion
+capture, and a camera that photographs the room in Mitsuba at the TRUE pose. TRON's room
+(``robots.py``), or a facility folder's (``facility.path``: ``rig.py``, ``room.py``)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import MarkersRecord, Session, SessionCamera
 from manifests.workspace import TRUTH_MAPS_TEMPLATE
 from stages.acquire.backend import CaptureRecord
-from stages.acquire.virtual import mocap, robots
+from stages.acquire.virtual import mocap, rig, robots
+from stages.acquire.virtual.rig import Rig, draw_rig
+from stages.acquire.virtual.room import room_of
 from stages.acquire.virtual.sensor import Sensor, lens_camera
 from stages.acquire.virtual.timeline import Moment, timeline
 from stages.acquire.virtual.truth import Truth, draw_truth
@@ -38,6 +41,8 @@ class VirtualTestbed:
         self.markers = markers(self.target)
         self.payload = Payload.of(self.target)
         self.truth: Truth = draw_truth(config, self.target)
+        self.rig: Rig | None = draw_rig(config) if config.facility.path else None
+        self.room = room_of(config)
         cameras = self.truth.unmodelled.camera_by_session
         self.sensor = Sensor(cameras["calibration"], config.virtual)
         # the dataset session's camera may have drifted: same pinhole render, another lens map
@@ -72,7 +77,8 @@ class VirtualTestbed:
 
     def session(self) -> Session:
         camera = self.config.camera
-        return Session("virtual", "virtual", ("kuka", "vicon"),
+        sources = ("kuka", "vicon") if self.room.mocap_cameras else ("kuka",)
+        return Session("virtual", "virtual", sources,
                        SessionCamera(camera.width_px, camera.height_px, camera.camera_matrix().tolist(),
                                      list(camera.dist)),
                        board_pattern(self.config.testbed, self.target).to_json(), mockup_scale=self.target.mockup_scale)
@@ -85,28 +91,26 @@ class VirtualTestbed:
             self._scene = TestbedScene(self.config, self.sensor.geometry, self.target)
         return self._scene
 
+    def _move(self, sample: dict[str, Any], rng: np.random.Generator) -> tuple[robots.RobotState, np.ndarray]:
+        """The robots at a plan row's commands, and their links' segments (S, 2, 3) in K."""
+        if self.rig is not None:
+            return rig.move(self.config, self.truth, self.rig, sample, rng, self.payload)
+        state = robots.move(self.config, self.truth, sample, rng, self.moment(sample), self.payload)
+        return state, self._link_segments(state)
+
     def _link_segments(self, state: robots.RobotState) -> np.ndarray:
         camera_points = g.apply(state.world_from_camera_base, link_points(state.camera_arm, state.camera_link_rad))
         target_points = g.apply(state.world_from_target_base, link_points(state.target_arm, state.target_link_rad))
         return np.concatenate([np.stack([p[:-1], p[1:]], axis=1) for p in (camera_points, target_points)])
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:
-        config, truth = self.config, self.truth
+        config = self.config
         sample_id, session = sample["sample_id"], sample["session"]
         index = sample_ids.parse(sample_id)[1]
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
         moment = self.moment(sample)
-        state = robots.move(config, truth, sample, rng, moment, self.payload)
-        segments = self._link_segments(state)
-        camera_body = mocap.observe(config, rng, self.camera_markers_rb,
-                                    state.world_from_camee @ truth.camee_from_camrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body,
-                                    errors=self.mocap_errors)
-        target_normals = self.target_normals_target @ state.world_from_target[:3, :3].T
-        target_body = mocap.observe(config, rng, self.target_markers_rb,
-                                    state.world_from_target @ truth.target_from_targetrb,
-                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body,
-                                    config.virtual.vicon_model_noise_factor, self.mocap_errors, target_normals)
+        state, segments = self._move(sample, rng)
+        camera_body, target_body = self._track(rng, state, segments)
         image = self.photograph(state, session, sample["light"], list(sample["light_boxes"]), rng,
                                 seed=SESSION_CODES[session] * 1_000_000 + index)
         image_path = self.workspace.image_relpath(session, sample_id)
@@ -141,6 +145,24 @@ class VirtualTestbed:
         }
         return CaptureRecord(captures, truth_row, files)
 
+    def _track(self, rng: np.random.Generator, state: robots.RobotState,
+               segments: np.ndarray) -> tuple[mocap.RigidBodyObservation, mocap.RigidBodyObservation]:
+        """What motion capture reports of the camera's and the mock-up's rigid bodies (both
+        untracked in a room without it)."""
+        config, truth = self.config, self.truth
+        if not self.room.mocap_cameras:
+            return mocap.RigidBodyObservation(None, 0, False), mocap.RigidBodyObservation(None, 0, False)
+        camera_body = mocap.observe(config, rng, self.camera_markers_rb,
+                                    state.world_from_camee @ truth.camee_from_camrb,
+                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body,
+                                    errors=self.mocap_errors)
+        target_normals = self.target_normals_target @ state.world_from_target[:3, :3].T
+        target_body = mocap.observe(config, rng, self.target_markers_rb,
+                                    state.world_from_target @ truth.target_from_targetrb,
+                                    truth.vicon_world_from_world, segments, state.world_from_target, self.body,
+                                    config.virtual.vicon_model_noise_factor, self.mocap_errors, target_normals)
+        return camera_body, target_body
+
     def truth_maps(self, session: str, cam_from_target: np.ndarray) -> bytes:
         """Depth and part ids of the mock-up at its TRUE pose, through the session's true
         lens (``stages.common.ground_truth``), for evaluation only: the EXR file's bytes."""
@@ -165,7 +187,7 @@ class VirtualTestbed:
                                                     boxes, session == "calibration", seed))
         glare = None
         if light == "sunlamp":
-            lamp_cam = g.apply(g.invert(state.world_from_cam), np.asarray(config.testbed.sun_lamp_position_m)[None])[0]
+            lamp_cam = g.apply(g.invert(state.world_from_cam), self.room.sun_lamp_m[None])[0]
             glare = sensor.glare(lamp_cam)
         exposure = {"lightbox": config.virtual.exposure_lightbox, "sunlamp": config.virtual.exposure_sunlamp,
                     "ambient": config.virtual.exposure_ambient}[light]
@@ -174,10 +196,10 @@ class VirtualTestbed:
     def silhouette(self, sample: dict[str, Any]) -> np.ndarray:
         """The mock-up's silhouette (H, W) bool in the capture of a plan row: the scene's
         model at the TRUE poses of that capture, through the camera's lens."""
-        config, truth = self.config, self.truth
+        config = self.config
         session, index = sample["session"], sample_ids.parse(sample["sample_id"])[1]
         rng = np.random.default_rng([config.virtual.seed, SESSION_CODES[session], index])
-        state = robots.move(config, truth, sample, rng, self.moment(sample), self.payload)  # capture()'s draws
+        state, _ = self._move(sample, rng)  # capture()'s draws
         coverage = self.sensors[session].distort(self.scene.silhouette(state.world_from_cam,
                                                                         state.world_from_target))
         return coverage >= 0.5

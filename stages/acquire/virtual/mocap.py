@@ -1,4 +1,4 @@
-"""A Vicon-like motion-capture system: 12 wall cameras, markers, occlusion, noise, ghosts.
+"""A Vicon-like motion-capture system: wall cameras (TRON: 12; a facility: its own), markers, occlusion, noise, ghosts.
 
 A marker counts when at least two cameras see it: inside the camera's field of view and
 range, and with the line of sight clear of the robot links (capsules) and of the model
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.config import Config
+from stages.acquire.virtual.room import room_of
 from stages.common import geometry as g
 from stages.common.markers import Occluders
 
@@ -59,21 +60,17 @@ class RigidBodyObservation:
 
 
 def camera_positions(config: Config) -> np.ndarray:
-    """(12, 3) motion-capture cameras on the walls near the ceiling: 4 on each long wall,
-    2 on each end wall."""
-    length, width, _ = config.testbed.room_m
-    height = config.virtual.vicon_camera_height_m
-    xs = np.linspace(0.15 * length, 0.85 * length, 4)
-    cams = [(x, 0.05, height) for x in xs] + [(x, width - 0.05, height) for x in xs]
-    cams += [(0.05, y, height) for y in (0.3 * width, 0.7 * width)]
-    cams += [(length - 0.05, y, height) for y in (0.3 * width, 0.7 * width)]
-    return np.array(cams)
+    """(C, 3) the motion-capture cameras in K (``room.room_of``: TRON's 12 on the walls near
+    the ceiling, or the facility folder's)."""
+    positions = room_of(config).mocap_positions_m
+    if positions is None:
+        raise ValueError("the configured facility has no motion capture")
+    return positions
 
 
-def camera_aim(config: Config) -> np.ndarray:
-    """(3,) point the cameras look at: the middle of the working volume."""
-    length, width, _ = config.testbed.room_m
-    return np.array([0.45 * length, width / 2, 1.2])
+def camera_aims(config: Config) -> np.ndarray:
+    """(C, 3) the point each camera looks at (TRON: the middle of the working volume)."""
+    return room_of(config).mocap_aims_m
 
 
 def _segments_hit_capsules(start: np.ndarray, end: np.ndarray, a: np.ndarray, b: np.ndarray,
@@ -125,8 +122,8 @@ def visibility(config: Config, markers_world: np.ndarray, link_segments: np.ndar
     the mock-up's parts (``stages.common.markers.occluders``)."""
     v = config.virtual
     cams = camera_positions(config)
-    aim = camera_aim(config)
-    boresight = (aim - cams) / np.linalg.norm(aim - cams, axis=1, keepdims=True)
+    aims = camera_aims(config)
+    boresight = (aims - cams) / np.linalg.norm(aims - cams, axis=1, keepdims=True)
     to_marker = markers_world[None, :, :] - cams[:, None, :]
     distance = np.linalg.norm(to_marker, axis=-1)
     cos_angle = np.einsum("cmi,ci->cm", to_marker, boresight) / distance
@@ -165,7 +162,7 @@ def observe(config: Config, rng: np.random.Generator, markers_rb: np.ndarray, wo
     seen = visibility(config, markers_world, link_segments, world_from_target, body)
     cameras_seeing = seen.sum(axis=0)
     counted = cameras_seeing >= MIN_CAMERAS
-    sigma = noise_factor * v.vicon_marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))
+    sigma = noise_factor * room_of(config).marker_sigma_m * np.sqrt(MIN_CAMERAS / np.maximum(cameras_seeing, 1))
     if errors is not None and not errors.none:
         markers_world = triangulate(camera_positions(config), seen, markers_world, errors, normals_world)
     noisy = markers_world + rng.normal(size=markers_world.shape) * sigma[:, None]

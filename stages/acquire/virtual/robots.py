@@ -43,14 +43,14 @@ class RobotState:
     world_from_targetee: np.ndarray  # true
     world_from_cam: np.ndarray  # true camera
     world_from_target: np.ndarray  # true model, sag included
-    camera_joints_rad: np.ndarray  # encoder readings
-    target_joints_rad: np.ndarray
+    camera_joints_rad: np.ndarray | None  # encoder readings; None: a facility's static mount
+    target_joints_rad: np.ndarray | None
     rail_m: float  # reported
     sag_rad: float
-    camera_link_rad: np.ndarray  # true link angles (6,)
-    target_link_rad: np.ndarray
-    camera_arm: ArmModel  # true, at this moment's temperature
-    target_arm: ArmModel
+    camera_link_rad: np.ndarray | None  # true link angles (J,)
+    target_link_rad: np.ndarray | None
+    camera_arm: ArmModel | None  # TRON's: true, at this moment's temperature; None on a facility (rig.py)
+    target_arm: ArmModel | None
     world_from_camera_base: np.ndarray  # true (4, 4)
     world_from_target_base: np.ndarray
 

@@ -1,5 +1,6 @@
-"""The TRON room in Mitsuba 3: black curtains, 10 Earth-albedo light boxes, the sun lamp,
-ceiling panels for calibration, the mock-up (with its own look) and the ChArUco board.
+"""The testbed's room in Mitsuba 3 (``room.room_of``: TRON's, or a facility folder's): black
+curtains, the Earth-albedo light boxes, the sun lamp, ceiling panels for calibration, the
+mock-up (with its own look) and the ChArUco board.
 
 The scene is built once per worker process; each capture moves the camera, the model and
 the board, and switches lights, through the scene's parameters
@@ -13,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from core.config import Config
+from stages.acquire.virtual.room import room_of
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.lens import RenderGeometry
@@ -35,6 +37,11 @@ from stages.common.tone import luminance
 
 BOARD_MARGIN_M = 0.01  # white border of the printed plate around the 11 x 11 squares
 _HIDDEN_OFFSET = np.array([0.0, 0.0, -100.0])  # where absent objects are parked (below the floor)
+#: a facility room's surfaces glow with this share of ``virtual.ambient_radiance`` under its
+#: ambient light, as a lab's lights fill it: a board is lit whichever way the robots hold it
+#: (TRON's two ceiling panels light a board held up to a camera hung from the ceiling; a
+#: room of its own may hold it sideways or down)
+ROOM_GLOW = 0.1
 def _facing(centre: np.ndarray, normal: np.ndarray, half_size: tuple[float, float]) -> np.ndarray:
     """to_world (4, 4) of Mitsuba's rectangle ([-1, 1]^2, normal +z) centred at ``centre``
     and facing ``normal``."""
@@ -55,10 +62,12 @@ class TestbedScene:
         self.mi = mi = load_mitsuba()
         set_one_thread()  # the same bytes whatever the workers (mitsuba_adapter.set_one_thread)
         self.config, self.geometry = config, geometry
-        testbed, virtual = config.testbed, config.virtual
+        virtual = config.virtual
         rng = np.random.default_rng([virtual.seed, 0x7E57])
         self.scale = target.mockup_scale
-        self.light_box_count = len(testbed.light_box_centres_m)
+        self.room = room_of(config)
+        self.light_box_count = len(self.room.light_boxes)
+        self.glowing = bool(config.facility.path)  # a facility's ambient light: its room (ROOM_GLOW)
 
         objects: dict[str, Any] = {
             "type": "scene",
@@ -82,7 +91,7 @@ class TestbedScene:
 
     # ----------------------------------------------------------------------- construction
     def _room(self, mi: Any) -> dict[str, Any]:
-        length, width, height = self.config.testbed.room_m
+        length, width, height = self.room.size_m
         curtain = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.008, 0.008, 0.008]}}
         floor = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.05, 0.05, 0.05]}}
         walls = {
@@ -93,29 +102,33 @@ class TestbedScene:
             "wall_x0": ([0.0, width / 2, height / 2], [1, 0, 0], (width / 2, height / 2), curtain),
             "wall_x1": ([length, width / 2, height / 2], [-1, 0, 0], (width / 2, height / 2), curtain),
         }
-        return {name: {"type": "rectangle", "to_world": transform(mi, _facing(np.array(c, float), np.array(n, float),
-                                                                                half)), "bsdf": bsdf}
-                for name, (c, n, half, bsdf) in walls.items()}
+        surfaces = {name: {"type": "rectangle", "to_world": transform(mi, _facing(np.array(c, float),
+                                                                                  np.array(n, float), half)),
+                           "bsdf": bsdf} for name, (c, n, half, bsdf) in walls.items()}
+        if self.glowing:
+            for surface in surfaces.values():
+                surface["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+        return surfaces
 
     def _lights(self, mi: Any) -> dict[str, Any]:
-        testbed, virtual = self.config.testbed, self.config.virtual
+        room = self.room
         lights: dict[str, Any] = {}
         # switched-off boxes are covered with the black curtain (as in TRON)
         covered = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.008, 0.008, 0.008]}}
-        half = (testbed.light_box_size_m[0] / 2, testbed.light_box_size_m[1] / 2)
-        aim = np.asarray(testbed.light_box_aim_m)
-        for index, centre in enumerate(np.asarray(testbed.light_box_centres_m)):
+        for index, box in enumerate(room.light_boxes):
+            half = (box.size_m[0] / 2, box.size_m[1] / 2)
             lights[f"light_box_{index}"] = {
-                "type": "rectangle", "to_world": transform(mi, _facing(centre, aim - centre, half)),
+                "type": "rectangle", "to_world": transform(mi, _facing(box.centre_m, box.aim_m - box.centre_m, half)),
                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
                 "bsdf": covered,
             }
-        lights["sun_lamp"] = {
-            "type": "sphere", "center": list(testbed.sun_lamp_position_m), "radius": virtual.sun_lamp_radius_m,
-            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
-        }
-        length, width, height = testbed.room_m
-        for index, x in enumerate((0.25 * length, 0.5 * length)):
+        if room.sun_lamp_m is not None:
+            lights["sun_lamp"] = {
+                "type": "sphere", "center": list(map(float, room.sun_lamp_m)), "radius": room.sun_lamp_radius_m,
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
+            }
+        length, width, height = room.size_m
+        for index, x in enumerate(() if self.glowing else (0.25 * length, 0.5 * length)):
             lights[f"ambient_{index}"] = {
                 "type": "rectangle",
                 "to_world": transform(mi, _facing(np.array([x, width / 2, height - 0.02]), np.array([0, 0, -1.0]),
@@ -150,9 +163,15 @@ class TestbedScene:
         for index in range(self.light_box_count):
             on = light == "lightbox" and index in boxes
             self._set_emitter(f"light_box_{index}", virtual.light_box_radiance if on else 0.0)
-        self._set_emitter("sun_lamp", virtual.sun_lamp_radiance if light == "sunlamp" else 0.0)
-        for index in range(2):
-            self._set_emitter(f"ambient_{index}", virtual.ambient_radiance if light == "ambient" else 0.0)
+        if self.room.sun_lamp_m is not None:
+            self._set_emitter("sun_lamp", virtual.sun_lamp_radiance if light == "sunlamp" else 0.0)
+        ambient = virtual.ambient_radiance if light == "ambient" else 0.0
+        if self.glowing:
+            for name in ("floor", "ceiling", "wall_y0", "wall_y1", "wall_x0", "wall_x1"):
+                self._set_emitter(name, ROOM_GLOW * ambient)
+        else:
+            for index in range(2):
+                self._set_emitter(f"ambient_{index}", ambient)
 
     def render(self, world_from_cam: np.ndarray, world_from_target: np.ndarray, light: str, boxes: list[int],
                show_board: bool, seed: int) -> np.ndarray:

@@ -44,10 +44,15 @@ def move_seconds(config: Config, previous: dict[str, Any], row: dict[str, Any]) 
     """Duration (s) of the move from one plan row's commands to the next's."""
     v = config.virtual
     speeds = np.asarray(AXIS_SPEEDS_RAD_S) * v.speed_override
-    axes = max(float(np.max(np.abs(np.subtract(row[key], previous[key])) / speeds))
+    axes = max(float(np.max(np.abs(np.subtract(_joints(row, key), _joints(previous, key))) / speeds))
                for key in ("camera_joints_rad", "target_joints_rad"))
     rail = abs(float(row["rail_m"]) - float(previous["rail_m"])) / v.rail_speed_m_s
     return max(axes, rail)
+
+
+def _joints(row: dict[str, Any], key: str) -> np.ndarray:
+    """(6,) a plan row's commanded joints; zeros for a static mount (a facility's, null)."""
+    return np.zeros(6) if row[key] is None else np.asarray(row[key], float)
 
 
 def _directions(previous: np.ndarray, current: np.ndarray, last: np.ndarray) -> np.ndarray:
@@ -73,8 +78,8 @@ def timeline(config: Config, rows: list[dict[str, Any]], start_direction: dict[s
                 time_s += move + v.settle_s + v.expose_s
                 if _light(previous) != _light(row):
                     time_s += v.light_change_s
-                camera = _directions(previous["camera_joints_rad"], row["camera_joints_rad"], camera)
-                target = _directions(previous["target_joints_rad"], row["target_joints_rad"], target)
-            previous_joints = np.asarray(ordered[index - 1]["target_joints_rad"], float) if index else None
+                camera = _directions(_joints(previous, "camera_joints_rad"), _joints(row, "camera_joints_rad"), camera)
+                target = _directions(_joints(previous, "target_joints_rad"), _joints(row, "target_joints_rad"), target)
+            previous_joints = _joints(ordered[index - 1], "target_joints_rad") if index else None
             moments[row["sample_id"]] = Moment(time_s, camera, target, previous_joints, move)
     return moments

@@ -10,6 +10,7 @@ the motion-capture world frame, and the errors outside the calibration's model
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from stages.common import geometry as g
 from stages.common import layout
 from stages.common.json_arrays import record
 from stages.common.kinematics import ArmModel, arm_model
+from stages.common.robots.facility import load_facility
 from stages.common.target import Target
 from stages.common.workspace_target import planned_target
 
@@ -67,6 +69,14 @@ def _perturbed_arm(rng: np.random.Generator, arm: ArmModel, sigma_m: float) -> A
     return replace(arm, name=f"{arm.name} (true)", **changes)
 
 
+def _camera_fixture(config: Config) -> np.ndarray:
+    """(4, 4) the camera in its flange as designed: TRON's (``[testbed]``), or the facility
+    folder's ``flange_from_tool`` of the camera's robot."""
+    if not config.facility.path:
+        return layout.camee_from_cam(config.testbed)
+    return load_facility(Path(config.facility.path)).fixture("camera")
+
+
 def draw_truth(config: Config, target: Target | None = None) -> Truth:
     """The truth of this virtual facility holding ``target`` (default: the configured one);
     identical for the same ``virtual.seed``."""
@@ -89,7 +99,7 @@ def draw_truth(config: Config, target: Target | None = None) -> Truth:
         camera_base_error=_small_transform(rng, v.base_position_sigma_m, v.base_rotation_sigma_rad),
         target_base_error=_small_transform(rng, v.base_position_sigma_m, v.base_rotation_sigma_rad),
         rail_scale=1.0 + rng.normal(0.0, v.rail_scale_sigma),
-        camee_from_cam=layout.camee_from_cam(testbed) @ _small_transform(
+        camee_from_cam=_camera_fixture(config) @ _small_transform(
             rng, v.camera_fixture_sigma_m, v.camera_fixture_sigma_rad),
         target_from_targetee=mounts,
         camee_from_camrb=camee_from_camrb,

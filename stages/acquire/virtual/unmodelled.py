@@ -18,13 +18,13 @@ from typing import Any
 import numpy as np
 
 from core.config import Config
+from stages.acquire.virtual.room import room_of
 from stages.common import geometry as g
 from stages.common.statics import LinkMasses, link_masses
 
 SOURCE_CODES = {"elasticity": 1, "backlash": 2, "thermal": 3, "mocap_calibration": 4, "intrinsics_drift": 5,
                 "mount": 6}
 ROBOTS = ("camera", "target")
-VICON_CAMERAS = 12
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class Unmodelled:
     thermal_start_k: dict[str, float]  # per session
     room_change_k: float  # dataset session minus calibration session
     vicon_scale: float  # reported / true distances in V
-    vicon_camera_errors: np.ndarray  # (12, 3) rotation vectors turning each camera's rays, rad
+    vicon_camera_errors: np.ndarray  # (C, 3) per camera (room.room_of): rotation vectors turning its rays, rad
     vicon_reflection_bias_m: float
     camera_by_session: dict[str, Any]  # CameraConfig per session
     mount_compliance: np.ndarray  # (3, 3) fixture compliance shape in the flange frame (identity: isotropic)
@@ -98,11 +98,12 @@ def draw_unmodelled(config: Config) -> Unmodelled:
         starts = {"calibration": 0.0, "dataset": min(v.thermal_dataset_start_k * float(_spread(rng, 0.2, ())), rise)}
         room = float(rng.normal(0.0, v.room_change_k))
 
-    scale, ray_errors, reflection = 1.0, np.zeros((VICON_CAMERAS, 3)), 0.0
+    cameras_count = room_of(config).mocap_cameras
+    scale, ray_errors, reflection = 1.0, np.zeros((cameras_count, 3)), 0.0
     if "mocap_calibration" in on:
         rng = _rng(config, "mocap_calibration")
         scale = 1.0 + float(rng.normal(0.0, v.vicon_scale_sigma))
-        ray_errors = rng.normal(0.0, v.vicon_camera_ray_sigma_rad, (VICON_CAMERAS, 3))
+        ray_errors = rng.normal(0.0, v.vicon_camera_ray_sigma_rad, (cameras_count, 3))
         reflection = v.vicon_reflection_bias_m
 
     cameras = {"calibration": camera, "dataset": camera}

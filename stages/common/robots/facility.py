@@ -105,6 +105,12 @@ class Facility:
         holder = self.spec.carrier("camera" if carried == "camera" else "target")
         return next((robot for robot in self.robots if robot.spec is holder), holder)
 
+    def fixture(self, carried: str) -> np.ndarray:
+        """(4, 4) the carried frame (camera, target origin) in its holder's flange: the robot's
+        ``flange_from_tool``, or identity on a static mount."""
+        holder = self.holder(carried)
+        return np.eye(4) if isinstance(holder, StaticSpec) else pose_matrix(holder.spec.flange_from_tool)
+
     def clear(self, placed: list[tuple[Robot, np.ndarray, float]]) -> bool:
         """Whether robots at (joints, rail) stay in the room, off the obstacles and off each other."""
         room_low, room_high = np.zeros(3), np.asarray(self.spec.room_m)

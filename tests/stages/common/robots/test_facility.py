@@ -28,7 +28,7 @@ TESTS = Path(__file__).resolve().parents[3] / "facilities"
 
 
 def test_tron_is_the_configurations_testbed():
-    from stages.acquire.virtual.mocap import camera_aim, camera_positions
+    from stages.acquire.virtual.mocap import camera_aims, camera_positions
 
     config = load_config("default")
     testbed, facility = config.testbed, load_facility()
@@ -46,7 +46,7 @@ def test_tron_is_the_configurations_testbed():
     assert spec.sun_lamp.position_m == testbed.sun_lamp_position_m
     assert spec.sun_lamp.radius_m == config.virtual.sun_lamp_radius_m
     assert np.allclose([c[0] for c in spec.motion_capture.cameras], camera_positions(config))
-    assert np.allclose([c[1] for c in spec.motion_capture.cameras], camera_aim(config))
+    assert np.allclose([c[1] for c in spec.motion_capture.cameras], camera_aims(config))
     assert spec.motion_capture.marker_sigma_m == config.virtual.vicon_marker_sigma_m
     assert all(robot.solver.closed_form is not None for robot in facility.robots)
 

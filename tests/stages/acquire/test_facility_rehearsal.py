@@ -1,0 +1,109 @@
+"""Two facilities besides TRON, rehearsed as a lab would (issue 46, parts 4 and 7): plan,
+acquire on the virtual testbed built from the folder, calibrate, fuse and label on the smoke
+profile. Each run's robot telemetry is the URDFs' kinematics of its encoders (yourdfpy's, not
+our chain's), its sources are the folder's (motion capture only where the folder has it), its
+calibration leaves the URDF arms' kinematics alone, and its labels meet the SPEED+ thresholds
+at the rate the facility's rehearsal (``python -m bench honesty --facility``, committed in
+bench/results) predicts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from scipy.stats import binom
+
+from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION
+from bench.targets import cubesat3u
+from manifests import Workspace
+from manifests.sidecars import read_calibration, read_session
+from stages.common import geometry as g
+from stages.common.robots.facility import load_facility, pose_matrix
+from tests.conftest import speedplus
+
+FACILITIES = Path(__file__).resolve().parents[2] / "facilities"
+RESULTS = Path(__file__).resolve().parents[3] / "bench" / "results"
+RUNS = {
+    "abb_rail": ("abb-rail", []),
+    "ur10_tripod": ("ur10-tripod", ["--set", 'plan.lights=["lightbox"]', "--set", "plan.dataset_range_m=[1.3, 1.8]"]),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(RUNS))
+def rehearsed(request, tmp_path_factory):
+    folder = request.param
+    root = tmp_path_factory.mktemp(folder)
+    args = list(RUNS[folder][1])
+    if folder == "ur10_tripod":
+        args += ["--target", str(cubesat3u(root / "cubesat3u"))]  # as the rehearsal has it
+    workspace = root / "w"
+    result = speedplus("run", "-w", str(workspace), "--profile", "smoke", "--until", "label",
+                       "--facility", str(FACILITIES / folder), *args)
+    assert result.returncode == 0, result.stderr
+    return folder, workspace
+
+
+def _rows(workspace: Path, name: str) -> dict[str, dict]:
+    return {row["sample_id"]: row for row in pq.read_table(workspace / "manifests" / name).to_pylist()}
+
+
+def _yourdfpy(robot, joints: list[float], rail_m: float) -> np.ndarray:
+    import yourdfpy
+
+    urdf = yourdfpy.URDF.load(str(robot.chain.source), load_meshes=False, build_collision_scene_graph=False)
+    urdf.update_cfg(dict(zip(robot.chain.joint_names, joints, strict=True)))
+    return robot.world_from_base(rail_m) @ urdf.get_transform(robot.spec.flange_link, robot.spec.base_link)
+
+
+def test_the_telemetry_is_the_urdfs_kinematics_of_the_encoders(rehearsed):
+    folder, workspace = rehearsed
+    facility = load_facility(FACILITIES / folder)
+    captures = _rows(workspace, "captures")
+    assert len(captures) == 24 and all(row["status"] == "ok" for row in captures.values())
+    for row in captures.values():
+        for carried, flange in (("camera", "camee"), ("target", "targetee")):
+            reported = g.transform_from_qt(row[f"kuka_world_from_{flange}_q"], row[f"kuka_world_from_{flange}_t"])
+            holder = facility.holder(carried)
+            if hasattr(holder, "chain"):
+                rail = row["kuka_rail_m"] if holder.spec.rail is not None else 0.0
+                expected = _yourdfpy(holder, row[f"kuka_{carried}_joints_rad"], rail)
+            else:  # the tripod: where the folder stands it
+                assert row[f"kuka_{carried}_joints_rad"] is None
+                expected = pose_matrix(holder.world_from_mount)
+            np.testing.assert_allclose(reported, expected, atol=1e-9)
+
+
+def test_the_sources_and_the_calibration_are_the_facilitys(rehearsed):
+    folder, workspace = rehearsed
+    ws = Workspace(workspace)
+    has_mocap = load_facility(FACILITIES / folder).spec.motion_capture is not None
+    assert read_session(ws).sources == (("kuka", "vicon") if has_mocap else ("kuka",))
+    calibration = read_calibration(ws)
+    assert (calibration.vicon is not None) == has_mocap
+    assert not calibration.kuka.arm_kinematics.estimated and "URDF" in calibration.kuka.arm_kinematics.why
+    assert calibration.kuka.metrics["truth"]["E_T_m"][0] < 0.01  # mm-level, not a wrong frame
+
+
+def test_the_labels_meet_the_thresholds_at_the_rehearsed_rate(rehearsed):
+    """The share of labels under the SPEED+ thresholds is what the committed rehearsal of the
+    same folder predicts: inside the binomial range (two-sided, 1% each side) of the ends of
+    its 95% interval."""
+    folder, workspace = rehearsed
+    truth, labels = _rows(workspace, "truth"), _rows(workspace, "labels")
+    scale = json.loads((workspace / "session.json").read_text())["mockup_scale"]
+    under = []
+    for sample_id, label in labels.items():
+        true = g.transform_from_qt(truth[sample_id]["cam_from_target_q"], truth[sample_id]["cam_from_target_t"])
+        rotation = g.quat_angular_distance(label["q_vbs2tango_true"], g.matrix_to_quat(true[:3, :3]))
+        full = true[:3, 3] / scale
+        position = np.linalg.norm(np.asarray(label["r_Vo2To_vbs_true"]) - full) / np.linalg.norm(full)
+        under.append(rotation < SPEEDPLUS_ROTATION_RAD and position < SPEEDPLUS_TRANSLATION)
+    predicted = json.loads((RESULTS / f"rehearsal_{RUNS[folder][0]}.json").read_text())["predicted"]
+    low, high = predicted["interval_95"]
+    seen, count = int(np.sum(under)), len(under)
+    assert count == 8
+    assert binom.cdf(seen, count, low) > 0.01 or seen <= count * low  # not fewer than the low end allows
+    assert binom.sf(seen - 1, count, high) > 0.01 or seen >= count * high  # not more than the high end allows
