@@ -21,6 +21,9 @@ capture), then calibrated, fused and labelled, and the labels are set against th
 One seed's labels share one calibration, so their errors are correlated: the pooled row's
 interval is over labels and is narrower than one over facilities would be; the per-seed
 rows show the spread between builds.
+
+The pooled figures are written beside the folder, ``DIR/rehearsal.json``
+(``manifests/rehearsal.py``): the facility's card, which ``speedplus facility DIR`` shows.
 """
 
 from __future__ import annotations
@@ -33,9 +36,11 @@ import numpy as np
 from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION
 from bench.common import report
 from bench.honesty import AXES, dataset, run_facility
-from manifests.facility import read_facility_spec
+from manifests.facility import facility_digest, read_facility_spec
+from manifests.rehearsal import RehearsalRecord, write_rehearsal
 from manifests.sidecars import read_calibration
 from stages.common.robots.facility import wilson
+from stages.common.target import load_target
 
 REHEARSAL_SEEDS = (71, 72, 73, 74)  # chosen with the commit that builds the rehearsal, before any was run
 
@@ -107,10 +112,15 @@ def main(facility: Path, positional: list[str], targets: list[Path], profile: st
         raws.append({"under": under, "normalised": data["axis_error"] / data["axis_sigma"], "fused": data["fused"]})
     rows.append(pooled(rows, raws))
     under = np.concatenate([r["under"] for r in raws])
+    normalised = np.concatenate([r["normalised"] for r in raws])
+    record = RehearsalRecord(
+        facility_digest(facility), profile, tuple(settings), None if target is None else load_target(target).name,
+        tuple(int(s) for s in seeds), int(len(under)), int(under.sum()), wilson(int(under.sum()), len(under)),
+        round(float(np.mean(np.concatenate([r["fused"] for r in raws])) * 1000), 4),
+        tuple(round(float(np.mean(np.abs(normalised[:, i]) <= 1.96)), 4) for i in range(3)),
+        tuple(round(float(np.sqrt(np.mean(normalised[:, i] ** 2))), 4) for i in range(3)))
+    write_rehearsal(facility, record)  # the facility's card, beside its folder
     report(f"rehearsal_{name}", f"what labels {name} can expect: its folder ({facility}) rehearsed on the virtual "
            f"testbed, {profile} profile{'' if target is None else f', target {target}'}", rows,
            {"facility": str(facility), "settings": list(settings), "profile": profile,
-            "target": None if target is None else str(target),
-            # what tests/stages/acquire/test_facility_rehearsal.py holds a facility's labels to
-            "predicted": {"labels": int(len(under)), "under_speedplus": int(under.sum()),
-                          "interval_95": list(wilson(int(under.sum()), len(under)))}})
+            "target": None if target is None else str(target), "record": record.to_json()})

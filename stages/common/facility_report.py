@@ -1,14 +1,15 @@
 """What ``speedplus facility DIR`` prints of a facility folder: its room, its robots (their
 chains, joints, reach, rail and inverse kinematics), static mounts, camera, lights and
-motion capture, and the share of SO(3) and of the distance range the facility can present
-to its camera (docs/user-guide.md, "Your own facility")."""
+motion capture, the share of SO(3) and of the distance range the facility can present to
+its camera, and what its rehearsal measured (docs/user-guide.md, "Your own facility")."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
-from manifests.facility import FacilityError, StaticSpec
+from manifests.facility import FacilityError, StaticSpec, facility_digest
+from manifests.rehearsal import REHEARSAL_FILE, read_rehearsal
 from stages.common.robots.facility import Facility, Share, load_facility, presentable_share
 from stages.common.target import load_target
 from stages.common.targets import builtin_folder
@@ -89,4 +90,21 @@ def describe(folder: Path, target_folder: Path | None = None, samples: int = 96,
                             f"relative poses at {distances[0]:.3g}-{distances[1]:.3g} m; what stops it: "
                             f"{limits_text(share)}")
     rows += share_rows(share)
+    rows.append(("rehearsal", rehearsal_text(facility.directory)))
     return f"facility {spec.name} ({folder})", rows
+
+
+def rehearsal_text(directory: Path) -> str:
+    """What ``DIR/rehearsal.json`` says the facility's labels can expect, and whether it was
+    measured on the folder as it is now."""
+    if not (directory / REHEARSAL_FILE).is_file():
+        return "none yet: python -m bench honesty --facility DIR measures the labels' accuracy to expect"
+    record = read_rehearsal(directory)
+    low, high = record.interval_95
+    current = ("measured on this folder" if record.facility_digest == facility_digest(directory)
+               else "measured on another version of this folder: rehearse it again")
+    target = record.target or "tango"
+    return (f"{record.under_speedplus} of {record.labels} labels under the SPEED+ thresholds, {record.share:.0%} "
+            f"[95% interval {low:.0%}, {high:.0%}], mean E_T {record.mean_e_t_mm:.3g} mm, inside 1.96 sigma "
+            f"x/y/z {'/'.join(f'{v:.0%}' for v in record.inside_1_96_sigma)} ({record.profile} profile, target "
+            f"{target}, builds {', '.join(map(str, record.seeds))}); {current}")

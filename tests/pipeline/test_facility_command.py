@@ -42,3 +42,29 @@ def test_a_facility_that_presents_nothing_says_what_limits_it():
     limits = {why: int(share.rstrip("%)")) for why, share in (item.rsplit(" (", 1) for item in stated)}
     assert set(limits) == {"the camera would leave the room", "ur10 cannot reach the camera's pose"}, message
     assert 99 <= sum(limits.values()) <= 101  # shares of the failed attempts
+
+
+def test_the_rehearsals_card_is_shown_and_known_stale(tmp_path):
+    """The folder's rehearsal.json (its rehearsal's pooled figures) is shown, said to be made
+    on this folder, and said to be stale once a file the facility names changes; a malformed
+    one ends with exit 1 naming the file and the key."""
+    from manifests.facility import facility_digest
+    from manifests.rehearsal import RehearsalRecord, write_rehearsal
+
+    folder = tmp_path / "lab"
+    shutil.copytree(TESTS / "ur10_tripod", folder)
+    (folder / "rehearsal.json").unlink(missing_ok=True)
+    args = ("facility", str(folder), "--distance", "0.6", "1.2", "--samples", "16")
+    assert "none yet" in " ".join(speedplus(*args).stdout.split())
+    write_rehearsal(folder, RehearsalRecord(facility_digest(folder), "smoke", (), "cubesat3u", (71, 72), 16, 12,
+                                            (0.5, 0.9), 2.4, (0.9, 0.95, 0.85), (1.0, 0.9, 1.2)))
+    text = " ".join(speedplus(*args).stdout.replace("│", " ").split())
+    assert "12 of 16 labels under the SPEED+ thresholds, 75% [95% interval 50%, 90%]" in text
+    assert "measured on this folder" in text
+    (folder / "ur10.urdf").write_text((folder / "ur10.urdf").read_text() + "\n")
+    assert "rehearse it again" in " ".join(speedplus(*args).stdout.split())
+    text = (folder / "rehearsal.json").read_text()
+    (folder / "rehearsal.json").write_text(text.replace('"under_speedplus": 12', '"under_speedplus": 20'))
+    result = speedplus(*args)
+    message = " ".join(result.stderr.split())
+    assert result.returncode == 1 and "rehearsal.json: key under_speedplus: expected at most labels (16)" in message

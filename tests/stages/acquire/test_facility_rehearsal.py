@@ -3,8 +3,8 @@ acquire on the virtual testbed built from the folder, calibrate, fuse and label 
 profile. Each run's robot telemetry is the URDFs' kinematics of its encoders (yourdfpy's, not
 our chain's), its sources are the folder's (motion capture only where the folder has it), its
 calibration leaves the URDF arms' kinematics alone, and its labels meet the SPEED+ thresholds
-at the rate the facility's rehearsal (``python -m bench honesty --facility``, committed in
-bench/results) predicts."""
+at the rate the facility's rehearsal (``python -m bench honesty --facility``) predicts in the
+card it keeps beside the folder (``DIR/rehearsal.json``, made on the folder as it is)."""
 
 from __future__ import annotations
 
@@ -19,24 +19,23 @@ from scipy.stats import binom
 from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION
 from bench.targets import cubesat3u
 from manifests import Workspace
+from manifests.facility import facility_digest
+from manifests.rehearsal import read_rehearsal
 from manifests.sidecars import read_calibration, read_session
 from stages.common import geometry as g
 from stages.common.robots.facility import load_facility, pose_matrix
 from tests.conftest import speedplus
 
 FACILITIES = Path(__file__).resolve().parents[2] / "facilities"
-RESULTS = Path(__file__).resolve().parents[3] / "bench" / "results"
-RUNS = {
-    "abb_rail": ("abb-rail", []),
-    "ur10_tripod": ("ur10-tripod", ["--set", 'plan.lights=["lightbox"]', "--set", "plan.dataset_range_m=[1.3, 1.8]"]),
-}
+#: the --set overrides each facility's rehearsal was made with (its rehearsal.json says so too)
+SETTINGS = {"abb_rail": [], "ur10_tripod": ['plan.lights=["lightbox"]', "plan.dataset_range_m=[1.3, 1.8]"]}
 
 
-@pytest.fixture(scope="module", params=sorted(RUNS))
+@pytest.fixture(scope="module", params=sorted(SETTINGS))
 def rehearsed(request, tmp_path_factory):
     folder = request.param
     root = tmp_path_factory.mktemp(folder)
-    args = list(RUNS[folder][1])
+    args = [a for setting in SETTINGS[folder] for a in ("--set", setting)]
     if folder == "ur10_tripod":
         args += ["--target", str(cubesat3u(root / "cubesat3u"))]  # as the rehearsal has it
     workspace = root / "w"
@@ -101,8 +100,11 @@ def test_the_labels_meet_the_thresholds_at_the_rehearsed_rate(rehearsed):
         full = true[:3, 3] / scale
         position = np.linalg.norm(np.asarray(label["r_Vo2To_vbs_true"]) - full) / np.linalg.norm(full)
         under.append(rotation < SPEEDPLUS_ROTATION_RAD and position < SPEEDPLUS_TRANSLATION)
-    predicted = json.loads((RESULTS / f"rehearsal_{RUNS[folder][0]}.json").read_text())["predicted"]
-    low, high = predicted["interval_95"]
+    record = read_rehearsal(FACILITIES / folder)
+    assert record.facility_digest == facility_digest(FACILITIES / folder), "the folder changed: rehearse it again"
+    assert record.profile == "smoke" and list(record.settings) == SETTINGS[folder]
+    assert record.target == (None if folder == "abb_rail" else "cubesat3u")
+    low, high = record.interval_95
     seen, count = int(np.sum(under)), len(under)
     assert count == 8
     assert binom.cdf(seen, count, low) > 0.01 or seen <= count * low  # not fewer than the low end allows
