@@ -22,14 +22,13 @@ from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from stages.common import geometry as g
 from stages.common import layout
-from stages.common.robots.facility import Facility
+from stages.common.robots.facility import Facility, presented_share
 from stages.common.target import Target
 from stages.common.workspace_target import install, planned_target
 from stages.plan.facility_plan import (
     camera_fixture,
     light_box_centres,
     planned_facility,
-    presented_share,
     reconfigure_on,
 )
 from stages.plan.poses import (
@@ -100,7 +99,7 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
     else:
         view, light = dataset_configuration(index, plan, target.view_names)
     # a facility folder may not show every view (one arm round a static target): its poses are
-    # uniform over what it presents, each view as it falls (facility_plan.presented_share)
+    # uniform over what it presents, each view as it falls (robots.facility.presented_share)
     wanted = view if facility is None else None
     chosen = dataset_range(plan, target, testbed, room=facility is None) if session == "dataset" else None
     limits: Counter[str] = Counter()
@@ -177,7 +176,7 @@ def _unreachable(sample_id: str, draws: int, testbed: TestbedConfig, target: Tar
 
 def status_note(config: Config, workspace: Workspace) -> str:
     """The share of the dataset poses drawn that the facility presented (``status``)."""
-    rows = read_manifest(workspace, "plan").select(["session", "redraws", "view"]).to_pylist()
+    rows = read_manifest(workspace, "plan").select(["session", "redraws", "view", "sequence_id"]).to_pylist()
     name = read_facility_spec(Path(config.facility.path)).name if config.facility.path else "TRON"
     return presented_share(rows, name)
 

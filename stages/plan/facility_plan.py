@@ -25,7 +25,6 @@ from stages.common.robots.facility import (
     load_facility,
     placements,
     presentation_points,
-    wilson,
 )
 from stages.common.target import Target
 from stages.plan.reconfigure import Reconfiguration
@@ -122,21 +121,3 @@ def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: 
 def light_box_centres(facility: Facility) -> np.ndarray:
     """(B, 3) the facility's light boxes' centres in K, m."""
     return np.array([box.centre_m for box in facility.spec.light_boxes]).reshape(-1, 3)
-
-
-def presented_share(rows: list[dict], name: str) -> str:
-    """What share of the relative poses drawn for the dataset (uniform on SO(3) and over the
-    range) the facility ``name`` presented, with its 95% Wilson interval, and the views it showed."""
-    dataset = [row for row in rows if row["session"] == "dataset"]
-    drawn = len(dataset) + sum(row["redraws"] for row in dataset)
-    if not dataset:
-        return f"{name}: no dataset samples"
-    sequences = {row["sequence_id"]: row["redraws"] for row in dataset if row.get("sequence_id") is not None}
-    if sequences:  # a sequence is held whole or re-planned whole (stages/plan/trajectory.py)
-        return (f"{name} held every frame of {len(sequences)} sequence(s), {len(dataset)} frames, after "
-                f"{sum(sequences.values())} re-plan(s) of their initial attitude")
-    low, high = wilson(len(dataset), drawn)
-    views = Counter(row["view"] for row in dataset)
-    return (f"{name} presented {len(dataset)} of {drawn} dataset poses drawn, "
-            f"{len(dataset) / drawn:.1%} [95% interval {low:.1%}, {high:.1%}] of SO(3) x the range; the dataset "
-            f"is uniform over that share; views {', '.join(f'{v} {n}' for v, n in sorted(views.items()))}")

@@ -18,11 +18,13 @@ from pathlib import Path
 
 from core.config import Config
 from core.stage_io import Resolved
-from manifests import Workspace, read_manifest
+from manifests import Workspace, read_manifest, read_marker
+from manifests.facility import read_facility_spec
 from manifests.files import write_bytes_atomic
 from manifests.sidecars import read_calibration
 from manifests.workspace import REPORT_DIR, REPORT_PAGE
 from stages.common.json_arrays import calibrated_camera
+from stages.common.robots.facility import presented_share
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target
 from stages.report import figures
@@ -74,12 +76,21 @@ def page(workspace: Workspace, summary: str, sections: list[tuple[str, str]]) ->
 
 
 
+def facility_sentence(config: Config, workspace: Workspace) -> str:
+    """On a facility folder, what share of SO(3) x the range it presented (the dataset is
+    uniform over that share, not over all of it), as the plan and ``status`` say it."""
+    if not config.facility.path or read_marker(workspace, "plan") is None:
+        return ""  # TRON's room presents every pose the plan draws; a replay has no plan
+    rows = read_manifest(workspace, "plan").select(["session", "redraws", "view", "sequence_id"]).to_pylist()
+    return " " + html.escape(presented_share(rows, read_facility_spec(Path(config.facility.path)).name)) + "."
+
+
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads everything a run made (a trajectory plan's tracks too); writes ``W/report/``
     (its marker: ``report``)."""
     tracks = ("tracks",) if config.plan.mode == "trajectory" else ()
     return Resolved(("labels", "renders", "predictions", "scores", "comparisons", *tracks),
-                    ("evaluate.models", "plan.mode"), {"profile": config.profile}, ("report",))
+                    ("evaluate.models", "plan.mode", "facility.path"), {"profile": config.profile}, ("report",))
 
 
 def run(config: Config, workspace: Workspace) -> None:
@@ -131,5 +142,5 @@ def run(config: Config, workspace: Workspace) -> None:
         ("Provenance", provenance(config, workspace)),
     ]
     summary = (f"Profile {html.escape(config.profile)}, models {html.escape(', '.join(models))}; {len(labels)} "
-               f"labels, {len(renders)} twins, {len(predictions)} predictions.")
+               f"labels, {len(renders)} twins, {len(predictions)} predictions.{facility_sentence(config, workspace)}")
     write_bytes_atomic(out / REPORT_PAGE, page(workspace, summary, sections).encode())

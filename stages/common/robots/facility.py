@@ -347,3 +347,21 @@ def presentation_points(facility: Facility, rng: np.random.Generator, count: int
         raise FacilityError(f"{facility.directory / 'facility.toml'}: robot {holder.spec.name!r} never holds the "
                             "target a metre clear of the room's walls, floor and ceiling; check world_from_base_t")
     return np.asarray(points[:count])
+
+
+def presented_share(rows: list[dict], name: str) -> str:
+    """What share of the relative poses drawn for the dataset (uniform on SO(3) and over the
+    range) the facility ``name`` presented, with its 95% Wilson interval, and the views it showed."""
+    dataset = [row for row in rows if row["session"] == "dataset"]
+    drawn = len(dataset) + sum(row["redraws"] for row in dataset)
+    if not dataset:
+        return f"{name}: no dataset samples"
+    sequences = {row["sequence_id"]: row["redraws"] for row in dataset if row.get("sequence_id") is not None}
+    if sequences:  # a sequence is held whole or re-planned whole (stages/plan/trajectory.py)
+        return (f"{name} held every frame of {len(sequences)} sequence(s), {len(dataset)} frames, after "
+                f"{sum(sequences.values())} re-plan(s) of their initial attitude")
+    low, high = wilson(len(dataset), drawn)
+    views = Counter(row["view"] for row in dataset)
+    return (f"{name} presented {len(dataset)} of {drawn} dataset poses drawn, "
+            f"{len(dataset) / drawn:.1%} [95% interval {low:.1%}, {high:.1%}] of SO(3) x the range; the dataset "
+            f"is uniform over that share; views {', '.join(f'{v} {n}' for v, n in sorted(views.items()))}")

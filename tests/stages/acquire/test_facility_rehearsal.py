@@ -109,3 +109,16 @@ def test_the_labels_meet_the_thresholds_at_the_rehearsed_rate(rehearsed):
     assert count == 8
     assert binom.cdf(seen, count, low) > 0.01 or seen <= count * low  # not fewer than the low end allows
     assert binom.sf(seen - 1, count, high) > 0.01 or seen >= count * high  # not more than the high end allows
+
+
+def test_the_report_and_status_say_what_share_the_facility_presented(rehearsed):
+    from core.config import load_config
+    from stages.report import facility_sentence
+
+    folder, workspace = rehearsed
+    config = load_config(None, workspace / "config.toml")
+    name = load_facility(FACILITIES / folder).spec.name
+    sentence = facility_sentence(config, Workspace(workspace))
+    assert f"{name} presented 8 of " in sentence and "of SO(3) x the range" in sentence
+    status = " ".join(speedplus("status", "-w", str(workspace)).stdout.replace("│", " ").split())
+    assert sentence.strip().rstrip(".").split(";")[0] in status
