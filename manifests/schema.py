@@ -129,7 +129,8 @@ PLAN = ManifestSpec(
                "active Earth-albedo light boxes (0-9); empty unless lightbox"),
         Column("mount", pa.string(), "", "model fixture used: the face of T the target flange holds, "
                "always the side away from the camera", kind="enum", allowed=MOUNTS),
-        Column("rail_m", pa.float64(), "m", "commanded rail position of the camera robot (0 without a rail)"),
+        Column("rail_m", pa.float64(), "m", "commanded rail position of the robot on a rail (TRON: the camera "
+               "robot; a facility folder: its one robot on a rail; 0 without a rail)"),
         Column("camera_joints_rad", JOINTS, "rad", "commanded joints of the camera robot in its URDF's order (TRON: "
                "A1..A6, KUKA joint convention); null: the camera stands on a static mount", nullable=True),
         Column("target_joints_rad", JOINTS, "rad", "commanded joints of the target robot in its URDF's order (TRON: "
@@ -176,8 +177,8 @@ CAPTURES = ManifestSpec(
                "not recorded", nullable=True),
         Column("kuka_target_joints_rad", VEC6, "rad", "target robot's encoder readings A1-A6; null when not recorded",
                nullable=True),
-        Column("kuka_rail_m", pa.float64(), "m", "camera robot's reported rail position; null when not recorded",
-               nullable=True),
+        Column("kuka_rail_m", pa.float64(), "m", "the railed robot's reported rail position (TRON: the camera "
+               "robot's); null when not recorded", nullable=True),
         Column("capture_time_s", pa.float64(), "s", "exposure time since the session's first capture; null when "
                "not recorded", nullable=True),
         Column("move_s", pa.float64(), "s", "duration of the robots' move from the session's previous capture (the "

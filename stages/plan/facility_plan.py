@@ -46,9 +46,10 @@ def planned_facility(config: Config) -> Facility | None:
         if robot.chain.dof != JOINTS:
             raise InputError(f"{where}: robot {robot.spec.name!r} has {robot.chain.dof} moving joints; the plan "
                              f"records {JOINTS} per robot (speedplus facility still checks and measures it)")
-        if robot.spec.rail is not None and robot.spec.carries == "target":
-            raise InputError(f"{where}: robot {robot.spec.name!r} carries the target on a rail; the plan records the "
-                             "rail of the camera's robot only")
+    railed = [robot.spec.name for robot in facility.robots if robot.spec.rail is not None]
+    if len(railed) > 1:
+        raise InputError(f"{where}: robots {' and '.join(map(repr, railed))} both ride rails; the plan records one "
+                         "rail position (rail_m), of the one robot on a rail")
     needs = {"lightbox": bool(facility.spec.light_boxes), "sunlamp": facility.spec.sun_lamp is not None}
     missing = [light for light in config.plan.lights if not needs.get(light, True)]
     if missing and config.plan.n_dataset:
@@ -110,8 +111,9 @@ def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: 
     if not facility.clear(list(held.values())):
         return "a link would hit the room, an obstacle or a robot"
     camera, target = held.get("camera"), held.get("target")
+    railed = [rail_m for robot, _, rail_m in held.values() if robot.spec.rail is not None]
     return Reconfiguration(
-        rail_m=camera[2] if camera is not None and camera[0].spec.rail is not None else 0.0,
+        rail_m=railed[0] if railed else 0.0,  # planned_facility allows one robot on a rail
         camera_joints_rad=None if camera is None else camera[1],
         target_joints_rad=None if target is None else target[1],
         world_from_camee=world_from_cam @ g.invert(camera_fixture(facility)),

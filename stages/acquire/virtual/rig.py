@@ -131,7 +131,8 @@ def move(config: Config, truth: Truth, rig: Rig, row: dict[str, Any], rng: np.ra
     v, u = config.virtual, truth.unmodelled
     camera_joints = _read(row, "camera_joints_rad", rig.camera, rng, v.repeatability_rad)
     target_joints = _read(row, "target_joints_rad", rig.target, rng, v.repeatability_rad)
-    rail = float(row["rail_m"]) + (rng.normal(0.0, v.rail_noise_m) if _on_rail(rig.camera) else 0.0)
+    railed = _on_rail(rig.camera) or _on_rail(rig.target)  # one robot at most (facility_plan.planned_facility)
+    rail = float(row["rail_m"]) + (rng.normal(0.0, v.rail_noise_m) if railed else 0.0)
     mount = row["mount"]
     targetee_from_target = g.invert(truth.target_from_targetee[mount]
                                     @ (u.remount[mount] if row["session"] == "dataset" else np.eye(4)))
@@ -140,13 +141,13 @@ def move(config: Config, truth: Truth, rig: Rig, row: dict[str, Any], rng: np.ra
     world_from_camee, camera_links, camera_base = _true_flange(
         rig.camera, camera_joints, rail, camera_payload, 0.5 * truth.camee_from_cam[:3, 3])
     world_from_targetee, target_links, target_base = _true_flange(
-        rig.target, target_joints, 0.0, payload.mass_kg, g.apply(targetee_from_target, centre[None])[0])
+        rig.target, target_joints, rail, payload.mass_kg, g.apply(targetee_from_target, centre[None])[0])
     shape = u.mount_compliance if "mount" in v.unmodelled else None
     tilt, sag_rad = sag(world_from_targetee, targetee_from_target, payload.mass_kg,
                         v.model_compliance_rad_per_nm, centre, shape)
     state = RobotState(
         kuka_world_from_camee=rig.camera.nominal(camera_joints, rail),
-        kuka_world_from_targetee=rig.target.nominal(target_joints, 0.0),
+        kuka_world_from_targetee=rig.target.nominal(target_joints, rail),
         world_from_camee=world_from_camee, world_from_targetee=world_from_targetee,
         world_from_cam=world_from_camee @ truth.camee_from_cam,
         world_from_target=world_from_targetee @ tilt @ targetee_from_target,

@@ -105,3 +105,27 @@ def test_the_room_is_the_folders():
     assert abb.size_m == (12.0, 4.5, 3.5) and len(abb.light_boxes) == 2  # read in mm, held in m
     tron = room_of(load_config("smoke"))
     assert tron.mocap_cameras == 12 and len(tron.light_boxes) == 10
+
+
+def test_a_target_on_the_rail_is_moved_and_reported_there(tmp_path):
+    """With the rail under the target's arm, the plan's rail_m carries it: the controller
+    reports the flange from the base moved along the rail, and the truth follows it."""
+    import shutil
+
+    from stages.common.robots.facility import load_facility
+    from tests.stages.test_plan_facility import _rail_on_target
+
+    folder = tmp_path / "lab"
+    shutil.copytree(FACILITIES / "abb_rail", folder)
+    text = (folder / "facility.toml").read_text()
+    text = text.replace("[robot.rail]\naxis = [1.0, 0.0, 0.0]\ntravel = [0.0, 7000.0]\n", "")
+    (folder / "facility.toml").write_text(_rail_on_target(text))
+    config = load_config("smoke", overrides=[f"facility.path={folder}", "plan.n_dataset=0", "plan.n_calibration=3"])
+    truth, rig = draw_truth(config), rig_module.draw_rig(config)
+    target = load_facility(folder).holder("target")
+    payload = Payload.of(planned_target(config))
+    for row in (plan_sample(config, *item) for item in planned_samples(config)):
+        state, _ = rig_module.move(config, truth, rig, row, np.random.default_rng(0), payload)
+        expected = target.world_from_base(state.rail_m) @ _yourdfpy_flange(target, state.target_joints_rad)
+        np.testing.assert_allclose(state.kuka_world_from_targetee, expected, atol=1e-9)
+        assert np.linalg.norm(state.world_from_targetee[:3, 3] - expected[:3, 3]) < 0.03
