@@ -82,7 +82,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     write_session(workspace, testbed.session())
     with_truth = config.acquire.backend == "virtual"
     if with_truth:
-        write_truth(workspace, testbed.truth.to_record())
+        write_truth(workspace, testbed.truth_record())
         write_markers(workspace, testbed.markers_record())
     have_captures = read_keys(workspace, "captures")
     have_truth = read_keys(workspace, "truth") if with_truth else set()

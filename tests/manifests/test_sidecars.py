@@ -27,7 +27,7 @@ from manifests.sidecars import (
     write_session,
     write_truth,
 )
-from manifests.sidecars.truth import POSE_KEYS
+from manifests.sidecars.truth import POSE_KEYS, HolderTruth
 
 SESSION = Session("replay", "handeye", ("kuka",), SessionCamera(1928, 1208, None, None),
                   {"kind": "chessboard", "size": [28, 17], "square_m": 0.02}, "/data/kuka",
@@ -180,4 +180,19 @@ def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
     assert read_truth(workspace) == truth
     workspace.truth_path.write_text(json.dumps(_edit(truth.to_json(), "camera_arm.a1", "long")))
     with pytest.raises(SidecarError, match=r"truth.json: key camera_arm.a1: expected a finite number"):
+        read_truth(workspace)
+    # a facility folder's: its robots' truth instead of TRON's arms
+    arm_truth = HolderTruth("ur10", (1e-4,) * 6, (POSE,) * 7, POSE, 1.0, None)
+    on_facility = TruthRecord(None, None, None, None, None,
+                              {k: None if k.endswith("base_error") else POSE for k in POSE_KEYS}, {"minus_x": POSE},
+                              {"vicon_scale": 1.0}, {"camera": arm_truth, "target": HolderTruth(None, (), (), POSE,
+                                                                                                1.0, None)})
+    write_truth(workspace, on_facility)
+    assert read_truth(workspace) == on_facility
+    workspace.truth_path.write_text(json.dumps(_edit(on_facility.to_json(), "rail_scale", 1.0)))
+    with pytest.raises(SidecarError, match=r"truth.json: key rail_scale: expected null on a facility folder"):
+        read_truth(workspace)
+    workspace.truth_path.write_text(json.dumps(_edit(on_facility.to_json(), "facility.camera.joint_origin_errors",
+                                                     [POSE.to_json()] * 6)))
+    with pytest.raises(SidecarError, match=r"key facility.camera.joint_origin_errors: expected one pose per joint"):
         read_truth(workspace)

@@ -11,7 +11,7 @@ import numpy as np
 from core.config import Config
 from manifests import Workspace, read_manifest, sample_ids
 from manifests.sample_ids import SESSION_CODES
-from manifests.sidecars import MarkersRecord, Session, SessionCamera
+from manifests.sidecars import MarkersRecord, Session, SessionCamera, TruthRecord
 from manifests.workspace import TRUTH_MAPS_TEMPLATE
 from stages.acquire.backend import CaptureRecord
 from stages.acquire.virtual import mocap, rig, robots
@@ -57,6 +57,10 @@ class VirtualTestbed:
         self.target_normals_target = self.markers.normals
         u = self.truth.unmodelled
         self.mocap_errors = mocap.SystemErrors(u.vicon_scale, u.vicon_camera_errors, u.vicon_reflection_bias_m)
+
+    def truth_record(self) -> TruthRecord:
+        """``W/truth.json``: TRON's arms' truth, or the facility folder's robots'."""
+        return self.truth.to_record(None if self.rig is None else self.rig.truth())
 
     def markers_record(self) -> MarkersRecord:
         """Where this testbed stuck the model's markers (``W/markers.json``)."""

@@ -22,17 +22,19 @@ may not give: a facility's rehearsal leaves them out, and says so in docs/user-g
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from core.config import Config
+from manifests.sidecars.truth import HolderTruth
 from stages.acquire.virtual.robots import RobotState, sag
 from stages.acquire.virtual.truth import Truth
 from stages.common import geometry as g
 from stages.common.arms import Payload
+from stages.common.json_arrays import record
 from stages.common.robots.chain import SerialChain
 from stages.common.robots.facility import Facility, Robot, load_facility, pose_matrix
 from stages.common.statics import GRAVITY_M_S2
@@ -50,6 +52,16 @@ class Holder:
     base_error: np.ndarray  # (4, 4) true base = nominal base @ error
     rail_scale: float
     stiffness_nm_per_rad: np.ndarray  # (J,); inf: rigid
+    origin_errors: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))  # (J + 1, 4, 4)
+
+    def truth(self) -> HolderTruth:
+        """The stored form (``W/truth.json``'s ``facility``)."""
+        rigid = bool(np.all(np.isinf(self.stiffness_nm_per_rad)))
+        return HolderTruth(None if self.robot is None else self.robot.spec.name,
+                           tuple(float(v) for v in self.joint_offsets_rad),
+                           tuple(record(error) for error in self.origin_errors), record(self.base_error),
+                           float(self.rail_scale),
+                           None if rigid else tuple(float(v) for v in self.stiffness_nm_per_rad))
 
     def nominal(self, joints: np.ndarray | None, rail_m: float) -> np.ndarray:
         """(4, 4) the flange (or the mount) in K as the controller reports it."""
@@ -71,6 +83,10 @@ class Rig:
     camera: Holder
     target: Holder
 
+    def truth(self) -> dict[str, HolderTruth]:
+        """``W/truth.json``'s ``facility``: the camera's and the target's holders' truth."""
+        return {"camera": self.camera.truth(), "target": self.target.truth()}
+
 
 def _small(rng: np.random.Generator, sigma_m: float, sigma_rad: float) -> np.ndarray:
     return g.make_transform(g.rotvec_to_matrix(rng.normal(0.0, sigma_rad, 3)), rng.normal(0.0, sigma_m, 3))
@@ -91,8 +107,9 @@ def _holder(config: Config, facility: Facility, carried: str, rng: np.random.Gen
     if "elasticity" in v.unmodelled:
         nominal = np.resize(np.asarray(v.joint_stiffness_nm_per_rad, float), chain.dof)
         stiffness = nominal * np.exp(rng.normal(0.0, v.stiffness_spread, chain.dof))
+    errors = np.stack([g.invert(nominal) @ true for nominal, true in zip(chain.origins, origins, strict=True)])
     return Holder(holder, holder.world_from_base(0.0), replace(chain, origins=origins), offsets, base_error,
-                  rail_scale, stiffness)
+                  rail_scale, stiffness, errors)
 
 
 def draw_rig(config: Config) -> Rig:

@@ -16,6 +16,7 @@ import numpy as np
 
 from core.config import Config
 from manifests.sidecars import TruthRecord
+from manifests.sidecars.truth import HolderTruth
 from stages.acquire.virtual.unmodelled import Unmodelled, draw_unmodelled
 from stages.common import geometry as g
 from stages.common import layout
@@ -46,18 +47,23 @@ class Truth:
     vicon_world_from_world: np.ndarray
     unmodelled: Unmodelled
 
-    def to_record(self) -> TruthRecord:
-        """The stored form (``W/truth.json``), with the inverse offsets the estimates name."""
+    def to_record(self, facility: dict[str, HolderTruth] | None = None) -> TruthRecord:
+        """The stored form (``W/truth.json``), with the inverse offsets the estimates name; on
+        a facility folder, ``facility`` (``rig.Rig.truth``) stands for TRON's arms."""
         cam_from_camee = g.invert(self.camee_from_cam)
         poses = {"camera_base_error": self.camera_base_error, "target_base_error": self.target_base_error,
                  "camee_from_cam": self.camee_from_cam, "cam_from_camee": cam_from_camee,
                  "camee_from_camrb": self.camee_from_camrb, "cam_from_camrb": cam_from_camee @ self.camee_from_camrb,
                  "target_from_targetrb": self.target_from_targetrb,
                  "vicon_world_from_world": self.vicon_world_from_world}
+        stored = {key: None if facility is not None and key.endswith("base_error") else record(pose)
+                  for key, pose in poses.items()}
+        mounts = {m: record(t) for m, t in self.target_from_targetee.items()}
+        if facility is not None:
+            return TruthRecord(None, None, None, None, None, stored, mounts, self.unmodelled.to_json(), facility)
         return TruthRecord(asdict(self.camera_arm), asdict(self.target_arm),
                            tuple(self.camera_joint_offsets_rad.tolist()), tuple(self.target_joint_offsets_rad.tolist()),
-                           float(self.rail_scale), {key: record(pose) for key, pose in poses.items()},
-                           {m: record(t) for m, t in self.target_from_targetee.items()}, self.unmodelled.to_json())
+                           float(self.rail_scale), stored, mounts, self.unmodelled.to_json())
 
 
 def _small_transform(rng: np.random.Generator, sigma_m: float, sigma_rad: float) -> np.ndarray:

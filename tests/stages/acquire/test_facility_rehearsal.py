@@ -122,3 +122,23 @@ def test_the_report_and_status_say_what_share_the_facility_presented(rehearsed):
     assert f"{name} presented 8 of " in sentence and "of SO(3) x the range" in sentence
     status = " ".join(speedplus("status", "-w", str(workspace)).stdout.replace("│", " ").split())
     assert sentence.strip().rstrip(".").split(";")[0] in status
+
+
+def test_the_truth_is_the_facilitys_robots(rehearsed):
+    """truth.json records what truly holds the camera and the target on the facility (no TRON
+    arm): the robot by name (none for the tripod), an error per URDF joint origin and flange,
+    and the base error; read back through its format."""
+    from manifests.sidecars import read_truth
+
+    folder, workspace = rehearsed
+    truth = read_truth(Workspace(workspace))
+    assert truth.camera_arm is None and truth.facility is not None
+    facility = load_facility(FACILITIES / folder)
+    for carried in ("camera", "target"):
+        holder, stored = facility.holder(carried), truth.facility[carried]
+        if hasattr(holder, "chain"):
+            assert stored.robot == holder.spec.name and len(stored.joint_offsets_rad) == holder.chain.dof
+            assert len(stored.joint_origin_errors) == holder.chain.dof + 1
+            assert 0 < np.abs(stored.joint_offsets_rad).max() < 0.01
+        else:
+            assert stored.robot is None and not stored.joint_offsets_rad
