@@ -52,7 +52,7 @@ def planned_facility(config: Config) -> Facility | None:
                          "rail position (rail_m), of the one robot on a rail")
     needs = {"lightbox": bool(facility.spec.light_boxes), "sunlamp": facility.spec.sun_lamp is not None}
     missing = [light for light in config.plan.lights if not needs.get(light, True)]
-    if missing and config.plan.n_dataset:
+    if missing and (config.plan.n_dataset or config.plan.mode == "trajectory"):
         raise InputError(f"plan.lights: {', '.join(missing)} but {where} has no "
                          f"{' and no '.join('light boxes' if m == 'lightbox' else 'sun lamp' for m in missing)}; "
                          "set plan.lights to what the facility has")

@@ -5,9 +5,9 @@ Per sequence: the chief's orbit (exact Keplerian, ``orbits.two_body``) gives the
 the sun's direction and the shadow; D'Amico's ROE model gives the servicer's position in
 RTN; Euler's equations give the target's attitude; the camera points at the target's
 centre of mass with a constant error and a jitter. ``cam_from_target`` follows, at mock-up
-scale, and the room placement (``reconfigure``, or a facility folder's robots) realises it. A frame the robots cannot
-reach, or whose target leaves the image, refuses the whole plan with the count and the
-frames: a sequence is never thinned silently.
+scale, and the room placement (``reconfigure``, or a facility folder's robots) realises
+it. A frame the robots cannot reach, or whose target leaves the image, refuses the whole
+plan with the count and the frames: a sequence is never thinned silently.
 
 The presets scale with the plan's distance range (full scale, ``dataset_range``), so that
 any target's sequences fit the room its poses fit.

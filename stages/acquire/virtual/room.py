@@ -39,6 +39,9 @@ class Room:
     mocap_positions_m: np.ndarray | None  # (C, 3); None: no motion capture
     mocap_aims_m: np.ndarray | None  # (C, 3) the point each camera looks at
     marker_sigma_m: float
+    #: the ambient (calibration) light: TRON's two ceiling panels, or a facility room's
+    #: surfaces glowing (``scene.ROOM_GLOW``), which light a board however the robots hold it
+    glowing: bool = False
 
     @property
     def mocap_cameras(self) -> int:
@@ -81,4 +84,4 @@ def _facility_room(directory: Path) -> Room:
     aims = None if mocap is None else np.array([c[1] for c in mocap.cameras], float)
     return Room(tuple(spec.room_m), boxes, None if lamp is None else np.asarray(lamp.position_m, float),
                 0.0 if lamp is None else lamp.radius_m, positions, aims,
-                0.0 if mocap is None else mocap.marker_sigma_m)
+                0.0 if mocap is None else mocap.marker_sigma_m, glowing=True)

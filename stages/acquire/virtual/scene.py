@@ -67,7 +67,7 @@ class TestbedScene:
         self.scale = target.mockup_scale
         self.room = room_of(config)
         self.light_box_count = len(self.room.light_boxes)
-        self.glowing = bool(config.facility.path)  # a facility's ambient light: its room (ROOM_GLOW)
+        self.glowing = self.room.glowing
 
         objects: dict[str, Any] = {
             "type": "scene",
