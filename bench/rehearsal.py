@@ -33,9 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION
 from bench.common import report
-from bench.honesty import AXES, dataset, run_facility
+from bench.honesty import AXES, dataset, run_facility, sigma_coverage, under_speedplus
 from manifests.facility import facility_digest, read_facility_spec
 from manifests.rehearsal import RehearsalRecord, write_rehearsal
 from manifests.sidecars import read_calibration
@@ -45,26 +44,31 @@ from stages.common.target import load_target
 REHEARSAL_SEEDS = (71, 72, 73, 74)  # chosen with the commit that builds the rehearsal, before any was run
 
 
+def _coverage_columns(normalised: np.ndarray) -> dict[str, float]:
+    inside, rms = sigma_coverage(normalised)
+    return {**{f"(d) inside 1.96 sigma {a}": round(float(inside[i]), 3) for i, a in enumerate(AXES)},
+            **{f"(d) rms(err/sigma) {a}": round(float(rms[i]), 3) for i, a in enumerate(AXES)}}
+
+
+def _share(under: np.ndarray) -> str:
+    low, high = wilson(int(under.sum()), len(under))
+    return f"{under.mean():.0%} [{low:.0%}, {high:.0%}]"
+
+
 def rehearsal_row(seed: int, data: dict[str, Any], calibration_mm: dict[str, float]) -> dict[str, Any]:
     """One build's figures: (b) the labels against the truth, (c) against each source, (d) sigmas."""
-    under = (data["rotation"] < SPEEDPLUS_ROTATION_RAD) & (data["position"] < SPEEDPLUS_TRANSLATION)
-    low, high = wilson(int(under.sum()), len(under))
     sources = f"{np.mean(data['kuka']) * 1000:.3f}" + (f"/{np.mean(data['vicon']) * 1000:.3f}"
                                                        if len(data["vicon"]) else "/-")
-    normalised = data["axis_error"] / data["axis_sigma"]
     return {
-        "seed": seed, "labels": len(under),
+        "seed": seed, "labels": len(data["rotation"]),
         "(b) mean E_T label (mm)": round(float(np.mean(data["fused"]) * 1000), 3),
         "(b) mean E_R label (deg)": round(float(np.degrees(np.mean(data["rotation"]))), 4),
         "(b) max E_R label (deg)": round(float(np.degrees(np.max(data["rotation"]))), 4),
-        "(b) under SPEED+ thresholds [95%]": f"{under.mean():.0%} [{low:.0%}, {high:.0%}]",
+        "(b) under SPEED+ thresholds [95%]": _share(under_speedplus(data)),
         "(c) cal E_T vs truth, fused/robots/mocap (mm)": "/".join(
             f"{calibration_mm[s]:.3f}" if s in calibration_mm else "-" for s in ("fused", "kuka", "vicon")),
         "(c) dataset E_T robots/mocap (mm)": sources,
-        **{f"(d) inside 1.96 sigma {a}": round(float(np.mean(np.abs(normalised[:, i]) <= 1.96)), 3)
-           for i, a in enumerate(AXES)},
-        **{f"(d) rms(err/sigma) {a}": round(float(np.sqrt(np.mean(normalised[:, i] ** 2))), 3)
-           for i, a in enumerate(AXES)},
+        **_coverage_columns(data["axis_error"] / data["axis_sigma"]),
     }
 
 
@@ -81,20 +85,27 @@ def calibration_vs_truth_mm(ws: Any) -> dict[str, float]:
     return out
 
 
-def pooled(rows: list[dict[str, Any]], raws: list[dict[str, Any]]) -> dict[str, Any]:
-    """The row over every seed's labels."""
-    under = np.concatenate([r["under"] for r in raws])
-    normalised = np.concatenate([r["normalised"] for r in raws])
-    low, high = wilson(int(under.sum()), len(under))
-    row = {key: "" for key in rows[0]}
+def pooled(columns: list[str], data: list[dict[str, Any]]) -> dict[str, Any]:
+    """The row over every seed's labels (``dataset``'s of each seed)."""
+    under = np.concatenate([under_speedplus(d) for d in data])
+    row = dict.fromkeys(columns, "")
     row.update({"seed": "pooled", "labels": len(under),
-                "(b) mean E_T label (mm)": round(float(np.mean([r["fused"].mean() for r in raws]) * 1000), 3),
-                "(b) under SPEED+ thresholds [95%]": f"{under.mean():.0%} [{low:.0%}, {high:.0%}]"})
-    row.update({f"(d) inside 1.96 sigma {a}": round(float(np.mean(np.abs(normalised[:, i]) <= 1.96)), 3)
-                for i, a in enumerate(AXES)})
-    row.update({f"(d) rms(err/sigma) {a}": round(float(np.sqrt(np.mean(normalised[:, i] ** 2))), 3)
-                for i, a in enumerate(AXES)})
+                "(b) mean E_T label (mm)": round(float(np.mean(np.concatenate([d["fused"] for d in data]))) * 1000, 3),
+                "(b) under SPEED+ thresholds [95%]": _share(under),
+                **_coverage_columns(np.concatenate([d["axis_error"] / d["axis_sigma"] for d in data]))})
     return row
+
+
+def card(facility: Path, profile: str, settings: list[str], target: Path | None, seeds: list[str],
+         data: list[dict[str, Any]]) -> RehearsalRecord:
+    """The pooled figures as the facility's card (``DIR/rehearsal.json``)."""
+    under = np.concatenate([under_speedplus(d) for d in data])
+    inside, rms = sigma_coverage(np.concatenate([d["axis_error"] / d["axis_sigma"] for d in data]))
+    return RehearsalRecord(
+        facility_digest(facility), profile, tuple(settings), None if target is None else load_target(target).name,
+        tuple(int(s) for s in seeds), int(len(under)), int(under.sum()), wilson(int(under.sum()), len(under)),
+        round(float(np.mean(np.concatenate([d["fused"] for d in data]))) * 1000, 4),
+        tuple(round(float(v), 4) for v in inside), tuple(round(float(v), 4) for v in rms))
 
 
 def main(facility: Path, positional: list[str], targets: list[Path], profile: str = "default") -> None:
@@ -103,22 +114,13 @@ def main(facility: Path, positional: list[str], targets: list[Path], profile: st
     root = Path(positional[1]) if len(positional) > 1 else Path("data/rehearsal") / name
     settings = positional[2:]
     target = targets[0] if targets else None
-    rows, raws = [], []
+    rows, data = [], []
     for seed in (int(s) for s in seeds):
         ws = run_facility(root / f"seed{seed}", seed, settings, target, facility=facility, profile=profile)
-        data = dataset(ws)
-        rows.append(rehearsal_row(seed, data, calibration_vs_truth_mm(ws)))
-        under = (data["rotation"] < SPEEDPLUS_ROTATION_RAD) & (data["position"] < SPEEDPLUS_TRANSLATION)
-        raws.append({"under": under, "normalised": data["axis_error"] / data["axis_sigma"], "fused": data["fused"]})
-    rows.append(pooled(rows, raws))
-    under = np.concatenate([r["under"] for r in raws])
-    normalised = np.concatenate([r["normalised"] for r in raws])
-    record = RehearsalRecord(
-        facility_digest(facility), profile, tuple(settings), None if target is None else load_target(target).name,
-        tuple(int(s) for s in seeds), int(len(under)), int(under.sum()), wilson(int(under.sum()), len(under)),
-        round(float(np.mean(np.concatenate([r["fused"] for r in raws])) * 1000), 4),
-        tuple(round(float(np.mean(np.abs(normalised[:, i]) <= 1.96)), 4) for i in range(3)),
-        tuple(round(float(np.sqrt(np.mean(normalised[:, i] ** 2))), 4) for i in range(3)))
+        data.append(dataset(ws))
+        rows.append(rehearsal_row(seed, data[-1], calibration_vs_truth_mm(ws)))
+    rows.append(pooled(list(rows[0]), data))
+    record = card(facility, profile, settings, target, seeds, data)
     write_rehearsal(facility, record)  # the facility's card, beside its folder
     report(f"rehearsal_{name}", f"what labels {name} can expect: its folder ({facility}) rehearsed on the virtual "
            f"testbed, {profile} profile{'' if target is None else f', target {target}'}", rows,

@@ -24,6 +24,7 @@ from manifests.sidecars.base import Fields, read, save
 REHEARSAL_FILE = "rehearsal.json"
 REHEARSAL_VERSION = 1
 WRITER = "python -m bench honesty --facility DIR"
+AGAIN = f"rehearse the folder again ({WRITER})"
 
 
 @dataclass(frozen=True)
@@ -76,9 +77,14 @@ class RehearsalRecord:
 
 
 def write_rehearsal(directory: Path, record: RehearsalRecord) -> None:
-    save(Path(directory) / REHEARSAL_FILE, record.to_json())
+    """Write the card beside the folder, replacing only a card (a ``rehearsal.json`` of
+    another kind is the lab's own file: refused, naming it)."""
+    path = Path(directory) / REHEARSAL_FILE
+    if path.exists():
+        read_rehearsal(directory)  # a SidecarError names the file and what is wrong with it
+    save(path, record.to_json())
 
 
 def read_rehearsal(directory: Path) -> RehearsalRecord:
     """The folder's rehearsal record; a missing or malformed one names the file (and key)."""
-    return read(Path(directory) / REHEARSAL_FILE, REHEARSAL_VERSION, WRITER, RehearsalRecord.from_fields)
+    return read(Path(directory) / REHEARSAL_FILE, REHEARSAL_VERSION, WRITER, RehearsalRecord.from_fields, AGAIN)

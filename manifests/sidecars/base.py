@@ -22,31 +22,33 @@ class SidecarError(InputError):
     """A JSON file of the workspace that is missing, unreadable or malformed."""
 
 
-def load(path: Path, version: int, writer: str) -> Fields:
+def load(path: Path, version: int, writer: str, again: str | None = None) -> Fields:
     """The JSON object in ``path`` at ``version``, as a ``Fields`` walker; ``writer`` is the
-    command that makes the file (for the message)."""
+    command that makes the file (for the message), ``again`` how to make it anew (default:
+    rerun it with --force)."""
+    again = again or f"rerun {writer} with --force"
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
         raise SidecarError(f"{path}: missing; run {writer} first") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise SidecarError(f"{path}: not valid JSON ({error}); rerun {writer} with --force") from None
+        raise SidecarError(f"{path}: not valid JSON ({error}); {again}") from None
     if not isinstance(data, dict):
         raise SidecarError(f"{path}: expected a JSON object")
     if data.get("version") != version:
         raise SidecarError(f"{path}: version {data.get('version')!r}, this program reads version {version} "
-                           f"(written by an older or newer program); rerun {writer} with --force")
+                           f"(written by an older or newer program); {again}")
     return Fields(data, str(path), "")
 
 
-def read(path: Path, version: int, writer: str, parse: Callable[[Fields], T]) -> T:
+def read(path: Path, version: int, writer: str, parse: Callable[[Fields], T], again: str | None = None) -> T:
     """The file at ``path`` parsed by ``parse``; any error names the file and the key and
-    says which command makes the file anew."""
-    fields = load(path, version, writer)
+    says which command makes the file anew (``again``, as for ``load``)."""
+    fields = load(path, version, writer, again)
     try:
         return parse(fields)
     except SidecarError as error:
-        raise SidecarError(f"{error}; rerun {writer} with --force") from None
+        raise SidecarError(f"{error}; {again or f'rerun {writer} with --force'}") from None
 
 
 def save(path: Path, payload: dict[str, Any]) -> None:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import pytest
+
 from tests.conftest import speedplus
 
 TESTS = Path(__file__).resolve().parents[1] / "facilities"
@@ -50,6 +52,7 @@ def test_the_rehearsals_card_is_shown_and_known_stale(tmp_path):
     one ends with exit 1 naming the file and the key."""
     from manifests.facility import facility_digest
     from manifests.rehearsal import RehearsalRecord, write_rehearsal
+    from manifests.sidecars.base import SidecarError
 
     folder = tmp_path / "lab"
     shutil.copytree(TESTS / "ur10_tripod", folder)
@@ -68,3 +71,10 @@ def test_the_rehearsals_card_is_shown_and_known_stale(tmp_path):
     result = speedplus(*args)
     message = " ".join(result.stderr.split())
     assert result.returncode == 1 and "rehearsal.json: key under_speedplus: expected at most labels (16)" in message
+    assert "rehearse the folder again (python -m bench honesty --facility DIR)" in message
+    # a rehearsal.json the lab wrote itself is not replaced by the rehearsal's card
+    (folder / "rehearsal.json").write_text('{"notes": "our own"}')
+    with pytest.raises(SidecarError, match="rehearsal.json: version None"):
+        write_rehearsal(folder, RehearsalRecord(facility_digest(folder), "smoke", (), None, (71,), 8, 8, (0.6, 1.0),
+                                                1.0, (1.0, 1.0, 1.0), (1.0, 1.0, 1.0)))
+    assert (folder / "rehearsal.json").read_text() == '{"notes": "our own"}'
