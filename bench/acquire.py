@@ -19,11 +19,11 @@ import cv2
 import numpy as np
 
 from bench.common import report
-from core.config import load_config
 from manifests import Workspace, read_manifest
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common.patterns import PatternSpec, detect
-from stages.plan import plan_sample, planned_samples
+from stages.plan.stage import plan_sample, planned_samples
 
 
 def timing(per_session: int = 6) -> None:

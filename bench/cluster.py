@@ -26,14 +26,15 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
-from core.config import Override, load_config, with_overrides
+from core.config import Override, with_overrides
 from core.engines.local_cluster import ENV, LocalCluster
 from manifests import Workspace
+from pipeline.config import load_config
 from stages.acquire.virtual.sensor import lens_camera
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, planned_samples
+from stages.plan.stage import plan_sample, planned_samples
 from stages.render.jobs import RenderJob
 from stages.render.worker import RenderWorker
 

@@ -24,13 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
-from core.config import load_config
 from manifests import Workspace, read_manifest
 from manifests.files import write_json_atomic
 from manifests.integrity import sha256
+from pipeline.config import load_config
 from stages.common.detector import Detector
 from stages.common.image_io import read_image, to_uint8
-from stages.evaluate import REPOSITORY, SHIPPED_DETECTOR, detector_path
+from stages.evaluate.stage import REPOSITORY, SHIPPED_DETECTOR, detector_path
 from stages.reference.detect import box_iou
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common.pose_model import PoseModel
 from stages.common.workspace_target import planned_target
 

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from core.config import load_config
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_fusion
+from pipeline.config import load_config
 from stages.common import arms
 from stages.common.workspace_target import workspace_target
-from stages.fuse import estimate, load_models, with_marker_geometry
+from stages.fuse.stage import estimate, load_models, with_marker_geometry
 
 #: the issue's bands for honest sigmas per facility (pooled: 90-99% inside, rms 0.8-1.2)
 FACILITY_BANDS = {"inside": (0.85, 1.0), "rms": (0.7, 1.4)}

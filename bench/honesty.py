@@ -54,9 +54,10 @@ import numpy as np
 from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION, papers_method
 from bench.common import report
 from bench.honest_odds import pooled_range, simulate
-from core.config import load_config, parse_override, with_overrides, write_config
+from core.config import parse_override, with_overrides, write_config
 from manifests import Workspace, read_manifest, read_marker
 from manifests.sidecars import read_calibration, read_fusion, read_session
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common.patterns import pattern_from_table
 from stages.common.tables import PAPER

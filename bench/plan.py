@@ -14,15 +14,15 @@ import numpy as np
 from scipy import stats
 
 from bench.common import report
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import geometry as g
-from stages.plan import plan_sample
+from stages.plan.stage import plan_sample
 
 
 def main(n_dataset: int | str = 1000) -> None:
     n_dataset = int(n_dataset)
     config = load_config("default")
-    config = replace(config, plan=replace(config.plan, n_dataset=n_dataset))
+    config = config.replace(plan=replace(config.plan, n_dataset=n_dataset))
     rows, timing = {}, []
     for session, count in (("calibration", config.plan.n_calibration), ("dataset", n_dataset)):
         started = time.perf_counter()

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from bench.common import report
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.cameras import train_camera

@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from bench.common import report
-from core.config import load_config
+from pipeline.config import load_config
 
 
 def _means(root: Path) -> dict[tuple[str, str, str], float]:

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import report
-from core.config import load_config
 from core.engines import map_local, threads_per_worker
 from manifests import Workspace
+from pipeline.config import load_config
 from stages.common.cameras import train_camera
 from stages.common.workspace_target import planned_target
 from stages.render.jobs import train_jobs

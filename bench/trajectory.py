@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from bench.common import report
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common.attitude import angular_momentum_eci, torque_free
 from stages.common.orbits import Elements, RoeModel, relative_two_body
 from stages.common.workspace_target import planned_target
@@ -66,7 +66,7 @@ def planning(target) -> list[dict]:
     rows = []
     for profile in ("smoke", "default", "paper"):
         config = load_config(profile)
-        config = replace(config, plan=replace(config.plan, mode="trajectory"))
+        config = config.replace(plan=replace(config.plan, mode="trajectory"))
         for index, preset in enumerate(config.trajectory.presets):
             started = time.perf_counter()
             planned, _ = sequence_rows(config, target, index, preset, 0)

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from bench.common import report
-from core.config import UNMODELLED_SOURCES, Config, load_config, parse_override, with_overrides
+from core.config import UNMODELLED_SOURCES, Config, parse_override, with_overrides
+from pipeline.config import load_config
 from stages.acquire.virtual import robots
 from stages.acquire.virtual.timeline import timeline
 from stages.acquire.virtual.truth import draw_truth
@@ -30,7 +31,7 @@ from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.geometry import pose_columns
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, planned_samples
+from stages.plan.stage import plan_sample, planned_samples
 
 PNP_SIGMA_M, PNP_SIGMA_RAD = 0.05e-3, np.radians(0.026)
 SPEEDPLUS_ROTATION_DEG = 0.169

@@ -25,23 +25,14 @@ from rich.markup import escape
 from rich.table import Table
 from typer.core import TyperGroup
 
-from core.config import (
-    SECTION_TYPES,
-    Config,
-    Override,
-    documented,
-    layered,
-    load_config,
-    parse_override,
-    with_overrides,
-    write_config,
-)
+from core.config import Config, Override, documented, parse_override, with_overrides, write_config
 from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
 from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
 from manifests.snapshot import Snapshot
 from manifests.workspace import CONFIG_FILE
 from pipeline import registry, runner
+from pipeline.config import SECTION_TYPES, layered, load_config
 from speedplus.errors import InputError, RefusalError
 
 
@@ -546,7 +537,7 @@ def target_command(folder: Annotated[Path, typer.Argument(help="a target folder:
     ambiguous. Exit 1 naming the file and key when it cannot be used."""
     from stages.common.target_report import describe  # the shared layer: meshes load only there
 
-    title, rows = describe(folder)
+    title, rows = describe(folder, load_config("default"))
     table = Table(title=escape(title))
     for column in ("what", "value"):
         table.add_column(column)

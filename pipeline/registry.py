@@ -23,7 +23,9 @@ from speedplus.errors import InputError
 class StageEntry:
     name: str
     summary: str
-    #: the stage's package: its ``run(config, workspace)`` and ``resolve(config, workspace)``
+    #: the stage's package: ``<package>.stage`` has its ``run(config, workspace)`` and
+    #: ``resolve(config, workspace)``, ``<package>.config`` its configuration sections
+    #: (``SECTIONS``, which ``pipeline.config`` gathers)
     package: str
     #: the package checks what it reads from outside the workspace (``preflight(config,
     #: workspace)``: evaluate, every model against its contract) before anything is discarded
@@ -49,7 +51,7 @@ class StageEntry:
     notes: bool = False
 
     def resolved(self, config: Config, workspace: Workspace) -> Resolved:
-        resolved = _load(f"{self.package}:resolve")(config, workspace)
+        resolved = _load(f"{self.package}.stage:resolve")(config, workspace)
         if not isinstance(resolved, Resolved):
             raise TypeError(f"{self.package}.resolve returned {type(resolved).__name__}, not a Resolved")
         return resolved
@@ -58,30 +60,30 @@ class StageEntry:
         """The stage's own checks of its inputs from outside the workspace (a model file),
         before the runner changes anything."""
         if self.preflight:
-            _load(f"{self.package}:preflight")(config, workspace)
+            _load(f"{self.package}.stage:preflight")(config, workspace)
 
     def status_views(self, config: Config, workspace: Workspace) -> list[tuple[str, Config]]:
         """What ``status`` shows of this stage: (label, the configuration it is judged under)."""
         if not self.views:
             return [(self.name, config)]
-        return list(_load(f"{self.package}:status_views")(config, workspace))
+        return list(_load(f"{self.package}.stage:status_views")(config, workspace))
 
     def note(self, config: Config, workspace: Workspace) -> str:
         """What ``status`` says of the stage's finished results (empty: nothing)."""
-        return str(_load(f"{self.package}:status_note")(config, workspace)) if self.notes else ""
+        return str(_load(f"{self.package}.stage:status_note")(config, workspace)) if self.notes else ""
 
     def skipped_in_chain(self, config: Config) -> bool:
         """Whether ``speedplus run`` (or any command of several stages) leaves it out."""
-        return self.may_skip and bool(_load(f"{self.package}:skipped_in_chain")(config))
+        return self.may_skip and bool(_load(f"{self.package}.stage:skipped_in_chain")(config))
 
     def function(self) -> Callable[..., Any]:
-        return _load(f"{self.package}:run")
+        return _load(f"{self.package}.stage:run")
 
 
 def with_added_models(config: Config, workspace: Workspace, added: list[Any]) -> tuple[list[str], list[str]]:
     """``evaluate.models`` with ``added`` files beside the scored ones, and notes of the
-    models they replace (``stages.evaluate.with_added_models``)."""
-    models, notes = _load("stages.evaluate:with_added_models")(config, workspace, added)
+    models they replace (``stages.evaluate.stage.with_added_models``)."""
+    models, notes = _load("stages.evaluate.stage:with_added_models")(config, workspace, added)
     return list(models), list(notes)
 
 
@@ -100,7 +102,7 @@ def published(workspace: Workspace, destinations: dict[str, Any]) -> list[tuple[
 
 def trained_models(config: Config) -> list[str]:
     """The names of the models train-reference makes under ``config``."""
-    return list(_load("stages.reference:model_names")(config))
+    return list(_load("stages.reference.stage:model_names")(config))
 
 
 def _load(entry_point: str) -> Callable[..., Any]:

@@ -13,9 +13,9 @@ import pytest
 from scipy.io import loadmat
 
 from bench.overlap import twin_overlap
-from core.config import load_config
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_markers
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import ground_truth
 from stages.common.image_io import read_image

@@ -53,6 +53,19 @@ def test_a_stage_imports_no_other_stage(stage):
     assert violations(sorted((ROOT / "stages" / stage).rglob("*.py")), {stage}) == []
 
 
+@pytest.mark.parametrize("stage", STAGES)
+def test_reading_a_stages_configuration_imports_nothing_else_of_it(stage):
+    """A stage's ``__init__`` imports nothing and its ``config`` module imports only the
+    layers below the stages: gathering every section (``pipeline.config``, on every command
+    and in every worker) loads no stage's code."""
+    package = ROOT / "stages" / stage
+    assert imported_modules(package / "__init__.py") == []
+    if (package / "config.py").exists():
+        below = {"core", "manifests", "speedplus", "__future__", "typing", "dataclasses", "math", "datetime",
+                 "pathlib", "numpy"}
+        assert [m for _, m in imported_modules(package / "config.py") if m.split(".")[0] not in below] == []
+
+
 @pytest.mark.parametrize("package", ["stages/common", "manifests", "core", "pipeline", "speedplus"])
 def test_shared_layers_import_no_stage(package):
     assert violations(sorted((ROOT / package).rglob("*.py")), set()) == []

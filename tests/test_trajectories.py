@@ -228,7 +228,7 @@ def test_a_twin_shows_the_earth_where_the_orbit_puts_it_in_view(sequences, tmp_p
     """Held on the v-bar the camera looks along the track, 27 degrees above the 700 km
     horizon: no Earth (the twins rendered say so). From 8 m above the target (a custom
     sequence) it looks down: the renderer's Earth fills the background around the target."""
-    from core.config import load_config
+    from pipeline.config import load_config
     from stages.common.lens import LensCamera
     from stages.common.workspace_target import workspace_target
     from stages.render.jobs import RenderJob, orbital_earth
@@ -259,7 +259,7 @@ def test_a_twin_shows_the_earth_where_the_orbit_puts_it_in_view(sequences, tmp_p
 def test_a_strangers_target_gets_sequences_of_its_own_size_and_inertia(tmp_path):
     """The CubeSat of tests/target_folders.py (three parts, mm): its sequences sit in its own
     range (SPEED+'s in diameters), its inertia is its mesh's, and the whole plan is placed."""
-    from core.config import load_config
+    from pipeline.config import load_config
     from stages.common.workspace_target import planned_target
     from tests.target_folders import cubesat
 

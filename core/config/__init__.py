@@ -1,5 +1,6 @@
 """Typed configuration: one frozen dataclass per section, every field documented with its unit
-(``facility``: execution, camera, testbed, virtual testbed; ``stages``: one section per stage).
+(``facility``: execution, camera, testbed, virtual testbed; each stage's own sections live in
+its package, ``stages/<name>/config.py``, and ``pipeline/config.py`` gathers them all).
 
 Resolution order (``loading.layered``): the workspace's saved ``W/config.toml``, or for a new
 workspace (or an explicit ``--profile`` switch) the dataclass defaults and the profile shipped in
@@ -31,28 +32,12 @@ from core.config.loading import (
     with_overrides,
     write_config,
 )
-from core.config.model import SECTION_TYPES, Config
+from core.config.model import FACILITY_SECTIONS, Config
 from core.config.params import ConfigError, documented, param
-from core.config.stages import (
-    AcquireConfig,
-    CalibrateConfig,
-    EvaluateConfig,
-    ExportConfig,
-    FuseConfig,
-    LabelConfig,
-    PlanConfig,
-    ReferenceConfig,
-    RenderConfig,
-    TrajectoryConfig,
-)
 
 __all__ = [
-    "documented",
-    "PROFILES", "SECTION_TYPES", "AcquireConfig", "CalibrateConfig", "CameraConfig", "Config", "ConfigError",
-    "EvaluateConfig", "ExportConfig", "FacilityConfig", "FuseConfig", "LabelConfig", "Override", "PlanConfig",
-    "ReferenceConfig",
-    "UNMODELLED_SOURCES", "RenderConfig", "RunConfig", "TargetConfig", "TestbedConfig", "TrajectoryConfig",
-    "VirtualConfig", "layered",
+    "FACILITY_SECTIONS", "PROFILES", "UNMODELLED_SOURCES", "CameraConfig", "Config", "ConfigError", "FacilityConfig",
+    "Override", "RunConfig", "TargetConfig", "TestbedConfig", "VirtualConfig", "documented", "layered",
     "load_config", "param", "parse_override",
     "profile_path", "resize_camera_matrix", "to_dict", "with_overrides", "write_config",
 ]

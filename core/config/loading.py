@@ -9,7 +9,7 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 import tomli_w
 
-from core.config.model import SECTION_TYPES, Config
+from core.config.model import Config
 from core.config.params import ConfigError
 
 PROFILES = ("smoke", "default", "paper")
@@ -112,16 +112,17 @@ def _renamed(updates: dict[str, Any]) -> dict[str, Any]:
 
 
 def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
-    known_keys = [f"{s}.{f.name}" for s, t in SECTION_TYPES.items() for f in fields(t)]
+    section_types = {name: type(section) for name, section in config.items()}
+    known_keys = [f"{s}.{f.name}" for s, t in section_types.items() for f in fields(t)]
     changes: dict[str, Any] = {}
     for section_name, values in _renamed(updates).items():
         if section_name == "profile":
             continue
-        if section_name not in SECTION_TYPES:
-            raise ConfigError(f"{source}: " + str(_unknown(section_name, list(SECTION_TYPES))))
+        if section_name not in section_types:
+            raise ConfigError(f"{source}: " + str(_unknown(section_name, list(section_types))))
         if not isinstance(values, dict):
             raise ConfigError(f"{source}: {section_name!r} must be a table of keys")
-        section_type = SECTION_TYPES[section_name]
+        section_type = section_types[section_name]
         hints = typing.get_type_hints(section_type)
         field_names = {f.name for f in fields(section_type)}
         coerced = {}
@@ -141,7 +142,7 @@ def _apply(config: Config, updates: dict[str, Any], source: str) -> Config:
             except ConfigError as error:
                 raise ConfigError(f"{source}: {error}") from None
         changes[section_name] = replace(getattr(config, section_name), **coerced)
-    return replace(config, **changes)
+    return config.replace(**changes)
 
 
 def _check(config: Config) -> Config:
@@ -151,9 +152,9 @@ def _check(config: Config) -> Config:
     for name in ("target", "facility"):
         section = config.section(name)
         if section.path and not Path(section.path).is_absolute():
-            config = replace(config, **{name: replace(section, path=str(Path(section.path).resolve()))})
-    for name in SECTION_TYPES:
-        config.section(name).check(config)
+            config = config.replace(**{name: replace(section, path=str(Path(section.path).resolve()))})
+    for _, section in config.items():
+        section.check(config)
     return config
 
 
@@ -212,9 +213,10 @@ def with_overrides(config: Config, overrides: Sequence[Override]) -> Config:
 
 
 def load_config(profile: str | None = None, config_file: str | Path | None = None,
-                overrides: Sequence[Override | str] = ()) -> Config:
-    """Resolve a configuration: the profile, then ``config_file``, then ``overrides``
-    (``Override`` records, or ``--set`` texts, parsed once here).
+                overrides: Sequence[Override | str] = (), *, sections: Mapping[str, type]) -> Config:
+    """Resolve a configuration of ``sections`` (name -> section dataclass; the whole set:
+    ``pipeline.config``): the profile, then ``config_file``, then ``overrides`` (``Override``
+    records, or ``--set`` texts, parsed once here).
 
     Without ``profile``, the ``profile`` key of ``config_file`` (e.g. a workspace's
     ``config.toml``) picks the base profile; otherwise ``default``.
@@ -224,7 +226,7 @@ def load_config(profile: str | None = None, config_file: str | Path | None = Non
         profile = data.get("profile", "default")
         if not isinstance(profile, str):
             raise ConfigError(f"{config_file}: profile must be a string, got {profile!r}")
-    config = _apply(Config(profile=profile), _read_toml(profile_path(profile), f"profile {profile}"),
+    config = _apply(Config.defaults(sections, profile), _read_toml(profile_path(profile), f"profile {profile}"),
                     f"profile {profile}")
     if data:
         config = _apply(config, data, str(config_file))
@@ -232,7 +234,7 @@ def load_config(profile: str | None = None, config_file: str | Path | None = Non
 
 
 def layered(saved: Path | None, profile: str | None = None, config_file: str | Path | None = None,
-            overrides: Sequence[Override] = ()) -> tuple[Config, str | None]:
+            overrides: Sequence[Override] = (), *, sections: Mapping[str, type]) -> tuple[Config, str | None]:
     """A command's configuration, lowest precedence first (docs/user-guide.md, "Configuration"):
 
     1. the workspace's saved ``W/config.toml`` (``saved``, when it exists), else the profile
@@ -253,14 +255,14 @@ def layered(saved: Path | None, profile: str | None = None, config_file: str | P
     if saved is not None and saved.is_file():
         saved_profile = _read_toml(saved, str(saved)).get("profile", "default")
         if profile is not None and profile != saved_profile:
-            switched_from, base = saved_profile, load_config(profile)
+            switched_from, base = saved_profile, load_config(profile, sections=sections)
         else:
             if named is not None and named != saved_profile and profile is None:
                 raise ConfigError(f"{config_file}: key profile: {named!r}, but the workspace was made with profile "
                                   f"{saved_profile!r} ({saved}); switch profile with --profile {named}")
-            base = load_config(None, saved)
+            base = load_config(None, saved, sections=sections)
     else:
-        base = load_config(profile or named or "default")
+        base = load_config(profile or named or "default", sections=sections)
     config = _apply(base, data, str(config_file)) if data else base
     return with_overrides(config, overrides), switched_from
 
@@ -273,8 +275,7 @@ def to_dict(config: Config) -> dict[str, Any]:
         return value
 
     out: dict[str, Any] = {"profile": config.profile}
-    for name in SECTION_TYPES:
-        section = getattr(config, name)
+    for name, section in config.items():
         out[name] = {f.name: plain(getattr(section, f.name)) for f in fields(section)}
     return out
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from core.config import CalibrateConfig
 from stages.calibrate import observations as obs
+from stages.calibrate.config import CalibrateConfig
 from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags, rotation_fit
 from stages.common import geometry as g
 from stages.common.patterns import PatternSpec

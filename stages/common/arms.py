@@ -36,12 +36,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from core.config import CalibrateConfig, TestbedConfig
+from core.config import TestbedConfig
 from stages.common import geometry as g
 from stages.common import layout, rwhe
 from stages.common.kinematics import arm_model, forward
@@ -227,7 +227,23 @@ def corrected_b(testbed: TestbedConfig, errors: ArmErrors, r: Readings,
     return g.invert(world_from_camee) @ world_from_targetee, up
 
 
-def priors(c: CalibrateConfig) -> np.ndarray:
+class ArmFitSettings(Protocol):
+    """What ``fit`` reads of its caller's settings (the calibrate stage's section,
+    stages/calibrate/config.py, whose fields' help gives their meaning and units)."""
+
+    world_up: tuple[float, float, float]
+    arm_prior_joint_rad: float
+    arm_prior_length_m: float
+    arm_prior_base_m: float
+    arm_prior_base_rad: float
+    arm_prior_rail_scale: float
+    arm_prior_compliance_rad_per_nm: tuple[float, float, float]
+    joint_compliance: str
+    fixture_anisotropy: str
+    fixture_anisotropy_prior: float
+
+
+def priors(c: ArmFitSettings) -> np.ndarray:
     """1-sigma of each arm parameter before calibration (N_ARM,)."""
     at, sigma = ArmLayout, np.empty(N_ARM)
     sigma[at.joint_offsets] = c.arm_prior_joint_rad
@@ -359,7 +375,7 @@ def _residual_scales(difference: np.ndarray) -> np.ndarray:
     return np.concatenate([np.full((3, 3), rotation), np.full((3, 1), translation)], axis=1)
 
 
-def fit(testbed: TestbedConfig, c: CalibrateConfig, a: np.ndarray, r: Readings, fixtures: list[str],
+def fit(testbed: TestbedConfig, c: ArmFitSettings, a: np.ndarray, r: Readings, fixtures: list[str],
         start: rwhe.Solution, compliant: bool) -> Fit:
     """Arms, ``Z``, ``X_f`` (and ``k_f``) from PnP poses ``a`` (N, 4, 4) and readings ``r``.
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from core.config import load_config
+from core.config import Config
 from stages.common.marker_fit import expected_accuracy
 from stages.common.markers import markers
 from stages.common.symmetry import ambiguities
@@ -18,9 +18,10 @@ from stages.common.target import load_target
 from stages.common.workspace_target import SPEEDPLUS_RANGE_M, apparent_size_ratio
 
 
-def describe(folder: Path) -> tuple[str, list[tuple[str, str]]]:
+def describe(folder: Path, config: Config) -> tuple[str, list[tuple[str, str]]]:
     """A table's title and its (what, value) rows; an error naming the file and key when
-    the folder cannot be used."""
+    the folder cannot be used. ``config``: the default profile's (its motion capture and
+    plan give the expected accuracy)."""
     target = load_target(folder)
     placed = markers(target)
     ambiguous = ambiguities(target)
@@ -43,7 +44,7 @@ def describe(folder: Path) -> tuple[str, list[tuple[str, str]]]:
                 if placed.chosen else "declared")
              + "; centres on the mock-up, body frame (mm): "
              + "; ".join("(" + ", ".join(f"{v * 1000:.1f}" for v in c) + ")" for c in placed.centres_m)),
-            ("motion capture to expect", _expected_mocap(target, placed)),
+            ("motion capture to expect", _expected_mocap(target, placed, config)),
             ("symmetries", "; ".join(
                 f"{a.symmetry} maps the mesh onto itself and moves keypoints "
                 f"({', '.join(f'{i}<->{j}' for i, j in a.swapped)}"
@@ -57,10 +58,9 @@ def describe(folder: Path) -> tuple[str, list[tuple[str, str]]]:
     return f"target {target.name} ({folder})", rows
 
 
-def _expected_mocap(target: Any, placed: Any) -> str:
+def _expected_mocap(target: Any, placed: Any, config: Config) -> str:
     """``speedplus target``'s motion-capture accuracy at the plan's default range, with the
     default profile's motion capture (``stages.common.marker_fit.expected_accuracy``)."""
-    config = load_config("default")
     v = config.virtual
     ranges = tuple(r * apparent_size_ratio(target) * target.mockup_scale for r in SPEEDPLUS_RANGE_M)
     accuracy = expected_accuracy(placed.centres_m, placed.normals, np.zeros(3),

@@ -35,7 +35,7 @@ from stages.common.sources import measured_b
 from stages.common.target import Target
 
 if TYPE_CHECKING:
-    from stages.fuse import SourceModel
+    from stages.fuse.stage import SourceModel
 
 #: the calibrated variance's share kept for what is not the target body's fit, at least
 REST_FLOOR = 0.1

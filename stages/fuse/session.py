@@ -34,7 +34,7 @@ from stages.common.fusion import (
 )
 
 if TYPE_CHECKING:
-    from stages.fuse import Estimates
+    from stages.fuse.stage import Estimates
 
 #: robust standard deviation of a normal sample from its median absolute deviation
 _MAD_TO_SIGMA = 1.482602

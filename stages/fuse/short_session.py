@@ -32,8 +32,8 @@ from scipy.stats import t as student_t
 from stages.common.fusion import Sigma
 
 if TYPE_CHECKING:
-    from stages.fuse import SourceModel
     from stages.fuse.marker_geometry import MarkerGeometry
+    from stages.fuse.stage import SourceModel
 
 
 def _rms(metric: list[float]) -> float:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.config import CameraConfig, PlanConfig, TestbedConfig
+from core.config import CameraConfig, TestbedConfig
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import layout
@@ -18,6 +18,7 @@ from stages.common.kinematics import arm_model
 from stages.common.patterns import board_pattern
 from stages.common.target import Target
 from stages.common.workspace_target import SPEEDPLUS_RANGE_M, apparent_size_ratio
+from stages.plan.config import PlanConfig
 
 #: Draws of a pose that fails a visibility rule before the configuration is declared impossible.
 _MAX_VISIBILITY_DRAWS = 1000

@@ -20,11 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.config import PlanConfig, TestbedConfig
+from core.config import TestbedConfig
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.kinematics import arm_model, limit_margin, solve
 from stages.common.target import Target
+from stages.plan.config import PlanConfig
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from core.config import Config, ReferenceConfig
+from core.config import Config
 from core.progress import console, track
 from manifests import Workspace, read_manifest
 from manifests.files import temporary_name, write_json_atomic
@@ -34,6 +34,7 @@ from stages.common.model_contract import IR_VERSION, OPSET, Channels
 from stages.common.model_input import normalise
 from stages.common.target import Target
 from stages.reference.augment import augment
+from stages.reference.config import ReferenceConfig
 
 #: input pixels per mask pixel
 STRIDE = 2

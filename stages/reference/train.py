@@ -22,8 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from core.config import Config, ReferenceConfig
-from core.config.stages import ReferenceVariant
+from core.config import Config
 from core.progress import console, track
 from manifests import Workspace, read_manifest
 from manifests.files import temporary_name, write_json_atomic
@@ -36,6 +35,7 @@ from stages.common.pose_model import PoseModel
 from stages.common.scores import score
 from stages.common.target import Target
 from stages.reference.augment import augment, geometric
+from stages.reference.config import ReferenceConfig, ReferenceVariant
 
 #: ImageNet's normalisation per channel; for grey, the means of its three channels'
 NORMALISATION: dict[Channels, tuple[tuple[float, ...], tuple[float, ...]]] = {

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.config import PROFILES, SECTION_TYPES, ConfigError, load_config, write_config
+from core.config import PROFILES, ConfigError, write_config
+from pipeline.config import SECTION_TYPES, load_config
 
 
 @pytest.mark.parametrize("profile", PROFILES)
@@ -121,7 +122,7 @@ def test_each_section_holds_its_own_rules():
     import inspect
 
     from core.config import loading
-    from core.config.model import SECTION_TYPES
+    from pipeline.config import SECTION_TYPES
 
     for name, section in SECTION_TYPES.items():
         assert "check" in vars(section), f"{name}: no check() beside its fields"

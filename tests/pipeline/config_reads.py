@@ -7,17 +7,17 @@ from __future__ import annotations
 import ast
 import dataclasses
 import importlib.util
-import typing
 from functools import cache
 from pathlib import Path
 
-from core.config import Config
+from pipeline.config import SECTION_TYPES
 
-SECTIONS = frozenset(f.name for f in dataclasses.fields(Config))
+#: the configuration's sections, and its ``profile`` (read whole, as a section without keys)
+SECTIONS = frozenset({*SECTION_TYPES, "profile"})
 #: each section's own keys; anything else read off a section (a property such as the
 #: camera's ``camera_matrix``) may read any of them
-KEYS = {name: frozenset(f.name for f in dataclasses.fields(kind)) if dataclasses.is_dataclass(kind) else frozenset()
-        for name, kind in typing.get_type_hints(Config).items()}
+KEYS = {"profile": frozenset(),
+        **{name: frozenset(f.name for f in dataclasses.fields(kind)) for name, kind in SECTION_TYPES.items()}}
 ROOT = Path(__file__).resolve().parents[2]
 WHOLE = "*"
 
@@ -151,10 +151,13 @@ HOOKS = frozenset({"resolve", "skipped_in_chain", "status_views", "preflight"})
 
 def package_reads(package: str) -> set[tuple[str, str]]:
     """Every (section, key) the stage package reads from ``config`` (key ``*``: all of it),
-    outside the registry's hooks."""
+    outside the registry's hooks and its configuration's own rules (``config.py``: checks of
+    the values, not dependencies of its results)."""
     directory = ROOT / package.replace(".", "/")
     reads: set[tuple[str, str]] = set()
     for path in sorted(directory.rglob("*.py")):
+        if path == directory / "config.py":
+            continue
         tree = _tree(path)
         for node in tree.body:
             if isinstance(node, ast.FunctionDef) and node.name in HOOKS:

@@ -8,8 +8,8 @@ import numpy as np
 
 from core.config import Config
 from manifests import Workspace, open_sink, read_keys
-from stages.plan import plan_sample, planned_samples
-from stages.plan import resolve as resolve  # the plan's inputs and outputs
+from stages.plan.stage import plan_sample, planned_samples
+from stages.plan.stage import resolve as resolve  # the plan's inputs and outputs
 
 
 def run(config: Config, workspace: Workspace) -> None:

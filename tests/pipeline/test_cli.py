@@ -154,7 +154,7 @@ def test_each_export_format_keeps_its_own_folder_and_status_shows_each(smoke_lab
 def test_keys_prints_every_key_of_a_section_with_its_meaning_and_refuses_an_unknown_one():
     from dataclasses import fields
 
-    from core.config import SECTION_TYPES
+    from pipeline.config import SECTION_TYPES
 
     result = speedplus("keys", "trajectory")
     assert result.returncode == 0, result.stderr

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from core.config import Config
-from core.config.loading import load_config, parse_override, with_overrides
+from core.config import Config, parse_override, with_overrides
+from pipeline.config import load_config
 from pipeline.registry import STAGES
 from tests.pipeline.config_reads import WHOLE, package_reads
 
@@ -61,7 +61,7 @@ def test_a_stage_declares_what_it_reads_and_reads_what_it_declares(stage_name: s
 def _keys(section: str) -> list[str]:
     from dataclasses import fields
 
-    from core.config.model import SECTION_TYPES
+    from pipeline.config import SECTION_TYPES
 
     return [f.name for f in fields(SECTION_TYPES[section])]
 

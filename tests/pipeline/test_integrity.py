@@ -6,10 +6,10 @@ from dataclasses import replace
 
 import pytest
 
-from core.config import load_config
 from manifests import ManifestError, Workspace, list_parts, read_manifest
 from manifests.integrity import recover
 from pipeline import registry, runner
+from pipeline.config import load_config
 from pipeline.registry import StageEntry
 from tests.conftest import speedplus
 
@@ -33,7 +33,7 @@ def reference(tmp_path_factory):
 def test_finishing_order_and_part_size_never_reach_the_bytes(tmp_path, monkeypatch, reference, seed, part_rows):
     monkeypatch.setenv("FAKE_ORDER_SEED", str(seed))
     config = load_config("smoke")
-    config = replace(config, run=replace(config.run, part_rows=part_rows))
+    config = config.replace(run=replace(config.run, part_rows=part_rows))
     ws = Workspace(tmp_path)
     runner.run_stage(FAKE, config, ws)
     assert parts_bytes(ws) == reference
@@ -41,7 +41,7 @@ def test_finishing_order_and_part_size_never_reach_the_bytes(tmp_path, monkeypat
 
 def test_a_killed_and_resumed_run_gives_the_same_bytes(tmp_path, monkeypatch, reference):
     config = load_config("smoke")
-    config = replace(config, run=replace(config.run, part_rows=5))
+    config = config.replace(run=replace(config.run, part_rows=5))
     ws = Workspace(tmp_path)
     monkeypatch.setenv("FAKE_ORDER_SEED", "4")
     monkeypatch.setenv("FAKE_STOP_AFTER", "13")

@@ -9,10 +9,10 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from core.config import SECTION_TYPES, load_config
 from manifests import MANIFESTS, Workspace
 from pipeline import registry
 from pipeline.cli import app
+from pipeline.config import SECTION_TYPES, load_config
 
 TABB = Path(__file__).resolve().parents[3] / "shared" / "external" / "tabb_ds1"
 MARKERS = {"report"}  # completion markers without Parquet parts
@@ -88,6 +88,6 @@ def test_every_hook_an_entry_declares_is_in_its_package():
 
     hooks = {"preflight": "preflight", "views": "status_views", "may_skip": "skipped_in_chain"}
     for entry in registry.STAGES:
-        package = importlib.import_module(entry.package)
+        package = importlib.import_module(f"{entry.package}.stage")
         for flag, function in hooks.items():
             assert getattr(entry, flag) == callable(getattr(package, function, None)), (entry.name, function)

@@ -5,10 +5,10 @@ from dataclasses import replace
 import pyarrow.compute as pc
 import pytest
 
-from core.config import load_config
 from manifests import Workspace, part_fingerprints, read_manifest, read_marker, write_part
 from pipeline import registry, runner
-from stages.plan import plan_sample, planned_samples
+from pipeline.config import load_config
+from stages.plan.stage import plan_sample, planned_samples
 
 PLAN = registry.stage("plan")
 

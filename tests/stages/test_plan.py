@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import layout, tango
 from stages.common.kinematics import KR16_2, forward, limit_margin
 from stages.common.patterns import board_pattern
 from stages.common.workspace_target import planned_target
-from stages.plan import PlanningError, plan_sample, planned_samples
+from stages.plan.stage import PlanningError, plan_sample, planned_samples
 
 
 @pytest.fixture(scope="module")
@@ -197,7 +197,7 @@ def test_another_targets_default_range_keeps_speedplus_apparent_size(tmp_path, s
     rng = np.random.default_rng(seed)
     config = load_config("default")
     tango_range = dataset_range(config.plan, planned_target(config), config.testbed)
-    target = planned_target(replace(config, target=replace(config.target, path=str(boulder(tmp_path / "b")))))
+    target = planned_target(config.replace(target=replace(config.target, path=str(boulder(tmp_path / "b")))))
     target = replace(target, diameter_m=float(rng.uniform(0.1, 4.0)), mockup_scale=float(rng.uniform(0.2, 1.0)))
     chosen = dataset_range(config.plan, target, config.testbed)
     room = room_reach_m(config.testbed, config.plan) / target.mockup_scale

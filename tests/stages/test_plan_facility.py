@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from pipeline.registry import stage
 from stages.common import geometry as g
 from stages.common import layout

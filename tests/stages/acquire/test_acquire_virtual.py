@@ -86,7 +86,7 @@ def test_model_is_in_frame_and_visible_in_every_dataset_capture(smoke_workspace)
 def test_truth_maps_are_the_mock_up_at_its_true_pose(smoke_workspace):
     """Depth and part ids at the TRUE pose for every dataset capture: the mock-up's
     silhouette in the testbed scene itself, at the mock-up's depth."""
-    from core.config import load_config
+    from pipeline.config import load_config
     from stages.acquire.virtual import VirtualTestbed
     from stages.common import ground_truth
     from stages.common.tango_mesh import tango_parts

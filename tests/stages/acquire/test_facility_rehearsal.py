@@ -103,8 +103,8 @@ def test_the_labels_meet_the_thresholds_at_the_rehearsed_rate(rehearsed):
 
 
 def test_the_report_and_status_say_what_share_the_facility_presented(rehearsed):
-    from core.config import load_config
-    from stages.report import facility_sentence
+    from pipeline.config import load_config
+    from stages.report.stage import facility_sentence
 
     folder, workspace = rehearsed
     config = load_config(None, workspace / "config.toml")

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.acquire.virtual import VirtualTestbed, mocap, robots
 from stages.acquire.virtual.truth import draw_truth
 from stages.common import geometry as g
 from stages.common.markers import main_body_hull, markers
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, planned_samples
+from stages.plan.stage import plan_sample, planned_samples
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.config import load_config
 from manifests import Workspace, read_manifest
 from pipeline import registry, runner
+from pipeline.config import load_config
 from speedplus.errors import FileError, InputError
 from stages.acquire.handeye import HandEyeReplay
 from stages.acquire.replay import SessionReplay

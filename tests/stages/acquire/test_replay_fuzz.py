@@ -10,9 +10,9 @@ import shutil
 import numpy as np
 import pytest
 
-from core.config import load_config
 from manifests import MANIFESTS, ManifestError, Workspace, read_manifest
 from pipeline import registry, runner
+from pipeline.config import load_config
 from speedplus.errors import InputError
 from tests.stages.acquire.test_replay import recorded_rows, write_session
 

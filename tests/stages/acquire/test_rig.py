@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.acquire.virtual import rig as rig_module
 from stages.acquire.virtual.room import room_of
 from stages.acquire.virtual.truth import draw_truth
@@ -19,7 +19,7 @@ from stages.common import geometry as g
 from stages.common.arms import Payload
 from stages.common.statics import GRAVITY_M_S2
 from stages.common.workspace_target import planned_target
-from stages.plan import plan_sample, planned_samples
+from stages.plan.stage import plan_sample, planned_samples
 
 FACILITIES = Path(__file__).resolve().parents[2] / "facilities"
 RIGID = ["virtual.link_length_sigma_m=0", "virtual.joint_offset_sigma_rad=0", "virtual.base_position_sigma_m=0",

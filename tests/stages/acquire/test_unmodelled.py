@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from core.config import UNMODELLED_SOURCES, load_config, parse_override, with_overrides
+from core.config import UNMODELLED_SOURCES, parse_override, with_overrides
+from pipeline.config import load_config
 from stages.acquire.virtual import mocap, robots
 from stages.acquire.virtual.timeline import Moment, timeline
 from stages.acquire.virtual.truth import draw_truth
@@ -14,7 +15,7 @@ from stages.acquire.virtual.unmodelled import draw_unmodelled
 from stages.common import geometry as g
 from stages.common.kinematics import KR16_2, forward
 from stages.common.statics import GRAVITY_M_S2, KR16_2_MASSES, gravity_torques, potential_energy
-from stages.plan import plan_sample, planned_samples
+from stages.plan.stage import plan_sample, planned_samples
 
 
 def only(config, *sources):

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from speedplus.errors import InputError
-from stages.calibrate import arm_decision, compliance_decision
+from stages.calibrate.stage import arm_decision, compliance_decision
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.sources import up_targetee

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from speedplus.errors import InputError
 from stages.calibrate import consistency, screening
 from stages.calibrate import observations as obs

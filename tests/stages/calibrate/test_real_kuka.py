@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from bench.handeye import KUKA_TOML, kuka_b, opencv_reference
-from core.config import load_config
 from manifests import Workspace, read_manifest
 from pipeline import registry, runner
+from pipeline.config import load_config
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common.image_io import read_image

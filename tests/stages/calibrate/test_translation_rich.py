@@ -9,8 +9,8 @@ import shutil
 import numpy as np
 import pytest
 
-from core.config import load_config
 from manifests import Workspace, read_manifest
+from pipeline.config import load_config
 from stages.calibrate import fitting
 from stages.common import geometry as g
 from stages.common import rwhe

@@ -4,7 +4,7 @@ configurations, and read back from calibration.json unchanged."""
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.kinematics import arm_model

@@ -41,7 +41,8 @@ def test_a_long_box_spins_stably_about_its_major_axis():
                                               ([1, 2, -1, 0, 0, 0], "not a rigid body's"),
                                               ([1, 2], "expected \\(Ixx")])
 def test_a_declared_body_that_cannot_exist_is_named(inertia, why):
-    from core.config import ConfigError, load_config
+    from core.config import ConfigError
+    from pipeline.config import load_config
 
     load_config("smoke", overrides=["plan.mode=trajectory", "trajectory.inertia_kgm2=[1, 2, 2.5, 0.1, 0, 0]"])
     with pytest.raises(ConfigError, match=rf"trajectory.inertia_kgm2: .*{why}"):

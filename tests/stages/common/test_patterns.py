@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import layout
 from stages.common.patterns import PatternSpec, board_pattern
 from stages.common.workspace_target import planned_target

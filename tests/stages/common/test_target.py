@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from core.config import load_config
 from manifests.target import TARGET_FILE, TargetError, read_target_spec, write_target_spec
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import layout, tango
 from stages.common.tango_mesh import tango_parts

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common.orbits import rtn_from_eci, two_body
 from stages.common.scores import score
@@ -22,7 +22,7 @@ FRAMES = 120
 @pytest.fixture(scope="module")
 def scene():
     config = load_config("default")
-    config = replace(config, trajectory=replace(config.trajectory, frames=FRAMES))
+    config = config.replace(trajectory=replace(config.trajectory, frames=FRAMES))
     target = planned_target(config)
     masses, _ = mass_properties(config, target)
     return config, masses, target

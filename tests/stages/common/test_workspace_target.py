@@ -11,13 +11,14 @@ import sys
 import numpy as np
 import pytest
 
-from core.config import ConfigError, load_config
+from core.config import ConfigError
 from manifests import Workspace, read_manifest
 from manifests.target import TARGET_FILE, target_digest, target_files
 from pipeline import registry, runner
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common.workspace_target import digest, workspace_folder, workspace_target
-from stages.label import label_row
+from stages.label.stage import label_row
 from tests.target_folders import boulder, cubesat
 
 

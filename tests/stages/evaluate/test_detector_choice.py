@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from core.config import load_config
 from manifests import Workspace
+from pipeline.config import load_config
 from speedplus.errors import InputError
-from stages.evaluate import REPOSITORY, SHIPPED_DETECTOR, detector_path, preflight
+from stages.evaluate.stage import REPOSITORY, SHIPPED_DETECTOR, detector_path, preflight
 from tests.stages.evaluate.test_scorer import fixed_box_detector
 
 

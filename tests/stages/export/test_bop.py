@@ -139,7 +139,7 @@ def test_keypoints_projected_through_cam_k_land_on_the_undistorted_keypoints(dat
 
 
 def _train_dist(ws):
-    from core.config import load_config
+    from pipeline.config import load_config
 
     return load_config(None, ws.config_path).camera.dist_coeffs()
 

@@ -6,8 +6,8 @@ import json
 import numpy as np
 from scipy.io import loadmat
 
-from core.config import load_config
 from manifests import read_manifest
+from pipeline.config import load_config
 from stages.common.tango import KEYPOINTS_M
 from stages.export.speedplus import is_validation, write_keypoints
 

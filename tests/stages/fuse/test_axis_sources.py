@@ -9,10 +9,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from core.config import Config, parse_override, with_overrides
+from core.config import parse_override, with_overrides
+from pipeline.config import default_config
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
-from stages.fuse import (
+from stages.fuse.stage import (
     ArmUncertainty,
     Estimates,
     applied_factor,
@@ -71,7 +72,7 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_o
     """Mean E_T (mm) of fused, robots, motion capture (and their depth's rms error, mm);
     errors / sigmas (N, 3); sources. ``scale_by``: the factor fuse applies, or the one as
     measured (offset included)."""
-    config = with_overrides(Config(), [parse_override(f"fuse.inconsistent_axes={policy}"),
+    config = with_overrides(default_config(), [parse_override(f"fuse.inconsistent_axes={policy}"),
                                        parse_override(f"fuse.session_offset={offset}")])
     kuka = Calibrated(Sigma(np.asarray(kuka_sigma_mm or (1.2, 1.2, 0.6)) / 1000, 1e-4))
     vicon = Calibrated(Sigma(np.asarray(vicon_sigma_mm) / 1000, 1e-3))
@@ -217,7 +218,7 @@ HEAVY_TAIL = dict(kuka_true_mm=[0.8, 0.8, 0.4], vicon_true_mm=[3.5, 3.5, 0.9], g
 
 def refused_count(seed: int, kuka_true_mm, vicon_true_mm, gross=None):
     """The consistency tests' verdicts on a session: the median's per axis, the tails'."""
-    config = Config()
+    config = default_config()
     kuka = Calibrated(Sigma(np.array([1.2, 1.2, 0.6]) / 1000, 1e-4))
     vicon = Calibrated(Sigma(np.array([3.5, 3.5, 0.9]) / 1000, 1e-3))
     rejection = Sigma(np.hypot(kuka.sigma.t_m, vicon.sigma.t_m), float(np.hypot(1e-4, 1e-3)))

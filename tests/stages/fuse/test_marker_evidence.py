@@ -8,14 +8,14 @@ one that claims the smaller sigma; and a short session's sigmas must cover."""
 import numpy as np
 import pytest
 
-from core.config import Config
+from pipeline.config import default_config
 from stages.acquire.virtual.mocap import kabsch
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
 from stages.common.marker_fit import fit_covariance
-from stages.fuse import Estimates, fuse_capture, session_fusion
 from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, marker_geometry, without_fit
 from stages.fuse.short_session import cross_validated
+from stages.fuse.stage import Estimates, fuse_capture, session_fusion
 from tests.stages.fuse.test_axis_sources import Calibrated
 
 CAPTURES = 48
@@ -58,7 +58,7 @@ def clustered_session(seed: int, marker_sigma_m: float, claimed_marker_sigma_m: 
 
 
 def fuse_session(truths, estimates, kuka_sigma_mm=(1.2, 1.2, 0.6), vicon_rest_mm=0.3, config=None):
-    config = config or Config()
+    config = config or default_config()
     kuka = Calibrated(Sigma(np.asarray(kuka_sigma_mm) / 1000, 1e-4))
     vicon = Calibrated(Sigma(np.full(3, vicon_rest_mm / 1000), 1e-3))
     rejection = Sigma(np.hypot(kuka.sigma.t_m, vicon.sigma.t_m), float(np.hypot(1e-4, 1e-3)))

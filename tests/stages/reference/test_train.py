@@ -8,8 +8,8 @@ import numpy as np
 import onnx
 import pytest
 
-from core.config import load_config
 from manifests import Workspace, read_manifest
+from pipeline.config import load_config
 from stages.common.detector import Detector
 from stages.common.pose_model import PoseModel
 from stages.common.workspace_target import planned_target
@@ -68,7 +68,7 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
 
 def test_without_out_the_models_stay_in_the_workspace(tmp_path, monkeypatch):
     """Run from the repository's root, as issue 42's user did: the shipped models are untouched."""
-    from stages.evaluate import SHIPPED_MODELS
+    from stages.evaluate.stage import SHIPPED_MODELS
 
     repository = Path(__file__).resolve().parents[3]
     shipped = {name: (repository / name).read_bytes() for name in SHIPPED_MODELS}

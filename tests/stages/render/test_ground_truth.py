@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from core.config import load_config
 from core.engines import store
 from manifests import Workspace
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import ground_truth
 from stages.common.cameras import train_camera

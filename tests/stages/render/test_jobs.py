@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common import tango
 from stages.common.cameras import train_camera

@@ -9,8 +9,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from core.config import load_config
 from manifests import Workspace, list_parts, read_manifest
+from pipeline.config import load_config
 from tests.conftest import reseal, speedplus
 
 VOLATILE = ("seconds",)  # wall time: the only column allowed to differ between two runs

@@ -4,7 +4,7 @@ camera, same pixels."""
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.acquire.virtual.sensor import lens_camera
 from stages.common import geometry as g
 from stages.common import tango

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from bench.overlap import twin_overlap
-from core.config import load_config
 from manifests import Workspace, read_manifest
+from pipeline.config import load_config
 from tests.conftest import speedplus
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.config import load_config
+from pipeline.config import load_config
 from stages.common import geometry as g
 from stages.common.layout import camee_from_cam, world_from_camera_base, world_from_target_base
 from stages.common.robots.facility import (

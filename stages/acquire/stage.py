@@ -1,0 +1,109 @@
+"""The acquire stage: drive a testbed backend through its samples and record what it
+measures (``captures``), the images, and, for the virtual testbed, the hidden ``truth``.
+
+Backends (``acquire.backend``): ``virtual`` (the embedded digital twin; captures the
+plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session``,
+``handeye`` or its preset ``tabb``). Interrupted runs resume with the samples missing from the manifests.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from core.config import Config
+from core.engines import Produced, store
+from core.progress import track
+from core.stage_io import Resolved
+from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests.facility import facility_digest
+from manifests.sidecars import write_markers, write_session, write_truth
+from stages.acquire.backend import Testbed
+from stages.common.dispatch import map_config
+from stages.common.workspace_target import install
+
+
+def open_testbed(config: Config, root: str, plan: list[dict[str, Any]] | None = None) -> Testbed:
+    """The configured backend for the workspace at ``root`` (a picklable factory). The
+    virtual testbed's workers get the ``plan`` rows with it: they never read the workspace."""
+    workspace = Workspace(root)
+    if config.acquire.backend == "virtual":
+        from stages.acquire.virtual import VirtualTestbed
+
+        return VirtualTestbed(config, workspace, plan)
+    if config.acquire.format in ("handeye", "tabb"):
+        from stages.acquire.handeye import HandEyeReplay, read_dataset_toml
+        from stages.acquire.tabb import tabb_dataset
+
+        source = Path(config.acquire.source)
+        if config.acquire.format == "tabb":
+            return HandEyeReplay(tabb_dataset(source), workspace, "tabb")
+        return HandEyeReplay(read_dataset_toml(source), workspace)
+    from stages.acquire.replay import SessionReplay
+
+    return SessionReplay(Path(config.acquire.source), workspace)
+
+
+def source_digest(source: Path) -> str:
+    """Identity of a recorded session: names and sizes of its files, contents of its text files."""
+    digest = hashlib.sha256()
+    if not source.is_dir():
+        return "missing"
+    for path in sorted(p for p in source.rglob("*") if p.is_file()):
+        digest.update(str(path.relative_to(source)).encode())
+        digest.update(str(path.stat().st_size).encode())
+        if path.suffix.lower() in (".txt", ".csv", ".toml", ".json"):
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """The virtual testbed follows the plan and draws a truth (``captures``, ``truth``) in
+    TRON's room or the facility folder's (whose digest it is fingerprinted by); a replayed
+    session writes ``captures`` and is fingerprinted by its folder's content."""
+    if config.acquire.backend == "virtual":
+        extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
+        return Resolved(("plan",), ("acquire", "virtual", "camera", "testbed", "facility.path"), extra,
+                        ("captures", "truth"))
+    source = Path(config.acquire.source).resolve()
+    return Resolved((), ("acquire",), {"source": str(source), "source_digest": source_digest(source)}, ("captures",))
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    """Capture every sample missing from the manifests; returns the ``captures`` table. A
+    replayed session has no plan: the configured target is copied into ``W/target`` here."""
+    if config.acquire.backend != "virtual":
+        install(config, workspace)
+    testbed = open_testbed(config, str(workspace.root))
+    samples = testbed.samples()
+    write_session(workspace, testbed.session())
+    with_truth = config.acquire.backend == "virtual"
+    if with_truth:
+        write_truth(workspace, testbed.truth_record())
+        write_markers(workspace, testbed.markers_record())
+    have_captures = read_keys(workspace, "captures")
+    have_truth = read_keys(workspace, "truth") if with_truth else set()
+    todo = [s for s in samples
+            if s["sample_id"] not in have_captures or (with_truth and s["sample_id"] not in have_truth)]
+    part_rows = config.run.part_rows
+    if with_truth:
+        records = map_config(config, open_testbed, (config, str(workspace.root), samples), "capture", todo,
+                             renders=True, remote=workspace.remote)
+    else:  # a replay reads its session's files where they are: no cluster needed
+        records = (testbed.capture(sample) for sample in todo)
+    with open_sink(workspace, "captures", part_rows) as captures:
+        truth = open_sink(workspace, "truth", part_rows) if with_truth else None
+        try:
+            for record in track(records, len(todo), f"acquire ({config.acquire.backend})"):
+                store(workspace, Produced(record, record.files))  # the image before its row
+                if record.captures["sample_id"] not in have_captures:
+                    captures.add(record.captures)
+                if truth is not None and record.truth["sample_id"] not in have_truth:
+                    truth.add(record.truth)
+        finally:
+            if truth is not None:
+                truth.flush()
+    return read_manifest(workspace, "captures")

@@ -1,0 +1,230 @@
+"""The plan stage: relative poses to capture and the testbed commands that realise them.
+
+Every sample is drawn from its own random stream ``(seed, session, index)``, so the plan
+is identical for a seed whatever order (or how many runs) it is produced in: a resumed
+run regenerates exactly the missing rows.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from core.config import Config, TestbedConfig
+from core.progress import track
+from core.stage_io import Resolved
+from manifests import Workspace, open_sink, read_keys, read_manifest, sample_ids
+from manifests.facility import StaticSpec, facility_digest, read_facility_spec
+from manifests.sample_ids import SESSION_CODES
+from manifests.sidecars import TrajectoriesRecord, write_trajectories
+from stages.common import geometry as g
+from stages.common import layout
+from stages.common.robots.facility import Facility, presented_share
+from stages.common.target import Target
+from stages.common.workspace_target import install, planned_target
+from stages.plan.config import PlanConfig
+from stages.plan.facility_plan import (
+    camera_fixture,
+    light_box_centres,
+    planned_facility,
+    reconfigure_on,
+)
+from stages.plan.poses import (
+    DatasetRange,
+    PlanningError,
+    calibration_pose,
+    dataset_configuration,
+    dataset_pose,
+    dataset_range,
+    facing_boxes,
+    light_boxes,
+    mount_away_from,
+)
+from stages.plan.reconfigure import Reconfiguration, reconfigure
+from stages.plan.trajectory import SEQUENCE_COLUMNS, sequence_rows
+
+__all__ = ["PlanningError", "dataset_count", "plan_sample", "planned_samples", "resolve", "run"]
+
+
+def dataset_count(config: Config) -> int:
+    """Dataset samples planned: ``plan.n_dataset``, or every sequence's frames."""
+    if config.plan.mode == "trajectory":
+        return config.trajectory.frames * len(config.trajectory.presets)
+    return config.plan.n_dataset
+
+
+def planned_samples(config: Config) -> list[tuple[str, int, str]]:
+    """(session, index, sample_id) of every planned sample, in capture order."""
+    ids = [("calibration", i, sample_ids.make("calibration", i)) for i in range(config.plan.n_calibration)]
+    ids += [("dataset", i, sample_ids.make("dataset", i)) for i in range(dataset_count(config))]
+    return ids
+
+
+def skipped_in_chain(config: Config) -> bool:
+    """A replayed session brings its own samples: ``speedplus run`` goes on without a plan."""
+    return config.acquire.backend == "replay"
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads the configuration only; the [trajectory] section counts when the plan is made of
+    sequences. Writes ``plan`` (and ``W/trajectories.json``, ``W/target/``)."""
+    sections = ("plan", "camera", "testbed", "facility.path") + (
+        ("trajectory",) if config.plan.mode == "trajectory" else ())
+    extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
+    return Resolved((), sections, extra, ("plan",))
+
+
+def trajectory_rows(config: Config, target: Target) -> tuple[list[dict], TrajectoriesRecord]:
+    """Every sequence's rows, in capture order, and their record; nothing is written before
+    all of them are placed (a refused sequence leaves the workspace as it was)."""
+    rows, records = [], []
+    for index, preset in enumerate(config.trajectory.presets):
+        sequence, record = sequence_rows(config, target, index, preset, index * config.trajectory.frames)
+        rows += sequence
+        records.append(record)
+    return rows, TrajectoriesRecord(tuple(records))
+
+
+def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None) -> dict:
+    """One row of the plan manifest (of ``target``, default the configured one).
+    Unreachable relative poses are redrawn and counted."""
+    plan, testbed, camera = config.plan, config.testbed, config.camera
+    target = planned_target(config) if target is None else target
+    facility = planned_facility(config)
+    rng = np.random.default_rng([plan.seed, SESSION_CODES[session], index])
+    if session == "calibration":
+        view, light = target.view_names[0], "ambient"
+    else:
+        view, light = dataset_configuration(index, plan, target.view_names)
+    # a facility folder may not show every view (one arm round a static target): its poses are
+    # uniform over what it presents, each view as it falls (robots.facility.presented_share)
+    wanted = view if facility is None else None
+    chosen = dataset_range(plan, target, testbed, room=facility is None) if session == "dataset" else None
+    limits: Counter[str] = Counter()
+
+    def draw() -> tuple[np.ndarray, str, Reconfiguration | None]:
+        if session == "calibration":
+            cam_from_target = calibration_pose(rng, plan, testbed, camera, target)
+            mount = plan.calibration_mounts[index % len(plan.calibration_mounts)]
+        else:
+            cam_from_target = dataset_pose(rng, plan, target, camera, wanted, chosen)
+            mount = mount_away_from(cam_from_target)
+        if facility is None:
+            return cam_from_target, mount, reconfigure(cam_from_target, mount, plan, testbed, target,
+                                                       require_far_side=session == "dataset")
+        if isinstance(facility.holder("target"), StaticSpec):
+            mount = plan.calibration_mounts[0]  # mounted once on its stand
+        return cam_from_target, mount, reconfigure_on(facility, cam_from_target, mount, target, plan.seed, rng,
+                                                      plan.joint_limit_margin_rad, limits)
+
+    redraws = 0
+    cam_from_target, mount, commands = draw()
+    while commands is None:
+        if redraws == plan.max_redraws:
+            raise _unreachable(sample_id, redraws + 1, testbed, target, chosen, facility, limits)
+        redraws += 1
+        cam_from_target, mount, commands = draw()
+    if session == "dataset" and facility is not None:
+        camera_in_target = g.invert(cam_from_target)[:3, 3]
+        view = target.view_of(camera_in_target, target.mockup_scale)
+    fixture = layout.camee_from_cam(testbed) if facility is None else camera_fixture(facility)
+    world_from_cam = commands.world_from_camee @ fixture
+    world_from_target = world_from_cam @ cam_from_target
+    centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[0]
+    if facility is None:
+        boxes = light_boxes(rng, plan, light, facing_boxes(testbed, centre, world_from_cam[:3, 3]))
+    else:
+        boxes = facility_light_boxes(rng, plan, light, light_box_centres(facility), centre, world_from_cam[:3, 3])
+    return {
+        "sample_id": sample_id,
+        "session": session,
+        **g.pose_columns("cam_from_target", cam_from_target),
+        "view": view,
+        "light": light,
+        "light_boxes": boxes,
+        "mount": mount,
+        "rail_m": commands.rail_m,
+        "camera_joints_rad": _listed(commands.camera_joints_rad),
+        "target_joints_rad": _listed(commands.target_joints_rad),
+        **g.pose_columns("world_from_camee", commands.world_from_camee),
+        **g.pose_columns("world_from_targetee", commands.world_from_targetee),
+        "reachable": True,
+        "redraws": redraws,
+        **dict.fromkeys(SEQUENCE_COLUMNS),
+    }
+
+
+def _unreachable(sample_id: str, draws: int, testbed: TestbedConfig, target: Target, chosen: DatasetRange | None,
+                 facility: Facility | None, limits: Counter[str]) -> PlanningError:
+    """The error of a sample no draw could place: what to check, and what stopped it."""
+    hint = ""
+    if facility is not None:
+        total = sum(limits.values()) or 1
+        hint = f"; on {facility.directory / 'facility.toml'}: " + "; ".join(
+            f"{why} ({count / total:.0%})" for why, count in limits.most_common())
+    if chosen is not None:
+        room = testbed.room_m if facility is None else facility.spec.room_m
+        hint += (f"; the {chosen.describe(target)}, in a {' x '.join(f'{v:g}' for v in room)} m "
+                 "room (plan.dataset_range_m sets it in metres, plan.dataset_range_diameters narrows it)")
+    where = ("the facility's robots and room, plan.calibration_distance_m and plan.dataset_range_m"
+             if facility is not None else "testbed.target_presentation_m, testbed.rail_* and plan.sight_*")
+    return PlanningError(f"sample {sample_id}: no reachable robot configuration in {draws} draws; check {where} "
+                         f"(or raise plan.max_redraws){hint}")
+
+
+def status_note(config: Config, workspace: Workspace) -> str:
+    """The share of the dataset poses drawn that the facility presented (``status``)."""
+    rows = read_manifest(workspace, "plan").select(["session", "redraws", "view", "sequence_id"]).to_pylist()
+    name = read_facility_spec(Path(config.facility.path)).name if config.facility.path else "TRON"
+    return presented_share(rows, name)
+
+
+def _listed(joints: np.ndarray | None) -> list[float] | None:
+    """A robot's commanded joints; None: a static mount holds that body."""
+    return None if joints is None else [float(v) for v in joints]
+
+
+def facility_light_boxes(rng: np.random.Generator, plan: PlanConfig, light: str, centres: np.ndarray,
+                         model_position: np.ndarray, camera_position: np.ndarray) -> list[int]:
+    """Active light boxes of a facility folder for ``lightbox``: a uniform subset of the
+    configured size (at most the boxes it has) of those on the camera's side of the model
+    (of all, when fewer face it); none otherwise."""
+    if light != "lightbox":
+        return []
+    facing = [i for i, c in enumerate(centres) if np.dot(c - model_position, camera_position - model_position) > 0]
+    low, high = plan.light_boxes_per_sample
+    count = min(int(rng.integers(low, high + 1)), len(centres))
+    pool = facing if len(facing) >= count else list(range(len(centres)))
+    return sorted(int(i) for i in rng.choice(pool, size=count, replace=False))
+
+
+def run(config: Config, workspace: Workspace) -> pa.Table:
+    """Plan every sample missing from ``W/manifests/plan`` for the configured target, and
+    copy the target into ``W/target`` for the later stages; returns the whole plan."""
+    target = planned_target(config)
+    done = read_keys(workspace, "plan")
+    todo = [item for item in planned_samples(config) if item[2] not in done]
+    sequences: dict[str, dict] = {}
+    if config.plan.mode == "trajectory":
+        rows, record = trajectory_rows(config, target)
+        sequences = {row["sample_id"]: row for row in rows}
+    facility = planned_facility(config)  # checked before anything is written
+    if config.plan.n_dataset or config.plan.mode == "trajectory":  # sequences: the presets scale with it
+        chosen = dataset_range(config.plan, target, config.testbed, room=facility is None)
+        print(f"plan: {chosen.describe(target)}")
+    with open_sink(workspace, "plan", config.run.part_rows) as sink:
+        for session, index, sample_id in track(todo, len(todo), "plan"):
+            sink.add(sequences[sample_id] if sample_id in sequences
+                     else plan_sample(config, session, index, sample_id, target))
+    if config.plan.mode == "trajectory":
+        write_trajectories(workspace, record)
+    else:
+        workspace.trajectories_path.unlink(missing_ok=True)
+    install(config, workspace)
+    table = read_manifest(workspace, "plan")
+    if facility is not None:
+        print(f"plan: {presented_share(table.to_pylist(), facility.spec.name)}")
+    return table

@@ -1,0 +1,146 @@
+"""The report stage: a static HTML page, ``W/report/index.html``, with the paper's tables
+and figures for this run (no server, no network: open it from the file system).
+
+Sections, listed in a table of contents with anchors: Table 1 (with TRON's rows),
+calibration residuals and every calibration capture's corners (worst first), the label pose
+distribution, the motion-capture decisions, Table 2 per crop, a row per sample, the
+per-sample scores and rotation-error CDFs, every sample's pictures (testbed, twin, label
+wireframe; thumbnails linking to the full-size images), the tracking baseline of a
+trajectory plan, and the run's provenance. Tables scroll inside their box: the page fits
+a 1280-pixel window.
+"""
+
+from __future__ import annotations
+
+import html
+import re
+from pathlib import Path
+
+from core.config import Config
+from core.stage_io import Resolved
+from manifests import Workspace, read_manifest, read_marker
+from manifests.facility import read_facility_spec
+from manifests.files import write_bytes_atomic
+from manifests.sidecars import read_calibration
+from manifests.workspace import REPORT_DIR, REPORT_PAGE
+from stages.common.json_arrays import calibrated_camera
+from stages.common.robots.facility import presented_share
+from stages.common.target import feature_edges
+from stages.common.workspace_target import workspace_target
+from stages.report import figures
+from stages.report.gallery import calibration_overlays, sample_gallery
+from stages.report.sections import (
+    DEFINITIONS,
+    comparisons_section,
+    per_sample_table,
+    provenance,
+    rejection_table,
+    table1,
+    table2,
+    tracking_section,
+)
+
+STYLE = """
+body { font-family: sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; background: #fff; }
+h1 { border-bottom: 2px solid #444; font-size: 1.5em; overflow-wrap: anywhere; } h2 { margin-top: 1.6em; color: #334; }
+.scroll { max-width: 100%; overflow-x: auto; }
+table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
+td, th { border: 1px solid #bbb; padding: 3px 6px; } th { background: #eef; }
+img { max-width: 100%; } nav ol { columns: 2; }
+.grid { display: flex; flex-wrap: wrap; gap: 10px; } figure { margin: 0; }
+figure.sample img { width: 240px; margin-right: 2px; }
+figcaption { font-size: 0.85em; color: #555; max-width: 740px; overflow-wrap: anywhere; }
+pre { font-size: 0.8em; background: #f6f6f6; padding: 1em; white-space: pre-wrap; }
+"""
+
+
+def _anchor(title: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
+
+
+def page(workspace: Workspace, summary: str, sections: list[tuple[str, str]]) -> str:
+    """The HTML page: a title, the summary, a table of contents and every section."""
+    toc = "".join(f'<li><a href="#{_anchor(title)}">{html.escape(title)}</a></li>' for title, _ in sections)
+    body = "".join(f'<section id="{_anchor(title)}"><h2>{html.escape(title)}</h2>{content}</section>'
+                   for title, content in sections)
+    name = workspace.location.rsplit("/", 1)[-1]
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>SPEED+ builder report: {html.escape(name)}</title>
+<style>{STYLE}</style></head><body>
+<h1>SPEED+ builder report: {html.escape(workspace.location)}</h1>
+<p>{summary}</p>
+<nav><h2>Contents</h2><ol>{toc}</ol></nav>
+{body}
+</body></html>
+"""
+
+
+
+def facility_sentence(config: Config, workspace: Workspace) -> str:
+    """On a facility folder, what share of SO(3) x the range it presented (the dataset is
+    uniform over that share, not over all of it), as the plan and ``status`` say it."""
+    if not config.facility.path or read_marker(workspace, "plan") is None:
+        return ""  # TRON's room presents every pose the plan draws; a replay has no plan
+    rows = read_manifest(workspace, "plan").select(["session", "redraws", "view", "sequence_id"]).to_pylist()
+    return " " + html.escape(presented_share(rows, read_facility_spec(Path(config.facility.path)).name)) + "."
+
+
+def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
+    """Reads everything a run made (a trajectory plan's tracks too); writes ``W/report/``
+    (its marker: ``report``)."""
+    tracks = ("tracks",) if config.plan.mode == "trajectory" else ()
+    return Resolved(("labels", "renders", "predictions", "scores", "comparisons", *tracks),
+                    ("evaluate.models", "plan.mode", "facility.path"), {"profile": config.profile}, ("report",))
+
+
+def run(config: Config, workspace: Workspace) -> None:
+    out = workspace.root / REPORT_DIR
+    figure_dir = out / "figures"
+    calibration = read_calibration(workspace)
+    labels = read_manifest(workspace, "labels").to_pylist()
+    poses = {row["sample_id"]: row for row in read_manifest(workspace, "poses").to_pylist()}
+    renders = {row["sample_id"]: row for row in read_manifest(workspace, "renders").to_pylist()}
+    captures = {row["sample_id"]: row for row in read_manifest(workspace, "captures").to_pylist()}
+    predictions = read_manifest(workspace, "predictions").to_pylist()
+    scores = read_manifest(workspace, "scores").to_pylist()
+    comparisons = read_manifest(workspace, "comparisons").to_pylist()
+    samples = read_manifest(workspace, "calibration_samples").to_pylist()
+    camera = calibrated_camera(workspace)
+
+    models = list(dict.fromkeys(Path(text).stem for text in config.evaluate.models
+                                if any(r["model"] == Path(text).stem for r in predictions)))
+    models += sorted({r["model"] for r in predictions} - set(models))
+    crops = [c for c in ("oracle_box", "full", "self") if any(r["crop"] == c for r in predictions)]
+    runs = [(model, crop) for model in models for crop in crops
+            if any(r["model"] == model and r["crop"] == crop for r in predictions)]
+    # the first model on its contract's crop: the per-sample figure
+    primary = [r for r in predictions if models and r["model"] == models[0] and crops and r["crop"] == crops[0]]
+    made = {
+        "residuals": figures.calibration_residuals(samples, figure_dir / "calibration_residuals.png"),
+        "poses": figures.pose_distribution(labels, figure_dir / "pose_distribution.png"),
+        "scores": figures.per_sample_scores(primary, figure_dir / "per_sample_scores.png"),
+        "cdf": figures.rotation_cdf(predictions, models, figure_dir / "rotation_cdf.png"),
+    }
+    wireframe = feature_edges(workspace_target(config, workspace))
+    sections = [
+        *((f"Table 2: domain gap of the models ({crop.replace('_', ' ')})", table2(scores, models, crop))
+          for crop in crops),
+        ("Each model against the reference", comparisons_section(comparisons)),
+        ("What the figures mean", f"<p>{html.escape(DEFINITIONS)}</p>"),
+        ("Table 1: calibration accuracy", table1(calibration)),
+        ("Calibration residuals", f'<img src="figures/{made["residuals"]}" alt="calibration residuals">'),
+        ("Pose distribution of the labels", f'<img src="figures/{made["poses"]}" alt="pose distribution">'),
+        ("Motion-capture rejection and label sources", rejection_table(list(poses.values()), labels)),
+        ("Every sample", per_sample_table(labels, poses, predictions, runs)),
+        (f"Per-sample scores ({models[0] if models else '-'})",
+         f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
+        ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
+        ("Calibration captures", calibration_overlays(workspace, out, samples, captures, camera)),
+        ("Pictures of every sample", sample_gallery(workspace, out, labels, captures, renders, camera, wireframe,
+                                                     (f"{models[0]} ({crops[0]})" if primary else "", primary))),
+        *tracking_section(config, workspace, figure_dir),
+        ("Provenance", provenance(config, workspace)),
+    ]
+    summary = (f"Profile {html.escape(config.profile)}, models {html.escape(', '.join(models))}; {len(labels)} "
+               f"labels, {len(renders)} twins, {len(predictions)} predictions.{facility_sentence(config, workspace)}")
+    write_bytes_atomic(out / REPORT_PAGE, page(workspace, summary, sections).encode())
