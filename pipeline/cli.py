@@ -8,16 +8,18 @@ field or key); 2 usage error; 130 interrupted.
 from __future__ import annotations
 
 import contextlib
+import inspect
 import os
 import shutil
 import sys
 import tempfile
 import traceback
-from collections.abc import Iterator
+import typing
+from collections.abc import Callable, Iterator
 from dataclasses import fields
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -25,6 +27,7 @@ from rich.markup import escape
 from rich.table import Table
 from typer.core import TyperGroup
 
+from core.command import FacilityOption, Request, TargetOption, folders
 from core.config import Config, Override, documented, parse_override, with_overrides, write_config
 from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
@@ -102,25 +105,6 @@ EngineOption = Annotated[str | None, typer.Option("--engine", help=key_help("run
 RayAddressOption = Annotated[str | None, typer.Option("--ray-address",
                                                       help=key_help("run.ray_address") + "; this run only")]
 WorkersOption = Annotated[int | None, typer.Option("--workers", help=key_help("run.workers") + "; this run only")]
-TargetOption = Annotated[Path | None, typer.Option("--target", help=key_help("target.path")
-                                                   + "; the plan copies it into W/target")]
-
-
-FacilityOption = Annotated[Path | None, typer.Option("--facility", help=key_help("facility.path")
-                                                     + "; check one with speedplus facility DIR")]
-
-
-def _target(overrides: list[Override], target: Path | None, facility: Path | None = None) -> list[Override]:
-    """``--target DIR`` and ``--facility DIR`` as the overrides ``target.path`` and
-    ``facility.path`` (absolute: the saved configuration must name the same folders from
-    any directory)."""
-    if target:
-        overrides = [*overrides, Override.of("target.path", str(target.resolve()), "--target")]
-    if facility:
-        overrides = [*overrides, Override.of("facility.path", str(facility.resolve()), "--facility")]
-    return overrides
-
-
 def _engine(engine: str | None, ray_address: str | None, workers: int | None) -> list[Override]:
     """The engine flags, which every stage command takes, as overrides of this run only."""
     chosen = [("run.engine", engine, "--engine"), ("run.ray_address", ray_address, "--ray-address"),
@@ -286,149 +270,70 @@ def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspac
             out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
 
 
-def _stage_command(entry: registry.StageEntry) -> None:
-    # calibrate, fuse, label and report run in the command's own process: no engine options
-    def command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-                set_: SetOption = None, force: ForceOption = False) -> None:
-        _run([entry.name], workspace, profile, config, _parsed(set_), force, [])
+_COMMON = (
+    inspect.Parameter("workspace", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=WorkspaceOption),
+    inspect.Parameter("profile", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=ProfileOption),
+    inspect.Parameter("config", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=ConfigOption),
+    inspect.Parameter("set_", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=SetOption),
+    inspect.Parameter("force", inspect.Parameter.KEYWORD_ONLY, default=False, annotation=ForceOption),
+)
+_ENGINE = (
+    inspect.Parameter("engine", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=EngineOption),
+    inspect.Parameter("ray_address", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=RayAddressOption),
+    inspect.Parameter("workers", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=WorkersOption),
+)
 
-    command.__doc__ = f"Run the {entry.name} stage: {entry.summary}."
+
+def _parameters(options: Callable[..., Request]) -> list[inspect.Parameter]:
+    """A stage's own options as keyword parameters, their annotations resolved (typer reads them)."""
+    hints = typing.get_type_hints(options, include_extras=True)
+    return [parameter.replace(kind=inspect.Parameter.KEYWORD_ONLY, annotation=hints[name])
+            for name, parameter in inspect.signature(options).parameters.items()]
+
+
+def _stage_command(entry: registry.StageEntry) -> None:
+    """The stage's command: the common options (an own option of the same name, render's
+    ``--set``, takes its place), the stage's own (``<package>.cli:options``), and the
+    engine's where its work is spread over workers."""
+    options = entry.options()
+    own = _parameters(options) if options is not None else []
+    by_name = {parameter.name: parameter for parameter in own}
+    parameters = [by_name.pop(common.name, common) for common in _COMMON]
+    parameters += [*by_name.values(), *(_ENGINE if entry.engines else ())]
+    common_names = {parameter.name for parameter in (*_COMMON, *_ENGINE)} - {parameter.name for parameter in own}
+
+    def command(**given: Any) -> None:
+        common = {name: given.pop(name, None) for name in common_names}
+        request = options(**given) if options is not None else Request()
+        _execute(entry, request, common)
+
+    command.__signature__ = inspect.Signature(parameters)  # type: ignore[attr-defined]
+    command.__annotations__ = {parameter.name: parameter.annotation for parameter in parameters}
+    command.__doc__ = (options.__doc__ if options is not None and options.__doc__
+                       else f"Run the {entry.name} stage: {entry.summary}.")
     app.command(entry.name)(command)
 
 
+def _execute(entry: registry.StageEntry, request: Request, common: dict[str, Any]) -> None:
+    """Run what a stage command asks: the common options, then the stage's request (and what
+    it asks once the configuration is resolved), then what it reports."""
+    workspace, profile, config, force = (common.get(name) for name in ("workspace", "profile", "config", "force"))
+    saved = [*_parsed(common.get("set_")), *request.saved]
+    if request.then is not None:
+        resolved, ws, _ = _context(workspace, profile, config, saved)
+        request = request.merged(request.then(resolved, ws, bool(force)))
+        saved = [*_parsed(common.get("set_")), *request.saved]
+    for note in request.notes:
+        out.print(escape(note), highlight=False)
+    transient = [*request.transient, *_engine(common.get("engine"), common.get("ray_address"), common.get("workers"))]
+    ws = _run(list(request.stages or (entry.name,)), workspace, profile, config, saved, bool(force), transient,
+              request.redo)
+    for line in request.report(ws) if request.report is not None else ():
+        out.print(escape(line), highlight=False)
+
+
 for _entry in registry.STAGES:
-    if not _entry.own_command:
-        _stage_command(_entry)
-
-
-@app.command("plan")
-def plan_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None, force: ForceOption = False, target: TargetOption = None,
-    facility: FacilityOption = None,
-    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
-) -> None:
-    """Run the plan stage: relative poses, view, light and robot/rail commands, for the target
-    (--target DIR, a target folder; default: the built-in Tango) in the facility (--facility
-    DIR, a facility folder; default: TRON as [testbed] describes it)."""
-    _run(["plan"], workspace, profile, config, _target(_parsed(set_), target, facility), force,
-         _engine(engine, ray_address, workers))
-
-
-@app.command("acquire")
-def acquire_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None, force: ForceOption = False,
-    backend: Annotated[str | None, typer.Option("--backend", help=key_help("acquire.backend"))] = None,
-    format_: Annotated[str | None, typer.Option("--format", help=key_help("acquire.format"))] = None,
-    source: Annotated[Path | None, typer.Option("--source", help=key_help("acquire.source"))] = None,
-    target: TargetOption = None,
-    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
-) -> None:
-    """Run the acquire stage: drive the testbed (virtual) or ingest a recorded session (replay)."""
-    overrides = _parsed(set_)
-    if backend is not None:
-        overrides.append(Override.of("acquire.backend", backend, "--backend"))
-    if format_ is not None:
-        overrides.append(Override.of("acquire.format", format_, "--format"))
-    if source is not None:
-        overrides.append(Override.of("acquire.source", str(source.resolve()), "--source"))
-    _run(["acquire"], workspace, profile, config, _target(overrides, target), force,
-         _engine(engine, ray_address, workers))
-
-
-@app.command("render")
-def render_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: Annotated[list[str] | None, typer.Option(
-        "--set", "-s", help="twin (one per label) or train (the training set); or, like every command, "
-        "section.key=value to override one key (repeatable)")] = None,
-    force: ForceOption = False,
-    count: Annotated[int | None, typer.Option("--count", help=key_help("render.train_count"))] = None,
-    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
-) -> None:
-    """Run the render stage: Mitsuba 3 twins of the labels, or the training set."""
-    overrides = _parsed([value for value in set_ or [] if "=" in value])
-    transient = [Override.of("render.set", value, "--set") for value in set_ or [] if "=" not in value]
-    if count is not None:
-        overrides.append(Override.of("render.train_count", count, "--count"))
-    _run(["render"], workspace, profile, config, overrides, force, [*transient, *_engine(engine, ray_address, workers)])
-
-
-@app.command("evaluate")
-def evaluate_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None, force: ForceOption = False,
-    model: Annotated[list[Path] | None, typer.Option(
-        "--model", metavar="FILE.onnx", help="add this ONNX model to evaluate.models and score it beside the "
-        "others, whose results are kept; with --force, redo only it (repeatable)")] = None,
-    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
-) -> None:
-    """Run the evaluate stage: score an ONNX model on the twins and the testbed images (Table 2)."""
-    overrides = _parsed(set_)
-    redo: tuple[str, ...] = ()
-    if model is not None:
-        resolved, ws, _ = _context(workspace, profile, config, overrides)
-        models, notes = registry.with_added_models(resolved, ws, model)
-        for note in notes:
-            out.print(escape(note), highlight=False)
-        overrides.append(Override.of("evaluate.models", models, "--model"))
-        redo = tuple(sorted({path.expanduser().resolve().stem for path in model})) if force else ()
-    _run(["evaluate"], workspace, profile, config, overrides, force, _engine(engine, ray_address, workers), redo)
-
-
-@app.command("export")
-def export_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None, force: ForceOption = False,
-    format_: Annotated[str, typer.Option("--format", help=key_help("export.format"))] = "speedplus",
-    out_dir: Annotated[Path | None, typer.Option("--out", help=key_help("export.out"))] = None,
-    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
-) -> None:
-    """Run the export stage: the labels and their images as a SPEED+, BOP or SHIRT dataset, the
-    plan as robot programs (robot) or the captures as a logger's session (session), in
-    W/export/<format> or --out. The format and folder are this export's alone (a later export
-    in another format never reuses them); `status` reports each format's export."""
-    transient = [Override.of("export.format", format_, "--format"), *_engine(engine, ray_address, workers)]
-    if out_dir is not None:
-        transient.append(Override.of("export.out", str(out_dir.expanduser().resolve()), "--out"))
-    _run(["export"], workspace, profile, config, _parsed(set_), force, transient)
-
-
-@app.command("train-reference")
-def train_reference_command(
-    workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
-    set_: SetOption = None, force: ForceOption = False,
-    out_dir: Annotated[Path | None, typer.Option(
-        "--out", help="also copy each ONNX model and its card (.json) to this folder as <target>_<model>.onnx; "
-        "a file there that this workspace did not make is replaced only with --force")] = None,
-    steps: Annotated[int | None, typer.Option("--steps", help=key_help("reference.max_steps"))] = None,
-    engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
-) -> None:
-    """Run the train-reference stage: render the synthetic training set its recipe asks for
-    (section [reference]), train the reference keypoint CNNs on it and the detector of their
-    own crop (reference.variants: plain, augmented, detector) and export them to ONNX with
-    their contracts (W/models/<name>.onnx, which evaluate then uses); with --out, copy them
-    there too, named by target."""
-    overrides = _parsed(set_)
-    resolved, ws, _ = _context(workspace, profile, config, overrides)
-    recipe = resolved.reference
-    destinations = {} if out_dir is None else registry.publish_destinations(
-        resolved, ws, out_dir.expanduser().resolve(), force)
-    transient = [Override.of("render.set", "train", "train-reference"),
-                 Override.of("render.train_count", recipe.images, "reference.images"),
-                 Override.of("render.train_resolution_scale", recipe.resolution_scale, "reference.resolution_scale")]
-    if steps is not None:
-        transient.append(Override.of("reference.max_steps", steps, "--steps"))
-    transient += _engine(engine, ray_address, workers)
-    ws = _run(["render", "train-reference"], workspace, profile, config, overrides, force, transient)
-    for name, path, row in registry.published(ws, destinations):
-        where = path if name in destinations else ws.display(path)
-        held = (f"median box IoU {row['held_out_median_box_iou']:.3f}" if row["held_out_mean_speed_score"] is None
-                else f"mean SPEED score {row['held_out_mean_speed_score']:.4f}, median rotation error "
-                     f"{row['held_out_median_rotation_error_deg']:.2f} deg")
-        out.print(escape(f"{where}: trained on {row['training_images']} images in {row['train_seconds']:.0f} "
-                         f"s; held-out synthetic: {held}"), highlight=False)
+    _stage_command(_entry)
 
 
 @app.command("run")
@@ -445,7 +350,7 @@ def run_command(
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, _target(_parsed(set_), target, facility), force,
+    _run(names, workspace, profile, config, [*_parsed(set_), *folders(target, facility)], force,
          _engine(engine, ray_address, workers))
 
 

@@ -38,8 +38,9 @@ class StageEntry:
     #: which target folder's digest is in the fingerprint: the configured folder's (the plan,
     #: which copies it into the workspace) or the workspace's copy (every later stage)
     target_folder: Literal["configured", "workspace"] = "workspace"
-    #: the CLI has a command of its own for it (options beyond the common ones)
-    own_command: bool = False
+    #: its work is spread over the engine's workers: its command takes --engine, --workers
+    #: and --ray-address (the others run in the command's own process)
+    engines: bool = False
     #: the package may leave itself out of a chain of stages (``skipped_in_chain(config)``:
     #: the plan, when a replayed session brings its own samples)
     may_skip: bool = False
@@ -79,30 +80,15 @@ class StageEntry:
     def function(self) -> Callable[..., Any]:
         return _load(f"{self.package}.stage:run")
 
-
-def with_added_models(config: Config, workspace: Workspace, added: list[Any]) -> tuple[list[str], list[str]]:
-    """``evaluate.models`` with ``added`` files beside the scored ones, and notes of the
-    models they replace (``stages.evaluate.stage.with_added_models``)."""
-    models, notes = _load("stages.evaluate.stage:with_added_models")(config, workspace, added)
-    return list(models), list(notes)
-
-
-def publish_destinations(config: Config, workspace: Workspace, out_dir: Any, force: bool) -> dict[str, Any]:
-    """Where ``train-reference --out DIR`` copies each model it trains under ``config``
-    (``stages.reference.publish``); refused before training when a file there is not ours."""
-    names = trained_models(config)
-    return dict(_load("stages.reference.publish:publish_destinations")(config, workspace, names, out_dir, force))
-
-
-def published(workspace: Workspace, destinations: dict[str, Any]) -> list[tuple[str, Any, dict[str, Any]]]:
-    """After train-reference: each trained model's name, where it now is and its ``models``
-    row (``stages.reference.publish.published``)."""
-    return list(_load("stages.reference.publish:published")(workspace, destinations))
-
-
-def trained_models(config: Config) -> list[str]:
-    """The names of the models train-reference makes under ``config``."""
-    return list(_load("stages.reference.stage:model_names")(config))
+    def options(self) -> Callable[..., Any] | None:
+        """The stage's own command-line options (``<package>.cli:options``, typer-annotated
+        parameters -> ``core.command.Request``), or None: the common options alone."""
+        try:
+            return _load(f"{self.package}.cli:options")
+        except ModuleNotFoundError as error:
+            if error.name != f"{self.package}.cli":
+                raise
+            return None
 
 
 def _load(entry_point: str) -> Callable[..., Any]:
@@ -113,22 +99,22 @@ def _load(entry_point: str) -> Callable[..., Any]:
 
 STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
-               own_command=True, may_skip=True, notes=True),
+               engines=True, may_skip=True, notes=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
-               "capture and images", "stages.acquire", own_command=True),
+               "capture and images", "stages.acquire", engines=True),
     StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate"),
     StageEntry("fuse", "per-source poses, rejection, Bayesian fusion (W/fusion.json)", "stages.fuse"),
     StageEntry("label", "SPEED+ labels, keypoints, boxes", "stages.label"),
     StageEntry("render", "Mitsuba 3 synthetic twins of the labels (or, with --set train, the training set)",
-               "stages.render", own_command=True),
+               "stages.render", engines=True),
     StageEntry("evaluate", "ONNX model scores on twins and testbed images (Table 2)", "stages.evaluate",
-               preflight=True, own_command=True),
+               preflight=True, engines=True),
     StageEntry("report", "static HTML report (W/report/index.html)", "stages.report", replace_stale=True),
     StageEntry("export", "the labels and images as a SPEED+, BOP or SHIRT dataset", "stages.export", chained=False,
-               replace_stale=True, own_command=True, views=True),
+               replace_stale=True, engines=True, views=True),
     StageEntry("train-reference", "train the reference keypoint CNNs (plain and augmented) on the synthetic "
                "training set and export ONNX (W/models/reference.onnx, reference_augmented.onnx)",
-               "stages.reference", chained=False, own_command=True),
+               "stages.reference", chained=False, engines=True),
 )
 STAGE_NAMES = tuple(stage.name for stage in STAGES)
 CHAIN = tuple(stage.name for stage in STAGES if stage.chained)

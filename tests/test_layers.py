@@ -60,10 +60,16 @@ def test_reading_a_stages_configuration_imports_nothing_else_of_it(stage):
     and in every worker) loads no stage's code."""
     package = ROOT / "stages" / stage
     assert imported_modules(package / "__init__.py") == []
+    below = {"core", "manifests", "speedplus", "__future__", "typing", "dataclasses", "math", "datetime",
+             "pathlib", "numpy"}
     if (package / "config.py").exists():
-        below = {"core", "manifests", "speedplus", "__future__", "typing", "dataclasses", "math", "datetime",
-                 "pathlib", "numpy"}
         assert [m for _, m in imported_modules(package / "config.py") if m.split(".")[0] not in below] == []
+    if (package / "cli.py").exists():  # read when the CLI starts: its own config at most, the rest lazily
+        tree = ast.parse((package / "cli.py").read_text())
+        eager = [node.module for node in tree.body if isinstance(node, ast.ImportFrom)]
+        eager += [alias.name for node in tree.body if isinstance(node, ast.Import) for alias in node.names]
+        own_config = f"stages.{stage}.config"
+        assert [m for m in eager if m.split(".")[0] not in {*below, "typer"} and m != own_config] == []
 
 
 @pytest.mark.parametrize("package", ["stages/common", "manifests", "core", "pipeline", "speedplus"])
