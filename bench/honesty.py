@@ -140,9 +140,9 @@ def table1_ratios(ws: Workspace) -> dict[str, float]:
     to_paper_px = 1920 / calibration.intrinsics.width
     out = {}
     for source in ("kuka", "vicon"):
-        metric = getattr(calibration, source).metrics["in_sample"]
+        metric = getattr(calibration, source).metrics.in_sample
         for index, (key, scale) in enumerate((("E_T_m", 1000), ("E_R_rad", np.degrees(1)), ("E_p_px", to_paper_px))):
-            out[f"{source} {key[:3]}"] = metric[key][0] * scale / PAPER[source][index][0]
+            out[f"{source} {key[:3]}"] = metric.value(key)[0] * scale / PAPER[source][index][0]
     return out
 
 
@@ -178,8 +178,8 @@ def board_error_geometry(ws: Workspace, source: str) -> dict[str, float]:
         centre_mm.append(np.linalg.norm(shift) * 1000)
         depth_mm.append(abs(shift[2]) * 1000)
         rotation_px.append(rms_px(rotated, pnp))
-    metric = getattr(read_calibration(ws), source).metrics["in_sample"]
-    return {"px_per_mm": float(metric["E_p_px"][0] * to_paper_px / (metric["E_T_m"][0] * 1000)),
+    metric = getattr(read_calibration(ws), source).metrics.in_sample
+    return {"px_per_mm": float(metric.E_p_px[0] * to_paper_px / (metric.E_T_m[0] * 1000)),
             "centre_px_per_mm": float(np.mean(e_p) / np.mean(centre_mm)),
             "depth_share": float(np.mean(depth_mm) / np.mean(centre_mm)),
             "rotation_px": float(np.mean(rotation_px))}
@@ -188,9 +188,8 @@ def board_error_geometry(ws: Workspace, source: str) -> dict[str, float]:
 def calibration_samples(ws: Workspace) -> dict[str, float]:
     """Mean E_T (mm) against the truth on the calibration samples both sources measured."""
     fused = read_calibration(ws).fused
-    same = fused["sources_on_the_same_samples"]
-    return {"fused": fused["metrics"]["truth"]["E_T_m"][0] * 1000,
-            **{source: same[source]["truth"]["E_T_m"][0] * 1000 for source in ("kuka", "vicon")}}
+    same = {**fused.sources_on_the_same_samples, "fused": fused.metrics}
+    return {name: same[name].truth.E_T_m[0] * 1000 for name in ("fused", "kuka", "vicon")}
 
 
 def dataset(ws: Workspace) -> dict[str, Any]:

@@ -76,12 +76,12 @@ def calibration_vs_truth_mm(ws: Any) -> dict[str, float]:
     """Mean E_T (mm) of the calibration against the truth, fused and per source measured."""
     calibration = read_calibration(ws)
     out = {}
-    if calibration.fused is not None:  # two sources: Table 1's fused column
-        out["fused"] = calibration.fused["metrics"]["truth"]["E_T_m"][0] * 1000
+    if calibration.fused is not None and calibration.fused.metrics.truth is not None:  # two sources
+        out["fused"] = calibration.fused.metrics.truth.E_T_m[0] * 1000
     for name in ("kuka", "vicon"):
         source = calibration.source(name)
-        if source is not None and source.metrics.get("truth"):
-            out[name] = source.metrics["truth"]["E_T_m"][0] * 1000
+        if source is not None and source.metrics.truth is not None:
+            out[name] = source.metrics.truth.E_T_m[0] * 1000
     return out
 
 

@@ -20,13 +20,16 @@ from manifests.sidecars.calibration import (
     Calibration,
     FixtureCompliance,
     Intrinsics,
+    SessionSources,
     SigmaRecord,
+    SolverRecord,
     SourceCalibration,
     read_calibration,
     write_calibration,
 )
 from manifests.sidecars.fusion import FUSION_VERSION, FusionRecord, read_fusion, write_fusion
 from manifests.sidecars.markers import MARKERS_VERSION, MarkersRecord, read_markers, write_markers
+from manifests.sidecars.screening import MotionFit, Screening
 from manifests.sidecars.session import (
     BACKENDS,
     FORMATS,
@@ -37,6 +40,7 @@ from manifests.sidecars.session import (
     read_session,
     write_session,
 )
+from manifests.sidecars.table1 import METRIC_KEYS, METRIC_KINDS, Baseline, Folds, FusedColumn, Metrics, MetricSet
 from manifests.sidecars.trajectories import (
     TRAJECTORIES_VERSION,
     SequenceRecord,
@@ -47,7 +51,9 @@ from manifests.sidecars.trajectories import (
 from manifests.sidecars.truth import TRUTH_VERSION, TruthRecord, read_truth, write_truth
 
 __all__ = [
-    "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "MARKERS_VERSION", "OFFSET_KEYS",
+    "BACKENDS", "CALIBRATION_VERSION", "FORMATS", "FUSION_VERSION", "MARKERS_VERSION", "METRIC_KEYS", "METRIC_KINDS",
+    "OFFSET_KEYS", "Baseline", "Folds", "FusedColumn", "MetricSet", "Metrics", "MotionFit", "Screening",
+    "SessionSources", "SolverRecord",
     "SESSION_VERSION", "SOURCES", "TRAJECTORIES_VERSION", "TRUTH_VERSION",
     "ArmKinematics", "Calibration", "FixtureCompliance", "FusionRecord", "Intrinsics", "MarkersRecord",
     "Pose", "SequenceRecord", "Session", "SessionCamera", "SidecarError", "SigmaRecord", "SourceCalibration",

@@ -4,8 +4,8 @@ render, evaluate and export (the camera), and report (Table 1).
 
 Poses are ``Pose`` records ({q, t}); each source's offsets keep the names of their frames
 (``OFFSET_KEYS``): the KUKA telemetry ends at the flanges (camee, targetee), motion capture
-at the rigid bodies (camrb, targetrb). The metrics, screening and solver records are shown,
-not computed on, and are checked for shape only where Table 1 reads them.
+at the rigid bodies (camrb, targetrb). Table 1's records are ``manifests/sidecars/table1.py``,
+the screening's ``manifests/sidecars/screening.py``.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
+from manifests.sidecars.screening import Screening
+from manifests.sidecars.table1 import Baseline, FusedColumn, Metrics
 from manifests.workspace import Workspace
 
 # 2: the arms' joint compliances (arm_kinematics); 3: metrics.cross_validation (the folds
@@ -22,8 +24,6 @@ CALIBRATION_VERSION = 3
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}
-METRIC_KINDS = ("in_sample", "cross_validated", "truth")
-METRIC_KEYS = ("E_T_m", "E_R_rad", "E_p_px")
 
 
 @dataclass(frozen=True)
@@ -67,29 +67,6 @@ class SigmaRecord:
     def from_fields(cls, f: Fields) -> SigmaRecord:
         return cls(f.vector("sigma_t_m", 3), f.number("sigma_r_rad"),
                    f.number("sigma_pointing_rad") if f.optional("sigma_pointing_rad") else None)
-
-
-def _metrics(f: Fields, name: str) -> dict[str, Any]:
-    """Table 1's metrics of one column: {kind: {E_T_m: [mean, std], ...} or null, and
-    cross_validation: {samples, and for a source's column folds, undetermined_folds, judged}};
-    cross_validated is null only when no sample's fold was determined."""
-    metrics = f.child(name)
-    cross = metrics.child("cross_validation")
-    samples = cross.integer("samples")
-    if cross.optional("folds"):
-        folds = cross.integer("folds", minimum=2)
-        left_out = cross.raw("undetermined_folds")
-        if not isinstance(left_out, list) or not all(isinstance(k, int) and 1 <= k <= folds for k in left_out):
-            raise cross.fail("undetermined_folds", f"a list of fold numbers 1..{folds}")
-        cross.boolean("judged")
-    for kind in METRIC_KINDS:
-        if metrics.optional(kind):
-            entry = metrics.child(kind)
-            for key in METRIC_KEYS:
-                entry.vector(key, 2)
-        elif kind == "in_sample" or (kind == "cross_validated" and samples > 0):
-            raise metrics.fail(kind, "an object of mean and std per metric")
-    return metrics.data
 
 
 @dataclass(frozen=True)
@@ -176,8 +153,8 @@ class SourceCalibration:
     sigma: SigmaRecord
     samples: int
     outliers: tuple[str, ...]
-    metrics: dict[str, Any]  # {in_sample, cross_validated, truth}: {E_T_m, E_R_rad, E_p_px: [mean, std]}
-    opencv_shah_in_sample: dict[str, Any] | None = None  # OpenCV's Shah on the same data, for comparison
+    metrics: Metrics  # its column of Table 1
+    opencv_shah_in_sample: Baseline | None = None  # None: several fixtures, which OpenCV's Shah cannot take
 
     @property
     def compliance_k_rad(self) -> dict[str, tuple[float, ...]]:
@@ -195,9 +172,9 @@ class SourceCalibration:
                f"{x_key}_by_fixture": {k: p.to_json() for k, p in self.target_from_offset_by_fixture.items()},
                "fixture_compliance": self.fixture_compliance.to_json(), "arm_kinematics": self.arm_kinematics.to_json(),
                **self.sigma.to_json(), "samples": self.samples, "outliers": list(self.outliers),
-               "metrics": self.metrics}
+               "metrics": self.metrics.to_json()}
         if self.opencv_shah_in_sample is not None:
-            out["opencv_shah_in_sample"] = self.opencv_shah_in_sample
+            out["opencv_shah_in_sample"] = self.opencv_shah_in_sample.to_json()
         return out
 
     @classmethod
@@ -215,9 +192,54 @@ class SourceCalibration:
         outliers = f.raw("outliers")
         if not isinstance(outliers, list) or not all(isinstance(s, str) for s in outliers):
             raise f.fail("outliers", "a list of sample ids")
-        shah = f.child("opencv_shah_in_sample").data if f.optional("opencv_shah_in_sample") else None
+        shah = Baseline.from_fields(f.child("opencv_shah_in_sample")) if f.optional("opencv_shah_in_sample") else None
         return cls(source, f.pose(z_key), by_fixture, compliance, kinematics, SigmaRecord.from_fields(f),
-                   f.integer("samples", minimum=1), tuple(outliers), _metrics(f, "metrics"), shah)
+                   f.integer("samples", minimum=1), tuple(outliers), Metrics.from_fields(f.child("metrics")), shah)
+
+
+@dataclass(frozen=True)
+class SolverRecord:
+    """How the offsets were solved: ``calibrate.solver``'s method, the cross-validation's
+    folds, the pattern (a ``stages.common.patterns.PatternSpec``'s JSON) and the fixtures."""
+
+    method: str
+    folds: int
+    pattern: dict[str, Any]
+    fixtures: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"method": self.method, "folds": self.folds, "pattern": self.pattern, "fixtures": list(self.fixtures)}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> SolverRecord:
+        f.only("method", "folds", "pattern", "fixtures")
+        pattern = f.child("pattern")
+        pattern.text("kind")
+        pattern.vector("size", 2)
+        pattern.number("square_m", positive=True)
+        fixtures = f.raw("fixtures")
+        if not isinstance(fixtures, list) or not all(isinstance(name, str) for name in fixtures):
+            raise f.fail("fixtures", "a list of fixture names")
+        return cls(f.text("method"), f.integer("folds", minimum=2), pattern.data, tuple(fixtures))
+
+
+@dataclass(frozen=True)
+class SessionSources:
+    """The session calibrated: its backend and its measurement sources."""
+
+    backend: str
+    sources: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"backend": self.backend, "sources": list(self.sources)}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> SessionSources:
+        f.only("backend", "sources")
+        sources = f.raw("sources")
+        if not isinstance(sources, list) or not all(name in OFFSET_KEYS for name in sources):
+            raise f.fail("sources", f"a list of {' or '.join(OFFSET_KEYS)}")
+        return cls(f.text("backend"), tuple(sources))
 
 
 @dataclass(frozen=True)
@@ -230,11 +252,11 @@ class Calibration:
     calibration_distance_m: float  # mean camera-to-target distance of the calibration captures
     calibration_lever_sq_m2: tuple[float, float, float]  # mean squared lever of the line of sight, per axis
     world_up: tuple[float, float, float]  # the up the fixture compliance was fitted with, robot world frame
-    fused: dict[str, Any] | None  # Table 1's fused column: samples, metrics, sources_on_the_same_samples
+    fused: FusedColumn | None  # Table 1's fused column (None: no motion capture)
     rejection: SigmaRecord | None  # spread of motion capture against the robots (the rejection test's sigma)
-    solver: dict[str, Any]  # method, folds, pattern, fixtures
-    session: dict[str, Any]  # backend, sources
-    screening: dict[str, Any]  # stages.calibrate.screening's record of what was checked and dropped
+    solver: SolverRecord
+    session: SessionSources
+    screening: Screening  # what stages.calibrate.screening checked and set aside
 
     def source(self, name: str) -> SourceCalibration | None:
         return {"kuka": self.kuka, "vicon": self.vicon}[name]
@@ -244,20 +266,17 @@ class Calibration:
                 "vicon": None if self.vicon is None else self.vicon.to_json(),
                 "calibration_distance_m": self.calibration_distance_m,
                 "calibration_lever_sq_m2": list(self.calibration_lever_sq_m2), "world_up": list(self.world_up),
-                "fused": self.fused, "rejection": None if self.rejection is None else self.rejection.to_json(),
-                "solver": self.solver, "session": self.session, "screening": self.screening}
+                "fused": None if self.fused is None else self.fused.to_json(),
+                "rejection": None if self.rejection is None else self.rejection.to_json(),
+                "solver": self.solver.to_json(), "session": self.session.to_json(),
+                "screening": self.screening.to_json()}
 
     @classmethod
     def from_fields(cls, f: Fields) -> Calibration:
         f.only("version", "intrinsics", "kuka", "vicon", "calibration_distance_m", "calibration_lever_sq_m2",
                "world_up", "fused", "rejection", "solver", "session", "screening")
         vicon = SourceCalibration.from_fields("vicon", f.child("vicon")) if f.optional("vicon") else None
-        fused = None
-        if f.optional("fused"):
-            fused_fields = f.child("fused")
-            fused_fields.integer("samples", minimum=1)
-            _metrics(fused_fields, "metrics")
-            fused = fused_fields.data
+        fused = FusedColumn.from_fields(f.child("fused")) if f.optional("fused") else None
         if (vicon is None) != (fused is None) or (vicon is None) != (not f.optional("rejection")):
             raise SidecarError(f"{f.where}: keys vicon, fused and rejection: all null or all present")
         kuka = SourceCalibration.from_fields("kuka", f.child("kuka"))
@@ -265,7 +284,8 @@ class Calibration:
                    f.number("calibration_distance_m", positive=True), f.vector("calibration_lever_sq_m2", 3),
                    f.vector("world_up", 3), fused,
                    SigmaRecord.from_fields(f.child("rejection")) if f.optional("rejection") else None,
-                   f.child("solver").data, f.child("session").data, f.child("screening").data)
+                   SolverRecord.from_fields(f.child("solver")), SessionSources.from_fields(f.child("session")),
+                   Screening.from_fields(f.child("screening")))
 
     @classmethod
     def from_json(cls, data: dict[str, Any], where: str = "calibration.json") -> Calibration:

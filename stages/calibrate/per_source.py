@@ -13,7 +13,17 @@ import numpy as np
 from core import progress
 from core.config import Config
 from manifests import Workspace
-from manifests.sidecars import SOURCES, ArmKinematics, SigmaRecord, SourceCalibration
+from manifests.sidecars import (
+    SOURCES,
+    ArmKinematics,
+    Baseline,
+    Folds,
+    FusedColumn,
+    Metrics,
+    MetricSet,
+    SigmaRecord,
+    SourceCalibration,
+)
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.fitting import (
@@ -127,14 +137,24 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         arm_kinematics=ArmKinematics(fitted is not None, s.arm_note, fitted.to_json() if fitted is not None else None),
         sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,
-        metrics={"in_sample": in_sample, "cross_validated": cross_metrics, "cross_validation": cross.record(),
-                 "truth": _truth_metrics(predicted, s.used, intrinsics, truth)},
+        metrics=_column(in_sample, cross_metrics, cross.record(), _truth_metrics(predicted, s.used, intrinsics, truth)),
         # OpenCV's Shah on the same detections and intrinsics, for comparison
-        opencv_shah_in_sample=(opencv_shah_metrics(s.a, s.b, s.fixtures, s.used, intrinsics)
+        opencv_shah_in_sample=(Baseline.of(opencv_shah_metrics(s.a, s.b, s.fixtures, s.used, intrinsics))
                                if len(solution.x) == 1 else None))
     ids = [o.sample_id for o in s.used]
     determined = {i: p for i, p, d in zip(ids, cross.predicted, cross.determined, strict=True) if d}
     return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), determined), outliers
+
+
+def _column(in_sample: dict[str, list[float]], cross_validated: dict[str, list[float]] | None,
+            folds: dict[str, Any], truth: dict[str, list[float]] | None) -> Metrics:
+    """A column of Table 1 as calibration.json keeps it."""
+    def typed(values: dict[str, list[float]] | None) -> MetricSet | None:
+        return None if values is None else MetricSet.of(values)
+
+    record = Folds(folds["samples"], folds.get("folds"), tuple(folds.get("undetermined_folds", ())),
+                   folds.get("judged"))
+    return Metrics(MetricSet.of(in_sample), typed(cross_validated), record, typed(truth))
 
 
 def _determined_metrics(cross: CrossValidation, a: np.ndarray, used: list[obs.Observation],
@@ -164,7 +184,7 @@ def _fused(by_source: dict[str, np.ndarray], sigma: dict[str, Sigma]) -> np.ndar
 
 
 def fused_column(observations: list[obs.Observation], fits: dict[str, SourceFit], intrinsics: obs.EstimatedCamera,
-                 truth: dict[str, np.ndarray] | None) -> tuple[dict[str, Any], SigmaRecord]:
+                 truth: dict[str, np.ndarray] | None) -> tuple[FusedColumn, SigmaRecord]:
     """Table 1's fused column on the samples both sources measured (each source's own column
     is over its own samples, as in the paper; fusion is judged against the single sources
     on the same samples), and the spread of motion capture against the robots (the
@@ -187,7 +207,6 @@ def fused_column(observations: list[obs.Observation], fits: dict[str, SourceFit]
             found[name][which] = metrics(estimates, a, chosen, intrinsics)
             if which == "in_sample":
                 found[name]["truth"] = _truth_metrics(estimates, chosen, intrinsics, truth)
-    on_both = {name: {"in_sample": f["in_sample"], "cross_validated": f["cross_validated"],
-                      "cross_validation": {"samples": len(judged)}, "truth": f["truth"]} for name, f in found.items()}
-    return ({"samples": len(both), "metrics": on_both["fused"],
-             "sources_on_the_same_samples": {s: on_both[s] for s in SOURCES}}, rejection)
+    on_both = {name: _column(f["in_sample"], f["cross_validated"], {"samples": len(judged)}, f["truth"])
+               for name, f in found.items()}
+    return FusedColumn(len(both), on_both["fused"], {s: on_both[s] for s in SOURCES}), rejection

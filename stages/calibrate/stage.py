@@ -16,7 +16,16 @@ from core.config import Config
 from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_marker
 from manifests import clear as clear_manifest
-from manifests.sidecars import SOURCES, Calibration, Session, read_session, write_calibration
+from manifests.sidecars import (
+    SOURCES,
+    Calibration,
+    Screening,
+    Session,
+    SessionSources,
+    SolverRecord,
+    read_session,
+    write_calibration,
+)
 from speedplus.errors import InputError, RefusalError
 from stages.calibrate import observations as obs
 from stages.calibrate import per_source, screening
@@ -120,9 +129,9 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
         calibration_distance_m=float(np.mean(np.linalg.norm(pnp_positions, axis=1))),
         calibration_lever_sq_m2=tuple(np.mean(lever_sq(pnp_positions), axis=0).tolist()),
         world_up=tuple(float(v) for v in config.calibrate.world_up), fused=fused, rejection=rejection,
-        solver={"method": config.calibrate.solver, "folds": config.calibrate.folds, "pattern": spec.to_json(),
-                "fixtures": sorted({by_id[o.sample_id]["fixture"] for o in observations})},
-        session={"backend": session.backend, "sources": list(session.sources)}, screening=checks)
+        solver=SolverRecord(config.calibrate.solver, config.calibrate.folds, spec.to_json(),
+                            tuple(sorted({by_id[o.sample_id]["fixture"] for o in observations}))),
+        session=SessionSources(session.backend, tuple(session.sources)), screening=Screening.of(checks))
     return calibration, fits
 
 

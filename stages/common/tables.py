@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from manifests.schema import DOMAINS
-from manifests.sidecars import Calibration
+from manifests.sidecars import Calibration, Metrics, MetricSet
 
 TESTBED = DOMAINS
 
@@ -24,10 +24,10 @@ PAPER = {"kuka": ((2.429, 0.866), (0.637, 0.120), (5.176, 2.397)),
 COLUMNS = (("kuka", "KUKA-only"), ("vicon", "Vicon-only"), ("fused", "Data fusion"))
 
 
-def _cell(metric: dict[str, list[float]] | None, key: str, scale: float) -> str:
+def _cell(metric: MetricSet | None, key: str, scale: float) -> str:
     if metric is None:
         return "-"
-    mean, std = metric[key]
+    mean, std = metric.value(key)
     return f"{mean * scale:.3f} ± {std * scale:.3f}"
 
 
@@ -41,7 +41,7 @@ def rows(calibration: Calibration, with_paper: bool = True) -> list[tuple[str, l
             cells = []
             for source, _ in COLUMNS:
                 metrics = _column_metrics(calibration, source)
-                cell = _cell(metrics[kind] if metrics else None, key, scale)
+                cell = _cell(metrics.kind(kind) if metrics else None, key, scale)
                 cells.append(cell + (_folds_note(metrics) if kind == "cross_validated" and metrics else ""))
             out.append((f"{unit} {label}", cells))
     if not with_paper:
@@ -52,20 +52,19 @@ def rows(calibration: Calibration, with_paper: bool = True) -> list[tuple[str, l
     return out
 
 
-def _folds_note(metrics: dict[str, Any]) -> str:
+def _folds_note(metrics: Metrics) -> str:
     """Beside a cross-validated mean: how many folds it is over, when some could not be judged."""
-    cross = metrics.get("cross_validation") or {}
-    left_out, folds = cross.get("undetermined_folds") or [], cross.get("folds")
-    if left_out and folds:
-        return f" ({folds - len(left_out)} of {folds} folds)"
-    if cross.get("samples") is not None and metrics.get("in_sample") and metrics.get("cross_validated") is None:
+    cross = metrics.cross_validation
+    if cross.undetermined_folds and cross.folds:
+        return f" ({cross.folds - len(cross.undetermined_folds)} of {cross.folds} folds)"
+    if metrics.cross_validated is None:
         return " (no fold determined)"
     return ""
 
 
-def _column_metrics(calibration: Calibration, column: str) -> dict[str, Any] | None:
+def _column_metrics(calibration: Calibration, column: str) -> Metrics | None:
     if column == "fused":
-        return calibration.fused["metrics"] if calibration.fused else None
+        return calibration.fused.metrics if calibration.fused else None
     entry = calibration.source(column)
     return entry.metrics if entry else None
 
@@ -80,19 +79,20 @@ def print_table(calibration: Calibration) -> None:
     Console().print(table)
     for source, label in COLUMNS:
         metrics = _column_metrics(calibration, source) if source != "fused" else None
-        cross = (metrics or {}).get("cross_validation") or {}
-        if cross.get("undetermined_folds"):
-            judged = ("the refusal check used the others" if cross.get("judged")
+        cross = metrics.cross_validation if metrics is not None else None
+        if cross is not None and cross.undetermined_folds:
+            judged = ("the refusal check used the others" if cross.judged
                       else "too few were determined to judge: the in-sample fit alone was")
-            Console().print(f"{label}: fold(s) {', '.join(map(str, cross['undetermined_folds']))} of {cross['folds']} "
+            Console().print(f"{label}: fold(s) {', '.join(map(str, cross.undetermined_folds))} of {cross.folds} "
                             "could not determine the offsets and are left out of the cross-validated means; "
                             f"{judged}", highlight=False)
     fused = calibration.fused
-    if fused and (fused["metrics"]["truth"] or fused["metrics"]["cross_validated"]):
-        kind = "truth" if fused["metrics"]["truth"] else "cross_validated"
-        same = {**fused["sources_on_the_same_samples"], "fused": fused["metrics"]}
-        Console().print(f"On the {fused['samples']} samples both sources measured, E_T {kind.replace('_', '-')}: "
-                        + ", ".join(f"{label} {same[name][kind]['E_T_m'][0] * 1000:.4f} mm" for name, label in COLUMNS))
+    if fused and (fused.metrics.truth or fused.metrics.cross_validated):
+        kind = "truth" if fused.metrics.truth else "cross_validated"
+        same = {**fused.sources_on_the_same_samples, "fused": fused.metrics}
+        Console().print(f"On the {fused.samples} samples both sources measured, E_T {kind.replace('_', '-')}: "
+                        + ", ".join(f"{label} {same[name].kind(kind).E_T_m[0] * 1000:.4f} mm"
+                                    for name, label in COLUMNS))
 
 
 def table2_groups(scores: list[dict[str, Any]], model: str, crop: str) -> list[tuple[str, int, dict[str, Any] | None,

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
+from manifests.sidecars import Metrics
 from stages.common.fusion import Sigma
 
 if TYPE_CHECKING:
@@ -57,17 +58,17 @@ class Widening:
         return Sigma(sigma.t_m * self.position, sigma.r_rad * self.rotation, None)
 
 
-def cross_validated(metrics: dict[str, Any], samples: int) -> Widening:
+def cross_validated(metrics: Metrics, samples: int) -> Widening:
     """A source's widening to what its calibration's cross-validation measured (module
     docstring), from its Table 1 ``metrics``; ``samples``: those the calibration used."""
-    cross, inside, record = metrics.get("cross_validated"), metrics["in_sample"], metrics.get("cross_validation", {})
-    if cross is None or not record.get("judged", False):
+    cross, inside, record = metrics.cross_validated, metrics.in_sample, metrics.cross_validation
+    if cross is None or not record.judged:
         ratio_t = ratio_r = 1.0
         basis, count = "no judged cross-validation: in-sample", samples
     else:
-        ratio_t = max(_rms(cross["E_T_m"]) / max(_rms(inside["E_T_m"]), 1e-12), 1.0)
-        ratio_r = max(_rms(cross["E_R_rad"]) / max(_rms(inside["E_R_rad"]), 1e-12), 1.0)
-        basis, count = "cross-validated / in-sample", int(record.get("samples", samples))
+        ratio_t = max(_rms(cross.E_T_m) / max(_rms(inside.E_T_m), 1e-12), 1.0)
+        ratio_r = max(_rms(cross.E_R_rad) / max(_rms(inside.E_R_rad), 1e-12), 1.0)
+        basis, count = "cross-validated / in-sample", record.samples
     allowance = float(student_t.ppf(0.975, count - 1) / norm.ppf(0.975)) if count >= 2 else 1.0
     return Widening(ratio_t * allowance, ratio_r * allowance,
                     f"{basis} position x{ratio_t:.2f}, rotation x{ratio_r:.2f}, Student-t on {count} samples "

@@ -14,7 +14,7 @@ import numpy as np
 
 from core.config import Config
 from manifests import Workspace, read_manifest, read_marker
-from manifests.sidecars import Calibration
+from manifests.sidecars import Calibration, SolverRecord
 from stages.common import tables
 from stages.report import figures
 
@@ -42,18 +42,14 @@ def table1(calibration: Calibration) -> str:
         ["metric", "KUKA-only", "Vicon-only", "fused"], rows)
 
 
-def solver_line(solver: dict[str, Any]) -> str:
+def solver_line(solver: SolverRecord) -> str:
     """``calibration.json``'s solver record as a sentence."""
-    parts = [f"Solver: {solver.get('method', '?')}"]
-    if "folds" in solver:
-        parts.append(f"{solver['folds']}-fold cross-validation")
-    pattern = solver.get("pattern") or {}
-    if pattern:
-        size = "x".join(str(v) for v in pattern.get("size", []))
-        square = f", {1000 * pattern['square_m']:g} mm squares" if "square_m" in pattern else ""
-        parts.append(f"pattern {pattern.get('kind', '?')} {size}{square}")
-    if solver.get("fixtures"):
-        parts.append("fixtures " + ", ".join(solver["fixtures"]))
+    parts = [f"Solver: {solver.method}", f"{solver.folds}-fold cross-validation"]
+    pattern = solver.pattern
+    size = "x".join(str(v) for v in pattern["size"])
+    parts.append(f"pattern {pattern['kind']} {size}, {1000 * pattern['square_m']:g} mm squares")
+    if solver.fixtures:
+        parts.append("fixtures " + ", ".join(solver.fixtures))
     return "; ".join(parts) + ". Mean ± standard deviation over the calibration samples."
 
 

@@ -9,13 +9,21 @@ from manifests.sidecars import (
     ArmKinematics,
     Calibration,
     FixtureCompliance,
+    Folds,
+    FusedColumn,
     FusionRecord,
     Intrinsics,
+    Metrics,
+    MetricSet,
+    MotionFit,
     Pose,
+    Screening,
     Session,
     SessionCamera,
+    SessionSources,
     SidecarError,
     SigmaRecord,
+    SolverRecord,
     SourceCalibration,
     TruthRecord,
     read_calibration,
@@ -67,9 +75,12 @@ def test_missing_or_corrupt_sessions_say_what_to_rerun(tmp_path):
 
 # ----------------------------------------------------------------- calibration, fusion, truth
 POSE = Pose((0.5, 0.5, -0.5, 0.5), (0.1, -0.2, 0.3))
-METRIC = {"E_T_m": [1e-4, 5e-5], "E_R_rad": [3e-4, 1e-4], "E_p_px": [0.2, 0.1]}
-METRICS = {"in_sample": METRIC, "cross_validated": METRIC, "truth": None,
-           "cross_validation": {"folds": 5, "undetermined_folds": [], "samples": 40, "judged": True}}
+METRIC = MetricSet((1e-4, 5e-5), (3e-4, 1e-4), (0.2, 0.1))
+METRICS = Metrics(METRIC, METRIC, Folds(40, 5, (), True), None)
+ON_BOTH = Metrics(METRIC, METRIC, Folds(40), METRIC)
+SCREENING = Screening(("cal000001",), (), ("cal000002",), 58, MotionFit(
+    ("cal000003",), 0.0088, 0.59, 0.0057, 0.0014, 0.995, 0.019, 0.021, 0.01, 0.01))
+PATTERN = {"kind": "charuco", "size": [11, 11], "square_m": 0.03, "marker_m": 0.022, "dictionary": "DICT_5X5_100"}
 
 
 def source(name: str, kinematics: ArmKinematics) -> SourceCalibration:
@@ -87,8 +98,9 @@ CALIBRATION = Calibration(
                                                     "fixtures": ["minus_x", "plus_x"], "compliant": True})),
     source("vicon", ArmKinematics(False, "motion capture tracks the model itself")),
     0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
-    {"samples": 55, "metrics": METRICS, "sources_on_the_same_samples": {"kuka": METRICS, "vicon": METRICS}},
-    SigmaRecord((6e-4, 5e-4, 2e-4), 2e-3, None), {"method": "frobenius", "folds": 5}, {"backend": "virtual"}, {})
+    FusedColumn(55, ON_BOTH, {"kuka": ON_BOTH, "vicon": ON_BOTH}),
+    SigmaRecord((6e-4, 5e-4, 2e-4), 2e-3, None), SolverRecord("frobenius", 5, PATTERN, ("minus_x", "plus_x")),
+    SessionSources("virtual", ("kuka", "vicon")), SCREENING)
 
 
 def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(tmp_path):
@@ -132,6 +144,12 @@ def _edit(data: dict, path: str, value) -> dict:
     ("kuka.metrics.cross_validation.undetermined_folds", [6], r"key kuka.metrics.cross_validation."
                                                               r"undetermined_folds: expected a list of fold numbers"),
     ("kuka.metrics.cross_validated", None, r"key kuka.metrics.cross_validated: expected an object"),
+    ("fused.sources_on_the_same_samples.vicon.truth.E_R_rad", "x",
+     r"key fused.sources_on_the_same_samples.vicon.truth.E_R_rad: expected a list of 2"),
+    ("solver.fixtures", "minus_x", r"key solver.fixtures: expected a list of fixture names"),
+    ("session.sources", ["kuka", "ros"], r"key session.sources: expected a list of kuka or vicon"),
+    ("screening.motions.pitch_scale", "1", r"key screening.motions.pitch_scale: expected a number or null"),
+    ("screening.corner_order.undecided", [3], r"key screening.corner_order.undecided: expected a list of sample"),
     ("rejection", None, r"keys vicon, fused and rejection: all null or all present"),
     ("kuka.pose", 1, r"unknown key\(s\) in kuka pose"),
     ("kuka.samplez", 1, r"unknown key\(s\) in kuka samplez \(did you mean samples\?\)"),

@@ -82,7 +82,7 @@ def test_the_sources_and_the_calibration_are_the_facilitys(rehearsed):
     calibration = read_calibration(ws)
     assert (calibration.vicon is not None) == has_mocap
     assert not calibration.kuka.arm_kinematics.estimated and "URDF" in calibration.kuka.arm_kinematics.why
-    assert calibration.kuka.metrics["truth"]["E_T_m"][0] < 0.01  # mm-level, not a wrong frame
+    assert calibration.kuka.metrics.truth.E_T_m[0] < 0.01  # mm-level, not a wrong frame
 
 
 def test_the_labels_meet_the_thresholds_at_the_rehearsed_rate(rehearsed):

@@ -170,7 +170,7 @@ def test_absurd_results_and_solves_that_keep_few_samples_are_refused():
 def test_a_hand_edited_session_pattern_is_refused_by_key(tmp_path):
     from manifests import Workspace
     from manifests.sidecars import Session, SessionCamera, write_session
-    from stages import calibrate
+    from stages.calibrate import stage as calibrate
 
     workspace = Workspace(tmp_path)
     pattern = {"kind": "chessboard", "size": [28, 17], "square_m": 0.02, "marker_m": 0.0, "dictionary": "",

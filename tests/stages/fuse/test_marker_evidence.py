@@ -8,6 +8,7 @@ one that claims the smaller sigma; and a short session's sigmas must cover."""
 import numpy as np
 import pytest
 
+from manifests.sidecars import Folds, Metrics, MetricSet
 from pipeline.config import default_config
 from stages.acquire.virtual.mocap import kabsch
 from stages.common import geometry as g
@@ -160,9 +161,8 @@ def test_a_short_sessions_sigmas_cover():
     factor. Widened to the cross-validated errors and by the few captures' disagreement,
     at least 85% of the errors fall inside 1.96 sigma on every axis; the in-sample sigmas
     as they are cover far fewer."""
-    metrics = {"in_sample": {"E_T_m": [1e-3, 0.5e-3], "E_R_rad": [1e-3, 0.5e-3]},
-               "cross_validated": {"E_T_m": [3e-3, 1.5e-3], "E_R_rad": [3e-3, 1.5e-3]},
-               "cross_validation": {"judged": True, "samples": 15}}
+    metrics = Metrics(MetricSet((1e-3, 0.5e-3), (1e-3, 0.5e-3), (0.2, 0.1)),
+                      MetricSet((3e-3, 1.5e-3), (3e-3, 1.5e-3), (0.6, 0.3)), Folds(15, 5, (), True), None)
     covered = {"widened": [], "in-sample": []}
     for seed in range(40):
         truths, estimates = clustered_session(seed, 6e-4, 6e-4, captures=SHORT, robots_mm=(3.6, 3.6, 1.8))
