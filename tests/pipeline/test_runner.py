@@ -26,9 +26,9 @@ def test_fingerprint_tracks_results_not_execution(smoke, tmp_path):
     ws = Workspace(tmp_path)
     base = runner.fingerprint(PLAN, smoke, ws)
     assert runner.fingerprint(PLAN, smoke, ws) == base
-    assert runner.fingerprint(PLAN, replace(smoke, run=replace(smoke.run, part_rows=1)), ws) == base
-    assert runner.fingerprint(PLAN, replace(smoke, plan=replace(smoke.plan, seed=1)), ws) != base
-    assert runner.fingerprint(PLAN, replace(smoke, camera=replace(smoke.camera, fx_px=3000.0)), ws) != base
+    assert runner.fingerprint(PLAN, smoke.replace(run=replace(smoke.run, part_rows=1)), ws) == base
+    assert runner.fingerprint(PLAN, smoke.replace(plan=replace(smoke.plan, seed=1)), ws) != base
+    assert runner.fingerprint(PLAN, smoke.replace(camera=replace(smoke.camera, fx_px=3000.0)), ws) != base
 
 
 def test_run_then_skip_then_status(smoke, tmp_path):
@@ -47,7 +47,7 @@ def test_run_then_skip_then_status(smoke, tmp_path):
 def test_changed_configuration_is_stale_and_needs_force(smoke, tmp_path):
     ws = Workspace(tmp_path)
     runner.run_stage(PLAN, smoke, ws)
-    changed = replace(smoke, plan=replace(smoke.plan, seed=5))
+    changed = smoke.replace(plan=replace(smoke.plan, seed=5))
     assert runner.status(PLAN, changed, ws).state == "stale"
     with pytest.raises(runner.StageError, match="another configuration.*--force"):
         runner.run_stage(PLAN, changed, ws)

@@ -47,7 +47,7 @@ def test_same_seed_same_plan_other_seed_other_plan(default_config, default_plan)
     for a, b in zip(again, expected, strict=True):
         for key in a:
             np.testing.assert_array_equal(a[key], b[key])
-    other = replace(default_config, plan=replace(default_config.plan, seed=7))
+    other = default_config.replace(plan=replace(default_config.plan, seed=7))
     assert not np.allclose(plan_sample(other, "dataset", 0, "img000000")["cam_from_target_q"],
                            default_plan[64]["cam_from_target_q"])
 
@@ -165,7 +165,7 @@ def test_unreachable_poses_are_redrawn_and_counted(default_config):
     testbed = replace(default_config.testbed, target_presentation_m=((1.55, 1.5, 1.25),))
     plan = replace(default_config.plan, sight_elevations_rad=(np.radians(15),), sight_azimuths_rad=(0.0,),
                    camera_roll_candidates=1, joint_limit_margin_rad=0.3)
-    config = replace(default_config, testbed=testbed, plan=plan)
+    config = default_config.replace(testbed=testbed, plan=plan)
     rows = [plan_sample(config, "dataset", i, f"img{i:06d}") for i in range(12)]
     assert sum(r["redraws"] for r in rows) > 0
     assert all(r["reachable"] for r in rows)
@@ -173,7 +173,7 @@ def test_unreachable_poses_are_redrawn_and_counted(default_config):
 
 def test_impossible_configuration_names_the_sample(default_config):
     testbed = replace(default_config.testbed, rail_length_m=0.0, rail_origin_m=(7.7, 1.5, 3.0))
-    config = replace(default_config, testbed=testbed, plan=replace(default_config.plan, max_redraws=2))
+    config = default_config.replace(testbed=testbed, plan=replace(default_config.plan, max_redraws=2))
     with pytest.raises(PlanningError, match="sample img000003: no reachable robot configuration in 3 draws"):
         plan_sample(config, "dataset", 3, "img000003")
 
