@@ -16,7 +16,6 @@ import tempfile
 import traceback
 import typing
 from collections.abc import Callable, Iterator
-from dataclasses import fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
@@ -28,6 +27,7 @@ from rich.table import Table
 from typer.core import TyperGroup
 
 from core.command import FacilityOption, Request, TargetOption, folders
+from core.command import key_help as section_key_help
 from core.config import Config, Override, documented, parse_override, with_overrides, write_config
 from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
@@ -83,11 +83,7 @@ def _options(version: Annotated[bool, typer.Option("--version", callback=_print_
 def key_help(dotted: str) -> str:
     """The documentation of configuration key ``section.key`` (its field's help and unit)."""
     section, key = dotted.split(".")
-    for item in fields(SECTION_TYPES[section]):
-        if item.name == key:
-            unit = item.metadata.get("unit")
-            return f"{item.metadata['help']}{f' [{unit}]' if unit else ''} ({dotted})"
-    raise KeyError(dotted)
+    return section_key_help(SECTION_TYPES[section], key)
 
 
 WorkspaceOption = Annotated[

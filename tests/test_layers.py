@@ -206,3 +206,16 @@ def test_mitsuba_is_called_from_one_module():
                     and isinstance(node.func.value, ast.Name) and node.func.value.id == "mi"):
                 found.append(f"{path.name}:{node.lineno} calls mi.{getattr(node, 'attr', '') or node.func.attr}")
     assert found == []
+
+
+def test_the_cli_sets_no_stages_key():
+    """The CLI is generic over the registry: no key of a stage's own section is named in
+    pipeline/ (a stage's options set them from its package's cli module)."""
+    from core.config import FACILITY_SECTIONS
+    from pipeline.config import SECTION_TYPES
+
+    stage_sections = set(SECTION_TYPES) - set(FACILITY_SECTIONS)
+    named = [(path.name, node.value) for path in sorted((ROOT / "pipeline").rglob("*.py"))
+             for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.Constant)
+             and isinstance(node.value, str) and node.value.split(".")[0] in stage_sections and "." in node.value]
+    assert named == []
