@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from manifests.sidecars.arm_fit import ArmFit
 from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
 from manifests.sidecars.screening import Screening
 from manifests.sidecars.table1 import Baseline, FusedColumn, Metrics
@@ -109,17 +110,16 @@ class FixtureCompliance:
 
 @dataclass(frozen=True)
 class ArmKinematics:
-    """The arms' identified kinematics, when calibrate estimated them: ``fit`` is
-    stages.common.arms' ``Fit.to_json()`` (the corrections, the fixtures, whether the joints
-    were compliant, the packed parameters and their covariance)."""
+    """The arms' identified kinematics, when calibrate estimated them (``fit``,
+    ``manifests/sidecars/arm_fit.py``), and why or why not."""
 
     estimated: bool
     why: str | None
-    fit: dict[str, Any] | None = None
+    fit: ArmFit | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"estimated": self.estimated, **({"why": self.why} if self.why is not None else {}),
-                **(self.fit or {})}
+                **(self.fit.to_json() if self.fit is not None else {})}
 
     @classmethod
     def from_fields(cls, f: Fields) -> ArmKinematics:
@@ -128,17 +128,11 @@ class ArmKinematics:
         if not estimated:
             f.only("estimated", "why")
             return cls(False, why)
-        count = len(f.vector("parameters"))
-        f.matrix("covariance", count, count)
-        names = f.raw("fixtures")
-        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise f.fail("fixtures", "a list of fixture names")
-        f.boolean("compliant")
-        return cls(True, why, {key: value for key, value in f.data.items() if key not in ("estimated", "why")})
+        return cls(True, why, ArmFit.from_fields(f, "estimated", "why"))
 
     @property
-    def covariance(self) -> list[list[float]]:
-        return [] if self.fit is None else self.fit["covariance"]
+    def covariance(self) -> tuple[tuple[float, ...], ...]:
+        return () if self.fit is None else self.fit.covariance
 
 
 @dataclass(frozen=True)

@@ -134,7 +134,7 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         source=source, cam_from_offset=record(solution.z),
         target_from_offset_by_fixture={f: record(x) for f, x in solution.x.items()},
         fixture_compliance=compliance_record(solution, up, s.fixtures, s.compliance_note),
-        arm_kinematics=ArmKinematics(fitted is not None, s.arm_note, fitted.to_json() if fitted is not None else None),
+        arm_kinematics=ArmKinematics(fitted is not None, s.arm_note, fitted.record() if fitted is not None else None),
         sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,
         metrics=_column(in_sample, cross_metrics, cross.record(), _truth_metrics(predicted, s.used, intrinsics, truth)),

@@ -42,13 +42,13 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from core.config import TestbedConfig
+from manifests.sidecars.arm_fit import ARM_LINKS, COMPLIANCE_KEYS, ArmCorrections, ArmFit, BaseCorrection
 from stages.common import geometry as g
 from stages.common import layout, rwhe
 from stages.common.kinematics import arm_model, forward
 from stages.common.statics import gravity_torques, link_masses
 from stages.common.target import Target
 
-LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 #: mean square of a unit's lost motion over its rating's square: uniform on 50-100% of it
 UNIT_SHARE = 7 / 12
 #: the joints whose compliance is estimated (A2, A3, A5: those gravity loads)
@@ -61,7 +61,7 @@ class ArmLayout:
 
     camera_joint_offsets = slice(0, 6)  # rad, A1-A6
     target_joint_offsets = slice(6, 12)
-    camera_link_deltas = slice(12, 18)  # m, in the order of LENGTHS
+    camera_link_deltas = slice(12, 18)  # m, in the order of ARM_LINKS
     target_link_deltas = slice(18, 24)
     camera_base = slice(24, 30)  # rotation vector (rad) then translation (m) of the base's correction
     target_base = slice(30, 36)
@@ -163,28 +163,27 @@ class ArmErrors:
     params: np.ndarray  # (N_ARM,): joint offsets (camera, target), link deltas (camera, target), bases, rail,
     # compliances of A2, A3, A5 (camera, target)
 
-    def to_json(self) -> dict[str, Any]:
+    def record(self) -> ArmCorrections:
+        """The corrections by name, as calibration.json keeps them."""
         p, at = [float(v) for v in self.params], ArmLayout
         camera_base, target_base = p[at.camera_base], p[at.target_base]
-        return {"camera_joint_offsets_rad": p[at.camera_joint_offsets], "target_joint_offsets_rad":
-                p[at.target_joint_offsets],
-                "camera_link_deltas_m": dict(zip(LENGTHS, p[at.camera_link_deltas], strict=True)),
-                "target_link_deltas_m": dict(zip(LENGTHS, p[at.target_link_deltas], strict=True)),
-                "camera_base_correction": {"rotvec_rad": camera_base[:3], "t_m": camera_base[3:]},
-                "target_base_correction": {"rotvec_rad": target_base[:3], "t_m": target_base[3:]},
-                "rail_scale_error": p[at.rail_scale][0],
-                "camera_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[at.camera_compliance], strict=True)),
-                "target_compliance_rad_per_nm": dict(zip(("a2", "a3", "a5"), p[at.target_compliance], strict=True))}
+        return ArmCorrections(
+            tuple(p[at.camera_joint_offsets]), tuple(p[at.target_joint_offsets]),
+            dict(zip(ARM_LINKS, p[at.camera_link_deltas], strict=True)),
+            dict(zip(ARM_LINKS, p[at.target_link_deltas], strict=True)),
+            BaseCorrection(tuple(camera_base[:3]), tuple(camera_base[3:])),
+            BaseCorrection(tuple(target_base[:3]), tuple(target_base[3:])), p[at.rail_scale][0],
+            dict(zip(COMPLIANCE_KEYS, p[at.camera_compliance], strict=True)),
+            dict(zip(COMPLIANCE_KEYS, p[at.target_compliance], strict=True)))
 
     @classmethod
-    def from_json(cls, entry: dict[str, Any]) -> ArmErrors:
-        p = [*entry["camera_joint_offsets_rad"], *entry["target_joint_offsets_rad"],
-             *(entry["camera_link_deltas_m"][n] for n in LENGTHS), *(entry["target_link_deltas_m"][n] for n in LENGTHS),
-             *entry["camera_base_correction"]["rotvec_rad"], *entry["camera_base_correction"]["t_m"],
-             *entry["target_base_correction"]["rotvec_rad"], *entry["target_base_correction"]["t_m"],
-             entry["rail_scale_error"],
-             *(entry["camera_compliance_rad_per_nm"][n] for n in ("a2", "a3", "a5")),
-             *(entry["target_compliance_rad_per_nm"][n] for n in ("a2", "a3", "a5"))]
+    def from_record(cls, c: ArmCorrections) -> ArmErrors:
+        p = [*c.camera_joint_offsets_rad, *c.target_joint_offsets_rad,
+             *(c.camera_link_deltas_m[n] for n in ARM_LINKS), *(c.target_link_deltas_m[n] for n in ARM_LINKS),
+             *c.camera_base_correction.rotvec_rad, *c.camera_base_correction.t_m,
+             *c.target_base_correction.rotvec_rad, *c.target_base_correction.t_m, c.rail_scale_error,
+             *(c.camera_compliance_rad_per_nm[n] for n in COMPLIANCE_KEYS),
+             *(c.target_compliance_rad_per_nm[n] for n in COMPLIANCE_KEYS)]
         return cls(np.array(p, float))
 
 
@@ -294,9 +293,10 @@ class Fit:
     names: list[str]
     compliant: bool
 
-    def to_json(self) -> dict[str, Any]:
-        return {**self.errors.to_json(), "fixtures": self.names, "compliant": self.compliant,
-                "parameters": [float(v) for v in self.params], "covariance": self.covariance.tolist()}
+    def record(self) -> ArmFit:
+        """The fit as calibration.json keeps it (``arm_kinematics``)."""
+        return ArmFit(self.errors.record(), tuple(self.names), self.compliant, tuple(float(v) for v in self.params),
+                      tuple(tuple(row) for row in self.covariance.tolist()))
 
 
 def flank_variances(testbed: TestbedConfig, r: Readings, lost_motion_rad: tuple[float, ...],
@@ -317,14 +317,14 @@ def flank_variances(testbed: TestbedConfig, r: Readings, lost_motion_rad: tuple[
     return np.where(free, np.tile(UNIT_SHARE * (np.asarray(lost_motion_rad, float) / 2) ** 2, 2), 0.0)
 
 
-def pose_jacobians(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixtures: list[str],
+def pose_jacobians(testbed: TestbedConfig, fit: ArmFit, r: Readings, fixtures: list[str],
                    world_up: np.ndarray, step: float = 1e-7) -> np.ndarray:
     """(N, 6, P) derivatives of the poses predicted for captures ``r`` (rotation applied on
     the camera side, rad; translation, m) with respect to the fitted parameters
-    (``Fit.to_json``), by forward differences, every step in one batch. The first 12
+    (``Fit.record``), by forward differences, every step in one batch. The first 12
     columns, the joint offsets, are exactly those of the joint angles."""
-    params = np.asarray(entry["parameters"])
-    names, compliant = list(entry["fixtures"]), bool(entry["compliant"])
+    params = np.asarray(fit.parameters, float)
+    names, compliant = list(fit.fixtures), fit.compliant
     moved = np.repeat(params[None], len(params) + 1, axis=0)
     moved[1 + np.arange(len(params)), np.arange(len(params))] += step
     centre, *poses = predict_batch(testbed, moved, names, compliant, r, fixtures, world_up)
@@ -352,13 +352,13 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
     return tuple(0.5 * (c + np.swapaxes(c, -1, -2)) for c in (shared, own))  # exactly symmetric despite rounding
 
 
-def pose_covariances(testbed: TestbedConfig, entry: dict[str, Any], r: Readings, fixtures: list[str],
+def pose_covariances(testbed: TestbedConfig, fit: ArmFit, r: Readings, fixtures: list[str],
                      world_up: np.ndarray, joint_variance_rad2: np.ndarray | None = None,
                      step: float = 1e-7) -> np.ndarray:
     """(N, 6, 6) covariances of the poses predicted for captures ``r``: both parts of
     ``pose_covariance_parts`` together."""
-    jacobian = pose_jacobians(testbed, entry, r, fixtures, world_up, step)
-    shared, own = pose_covariance_parts(jacobian, np.asarray(entry["covariance"]), joint_variance_rad2)
+    jacobian = pose_jacobians(testbed, fit, r, fixtures, world_up, step)
+    shared, own = pose_covariance_parts(jacobian, np.asarray(fit.covariance, float), joint_variance_rad2)
     return shared + own
 
 

@@ -66,7 +66,7 @@ class SourceModel:
                  payload: arms.Payload, scale_sigma: float = 0.0) -> None:
         self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
-        self.arms = arms.ArmErrors.from_json(kinematics.fit) if kinematics.fit is not None else None
+        self.arms = arms.ArmErrors.from_record(kinematics.fit.corrections) if kinematics.fit is not None else None
         self.kinematics = kinematics
         self.testbed = testbed
         self.payload = payload

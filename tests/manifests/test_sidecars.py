@@ -35,6 +35,7 @@ from manifests.sidecars import (
     write_session,
     write_truth,
 )
+from manifests.sidecars.arm_fit import ARM_LINKS, COMPLIANCE_KEYS, ArmCorrections, ArmFit, BaseCorrection
 from manifests.sidecars.truth import POSE_KEYS, HolderTruth
 
 SESSION = Session("replay", "handeye", ("kuka",), SessionCamera(1928, 1208, None, None),
@@ -94,8 +95,11 @@ def source(name: str, kinematics: ArmKinematics) -> SourceCalibration:
 CALIBRATION = Calibration(
     Intrinsics(((1500.0, 0.0, 480.0), (0.0, 1500.0, 300.0), (0.0, 0.0, 1.0)), (-0.2, 0.5, 0.0, 0.0, -0.1), 960, 600,
                0.08, True),
-    source("kuka", ArmKinematics(True, "encoders", {"parameters": [0.0, 1.0], "covariance": [[1.0, 0.0], [0.0, 1.0]],
-                                                    "fixtures": ["minus_x", "plus_x"], "compliant": True})),
+    source("kuka", ArmKinematics(True, "encoders", ArmFit(
+        ArmCorrections((1e-4,) * 6, (-1e-4,) * 6, dict.fromkeys(ARM_LINKS, 2e-4), dict.fromkeys(ARM_LINKS, -2e-4),
+                       BaseCorrection((0.0, 1e-4, 0.0), (1e-3, 0.0, 0.0)), BaseCorrection((0.0,) * 3, (0.0,) * 3),
+                       1e-4, dict.fromkeys(COMPLIANCE_KEYS, 1e-5), dict.fromkeys(COMPLIANCE_KEYS, 2e-5)),
+        ("minus_x", "plus_x"), True, (0.0, 1.0), ((1.0, 0.0), (0.0, 1.0))))),
     source("vicon", ArmKinematics(False, "motion capture tracks the model itself")),
     0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
     FusedColumn(55, ON_BOTH, {"kuka": ON_BOTH, "vicon": ON_BOTH}),
@@ -140,6 +144,9 @@ def _edit(data: dict, path: str, value) -> dict:
     ("kuka.fixture_compliance.k_rad_by_fixture.plus_x", [0.0], r"key kuka.fixture_compliance.k_rad_by_fixture."
                                                                r"plus_x: expected a list of 3"),
     ("kuka.arm_kinematics.covariance", [[1.0]], r"key kuka.arm_kinematics.covariance: expected a 2 x 2"),
+    ("kuka.arm_kinematics.camera_link_deltas_m.c3", KeyError,
+     r"key kuka.arm_kinematics.camera_link_deltas_m.c3 missing"),
+    ("kuka.arm_kinematics.target_base_correction.t_m", [0.0], r"key kuka.arm_kinematics.target_base_correction.t_m"),
     ("vicon.metrics.in_sample.E_T_m", [0.1], r"key vicon.metrics.in_sample.E_T_m: expected a list of 2"),
     ("kuka.metrics.cross_validation.undetermined_folds", [6], r"key kuka.metrics.cross_validation."
                                                               r"undetermined_folds: expected a list of fold numbers"),

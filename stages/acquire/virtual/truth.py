@@ -16,6 +16,7 @@ import numpy as np
 
 from core.config import Config
 from manifests.sidecars import TruthRecord
+from manifests.sidecars.arm_fit import ARM_LINKS
 from manifests.sidecars.truth import HolderTruth
 from stages.acquire.virtual.unmodelled import Unmodelled, draw_unmodelled
 from stages.common import geometry as g
@@ -25,8 +26,6 @@ from stages.common.kinematics import ArmModel, arm_model
 from stages.common.robots.facility import load_facility
 from stages.common.target import Target
 from stages.common.workspace_target import planned_target
-
-_LENGTHS = ("a1", "a2", "c1", "c2", "c3", "c4")
 
 
 @dataclass(frozen=True)
@@ -71,7 +70,7 @@ def _small_transform(rng: np.random.Generator, sigma_m: float, sigma_rad: float)
 
 
 def _perturbed_arm(rng: np.random.Generator, arm: ArmModel, sigma_m: float) -> ArmModel:
-    changes = {name: getattr(arm, name) + rng.normal(0.0, sigma_m) for name in _LENGTHS}
+    changes = {name: getattr(arm, name) + rng.normal(0.0, sigma_m) for name in ARM_LINKS}
     return replace(arm, name=f"{arm.name} (true)", **changes)
 
 

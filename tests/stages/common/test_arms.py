@@ -1,9 +1,13 @@
 """Kinematic calibration of the arms: exact on noise-free data, carried over to other arm
 configurations, and read back from calibration.json unchanged."""
 
+import json
+
 import numpy as np
 import pytest
 
+from manifests.sidecars.arm_fit import ArmCorrections
+from manifests.sidecars.base import Fields
 from pipeline.config import load_config
 from stages.common import arms, rwhe
 from stages.common import geometry as g
@@ -62,8 +66,7 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
     assert np.abs(predicted[:, :3, 3] - expected[:, :3, 3]).max() < 1e-6
     assert g.angular_distance(predicted[:, :3, :3], expected[:, :3, :3]).max() < 1e-6
     # the uncertainty of a prediction: a covariance, tiny for noise-free data
-    entry = fit.to_json()
-    covariances = arms.pose_covariances(testbed, entry, others, other_fixtures, world_up)
+    covariances = arms.pose_covariances(testbed, fit.record(), others, other_fixtures, world_up)
     assert covariances.shape == (40, 6, 6)
     np.testing.assert_array_equal(covariances, np.swapaxes(covariances, -1, -2))
     assert np.linalg.eigvalsh(covariances).min() > -1e-18
@@ -75,8 +78,11 @@ def test_noise_free_arms_are_calibrated_and_carry_over_to_other_configurations(s
 
 
 def test_arm_errors_survive_json():
+    """Through calibration.json's record and its validating reader, as fuse reads them."""
     errors = true_errors(np.random.default_rng(3))
-    assert np.array_equal(arms.ArmErrors.from_json(errors.to_json()).params, errors.params)
+    data = json.loads(json.dumps(errors.record().to_json()))
+    read = ArmCorrections.from_fields(Fields(data, "calibration.json", ""))
+    assert np.array_equal(arms.ArmErrors.from_record(read).params, errors.params)
 
 
 def test_readings_need_every_capture_to_have_them():
@@ -132,7 +138,7 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     names = ["minus_x", "plus_x"]
     solution = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([arms.NOMINAL.params, rwhe.pack(solution, names, False, anisotropic=False)])
-    entry = arms.Fit(solution, arms.NOMINAL, params, np.zeros((len(params), len(params))), names, False).to_json()
+    entry = arms.Fit(solution, arms.NOMINAL, params, np.zeros((len(params), len(params))), names, False).record()
     lost = config.fuse.lost_motion_rad
     variances = arms.flank_variances(testbed, readings, lost, config.fuse.backlash_preload_nm)
     camera_torque, target_torque = arms.torques(testbed, readings)
@@ -168,7 +174,7 @@ def test_the_named_layout_tiles_the_packed_vector_and_round_trips_json():
     assert (at.compliance.start, at.compliance.stop) == (at.camera_compliance.start, at.target_compliance.stop)
     rng = np.random.default_rng(12)
     errors = arms.ArmErrors(rng.normal(size=arms.N_ARM))
-    entry = errors.to_json()
-    np.testing.assert_array_equal(arms.ArmErrors.from_json(entry).params, errors.params)
+    entry = errors.record().to_json()
+    np.testing.assert_array_equal(arms.ArmErrors.from_record(errors.record()).params, errors.params)
     assert entry["rail_scale_error"] == errors.params[at.rail_scale][0]
     assert entry["target_base_correction"]["t_m"] == list(errors.params[at.target_base][3:])
