@@ -10,7 +10,7 @@ no stage's options. A parameter named as a common one (render's ``set_``) takes 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -43,7 +43,7 @@ class Request:
     #: after the stages succeeded: the lines to print (train-reference's models)
     report: Callable[[Workspace], list[str]] | None = None
     #: lines to print before the run (the models an added one replaces)
-    notes: tuple[str, ...] = field(default=())
+    notes: tuple[str, ...] = ()
 
     def merged(self, more: Request) -> Request:
         """This request with ``more``'s overrides, notes and members after its own, and
