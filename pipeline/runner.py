@@ -41,7 +41,7 @@ from manifests import clear as clear_manifest
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
 from manifests.marker import CompletionMarker, FileRecord, PartRecord
 from manifests.schema import MANIFESTS
-from pipeline.registry import StageEntry
+from pipeline.registry import STAGES, StageEntry
 from speedplus.errors import InputError
 
 
@@ -240,6 +240,35 @@ def redone_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> li
     return sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
 
 
+def outdated_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> list[tuple[str, StageStatus]]:
+    """(input manifest, the status of the stage that writes it) for each input whose own
+    stage is stale under ``config``: made with other keys (``plan.seed``), another target or
+    facility folder, or other inputs of its own. A stage never builds on those: its results
+    would follow a configuration the workspace no longer has. A member that changed
+    (evaluate's model file) is tracked by its own stage, one by one, and is not counted."""
+    out = []
+    for name in stage.resolved(config, workspace).inputs:
+        producer = next((entry for entry in STAGES if entry.name != stage.name
+                         and name in entry.resolved(config, workspace).outputs), None)
+        if producer is None:
+            continue
+        state = status(producer, config, workspace)
+        if state.state == "stale" and not state.members_changed:
+            out.append((name, state))
+    return out
+
+
+def _refuse_outdated_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> None:
+    outdated = outdated_inputs(stage, config, workspace)
+    if outdated:
+        said = "; ".join(f"{name} (stage {state.stage}: {state.detail})" for name, state in outdated)
+        first = outdated[0][1].stage
+        raise StageError(f"stage {stage.name!r} reads {said}, made with another configuration than this "
+                         f"command's. Redo {'them' if len(outdated) > 1 else 'it'} first (`speedplus {first} -w "
+                         f"{workspace.location} --force`, with this command's --set and --config), or the whole "
+                         "chain (`speedplus run --force`)")
+
+
 def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False,
               on_start: Callable[[], None] | None = None, redo: tuple[str, ...] = (),
               follow: bool = False) -> StageOutcome:
@@ -261,6 +290,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         if problem is not None:
             raise StageError(f"stage {stage.name!r} needs manifest {name}, which is damaged ({problem}); redo "
                              "the stage that writes it with --force (speedplus status names it)")
+    _refuse_outdated_inputs(stage, config, workspace)
     stage.check(config, workspace)
     unknown = sorted(set(redo) - set(resolved.members))
     if unknown:

@@ -57,6 +57,27 @@ def test_changed_configuration_is_stale_and_needs_force(smoke, tmp_path):
     assert runner.status(PLAN, smoke, ws).state == "stale"
 
 
+def test_a_stage_never_builds_on_an_input_whose_stage_is_stale(smoke, tmp_path):
+    """plan.seed changed after the plan: acquire, even with --force, is refused before it
+    changes anything, naming the plan, the key and the command that redoes it (a changed
+    target or facility folder is the same: the plan's fingerprint holds their digests)."""
+    ws = Workspace(tmp_path)
+    runner.run_stage(PLAN, smoke, ws)
+    acquire = registry.stage("acquire")
+    assert runner.outdated_inputs(acquire, smoke, ws) == []
+    changed = smoke.replace(plan=replace(smoke.plan, seed=5))
+    (name, state), = runner.outdated_inputs(acquire, changed, ws)
+    assert (name, state.stage, state.detail) == ("plan", "plan", "plan.seed 2021 -> 5")
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    for force in (False, True):
+        with pytest.raises(runner.StageError, match=r"reads plan \(stage plan: plan.seed 2021 -> 5\).* Redo it first "
+                                                    r"\(`speedplus plan -w .* --force`"):
+            runner.run_stage(acquire, changed, ws, force=force)
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
+    runner.run_stage(PLAN, changed, ws, force=True)
+    assert runner.outdated_inputs(acquire, changed, ws) == []
+
+
 def test_partial_results_resume_to_the_uninterrupted_plan(smoke, tmp_path):
     fresh = Workspace(tmp_path / "fresh")
     runner.run_stage(PLAN, smoke, fresh)
