@@ -66,7 +66,10 @@ def _section_name(section: type) -> str:
     import sys
 
     declared = getattr(sys.modules[section.__module__], "SECTIONS", FACILITY_SECTIONS)
-    return next(name for name, kind in declared.items() if kind is section)
+    name = next((name for name, kind in declared.items() if kind is section), None)
+    if name is None:
+        raise KeyError(f"{section.__name__} is not in its module's SECTIONS")
+    return name
 
 
 def overrides(texts: list[str] | None) -> tuple[Override, ...]:

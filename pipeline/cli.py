@@ -26,9 +26,9 @@ from rich.markup import escape
 from rich.table import Table
 from typer.core import TyperGroup
 
-from core.command import FacilityOption, Request, TargetOption, folders
+from core.command import FacilityOption, Request, TargetOption, folders, overrides
 from core.command import key_help as section_key_help
-from core.config import Config, Override, documented, parse_override, with_overrides, write_config
+from core.config import Config, Override, documented, with_overrides, write_config
 from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
 from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
@@ -174,10 +174,6 @@ def _reading(ws: Workspace) -> Iterator[Workspace]:
         yield copy
 
 
-def _parsed(texts: list[str] | None) -> list[Override]:
-    return [parse_override(text) for text in texts or []]
-
-
 def _run(stages: list[str], workspace: str | None, profile: str | None, config: Path | None,
          saved: list[Override], force: bool, transient: list[Override] = (),
          redo: tuple[str, ...] = ()) -> Workspace:
@@ -314,11 +310,11 @@ def _execute(entry: registry.StageEntry, request: Request, common: dict[str, Any
     """Run what a stage command asks: the common options, then the stage's request (and what
     it asks once the configuration is resolved), then what it reports."""
     workspace, profile, config, force = (common.get(name) for name in ("workspace", "profile", "config", "force"))
-    saved = [*_parsed(common.get("set_")), *request.saved]
+    given = list(overrides(common.get("set_")))
     if request.then is not None:
-        resolved, ws, _ = _context(workspace, profile, config, saved)
+        resolved, ws, _ = _context(workspace, profile, config, [*given, *request.saved])
         request = request.merged(request.then(resolved, ws, bool(force)))
-        saved = [*_parsed(common.get("set_")), *request.saved]
+    saved = [*given, *request.saved]
     for note in request.notes:
         out.print(escape(note), highlight=False)
     transient = [*request.transient, *_engine(common.get("engine"), common.get("ray_address"), common.get("workers"))]
@@ -346,7 +342,7 @@ def run_command(
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, [*_parsed(set_), *folders(target, facility)], force,
+    _run(names, workspace, profile, config, [*overrides(set_), *folders(target, facility)], force,
          _engine(engine, ray_address, workers))
 
 
@@ -354,7 +350,7 @@ def run_command(
 def status_command(workspace: WorkspaceOption = None, profile: ProfileOption = None, config: ConfigOption = None,
                    set_: SetOption = None) -> None:
     """List every stage as done / partial / stale / missing, with row counts."""
-    resolved, located, _ = _context(workspace, profile, config, _parsed(set_))
+    resolved, located, _ = _context(workspace, profile, config, list(overrides(set_)))
     _must_exist(located)
     with _reading(located) as ws:
         _print_status(resolved, ws)
@@ -391,7 +387,7 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     """Check a whole workspace: every completed manifest against its completion marker, and
     every image, mask and model against the size and hash recorded when it was written.
     Exit 1 when anything is damaged, naming the stage to redo."""
-    resolved, located, _ = _context(workspace, profile, config, _parsed(set_))
+    resolved, located, _ = _context(workspace, profile, config, list(overrides(set_)))
     _must_exist(located)
     with _reading(located) as ws:
         findings = runner.verify(resolved, ws, registry.STAGES)

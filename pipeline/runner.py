@@ -245,12 +245,17 @@ def outdated_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> 
     stage is stale under ``config``: made with other keys (``plan.seed``), another target or
     facility folder, or other inputs of its own. A stage never builds on those: its results
     would follow a configuration the workspace no longer has. A member that changed
-    (evaluate's model file) is tracked by its own stage, one by one, and is not counted."""
+    (evaluate's model file) is tracked by its own stage, one by one, and is not counted.
+    The stage that wrote an input is the one its completion marker names; an input this
+    configuration does not have that stage write (render's training set while ``render.set``
+    is ``twin``) is not judged here."""
     out = []
     for name in stage.resolved(config, workspace).inputs:
-        producer = next((entry for entry in STAGES if entry.name != stage.name
-                         and name in entry.resolved(config, workspace).outputs), None)
-        if producer is None:
+        marker = read_marker(workspace, name)
+        made = marker.made_with if marker is not None else None
+        writer = made.get("stage") if isinstance(made, dict) else None
+        producer = next((entry for entry in STAGES if entry.name == writer and entry.name != stage.name), None)
+        if producer is None or name not in producer.resolved(config, workspace).outputs:
             continue
         state = status(producer, config, workspace)
         if state.state == "stale" and not state.members_changed:

@@ -1,5 +1,4 @@
-"""The acquire stage: drive a testbed backend through its samples and record what it
-measures (``captures``), the images, and, for the virtual testbed, the hidden ``truth``.
+"""The acquire stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Backends (``acquire.backend``): ``virtual`` (the embedded digital twin; captures the
 plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session``,

@@ -13,6 +13,7 @@ import numpy as np
 from core import progress
 from core.config import Config
 from manifests import Workspace, read_manifest, read_marker
+from manifests.sidecars import Folds
 from stages.calibrate import observations as obs
 from stages.common import arms, rwhe
 from stages.common import geometry as g
@@ -147,10 +148,9 @@ class CrossValidation:
         """Whether enough folds are determined for their errors to judge the data."""
         return self.folds - len(self.undetermined_folds) >= MIN_JUDGED_FOLDS
 
-    def record(self) -> dict[str, Any]:
+    def record(self) -> Folds:
         """calibration.json's ``metrics.cross_validation``: what the cross-validated means are over."""
-        return {"folds": self.folds, "undetermined_folds": list(self.undetermined_folds),
-                "samples": int(self.determined.sum()), "judged": self.judged}
+        return Folds(int(self.determined.sum()), self.folds, tuple(self.undetermined_folds), self.judged)
 
 
 def _undetermined(config: Config, b: np.ndarray, fixtures: list[str], train: np.ndarray,

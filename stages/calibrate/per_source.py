@@ -147,14 +147,12 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
 
 
 def _column(in_sample: dict[str, list[float]], cross_validated: dict[str, list[float]] | None,
-            folds: dict[str, Any], truth: dict[str, list[float]] | None) -> Metrics:
+            folds: Folds, truth: dict[str, list[float]] | None) -> Metrics:
     """A column of Table 1 as calibration.json keeps it."""
     def typed(values: dict[str, list[float]] | None) -> MetricSet | None:
         return None if values is None else MetricSet.of(values)
 
-    record = Folds(folds["samples"], folds.get("folds"), tuple(folds.get("undetermined_folds", ())),
-                   folds.get("judged"))
-    return Metrics(MetricSet.of(in_sample), typed(cross_validated), record, typed(truth))
+    return Metrics(MetricSet.of(in_sample), typed(cross_validated), folds, typed(truth))
 
 
 def _determined_metrics(cross: CrossValidation, a: np.ndarray, used: list[obs.Observation],
@@ -207,6 +205,6 @@ def fused_column(observations: list[obs.Observation], fits: dict[str, SourceFit]
             found[name][which] = metrics(estimates, a, chosen, intrinsics)
             if which == "in_sample":
                 found[name]["truth"] = _truth_metrics(estimates, chosen, intrinsics, truth)
-    on_both = {name: _column(f["in_sample"], f["cross_validated"], {"samples": len(judged)}, f["truth"])
+    on_both = {name: _column(f["in_sample"], f["cross_validated"], Folds(len(judged)), f["truth"])
                for name, f in found.items()}
     return FusedColumn(len(both), on_both["fused"], {s: on_both[s] for s in SOURCES}), rejection

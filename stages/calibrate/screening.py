@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from manifests.sidecars import Folds
 from stages.calibrate import observations as obs
 from stages.calibrate.config import CalibrateConfig
 from stages.calibrate.consistency import Pairs, choose_orderings, robust_flags, rotation_fit
@@ -189,14 +190,14 @@ def check_inliers(name: str, inliers: int, total: int) -> None:
 
 def check_result(name: str, in_sample: dict[str, list[float]], cross_validated: dict[str, list[float]] | None,
                  intrinsics: obs.EstimatedCamera, limits: CalibrateConfig,
-                 cross_validation: dict[str, Any] | None = None) -> None:
+                 cross_validation: Folds | None = None) -> None:
     """Refuse a calibration whose errors are absurd for any real set-up (the thresholds and
     why: ``CalibrateConfig`` and docs/accuracy.md): the in-sample fit's, and the
     cross-validated ones of the folds that determine the offsets (``cross_validated`` None:
     too few such folds to judge, ``cross_validation`` says which were left out)."""
     diagonal = float(np.hypot(intrinsics.width, intrinsics.height))
-    left_out = (cross_validation or {}).get("undetermined_folds") or []
-    folds = (cross_validation or {}).get("folds")
+    left_out = cross_validation.undetermined_folds if cross_validation is not None else ()
+    folds = cross_validation.folds if cross_validation is not None else None
     note = (f"; fold(s) {', '.join(map(str, left_out))} of {folds} could not be judged (their training samples do "
             "not determine the offsets) and are left out" if left_out else "")
     judged = [("in-sample", in_sample)]

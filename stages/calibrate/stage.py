@@ -1,6 +1,4 @@
-"""The calibrate stage: offsets of every measurement source, their uncertainty, the
-rejection thresholds of motion capture, and the paper's Table 1 (in-sample, k-fold
-cross-validated, and against the hidden truth when there is one).
+"""The calibrate stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Writes ``W/calibration.json`` and the ``calibration_samples`` manifest.
 """

@@ -1,5 +1,4 @@
-"""The evaluate stage: score ONNX pose models on pairs of synthetic twins and testbed
-captures that share their labels (the paper's Table 2 and Figure 12).
+"""The evaluate stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Every labelled capture is one ``lightbox`` or ``sunlamp`` image; its twin is one
 ``synthetic`` image. Both are scored against the label with the label camera, by every

@@ -1,9 +1,4 @@
-"""The export stage: the labelled testbed images, their synthetic twins and the training set
-as a SPEED+ dataset (the Stanford devkits; ``stages.export.speedplus``), a BOP dataset
-(bop_toolkit; ``stages.export.bop``) or, for a trajectory plan, SHIRT's sequences
-(``stages.export.shirt``); the plan as the robots' programs (``stages.export.robot``); the
-captures as a lab logger's session (``stages.export.session``); in ``export.out`` (default
-``W/export/<format>``: each format its own folder, never another's).
+"""The export stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Every image written is a row of the ``export_<format>`` manifest (key ``<set>/<sample_id>``),
 so an interrupted export resumes with the images it lacks; the annotation files are

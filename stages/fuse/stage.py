@@ -1,5 +1,4 @@
-"""The fuse stage: per dataset capture, the pose from each source through its calibrated
-offsets, the motion-capture rejection test, and the Bayesian fusion (docs/architecture.md section 6).
+"""The fuse stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 It reads the captures and ``W/calibration.json``, never the truth. The calibrated sigmas
 were measured at the calibration distance and arm configurations; on the dataset

@@ -1,4 +1,4 @@
-"""The label stage: SPEED+ labels of the dataset captures (docs/architecture.md section 4).
+"""The label stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Full-scale translation (mock-up translation / scale), the quaternion of
 ``cam_from_target``, the workspace target's keypoints projected through the calibrated

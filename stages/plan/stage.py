@@ -1,4 +1,4 @@
-"""The plan stage: relative poses to capture and the testbed commands that realise them.
+"""The plan stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Every sample is drawn from its own random stream ``(seed, session, index)``, so the plan
 is identical for a seed whatever order (or how many runs) it is produced in: a resumed

@@ -1,10 +1,4 @@
-"""The train-reference stage: the reference keypoint CNNs (torch) trained on the synthetic
-training set (the ``train`` manifest), the plain one and the augmented one, and the
-detector that gives their own crop (``reference.variants``), each exported to ONNX with its
-contract as ``W/models/<name>.onnx`` with its model card ``W/models/<name>.json``, and
-recorded as a row of the ``models`` manifest. A keypoint model's training checkpoints after
-every epoch (``W/models/<name>.checkpoint.pt``), so an interrupted run resumes where it
-stopped; the detector (minutes) starts again.
+"""The train-reference stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 """
 
 from __future__ import annotations

@@ -1,5 +1,4 @@
-"""The render stage: Mitsuba 3 synthetic twins of the labelled testbed captures (same pose,
-same camera and lens, light aligned with the testbed light), or the synthetic training set.
+"""The render stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 ``render.set = twin`` writes the ``renders`` manifest and ``W/renders/twins/``;
 ``render.set = train`` writes the ``train`` manifest and ``W/renders/train/``. Each image

@@ -1,5 +1,4 @@
-"""The report stage: a static HTML page, ``W/report/index.html``, with the paper's tables
-and figures for this run (no server, no network: open it from the file system).
+"""The report stage's ``run`` and ``resolve`` (what the stage does: the package's docstring).
 
 Sections, listed in a table of contents with anchors: Table 1 (with TRON's rows),
 calibration residuals and every calibration capture's corners (worst first), the label pose

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from manifests import Workspace, read_manifest
+from manifests.sidecars import Folds
 from pipeline.config import load_config
 from stages.calibrate import fitting
 from stages.common import geometry as g
@@ -184,8 +185,8 @@ def test_a_fold_that_cannot_determine_the_offsets_is_named_and_left_out():
     np.testing.assert_array_equal(cross.determined, folds != folds[-1])
     # noise free: every determined fold predicts its samples exactly
     np.testing.assert_allclose(cross.predicted[cross.determined], a[cross.determined], atol=1e-7)
-    assert cross.judged and cross.record() == {"folds": 5, "undetermined_folds": [int(folds[-1]) + 1],
-                                               "samples": int(cross.determined.sum()), "judged": True}
+    assert cross.judged and cross.record().to_json() == {"folds": 5, "undetermined_folds": [int(folds[-1]) + 1],
+                                                         "samples": int(cross.determined.sum()), "judged": True}
 
 
 def test_too_few_determined_folds_leave_the_judgement_to_the_in_sample_fit():
@@ -196,12 +197,12 @@ def test_too_few_determined_folds_leave_the_judgement_to_the_in_sample_fit():
     camera = obs.EstimatedCamera(board_set.CAMERA, np.zeros(5), 1920, 1080, 0.0, False)
     fine = {"E_T_m": [1e-3, 0.0], "E_R_rad": [1e-3, 0.0], "E_p_px": [0.5, 0.1]}
     absurd = {"E_T_m": [1e3, 0.0], "E_R_rad": [0.01, 0.0], "E_p_px": [3.087e6, 0.0]}  # the figure
-    screening.check_result("kuka", fine, None, camera, limits, {"folds": 5, "undetermined_folds": [1, 2, 3, 5]})
+    screening.check_result("kuka", fine, None, camera, limits, Folds(10, 5, (1, 2, 3, 5), False))
     with pytest.raises(screening.InconsistentPatternError, match=r"kuka in-sample E_R .* fold\(s\) 1, 5 of 5 could"):
         screening.check_result("kuka", {**fine, "E_p_px": absurd["E_p_px"]}, fine, camera, limits,
-                               {"folds": 5, "undetermined_folds": [1, 5]})
+                               Folds(30, 5, (1, 5), True))
     with pytest.raises(screening.InconsistentPatternError, match="kuka cross-validated E_R"):
-        screening.check_result("kuka", fine, absurd, camera, limits, {"folds": 5, "undetermined_folds": []})
+        screening.check_result("kuka", fine, absurd, camera, limits, Folds(50, 5, (), True))
 
 
 @pytest.mark.parametrize("folds", [5, 2])
