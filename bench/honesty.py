@@ -42,7 +42,6 @@ the change they judge (``TARGET_SEEDS``).
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 import subprocess
 import sys
@@ -103,7 +102,7 @@ def current_method(workspace: Path, settings: list[str]) -> None:
     path = workspace / "config.toml"
     saved = load_config(None, path)
     fresh = load_config(saved.profile)
-    method = dataclasses.replace(saved, **{name: getattr(fresh, name) for name in METHOD_SECTIONS})
+    method = saved.replace(**{name: getattr(fresh, name) for name in METHOD_SECTIONS})
     write_config(with_overrides(method, [parse_override(s) for s in settings]), path)
 
 
