@@ -107,3 +107,93 @@ class ArmFit:
             raise f.fail("fixtures", "a list of fixture names")
         return cls(ArmCorrections.from_fields(f), tuple(names), f.boolean("compliant"), parameters,
                    f.matrix("covariance", len(parameters), len(parameters)))
+
+
+@dataclass(frozen=True)
+class RobotCorrection:
+    """One facility robot's identified errors (``stages/common/robots/errors.py`` gives the
+    model): the encoders' zero offsets (J,) rad (m for a prismatic joint), in its URDF's
+    joint order; each origin's frame error (J + 1, 6), a rotation vector (rad) then a
+    translation (m) in that origin's frame, the last the flange's; the rail's scale error
+    (None without a rail); each joint's compliance (J,) rad/(N m)."""
+
+    robot: str
+    role: str  # "camera" or "target": what it carries
+    joints: tuple[str, ...]
+    zero_offsets: tuple[float, ...]
+    frame_errors: tuple[tuple[float, ...], ...]
+    rail_scale_error: float | None
+    compliance_rad_per_nm: tuple[float, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"robot": self.robot, "role": self.role, "joints": list(self.joints),
+                "zero_offsets": list(self.zero_offsets), "frame_errors": [list(row) for row in self.frame_errors],
+                "rail_scale_error": self.rail_scale_error, "compliance_rad_per_nm": list(self.compliance_rad_per_nm)}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> RobotCorrection:
+        f.only("robot", "role", "joints", "zero_offsets", "frame_errors", "rail_scale_error", "compliance_rad_per_nm")
+        joints = f.raw("joints")
+        if not isinstance(joints, list) or not joints or not all(isinstance(n, str) for n in joints):
+            raise f.fail("joints", "a list of joint names")
+        count = len(joints)
+        rail = None if f.raw("rail_scale_error") is None else f.number("rail_scale_error")
+        return cls(f.text("robot"), f.text("role", ("camera", "target")), tuple(joints),
+                   f.vector("zero_offsets", count), f.matrix("frame_errors", count + 1, 6), rail,
+                   f.vector("compliance_rad_per_nm", count))
+
+
+def _names(f: Fields, key: str) -> tuple[str, ...]:
+    names = f.raw(key)
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise f.fail(key, "a list of names")
+    return tuple(names)
+
+
+def _numbers(f: Fields, key: str) -> dict[str, float]:
+    entry = f.child(key)
+    return {name: entry.number(name) for name in entry.data}
+
+
+@dataclass(frozen=True)
+class ChainFit:
+    """A facility's robots fitted from their URDFs (``stages/common/robots/identification.py``):
+    each robot's corrections; the arms' parameter names in the packed order; those dropped
+    as inseparable, each with what absorbs it; the kept ones the calibration poses leave
+    weakly determined (posterior over prior 1-sigma); the fixtures of the offsets, whether
+    they were compliant; the packed parameters (P,) (the arms', then the offsets') with
+    their covariance (P, P); the arms' prior 1-sigmas."""
+
+    robots: tuple[RobotCorrection, ...]
+    parameter_names: tuple[str, ...]
+    dropped: dict[str, str]
+    weak: dict[str, float]
+    fixtures: tuple[str, ...]
+    compliant: bool
+    parameters: tuple[float, ...]
+    covariance: tuple[tuple[float, ...], ...]
+    prior_sigma: tuple[float, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"robots": [robot.to_json() for robot in self.robots], "parameter_names": list(self.parameter_names),
+                "dropped": dict(self.dropped), "weak": dict(self.weak), "fixtures": list(self.fixtures),
+                "compliant": self.compliant, "parameters": list(self.parameters),
+                "covariance": [list(row) for row in self.covariance], "prior_sigma": list(self.prior_sigma)}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> ChainFit:
+        f.only("robots", "parameter_names", "dropped", "weak", "fixtures", "compliant", "parameters", "covariance",
+               "prior_sigma")
+        robots = f.raw("robots")
+        if not isinstance(robots, list) or not robots:
+            raise f.fail("robots", "a list of robot corrections")
+        parameters = f.vector("parameters")
+        names = _names(f, "parameter_names")
+        dropped = f.child("dropped")
+        if not all(isinstance(robot, dict) for robot in robots):
+            raise f.fail("robots", "a list of objects")
+        entries = tuple(Fields(robot, f.where, f"{f.key('robots')}[{i}].") for i, robot in enumerate(robots))
+        return cls(tuple(RobotCorrection.from_fields(entry) for entry in entries),
+                   names, {name: dropped.text(name) for name in dropped.data}, _numbers(f, "weak"),
+                   _names(f, "fixtures"), f.boolean("compliant"), parameters,
+                   f.matrix("covariance", len(parameters), len(parameters)), f.vector("prior_sigma", len(names)))

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.arm_fit import ArmFit
+from manifests.sidecars.arm_fit import ArmFit, ChainFit
 from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
 from manifests.sidecars.screening import Screening
 from manifests.sidecars.table1 import Baseline, FusedColumn, Metrics
@@ -115,11 +115,13 @@ class ArmKinematics:
 
     estimated: bool
     why: str | None
-    fit: ArmFit | None = None
+    fit: ArmFit | None = None  # TRON's KR 16-2 arms
+    chains: ChainFit | None = None  # a facility folder's robots, from their URDFs
 
     def to_json(self) -> dict[str, Any]:
         return {"estimated": self.estimated, **({"why": self.why} if self.why is not None else {}),
-                **(self.fit.to_json() if self.fit is not None else {})}
+                **(self.fit.to_json() if self.fit is not None else {}),
+                **({"chains": self.chains.to_json()} if self.chains is not None else {})}
 
     @classmethod
     def from_fields(cls, f: Fields) -> ArmKinematics:
@@ -128,10 +130,15 @@ class ArmKinematics:
         if not estimated:
             f.only("estimated", "why")
             return cls(False, why)
+        if f.optional("chains"):
+            f.only("estimated", "why", "chains")
+            return cls(True, why, None, ChainFit.from_fields(f.child("chains")))
         return cls(True, why, ArmFit.from_fields(f, "estimated", "why"))
 
     @property
     def covariance(self) -> tuple[tuple[float, ...], ...]:
+        if self.chains is not None:
+            return self.chains.covariance
         return () if self.fit is None else self.fit.covariance
 
 

@@ -47,6 +47,13 @@ class CalibrateConfig:
         "on, off, or auto (on when every calibration capture has the robots' encoder readings)", "")
     arm_prior_joint_rad: float = param(2e-3, "prior 1-sigma of a joint's zero offset (mastering tolerance)", "rad")
     arm_prior_length_m: float = param(2e-3, "prior 1-sigma of an arm dimension against the data sheet", "m")
+    min_arm_redundancy: float = param(
+        3.0, "under arm_kinematics = auto, a facility folder's robots are fitted from their URDFs only where the "
+        "calibration captures give this many equations (six a capture) per fitted parameter; fewer and the fit "
+        "follows the poses' noise (stages/calibrate/arm_models.py)", "1")
+    arm_prior_frame_rad: float = param(
+        2e-4, "prior 1-sigma of a joint frame's misalignment against a facility robot's URDF (machining and "
+        "assembly: a tenth of the mastering tolerance; stages/common/robots/errors.py)", "rad")
     arm_prior_base_m: float = param(2e-3, "prior 1-sigma of a robot base's surveyed position", "m")
     arm_prior_base_rad: float = param(2e-3, "prior 1-sigma of a robot base's surveyed orientation", "rad")
     arm_prior_rail_scale: float = param(
@@ -91,8 +98,10 @@ class CalibrateConfig:
     def check(self, config: Config) -> None:
         """At least two folds, positive prior sigmas, a unit up vector."""
         at_least("calibrate", self, {"folds": 2})
-        if min(self.arm_prior_joint_rad, self.arm_prior_length_m, self.arm_prior_base_m, self.arm_prior_base_rad,
-               self.arm_prior_rail_scale, *self.arm_prior_compliance_rad_per_nm) <= 0:
+        if self.min_arm_redundancy < 1:
+            raise ConfigError("calibrate.min_arm_redundancy: expected at least 1 equation per parameter")
+        if min(self.arm_prior_joint_rad, self.arm_prior_length_m, self.arm_prior_frame_rad, self.arm_prior_base_m,
+               self.arm_prior_base_rad, self.arm_prior_rail_scale, *self.arm_prior_compliance_rad_per_nm) <= 0:
             raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
         if self.fixture_anisotropy_prior <= 0:
             raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")

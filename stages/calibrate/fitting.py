@@ -15,8 +15,8 @@ from core.config import Config
 from manifests import Workspace, read_manifest, read_marker
 from manifests.sidecars import Folds
 from stages.calibrate import observations as obs
-from stages.common import arms, rwhe
 from stages.common import geometry as g
+from stages.common import rwhe
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],
@@ -165,9 +165,10 @@ def _undetermined(config: Config, b: np.ndarray, fixtures: list[str], train: np.
 
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
                    used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
-                   up: np.ndarray | None = None, readings: arms.Readings | None = None,
+                   up: np.ndarray | None = None, arms: tuple[Any, Any] | None = None,
                    label: str = "calibrate") -> CrossValidation:
-    """Each determined fold predicted by offsets (and arms, with ``readings``) fitted without it."""
+    """Each determined fold predicted by offsets (and arms, with ``arms``: the arms' model,
+    ``arm_models.ArmsModel``, and the samples' readings) fitted without it."""
     folds = folds_of(config, b)
     predicted = np.tile(np.eye(4), (len(a), 1, 1))
     determined = np.zeros(len(a), dtype=bool)
@@ -183,18 +184,17 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
                           "it is left out of the cross-validated means")
             continue
         progress.note(f"  {label}: cross-validation fold {fold + 1} of {config.calibrate.folds}"
-                      f"{' (offsets and arms)' if readings is not None else ''}")
+                      f"{' (offsets and arms)' if arms is not None else ''}")
         train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
         solution = solve(config, a[train], b[train], train_fixtures,
                          [o for o, keep in zip(used, train, strict=True) if keep], intrinsics, _subset(up, train))
         test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]
         b_test, up_test = b[test], _subset(up, test)
-        if readings is not None:
-            fitted = arms.fit(config.testbed, config.calibrate, a[train], readings.subset(train), train_fixtures,
-                              solution, up is not None)
+        if arms is not None:
+            model, readings = arms
+            fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None)
             solution = fitted.offsets
-            b_test, up_arms = arms.corrected_b(config.testbed, fitted.errors, readings.subset(test),
-                                               config.calibrate.world_up)
+            b_test, up_arms = fitted.corrected_b(readings.subset(test))
             up_test = None if up is None else up_arms
         predicted[test] = solution.predict(b_test, test_fixtures, up_test)
         determined |= test

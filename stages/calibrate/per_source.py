@@ -26,6 +26,7 @@ from manifests.sidecars import (
 )
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
+from stages.calibrate.arm_models import ArmsModel, Readings, arms_model, facility_decision
 from stages.calibrate.fitting import (
     CrossValidation,
     _subset,
@@ -55,7 +56,8 @@ class SourceSamples:
     b: np.ndarray
     fixtures: list[str]
     up: np.ndarray | None
-    readings: arms.Readings | None
+    readings: Readings | None
+    arms: ArmsModel | None  # the arms' model, where they are fitted
     kinematic: bool  # the arms' kinematics are fitted
     compliance_note: str
     arm_note: str
@@ -65,8 +67,8 @@ class SourceSamples:
         return SourceSamples(
             [o for o, k in zip(self.used, keep, strict=True) if k], self.a[keep], self.b[keep],
             [f for f, k in zip(self.fixtures, keep, strict=True) if k], _subset(self.up, keep),
-            None if self.readings is None else self.readings.subset(keep), self.kinematic, self.compliance_note,
-            self.arm_note)
+            None if self.readings is None else self.readings.subset(keep), self.arms, self.kinematic,
+            self.compliance_note, self.arm_note)
 
 
 @dataclass(frozen=True)
@@ -93,13 +95,16 @@ def gather(config: Config, workspace: Workspace, source: str, observations: list
                          f"{source} calibration")
     if source != "kuka":
         note = "motion capture tracks the model itself"
-        return SourceSamples(used, a, b, fixtures, None, None, False, note, note)
+        return SourceSamples(used, a, b, fixtures, None, None, None, False, note, note)
     up = np.stack([up_targetee(by_id[o.sample_id], config.calibrate.world_up) for o in used])
     compliant, compliance_note = compliance_decision(config, up, fixtures)
-    readings = arms.readings([by_id[o.sample_id] for o in used], arms.Payload.of(workspace_target(config, workspace)))
+    model = arms_model(config, arms.Payload.of(workspace_target(config, workspace)))
+    readings = model.readings([by_id[o.sample_id] for o in used])
     kinematic, arm_note = arm_decision(config, readings)
-    return SourceSamples(used, a, b, fixtures, up if compliant else None, readings, kinematic, compliance_note,
-                         arm_note)
+    if kinematic:
+        kinematic, arm_note = facility_decision(config, model, len(used), fixtures, compliant) or (kinematic, arm_note)
+    return SourceSamples(used, a, b, fixtures, up if compliant else None, readings, model, kinematic,
+                         compliance_note, arm_note)
 
 
 def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.EstimatedCamera,
@@ -113,12 +118,12 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     s = samples.inliers(keep)
     b, up, fitted = s.b, s.up, None
     if s.kinematic:
-        cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, s.readings,
+        cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, (s.arms, s.readings),
                                f"calibrate {source}")
         progress.note(f"calibrate {source}: the arms' fit on all {len(s.used)} samples")
-        fitted = arms.fit(config.testbed, config.calibrate, s.a, s.readings, s.fixtures, solution, s.up is not None)
+        fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None)
         solution = fitted.offsets
-        b, up_arms = arms.corrected_b(config.testbed, fitted.errors, s.readings, config.calibrate.world_up)
+        b, up_arms = fitted.corrected_b(s.readings)
         up = None if up is None else up_arms
     else:
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, label=f"calibrate {source}")
@@ -134,7 +139,7 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         source=source, cam_from_offset=record(solution.z),
         target_from_offset_by_fixture={f: record(x) for f, x in solution.x.items()},
         fixture_compliance=compliance_record(solution, up, s.fixtures, s.compliance_note),
-        arm_kinematics=ArmKinematics(fitted is not None, s.arm_note, fitted.record() if fitted is not None else None),
+        arm_kinematics=fitted.kinematics(s.arm_note) if fitted is not None else ArmKinematics(False, s.arm_note),
         sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,
         metrics=_column(in_sample, cross_metrics, cross.record(), _truth_metrics(predicted, s.used, intrinsics, truth)),

@@ -8,8 +8,8 @@ import numpy as np
 from core.config import Config
 from manifests.sidecars import FixtureCompliance
 from speedplus.errors import InputError
-from stages.common import arms, rwhe
 from stages.common import geometry as g
+from stages.common import rwhe
 
 
 def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> tuple[bool, str]:
@@ -39,17 +39,11 @@ def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> 
     return False, message
 
 
-def arm_decision(config: Config, readings: arms.Readings | None) -> tuple[bool, str]:
+def arm_decision(config: Config, readings: object | None) -> tuple[bool, str]:
     """Whether to calibrate the arms' kinematics, and why (for calibration.json)."""
     mode = config.calibrate.arm_kinematics
     if mode == "off":
         return False, "calibrate.arm_kinematics = off"
-    if config.facility.path:  # arms.py parameterises the KR 16-2's geometry, not a URDF's
-        message = (f"the arms of {config.facility.path} are URDF chains; their kinematics are calibrated on "
-                   "TRON's KR 16-2 only")
-        if mode == "on":
-            raise InputError(f"calibrate.arm_kinematics = on: {message}")
-        return False, message
     if readings is None:
         if mode == "on":
             raise InputError("calibrate.arm_kinematics = on: the calibration captures lack the robots' encoder "
@@ -59,7 +53,10 @@ def arm_decision(config: Config, readings: arms.Readings | None) -> tuple[bool, 
         if mode == "on":
             raise InputError("calibrate.arm_kinematics = on needs the frobenius or reprojection solver")
         return False, "Shah's closed form has no arm kinematics"
-    return True, f"encoder readings of {len(readings.rail_m)} calibration captures"
+    count = len(readings.rail_m)
+    if config.facility.path:
+        return True, f"encoder readings of {count} calibration captures, the arms' URDFs"
+    return True, f"encoder readings of {count} calibration captures"
 
 
 def compliance_record(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],

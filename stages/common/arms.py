@@ -367,12 +367,85 @@ _SCALES_SETTLED = 0.05
 _MAX_FITS = 4
 
 
-def _residual_scales(difference: np.ndarray) -> np.ndarray:
+def _redundancy_scales(difference: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
+    """(3, 4) scales of the twist residuals (N, 3, 4) (rotation vector in column 0,
+    translation in column 3) by Helmert's variance components: each group's sum of squares
+    over its redundancy, from the whitened ``jacobian`` (M, F) whose first 6 N rows are
+    the residuals (rotation and translation alternating)."""
+    information = np.linalg.pinv(jacobian.T @ jacobian)
+    data = jacobian[:6 * len(difference)]
+    leverage = np.einsum("ij,jk,ik->i", data, information, data)
+    scales = []
+    for column, absorbed in ((0, leverage[0::2].sum()), (3, leverage[1::2].sum())):
+        entries = difference[:, :3, column]
+        redundancy = max(entries.size - float(absorbed), 1.0)
+        scales.append(max(float(np.sqrt(np.sum(entries**2) / redundancy)), 1e-12))
+    return np.concatenate([np.full((3, 3), scales[0]), np.full((3, 1), scales[1])], axis=1)
+
+
+def _residual_scales(difference: np.ndarray, twist: bool = False) -> np.ndarray:
     """(3, 4) RMS of the Frobenius residuals (N, 4, 4): one for the rotation entries, one
-    for the translation entries (m)."""
-    rotation = max(float(np.sqrt(np.mean(difference[:, :3, :3] ** 2))), 1e-12)
+    for the translation entries (m); with ``twist``, of the rotation vectors in column 0."""
+    rotation_entries = difference[:, :3, :1] if twist else difference[:, :3, :3]
+    rotation = max(float(np.sqrt(np.mean(rotation_entries ** 2))), 1e-12)
     translation = max(float(np.sqrt(np.mean(difference[:, :3, 3] ** 2))), 1e-12)
     return np.concatenate([np.full((3, 3), rotation), np.full((3, 1), translation)], axis=1)
+
+
+def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np.ndarray, free: np.ndarray,
+            prior: np.ndarray, priored: np.ndarray, twist: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The maximum a posteriori parameters (P,) and their covariance (P, P) of any arms'
+    model: ``batch`` predicts ``cam_from_target`` (K, N, 4, 4) of packed parameters (K, P),
+    ``a`` (N, 4, 4) the PnP poses, ``params`` (P,) the start, ``free`` (P,) bool the ones
+    estimated (the rest stay as they start, with no covariance), ``prior`` the 1-sigma of
+    the free parameters at indices ``priored`` (zero-mean priors). The two residual scales
+    are re-estimated from each fit until they settle (``fit``'s docstring says why).
+
+    The residuals are the paper's Frobenius entries, or with ``twist`` each pose's rotation
+    vector (rad) and translation (m): a rotation's nine matrix entries carry its three
+    degrees of freedom, so weighing them as nine independent residuals takes three times
+    the information they hold, and the covariance of a rotation-driven parameter comes out
+    sqrt(3) too narrow. With ``twist`` the scales are also estimated from the residuals'
+    redundancy (Helmert's variance components: each group's sum of squares over its count
+    less the parameters it absorbs, the trace of its block of the hat matrix): a model of
+    many parameters fitted to few poses leaves residuals smaller than the noise, and a
+    scale taken from them alone would weigh the data ever higher, fit after fit
+    (docs/architecture.md section 6)."""
+
+    def full(q: np.ndarray) -> np.ndarray:
+        out = np.repeat(params[None], len(q), axis=0)
+        out[:, free] = q
+        return out
+
+    def difference(predicted: np.ndarray) -> np.ndarray:
+        if not twist:
+            return a - predicted
+        out = np.zeros(predicted.shape[:-2] + (3, 4))
+        out[..., :3, 0] = g.matrix_to_rotvec(a[..., :3, :3] @ np.swapaxes(predicted[..., :3, :3], -1, -2))
+        out[..., :3, 3] = a[..., :3, 3] - predicted[..., :3, 3]
+        return out
+
+    def residuals_of(delta: np.ndarray, scale: np.ndarray) -> np.ndarray:
+        whitened = delta[..., :3, :] / scale
+        return whitened[..., :, [0, 3]].reshape(len(delta), -1) if twist else whitened.reshape(len(delta), -1)
+
+    scale = _residual_scales(difference(batch(params[None])[0]), twist)
+    for _ in range(_MAX_FITS):
+        def residuals(q: np.ndarray, scale: np.ndarray = scale) -> np.ndarray:
+            """Whitened residuals (K, M) of a batch of free parameters (K, F)."""
+            p = full(q)
+            return np.concatenate([residuals_of(difference(batch(p)), scale), p[:, priored] / prior], axis=1)
+
+        result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
+                               xtol=1e-10, ftol=1e-10, jac=lambda q: _forward_differences(residuals, q))
+        params = full(result.x[None])[0]
+        delta = difference(batch(params[None])[0])
+        scale, previous = (_redundancy_scales(delta, result.jac) if twist else _residual_scales(delta)), scale
+        if np.all(np.abs(scale / previous - 1.0) < _SCALES_SETTLED):
+            break
+    covariance = np.zeros((len(params), len(params)))
+    covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)
+    return params, covariance
 
 
 def fit(testbed: TestbedConfig, c: ArmFitSettings, a: np.ndarray, r: Readings, fixtures: list[str],
@@ -392,8 +465,8 @@ def fit(testbed: TestbedConfig, c: ArmFitSettings, a: np.ndarray, r: Readings, f
     sigma_prior = priors(c)
     world_up = np.asarray(c.world_up, float)
 
-    def predicted(params: np.ndarray) -> np.ndarray:
-        return predict(testbed, params, names, compliant, r, fixtures, world_up)
+    def batch(p: np.ndarray) -> np.ndarray:
+        return predict_batch(testbed, p, names, compliant, r, fixtures, world_up)
 
     params = np.concatenate([NOMINAL.params, rwhe.pack(start, names, compliant, anisotropic=compliant)])
     shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
@@ -405,29 +478,6 @@ def fit(testbed: TestbedConfig, c: ArmFitSettings, a: np.ndarray, r: Readings, f
     prior = np.concatenate([sigma_prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
     priored = np.concatenate([np.arange(N_ARM), np.arange(shape.start, shape.stop)])
     prior, priored = prior[free[priored]], priored[free[priored]]
-
-    def full(q: np.ndarray) -> np.ndarray:
-        out = np.repeat(params[None], len(q), axis=0)
-        out[:, free] = q
-        return out
-
-    # the two variance components (rotation and translation entries) are re-estimated
-    # from each fit's residuals until they settle
-    scale = _residual_scales(a - predicted(params))
-    for _ in range(_MAX_FITS):
-        def residuals(q: np.ndarray, scale: np.ndarray = scale) -> np.ndarray:
-            """Whitened residuals (K, M) of a batch of free parameters (K, F)."""
-            p = full(q)
-            error = (a - predict_batch(testbed, p, names, compliant, r, fixtures, world_up))[..., :3, :] / scale
-            return np.concatenate([error.reshape(len(q), -1), p[:, priored] / prior], axis=1)
-
-        result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
-                               xtol=1e-10, ftol=1e-10, jac=lambda q: _forward_differences(residuals, q))
-        params = full(result.x[None])[0]
-        scale, previous = _residual_scales(a - predicted(params)), scale
-        if np.all(np.abs(scale / previous - 1.0) < _SCALES_SETTLED):
-            break
-    covariance = np.zeros((len(params), len(params)))
-    covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)
+    params, covariance = map_fit(batch, a, params, free, prior, priored)
     offsets = rwhe.unpack(params[N_ARM:], names, compliant, anisotropic=compliant)
     return Fit(offsets, ArmErrors(params[:N_ARM]), params, covariance, names, compliant)

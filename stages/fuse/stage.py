@@ -21,6 +21,7 @@ The session-level measures are in ``session.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,9 @@ from stages.common import arms
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejection_reason, with_scale_error
 from stages.common.json_arrays import matrix
+from stages.common.robots import identification
+from stages.common.robots.errors import Holders
+from stages.common.robots.facility import load_facility
 from stages.common.rwhe import fixture_tilt
 from stages.common.sources import measured_b, up_targetee
 from stages.common.workspace_target import workspace_target
@@ -62,11 +66,16 @@ class SourceModel:
     """One source's calibrated offsets, fixture compliance and uncertainty."""
 
     def __init__(self, entry: SourceCalibration, calibration: Calibration, testbed: TestbedConfig,
-                 payload: arms.Payload, scale_sigma: float = 0.0) -> None:
+                 payload: arms.Payload, scale_sigma: float = 0.0, holders: Holders | None = None) -> None:
         self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
         self.arms = arms.ArmErrors.from_record(kinematics.fit.corrections) if kinematics.fit is not None else None
         self.kinematics = kinematics
+        #: a facility's robots, fitted from their URDFs (``kinematics.chains``)
+        self.holders = holders if kinematics.chains is not None else None
+        if kinematics.chains is not None and (holders is None or holders.names != kinematics.chains.parameter_names):
+            raise InputError("calibration.json: arm_kinematics.chains was fitted to other robots than the facility "
+                             "folder's (its parameter names differ); rerun calibrate --force")
         self.testbed = testbed
         self.payload = payload
         self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
@@ -89,7 +98,16 @@ class SourceModel:
                              f"did not see (calibrated: {', '.join(sorted(self.x))}); add calibration captures "
                              "with it")
         up = up_targetee(row, self.world_up)
-        if self.arms is not None:
+        if self.holders is not None:
+            measured = identification.measured(self.holders, [row], self.payload, self.world_up)
+            if measured is None:
+                raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
+                                 "calibration of the arms needs (calibrate.arm_kinematics)")
+            size = self.holders.size
+            b_arms, up_arms = identification.corrected_b(self.holders, np.asarray(self.kinematics.chains.parameters)
+                                                         [:size], measured, self.world_up)
+            b, up = b_arms[0], up_arms[0]
+        elif self.arms is not None:
             readings = arms.readings([row], self.payload)
             if readings is None:
                 raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
@@ -111,6 +129,8 @@ class SourceModel:
         """Each capture's pose uncertainty from the calibrated arms' parameters and the
         joints' lost motion (``arms.flank_variances``; None without calibrated arms); all
         captures at once."""
+        if self.holders is not None and rows:
+            return self._chain_covariances(rows)
         if self.arms is None or not rows:
             return [None] * len(rows)
         readings = arms.readings(rows, self.payload)
@@ -122,6 +142,18 @@ class SourceModel:
                                         self.world_up)
         parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
         shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks)
+        return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
+
+    def _chain_covariances(self, rows: list[dict[str, Any]]) -> list[ArmUncertainty]:
+        """``parameter_covariances`` of a facility's robots: the fitted parameters' covariance
+        alone (a URDF gives no gearbox data for the lost motion of TRON's arms)."""
+        measured = identification.measured(self.holders, rows, self.payload, self.world_up)
+        if measured is None:
+            raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
+                             "of the arms needs (calibrate.arm_kinematics)")
+        jacobians = identification.pose_jacobians(self.holders, self.kinematics.chains, measured, self.world_up)
+        parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
+        shared, own = arms.pose_covariance_parts(jacobians, parameters)
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
 
 
@@ -143,10 +175,12 @@ class ArmUncertainty:
 
 
 def load_models(workspace: Workspace, testbed: TestbedConfig, payload: arms.Payload,
-                vicon_scale_sigma: float) -> tuple[SourceModel, SourceModel | None, Sigma | None]:
-    """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``."""
+                vicon_scale_sigma: float, facility: str = "") -> tuple[SourceModel, SourceModel | None, Sigma | None]:
+    """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``;
+    ``facility``: the facility folder's path, whose robots calibrate fitted (empty: TRON)."""
     calibration = read_calibration(workspace)
-    kuka = SourceModel(calibration.kuka, calibration, testbed, payload)
+    holders = Holders.of(load_facility(Path(facility))) if facility else None
+    kuka = SourceModel(calibration.kuka, calibration, testbed, payload, holders=holders)
     vicon = rejection = None
     if calibration.vicon is not None:
         vicon = SourceModel(calibration.vicon, calibration, testbed, payload, vicon_scale_sigma)
@@ -272,13 +306,14 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the dataset session's captures and the calibration; writes ``poses`` and
     ``W/fusion.json``."""
-    return Resolved(("captures", "calibration_samples"), ("fuse", "testbed"), {}, ("poses",))
+    return Resolved(("captures", "calibration_samples"), ("fuse", "testbed", "facility"), {}, ("poses",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:
     target = workspace_target(config, workspace)
     payload = arms.Payload.of(target)
-    kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma)
+    kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma,
+                                         config.facility.path)
     # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
     captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
                       key=lambda r: r["sample_id"])

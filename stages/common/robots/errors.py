@@ -1,0 +1,189 @@
+"""Any facility robot's kinematic error model, built from its URDF chain (docs/architecture.md
+section 6): the parameters calibrate identifies and fuse applies.
+
+Model (Mooring, Roth and Driels, *Fundamentals of Manipulator Calibration*, Wiley 1991,
+ch. 3; ROS ``robot_calibration``'s joint and frame offsets). For a holder whose chain has
+moving joints ``0..J-1`` after fixed origins ``O_0..O_J`` (``SerialChain.origins``),
+
+    world_from_flange = world_from_base(rail (1 + s)) O_0 E_0 M_0(q_0 + z_0 + c_0 tau_0) ... O_J E_J
+
+- ``z_j``: the encoder's zero offset of joint j (rad; m for a prismatic joint);
+- ``E_k = exp(e_k)``: a small frame error of origin k, ``e_k`` a rotation vector (rad) then a
+  translation (m) in origin k's frame: link lengths, twists and assembly. ``E_0`` holds the
+  base's placement as the lab surveyed it; ``E_J`` the flange's, which the hand-eye offset
+  always absorbs;
+- ``s``: the rail encoder's scale error (a railed robot only);
+- ``c_j``: joint j's compliance (rad/(N m)) under ``tau_j``, the gravity torque of the
+  payload (the flange Jacobian's transpose of its weight), evaluated at the nominal arm.
+
+Many of these are not separable from each other or from the hand-eye offsets (a frame's
+turn about the next joint's axis is that joint's zero offset; one base against the other
+robot's; the flange's against ``Z`` or ``X_f``). ``identifiable`` finds them by rank, on
+configurations drawn over the joints' ranges, and the fit holds them at zero, named.
+
+A static mount has no parameters: its placement error is the hand-eye offset's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.common import geometry as g
+from stages.common.robots.chain import SerialChain
+from stages.common.robots.facility import Facility, Robot, pose_matrix
+from stages.common.statics import GRAVITY_M_S2
+
+#: the six components of a frame error, in the packed order
+FRAME_AXES = ("rx", "ry", "rz", "x", "y", "z")
+#: a column is dropped when its part independent of the kept columns is under this share of its norm
+RANK_TOLERANCE = 1e-6
+
+
+def _exp(vector: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) of small 6-vectors (..., 6): rotation vector (rad), then translation (m)."""
+    return g.make_transform(g.rotvec_to_matrix(vector[..., :3]), vector[..., 3:6])
+
+
+@dataclass(frozen=True)
+class HolderModel:
+    """One robot's error model: its chain, where it stands, what it carries."""
+
+    robot: str  # the facility's name for it
+    role: str  # "camera" or "target"
+    chain: SerialChain
+    world_from_base: np.ndarray  # (4, 4) nominal, rail at 0
+    rail_axis: np.ndarray | None  # (3,) unit, in K; None: no rail
+    payload_kg: float  # the camera's mass (camera robot); the target's comes with the readings
+    load_in_flange_m: np.ndarray  # (3,) where the camera's weight hangs: halfway to the lens (as acquire's)
+    rail_travel_m: tuple[float, float] = (0.0, 0.0)
+
+    @classmethod
+    def of(cls, robot: Robot, role: str) -> HolderModel:
+        rail = None if robot.spec.rail is None else np.asarray(robot.spec.rail.axis, float)
+        load = 0.5 * pose_matrix(robot.spec.flange_from_tool)[:3, 3]
+        return cls(robot.spec.name, role, robot.chain, robot.world_from_base(0.0), rail, float(robot.spec.payload_kg),
+                   load, robot.rail_travel_m)
+
+    @property
+    def joints(self) -> int:
+        return self.chain.dof
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every parameter's name, in the packed order: zero offsets, frame errors (each
+        joint's origin, then the flange's), the rail's scale, the compliances."""
+        joints = self.chain.joint_names
+        frames = [*(f"{j}.origin" for j in joints), "flange"]
+        return (*(f"{self.robot}.{j}.zero" for j in joints),
+                *(f"{self.robot}.{frame}.{axis}" for frame in frames for axis in FRAME_AXES),
+                *((f"{self.robot}.rail.scale",) if self.rail_axis is not None else ()),
+                *(f"{self.robot}.{j}.compliance" for j in joints))
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def split(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Zero offsets (K, J), frame errors (K, J + 1, 6), rail scale (K,), compliances (K, J)
+        of packed parameters (K, size)."""
+        j = self.joints
+        zero, frames = p[:, :j], p[:, j:j + 6 * (j + 1)].reshape(len(p), j + 1, 6)
+        at = j + 6 * (j + 1)
+        scale = p[:, at] if self.rail_axis is not None else np.zeros(len(p))
+        at += self.rail_axis is not None
+        return zero, frames, scale, p[:, at:at + j]
+
+    def base_at(self, rail_m: np.ndarray) -> np.ndarray:
+        """(..., 4, 4) the base in K at rail positions (...)."""
+        rail_m = np.asarray(rail_m, float)
+        out = np.broadcast_to(self.world_from_base, rail_m.shape + (4, 4)).copy()
+        if self.rail_axis is not None:
+            out[..., :3, 3] += rail_m[..., None] * self.rail_axis
+        return out
+
+    def flanges(self, p: np.ndarray, joints: np.ndarray, rail_m: np.ndarray, torque: np.ndarray) -> np.ndarray:
+        """``world_from_flange`` (K, N, 4, 4) of packed parameters (K, size) at encoder
+        readings ``joints`` (N, J), rail (N,) m, gravity torques (N, J) N m."""
+        zero, frames, scale, compliance = self.split(p)
+        links = joints[None] + zero[:, None] + compliance[:, None] * torque[None]  # (K, N, J)
+        errors = _exp(frames)  # (K, J + 1, 4, 4)
+        current = self.base_at(rail_m[None] * (1.0 + scale[:, None]))  # (K, N, 4, 4)
+        for index in range(self.joints):
+            current = current @ (self.chain.origins[index] @ errors[:, index])[:, None]
+            current = current @ _motion(self.chain, index, links[..., index])
+        return current @ (self.chain.origins[-1] @ errors[:, -1])[:, None]
+
+    def torques(self, joints: np.ndarray, rail_m: np.ndarray, mass_kg: float, load_in_flange_m: np.ndarray,
+                world_up: np.ndarray) -> np.ndarray:
+        """(N, J) N m: each joint's gravity torque from ``mass_kg`` at ``load_in_flange_m``
+        (N, 3), tau = J^T (F, M) with the nominal flange's geometric Jacobian."""
+        out = np.zeros((len(joints), self.joints))
+        if mass_kg == 0.0:
+            return out
+        bases = self.base_at(rail_m)
+        for i, (q, base) in enumerate(zip(joints, bases, strict=True)):
+            force = base[:3, :3].T @ (-mass_kg * GRAVITY_M_S2 * np.asarray(world_up, float))  # N, base frame
+            lever = self.chain.forward(q)[:3, :3] @ load_in_flange_m[i]
+            out[i] = self.chain.jacobian(q).T @ np.concatenate([force, np.cross(lever, force)])
+        return out
+
+
+def _motion(chain: SerialChain, index: int, value: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) joint ``index``'s motion by ``value`` (...) rad or m."""
+    axis = chain.axes[index]
+    if chain.kinds[index] == "prismatic":
+        return g.make_transform(np.broadcast_to(np.eye(3), value.shape + (3, 3)), value[..., None] * axis)
+    return g.make_transform(g.rotvec_to_matrix(value[..., None] * axis), np.zeros(value.shape + (3,)))
+
+
+@dataclass(frozen=True)
+class Holders:
+    """The camera's and the target's holders: a robot's model, or a static mount (4, 4)."""
+
+    camera: HolderModel | np.ndarray
+    target: HolderModel | np.ndarray
+
+    @classmethod
+    def of(cls, facility: Facility) -> Holders:
+        def held(role: str) -> HolderModel | np.ndarray:
+            holder = facility.holder(role)
+            if isinstance(holder, Robot):
+                return HolderModel.of(holder, role)
+            return pose_matrix(holder.world_from_mount)
+
+        return cls(held("camera"), held("target"))
+
+    @property
+    def robots(self) -> tuple[HolderModel, ...]:
+        return tuple(h for h in (self.camera, self.target) if isinstance(h, HolderModel))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(name for robot in self.robots for name in robot.names)
+
+    @property
+    def size(self) -> int:
+        return sum(robot.size for robot in self.robots)
+
+    def slices(self) -> dict[str, slice]:
+        """Each robot's (by role) slice of the packed parameters."""
+        out, at = {}, 0
+        for robot in self.robots:
+            out[robot.role] = slice(at, at + robot.size)
+            at += robot.size
+        return out
+
+    def priors(self, joint_rad: float, length_m: float, frame_rad: float, base: tuple[float, float],
+               rail_scale: float, compliance_rad_per_nm: float) -> np.ndarray:
+        """(size,) 1-sigma of each parameter before calibration (the lab's tolerances): the
+        first frame's, the base's survey (``base``: rad, m)."""
+        out = []
+        for robot in self.robots:
+            j = robot.joints
+            zero = [length_m if kind == "prismatic" else joint_rad for kind in robot.chain.kinds]
+            frames = [base[0]] * 3 + [base[1]] * 3 + ([frame_rad] * 3 + [length_m] * 3) * j
+            out += zero + frames + ([rail_scale] if robot.rail_axis is not None else [])
+            out += [compliance_rad_per_nm] * j
+        return np.array(out, float)

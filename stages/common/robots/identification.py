@@ -1,0 +1,290 @@
+"""Identification of a facility's robots from the calibration captures (docs/architecture.md
+section 6): which of their parameters (``errors.py``) the data can separate, the maximum a
+posteriori fit of those with the hand-eye offsets, and the poses' sensitivity to them, which
+fuse propagates into each label's sigma.
+
+Identifiability. A parameter whose effect on the predicted ``cam_from_target`` is a
+combination of the kept parameters' effects over the joints' whole range can never be
+told apart from them: it is dropped (held at zero, no covariance) and named with what
+absorbs it. The test is structural, on configurations drawn over the joints' limits and
+the rail's travel, not on the calibration poses: a parameter the poses leave weakly
+determined is kept with its prior (the lab's tolerance) and named as weak, so that its
+uncertainty reaches the labels where the dataset's poses differ from the calibration's.
+The kept parameters are chosen in a fixed order of preference (the hand-eye offsets, then
+per robot the joints' zero offsets, the rail's scale, the compliances, then the frames
+from base to flange), as the base-parameter reductions of robot calibration do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
+from stages.common import arms, rwhe
+from stages.common import geometry as g
+from stages.common.robots.errors import RANK_TOLERANCE, HolderModel, Holders
+
+#: configurations drawn for the structural rank test
+RANK_CONFIGURATIONS = 96
+#: a kept parameter is weakly determined when the data narrow its prior by less than this
+WEAK_RATIO = 0.7
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A session's encoder readings for a facility's holders: joints (N, J) of each robot
+    ((N, 0) for a static mount), rail (N,) m, the fixture of each capture, and the nominal
+    gravity torques (N, J) N m of what each robot carries."""
+
+    camera_joints: np.ndarray
+    target_joints: np.ndarray
+    rail_m: np.ndarray
+    fixtures: tuple[str, ...]
+    camera_torque: np.ndarray
+    target_torque: np.ndarray
+
+    def subset(self, mask: np.ndarray) -> Measured:
+        return Measured(self.camera_joints[mask], self.target_joints[mask], self.rail_m[mask],
+                        tuple(f for f, keep in zip(self.fixtures, mask, strict=True) if keep),
+                        self.camera_torque[mask], self.target_torque[mask])
+
+
+def _joints(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], key: str) -> np.ndarray | None:
+    if not isinstance(holder, HolderModel):
+        return np.zeros((len(rows), 0))
+    if any(row.get(key) is None for row in rows):
+        return None
+    return np.array([row[key] for row in rows], float).reshape(len(rows), -1)[:, :holder.joints]
+
+
+def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.ndarray, fixtures: tuple[str, ...],
+            payload: arms.Payload, world_up: np.ndarray) -> Measured:
+    """``Measured`` of readings: the camera's and target's joints (N, J), rail (N,) m."""
+    torque = []
+    for holder, q in zip((holders.camera, holders.target), joints, strict=True):
+        if not isinstance(holder, HolderModel):
+            torque.append(np.zeros((len(rail_m), 0)))
+        elif holder.role == "camera":
+            torque.append(holder.torques(q, rail_m, holder.payload_kg, np.tile(holder.load_in_flange_m, (len(q), 1)),
+                                         world_up))
+        else:
+            load = np.stack([payload.centre_in_flange(f) for f in fixtures]) if fixtures else np.zeros((0, 3))
+            torque.append(holder.torques(q, rail_m, payload.mass_kg, load, world_up))
+    return Measured(joints[0], joints[1], np.asarray(rail_m, float), tuple(fixtures), torque[0], torque[1])
+
+
+def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload,
+             world_up: np.ndarray) -> Measured | None:
+    """The captures' readings, or None when any capture lacks a robot's joints."""
+    camera = _joints(holders.camera, rows, "kuka_camera_joints_rad")
+    target = _joints(holders.target, rows, "kuka_target_joints_rad")
+    if camera is None or target is None or not rows:
+        return None
+    rail = np.array([0.0 if row.get("kuka_rail_m") is None else row["kuka_rail_m"] for row in rows], float)
+    fixtures = tuple(str(row.get("fixture") or "fixed") for row in rows)
+    return measure(holders, (camera, target), rail, fixtures, payload, world_up)
+
+
+def flanges(holders: Holders, p: np.ndarray, m: Measured) -> tuple[np.ndarray, np.ndarray]:
+    """``world_from_camee`` and ``world_from_targetee`` (K, N, 4, 4) of the arms' packed
+    parameters (K, size)."""
+    slices, out = holders.slices(), []
+    for role, holder, joints, torque in (("camera", holders.camera, m.camera_joints, m.camera_torque),
+                                         ("target", holders.target, m.target_joints, m.target_torque)):
+        if isinstance(holder, HolderModel):
+            out.append(holder.flanges(p[:, slices[role]], joints, m.rail_m, torque))
+        else:
+            out.append(np.broadcast_to(holder, (len(p), len(m.rail_m), 4, 4)))
+    return out[0], out[1]
+
+
+def predict_batch(holders: Holders, params: np.ndarray, names: list[str], compliant: bool, m: Measured,
+                  world_up: np.ndarray) -> np.ndarray:
+    """``cam_from_target`` (K, N, 4, 4) of packed parameters (K, P): the arms', then
+    ``rwhe.pack`` of the offsets of fixtures ``names`` (compliant fixtures: anisotropic)."""
+    world_from_camee, world_from_targetee = flanges(holders, params[:, :holders.size], m)
+    up = np.einsum("knji,j->kni", world_from_targetee[..., :3, :3], np.asarray(world_up, float))
+    b = g.invert(world_from_camee) @ world_from_targetee
+    return rwhe.predict_packed(params[:, holders.size:], names, compliant, compliant, b, list(m.fixtures),
+                               up if compliant else None)
+
+
+def corrected_b(holders: Holders, arm_params: np.ndarray, m: Measured,
+                world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The robots' ``B`` = ``camee_from_targetee`` (N, 4, 4) and the up direction in the
+    target flange (N, 3) with the arms corrected by ``arm_params`` (size,)."""
+    world_from_camee, world_from_targetee = flanges(holders, np.asarray(arm_params, float)[None], m)
+    up = np.einsum("nji,j->ni", world_from_targetee[0, :, :3, :3], np.asarray(world_up, float))
+    return g.invert(world_from_camee[0]) @ world_from_targetee[0], up
+
+
+def _central_jacobian(function: Any, x: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """(M, P) central differences of a batched function ((K, P) -> (K, M)) at ``x`` (P,)."""
+    moved = np.repeat(x[None], 2 * len(x), axis=0)
+    moved[np.arange(len(x)), np.arange(len(x))] += step
+    moved[len(x) + np.arange(len(x)), np.arange(len(x))] -= step
+    values = function(moved)
+    return ((values[:len(x)] - values[len(x):]) / (2 * step)).T
+
+
+def _draw_configurations(holders: Holders, fixtures: list[str], payload: arms.Payload, world_up: np.ndarray,
+                         seed: int) -> Measured:
+    rng = np.random.default_rng(seed)
+    joints = []
+    for holder in (holders.camera, holders.target):
+        if isinstance(holder, HolderModel):
+            low = np.maximum(holder.chain.lower, -np.pi)
+            high = np.minimum(holder.chain.upper, np.pi)
+            joints.append(rng.uniform(low, high, (RANK_CONFIGURATIONS, holder.joints)))
+        else:
+            joints.append(np.zeros((RANK_CONFIGURATIONS, 0)))
+    travel = max((h.rail_travel_m for h in holders.robots if h.rail_axis is not None), default=(0.0, 0.0))
+    rail = rng.uniform(travel[0], travel[1], RANK_CONFIGURATIONS)
+    chosen = tuple(fixtures[i % len(fixtures)] for i in range(RANK_CONFIGURATIONS))
+    return measure(holders, (joints[0], joints[1]), rail, chosen, payload, world_up)
+
+
+def preference(holders: Holders, offsets: int) -> np.ndarray:
+    """The order (P,) in which parameters are kept when they are separable: the offsets
+    (the last ``offsets``), then per robot zero offsets, rail, compliances, frames."""
+    order, at = [holders.size + i for i in range(offsets)], 0
+    for robot in holders.robots:
+        j, frames = robot.joints, 6 * (robot.joints + 1)
+        rail = 1 if robot.rail_axis is not None else 0
+        order += [at + i for i in range(j)]  # zero offsets
+        order += [at + j + frames + i for i in range(rail)]
+        order += [at + j + frames + rail + i for i in range(j)]  # compliances
+        order += [at + j + i for i in range(frames)]
+        at += robot.size
+    return np.array(order)
+
+
+def identifiable(holders: Holders, fixtures: list[str], compliant: bool, params: np.ndarray, free: np.ndarray,
+                 payload: arms.Payload, world_up: np.ndarray, seed: int = 0) -> dict[str, str]:
+    """The free arm parameters (indices < ``holders.size`` of ``params``) that no data can
+    separate from the kept ones, by name, each with what absorbs it; the structural rank
+    test of the module docstring, at ``params`` (P,)."""
+    names = sorted(set(fixtures))
+    m = _draw_configurations(holders, fixtures, payload, world_up, seed)
+
+    def poses(p: np.ndarray) -> np.ndarray:
+        return predict_batch(holders, p, names, compliant, m, world_up)[..., :3, :].reshape(len(p), -1)
+
+    jacobian = _central_jacobian(poses, params)
+    all_names = list(holders.names)
+    basis: list[np.ndarray] = []
+    kept: list[int] = []
+    dropped: dict[str, str] = {}
+    for index in preference(holders, len(params) - holders.size):
+        if not free[index]:
+            continue
+        column = jacobian[:, index]
+        norm = float(np.linalg.norm(column))
+        residual = column - sum((b @ column) * b for b in basis) if basis else column
+        if norm > 0 and np.linalg.norm(residual) > RANK_TOLERANCE * norm:
+            basis.append(residual / np.linalg.norm(residual))
+            kept.append(index)
+            continue
+        if index >= holders.size:  # an offset the rest already fix: not an arm parameter to name
+            continue
+        dropped[all_names[index]] = _absorbed_by(jacobian, column, kept, all_names, holders.size) if norm > 0 \
+            else "moves no pose (no gravity torque about this joint, or no lever)"
+    return dropped
+
+
+def _absorbed_by(jacobian: np.ndarray, column: np.ndarray, kept: list[int], names: list[str], arms_size: int) -> str:
+    coefficients, *_ = np.linalg.lstsq(jacobian[:, kept], column, rcond=None)
+    weight = np.abs(coefficients) * np.linalg.norm(jacobian[:, kept], axis=0)
+    top = [kept[i] for i in np.argsort(-weight)[:3] if weight[i] > 1e-3 * weight.max()]
+    label = [names[i] if i < arms_size else "the hand-eye offsets" for i in top]
+    return "a combination of " + ", ".join(dict.fromkeys(label))
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """The facility's robots and hand-eye offsets fitted together."""
+
+    holders: Holders
+    offsets: rwhe.Solution
+    params: np.ndarray  # (P,): the arms' (holders.size), then the offsets'
+    covariance: np.ndarray  # (P, P)
+    names: list[str]  # the fixtures of the offsets
+    compliant: bool
+    dropped: dict[str, str]
+    prior: np.ndarray  # (holders.size,) 1-sigma before calibration
+
+    def corrected_b(self, m: Measured, world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return corrected_b(self.holders, self.params[:self.holders.size], m, world_up)
+
+    def weak(self) -> dict[str, float]:
+        """Kept parameters the calibration poses narrow by less than ``WEAK_RATIO`` of their
+        prior: name -> posterior over prior 1-sigma."""
+        size = self.holders.size
+        sigma = np.sqrt(np.clip(np.diag(self.covariance)[:size], 0.0, None))
+        names = self.holders.names
+        return {names[i]: round(float(sigma[i] / self.prior[i]), 3) for i in range(size)
+                if names[i] not in self.dropped and sigma[i] > 0 and sigma[i] > WEAK_RATIO * self.prior[i]}
+
+    def record(self) -> ChainFit:
+        at, robots = 0, []
+        for robot in self.holders.robots:
+            zero, frames, scale, compliance = robot.split(self.params[None, at:at + robot.size])
+            robots.append(RobotCorrection(
+                robot.robot, robot.role, robot.chain.joint_names, tuple(float(v) for v in zero[0]),
+                tuple(tuple(float(v) for v in frame) for frame in frames[0]),
+                float(scale[0]) if robot.rail_axis is not None else None, tuple(float(v) for v in compliance[0])))
+            at += robot.size
+        return ChainFit(tuple(robots), tuple(self.holders.names), dict(self.dropped), self.weak(),
+                        tuple(self.names), self.compliant, tuple(float(v) for v in self.params),
+                        tuple(tuple(row) for row in self.covariance.tolist()), tuple(float(v) for v in self.prior))
+
+
+def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Solution, compliant: bool,
+        payload: arms.Payload) -> Fitted:
+    """The robots (the parameters ``identifiable`` keeps), ``Z``, ``X_f`` (and ``k_f``,
+    ``D_f``) from PnP poses ``a`` (N, 4, 4) and readings ``m``: ``arms.map_fit`` with the
+    lab's tolerances as zero-mean priors (``c``: the calibrate section)."""
+    names = sorted(start.x)
+    world_up = np.asarray(c.world_up, float)
+    size = holders.size
+    prior = holders.priors(c.arm_prior_joint_rad, c.arm_prior_length_m, c.arm_prior_frame_rad,
+                           (c.arm_prior_base_rad, c.arm_prior_base_m), c.arm_prior_rail_scale,
+                           max(c.arm_prior_compliance_rad_per_nm))
+    params = np.concatenate([np.zeros(size), rwhe.pack(start, names, compliant, anisotropic=compliant)])
+    shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
+    shape = slice(size + shape.start, size + shape.stop)
+    free = np.ones(len(params), bool)
+    if c.joint_compliance != "on":
+        free[[i for i, n in enumerate(holders.names) if n.endswith(".compliance")]] = False
+    free[shape] = c.fixture_anisotropy == "on"
+    dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up)
+    free[[holders.names.index(n) for n in dropped]] = False
+    all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
+    priored = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop)])
+    all_prior, priored = all_prior[free[priored]], priored[free[priored]]
+
+    def batch(p: np.ndarray) -> np.ndarray:
+        return predict_batch(holders, p, names, compliant, m, world_up)
+
+    params, covariance = arms.map_fit(batch, a, params, free, all_prior, priored, twist=True)
+    offsets = rwhe.unpack(params[size:], names, compliant, anisotropic=compliant)
+    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior)
+
+
+def pose_jacobians(holders: Holders, fit: ChainFit, m: Measured, world_up: np.ndarray,
+                   step: float = 1e-7) -> np.ndarray:
+    """(N, 6, P) derivatives of the poses predicted for captures ``m`` (rotation applied on
+    the camera side, rad; translation, m) by the fitted parameters, forward differences."""
+    params = np.asarray(fit.parameters, float)
+    moved = np.repeat(params[None], len(params) + 1, axis=0)
+    moved[1 + np.arange(len(params)), np.arange(len(params))] += step
+    centre, *poses = predict_batch(holders, moved, list(fit.fixtures), fit.compliant, m, world_up)
+    poses = np.stack(poses)
+    jacobian = np.zeros((len(m.rail_m), 6, len(params)))
+    jacobian[:, :3] = np.moveaxis(g.matrix_to_rotvec(poses[..., :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)),
+                                  0, -1) / step
+    jacobian[:, 3:] = np.moveaxis(poses[..., :3, 3] - centre[:, :3, 3], 0, -1) / step
+    return jacobian

@@ -1,0 +1,110 @@
+"""Any URDF arm's calibration (issue 57): the structural rank test names what no data can
+separate, and the fit recovers seeded errors within the covariance it reports."""
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from manifests.sidecars.arm_fit import ChainFit
+from manifests.sidecars.base import Fields, SidecarError
+from stages.common import arms, rwhe
+from stages.common import geometry as g
+from stages.common.robots import identification as ident
+from stages.common.robots.errors import Holders
+from stages.common.robots.facility import load_facility
+
+FACILITIES = Path(__file__).resolve().parents[3] / "facilities"
+PAYLOAD = arms.Payload(12.0, (0.0, 0.0, 0.1), (("minus_x", (0.0, 0.05, 0.2)),))
+UP = np.array([0.0, 0.0, 1.0])
+SETTINGS = SimpleNamespace(
+    world_up=(0.0, 0.0, 1.0), arm_prior_joint_rad=2e-3, arm_prior_length_m=2e-3, arm_prior_frame_rad=2e-4,
+    arm_prior_base_m=2e-3, arm_prior_base_rad=2e-3, arm_prior_rail_scale=1e-4,
+    arm_prior_compliance_rad_per_nm=(4e-6, 8e-6, 3e-5), joint_compliance="on", fixture_anisotropy="on",
+    fixture_anisotropy_prior=0.5)
+OFFSETS = rwhe.Solution(g.make_transform(g.rotvec_to_matrix([0.1, 0.2, 0.3]), [0.01, 0.02, 0.1]),
+                        {"minus_x": g.make_transform(g.rotvec_to_matrix([0.3, -0.2, 0.1]), [0.0, 0.05, 0.02])})
+
+
+@pytest.fixture(scope="module")
+def holders() -> Holders:
+    """A UR10 on a rail carries the camera, a UR5 the target (a facility of issue 57's)."""
+    return Holders.of(load_facility(FACILITIES / "ur_rail_pair"))
+
+
+def _dropped(holders: Holders, seed: int = 0) -> dict[str, str]:
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
+    return ident.identifiable(holders, ["minus_x"], False, params, np.ones(len(params), bool), PAYLOAD, UP, seed)
+
+
+def test_what_no_data_can_separate_is_named_with_what_absorbs_it(holders):
+    dropped = _dropped(holders)
+    # the flanges' frames are the hand-eye offsets'
+    for robot in ("ur10_camera", "ur5_target"):
+        for axis in ("rx", "ry", "rz", "x", "y", "z"):
+            assert "hand-eye" in dropped[f"{robot}.flange.{axis}"]
+    # a frame's turn about its own joint's axis (the UR's z of the pan) is that joint's zero offset
+    assert dropped["ur10_camera.shoulder_pan_joint.origin.rz"] == "a combination of ur10_camera.shoulder_pan_joint.zero"
+    # the pan of a floor robot carries no gravity torque: its compliance moves nothing
+    assert dropped["ur5_target.shoulder_pan_joint.compliance"].startswith("moves no pose")
+    # only the bases' relative pose counts: five of the target base's six go with the camera's
+    # (the rail's axis, seen from the target, keeps one)
+    target_base = [n for n in dropped if n.startswith("ur5_target.shoulder_pan_joint.origin.")]
+    assert len(target_base) == 5
+    # every joint's zero offset but the last (the flange's turn) is kept
+    assert not any(n.endswith(".zero") for n in dropped if "wrist_3" not in n)
+
+
+def test_the_rank_test_is_structural_not_an_accident_of_the_draw(holders):
+    assert set(_dropped(holders, 0)) == set(_dropped(holders, 7))
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_fit_recovers_seeded_errors_within_its_covariance(holders, seed):
+    rng = np.random.default_rng(seed)
+    dropped = _dropped(holders)
+    prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5)
+    kept = np.array([name not in dropped for name in holders.names])
+    truth = np.where(kept, rng.normal(0.0, 0.5, holders.size) * prior, 0.0)
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, seed + 100).subset(np.arange(96) < 48)
+    params = np.concatenate([truth, rwhe.pack(OFFSETS, ["minus_x"], False)])
+    a = ident.predict_batch(holders, params[None], ["minus_x"], False, m, UP)[0]
+    noise = np.concatenate([rng.normal(0, 1e-4, (48, 3)), rng.normal(0, 1e-4, (48, 3))], axis=1)
+    a = a @ rwhe.transform_from_vector(noise)
+    start = rwhe.Solution(OFFSETS.z @ rwhe.transform_from_vector(np.array([1e-3, 0, 0, 1e-3, 0, 0])),
+                          dict(OFFSETS.x))
+    fitted = ident.fit(holders, SETTINGS, a, m, start, False, PAYLOAD)
+    assert set(fitted.dropped) == set(dropped)
+    sigma = np.sqrt(np.diag(fitted.covariance)[:holders.size])[kept]
+    z = (fitted.params[:holders.size][kept] - truth[kept]) / sigma
+    assert 0.6 < np.sqrt(np.mean(z**2)) < 1.4  # honest: neither over- nor under-confident
+    assert np.all(np.abs(z) < 4.5)
+    # and the parameters improve the poses where the calibration never was
+    far = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, seed + 200)
+    true_far = ident.predict_batch(holders, params[None], ["minus_x"], False, far, UP)[0]
+    nominal = np.concatenate([np.zeros(holders.size), fitted.params[holders.size:]])
+    errors = {name: np.linalg.norm(ident.predict_batch(holders, p[None], ["minus_x"], False, far, UP)[0][:, :3, 3]
+                                   - true_far[:, :3, 3], axis=1).mean()
+              for name, p in (("fitted", fitted.params), ("nominal", nominal))}
+    assert errors["fitted"] < 0.3 * errors["nominal"]
+
+
+def test_the_record_round_trips_and_a_bad_key_is_named(holders):
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 1).subset(np.arange(96) < 40)
+    a = ident.predict_batch(holders, np.concatenate([np.zeros(holders.size),
+                                                     rwhe.pack(OFFSETS, ["minus_x"], False)])[None],
+                            ["minus_x"], False, m, UP)[0]
+    record = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD).record()
+    data = record.to_json()
+    assert ChainFit.from_fields(Fields(data, "calibration.json", "kuka.arm_kinematics.chains.")) == record
+    assert [r.robot for r in record.robots] == ["ur10_camera", "ur5_target"]
+    data["robots"][1]["zero_offsets"] = [0.0]
+    with pytest.raises(SidecarError, match=r"chains\.robots\[1\]\.zero_offsets"):
+        ChainFit.from_fields(Fields(data, "calibration.json", "kuka.arm_kinematics.chains."))
+
+
+def test_a_static_mount_has_no_parameters():
+    holders = Holders.of(load_facility(FACILITIES / "ur10_tripod"))
+    assert [robot.role for robot in holders.robots] == ["camera"]
+    assert isinstance(holders.target, np.ndarray) and holders.size == holders.robots[0].size
