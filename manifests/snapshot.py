@@ -33,8 +33,8 @@ from manifests.workspace import (
 )
 
 #: files a command may write beside the manifests (the typed JSON files, the report, the
-#: target folder plan copies in)
-RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*", f"{TARGET_DIR}/**/*")
+#: target folder plan copies in, calibrate's URDFs)
+RECORD_GLOBS = (CONFIG_FILE, "*.json", "report/**/*", f"{TARGET_DIR}/**/*", "robots/*.urdf")
 
 
 def _recorded_files(workspace: Workspace) -> set[str]:

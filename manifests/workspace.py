@@ -19,6 +19,8 @@ CALIBRATION_FILE = "calibration.json"
 FUSION_FILE = "fusion.json"
 MARKERS_FILE = "markers.json"
 TRAJECTORIES_FILE = "trajectories.json"
+#: calibrate's URDFs of a facility's robots, their identified errors written in
+ROBOT_URDF_TEMPLATE = "robots/{name}.urdf"
 MANIFESTS_DIR = "manifests"
 PART_TEMPLATE = "part-{index:05d}.parquet"
 STATE_DIR = "_state"
@@ -53,6 +55,8 @@ LAYOUT: tuple[tuple[str, str], ...] = (
     (TRUTH_MAPS_TEMPLATE.format(sample_id="<sample_id>"), "virtual testbed: depth and part ids at the true pose"),
     (SESSION_FILE, "the capture session: backend, pattern, camera, sources"),
     (CALIBRATION_FILE, "calibrated offsets, sigmas, Table 1"),
+    (ROBOT_URDF_TEMPLATE.format(name="<robot>"), "a facility folder's robot as calibrated: its URDF with the "
+     "identified joint offsets and frames written in (for a controller, MoveIt or a planner)"),
     (FUSION_FILE, "the session's variance factor, each axis's source, the session offset, the sigmas' notes"),
     (TRUTH_FILE, "virtual testbed only: the hidden true offsets"),
     (MARKERS_FILE, "virtual testbed only: where the motion-capture markers sat on the mock-up"),
@@ -183,6 +187,11 @@ class Workspace:
     def calibration_path(self) -> Path:
         """Calibrated camera, offsets, sigmas and Table 1, written by calibrate."""
         return self.root / CALIBRATION_FILE
+
+    def robot_urdf_path(self, robot: str) -> Path:
+        """A facility robot's calibrated URDF, written by calibrate (``robot``: its name in
+        facility.toml, [a-z0-9_-]+)."""
+        return self.root / check_relative(ROBOT_URDF_TEMPLATE.format(name=robot))
 
     @property
     def fusion_path(self) -> Path:

@@ -3,13 +3,20 @@ compliance and the arms' kinematics, each with the reason recorded in ``calibrat
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from core.config import Config
+from manifests import Workspace
+from manifests.files import write_bytes_atomic
 from manifests.sidecars import FixtureCompliance
+from manifests.sidecars.arm_fit import ChainFit
 from speedplus.errors import InputError
 from stages.common import geometry as g
 from stages.common import rwhe
+from stages.common.robots.calibrated_urdf import calibrated_urdf
+from stages.common.robots.facility import load_facility
 
 
 def compliance_decision(config: Config, up: np.ndarray, fixtures: list[str]) -> tuple[bool, str]:
@@ -71,3 +78,24 @@ def compliance_record(solution: rwhe.Solution, up: np.ndarray | None, fixtures: 
         True, note, {f: tuple(float(v) for v in k_f) for f, k_f in solution.compliance.items()},
         {f: tuple(float(v) for v in d_f) for f, d_f in solution.anisotropy.items()} if solution.anisotropy else None,
         float(tilt.mean()), float(tilt.max()))
+
+
+def write_robot_urdfs(config: Config, workspace: Workspace, chains: ChainFit | None) -> None:
+    """``W/robots/<robot>.urdf`` of each facility robot whose kinematics were fitted, and
+    none left from an earlier calibration when they were not."""
+    folder = workspace.root / "robots"
+    written = set()
+    if chains is not None:
+        facility = load_facility(Path(config.facility.path))
+        for correction in chains.robots:
+            spec = next(robot.spec for robot in facility.robots if robot.spec.name == correction.robot)
+            path = workspace.robot_urdf_path(correction.robot)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            note = (f"{spec.name} of facility {facility.spec.name} as calibrated by speedplus calibrate "
+                    f"(W/calibration.json, kuka.arm_kinematics.chains) from {Path(spec.urdf).name}")
+            write_bytes_atomic(path, calibrated_urdf(facility.directory / spec.urdf, spec.flange_link, correction,
+                                                     note).encode())
+            written.add(path.name)
+    for stale in sorted(folder.glob("*.urdf")) if folder.is_dir() else ():
+        if stale.name not in written:
+            stale.unlink()

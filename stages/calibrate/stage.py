@@ -29,7 +29,7 @@ from stages.calibrate import observations as obs
 from stages.calibrate import per_source, screening
 from stages.calibrate.fitting import load_truth
 from stages.calibrate.per_source import SourceFit
-from stages.calibrate.robots import arm_decision, compliance_decision
+from stages.calibrate.robots import arm_decision, compliance_decision, write_robot_urdfs
 from stages.common import geometry as g
 from stages.common import rwhe
 from stages.common.fusion import lever_sq
@@ -67,6 +67,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         _write_samples(config, workspace, observations, by_id, {})
         raise RefusalError(f"{error}{_dropped(observations)}", keep=("calibration_samples",)) from None
     write_calibration(workspace, calibration)
+    write_robot_urdfs(config, workspace, calibration.kuka.arm_kinematics.chains)
     _write_samples(config, workspace, observations, by_id, fits)
     print_table(calibration)
     return read_manifest(workspace, "calibration_samples")

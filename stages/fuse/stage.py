@@ -306,7 +306,7 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the dataset session's captures and the calibration; writes ``poses`` and
     ``W/fusion.json``."""
-    return Resolved(("captures", "calibration_samples"), ("fuse", "testbed", "facility"), {}, ("poses",))
+    return Resolved(("captures", "calibration_samples"), ("fuse", "testbed", "facility.path"), {}, ("poses",))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

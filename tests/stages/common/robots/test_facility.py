@@ -103,3 +103,6 @@ def test_wilson_interval():
     low, high = wilson(93, 96)
     assert 0.9 < low < 93 / 96 < high < 1.0
     assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0
+    # every label under the thresholds: the card's interval must still hold its share (48 of 48
+    # once gave 0.9999999999999999, which the card's reader refused)
+    assert all(wilson(n, n)[1] == 1.0 and wilson(0, n)[0] == 0.0 for n in range(1, 400))

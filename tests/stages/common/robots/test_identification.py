@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from manifests.sidecars.arm_fit import ChainFit
+from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
 from manifests.sidecars.base import Fields, SidecarError
 from stages.common import arms, rwhe
 from stages.common import geometry as g
@@ -108,3 +108,28 @@ def test_a_static_mount_has_no_parameters():
     holders = Holders.of(load_facility(FACILITIES / "ur10_tripod"))
     assert [robot.role for robot in holders.robots] == ["camera"]
     assert isinstance(holders.target, np.ndarray) and holders.size == holders.robots[0].size
+
+
+def test_the_calibrated_urdf_moves_as_the_fitted_arm(holders, tmp_path):
+    """Its forward kinematics of the controller's readings is the fitted model's (compliance
+    and the rail's scale aside, which it keeps in a comment)."""
+    from stages.common.robots.calibrated_urdf import calibrated_urdf
+    from stages.common.robots.chain import load_chain
+
+    rng = np.random.default_rng(9)
+    robot = holders.robots[0]
+    prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5)[:robot.size]
+    params = rng.normal(0.0, 1.0, robot.size) * prior
+    zero, frames, _, compliance = robot.split(params[None])
+    correction = RobotCorrection(robot.robot, "camera", robot.chain.joint_names, tuple(zero[0]),
+                                       tuple(tuple(f) for f in frames[0]), 0.0, tuple(compliance[0]))
+    text = calibrated_urdf(FACILITIES / "ur_rail_pair" / "ur10.urdf", "tool0", correction, "a test")
+    (tmp_path / "ur10.urdf").write_text(text)
+    chain = load_chain(tmp_path / "ur10.urdf", "base_link", "tool0")
+    joints = rng.uniform(-np.pi, np.pi, (20, robot.joints))
+    params_rigid = params.copy()
+    params_rigid[-robot.joints:] = 0.0  # no compliance
+    expected = robot.flanges(params_rigid[None], joints, np.zeros(20), np.zeros((20, robot.joints)))[0]
+    got = robot.base_at(np.zeros(20)) @ chain.forward(joints)
+    assert np.allclose(got, expected, atol=1e-9)
+    assert "joint compliance" in text and "a test" in text
