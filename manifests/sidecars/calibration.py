@@ -224,23 +224,39 @@ class SolverRecord:
         return cls(f.text("method"), f.integer("folds", minimum=2), pattern.data, tuple(fixtures))
 
 
+#: how Table 1, the report and the logs name each source on TRON (the paper's names)
+TRON_SOURCE_NAMES = {"kuka": "KUKA", "vicon": "Vicon"}
+
+
 @dataclass(frozen=True)
 class SessionSources:
-    """The session calibrated: its backend and its measurement sources."""
+    """The session calibrated: its backend, its measurement sources, and what the facility
+    calls them where it is not TRON (``names``: source -> name; empty: the paper's)."""
 
     backend: str
     sources: tuple[str, ...]
+    names: tuple[tuple[str, str], ...] = ()
+
+    def name(self, source: str) -> str:
+        """The source's name in tables and messages ("KUKA", "robots ur10_camera, ur5_target")."""
+        return dict(self.names).get(source, TRON_SOURCE_NAMES.get(source, source))
 
     def to_json(self) -> dict[str, Any]:
-        return {"backend": self.backend, "sources": list(self.sources)}
+        return {"backend": self.backend, "sources": list(self.sources),
+                **({"names": dict(self.names)} if self.names else {})}
 
     @classmethod
     def from_fields(cls, f: Fields) -> SessionSources:
-        f.only("backend", "sources")
+        f.only("backend", "sources", "names")
         sources = f.raw("sources")
         if not isinstance(sources, list) or not all(name in OFFSET_KEYS for name in sources):
             raise f.fail("sources", f"a list of {' or '.join(OFFSET_KEYS)}")
-        return cls(f.text("backend"), tuple(sources))
+        names: tuple[tuple[str, str], ...] = ()
+        if f.optional("names"):
+            entry = f.child("names")
+            entry.only(*OFFSET_KEYS)
+            names = tuple((key, entry.text(key)) for key in OFFSET_KEYS if key in entry.data)
+        return cls(f.text("backend"), tuple(sources), names)
 
 
 @dataclass(frozen=True)

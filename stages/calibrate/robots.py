@@ -99,3 +99,12 @@ def write_robot_urdfs(config: Config, workspace: Workspace, chains: ChainFit | N
     for stale in sorted(folder.glob("*.urdf")) if folder.is_dir() else ():
         if stale.name not in written:
             stale.unlink()
+
+
+def source_names(config: Config) -> tuple[tuple[str, str], ...]:
+    """What Table 1 and the report call the sources on a facility folder: its robots by
+    name and its motion capture (none: TRON, named as the paper names them)."""
+    if not config.facility.path:
+        return ()
+    facility = load_facility(Path(config.facility.path))
+    return (("kuka", " + ".join(robot.spec.name for robot in facility.robots)), ("vicon", "motion capture"))

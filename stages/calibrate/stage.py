@@ -29,7 +29,7 @@ from stages.calibrate import observations as obs
 from stages.calibrate import per_source, screening
 from stages.calibrate.fitting import load_truth
 from stages.calibrate.per_source import SourceFit
-from stages.calibrate.robots import arm_decision, compliance_decision, write_robot_urdfs
+from stages.calibrate.robots import arm_decision, compliance_decision, source_names, write_robot_urdfs
 from stages.common import geometry as g
 from stages.common import rwhe
 from stages.common.fusion import lever_sq
@@ -130,7 +130,8 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
         world_up=tuple(float(v) for v in config.calibrate.world_up), fused=fused, rejection=rejection,
         solver=SolverRecord(config.calibrate.solver, config.calibrate.folds, spec.to_json(),
                             tuple(sorted({by_id[o.sample_id]["fixture"] for o in observations}))),
-        session=SessionSources(session.backend, tuple(session.sources)), screening=Screening.of(checks))
+        session=SessionSources(session.backend, tuple(session.sources), source_names(config)),
+        screening=Screening.of(checks))
     return calibration, fits
 
 

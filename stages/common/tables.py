@@ -24,6 +24,15 @@ PAPER = {"kuka": ((2.429, 0.866), (0.637, 0.120), (5.176, 2.397)),
 COLUMNS = (("kuka", "KUKA-only"), ("vicon", "Vicon-only"), ("fused", "Data fusion"))
 
 
+def columns(calibration: Calibration) -> tuple[tuple[str, str], ...]:
+    """Table 1's columns (source, label), the sources named as the facility names them
+    (TRON: the paper's "KUKA-only", "Vicon-only")."""
+    if not calibration.session.names:
+        return COLUMNS
+    return tuple((source, label if source == "fused" else f"{calibration.session.name(source)} only")
+                 for source, label in COLUMNS)
+
+
 def _cell(metric: MetricSet | None, key: str, scale: float) -> str:
     if metric is None:
         return "-"
@@ -72,12 +81,12 @@ def _column_metrics(calibration: Calibration, column: str) -> Metrics | None:
 def print_table(calibration: Calibration) -> None:
     table = Table(title="Table 1: calibration accuracy (mean ± std over calibration samples)")
     table.add_column("metric")
-    for _, label in COLUMNS:
+    for _, label in columns(calibration):
         table.add_column(label, justify="right")
     for label, cells in rows(calibration):
         table.add_row(escape(label), *cells)
     Console().print(table)
-    for source, label in COLUMNS:
+    for source, label in columns(calibration):
         metrics = _column_metrics(calibration, source) if source != "fused" else None
         cross = metrics.cross_validation if metrics is not None else None
         if cross is not None and cross.undetermined_folds:
@@ -92,7 +101,7 @@ def print_table(calibration: Calibration) -> None:
         same = {**fused.sources_on_the_same_samples, "fused": fused.metrics}
         Console().print(f"On the {fused.samples} samples both sources measured, E_T {kind.replace('_', '-')}: "
                         + ", ".join(f"{label} {same[name].kind(kind).E_T_m[0] * 1000:.4f} mm"
-                                    for name, label in COLUMNS))
+                                    for name, label in columns(calibration)))
 
 
 def table2_groups(scores: list[dict[str, Any]], model: str, crop: str) -> list[tuple[str, int, dict[str, Any] | None,

@@ -25,8 +25,10 @@ def _save(figure: Any, path: Path) -> str:
     return path.name
 
 
-def calibration_residuals(samples: list[dict[str, Any]], path: Path) -> str:
-    """Per calibration sample: each source's disagreement with the pattern's PnP pose."""
+def calibration_residuals(samples: list[dict[str, Any]], path: Path,
+                          names: tuple[str, str] = ("KUKA", "Vicon")) -> str:
+    """Per calibration sample: each source's disagreement with the pattern's PnP pose;
+    ``names``: the robots' and the motion capture's, as the facility calls them."""
     figure, (left, right) = plt.subplots(1, 2, figsize=(10, 3.4))
     for source, marker in (("kuka", "o"), ("vicon", "s")):
         ids, dt, dr = [], [], []
@@ -38,7 +40,7 @@ def calibration_residuals(samples: list[dict[str, Any]], path: Path) -> str:
             ids.append(index)
             dt.append(1000 * np.linalg.norm(measured[:3, 3] - pattern[:3, 3]))
             dr.append(np.degrees(g.angular_distance(measured[:3, :3], pattern[:3, :3])))
-        left.plot(ids, dt, marker, ms=4, label=source.upper() if source == "kuka" else "Vicon")
+        left.plot(ids, dt, marker, ms=4, label=names[0] if source == "kuka" else names[1])
         right.plot(ids, dr, marker, ms=4)
     left.set(xlabel="calibration sample", ylabel="translation residual [mm]", title="E_T per sample")
     right.set(xlabel="calibration sample", ylabel="rotation residual [deg]", title="E_R per sample")

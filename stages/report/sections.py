@@ -39,7 +39,7 @@ def table1(calibration: Calibration) -> str:
     reference rows, and the solver in words."""
     rows = [[label, *cells] for label, cells in tables.rows(calibration, with_paper=True)]
     return f"<p>{html.escape(solver_line(calibration.solver))}</p>" + _table(
-        ["metric", "KUKA-only", "Vicon-only", "fused"], rows)
+        ["metric", *(label for _, label in tables.columns(calibration))], rows)
 
 
 def solver_line(solver: SolverRecord) -> str:

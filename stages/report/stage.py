@@ -115,7 +115,9 @@ def run(config: Config, workspace: Workspace) -> None:
     # the first model on its contract's crop: the per-sample figure
     primary = [r for r in predictions if models and r["model"] == models[0] and crops and r["crop"] == crops[0]]
     made = {
-        "residuals": figures.calibration_residuals(samples, figure_dir / "calibration_residuals.png"),
+        "residuals": figures.calibration_residuals(
+            samples, figure_dir / "calibration_residuals.png",
+            (calibration.session.name("kuka"), calibration.session.name("vicon"))),
         "poses": figures.pose_distribution(labels, figure_dir / "pose_distribution.png"),
         "scores": figures.per_sample_scores(primary, figure_dir / "per_sample_scores.png"),
         "cdf": figures.rotation_cdf(predictions, models, figure_dir / "rotation_cdf.png"),
