@@ -91,8 +91,13 @@ def gather(config: Config, workspace: Workspace, source: str, observations: list
     a = np.stack([o.cam_from_target for o in used]) if used else np.zeros((0, 4, 4))
     b = np.stack([measured_b(by_id[o.sample_id], source) for o in used]) if used else np.zeros((0, 4, 4))
     fixtures = [by_id[o.sample_id]["fixture"] for o in used]
-    rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
-                         f"{source} calibration")
+    try:
+        rwhe.check_diversity(b, fixtures, config.calibrate.min_samples, config.calibrate.min_rotation_spread_rad,
+                             f"{source} calibration")
+    except rwhe.DegenerateError as error:
+        if source != "vicon":
+            raise
+        raise rwhe.DegenerateError(f"{error}; {markers_seen(observations, by_id)}") from None
     if source != "kuka":
         note = "motion capture tracks the model itself"
         return SourceSamples(used, a, b, fixtures, None, None, None, False, note, note)
@@ -105,6 +110,27 @@ def gather(config: Config, workspace: Workspace, source: str, observations: list
         kinematic, arm_note = facility_decision(config, model, len(used), fixtures, compliant) or (kinematic, arm_note)
     return SourceSamples(used, a, b, fixtures, up if compliant else None, readings, model, kinematic,
                          compliance_note, arm_note)
+
+
+def markers_seen(observations: list[obs.Observation], by_id: dict[str, dict[str, Any]], most: int = 12) -> str:
+    """Which of its markers motion capture saw on each posed calibration capture it lost (a
+    rigid body needs three): what a refusal for want of motion capture must say."""
+    lost = [o.sample_id for o in observations if o.cam_from_target is not None
+            and measured_b(by_id[o.sample_id], "vicon") is None]
+    if not lost:
+        return "motion capture measured every posed capture"
+
+    def seen(sample_id: str) -> str:
+        row = by_id[sample_id]
+        target, camera = row.get("vicon_targetrb_markers"), row.get("vicon_camrb_markers")
+        return (f"{sample_id} target body {'-' if target is None else target}, "
+                f"camera body {'-' if camera is None else camera}")
+
+    more = f" and {len(lost) - most} more" if len(lost) > most else ""
+    return (f"motion capture lost {len(lost)} posed capture(s), markers seen (a rigid body needs 3): "
+            + "; ".join(seen(s) for s in lost[:most]) + more
+            + "; place the target's markers where the facility's cameras see them over the planned poses "
+            "(target.toml [mockup] markers)")
 
 
 def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.EstimatedCamera,
