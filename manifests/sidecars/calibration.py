@@ -143,6 +143,37 @@ class ArmKinematics:
 
 
 @dataclass(frozen=True)
+class OffsetUncertainty:
+    """How well a source's offsets are determined: the 1-sigma of ``cam_from_offset`` and of
+    each fixture's ``target_from_offset`` (6,) each, rotation vector (rad) then translation
+    (m) of their packed form (``stages.common.rwhe.pack``), their covariance (P, P) in that
+    order (6 + 6 per fixture; with the arms fitted, marginal over the arms' parameters), and
+    the directions the samples leave weakly determined, in words."""
+
+    cam_from_offset_sigma: tuple[float, ...]
+    target_from_offset_sigma_by_fixture: dict[str, tuple[float, ...]]
+    covariance: tuple[tuple[float, ...], ...]
+    weak: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"cam_from_offset_sigma": list(self.cam_from_offset_sigma),
+                "target_from_offset_sigma_by_fixture": {k: list(v) for k, v in
+                                                        self.target_from_offset_sigma_by_fixture.items()},
+                "covariance": [list(row) for row in self.covariance], "weak": list(self.weak)}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> OffsetUncertainty:
+        f.only("cam_from_offset_sigma", "target_from_offset_sigma_by_fixture", "covariance", "weak")
+        by_fixture = f.child("target_from_offset_sigma_by_fixture")
+        sigmas = {name: by_fixture.vector(name, 6) for name in by_fixture.data}
+        size = 6 + 6 * len(sigmas)
+        weak = f.raw("weak")
+        if not isinstance(weak, list) or not all(isinstance(w, str) for w in weak):
+            raise f.fail("weak", "a list of sentences")
+        return cls(f.vector("cam_from_offset_sigma", 6), sigmas, f.matrix("covariance", size, size), tuple(weak))
+
+
+@dataclass(frozen=True)
 class SourceCalibration:
     """One source's calibrated offsets, fixture compliance, arm kinematics and sigmas."""
 
@@ -156,6 +187,7 @@ class SourceCalibration:
     outliers: tuple[str, ...]
     metrics: Metrics  # its column of Table 1
     opencv_shah_in_sample: Baseline | None = None  # None: several fixtures, which OpenCV's Shah cannot take
+    offset_uncertainty: OffsetUncertainty | None = None
 
     @property
     def compliance_k_rad(self) -> dict[str, tuple[float, ...]]:
@@ -176,13 +208,16 @@ class SourceCalibration:
                "metrics": self.metrics.to_json()}
         if self.opencv_shah_in_sample is not None:
             out["opencv_shah_in_sample"] = self.opencv_shah_in_sample.to_json()
+        if self.offset_uncertainty is not None:
+            out["offset_uncertainty"] = self.offset_uncertainty.to_json()
         return out
 
     @classmethod
     def from_fields(cls, source: str, f: Fields) -> SourceCalibration:
         z_key, x_key = OFFSET_KEYS[source]
         f.only(z_key, x_key, f"{x_key}_by_fixture", "fixture_compliance", "arm_kinematics", "sigma_t_m",
-               "sigma_r_rad", "sigma_pointing_rad", "samples", "outliers", "metrics", "opencv_shah_in_sample")
+               "sigma_r_rad", "sigma_pointing_rad", "samples", "outliers", "metrics", "opencv_shah_in_sample",
+               "offset_uncertainty")
         by_fixture_fields = f.child(f"{x_key}_by_fixture")
         by_fixture = {name: by_fixture_fields.pose(name) for name in by_fixture_fields.data}
         if not by_fixture:
@@ -194,8 +229,11 @@ class SourceCalibration:
         if not isinstance(outliers, list) or not all(isinstance(s, str) for s in outliers):
             raise f.fail("outliers", "a list of sample ids")
         shah = Baseline.from_fields(f.child("opencv_shah_in_sample")) if f.optional("opencv_shah_in_sample") else None
+        uncertainty = (OffsetUncertainty.from_fields(f.child("offset_uncertainty"))
+                       if f.optional("offset_uncertainty") else None)
         return cls(source, f.pose(z_key), by_fixture, compliance, kinematics, SigmaRecord.from_fields(f),
-                   f.integer("samples", minimum=1), tuple(outliers), Metrics.from_fields(f.child("metrics")), shah)
+                   f.integer("samples", minimum=1), tuple(outliers), Metrics.from_fields(f.child("metrics")), shah,
+                   uncertainty)
 
 
 @dataclass(frozen=True)

@@ -41,9 +41,19 @@ class Fitted:
     def kinematics(self, note: str) -> ArmKinematics:
         return self.model.kinematics(self.fit, note)
 
+    def offsets_covariance(self) -> np.ndarray:
+        """(Q, Q) the fit's covariance of the offsets' packed parameters (``rwhe.pack``),
+        marginal over the arms'."""
+        arms_size = self.model.size
+        return np.asarray(self.fit.covariance)[arms_size:, arms_size:]
+
 
 class ArmsModel(Protocol):
     name: str  # how Table 1 and the notes call the robots
+
+    @property
+    def size(self) -> int:
+        """How many of the packed parameters are the arms' (the offsets follow)."""
 
     def readings(self, rows: list[dict[str, Any]]) -> Readings | None: ...
 
@@ -62,6 +72,10 @@ class KukaArms:
     config: Config
     payload: arms.Payload
     name: str = "TRON's KR 16-2 arms"
+
+    @property
+    def size(self) -> int:
+        return arms.N_ARM
 
     def readings(self, rows: list[dict[str, Any]]) -> arms.Readings | None:
         return arms.readings(rows, self.payload)
@@ -86,6 +100,10 @@ class FacilityArms:
     payload: arms.Payload
     holders: Holders
     name: str
+
+    @property
+    def size(self) -> int:
+        return self.holders.size
 
     def readings(self, rows: list[dict[str, Any]]) -> identification.Measured | None:
         return identification.measured(self.holders, rows, self.payload, np.asarray(self.config.calibrate.world_up))

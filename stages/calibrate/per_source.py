@@ -14,6 +14,7 @@ from core import progress
 from core.config import Config
 from manifests import Workspace
 from manifests.sidecars import (
+    OFFSET_KEYS,
     SOURCES,
     ArmKinematics,
     Baseline,
@@ -21,12 +22,13 @@ from manifests.sidecars import (
     FusedColumn,
     Metrics,
     MetricSet,
+    OffsetUncertainty,
     SigmaRecord,
     SourceCalibration,
 )
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
-from stages.calibrate.arm_models import ArmsModel, Readings, arms_model, facility_decision
+from stages.calibrate.arm_models import ArmsModel, Fitted, Readings, arms_model, facility_decision
 from stages.calibrate.fitting import (
     CrossValidation,
     _subset,
@@ -36,6 +38,7 @@ from stages.calibrate.fitting import (
     pnp_variance,
     robust_solve,
 )
+from stages.calibrate.offset_uncertainty import offsets_covariance, uncertainty
 from stages.calibrate.robots import arm_decision, compliance_decision, compliance_record
 from stages.common import arms, rwhe
 from stages.common import geometry as g
@@ -154,6 +157,7 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     else:
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, label=f"calibrate {source}")
     predicted = solution.predict(b, s.fixtures, up)
+    offsets = _offset_uncertainty(source, s, solution, b, up, fitted)
     in_sample = metrics(predicted, s.a, s.used, intrinsics)
     if not cross.judged:
         progress.note(f"calibrate {source}: {cross.folds - len(cross.undetermined_folds)} of {cross.folds} folds "
@@ -171,10 +175,26 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         metrics=_column(in_sample, cross_metrics, cross.record(), _truth_metrics(predicted, s.used, intrinsics, truth)),
         # OpenCV's Shah on the same detections and intrinsics, for comparison
         opencv_shah_in_sample=(Baseline.of(opencv_shah_metrics(s.a, s.b, s.fixtures, s.used, intrinsics))
-                               if len(solution.x) == 1 else None))
+                               if len(solution.x) == 1 else None),
+        offset_uncertainty=offsets)
     ids = [o.sample_id for o in s.used]
     determined = {i: p for i, p, d in zip(ids, cross.predicted, cross.determined, strict=True) if d}
     return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), determined), outliers
+
+
+def _offset_uncertainty(source: str, s: SourceSamples, solution: rwhe.Solution, b: np.ndarray,
+                        up: np.ndarray | None, fitted: Fitted | None) -> OffsetUncertainty:
+    """The offsets' covariance (the arms' fit's block where the arms were fitted) and the
+    directions it leaves weak, each said on the console."""
+    names = sorted(solution.x)
+    size = 6 + 6 * len(names)
+    covariance = (fitted.offsets_covariance()[:size, :size] if fitted is not None
+                  else offsets_covariance(s.a, b, s.fixtures, solution, up))
+    z_name, x_name = OFFSET_KEYS[source]
+    record = uncertainty(covariance, names, z_name, x_name, s.b)
+    for sentence in record.weak:
+        progress.note(f"calibrate {source}: weakly determined: {sentence}")
+    return record
 
 
 def _column(in_sample: dict[str, list[float]], cross_validated: dict[str, list[float]] | None,
