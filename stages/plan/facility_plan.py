@@ -123,3 +123,32 @@ def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: 
 def light_box_centres(facility: Facility) -> np.ndarray:
     """(B, 3) the facility's light boxes' centres in K, m."""
     return np.array([box.centre_m for box in facility.spec.light_boxes]).reshape(-1, 3)
+
+
+def calibration_observability(config: Config, facility: Facility, rows: list[dict], target: Target) -> str | None:
+    """What the plan's calibration poses determine of the facility's robots
+    (``identification.observability``), in words; None without calibration poses or robots."""
+    from stages.common.arms import Payload
+    from stages.common.robots import identification
+    from stages.common.robots.errors import Holders
+
+    holders = Holders.of(facility)
+    chosen = [row for row in rows if row["session"] == "calibration"]
+    if not chosen or not holders.robots:
+        return None
+    c, world_up = config.calibrate, np.asarray(config.calibrate.world_up, float)
+
+    def joints(key: str, holder: object) -> np.ndarray:
+        if not hasattr(holder, "chain"):
+            return np.zeros((len(chosen), 0))
+        return np.array([row[key] for row in chosen], float)
+
+    m = identification.measure(holders, (joints("camera_joints_rad", holders.camera),
+                                         joints("target_joints_rad", holders.target)),
+                               np.array([row["rail_m"] or 0.0 for row in chosen], float),
+                               tuple(row["mount"] for row in chosen), Payload.of(target), world_up)
+    prior = holders.priors(c.arm_prior_joint_rad, c.arm_prior_length_m, c.arm_prior_frame_rad,
+                           (c.arm_prior_base_rad, c.arm_prior_base_m), c.arm_prior_rail_scale,
+                           max(c.arm_prior_compliance_rad_per_nm))
+    measure = identification.observability(holders, m, prior, Payload.of(target), world_up)
+    return measure.describe(len(chosen))

@@ -27,6 +27,7 @@ from stages.common.target import Target
 from stages.common.workspace_target import install, planned_target
 from stages.plan.config import PlanConfig
 from stages.plan.facility_plan import (
+    calibration_observability,
     camera_fixture,
     light_box_centres,
     planned_facility,
@@ -227,4 +228,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     table = read_manifest(workspace, "plan")
     if facility is not None:
         print(f"plan: {presented_share(table.to_pylist(), facility.spec.name)}")
+        observed = calibration_observability(config, facility, table.to_pylist(), target)
+        if observed is not None:
+            print(f"plan: {observed}")
     return table

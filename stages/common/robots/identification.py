@@ -288,3 +288,68 @@ def pose_jacobians(holders: Holders, fit: ChainFit, m: Measured, world_up: np.nd
                                   0, -1) / step
     jacobian[:, 3:] = np.moveaxis(poses[..., :3, 3] - centre[:, :3, 3], 0, -1) / step
     return jacobian
+
+
+#: the calibration's PnP noise the observability measure whitens by (TRON's at 0.75 m:
+#: 3e-4 rad, 0.17 mm; docs/accuracy.md)
+PNP_NOISE_RAD = 3e-4
+PNP_NOISE_M = 2e-4
+
+
+@dataclass(frozen=True)
+class Observability:
+    """How well a set of calibration poses determines the robots' identifiable parameters:
+    the singular values of the identification Jacobian whitened by the PnP noise and scaled
+    by each parameter's prior (a singular value under 1: a direction the poses determine
+    less well than the lab's tolerance already does), and each parameter's posterior over
+    prior 1-sigma where it is above ``WEAK_RATIO``."""
+
+    parameters: int
+    smallest: float
+    condition: float
+    under_prior: int  # directions with a singular value under 1
+    weak: dict[str, float]
+
+    def describe(self, poses: int) -> str:
+        weakest = sorted(self.weak.items(), key=lambda item: -item[1])[:4]
+        named = ", ".join(f"{name} ({ratio:.0%} of its prior)" for name, ratio in weakest)
+        return (f"{poses} calibration poses determine the robots' {self.parameters} identifiable parameters with "
+                f"smallest singular value {self.smallest:.3g} (in prior sigmas; condition number "
+                f"{self.condition:.3g}); {self.under_prior} direction(s) less well than the priors"
+                + (f"; weakly determined: {named}" + (f" and {len(self.weak) - 4} more" if len(self.weak) > 4 else "")
+                   if self.weak else ""))
+
+
+def observability(holders: Holders, m: Measured, prior: np.ndarray, payload: arms.Payload,
+                  world_up: np.ndarray) -> Observability:
+    """The measure of the module's identification at readings ``m`` (the plan's calibration
+    poses), offsets at identity: the smallest singular value of the prior-scaled, noise-
+    whitened Jacobian (Nahvi and Hollerbach's minimum singular value, "The noise
+    amplification index for optimal pose selection in robot calibration", ICRA 1996). It is
+    the one a single bad direction cannot hide in, as a determinant or a mean can."""
+    names = sorted(set(m.fixtures))
+    start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, False)])
+    free = np.ones(len(params), bool)
+    dropped = identifiable(holders, list(m.fixtures), False, params, free, payload, world_up)
+    kept = np.array([i for i, name in enumerate(holders.names) if name not in dropped])
+
+    def twists(p: np.ndarray) -> np.ndarray:
+        poses = predict_batch(holders, p, names, False, m, world_up)
+        rotation = g.matrix_to_rotvec(poses[..., :3, :3]) / PNP_NOISE_RAD
+        return np.concatenate([rotation, poses[..., :3, 3] / PNP_NOISE_M], axis=-1).reshape(len(p), -1)
+
+    jacobian = _central_jacobian(twists, params)
+    offsets = jacobian[:, holders.size:]
+    # the offsets are free: only what the arms' parameters add beyond them counts
+    u, s, _ = np.linalg.svd(offsets, full_matrices=False)
+    basis = u[:, s > s[0] * 1e-9]
+    arm = jacobian[:, kept] * prior[kept]
+    arm = arm - basis @ (basis.T @ arm)
+    singular = np.linalg.svd(arm, compute_uv=False)
+    posterior = np.linalg.inv(arm.T @ arm + np.eye(len(kept)))
+    ratio = np.sqrt(np.diag(posterior))
+    weak = {holders.names[i]: round(float(r), 3) for i, r in zip(kept, ratio, strict=True) if r > WEAK_RATIO}
+    smallest = float(singular[-1])
+    return Observability(len(kept), smallest, float(singular[0] / max(smallest, 1e-300)),
+                         int(np.sum(singular < 1.0)), weak)

@@ -133,3 +133,17 @@ def test_the_calibrated_urdf_moves_as_the_fitted_arm(holders, tmp_path):
     got = robot.base_at(np.zeros(20)) @ chain.forward(joints)
     assert np.allclose(got, expected, atol=1e-9)
     assert "joint compliance" in text and "a test" in text
+
+
+def test_the_observability_measure_names_what_the_poses_leave_to_the_prior(holders):
+    """Poses that never move the rail cannot fix its scale: the measure says so, and its
+    smallest singular value falls; poses over the rail's travel determine it."""
+    prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5)
+    spread = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 21).subset(np.arange(96) < 48)
+    fixed = ident.measure(holders, (spread.camera_joints, spread.target_joints), np.full(48, 1.0),
+                          spread.fixtures, PAYLOAD, UP)
+    moving, still = (ident.observability(holders, m, prior, PAYLOAD, UP) for m in (spread, fixed))
+    assert "ur10_camera.rail.scale" not in moving.weak
+    assert still.weak["ur10_camera.rail.scale"] > 0.99
+    assert still.smallest < moving.smallest and still.under_prior > moving.under_prior
+    assert "ur10_camera.rail.scale (100% of its prior)" in still.describe(48)
