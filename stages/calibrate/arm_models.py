@@ -12,7 +12,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from core import progress
-from core.config import Config
+from core.config import Config, TestbedConfig
 from manifests.sidecars import ArmKinematics
 from stages.common import arms, rwhe
 from stages.common.robots import identification
@@ -67,9 +67,11 @@ class ArmsModel(Protocol):
 
 @dataclass(frozen=True)
 class KukaArms:
-    """TRON's two KR 16-2 arms (the configuration's ``[testbed]``)."""
+    """TRON's two KR 16-2 arms (the configuration's ``[testbed]``); ``settings``: the
+    calibrate section."""
 
-    config: Config
+    testbed: TestbedConfig
+    settings: Any
     payload: arms.Payload
     name: str = "TRON's KR 16-2 arms"
 
@@ -82,11 +84,11 @@ class KukaArms:
 
     def fit(self, a: np.ndarray, r: arms.Readings, fixtures: list[str], start: rwhe.Solution,
             compliant: bool) -> Fitted:
-        fitted = arms.fit(self.config.testbed, self.config.calibrate, a, r, fixtures, start, compliant)
+        fitted = arms.fit(self.testbed, self.settings, a, r, fixtures, start, compliant)
         return Fitted(fitted.offsets, self, fitted)
 
     def corrected_b(self, fit: arms.Fit, r: arms.Readings) -> tuple[np.ndarray, np.ndarray]:
-        return arms.corrected_b(self.config.testbed, fit.errors, r, self.config.calibrate.world_up)
+        return arms.corrected_b(self.testbed, fit.errors, r, self.settings.world_up)
 
     def kinematics(self, fit: arms.Fit, note: str) -> ArmKinematics:
         return ArmKinematics(True, note, fit.record())
@@ -94,9 +96,9 @@ class KukaArms:
 
 @dataclass(frozen=True)
 class FacilityArms:
-    """A facility folder's robots, each from its URDF."""
+    """A facility folder's robots, each from its URDF; ``settings``: the calibrate section."""
 
-    config: Config
+    settings: Any
     payload: arms.Payload
     holders: Holders
     name: str
@@ -106,15 +108,15 @@ class FacilityArms:
         return self.holders.size
 
     def readings(self, rows: list[dict[str, Any]]) -> identification.Measured | None:
-        return identification.measured(self.holders, rows, self.payload, np.asarray(self.config.calibrate.world_up))
+        return identification.measured(self.holders, rows, self.payload, np.asarray(self.settings.world_up))
 
     def fit(self, a: np.ndarray, r: identification.Measured, fixtures: list[str], start: rwhe.Solution,
             compliant: bool) -> Fitted:
-        fitted = identification.fit(self.holders, self.config.calibrate, a, r, start, compliant, self.payload)
+        fitted = identification.fit(self.holders, self.settings, a, r, start, compliant, self.payload)
         return Fitted(fitted.offsets, self, fitted)
 
     def corrected_b(self, fit: identification.Fitted, r: identification.Measured) -> tuple[np.ndarray, np.ndarray]:
-        return fit.corrected_b(r, np.asarray(self.config.calibrate.world_up, float))
+        return fit.corrected_b(r, np.asarray(self.settings.world_up, float))
 
     def parameters(self, fixtures: list[str], compliant: bool) -> int:
         """How many parameters the fit would estimate on samples of ``fixtures``: the arms'
@@ -124,7 +126,7 @@ class FacilityArms:
         params = np.concatenate([np.zeros(self.holders.size), rwhe.pack(start, names, compliant, compliant)])
         free = np.ones(len(params), bool)
         dropped = identification.identifiable(self.holders, fixtures, compliant, params, free, self.payload,
-                                              np.asarray(self.config.calibrate.world_up, float))
+                                              np.asarray(self.settings.world_up, float))
         return len(params) - len(dropped)
 
     def kinematics(self, fit: identification.Fitted, note: str) -> ArmKinematics:
@@ -165,8 +167,8 @@ def facility_decision(config: Config, model: ArmsModel, count: int, fixtures: li
 def arms_model(config: Config, payload: arms.Payload) -> ArmsModel:
     """The model of the configured facility's arms."""
     if not config.facility.path:
-        return KukaArms(config, payload)
+        return KukaArms(config.testbed, config.calibrate, payload)
     facility = load_facility(Path(config.facility.path))
     holders = Holders.of(facility)
     names = " and ".join(robot.robot for robot in holders.robots)
-    return FacilityArms(config, payload, holders, f"{facility.spec.name}'s {names}")
+    return FacilityArms(config.calibrate, payload, holders, f"{facility.spec.name}'s {names}")

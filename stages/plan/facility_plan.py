@@ -125,9 +125,11 @@ def light_box_centres(facility: Facility) -> np.ndarray:
     return np.array([box.centre_m for box in facility.spec.light_boxes]).reshape(-1, 3)
 
 
-def calibration_observability(config: Config, facility: Facility, rows: list[dict], target: Target) -> str | None:
+def calibration_observability(facility: Facility, rows: list[dict], target: Target) -> str | None:
     """What the plan's calibration poses determine of the facility's robots
-    (``identification.observability``), in words; None without calibration poses or robots."""
+    (``identification.observability`` at the reference tolerances, ``REFERENCE_PRIORS``:
+    the plan does not read calibrate's own priors, which are not the plan's to depend on),
+    in words; None without calibration poses or robots."""
     from stages.common.arms import Payload
     from stages.common.robots import identification
     from stages.common.robots.errors import Holders
@@ -136,7 +138,7 @@ def calibration_observability(config: Config, facility: Facility, rows: list[dic
     chosen = [row for row in rows if row["session"] == "calibration"]
     if not chosen or not holders.robots:
         return None
-    c, world_up = config.calibrate, np.asarray(config.calibrate.world_up, float)
+    up = np.array([0.0, 0.0, 1.0])  # a facility's room: K's z is up (manifests/facility.py)
 
     def joints(key: str, holder: object) -> np.ndarray:
         if not hasattr(holder, "chain"):
@@ -146,9 +148,7 @@ def calibration_observability(config: Config, facility: Facility, rows: list[dic
     m = identification.measure(holders, (joints("camera_joints_rad", holders.camera),
                                          joints("target_joints_rad", holders.target)),
                                np.array([row["rail_m"] or 0.0 for row in chosen], float),
-                               tuple(row["mount"] for row in chosen), Payload.of(target), world_up)
-    prior = holders.priors(c.arm_prior_joint_rad, c.arm_prior_length_m, c.arm_prior_frame_rad,
-                           (c.arm_prior_base_rad, c.arm_prior_base_m), c.arm_prior_rail_scale,
-                           max(c.arm_prior_compliance_rad_per_nm))
-    measure = identification.observability(holders, m, prior, Payload.of(target), world_up)
+                               tuple(row["mount"] for row in chosen), Payload.of(target), up)
+    prior = holders.priors(**identification.REFERENCE_PRIORS)
+    measure = identification.observability(holders, m, prior, Payload.of(target), up)
     return measure.describe(len(chosen))

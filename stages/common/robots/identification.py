@@ -290,6 +290,10 @@ def pose_jacobians(holders: Holders, fit: ChainFit, m: Measured, world_up: np.nd
     return jacobian
 
 
+#: the lab's tolerances the plan's observability measure scales by (calibrate's defaults:
+#: calibrate.arm_prior_*, whose help gives each its meaning)
+REFERENCE_PRIORS = {"joint_rad": 2e-3, "length_m": 2e-3, "frame_rad": 2e-4, "base": (2e-3, 2e-3),
+                    "rail_scale": 1e-4, "compliance_rad_per_nm": 3e-5}
 #: the calibration's PnP noise the observability measure whitens by (TRON's at 0.75 m:
 #: 3e-4 rad, 0.17 mm; docs/accuracy.md)
 PNP_NOISE_RAD = 3e-4
