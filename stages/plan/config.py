@@ -55,7 +55,10 @@ class PlanConfig:
     lights: tuple[str, ...] = param(DOMAINS, "light set-ups of the dataset session", "")
     n_light_boxes: int = param(10, "Earth-albedo light boxes in the room (TRON: 10)", "count")
     light_boxes_per_sample: tuple[int, int] = param((1, 3), "active light boxes per lightbox capture", "count")
-    max_redraws: int = param(200, "unreachable relative poses redrawn per sample before giving up", "count")
+    max_redraws: int = param(
+        200, "unreachable relative poses redrawn per sample before giving up; on a facility folder with a static "
+        "mount, the dataset's poses may take more: as many as the share of poses it presents (measured before "
+        "planning) needs for all of them to be drawn at 99% (stages/plan/facility_plan.py dataset_redraws)", "count")
     sight_elevations_rad: tuple[float, ...] = param(
         tuple(math.radians(a) for a in (5.0, 15.0, 25.0, 40.0, 55.0)),
         "candidate elevations of the camera above the model (line-of-sight angle below horizontal)", "rad")

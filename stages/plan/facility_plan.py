@@ -8,6 +8,7 @@ the target folder's fixture on the side away from the camera. TRON's own room, a
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from stages.common.robots.facility import (
     Robot,
     load_facility,
     placements,
+    presentable_share,
     presentation_points,
 )
 from stages.common.target import Target
@@ -33,6 +35,11 @@ from stages.plan.reconfigure import Reconfiguration
 ATTEMPTS = 8
 #: joints the plan manifest records per robot
 JOINTS = schema.JOINTS.list_size
+#: the chance the plan accepts, at the share a facility presents, that some dataset pose
+#: runs out of draws (``dataset_redraws``)
+RUN_OUT = 0.01
+#: relative poses drawn to measure that share
+SHARE_SAMPLES = 96
 
 
 def planned_facility(config: Config) -> Facility | None:
@@ -152,3 +159,42 @@ def calibration_observability(facility: Facility, rows: list[dict], target: Targ
     prior = holders.priors(**identification.REFERENCE_PRIORS)
     measure = identification.observability(holders, m, prior, Payload.of(target), up)
     return measure.describe(len(chosen))
+
+
+def needed_redraws(share: float, count: int, run_out: float = RUN_OUT) -> int:
+    """Redraws each of ``count`` poses may take for all of them to be drawn with probability
+    ``1 - run_out`` where a draw succeeds with probability ``share``."""
+    if share >= 1.0:
+        return 0
+    per_pose = 1.0 - (1.0 - run_out) ** (1.0 / max(count, 1))  # each pose's allowed chance of running out
+    return max(0, math.ceil(math.log(per_pose) / math.log(1.0 - share)) - 1)
+
+
+def dataset_redraws(config: Config, facility: Facility, distances_m: tuple[float, float],
+                    count: int) -> tuple[int, str]:
+    """How many redraws each of ``count`` dataset poses may take on a facility with a static
+    mount (a UR10 round a tripod may present 1% of the poses): ``plan.max_redraws``, or as
+    many as the share it presents needs for every pose to be drawn with probability
+    ``1 - RUN_OUT`` (the share's 95% lower bound, measured here before anything is planned),
+    so that the plan draws from what the facility presents instead of failing on the one
+    pose that ran out. A facility that presents none is refused before planning, with what
+    stops it. Facilities of two robots present most poses and keep ``plan.max_redraws``.
+    Also says what it found (empty: nothing to say)."""
+    plan = config.plan
+    if count == 0 or not any(isinstance(facility.holder(role), StaticSpec) for role in ("camera", "target")):
+        return plan.max_redraws, ""
+    share = presentable_share(facility, distances_m, samples=SHARE_SAMPLES, seed=plan.seed)
+    where = facility.directory / "facility.toml"
+    if share.presented == 0:
+        stops = "; ".join(f"{why} ({n})" for why, n in share.limits) or "nothing reached"
+        raise InputError(f"{where}: presents none of {share.samples} relative poses drawn at "
+                         f"{distances_m[0]:.3g}-{distances_m[1]:.3g} m (the mock-up's dataset range), so no dataset "
+                         f"pose can be planned; what stops it: {stops}; change plan.dataset_range_m or the facility")
+    needed = needed_redraws(share.interval[0], count)
+    if needed <= plan.max_redraws:
+        return plan.max_redraws, ""
+    low, high = share.interval
+    return needed, (f"{facility.spec.name} presents {share.share:.1%} [95% interval {low:.1%}, {high:.1%}] of "
+                    f"{share.samples} relative poses drawn at {distances_m[0]:.3g}-{distances_m[1]:.3g} m: each "
+                    f"dataset pose may take up to {needed} redraws (plan.max_redraws {plan.max_redraws}), enough for "
+                    f"all {count} at {1 - RUN_OUT:.0%}")

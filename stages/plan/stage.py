@@ -29,6 +29,7 @@ from stages.plan.config import PlanConfig
 from stages.plan.facility_plan import (
     calibration_observability,
     camera_fixture,
+    dataset_redraws,
     light_box_centres,
     planned_facility,
     reconfigure_on,
@@ -89,9 +90,11 @@ def trajectory_rows(config: Config, target: Target) -> tuple[list[dict], Traject
     return rows, TrajectoriesRecord(tuple(records))
 
 
-def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None) -> dict:
+def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None,
+                max_redraws: int | None = None) -> dict:
     """One row of the plan manifest (of ``target``, default the configured one).
-    Unreachable relative poses are redrawn and counted."""
+    Unreachable relative poses are redrawn and counted, up to ``max_redraws`` (default
+    ``plan.max_redraws``) times."""
     plan, testbed, camera = config.plan, config.testbed, config.camera
     target = planned_target(config) if target is None else target
     facility = planned_facility(config)
@@ -121,10 +124,10 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         return cam_from_target, mount, reconfigure_on(facility, cam_from_target, mount, target, plan.seed, rng,
                                                       plan.joint_limit_margin_rad, limits)
 
-    redraws = 0
+    redraws, cap = 0, plan.max_redraws if max_redraws is None else max_redraws
     cam_from_target, mount, commands = draw()
     while commands is None:
-        if redraws == plan.max_redraws:
+        if redraws == cap:
             raise _unreachable(sample_id, redraws + 1, testbed, target, chosen, facility, limits)
         redraws += 1
         cam_from_target, mount, commands = draw()
@@ -202,6 +205,20 @@ def facility_light_boxes(rng: np.random.Generator, plan: PlanConfig, light: str,
     return sorted(int(i) for i in rng.choice(pool, size=count, replace=False))
 
 
+def _dataset_redraws(config: Config, facility: Facility | None, target: Target,
+                     todo: list[tuple[str, int, str]]) -> int:
+    """How many redraws each dataset pose left to plan may take (``dataset_redraws``: on a
+    facility with a static mount, as many as the share it presents needs), said when raised."""
+    remaining = sum(1 for session, _, _ in todo if session == "dataset")
+    if facility is None or config.plan.mode == "trajectory" or not remaining:
+        return config.plan.max_redraws
+    chosen, scale = dataset_range(config.plan, target, config.testbed, room=False), target.mockup_scale
+    redraws, said = dataset_redraws(config, facility, (chosen.low_m * scale, chosen.high_m * scale), remaining)
+    if said:
+        print(f"plan: {said}")
+    return redraws
+
+
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Plan every sample missing from ``W/manifests/plan`` for the configured target, and
     copy the target into ``W/target`` for the later stages; returns the whole plan."""
@@ -216,10 +233,11 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     if config.plan.n_dataset or config.plan.mode == "trajectory":  # sequences: the presets scale with it
         chosen = dataset_range(config.plan, target, config.testbed, room=facility is None)
         print(f"plan: {chosen.describe(target)}")
+    redraws = {"calibration": config.plan.max_redraws, "dataset": _dataset_redraws(config, facility, target, todo)}
     with open_sink(workspace, "plan", config.run.part_rows) as sink:
         for session, index, sample_id in track(todo, len(todo), "plan"):
             sink.add(sequences[sample_id] if sample_id in sequences
-                     else plan_sample(config, session, index, sample_id, target))
+                     else plan_sample(config, session, index, sample_id, target, redraws[session]))
     if config.plan.mode == "trajectory":
         write_trajectories(workspace, record)
     else:

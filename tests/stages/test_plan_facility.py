@@ -220,3 +220,41 @@ def test_an_arm_of_seven_joints_is_checked_but_not_planned(tmp_path):
     message = " ".join(result.stderr.split())
     assert result.returncode == 1 and "has 7 moving joints; the plan records 6" in message, message
     assert not (tmp_path / "w").exists()
+
+
+def test_a_facility_that_presents_few_poses_is_drawn_from_not_failed(tmp_path):
+    """A UR10 round a tripod presents a few per cent of SO(3) x the range: with too few
+    redraws allowed for that share, the plan raises them to what the measured share needs
+    (issue 57, part 8) instead of failing on the one pose that ran out, and says so."""
+    target = cubesat(tmp_path / "cubesat")
+    result = speedplus("plan", "-w", str(tmp_path / "w"), "--profile", "smoke", "--facility",
+                       str(FACILITIES / "ur10_tripod"), "--target", str(target), "--set", 'plan.lights=["lightbox"]',
+                       "--set", "plan.dataset_range_m=[1.3, 1.8]", "--set", "plan.max_redraws=25")
+    assert result.returncode == 0, result.stderr
+    said = " ".join(result.stdout.split())
+    assert "each dataset pose may take up to" in said and "(plan.max_redraws 25)" in said, said
+    rows = [r for r in pq.read_table(tmp_path / "w" / "manifests" / "plan").to_pylist() if r["session"] == "dataset"]
+    assert len(rows) == 8
+
+
+def test_a_facility_that_presents_nothing_is_refused_before_planning(tmp_path):
+    result = speedplus("plan", "-w", str(tmp_path / "w"), "--profile", "smoke", "--facility",
+                       str(FACILITIES / "ur10_tripod"), "--set", 'plan.lights=["lightbox"]',
+                       "--set", "plan.dataset_range_m=[30.0, 40.0]")
+    said = " ".join(result.stderr.split())
+    assert result.returncode == 1 and "presents none of 96 relative poses" in said and "what stops it" in said, said
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "w" / "manifests" / "plan").exists() or not any(
+        (tmp_path / "w" / "manifests" / "plan").glob("*.parquet"))
+
+
+def test_the_redraws_a_share_needs():
+    from stages.plan.facility_plan import needed_redraws
+
+    def all_drawn(share: float, count: int, cap: int) -> float:
+        return (1 - (1 - share) ** (cap + 1)) ** count
+
+    for share, count in ((0.01, 48), (0.05, 8), (0.3, 100)):
+        cap = needed_redraws(share, count)
+        assert all_drawn(share, count, cap) >= 0.99 > all_drawn(share, count, cap - 1)
+    assert needed_redraws(1.0, 10) == 0
