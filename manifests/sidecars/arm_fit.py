@@ -1,15 +1,17 @@
 """The arms' identified kinematics in ``W/calibration.json`` (each source's
-``arm_kinematics``, when calibrate estimated them): the corrections to the nominal arms
-(``stages.common.arms``, whose module docstring gives the model and its parameters), the
-fixtures and compliance they were fitted with, and the packed parameters with their
-covariance, which fuse propagates to each capture's configuration."""
+``arm_kinematics``, when calibrate estimated them): TRON's KR 16-2 pair (``ArmFit``: the
+corrections to the nominal arms, ``stages.common.arms``, whose module docstring gives the
+model and its parameters) or a facility folder's robots from their URDFs (``ChainFit``:
+``stages.common.robots.errors``), each with the fixtures and compliance they were fitted
+with and the packed parameters with their covariance, which fuse propagates to each
+capture's configuration."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.base import Fields
+from manifests.sidecars.base import Fields, SidecarError
 
 #: the link lengths and offsets of the arm model that are corrected (Craig's a and c of the
 #: KR 16-2's data sheet), in the packed parameters' order
@@ -193,7 +195,21 @@ class ChainFit:
         if not all(isinstance(robot, dict) for robot in robots):
             raise f.fail("robots", "a list of objects")
         entries = tuple(Fields(robot, f.where, f"{f.key('robots')}[{i}].") for i, robot in enumerate(robots))
-        return cls(tuple(RobotCorrection.from_fields(entry) for entry in entries),
-                   names, {name: dropped.text(name) for name in dropped.data}, _numbers(f, "weak"),
+        corrections = tuple(RobotCorrection.from_fields(entry) for entry in entries)
+        roles = [robot.role for robot in corrections]
+        if len(set(roles)) != len(roles):
+            raise f.fail("robots", "one correction per role (camera, target)")
+        # each robot packs J zero offsets, J + 1 frame errors of 6, its rail's scale, J compliances
+        size = sum(len(r.joints) * 8 + 6 + (r.rail_scale_error is not None) for r in corrections)
+        if len(names) != size:
+            raise f.fail("parameter_names", f"{size} names, as the robots' joints and rails pack them")
+        if len(parameters) < size:
+            raise f.fail("parameters", f"at least the robots' {size} parameters, then the offsets'")
+        weak = _numbers(f, "weak")
+        unknown = sorted((set(dropped.data) | set(weak)) - set(names))
+        if unknown:
+            raise SidecarError(f"{f.where}: keys {f.key('dropped')} and {f.key('weak')}: {unknown[0]!r} is not one "
+                               "of parameter_names")
+        return cls(corrections, names, {name: dropped.text(name) for name in dropped.data}, weak,
                    _names(f, "fixtures"), f.boolean("compliant"), parameters,
                    f.matrix("covariance", len(parameters), len(parameters)), f.vector("prior_sigma", len(names)))

@@ -124,10 +124,10 @@ class FacilityArms:
         names = sorted(set(fixtures))
         start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
         params = np.concatenate([np.zeros(self.holders.size), rwhe.pack(start, names, compliant, compliant)])
-        free = np.ones(len(params), bool)
+        free = identification.free_parameters(self.holders, self.settings, names, compliant, len(params))
         dropped = identification.identifiable(self.holders, fixtures, compliant, params, free, self.payload,
                                               np.asarray(self.settings.world_up, float))
-        return len(params) - len(dropped)
+        return int(free.sum()) - len(dropped)
 
     def kinematics(self, fit: identification.Fitted, note: str) -> ArmKinematics:
         record = fit.record()

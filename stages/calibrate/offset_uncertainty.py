@@ -24,6 +24,9 @@ from stages.common import rwhe
 WEAK_M = 2e-3
 #: a rotation direction above this 1-sigma (rad; 0.057 deg)
 WEAK_RAD = 1e-3
+#: a direction whose 1-sigma exceeds its limit this many times over is said undetermined (the
+#: data hold nothing of it; its variance is the information's floor, not a measurement)
+UNDETERMINED = 1000.0
 #: the poses turn about one axis when the second singular value of their rotation axes is
 #: under this share of the first
 ONE_AXIS = 0.2
@@ -74,10 +77,14 @@ def offsets_covariance(a: np.ndarray, b: np.ndarray, fixtures: list[str], soluti
     return _inverse(whitened.T @ whitened)
 
 
-def turning_axes(b: np.ndarray) -> tuple[np.ndarray, float]:
-    """The axis (3,) the measurements' rotations mostly turn about (in the first pose's
-    frame) and the share of the second axis's spread (0: all about one axis)."""
-    relative = np.swapaxes(b[0, :3, :3], -1, -2)[None] @ b[:, :3, :3]
+def turning_axes(b: np.ndarray, side: str) -> tuple[np.ndarray, float]:
+    """The axis (3,) the measurements' rotations (``b``: (N, 4, 4), ``B = camee_from_targetee``
+    or its motion-capture counterpart) mostly turn about, in the camera side's frame
+    (``side`` "camera": of ``B_i B_0^-1``) or the target side's ("target": of
+    ``B_0^-1 B_i``), and the share of the second axis's spread (0: all about one axis)."""
+    rotations = b[:, :3, :3]
+    first = np.swapaxes(rotations[0], -1, -2)
+    relative = rotations @ first[None] if side == "camera" else first[None] @ rotations
     axes = g.matrix_to_rotvec(relative)
     _, singular, vt = np.linalg.svd(axes, full_matrices=False)
     return vt[0], float(singular[1] / singular[0]) if singular[0] > 0 else 0.0
@@ -90,17 +97,19 @@ def _axis_name(vector: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:+.2f}" for v in vector) + ")"
 
 
-def weak_directions(covariance: np.ndarray, names: list[str], z_name: str, x_name: str,
+def weak_directions(covariance: np.ndarray, solution: rwhe.Solution, z_name: str, x_name: str,
                     b: np.ndarray) -> list[str]:
-    """Sentences naming each offset direction whose 1-sigma exceeds ``WEAK_M``/``WEAK_RAD``."""
-    axis, spread = turning_axes(b)
-    if spread < ONE_AXIS:
-        why = f"the poses turn about one axis ({_axis_name(axis)} of the first pose's {z_name.split('_from_')[1]})"
-    else:
-        why = "the poses' rotations and positions vary too little to fix it"
+    """Sentences naming each offset direction whose 1-sigma exceeds ``WEAK_M``/``WEAK_RAD``,
+    each with the axis the poses turn about, in the offset's own frame (the camera's for
+    ``Z``, the target's for each ``X_f``): a translation along it is what they cannot fix."""
+    names = sorted(solution.x)
+    frames = [("camera", z_name, solution.z, "the camera frame")]
+    frames += [("target", f"{x_name}[{name}]", solution.x[name], "the target frame") for name in names]
     out = []
-    labels = [z_name, *(f"{x_name}[{name}]" for name in names)]
-    for block, label in enumerate(labels):
+    for block, (side, label, offset, frame) in enumerate(frames):
+        axis, spread = turning_axes(b, side)
+        why = (f"the poses turn about one axis ({_axis_name(offset[:3, :3] @ axis)} of {frame})" if spread < ONE_AXIS
+               else "the poses' rotations and positions vary too little to fix it")
         for part, unit, limit, scale in ((slice(3, 6), "mm", WEAK_M, 1000.0),
                                          (slice(0, 3), "deg", WEAK_RAD, float(np.degrees(1.0)))):
             at = slice(6 * block + part.start, 6 * block + part.stop)
@@ -108,15 +117,17 @@ def weak_directions(covariance: np.ndarray, names: list[str], z_name: str, x_nam
             sigma = float(np.sqrt(max(values[-1], 0.0)))
             if sigma > limit:
                 kind = "" if unit == "mm" else " rotation about"
-                out.append(f"{label}{kind} {_axis_name(vectors[:, -1])} +-{sigma * scale:.3g} {unit}: {why}")
+                size = "undetermined" if sigma > UNDETERMINED * limit else f"+-{sigma * scale:.3g} {unit}"
+                out.append(f"{label}{kind} {_axis_name(vectors[:, -1])} {size}: {why}")
     return out
 
 
-def uncertainty(covariance: np.ndarray, names: list[str], z_name: str, x_name: str,
+def uncertainty(covariance: np.ndarray, solution: rwhe.Solution, z_name: str, x_name: str,
                 b: np.ndarray) -> OffsetUncertainty:
-    """The record of ``offsets_covariance`` (or the arms' fit's offset block)."""
+    """The record of ``offsets_covariance`` (or the arms' fit's offset block) of ``solution``."""
+    names = sorted(solution.x)
     sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     by_fixture = {name: tuple(float(v) for v in sigma[6 + 6 * i:12 + 6 * i]) for i, name in enumerate(names)}
     return OffsetUncertainty(tuple(float(v) for v in sigma[:6]), by_fixture,
                              tuple(tuple(float(v) for v in row) for row in covariance),
-                             tuple(weak_directions(covariance, names, z_name, x_name, b)))
+                             tuple(weak_directions(covariance, solution, z_name, x_name, b)))

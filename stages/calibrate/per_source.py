@@ -191,7 +191,7 @@ def _offset_uncertainty(source: str, s: SourceSamples, solution: rwhe.Solution, 
     covariance = (fitted.offsets_covariance()[:size, :size] if fitted is not None
                   else offsets_covariance(s.a, b, s.fixtures, solution, up))
     z_name, x_name = OFFSET_KEYS[source]
-    record = uncertainty(covariance, names, z_name, x_name, s.b)
+    record = uncertainty(covariance, solution, z_name, x_name, s.b)
     for sentence in record.weak:
         progress.note(f"calibrate {source}: weakly determined: {sentence}")
     return record

@@ -90,13 +90,18 @@ class SourceModel:
         self.world_up = np.asarray(calibration.world_up, float)  # the up the compliance was fitted with
         self.scale_sigma = scale_sigma
 
-    def estimate(self, b: np.ndarray, row: dict[str, Any]) -> np.ndarray:
-        """``cam_from_target`` (4, 4) of a capture from this source's measurement ``b``."""
+    def check_fixture(self, row: dict[str, Any]) -> None:
+        """Refuse a capture on a fixture the calibration never saw, naming it."""
         fixture = row["fixture"]
         if fixture not in self.x:
             raise InputError(f"captures: sample {row['sample_id']} uses fixture {fixture!r}, which the calibration "
                              f"did not see (calibrated: {', '.join(sorted(self.x))}); add calibration captures "
                              "with it")
+
+    def estimate(self, b: np.ndarray, row: dict[str, Any]) -> np.ndarray:
+        """``cam_from_target`` (4, 4) of a capture from this source's measurement ``b``."""
+        self.check_fixture(row)
+        fixture = row["fixture"]
         up = up_targetee(row, self.world_up)
         if self.holders is not None:
             measured = identification.measured(self.holders, [row], self.payload, self.world_up)
@@ -129,6 +134,8 @@ class SourceModel:
         """Each capture's pose uncertainty from the calibrated arms' parameters and the
         joints' lost motion (``arms.flank_variances``; None without calibrated arms); all
         captures at once."""
+        for row in rows:  # before the arms' model meets a fixture it has no offset for
+            self.check_fixture(row)
         if self.holders is not None and rows:
             return self._chain_covariances(rows)
         if self.arms is None or not rows:

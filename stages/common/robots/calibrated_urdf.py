@@ -4,9 +4,11 @@ way): the URDF a controller, MoveIt or a planner loads to move the arm as it tru
 Each moving joint's ``<origin>`` becomes ``origin @ E_k @ M_k(z_k)`` (``errors.py``: the
 frame error, then the encoder's zero offset as a turn about, or a shift along, the joint's
 axis), so that the URDF's forward kinematics of the controller's readings is the calibrated
-arm's. The flange's frame error goes on the last fixed joint before the flange link (it is
-always the hand-eye offset's, so zero). What a URDF cannot hold, the rail's scale and the
-joints' compliance, is kept in a comment at the top, with the values.
+arm's. The flange's frame error (mostly the hand-eye offset's, so zero, but a compliant
+fixture can keep some of it) goes on the fixed joint before the flange link; where the
+flange link hangs straight off the last moving joint there is none, and the error is kept
+in the comment at the top with what a URDF cannot hold: the rail's scale and the joints'
+compliance.
 """
 
 from __future__ import annotations
@@ -61,10 +63,16 @@ def calibrated_urdf(urdf: Path, flange_link: str, correction: RobotCorrection, n
         _set_origin(joint, _origin_matrix(joint) @ error @ _motion(joint, correction.zero_offsets[index]))
     flange = np.asarray(correction.frame_errors[-1], float)
     last_fixed = _last_fixed_joint(robot, flange_link, set(correction.joints))
-    if last_fixed is not None and np.any(flange):
-        error = g.make_transform(g.rotvec_to_matrix(flange[:3]), flange[3:])
-        _set_origin(last_fixed, _origin_matrix(last_fixed) @ error)
-    kept = [f"rail scale error {correction.rail_scale_error!r}" if correction.rail_scale_error is not None else "",
+    unplaced = ""
+    if np.any(flange):
+        if last_fixed is not None:
+            error = g.make_transform(g.rotvec_to_matrix(flange[:3]), flange[3:])
+            _set_origin(last_fixed, _origin_matrix(last_fixed) @ error)
+        else:
+            unplaced = ("flange frame error (rotation vector rad, translation m, after the last joint) "
+                        + ", ".join(repr(float(v)) for v in flange))
+    kept = [unplaced, f"rail scale error {correction.rail_scale_error!r}" if correction.rail_scale_error is not None
+            else "",
             "joint compliance (rad/(N m)) " + ", ".join(f"{j} {c!r}" for j, c in
                                                      zip(correction.joints, correction.compliance_rad_per_nm,
                                                          strict=True))]

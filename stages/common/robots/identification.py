@@ -242,6 +242,17 @@ class Fitted:
                         tuple(tuple(row) for row in self.covariance.tolist()), tuple(float(v) for v in self.prior))
 
 
+def free_parameters(holders: Holders, c: Any, names: list[str], compliant: bool, count: int) -> np.ndarray:
+    """(count,) which packed parameters the fit estimates: all but the compliances with
+    ``c.joint_compliance`` off and the fixtures' anisotropy with ``c.fixture_anisotropy`` off."""
+    free = np.ones(count, bool)
+    if c.joint_compliance != "on":
+        free[[i for i, n in enumerate(holders.names) if n.endswith(".compliance")]] = False
+    shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
+    free[holders.size + shape.start:holders.size + shape.stop] = c.fixture_anisotropy == "on"
+    return free
+
+
 def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Solution, compliant: bool,
         payload: arms.Payload) -> Fitted:
     """The robots (the parameters ``identifiable`` keeps), ``Z``, ``X_f`` (and ``k_f``,
@@ -256,10 +267,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     params = np.concatenate([np.zeros(size), rwhe.pack(start, names, compliant, anisotropic=compliant)])
     shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
     shape = slice(size + shape.start, size + shape.stop)
-    free = np.ones(len(params), bool)
-    if c.joint_compliance != "on":
-        free[[i for i, n in enumerate(holders.names) if n.endswith(".compliance")]] = False
-    free[shape] = c.fixture_anisotropy == "on"
+    free = free_parameters(holders, c, names, compliant, len(params))
     dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up)
     free[[holders.names.index(n) for n in dropped]] = False
     all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
@@ -338,9 +346,12 @@ def observability(holders: Holders, m: Measured, prior: np.ndarray, payload: arm
     dropped = identifiable(holders, list(m.fixtures), False, params, free, payload, world_up)
     kept = np.array([i for i, name in enumerate(holders.names) if name not in dropped])
 
+    centre = predict_batch(holders, params[None], names, False, m, world_up)[0]
+
     def twists(p: np.ndarray) -> np.ndarray:
+        """Each pose's rotation from the centre's (applied on the camera side) and position."""
         poses = predict_batch(holders, p, names, False, m, world_up)
-        rotation = g.matrix_to_rotvec(poses[..., :3, :3]) / PNP_NOISE_RAD
+        rotation = g.matrix_to_rotvec(poses[..., :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)) / PNP_NOISE_RAD
         return np.concatenate([rotation, poses[..., :3, 3] / PNP_NOISE_M], axis=-1).reshape(len(p), -1)
 
     jacobian = _central_jacobian(twists, params)
@@ -354,6 +365,8 @@ def observability(holders: Holders, m: Measured, prior: np.ndarray, payload: arm
     posterior = np.linalg.inv(arm.T @ arm + np.eye(len(kept)))
     ratio = np.sqrt(np.diag(posterior))
     weak = {holders.names[i]: round(float(r), 3) for i, r in zip(kept, ratio, strict=True) if r > WEAK_RATIO}
-    smallest = float(singular[-1])
+    # fewer equations than parameters: the directions past them are not measured at all
+    unmeasured = max(0, len(kept) - len(singular))
+    smallest = 0.0 if unmeasured else float(singular[-1])
     return Observability(len(kept), smallest, float(singular[0] / max(smallest, 1e-300)),
-                         int(np.sum(singular < 1.0)), weak)
+                         int(np.sum(singular < 1.0)) + unmeasured, weak)

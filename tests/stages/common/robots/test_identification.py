@@ -99,6 +99,12 @@ def test_the_record_round_trips_and_a_bad_key_is_named(holders):
     data = record.to_json()
     assert ChainFit.from_fields(Fields(data, "calibration.json", "kuka.arm_kinematics.chains.")) == record
     assert [r.robot for r in record.robots] == ["ur10_camera", "ur5_target"]
+    for key, value, message in (("parameter_names", data["parameter_names"][:-1], r"chains\.parameter_names"),
+                                ("parameters", data["parameters"][:10], r"chains\.parameters"),
+                                ("weak", {"ur5_target.elbow": 0.9}, r"'ur5_target\.elbow' is not one of")):
+        bad = {**data, key: value}
+        with pytest.raises(SidecarError, match=message):
+            ChainFit.from_fields(Fields(bad, "calibration.json", "kuka.arm_kinematics.chains."))
     data["robots"][1]["zero_offsets"] = [0.0]
     with pytest.raises(SidecarError, match=r"chains\.robots\[1\]\.zero_offsets"):
         ChainFit.from_fields(Fields(data, "calibration.json", "kuka.arm_kinematics.chains."))
