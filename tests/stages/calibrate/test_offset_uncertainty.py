@@ -39,6 +39,7 @@ def test_a_set_that_turns_about_one_axis_is_named_weak_along_it(seed):
         weak = sentence.split(":")[0].rsplit(" ", 1)[0].split(" ", 1)[1]
         weak = weak.rsplit(" +-", 1)[0] if " +-" in weak else weak
         assert abs(_vector(weak) @ axis) > 0.9, sentence  # the weak translation lies along it
+    assert max(record.target_from_offset_sigma_by_fixture["fixed"][3:]) > 0.01  # metres: not determined
 
 
 def _vector(named: str) -> np.ndarray:
@@ -47,7 +48,6 @@ def _vector(named: str) -> np.ndarray:
         return np.eye(3)["xyz".index(named)]
     vector = np.array([float(v) for v in named.strip("()").split(", ")])
     return vector / np.linalg.norm(vector)
-    assert max(record.target_from_offset_sigma_by_fixture["fixed"][3:]) > 0.01  # metres: not determined
 
 
 def test_a_well_spread_set_is_determined_and_its_sigma_is_honest():
