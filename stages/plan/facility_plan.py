@@ -134,11 +134,11 @@ def light_box_centres(facility: Facility) -> np.ndarray:
 
 def calibration_observability(facility: Facility, rows: list[dict], target: Target) -> str | None:
     """What the plan's calibration poses determine of the facility's robots
-    (``identification.observability`` at the reference tolerances, ``REFERENCE_PRIORS``:
+    (``observability.observability`` at the reference tolerances, ``REFERENCE_PRIORS``:
     the plan does not read calibrate's own priors, which are not the plan's to depend on),
     in words; None without calibration poses or robots."""
     from stages.common.arms import Payload
-    from stages.common.robots import identification
+    from stages.common.robots import identification, observability
     from stages.common.robots.errors import Holders
 
     holders = Holders.of(facility)
@@ -156,8 +156,8 @@ def calibration_observability(facility: Facility, rows: list[dict], target: Targ
                                          joints("target_joints_rad", holders.target)),
                                np.array([row["rail_m"] or 0.0 for row in chosen], float),
                                tuple(row["mount"] for row in chosen), Payload.of(target), up)
-    prior = holders.priors(**identification.REFERENCE_PRIORS)
-    measure = identification.observability(holders, m, prior, Payload.of(target), up)
+    prior = holders.priors(**observability.REFERENCE_PRIORS)
+    measure = observability.observability(holders, m, prior, Payload.of(target), up)
     return measure.describe(len(chosen))
 
 

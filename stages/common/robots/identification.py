@@ -121,7 +121,7 @@ def corrected_b(holders: Holders, arm_params: np.ndarray, m: Measured,
     return g.invert(world_from_camee[0]) @ world_from_targetee[0], up
 
 
-def _central_jacobian(function: Any, x: np.ndarray, step: float = 1e-6) -> np.ndarray:
+def central_jacobian(function: Any, x: np.ndarray, step: float = 1e-6) -> np.ndarray:
     """(M, P) central differences of a batched function ((K, P) -> (K, M)) at ``x`` (P,)."""
     moved = np.repeat(x[None], 2 * len(x), axis=0)
     moved[np.arange(len(x)), np.arange(len(x))] += step
@@ -173,7 +173,7 @@ def identifiable(holders: Holders, fixtures: list[str], compliant: bool, params:
     def poses(p: np.ndarray) -> np.ndarray:
         return predict_batch(holders, p, names, compliant, m, world_up)[..., :3, :].reshape(len(p), -1)
 
-    jacobian = _central_jacobian(poses, params)
+    jacobian = central_jacobian(poses, params)
     all_names = list(holders.names)
     basis: list[np.ndarray] = []
     kept: list[int] = []
@@ -297,76 +297,3 @@ def pose_jacobians(holders: Holders, fit: ChainFit, m: Measured, world_up: np.nd
     jacobian[:, 3:] = np.moveaxis(poses[..., :3, 3] - centre[:, :3, 3], 0, -1) / step
     return jacobian
 
-
-#: the lab's tolerances the plan's observability measure scales by (calibrate's defaults:
-#: calibrate.arm_prior_*, whose help gives each its meaning)
-REFERENCE_PRIORS = {"joint_rad": 2e-3, "length_m": 2e-3, "frame_rad": 2e-4, "base": (2e-3, 2e-3),
-                    "rail_scale": 1e-4, "compliance_rad_per_nm": 3e-5}
-#: the calibration's PnP noise the observability measure whitens by (TRON's at 0.75 m:
-#: 3e-4 rad, 0.17 mm; docs/accuracy.md)
-PNP_NOISE_RAD = 3e-4
-PNP_NOISE_M = 2e-4
-
-
-@dataclass(frozen=True)
-class Observability:
-    """How well a set of calibration poses determines the robots' identifiable parameters:
-    the singular values of the identification Jacobian whitened by the PnP noise and scaled
-    by each parameter's prior (a singular value under 1: a direction the poses determine
-    less well than the lab's tolerance already does), and each parameter's posterior over
-    prior 1-sigma where it is above ``WEAK_RATIO``."""
-
-    parameters: int
-    smallest: float
-    condition: float
-    under_prior: int  # directions with a singular value under 1
-    weak: dict[str, float]
-
-    def describe(self, poses: int) -> str:
-        weakest = sorted(self.weak.items(), key=lambda item: -item[1])[:4]
-        named = ", ".join(f"{name} ({ratio:.0%} of its prior)" for name, ratio in weakest)
-        return (f"{poses} calibration poses determine the robots' {self.parameters} identifiable parameters with "
-                f"smallest singular value {self.smallest:.3g} (in prior sigmas; condition number "
-                f"{self.condition:.3g}); {self.under_prior} direction(s) less well than the priors"
-                + (f"; weakly determined: {named}" + (f" and {len(self.weak) - 4} more" if len(self.weak) > 4 else "")
-                   if self.weak else ""))
-
-
-def observability(holders: Holders, m: Measured, prior: np.ndarray, payload: arms.Payload,
-                  world_up: np.ndarray) -> Observability:
-    """The measure of the module's identification at readings ``m`` (the plan's calibration
-    poses), offsets at identity: the smallest singular value of the prior-scaled, noise-
-    whitened Jacobian (Nahvi and Hollerbach's minimum singular value, "The noise
-    amplification index for optimal pose selection in robot calibration", ICRA 1996). It is
-    the one a single bad direction cannot hide in, as a determinant or a mean can."""
-    names = sorted(set(m.fixtures))
-    start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
-    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, False)])
-    free = np.ones(len(params), bool)
-    dropped = identifiable(holders, list(m.fixtures), False, params, free, payload, world_up)
-    kept = np.array([i for i, name in enumerate(holders.names) if name not in dropped])
-
-    centre = predict_batch(holders, params[None], names, False, m, world_up)[0]
-
-    def twists(p: np.ndarray) -> np.ndarray:
-        """Each pose's rotation from the centre's (applied on the camera side) and position."""
-        poses = predict_batch(holders, p, names, False, m, world_up)
-        rotation = g.matrix_to_rotvec(poses[..., :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)) / PNP_NOISE_RAD
-        return np.concatenate([rotation, poses[..., :3, 3] / PNP_NOISE_M], axis=-1).reshape(len(p), -1)
-
-    jacobian = _central_jacobian(twists, params)
-    offsets = jacobian[:, holders.size:]
-    # the offsets are free: only what the arms' parameters add beyond them counts
-    u, s, _ = np.linalg.svd(offsets, full_matrices=False)
-    basis = u[:, s > s[0] * 1e-9]
-    arm = jacobian[:, kept] * prior[kept]
-    arm = arm - basis @ (basis.T @ arm)
-    singular = np.linalg.svd(arm, compute_uv=False)
-    posterior = np.linalg.inv(arm.T @ arm + np.eye(len(kept)))
-    ratio = np.sqrt(np.diag(posterior))
-    weak = {holders.names[i]: round(float(r), 3) for i, r in zip(kept, ratio, strict=True) if r > WEAK_RATIO}
-    # fewer equations than parameters: the directions past them are not measured at all
-    unmeasured = max(0, len(kept) - len(singular))
-    smallest = 0.0 if unmeasured else float(singular[-1])
-    return Observability(len(kept), smallest, float(singular[0] / max(smallest, 1e-300)),
-                         int(np.sum(singular < 1.0)) + unmeasured, weak)

@@ -148,7 +148,9 @@ def test_the_observability_measure_names_what_the_poses_leave_to_the_prior(holde
     spread = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 21).subset(np.arange(96) < 48)
     fixed = ident.measure(holders, (spread.camera_joints, spread.target_joints), np.full(48, 1.0),
                           spread.fixtures, PAYLOAD, UP)
-    moving, still = (ident.observability(holders, m, prior, PAYLOAD, UP) for m in (spread, fixed))
+    from stages.common.robots.observability import observability
+
+    moving, still = (observability(holders, m, prior, PAYLOAD, UP) for m in (spread, fixed))
     assert "ur10_camera.rail.scale" not in moving.weak
     assert still.weak["ur10_camera.rail.scale"] > 0.99
     assert still.smallest < moving.smallest and still.under_prior > moving.under_prior
