@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from manifests.sidecars.arm_fit import RobotCorrection
 from stages.common import geometry as g
+from stages.common.rwhe import transform_from_vector
 
 
 def _origin_matrix(joint: ElementTree.Element) -> np.ndarray:
@@ -58,16 +59,14 @@ def calibrated_urdf(urdf: Path, flange_link: str, correction: RobotCorrection, n
     joints = {joint.get("name"): joint for joint in robot.findall("joint")}
     for index, name in enumerate(correction.joints):
         joint = joints[name]
-        error = g.make_transform(g.rotvec_to_matrix(correction.frame_errors[index][:3]),
-                                 correction.frame_errors[index][3:])
+        error = transform_from_vector(np.asarray(correction.frame_errors[index], float))
         _set_origin(joint, _origin_matrix(joint) @ error @ _motion(joint, correction.zero_offsets[index]))
     flange = np.asarray(correction.frame_errors[-1], float)
     last_fixed = _last_fixed_joint(robot, flange_link, set(correction.joints))
     unplaced = ""
     if np.any(flange):
         if last_fixed is not None:
-            error = g.make_transform(g.rotvec_to_matrix(flange[:3]), flange[3:])
-            _set_origin(last_fixed, _origin_matrix(last_fixed) @ error)
+            _set_origin(last_fixed, _origin_matrix(last_fixed) @ transform_from_vector(flange))
         else:
             unplaced = ("flange frame error (rotation vector rad, translation m, after the last joint) "
                         + ", ".join(repr(float(v)) for v in flange))

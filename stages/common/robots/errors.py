@@ -33,17 +33,13 @@ import numpy as np
 from stages.common import geometry as g
 from stages.common.robots.chain import SerialChain
 from stages.common.robots.facility import Facility, Robot, pose_matrix
+from stages.common.rwhe import transform_from_vector
 from stages.common.statics import GRAVITY_M_S2
 
 #: the six components of a frame error, in the packed order
 FRAME_AXES = ("rx", "ry", "rz", "x", "y", "z")
 #: a column is dropped when its part independent of the kept columns is under this share of its norm
 RANK_TOLERANCE = 1e-6
-
-
-def _exp(vector: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) of small 6-vectors (..., 6): rotation vector (rad), then translation (m)."""
-    return g.make_transform(g.rotvec_to_matrix(vector[..., :3]), vector[..., 3:6])
 
 
 @dataclass(frozen=True)
@@ -108,7 +104,7 @@ class HolderModel:
         readings ``joints`` (N, J), rail (N,) m, gravity torques (N, J) N m."""
         zero, frames, scale, compliance = self.split(p)
         links = joints[None] + zero[:, None] + compliance[:, None] * torque[None]  # (K, N, J)
-        errors = _exp(frames)  # (K, J + 1, 4, 4)
+        errors = transform_from_vector(frames)  # (K, J + 1, 4, 4)
         current = self.base_at(rail_m[None] * (1.0 + scale[:, None]))  # (K, N, 4, 4)
         for index in range(self.joints):
             current = current @ (self.chain.origins[index] @ errors[:, index])[:, None]

@@ -133,3 +133,27 @@ def test_the_truth_is_the_facilitys_robots(rehearsed):
             assert 0 < np.abs(stored.joint_offsets_rad).max() < 0.01
         else:
             assert stored.robot is None and not stored.joint_offsets_rad
+
+
+def test_the_rehearsal_bench_the_docs_cite_runs(rehearsed, tmp_path, monkeypatch):
+    """``python -m bench honesty --facility DIR`` (docs/accuracy.md, the user guide) on a kept
+    smoke acquisition of the folder: recalibrated with this code, its card written beside a
+    copy of the folder (never over the committed one), its rows against the truth."""
+    import json
+    import shutil
+
+    import bench.common
+    from bench import honesty
+
+    folder, workspace = rehearsed
+    if folder != "abb_rail":
+        pytest.skip("one facility is enough to run the bench")
+    copy = tmp_path / folder
+    shutil.copytree(FACILITIES / folder, copy)
+    shutil.copytree(workspace, tmp_path / "root" / "seed71")
+    monkeypatch.setattr(bench.common, "RESULTS", tmp_path / "results")
+    honesty.main("--facility", str(copy), "71", str(tmp_path / "root"), "--profile", "smoke")
+    rows = json.loads((tmp_path / "results" / "rehearsal_abb-rail.json").read_text())["rows"]
+    assert [row["seed"] for row in rows] == [71, "pooled"] and rows[0]["labels"] == 8
+    assert 0 < rows[0]["(b) mean E_T label (mm)"] < 50
+    assert read_rehearsal(copy).labels == 8
