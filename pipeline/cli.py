@@ -451,17 +451,28 @@ def facility_command(
     samples: Annotated[int, typer.Option(min=8, help="relative poses drawn to measure what it presents")] = 96,
     distance: Annotated[tuple[float, float] | None, typer.Option(
         help="camera-to-mock-up distances MIN MAX, m (default: SPEED+'s at the target's apparent size)")] = None,
+    profile: Annotated[str, typer.Option(
+        "--profile", "-p", help="the profile whose calibration poses (plan.n_calibration) are planned here and "
+        "measured: how well they determine the robots")] = "smoke",
+    calibration_poses: Annotated[int | None, typer.Option(
+        min=0, help="calibration poses to plan and measure instead of the profile's plan.n_calibration (0: none)")]
+    = None,
 ) -> None:
     """Check a facility folder and print what the pipeline will use: the room, each robot's
     chain, joint limits, reach, rail and inverse kinematics, static mounts, camera, lights
-    and motion capture, and the share of SO(3) and of the distance range the facility can
-    present to its camera (with its 95% interval). Exit 1 naming the file and key, or the
-    URDF element, when it cannot be used."""
+    and motion capture, the share of SO(3) and of the distance range the facility can
+    present to its camera (with its 95% interval), and how well the profile's calibration
+    poses determine the robots. Exit 1 naming the file and key, or the URDF element, when it
+    cannot be used."""
     from stages.common.facility_report import describe  # the shared layer: URDFs load only there
 
     if distance is not None and not 0 < distance[0] <= distance[1]:
         raise InputError(f"facility: --distance {distance[0]:g} {distance[1]:g}: expected 0 < MIN <= MAX (m)")
     title, rows = describe(folder, target, samples, distance)
+    count = [] if calibration_poses is None else [Override.of("plan.n_calibration", calibration_poses,
+                                                               "--calibration-poses")]
+    config = load_config(profile, overrides=[*folders(target, folder), *count])
+    rows += registry.stage("plan").facility_report(config)
     table = Table(title=escape(title))
     for column in ("what", "value"):
         table.add_column(column)

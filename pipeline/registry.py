@@ -50,6 +50,10 @@ class StageEntry:
     #: the package says something of its finished results in ``status`` (``status_note(config,
     #: workspace)`` -> str: the plan, the share of the poses drawn that the facility presents)
     notes: bool = False
+    #: the package says what it would make of a facility folder (``facility_rows(config)`` ->
+    #: [(what, value)], which ``speedplus facility`` prints: the plan, how well its
+    #: calibration poses there determine the robots)
+    facility_rows: bool = False
 
     def resolved(self, config: Config, workspace: Workspace) -> Resolved:
         resolved = _load(f"{self.package}.stage:resolve")(config, workspace)
@@ -72,6 +76,10 @@ class StageEntry:
     def note(self, config: Config, workspace: Workspace) -> str:
         """What ``status`` says of the stage's finished results (empty: nothing)."""
         return str(_load(f"{self.package}.stage:status_note")(config, workspace)) if self.notes else ""
+
+    def facility_report(self, config: Config) -> list[tuple[str, str]]:
+        """What ``speedplus facility`` prints for this stage on ``config``'s facility folder."""
+        return list(_load(f"{self.package}.stage:facility_rows")(config)) if self.facility_rows else []
 
     def skipped_in_chain(self, config: Config) -> bool:
         """Whether ``speedplus run`` (or any command of several stages) leaves it out."""
@@ -99,7 +107,7 @@ def _load(entry_point: str) -> Callable[..., Any]:
 
 STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
-               engines=True, may_skip=True, notes=True),
+               engines=True, may_skip=True, notes=True, facility_rows=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire", engines=True),
     StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate"),

@@ -85,15 +85,17 @@ def camera_fixture(facility: Facility) -> np.ndarray:
 
 
 def reconfigure_on(facility: Facility, cam_from_target: np.ndarray, mount: str, target: Target, seed: int,
-                   rng: np.random.Generator, margin: float, limits: Counter[str]) -> Reconfiguration | None:
+                   rng: np.random.Generator, margin: float, limits: Counter[str],
+                   spread_rail: bool = False) -> Reconfiguration | None:
     """Commands that realise ``cam_from_target`` (mock-up scale) with the target on fixture
-    ``mount``, or None, counting in ``limits`` what stopped each attempt."""
+    ``mount``, or None, counting in ``limits`` what stopped each attempt; ``spread_rail``:
+    a rail position drawn within the arm's reach first (``Robot.reach``)."""
     flange_from_target = g.invert(layout.target_from_targetee(target, mount))
     candidates = placements(facility, cam_from_target, _points(facility, seed), rng, ATTEMPTS, flange_from_target)
     if not candidates:
         limits["the room cannot hold the camera at that distance"] += 1
     for world_from_cam, world_from_target in candidates:
-        found = _attempt(facility, world_from_cam, world_from_target, flange_from_target, rng, margin)
+        found = _attempt(facility, world_from_cam, world_from_target, flange_from_target, rng, margin, spread_rail)
         if isinstance(found, Reconfiguration):
             return found
         limits[found] += 1
@@ -101,7 +103,8 @@ def reconfigure_on(facility: Facility, cam_from_target: np.ndarray, mount: str, 
 
 
 def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: np.ndarray,
-             flange_from_target: np.ndarray, rng: np.random.Generator, margin: float) -> Reconfiguration | str:
+             flange_from_target: np.ndarray, rng: np.random.Generator, margin: float,
+             spread_rail: bool = False) -> Reconfiguration | str:
     room = np.asarray(facility.spec.room_m)
     if not np.all((world_from_cam[:3, 3] > 0) & (world_from_cam[:3, 3] < room)):
         return "the camera would leave the room"
@@ -111,7 +114,7 @@ def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: 
         holder = facility.holder(carried)
         if isinstance(holder, StaticSpec):
             continue
-        found = holder.reach(pose, rng, margin, fixture)
+        found = holder.reach(pose, rng, margin, fixture, spread_rail)
         if found is None:
             return f"{holder.spec.name} cannot reach the {carried}'s pose"
         held[carried] = (holder, *found)
@@ -130,35 +133,6 @@ def _attempt(facility: Facility, world_from_cam: np.ndarray, world_from_target: 
 def light_box_centres(facility: Facility) -> np.ndarray:
     """(B, 3) the facility's light boxes' centres in K, m."""
     return np.array([box.centre_m for box in facility.spec.light_boxes]).reshape(-1, 3)
-
-
-def calibration_observability(facility: Facility, rows: list[dict], target: Target) -> str | None:
-    """What the plan's calibration poses determine of the facility's robots
-    (``observability.observability`` at the reference tolerances, ``REFERENCE_PRIORS``:
-    the plan does not read calibrate's own priors, which are not the plan's to depend on),
-    in words; None without calibration poses or robots."""
-    from stages.common.arms import Payload
-    from stages.common.robots import identification, observability
-    from stages.common.robots.errors import Holders
-
-    holders = Holders.of(facility)
-    chosen = [row for row in rows if row["session"] == "calibration"]
-    if not chosen or not holders.robots:
-        return None
-    up = np.array([0.0, 0.0, 1.0])  # a facility's room: K's z is up (manifests/facility.py)
-
-    def joints(key: str, holder: object) -> np.ndarray:
-        if not hasattr(holder, "chain"):
-            return np.zeros((len(chosen), 0))
-        return np.array([row[key] for row in chosen], float)
-
-    m = identification.measure(holders, (joints("camera_joints_rad", holders.camera),
-                                         joints("target_joints_rad", holders.target)),
-                               np.array([row["rail_m"] or 0.0 for row in chosen], float),
-                               tuple(row["mount"] for row in chosen), Payload.of(target), up)
-    prior = holders.priors(**observability.REFERENCE_PRIORS)
-    measure = observability.observability(holders, m, prior, Payload.of(target), up)
-    return measure.describe(len(chosen))
 
 
 def needed_redraws(share: float, count: int, run_out: float = RUN_OUT) -> int:

@@ -7,6 +7,7 @@ run regenerates exactly the missing rows.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from pathlib import Path
 
@@ -22,12 +23,12 @@ from manifests.sample_ids import SESSION_CODES
 from manifests.sidecars import TrajectoriesRecord, write_trajectories
 from stages.common import geometry as g
 from stages.common import layout
-from stages.common.robots.facility import Facility, presented_share
+from stages.common.robots.facility import Facility, load_facility, presented_share
 from stages.common.target import Target
 from stages.common.workspace_target import install, planned_target
+from stages.plan import calibration_choice
 from stages.plan.config import PlanConfig
 from stages.plan.facility_plan import (
-    calibration_observability,
     camera_fixture,
     dataset_redraws,
     light_box_centres,
@@ -91,14 +92,15 @@ def trajectory_rows(config: Config, target: Target) -> tuple[list[dict], Traject
 
 
 def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None,
-                max_redraws: int | None = None) -> dict:
+                max_redraws: int | None = None, candidate: int = 0) -> dict:
     """One row of the plan manifest (of ``target``, default the configured one).
     Unreachable relative poses are redrawn and counted, up to ``max_redraws`` (default
-    ``plan.max_redraws``) times."""
+    ``plan.max_redraws``) times. ``candidate``: another draw of the same sample, from its
+    own stream (``calibration_choice`` keeps the best of several)."""
     plan, testbed, camera = config.plan, config.testbed, config.camera
     target = planned_target(config) if target is None else target
     facility = planned_facility(config)
-    rng = np.random.default_rng([plan.seed, SESSION_CODES[session], index])
+    rng = np.random.default_rng([plan.seed, SESSION_CODES[session], index, *([candidate] if candidate else [])])
     if session == "calibration":
         view, light = target.view_names[0], "ambient"
     else:
@@ -122,7 +124,8 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         if isinstance(facility.holder("target"), StaticSpec):
             mount = plan.calibration_mounts[0]  # mounted once on its stand
         return cam_from_target, mount, reconfigure_on(facility, cam_from_target, mount, target, plan.seed, rng,
-                                                      plan.joint_limit_margin_rad, limits)
+                                                      plan.joint_limit_margin_rad, limits,
+                                                      spread_rail=session == "calibration")
 
     redraws, cap = 0, plan.max_redraws if max_redraws is None else max_redraws
     cam_from_target, mount, commands = draw()
@@ -179,6 +182,19 @@ def _unreachable(sample_id: str, draws: int, testbed: TestbedConfig, target: Tar
                          f"(or raise plan.max_redraws){hint}")
 
 
+def facility_rows(config: Config) -> list[tuple[str, str]]:
+    """``speedplus facility``'s rows of the plan: how well the calibration poses the plan
+    draws on ``config``'s facility (``plan.n_calibration`` of them, chosen as ``run`` chooses
+    them) determine its robots, before anything is captured."""
+    facility = load_facility(Path(config.facility.path))
+    target = planned_target(config)
+    # the calibration session alone: the dataset's lights are not its to check
+    config = config.replace(plan=dataclasses.replace(config.plan, n_dataset=0))
+    chosen = _chosen_calibration(config, facility, target, [("calibration", 0, "")])
+    said = calibration_choice.describe(facility, list(chosen.values()), target)
+    return [] if said is None else [("calibration poses", said)]
+
+
 def status_note(config: Config, workspace: Workspace) -> str:
     """The share of the dataset poses drawn that the facility presented (``status``)."""
     rows = read_manifest(workspace, "plan").select(["session", "redraws", "view", "sequence_id"]).to_pylist()
@@ -219,6 +235,21 @@ def _dataset_redraws(config: Config, facility: Facility | None, target: Target,
     return redraws
 
 
+def _chosen_calibration(config: Config, facility: Facility | None, target: Target,
+                        todo: list[tuple[str, int, str]]) -> dict[str, dict]:
+    """The calibration rows of a facility folder's plan, chosen for what they determine of
+    its robots (``calibration_choice``), by sample id; none on TRON (its closed-form grid)
+    or when no calibration sample is left to plan."""
+    if facility is None or config.plan.mode == "trajectory" or not any(s == "calibration" for s, _, _ in todo):
+        return {}
+    count = config.plan.n_calibration
+    ids = [sample_ids.make("calibration", i) for i in range(count)]
+    rows = calibration_choice.choose_calibration(
+        facility, target, count,
+        lambda i, k: plan_sample(config, "calibration", i, ids[i], target, config.plan.max_redraws, candidate=k))
+    return dict(zip(ids, rows, strict=True))
+
+
 def run(config: Config, workspace: Workspace) -> pa.Table:
     """Plan every sample missing from ``W/manifests/plan`` for the configured target, and
     copy the target into ``W/target`` for the later stages; returns the whole plan."""
@@ -234,9 +265,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         chosen = dataset_range(config.plan, target, config.testbed, room=facility is None)
         print(f"plan: {chosen.describe(target)}")
     redraws = {"calibration": config.plan.max_redraws, "dataset": _dataset_redraws(config, facility, target, todo)}
+    chosen = _chosen_calibration(config, facility, target, todo)
     with open_sink(workspace, "plan", config.run.part_rows) as sink:
         for session, index, sample_id in track(todo, len(todo), "plan"):
-            sink.add(sequences[sample_id] if sample_id in sequences
+            sink.add(sequences[sample_id] if sample_id in sequences else chosen[sample_id] if sample_id in chosen
                      else plan_sample(config, session, index, sample_id, target, redraws[session]))
     if config.plan.mode == "trajectory":
         write_trajectories(workspace, record)
@@ -246,7 +278,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     table = read_manifest(workspace, "plan")
     if facility is not None:
         print(f"plan: {presented_share(table.to_pylist(), facility.spec.name)}")
-        observed = calibration_observability(facility, table.to_pylist(), target)
+        observed = calibration_choice.describe(facility, table.to_pylist(), target)
         if observed is not None:
             print(f"plan: {observed}")
     return table

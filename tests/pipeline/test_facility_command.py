@@ -14,10 +14,12 @@ TESTS = Path(__file__).resolve().parents[1] / "facilities"
 
 
 def test_a_facility_is_checked_and_measured():
-    result = speedplus("facility", str(TESTS / "ur10_tripod"), "--distance", "0.6", "1.2", "--samples", "24")
+    result = speedplus("facility", str(TESTS / "ur10_tripod"), "--distance", "0.6", "1.2", "--samples", "24",
+                       "--calibration-poses", "6")
     assert result.returncode == 0, result.stderr
-    text = " ".join(result.stdout.split())
-    for expected in ("ur10", "numerical", "tripod", "static mount", "presentable", "% of SO(3)", "95% interval"):
+    text = " ".join(result.stdout.replace("│", " ").split())
+    for expected in ("ur10", "numerical", "tripod", "static mount", "presentable", "% of SO(3)", "95% interval",
+                     "6 calibration poses determine the robots'", "smallest singular value", "weakly determined"):
         assert expected in text, expected
 
 
@@ -57,7 +59,7 @@ def test_the_rehearsals_card_is_shown_and_known_stale(tmp_path):
     folder = tmp_path / "lab"
     shutil.copytree(TESTS / "ur10_tripod", folder)
     (folder / "rehearsal.json").unlink(missing_ok=True)
-    args = ("facility", str(folder), "--distance", "0.6", "1.2", "--samples", "16")
+    args = ("facility", str(folder), "--distance", "0.6", "1.2", "--samples", "16", "--calibration-poses", "0")
     assert "none yet" in " ".join(speedplus(*args).stdout.split())
     write_rehearsal(folder, RehearsalRecord(facility_digest(folder), "smoke", (), "cubesat3u", (71, 72), 16, 12,
                                             (0.5, 0.9), 2.4, (0.9, 0.95, 0.85), (1.0, 0.9, 1.2)))

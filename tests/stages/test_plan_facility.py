@@ -258,3 +258,24 @@ def test_the_redraws_a_share_needs():
         cap = needed_redraws(share, count)
         assert all_drawn(share, count, cap) >= 0.99 > all_drawn(share, count, cap - 1)
     assert needed_redraws(1.0, 10) == 0
+
+
+def test_calibration_poses_are_chosen_for_what_they_determine(abb, tmp_path):
+    """The plan keeps, of each calibration sample's candidates, the one that best determines
+    the robots (stages/plan/calibration_choice.py): its smallest singular value is above that
+    of the first candidates alone, and ``speedplus facility`` measures the same choice."""
+    from stages.common.robots.observability import measure_of
+    from stages.plan import calibration_choice
+    from stages.plan.stage import facility_rows, plan_sample
+
+    workspace, rows = abb
+    folder = FACILITIES / "abb_rail"
+    config = load_config("smoke", overrides=[f"facility.path={folder}", "plan.n_dataset=0"])
+    facility, target = load_facility(folder), load_target(workspace / "target")
+    chosen = [row for row in rows if row["session"] == "calibration"]
+    first = [plan_sample(config, "calibration", i, row["sample_id"], target, candidate=0)
+             for i, row in enumerate(chosen)]
+    measured = [measure_of(calibration_choice.rows_of(facility, r, target)) for r in (chosen, first)]
+    assert measured[0].smallest > measured[1].smallest
+    assert len(measured[0].weak) <= len(measured[1].weak)
+    assert facility_rows(config) == [("calibration poses", measured[0].describe(len(chosen)))]

@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 
 from speedplus.errors import FileError
-from stages.common import geometry as g
 
 #: joint types a serial arm may have between base and flange (URDF names)
 MOVING = ("revolute", "continuous", "prismatic")
@@ -67,7 +66,7 @@ class SerialChain:
         current = np.broadcast_to(np.eye(4), joints.shape[:-1] + (4, 4))
         out = []
         for index in range(self.dof):
-            current = current @ self.origins[index] @ self._motion(index, joints[..., index])
+            current = current @ self.origins[index] @ self.motion(index, joints[..., index])
             out.append(current)
         out.append(current @ self.origins[-1])
         return np.stack(out, axis=-3)
@@ -76,11 +75,23 @@ class SerialChain:
         """``base_from_flange`` (..., 4, 4) for joints (..., J)."""
         return self.frames(joints)[..., -1, :, :]
 
-    def _motion(self, index: int, value: np.ndarray) -> np.ndarray:
+    def motion(self, index: int, value: np.ndarray) -> np.ndarray:
+        """(..., 4, 4) joint ``index``'s motion by ``value`` (...) rad or m: a translation
+        along its axis, or Rodrigues' rotation about it, ``I + sin K + (1 - cos) K^2`` with
+        ``K`` the axis's cross-product matrix (written out: the inverse kinematics calls it
+        for every joint of every start at every step)."""
+        value = np.asarray(value, dtype=np.float64)
         axis = self.axes[index]
+        out = np.zeros(value.shape + (4, 4))
+        out[..., 3, 3] = 1.0
         if self.kinds[index] == "prismatic":
-            return g.make_transform(np.broadcast_to(np.eye(3), value.shape + (3, 3)), value[..., None] * axis)
-        return g.make_transform(g.rotvec_to_matrix(value[..., None] * axis), np.zeros(value.shape + (3,)))
+            out[..., :3, :3] = np.eye(3)
+            out[..., :3, 3] = value[..., None] * axis
+            return out
+        cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+        out[..., :3, :3] = (np.eye(3) + np.sin(value)[..., None, None] * cross
+                            + (1.0 - np.cos(value))[..., None, None] * (cross @ cross))
+        return out
 
     def jacobian(self, joints: np.ndarray) -> np.ndarray:
         """(6, J) geometric Jacobian at one joint vector (J,): rows linear (m) then angular

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.common import geometry as g
 from stages.common.robots.chain import SerialChain
 from stages.common.robots.facility import Facility, Robot, pose_matrix
 from stages.common.rwhe import transform_from_vector
@@ -108,7 +107,7 @@ class HolderModel:
         current = self.base_at(rail_m[None] * (1.0 + scale[:, None]))  # (K, N, 4, 4)
         for index in range(self.joints):
             current = current @ (self.chain.origins[index] @ errors[:, index])[:, None]
-            current = current @ _motion(self.chain, index, links[..., index])
+            current = current @ self.chain.motion(index, links[..., index])
         return current @ (self.chain.origins[-1] @ errors[:, -1])[:, None]
 
     def torques(self, joints: np.ndarray, rail_m: np.ndarray, mass_kg: float, load_in_flange_m: np.ndarray,
@@ -124,14 +123,6 @@ class HolderModel:
             lever = self.chain.forward(q)[:3, :3] @ load_in_flange_m[i]
             out[i] = self.chain.jacobian(q).T @ np.concatenate([force, np.cross(lever, force)])
         return out
-
-
-def _motion(chain: SerialChain, index: int, value: np.ndarray) -> np.ndarray:
-    """(..., 4, 4) joint ``index``'s motion by ``value`` (...) rad or m."""
-    axis = chain.axes[index]
-    if chain.kinds[index] == "prismatic":
-        return g.make_transform(np.broadcast_to(np.eye(3), value.shape + (3, 3)), value[..., None] * axis)
-    return g.make_transform(g.rotvec_to_matrix(value[..., None] * axis), np.zeros(value.shape + (3,)))
 
 
 @dataclass(frozen=True)

@@ -67,12 +67,14 @@ class Robot:
         return g.apply(base, a), g.apply(base, b), radius
 
     def reach(self, world_from_tool: np.ndarray, rng: np.random.Generator, margin: float = 0.0,
-              flange_from_tool: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
+              flange_from_tool: np.ndarray | None = None, spread_rail: bool = False) -> tuple[np.ndarray, float] | None:
         """(joints (J,), rail m) that put the carried frame at ``world_from_tool`` (4, 4), held
-        at ``flange_from_tool`` (default: the folder's), or None."""
+        at ``flange_from_tool`` (default: the folder's), or None. ``spread_rail``: first try a
+        rail position drawn uniformly within the arm's reach of the pose (a calibration that
+        moves the rail, and so can measure its scale), then the nearest ones."""
         mount = pose_matrix(self.spec.flange_from_tool) if flange_from_tool is None else flange_from_tool
         world_from_flange = world_from_tool @ g.invert(mount)
-        for rail_m in self._rail_candidates(world_from_flange[:3, 3]):
+        for rail_m in self._rail_candidates(world_from_flange[:3, 3], rng if spread_rail else None):
             base_from_flange = g.invert(self.world_from_base(rail_m)) @ world_from_flange
             if np.linalg.norm(base_from_flange[:3, 3]) > self.chain.reach_bound_m:
                 continue  # out of any reach: no inverse to try
@@ -81,13 +83,17 @@ class Robot:
                 return joints, rail_m
         return None
 
-    def _rail_candidates(self, flange_world: np.ndarray) -> list[float]:
+    def _rail_candidates(self, flange_world: np.ndarray, rng: np.random.Generator | None = None) -> list[float]:
         if self.spec.rail is None:
             return [0.0]
         low, high = self.spec.rail.travel_m
         base = np.asarray(self.spec.world_from_base.t)
-        nearest = float(np.clip((flange_world - base) @ np.asarray(self.spec.rail.axis), low, high))
-        candidates = [float(np.clip(nearest + step * self.reach_m, low, high)) for step in RAIL_STEPS]
+        along = float((flange_world - base) @ np.asarray(self.spec.rail.axis))
+        nearest = float(np.clip(along, low, high))
+        start = float(np.clip(along - self.reach_m, low, high))
+        end = float(np.clip(along + self.reach_m, low, high))
+        drawn = [] if rng is None else [float(rng.uniform(start, end))]
+        candidates = drawn + [float(np.clip(nearest + step * self.reach_m, low, high)) for step in RAIL_STEPS]
         return list(dict.fromkeys(round(c, 6) for c in candidates))
 
 

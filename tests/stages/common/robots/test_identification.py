@@ -155,3 +155,23 @@ def test_the_observability_measure_names_what_the_poses_leave_to_the_prior(holde
     assert still.weak["ur10_camera.rail.scale"] > 0.99
     assert still.smallest < moving.smallest and still.under_prior > moving.under_prior
     assert "ur10_camera.rail.scale (100% of its prior)" in still.describe(48)
+
+
+def test_the_greedy_choice_takes_the_pose_that_determines_the_worst_direction():
+    """Two parameters, one free offset: after a pose that measures only the first
+    parameter, the next slot takes the candidate that measures the second, not a second
+    copy of the first (which would raise the determinant's share of the first alone)."""
+    from stages.common.robots.observability import Rows, choose, measure_of
+
+    first = np.zeros((6, 2))
+    first[0, 0] = 10.0
+    second = np.zeros((6, 2))
+    second[1, 1] = 3.0
+    offsets = np.zeros((6, 1))
+    offsets[2, 0] = 1.0  # the offset is measured by a row no arm parameter moves
+    rows = Rows(np.stack([first, first * 2, second]), np.stack([offsets] * 3), ("a", "b"))
+    assert choose(rows, [[0], [1, 2]]) == [0, 2]
+    # where the prior still holds a direction either way, the larger determinant decides
+    assert choose(rows, [[2, 0], [1, 2]]) == [0, 2]
+    assert measure_of(Rows(rows.arm[[0, 2]], rows.offsets[[0, 2]], ("a", "b"))).weak == {}
+    assert set(measure_of(Rows(rows.arm[[0, 1]], rows.offsets[[0, 1]], ("a", "b"))).weak) == {"b"}

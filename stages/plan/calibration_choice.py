@@ -1,0 +1,79 @@
+"""The calibration poses of a facility's own robots, chosen for what they determine
+(docs/architecture.md section 11; issue 57, part 2).
+
+Each calibration pose drawn at random sees the board at the calibration distance, but on a
+facility folder's arms nothing makes the set determine the arms' parameters: a rail arm
+drawn nearest first never leaves its rail's end, and its scale is left to its prior. So
+each calibration sample is drawn ``CANDIDATES`` times (its own seeded streams, the rail
+spread over the arm's reach) and the candidate kept is the one that most raises the
+smallest eigenvalue of the identification's posterior precision, given the samples before
+it (``observability.choose``). The measure is the smallest singular value, not the
+condition number: in prior sigmas it says how well the worst direction is determined
+against the lab's own tolerance, which a ratio of two singular values does not.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from core.progress import track
+from stages.common.arms import Payload
+from stages.common.robots import identification, observability
+from stages.common.robots.errors import HolderModel, Holders
+from stages.common.robots.facility import Facility
+from stages.common.target import Target
+
+#: candidates drawn for each calibration sample; the plan keeps one
+CANDIDATES = 3
+#: a facility's room: K's z is up (manifests/facility.py)
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+def readings(facility: Facility, rows: list[dict[str, Any]], target: Target) -> tuple[Holders, identification.Measured]:
+    """The facility's arm models and the readings of plan ``rows`` (joints, rail, fixture)."""
+    holders = Holders.of(facility)
+
+    def joints(key: str, holder: object) -> np.ndarray:
+        if not isinstance(holder, HolderModel):
+            return np.zeros((len(rows), 0))
+        return np.array([row[key] for row in rows], float)
+
+    m = identification.measure(holders, (joints("camera_joints_rad", holders.camera),
+                                         joints("target_joints_rad", holders.target)),
+                               np.array([row["rail_m"] or 0.0 for row in rows], float),
+                               tuple(row["mount"] for row in rows), Payload.of(target), WORLD_UP)
+    return holders, m
+
+
+def rows_of(facility: Facility, rows: list[dict[str, Any]], target: Target) -> observability.Rows:
+    """``observability.Rows`` of plan ``rows`` at the reference tolerances (``REFERENCE_PRIORS``:
+    the plan does not read calibrate's own priors, which are not the plan's to depend on)."""
+    holders, m = readings(facility, rows, target)
+    prior = holders.priors(**observability.REFERENCE_PRIORS)
+    return observability.jacobian_rows(holders, m, prior, Payload.of(target), WORLD_UP)
+
+
+def describe(facility: Facility, rows: list[dict[str, Any]], target: Target) -> str | None:
+    """What the calibration rows among ``rows`` determine of the facility's robots, in
+    words; None without calibration rows or robots."""
+    chosen = [row for row in rows if row["session"] == "calibration"]
+    if not chosen or not Holders.of(facility).robots:
+        return None
+    return observability.measure_of(rows_of(facility, chosen, target)).describe(len(chosen))
+
+
+def choose_calibration(facility: Facility, target: Target, count: int,
+                       draw: Callable[[int, int], dict[str, Any]]) -> list[dict[str, Any]]:
+    """The ``count`` calibration rows, sample ``i`` the best of ``draw(i, k)`` for k under
+    ``CANDIDATES`` (module docstring). All are drawn and chosen whatever a resumed plan
+    has already written: the choice of a sample depends on those before it."""
+    if count == 0 or not Holders.of(facility).robots:
+        return [draw(i, 0) for i in range(count)]
+    pairs = [(i, k) for i in range(count) for k in range(CANDIDATES)]
+    candidates = [draw(i, k) for i, k in track(pairs, len(pairs), "plan: calibration candidates")]
+    rows = rows_of(facility, candidates, target)
+    picked = observability.choose(rows, [[i * CANDIDATES + k for k in range(CANDIDATES)] for i in range(count)])
+    return [candidates[p] for p in picked]
