@@ -8,7 +8,13 @@ flange, which covers that side. They are chosen for the rigid-body fit they give
 whole target (``marker_fit``), not for their spread on one part: from directions all round
 the mock-up, the markers whose surface faces that way are the ones seen, and the set is
 the one (greedy, then one exchange pass) that minimises the mean position variance of the
-fit at the target's centre over those directions. A target whose main body is a small part
+fit at the target's centre over those directions. Where the room's cameras and the poses
+the mock-up will be held in are known (the virtual testbed, from the plan and the room:
+``Sightlines``), the markers are chosen for those instead: a marker counts at a pose when
+two of the room's cameras see it, inside their field of view and range, past every part
+of the mock-up, as the motion capture itself will see it (issue 57: a 1:4 rocket body's
+markers chosen for a ring of cameras were seen by TRON's, at the smoke profile's
+calibration poses, one or two at a time). A target whose main body is a small part
 of its span (a bus with long panels) thus gets markers on the panels too: on the body alone
 they would sit within a few centimetres of each other, and the fit's rotation, and the
 position it implies a panel's length away, would err by centimetres. Each marker's centre
@@ -17,12 +23,14 @@ stands ``STAND_OFF_M`` off the surface along its outward normal.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from manifests.target import TargetError
+from stages.common import geometry as g
 from stages.common import layout
 from stages.common.marker_fit import mean_point_variance
 from stages.common.target import MeshPart, Target, farthest_points, main_body_part
@@ -52,6 +60,12 @@ RING_CAMERAS = 12
 #: a Fibonacci sphere), and the candidates it weighs at most
 ATTITUDES = 96
 MAX_CANDIDATES = 600
+#: cameras that must see a marker for the system to place it
+MIN_CAMERAS = 2
+
+#: which candidate markers (centres (C, 3), normals (C, 3), T, mock-up scale) are placed
+#: at each of D poses: (C, D)
+Sight = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -124,15 +138,49 @@ def _hull(points: np.ndarray) -> ConvexHull:
         return ConvexHull(points, qhull_options="QJ")
 
 
-def markers(target: Target) -> Markers:
-    """The declared markers (normals from the main body's nearest hull face), else ``chosen``."""
+@dataclass(frozen=True)
+class Sightlines:
+    """A room's motion-capture cameras and the poses the mock-up will be held in, in K
+    (m, mock-up scale): positions (J, 3), the points they aim at (J, 3), their full field
+    of view (rad) and range (m), and ``world_from_target`` (D, 4, 4)."""
+
+    cameras_m: np.ndarray
+    aims_m: np.ndarray
+    fov_rad: float
+    max_range_m: float
+    world_from_target: np.ndarray
+
+    def seen(self, centres: np.ndarray, body: Occluders) -> np.ndarray:
+        """(C, D) whether ``MIN_CAMERAS`` cameras see each marker centre (C, 3; T) at each
+        pose: inside their field of view and range, the sight line clear of every part's
+        hull (shortened by 0.5% at the marker, whose own face it ends on)."""
+        boresight = self.aims_m - self.cameras_m
+        boresight /= np.linalg.norm(boresight, axis=1, keepdims=True)
+        out = np.zeros((len(centres), len(self.world_from_target)), bool)
+        for d, world_from_target in enumerate(self.world_from_target):
+            world = g.apply(world_from_target, centres)
+            to_marker = world[None] - self.cameras_m[:, None]  # (J, C, 3)
+            distance = np.linalg.norm(to_marker, axis=-1)
+            inside = ((np.einsum("jci,ji->jc", to_marker, boresight) / distance > np.cos(self.fov_rad / 2))
+                      & (distance < self.max_range_m))
+            cameras_body = g.apply(g.invert(world_from_target), self.cameras_m)  # (J, 3)
+            starts = np.repeat(cameras_body, len(centres), axis=0)
+            ends = np.tile(centres, (len(cameras_body), 1))
+            hidden = body.hides(starts, starts + 0.995 * (ends - starts)).reshape(inside.shape)
+            out[:, d] = np.sum(inside & ~hidden, axis=0) >= MIN_CAMERAS
+        return out
+
+
+def markers(target: Target, sight: Sight | None = None) -> Markers:
+    """The declared markers (normals from the main body's nearest hull face), else
+    ``chosen`` (for ``sight``, the room's cameras at the planned poses, where given)."""
     if target.markers_m is not None:
         hull = main_body_hull(target)
         centres = np.asarray(target.markers_m, float) * target.mockup_scale
         # the face whose plane the marker stands farthest outside of is the one it is stuck on
         face = np.argmax(centres @ hull.normals.T + hull.offsets, axis=1)
         return Markers(centres, hull.normals[face], False, (main_body_part(target).name,) * len(centres))
-    return chosen(target)
+    return chosen(target, sight)
 
 
 def candidates(target: Target) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -208,13 +256,15 @@ def seen_from_room(normals: np.ndarray, ups: np.ndarray) -> np.ndarray:
     return facing.sum(axis=-1) >= 2
 
 
-def chosen(target: Target) -> Markers:
+def chosen(target: Target, sight: Sight | None = None) -> Markers:
     """``CHOSEN_MARKERS`` of the ``candidates`` that give the best fit over the whole
-    target (module docstring): three spread far apart to start, each next the one that most
-    lowers the mean position variance at the centre, then each exchanged for a better one."""
+    target (module docstring), where they are seen: by ``sight`` (the room's cameras at the
+    planned poses), else by a ring of cameras over every attitude (``seen_from_room``).
+    Three spread far apart to start, each next the one that most lowers the mean position
+    variance at the centre, then each exchanged for a better one."""
     centre, normal, owner = candidates(target)
     point = target.centre_m * target.mockup_scale
-    seen = seen_from_room(normal, up_directions())  # (C, D)
+    seen = seen_from_room(normal, up_directions()) if sight is None else sight(centre, normal)  # (C, D)
     start = farthest_points(centre, point, 3)
     picked = [int(np.argmin(np.linalg.norm(centre - p, axis=1))) for p in start]
 

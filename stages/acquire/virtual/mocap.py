@@ -20,16 +20,37 @@ it); and the wand calibration's scale error scales every position in V.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from core.config import Config
 from stages.acquire.virtual.room import room_of
 from stages.common import geometry as g
-from stages.common.markers import Occluders
+from stages.common import layout
+from stages.common.markers import MIN_CAMERAS, Occluders, Sight, Sightlines
+from stages.common.target import Target
 
-MIN_CAMERAS = 2
 MIN_MARKERS = 3
+#: the planned poses the markers' choice weighs at most (evenly over the plan)
+PLANNED_VIEWS = 48
+
+
+def planned_sight(config: Config, target: Target, plan: list[dict[str, Any]], body: Occluders) -> Sight | None:
+    """Which of a mock-up's candidate markers this room's motion capture will see at the
+    plan's poses (``stages.common.markers.Sightlines``; the arms' links, which move between
+    captures, are left out), for choosing them; None without motion capture or a plan."""
+    room = room_of(config)
+    if room.mocap_positions_m is None or not plan:
+        return None
+    rows = [plan[i] for i in sorted(set(np.linspace(0, len(plan) - 1, PLANNED_VIEWS).round().astype(int)))]
+    world_from_target = np.stack([
+        g.transform_from_qt(row["world_from_targetee_q"], row["world_from_targetee_t"])
+        @ g.invert(layout.target_from_targetee(target, row["mount"])) for row in rows])
+    v = config.virtual
+    lines = Sightlines(room.mocap_positions_m, room.mocap_aims_m, v.vicon_fov_rad, v.vicon_max_range_m,
+                       world_from_target)
+    return lambda centres, normals: lines.seen(centres, body)
 
 
 @dataclass(frozen=True)

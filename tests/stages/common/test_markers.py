@@ -19,6 +19,7 @@ from stages.common.markers import (
     FIXTURE_CLEARANCE,
     STAND_OFF_M,
     Hull,
+    Sightlines,
     markers,
     occluders,
     seen_from_room,
@@ -164,3 +165,32 @@ def test_a_target_with_no_face_wide_enough_for_a_marker_is_an_error_naming_it(tm
     write_target_spec(folder, TargetSpec("truss", "truss.glb", "m", 1.0, 1.0))
     with pytest.raises(TargetError, match=r"target truss: no part is 20 mm wide.*declare \[mockup\] markers"):
         markers(load_target(folder))
+
+
+def test_markers_are_chosen_where_the_rooms_cameras_see_them_at_the_planned_poses(tmp_path):
+    """Issue 57: a 1:4 rocket body held one way, four cameras on one wall. Markers chosen
+    for a ring of cameras over every attitude are seen there a few at a time; chosen for
+    these cameras at these poses, three or more are placed at every pose, and more on
+    average. ``Sightlines`` hides a marker behind the mock-up's own parts: one on the far
+    side of the tank is placed by no camera."""
+    from bench.targets import rocket
+    from stages.common import geometry as g
+
+    target = load_target(rocket(tmp_path / "rocket"))
+    body = occluders(target)
+    rng = np.random.default_rng(5)
+    poses = np.stack([g.make_transform(g.rotvec_to_matrix(rng.normal(0.0, 0.3, 3)), [2.0, 1.5, 1.2])
+                      for _ in range(12)])
+    cameras = np.array([[x, 0.05, 2.6] for x in (0.5, 1.5, 2.5, 3.5)])
+    lines = Sightlines(cameras, np.tile([2.0, 1.5, 1.2], (4, 1)), np.radians(70.0), 8.0, poses)
+    ring, planned = markers(target), markers(target, lambda centres, normals: lines.seen(centres, body))
+    seen_ring, seen_planned = lines.seen(ring.centres_m, body), lines.seen(planned.centres_m, body)
+    assert seen_planned.sum(axis=0).min() >= 3
+    assert seen_planned.sum() > seen_ring.sum()
+    # a point just off the tank towards the cameras is placed; its mirror behind the tank is not
+    centre = target.centre_m * target.mockup_scale
+    for d, pose in enumerate(poses):
+        towards = g.apply(g.invert(pose), cameras).mean(axis=0) - centre
+        towards /= np.linalg.norm(towards)
+        near, behind = lines.seen(centre + np.array([0.15, -0.15])[:, None] * towards, body)[:, d]
+        assert near and not behind
