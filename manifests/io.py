@@ -258,6 +258,22 @@ def write_part(workspace: Workspace, spec: ManifestSpec | str, rows: pa.Table | 
     return final
 
 
+#: in a manifest's folder: its rows are a refused stage's diagnostics (calibrate's per-image
+#: reasons), kept for the user to read, not results; the stage replaces them when it runs
+DIAGNOSTICS_FILE = "REFUSED"
+
+
+def mark_diagnostics(workspace: Workspace, name: str) -> None:
+    """Say that manifest ``name`` holds a refusal's diagnostics (``DIAGNOSTICS_FILE``)."""
+    directory = workspace.manifest_dir(name)
+    if directory.is_dir():
+        (directory / DIAGNOSTICS_FILE).write_text("the rows of a refused stage, kept as its diagnostics\n")
+
+
+def is_diagnostics(workspace: Workspace, name: str) -> bool:
+    return (workspace.manifest_dir(name) / DIAGNOSTICS_FILE).is_file()
+
+
 def clear(workspace: Workspace, name: str) -> None:
     """Remove a manifest entirely (used by ``--force``)."""
     shutil.rmtree(workspace.manifest_dir(name), ignore_errors=True)

@@ -21,6 +21,7 @@ import os
 import shutil
 from pathlib import Path
 
+from manifests.io import mark_diagnostics
 from manifests.workspace import (
     CONFIG_FILE,
     MANIFESTS_DIR,
@@ -134,6 +135,8 @@ class Snapshot:
                 path.unlink()
         _move_back(saved, manifests)
         _move_back(self.folder / "files", root)
+        for name in kept:
+            mark_diagnostics(self.workspace, name)
         self.drop()
 
     def drop(self) -> None:

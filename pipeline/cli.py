@@ -182,10 +182,10 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     of the ``run`` section (how to execute, never what: engine, workers), wherever they come
     from. A run section in a --config file is the way to keep one.
 
-    The workspace changes only when the command succeeds: W/config.toml is written when
-    the first stage starts changing anything, and a refused or failed command puts back
-    every manifest, marker, JSON file and recorded file as it found them
-    (``manifests.snapshot``). Ctrl-C keeps the rows done."""
+    Each stage is its own transaction (``_transaction``): the stages a chain completed are
+    kept when a later one fails, and the failing one puts back every manifest, marker, JSON
+    file and recorded file it changed (``manifests.snapshot``). W/config.toml is written
+    when the first stage starts changing anything. Ctrl-C keeps the rows done."""
     transient = [*transient, *(o for o in saved if o.section == "run")]
     saved = [o for o in saved if o.section != "run"]
     resolved, ws, switched_from = _context(workspace, profile, config, saved)
@@ -202,64 +202,102 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
 
 def _transaction(stages: list[str], resolved: Config, transient: list[Override], ws: Workspace, force: bool,
                  switched_from: str | None, redo: tuple[str, ...]) -> None:
-    """The stages under the workspace's lock, with the undo record of ``manifests.snapshot``."""
+    """The stages under the workspace's lock, each stage its own transaction
+    (``manifests.snapshot``, docs/architecture.md section 4): a stage that completes is
+    kept, whatever comes after it, as make and Snakemake keep every finished target; a
+    stage that fails or is refused puts back what it changed (its own half-done work, with
+    a refusal's diagnostics), and the error says what the chain kept and how to resume.
+    Ctrl-C keeps the rows done (``runner.Interrupted``). ``W/config.toml`` is saved when
+    the first stage starts changing anything: what is kept resumes under the configuration
+    it was made with."""
     with _writing(ws):
-        snapshot = Snapshot(ws).take()
         started: list[str] = []
+        done: list[str] = []
         try:
-            _run_stages(stages, resolved, with_overrides(resolved, transient), ws, force, switched_from, started,
-                        redo)
+            for name in _chain(stages, resolved, ws, switched_from):
+                _one_stage(name, resolved, with_overrides(resolved, transient), ws, force, started, redo,
+                           follow=len(stages) > 1, kept=done)
+                done.append(name)
             write_config(resolved, ws.config_path)
-        except KeyboardInterrupt as interrupt:
-            if started:  # rows made under this configuration are kept: save it, so that they resume
-                write_config(resolved, ws.config_path)
-                snapshot.drop()
-            else:
-                snapshot.restore()
-            _interrupted(interrupt, force)
-        except BaseException as error:
-            snapshot.restore(error.keep if isinstance(error, RefusalError) else ())
+        except Exception as error:
+            if done and not isinstance(error, typer.Exit):
+                error.add_note(_kept_note(done, ws))
             raise
-        snapshot.drop()
 
 
-def _interrupted(interrupt: KeyboardInterrupt, force: bool) -> None:
-    """One line and exit 130 (click would otherwise swallow the interrupt without a word)."""
-    said = str(interrupt) if isinstance(interrupt, runner.Interrupted) else \
-        "interrupted: nothing was changed; run the same command to start again"
-    if force and isinstance(interrupt, runner.Interrupted):
-        said = said.replace("run the same command to resume", "run it again without --force to resume")
-    err.print(f"[yellow]{escape(said)}[/]", highlight=False)
-    raise typer.Exit(130)
+def _kept_note(done: list[str], ws: Workspace) -> str:
+    """What a chain that failed after some stages kept, and how to go on."""
+    return (f"kept: {', '.join(done)} (completed; `speedplus status -w {ws.location}` shows them); after the fix, "
+            "run the same command to resume from the stage that failed")
 
 
-def _run_stages(stages: list[str], saved: Config, resolved: Config, ws: Workspace, force: bool,
-                switched_from: str | None, started: list[str], redo: tuple[str, ...]) -> None:
+def _chain(stages: list[str], resolved: Config, ws: Workspace, switched_from: str | None) -> list[str]:
+    """The stages the command runs, after what must hold before any of them starts."""
     if resolved.run.engine == "ray" and resolved.run.ray_address:
         from core.engines.cluster import reachable
 
         reachable(resolved.run.ray_address)  # before --force discards anything
     if len(stages) > 1:
         stages = [name for name in stages if not registry.stage(name).skipped_in_chain(resolved)]
+    for name in stages:  # what can be refused is refused before the first stage changes anything
+        registry.stage(name).check(resolved, ws)
     if switched_from is not None:
         plan = runner.redo_plan(resolved, ws, registry.STAGES)
         listed = "; ".join(f"{name} ({why})" for name, why in plan) or "none"
-        out.print(escape(f"profile {switched_from} -> {saved.profile}: stages to redo: {listed}"), highlight=False)
-    def starting(name: str) -> None:
+        out.print(escape(f"profile {switched_from} -> {resolved.profile}: stages to redo: {listed}"), highlight=False)
+    return stages
+
+
+def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force: bool, started: list[str],
+               redo: tuple[str, ...], follow: bool, kept: list[str]) -> None:
+    """One stage of the command, its own transaction: a failure or refusal puts back what it
+    changed (``W/config.toml`` too when it was the first to start); Ctrl-C keeps its rows.
+    ``kept``: the stages of the chain done before it."""
+    snapshot = Snapshot(ws).take()
+    began = False
+
+    def starting() -> None:
+        nonlocal began
+        began = True
         # saved before the first stage changes anything: rows a killed command leaves resume
         # under the configuration they were made with (a failure puts the old file back)
         if not started:
             write_config(saved, ws.config_path)
         started.append(name)
 
-    for name in stages:
-        outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force,
-                                   on_start=lambda name=name: starting(name), redo=redo, follow=len(stages) > 1)
-        rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
-        if outcome.action == "skipped":
-            out.print(f"[green]{name}[/]: up to date ({rows})")
+    try:
+        outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force, on_start=starting, redo=redo,
+                                   follow=follow)
+    except KeyboardInterrupt as interrupt:
+        if began:  # rows made under this configuration are kept: save it, so that they resume
+            write_config(saved, ws.config_path)
+            snapshot.drop()
         else:
-            out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+            snapshot.restore()
+        _interrupted(interrupt, force, kept)
+    except BaseException as error:
+        snapshot.restore(error.keep if isinstance(error, RefusalError) else ())
+        if began:
+            started.remove(name)
+        raise
+    snapshot.drop()
+    rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
+    if outcome.action == "skipped":
+        out.print(f"[green]{name}[/]: up to date ({rows})")
+    else:
+        out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+
+
+def _interrupted(interrupt: KeyboardInterrupt, force: bool, kept: list[str]) -> None:
+    """One line and exit 130 (click would otherwise swallow the interrupt without a word);
+    ``kept``: the stages of the chain done before the one interrupted."""
+    said = str(interrupt) if isinstance(interrupt, runner.Interrupted) else (
+        f"interrupted before it changed anything; kept: {', '.join(kept)}; run the same command to resume" if kept
+        else "interrupted: nothing was changed; run the same command to start again")
+    if force and isinstance(interrupt, runner.Interrupted):
+        said = said.replace("run the same command to resume", "run it again without --force to resume")
+    err.print(f"[yellow]{escape(said)}[/]", highlight=False)
+    raise typer.Exit(130)
 
 
 _COMMON = (
@@ -335,15 +373,46 @@ def run_command(
     until: Annotated[str | None, typer.Option("--until", help="last stage to run: " + ", ".join(registry.CHAIN))]
     = None, target: TargetOption = None, facility: FacilityOption = None,
     engine: EngineOption = None, ray_address: RayAddressOption = None, workers: WorkersOption = None,
+    check: Annotated[bool, typer.Option(
+        "--check", "--dry-run", help="check every stage's inputs (models, folders, counts) and say what would run, "
+        "changing nothing")] = False,
 ) -> None:
-    """Run the stages of the chain in order, skipping those already up to date."""
+    """Run the stages of the chain in order, skipping those already up to date. Every
+    stage's checks run before the first stage starts; a stage that completes is kept if a
+    later one fails."""
     names = list(registry.CHAIN)
     if until is not None:
         if until not in names:
             raise typer.BadParameter(f"unknown stage {until!r}; stages: {', '.join(names)}", param_hint="--until")
         names = names[: names.index(until) + 1]
-    _run(names, workspace, profile, config, [*overrides(set_), *folders(target, facility)], force,
-         _engine(engine, ray_address, workers))
+    saved = [*overrides(set_), *folders(target, facility)]
+    if check:
+        _check(names, workspace, profile, config, saved, force)
+        return
+    _run(names, workspace, profile, config, saved, force, _engine(engine, ray_address, workers))
+
+
+def _check(stages: list[str], workspace: str | None, profile: str | None, config: Path | None,
+           saved: list[Override], force: bool) -> None:
+    """``run --check``: the chain's checks, and what each stage would do, as Snakemake's
+    dry run says (nothing is written, not even W/config.toml)."""
+    resolved, ws, switched_from = _context(workspace, profile, config, [o for o in saved if o.section != "run"])
+    table = Table(title=escape(f"{ws.location}: what `speedplus run` would do (profile {resolved.profile})"))
+    for column in ("stage", "now", "would"):
+        table.add_column(column)
+    redone = False
+    for name in _chain(stages, resolved, ws, switched_from):
+        state = runner.status(registry.stage(name), resolved, ws)
+        if state.state == "done" and not force and not redone:
+            would = "skip: up to date"
+        elif state.state == "stale" and not force and not redone and not state.replaced(registry.stage(name)):
+            would = f"refuse: {state.detail} (--force redoes it)"
+        else:
+            would = "resume" if state.state == "partial" and not force else "run"
+            redone = True
+        table.add_row(name, f"{state.state}: {state.detail}" if state.detail else state.state, escape(would))
+    out.print(table)
+    out.print("checks passed: models, folders and counts of every stage above")
 
 
 @app.command("status")
@@ -504,7 +573,8 @@ def main() -> None:
     try:
         app()
     except InputError as error:  # ManifestError among them
-        err.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False)
+        said = "\n".join([str(error), *getattr(error, "__notes__", ())])
+        err.print(f"[bold red]error:[/] {escape(said)}", highlight=False)
         sys.exit(1)
     except KeyboardInterrupt:
         err.print("[yellow]interrupted[/]")
@@ -512,7 +582,8 @@ def main() -> None:
     except Exception as error:  # noqa: BLE001 - the last line of defence: never a traceback
         log = _crash_log(error)
         err.print(f"[bold red]error:[/] unexpected {escape(type(error).__name__)}: {escape(str(error))[:300]} "
-                  f"(a bug of speedplus; the traceback is in {escape(str(log))})", highlight=False)
+                  f"(a bug of speedplus; the traceback is in {escape(str(log))})"
+                  + "".join(f"\n{escape(note)}" for note in getattr(error, "__notes__", ())), highlight=False)
         sys.exit(1)
 
 

@@ -27,8 +27,10 @@ class StageEntry:
     #: ``resolve(config, workspace)``, ``<package>.config`` its configuration sections
     #: (``SECTIONS``, which ``pipeline.config`` gathers)
     package: str
-    #: the package checks what it reads from outside the workspace (``preflight(config,
-    #: workspace)``: evaluate, every model against its contract) before anything is discarded
+    #: the package checks what it reads from outside the workspace, or what it will need of
+    #: the stages before it (``preflight(config, workspace)``: evaluate, every model against
+    #: its contract; calibrate, the plan's count of calibration samples) before anything is
+    #: discarded: a chain runs every stage's before its first stage starts
     preflight: bool = False
     chained: bool = True  # a step of `speedplus run`
     #: results made with another configuration are replaced without --force (they only
@@ -110,7 +112,8 @@ STAGES: tuple[StageEntry, ...] = (
                engines=True, may_skip=True, notes=True, facility_rows=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
                "capture and images", "stages.acquire", engines=True),
-    StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate"),
+    StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate",
+               preflight=True),
     StageEntry("fuse", "per-source poses, rejection, Bayesian fusion (W/fusion.json)", "stages.fuse"),
     StageEntry("label", "SPEED+ labels, keypoints, boxes", "stages.label"),
     StageEntry("render", "Mitsuba 3 synthetic twins of the labels (or, with --set train, the training set)",

@@ -39,6 +39,7 @@ from manifests import (
 )
 from manifests import clear as clear_manifest
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
+from manifests.io import is_diagnostics
 from manifests.marker import CompletionMarker, FileRecord, PartRecord
 from manifests.schema import MANIFESTS
 from pipeline.registry import STAGES, StageEntry
@@ -160,6 +161,12 @@ class StageStatus:
     detail: str
     #: stale only because members changed (evaluate: a model's file): redone one by one
     members_changed: tuple[str, ...] = ()
+    #: its rows are a refusal's diagnostics (``manifests.io.DIAGNOSTICS_FILE``): replaced freely
+    diagnostics: bool = False
+
+    def replaced(self, stage: StageEntry) -> bool:
+        """Stale results the stage replaces without --force."""
+        return self.state == "stale" and (stage.replace_stale or self.diagnostics)
 
 
 def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStatus:
@@ -183,6 +190,10 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
         detail = "waiting for " + ", ".join(inputs) if current is None else "not run"
         return StageStatus(stage.name, "missing", rows, detail)
     if current is None or recorded != {current}:
+        if not any(markers) and all(is_diagnostics(workspace, name) or not rows[name] for name in outputs):
+            return StageStatus(stage.name, "stale", rows, "the diagnostics of its last refusal, made with another "
+                               "configuration (its message said why); replaced when the stage runs",
+                               diagnostics=True)
         made = next((m.made_with for m in markers if m and m.fingerprint != current), None)
         return StageStatus(stage.name, "stale", rows,
                            differences(made, fingerprint_payload(stage, config, workspace)))
@@ -305,7 +316,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     if state.state == "done" and not force:
         return StageOutcome(stage.name, "skipped", state.rows, 0.0)
     force, state, forget = _member_redo(stage.name, state, resolved, force, redo)
-    replacing = state.state == "stale" and stage.replace_stale
+    replacing = state.replaced(stage)
     if state.state == "stale" and follow and not (force or replacing):
         redone = redone_inputs(stage, config, workspace)
         if redone:

@@ -40,6 +40,17 @@ from stages.common.tables import print_table
 __all__ = ["arm_decision", "compliance_decision", "resolve", "run"]
 
 
+def preflight(config: Config, workspace: Workspace | None = None) -> None:
+    """What can be refused before the chain's first stage runs: a virtual session's plan
+    that draws fewer calibration samples than calibrate needs (``calibrate.min_samples``)
+    would be planned and captured only to be refused here."""
+    planned = config.plan.n_calibration
+    if config.acquire.backend == "virtual" and planned < config.calibrate.min_samples:
+        raise InputError(f"plan.n_calibration = {planned}: calibrate needs at least {config.calibrate.min_samples} "
+                         "usable calibration samples (calibrate.min_samples), and screening may drop some; plan "
+                         f"{config.calibrate.min_samples} or more")
+
+
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the calibration session's captures (and ``W/session.json``); writes
     ``calibration_samples`` and ``W/calibration.json``."""

@@ -1,7 +1,8 @@
-"""A command changes the workspace only when it succeeds (issue: bring your own model, data
-and settings): refused and failed commands leave every byte as they found it, settings
-layer on the saved configuration, stale results say why, models are added beside the
-shipped ones, and Ctrl-C says what it kept."""
+"""A stage changes the workspace only when it succeeds (issue: bring your own model, data
+and settings; issue 58): refused and failed stages leave every byte as they found it, a
+chain keeps the stages it completed, what can be refused is refused before the first
+stage, settings layer on the saved configuration, stale results say why, models are
+added beside the shipped ones, and Ctrl-C says what it kept."""
 
 import hashlib
 import os
@@ -224,3 +225,59 @@ def test_a_file_given_as_the_workspace_is_named(tmp_path):
         said = " ".join(result.stderr.split())
         assert result.returncode == 1 and f"{file}: --workspace names a file" in said and "bug" not in said, said
     assert file.read_text() == "mine"
+
+
+def test_a_chain_that_fails_late_keeps_the_stages_it_completed(tmp_path):
+    """Issue 58: a refusal at calibrate does not throw away the plan and the captures. The
+    refused stage puts back its own work, the error's last line says what was kept, and the
+    same command, fixed, resumes: plan and acquire are up to date."""
+    root = tmp_path / "new"
+    args = ("run", "--workspace", str(root), "--profile", "smoke", "--until", "calibrate")
+    refused = speedplus(*args, "--set", "calibrate.max_rotation_error_rad=1e-9")
+    assert refused.returncode == 1 and "calibration refused" in refused.stderr
+    said = " ".join(refused.stderr.split())
+    last = said[said.index("calibration refused"):]
+    assert "kept: plan, acquire (completed;" in last and f"speedplus status -w {root}" in last, last
+    assert said.endswith("run the same command to resume from the stage that failed")
+    status = " ".join(speedplus("status", "--workspace", str(root)).stdout.split())
+    assert "│ plan │ done" in status and "│ acquire │ done" in status and "│ calibrate │ partial" in status, status
+    captured = sorted(p.name for p in (root / "images").rglob("*.png"))
+    assert len(captured) == 24 and not (root / "calibration.json").exists()
+    fixed = ("--set", "calibrate.max_rotation_error_rad=0.08726646259971647")
+    status = " ".join(speedplus("status", "--workspace", str(root), *fixed).stdout.split())
+    assert "the diagnostics of its last refusal" in status, status
+    resumed = speedplus(*args, *fixed)
+    assert resumed.returncode == 0, resumed.stderr
+    said = " ".join(resumed.stdout.split())
+    assert "plan: up to date" in said and "acquire: up to date" in said and "calibrate: ran" in said
+
+
+def test_what_can_be_refused_is_refused_before_the_first_stage(tmp_path):
+    """Issue 58: a mistyped model path and a plan too short for calibrate end the command
+    in seconds, before the plan, naming the key; `run --check` says what would run and
+    writes nothing; a new folder is not left behind."""
+    root = tmp_path / "new"
+    model = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--set", 'evaluate.models=["bad.onnx"]')
+    assert model.returncode == 1 and "bad.onnx: model file not found" in " ".join(model.stderr.split())
+    count = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--until", "calibrate",
+                      "--set", "plan.n_calibration=7")
+    said = " ".join(count.stderr.split())
+    assert count.returncode == 1 and "plan.n_calibration = 7: calibrate needs at least 8" in said, said
+    assert not root.exists()
+    check = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--check")
+    table = " ".join(check.stdout.split())
+    assert check.returncode == 0 and "│ plan │ missing: not run │ run │" in table and "checks passed" in table, table
+    assert not root.exists()
+    refused = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--check", "--set",
+                        "plan.n_calibration=7")
+    assert refused.returncode == 1 and "plan.n_calibration = 7" in " ".join(refused.stderr.split())
+
+
+def test_check_says_which_stages_are_up_to_date(finished):
+    before = digest(finished)
+    check = speedplus("run", "--workspace", str(finished), "--check", "--set", "fuse.rejection_k=2.5")
+    table = " ".join(check.stdout.split())
+    assert check.returncode == 0, check.stderr
+    assert "│ calibrate │ done │ skip: up to date │" in table
+    assert "│ fuse │ stale: fuse.rejection_k" in table and "refuse:" in table and "(--force redoes it)" in table
+    assert digest(finished) == before
