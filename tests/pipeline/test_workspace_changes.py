@@ -281,3 +281,29 @@ def test_check_says_which_stages_are_up_to_date(finished):
     assert "│ calibrate │ done │ skip: up to date │" in table
     assert "│ fuse │ stale: fuse.rejection_k" in table and "refuse:" in table and "(--force redoes it)" in table
     assert digest(finished) == before
+
+
+def _parts(root, name):
+    """Each part of a manifest, by name, with its bytes' hash."""
+    folder = root / "manifests" / name
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.glob("*.parquet"))}
+
+
+def test_a_stage_that_fails_late_keeps_every_stage_before_it_byte_for_byte(smoke_labelled, tmp_path):
+    """Issue 58: label fails once it has written all its rows (fault injection). Plan to fuse
+    are kept, byte for byte those of a chain that did not fail (same seed, same bytes);
+    label's rows are put back; the same command resumes with label alone."""
+    root = tmp_path / "new"
+    args = ("run", "--workspace", str(root), "--profile", "smoke", "--until", "label")
+    failed = speedplus(*args, env={"SPEEDPLUS_FAULT_FAIL_STAGE": "label"})
+    said = " ".join(failed.stderr.split())
+    assert failed.returncode == 1 and "injected fault: stage label" in said, said
+    assert "kept: plan, acquire, calibrate, fuse (completed;" in said
+    for name in ("plan", "captures", "truth", "calibration_samples", "poses"):
+        assert _parts(root, name) == _parts(smoke_labelled.root, name), name
+    assert (root / "calibration.json").read_bytes() == (smoke_labelled.root / "calibration.json").read_bytes()
+    assert not _parts(root, "labels")
+    resumed = speedplus(*args)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "fuse: up to date" in " ".join(resumed.stdout.split())
+    assert _parts(root, "labels") == _parts(smoke_labelled.root, "labels")
