@@ -241,6 +241,10 @@ def test_a_chain_that_fails_late_keeps_the_stages_it_completed(tmp_path):
     assert said.endswith("run the same command to resume from the stage that failed")
     status = " ".join(speedplus("status", "--workspace", str(root)).stdout.split())
     assert "│ plan │ done" in status and "│ acquire │ done" in status and "│ calibrate │ partial" in status, status
+    # the manifest the refusal sends the user to exists after it, with every image's reason
+    assert "every image's reason is in the calibration_samples manifest" in said
+    reasons = read_manifest(Workspace(root), "calibration_samples").to_pylist()
+    assert len(reasons) == 16 and all("reason" in row for row in reasons)
     captured = sorted(p.name for p in (root / "images").rglob("*.png"))
     assert len(captured) == 24 and not (root / "calibration.json").exists()
     fixed = ("--set", "calibrate.max_rotation_error_rad=0.08726646259971647")
