@@ -25,6 +25,7 @@ from stages.common.robots import identification, observability
 from stages.common.robots.errors import HolderModel, Holders
 from stages.common.robots.facility import Facility
 from stages.common.target import Target
+from stages.plan.poses import PlanningError
 
 #: candidates drawn for each calibration sample; the plan keeps one
 CANDIDATES = 3
@@ -68,12 +69,22 @@ def describe(facility: Facility, rows: list[dict[str, Any]], target: Target) -> 
 def choose_calibration(facility: Facility, target: Target, count: int,
                        draw: Callable[[int, int], dict[str, Any]]) -> list[dict[str, Any]]:
     """The ``count`` calibration rows, sample ``i`` the best of ``draw(i, k)`` for k under
-    ``CANDIDATES`` (module docstring). All are drawn and chosen whatever a resumed plan
-    has already written: the choice of a sample depends on those before it."""
+    ``CANDIDATES`` (module docstring); a further draw (k > 0) that finds no reachable
+    configuration is left out, the sample's own (k = 0) is the plan's error as before. All
+    are drawn and chosen whatever a resumed plan has already written: the choice of a
+    sample depends on those before it."""
     if count == 0 or not Holders.of(facility).robots:
         return [draw(i, 0) for i in range(count)]
     pairs = [(i, k) for i in range(count) for k in range(CANDIDATES)]
-    candidates = [draw(i, k) for i, k in track(pairs, len(pairs), "plan: calibration candidates")]
-    rows = rows_of(facility, candidates, target)
-    picked = observability.choose(rows, [[i * CANDIDATES + k for k in range(CANDIDATES)] for i in range(count)])
+    candidates: list[dict[str, Any]] = []
+    slots: list[list[int]] = [[] for _ in range(count)]
+    for i, k in track(pairs, len(pairs), "plan: calibration candidates"):
+        try:
+            candidates.append(draw(i, k))
+        except PlanningError:
+            if k == 0:  # the sample's own draw: as a plan without the choice would fail
+                raise
+            continue  # another draw that ran out of redraws: the sample keeps those it has
+        slots[i].append(len(candidates) - 1)
+    picked = observability.choose(rows_of(facility, candidates, target), slots)
     return [candidates[p] for p in picked]

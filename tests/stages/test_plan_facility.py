@@ -279,3 +279,27 @@ def test_calibration_poses_are_chosen_for_what_they_determine(abb, tmp_path):
     assert measured[0].smallest > measured[1].smallest
     assert len(measured[0].weak) <= len(measured[1].weak)
     assert facility_rows(config) == [("calibration poses", measured[0].describe(len(chosen)))]
+
+
+def test_a_further_calibration_draw_that_runs_out_is_left_out(abb):
+    """A candidate beyond a sample's own draw that finds no configuration does not fail the
+    plan; the sample's own draw still does, as a plan without the choice would."""
+    from stages.plan import calibration_choice
+    from stages.plan.poses import PlanningError
+
+    workspace, rows = abb
+    chosen = [row for row in rows if row["session"] == "calibration"][:4]
+    facility, target = load_facility(FACILITIES / "abb_rail"), load_target(workspace / "target")
+
+    def draw(i: int, k: int) -> dict:
+        if k > 0:
+            raise PlanningError(f"sample {i}: no reachable robot configuration")
+        return chosen[i]
+
+    assert calibration_choice.choose_calibration(facility, target, 4, draw) == chosen
+
+    def failing(i: int, k: int) -> dict:
+        raise PlanningError(f"sample {i}: no reachable robot configuration")
+
+    with pytest.raises(PlanningError, match="sample 0"):
+        calibration_choice.choose_calibration(facility, target, 4, failing)
