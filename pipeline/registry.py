@@ -29,8 +29,9 @@ class StageEntry:
     package: str
     #: the package checks what it reads from outside the workspace, or what it will need of
     #: the stages before it (``preflight(config, workspace)``: evaluate, every model against
-    #: its contract; calibrate, the plan's count of calibration samples) before anything is
-    #: discarded: a chain runs every stage's before its first stage starts
+    #: its contract; calibrate, the plan's count of calibration samples; acquire, the disk
+    #: space its images need) before anything is discarded: a chain runs every stage's
+    #: before its first stage starts
     preflight: bool = False
     chained: bool = True  # a step of `speedplus run`
     #: results made with another configuration are replaced without --force (they only
@@ -111,7 +112,7 @@ STAGES: tuple[StageEntry, ...] = (
     StageEntry("plan", "relative poses, view, light and robot/rail commands", "stages.plan", target_folder="configured",
                engines=True, may_skip=True, notes=True, facility_rows=True),
     StageEntry("acquire", "drive the testbed (virtual) or ingest a recorded session (replay): telemetry, motion "
-               "capture and images", "stages.acquire", engines=True),
+               "capture and images", "stages.acquire", engines=True, preflight=True),
     StageEntry("calibrate", "RWHE calibration per source and Table 1 (W/calibration.json)", "stages.calibrate",
                preflight=True),
     StageEntry("fuse", "per-source poses, rejection, Bayesian fusion (W/fusion.json)", "stages.fuse"),

@@ -275,6 +275,10 @@ def test_what_can_be_refused_is_refused_before_the_first_stage(tmp_path):
     refused = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--check", "--set",
                         "plan.n_calibration=7")
     assert refused.returncode == 1 and "plan.n_calibration = 7" in " ".join(refused.stderr.split())
+    disk = speedplus("run", "--workspace", str(root), "--profile", "paper", "--set", "plan.n_dataset=10000000")
+    said = " ".join(disk.stderr.split())
+    assert disk.returncode == 1 and "10000064 captures of 1920 x 1200 px need about" in said and "GB free" in said
+    assert not root.exists()
 
 
 def test_check_says_which_stages_are_up_to_date(finished):
