@@ -438,13 +438,21 @@ def _print_status(resolved: Config, ws: Workspace) -> None:
     for column in ("stage", "state", "rows", "detail"):
         table.add_column(column)
     colours = {"done": "green", "partial": "yellow", "stale": "red", "missing": "dim", "damaged": "bold red"}
+    chain: list[tuple[str, str]] = []
     for entry in registry.STAGES:
         for label, config in entry.status_views(resolved, ws):
             state = runner.status(entry, config, ws)
             rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
             detail = state.detail or (entry.note(config, ws) if state.state == "done" else "")
             table.add_row(label, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(detail))
+            if entry.chained and not entry.skipped_in_chain(config):
+                chain.append((entry.name, state.state))
     out.print(table)
+    done = [name for name, state in chain if state == "done"]
+    after = next((name for name, state in chain if state != "done"), None)
+    if done and after is not None:
+        out.print(escape(f"kept: {', '.join(done)}; `speedplus run -w {ws.location}` goes on from {after} "
+                         "(with the --set and --config of the command that made them)"), highlight=False)
     busy = holder(ws)
     if busy:
         out.print(escape(f"in use by {busy}: states may change while it runs"))

@@ -241,6 +241,7 @@ def test_a_chain_that_fails_late_keeps_the_stages_it_completed(tmp_path):
     assert said.endswith("run the same command to resume from the stage that failed")
     status = " ".join(speedplus("status", "--workspace", str(root)).stdout.split())
     assert "│ plan │ done" in status and "│ acquire │ done" in status and "│ calibrate │ partial" in status, status
+    assert f"kept: plan, acquire; `speedplus run -w {root}` goes on from calibrate" in status
     # the manifest the refusal sends the user to exists after it, with every image's reason
     assert "every image's reason is in the calibration_samples manifest" in said
     reasons = read_manifest(Workspace(root), "calibration_samples").to_pylist()
