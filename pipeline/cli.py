@@ -546,10 +546,8 @@ def facility_command(
     if distance is not None and not 0 < distance[0] <= distance[1]:
         raise InputError(f"facility: --distance {distance[0]:g} {distance[1]:g}: expected 0 < MIN <= MAX (m)")
     title, rows = describe(folder, target, samples, distance)
-    count = [] if calibration_poses is None else [Override.of("plan.n_calibration", calibration_poses,
-                                                               "--calibration-poses")]
-    config = load_config(profile, overrides=[*folders(target, folder), *count])
-    rows += registry.stage("plan").facility_report(config)
+    config = load_config(profile, overrides=list(folders(target, folder)))
+    rows += registry.stage("plan").facility_report(config, calibration_poses=calibration_poses)
     table = Table(title=escape(title))
     for column in ("what", "value"):
         table.add_column(column)

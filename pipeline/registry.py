@@ -80,9 +80,10 @@ class StageEntry:
         """What ``status`` says of the stage's finished results (empty: nothing)."""
         return str(_load(f"{self.package}.stage:status_note")(config, workspace)) if self.notes else ""
 
-    def facility_report(self, config: Config) -> list[tuple[str, str]]:
-        """What ``speedplus facility`` prints for this stage on ``config``'s facility folder."""
-        return list(_load(f"{self.package}.stage:facility_rows")(config)) if self.facility_rows else []
+    def facility_report(self, config: Config, **options: Any) -> list[tuple[str, str]]:
+        """What ``speedplus facility`` prints for this stage on ``config``'s facility folder
+        (``options``: the command's own, the package's to read)."""
+        return list(_load(f"{self.package}.stage:facility_rows")(config, **options)) if self.facility_rows else []
 
     def skipped_in_chain(self, config: Config) -> bool:
         """Whether ``speedplus run`` (or any command of several stages) leaves it out."""

@@ -110,9 +110,15 @@ def test_twins_overlap_the_mockup_in_the_testbed_captures(made):
 
 
 def test_the_markers_are_chosen_on_its_parts_and_recorded(made):
+    from stages.acquire.virtual.mocap import planned_sight
+    from stages.common.markers import occluders
+
     target, ws, _, _ = made
     recorded = read_markers(ws)
-    placed = markers(target)
+    # chosen for the room's cameras at the plan's poses (issue 57)
+    sight = planned_sight(load_config(None, ws.config_path), target, read_manifest(ws, "plan").to_pylist(),
+                          occluders(target))
+    placed = markers(target, sight)
     assert recorded.source == "chosen" and recorded.parts == placed.parts
     assert set(recorded.parts) <= set(target.parts)
     np.testing.assert_allclose(recorded.centres_m, placed.centres_m)

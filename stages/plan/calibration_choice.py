@@ -7,9 +7,10 @@ drawn nearest first never leaves its rail's end, and its scale is left to its pr
 each calibration sample is drawn ``CANDIDATES`` times (its own seeded streams, the rail
 spread over the arm's reach) and the candidate kept is the one that most raises the
 smallest eigenvalue of the identification's posterior precision, given the samples before
-it (``observability.choose``). The measure is the smallest singular value, not the
-condition number: in prior sigmas it says how well the worst direction is determined
-against the lab's own tolerance, which a ratio of two singular values does not.
+it (``observability.choose``), where calibrate will fit the arms (``arms_fitted``). The
+measure is the smallest singular value, not the condition number: in prior sigmas it says
+how well the worst direction is determined against the lab's own tolerance, which a ratio
+of two singular values does not.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from core.config import Config
 from core.progress import track
+from stages.common import rwhe
 from stages.common.arms import Payload
 from stages.common.robots import identification, observability
 from stages.common.robots.errors import HolderModel, Holders
@@ -64,6 +67,35 @@ def describe(facility: Facility, rows: list[dict[str, Any]], target: Target) -> 
     if not chosen or not Holders.of(facility).robots:
         return None
     return observability.measure_of(rows_of(facility, chosen, target)).describe(len(chosen))
+
+
+def arms_fitted(config: Config, facility: Facility, target: Target) -> tuple[bool, str]:
+    """Whether calibrate will fit the facility's arms from ``plan.n_calibration`` captures
+    (``calibrate.arm_kinematics``; under ``auto``, ``calibrate.min_arm_redundancy`` equations,
+    six a capture, per parameter: the arms' identifiable ones and the offsets, as calibrate
+    counts them), and why. Where it will not, the poses are
+    drawn as before, nearest rail first: the offsets then absorb the arms' error where the
+    captures are, and poses spread over the arms' range for parameters nobody fits only
+    spread that error (issue 57's smoke cards: a UR10 round a tripod, 25 of 32 labels
+    under the SPEED+ thresholds with its poses drawn, 19 with them chosen)."""
+    holders = Holders.of(facility)
+    setting = config.calibrate.arm_kinematics
+    if not holders.robots or setting == "off":
+        return False, "calibrate.arm_kinematics = off" if holders.robots else "no robot"
+    if setting == "on":
+        return True, "calibrate.arm_kinematics = on"
+    # as calibrate counts them (stages/calibrate/arm_models.py: FacilityArms.parameters), with
+    # the fixtures' compliance, which it fits where the payload loads them
+    names = sorted(set(config.plan.calibration_mounts))
+    start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, True, True)])
+    free = identification.free_parameters(holders, config.calibrate, names, True, len(params))
+    dropped = identification.identifiable(holders, names, True, params, free, Payload.of(target), WORLD_UP)
+    parameters = int(free.sum()) - len(dropped)
+    needed = config.calibrate.min_arm_redundancy * parameters / 6
+    count = config.plan.n_calibration
+    return count >= needed, (f"{count} calibration captures for {parameters} parameters (calibrate.min_arm_redundancy "
+                             f"= {config.calibrate.min_arm_redundancy:g}: {int(np.ceil(needed))} needed)")
 
 
 def choose_calibration(facility: Facility, target: Target, count: int,

@@ -74,7 +74,10 @@ def skipped_in_chain(config: Config) -> bool:
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads the configuration only; the [trajectory] section counts when the plan is made of
     sequences. Writes ``plan`` (and ``W/trajectories.json``, ``W/target/``)."""
-    sections = ("plan", "camera", "testbed", "facility.path") + (
+    # on a facility, whether calibrate will fit its arms decides how the calibration poses are drawn
+    fitting = tuple(f"calibrate.{key}" for key in ("arm_kinematics", "min_arm_redundancy", "joint_compliance",
+                                                   "fixture_anisotropy")) if config.facility.path else ()
+    sections = ("plan", "camera", "testbed", "facility.path", *fitting) + (
         ("trajectory",) if config.plan.mode == "trajectory" else ())
     extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
     return Resolved((), sections, extra, ("plan",))
@@ -92,11 +95,12 @@ def trajectory_rows(config: Config, target: Target) -> tuple[list[dict], Traject
 
 
 def plan_sample(config: Config, session: str, index: int, sample_id: str, target: Target | None = None,
-                max_redraws: int | None = None, candidate: int = 0) -> dict:
+                max_redraws: int | None = None, candidate: int = 0, spread_rail: bool = False) -> dict:
     """One row of the plan manifest (of ``target``, default the configured one).
     Unreachable relative poses are redrawn and counted, up to ``max_redraws`` (default
     ``plan.max_redraws``) times. ``candidate``: another draw of the same sample, from its
-    own stream (``calibration_choice`` keeps the best of several)."""
+    own stream, and ``spread_rail`` its rail spread over the arm's reach
+    (``calibration_choice`` keeps the best of several)."""
     plan, testbed, camera = config.plan, config.testbed, config.camera
     target = planned_target(config) if target is None else target
     facility = planned_facility(config)
@@ -124,8 +128,7 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         if isinstance(facility.holder("target"), StaticSpec):
             mount = plan.calibration_mounts[0]  # mounted once on its stand
         return cam_from_target, mount, reconfigure_on(facility, cam_from_target, mount, target, plan.seed, rng,
-                                                      plan.joint_limit_margin_rad, limits,
-                                                      spread_rail=session == "calibration")
+                                                      plan.joint_limit_margin_rad, limits, spread_rail=spread_rail)
 
     redraws, cap = 0, plan.max_redraws if max_redraws is None else max_redraws
     cam_from_target, mount, commands = draw()
@@ -182,17 +185,24 @@ def _unreachable(sample_id: str, draws: int, testbed: TestbedConfig, target: Tar
                          f"(or raise plan.max_redraws){hint}")
 
 
-def facility_rows(config: Config) -> list[tuple[str, str]]:
+def facility_rows(config: Config, calibration_poses: int | None = None) -> list[tuple[str, str]]:
     """``speedplus facility``'s rows of the plan: how well the calibration poses the plan
-    draws on ``config``'s facility (``plan.n_calibration`` of them, chosen as ``run`` chooses
-    them) determine its robots, before anything is captured."""
+    draws on ``config``'s facility (``plan.n_calibration`` of them, or ``calibration_poses``;
+    chosen or drawn as ``run`` makes them) determine its robots, before anything is captured."""
     facility = load_facility(Path(config.facility.path))
     target = planned_target(config)
     # the calibration session alone: the dataset's lights are not its to check
-    config = config.replace(plan=dataclasses.replace(config.plan, n_dataset=0))
-    chosen = _chosen_calibration(config, facility, target, [("calibration", 0, "")])
-    said = calibration_choice.describe(facility, list(chosen.values()), target)
-    return [] if said is None else [("calibration poses", said)]
+    count = config.plan.n_calibration if calibration_poses is None else calibration_poses
+    config = config.replace(plan=dataclasses.replace(config.plan, n_dataset=0, n_calibration=count))
+    fitted, why = calibration_choice.arms_fitted(config, facility, target)
+    rows = (_choose(config, facility, target) if fitted else
+            [plan_sample(config, "calibration", i, sample_id, target) for i, sample_id in
+             enumerate(_calibration_ids(config))])
+    said = calibration_choice.describe(facility, rows, target)
+    if said is None:
+        return []
+    return [("calibration poses", said + ("" if fitted else f"; drawn, not chosen: calibrate will leave the arms at "
+                                                             f"their URDFs ({why})"))]
 
 
 def status_note(config: Config, workspace: Workspace) -> str:
@@ -238,16 +248,28 @@ def _dataset_redraws(config: Config, facility: Facility | None, target: Target,
 def _chosen_calibration(config: Config, facility: Facility | None, target: Target,
                         todo: list[tuple[str, int, str]]) -> dict[str, dict]:
     """The calibration rows of a facility folder's plan, chosen for what they determine of
-    its robots (``calibration_choice``), by sample id; none on TRON (its closed-form grid)
-    or when no calibration sample is left to plan."""
+    its robots (``calibration_choice``), by sample id; none on TRON (its closed-form grid),
+    where calibrate will not fit the arms (``arms_fitted``: they are drawn one by one, as
+    the dataset's are), or when no calibration sample is left to plan."""
     if facility is None or config.plan.mode == "trajectory" or not any(s == "calibration" for s, _, _ in todo):
         return {}
-    count = config.plan.n_calibration
-    ids = [sample_ids.make("calibration", i) for i in range(count)]
-    rows = calibration_choice.choose_calibration(
-        facility, target, count,
-        lambda i, k: plan_sample(config, "calibration", i, ids[i], target, config.plan.max_redraws, candidate=k))
-    return dict(zip(ids, rows, strict=True))
+    fitted, why = calibration_choice.arms_fitted(config, facility, target)
+    if not fitted:
+        print(f"plan: calibration poses drawn, not chosen: calibrate will leave the arms at their URDFs ({why})")
+        return {}
+    return dict(zip(_calibration_ids(config), _choose(config, facility, target), strict=True))
+
+
+def _calibration_ids(config: Config) -> list[str]:
+    return [sample_ids.make("calibration", i) for i in range(config.plan.n_calibration)]
+
+
+def _choose(config: Config, facility: Facility, target: Target) -> list[dict]:
+    ids = _calibration_ids(config)
+    return calibration_choice.choose_calibration(
+        facility, target, len(ids),
+        lambda i, k: plan_sample(config, "calibration", i, ids[i], target, config.plan.max_redraws, candidate=k,
+                                 spread_rail=True))
 
 
 def run(config: Config, workspace: Workspace) -> pa.Table:

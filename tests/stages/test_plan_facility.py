@@ -260,25 +260,35 @@ def test_the_redraws_a_share_needs():
     assert needed_redraws(1.0, 10) == 0
 
 
-def test_calibration_poses_are_chosen_for_what_they_determine(abb, tmp_path):
-    """The plan keeps, of each calibration sample's candidates, the one that best determines
-    the robots (stages/plan/calibration_choice.py): its smallest singular value is above that
-    of the first candidates alone, and ``speedplus facility`` measures the same choice."""
+def test_calibration_poses_are_chosen_for_what_they_determine(abb):
+    """Where calibrate will fit the arms, the plan keeps, of each calibration sample's
+    candidates, the one that best determines the robots (stages/plan/calibration_choice.py):
+    its smallest singular value is above that of the poses drawn one by one, which the smoke
+    profile's plan keeps (16 captures for 90 parameters: the arms stay at their URDFs), and
+    ``speedplus facility`` measures the same poses as the plan."""
     from stages.common.robots.observability import measure_of
     from stages.plan import calibration_choice
-    from stages.plan.stage import facility_rows, plan_sample
+    from stages.plan.stage import facility_rows
 
     workspace, rows = abb
     folder = FACILITIES / "abb_rail"
-    config = load_config("smoke", overrides=[f"facility.path={folder}", "plan.n_dataset=0"])
+    drawn = [row for row in rows if row["session"] == "calibration"]
+    smoke = load_config("smoke", overrides=[f"facility.path={folder}"])
+    fitting = load_config("smoke", overrides=[f"facility.path={folder}", "calibrate.arm_kinematics=on"])
     facility, target = load_facility(folder), load_target(workspace / "target")
-    chosen = [row for row in rows if row["session"] == "calibration"]
-    first = [plan_sample(config, "calibration", i, row["sample_id"], target, candidate=0)
-             for i, row in enumerate(chosen)]
-    measured = [measure_of(calibration_choice.rows_of(facility, r, target)) for r in (chosen, first)]
+    assert calibration_choice.arms_fitted(smoke, facility, target) == (
+        False, "16 calibration captures for 90 parameters (calibrate.min_arm_redundancy = 3: 45 needed)")
+    (_, said), = facility_rows(smoke)
+    assert said.startswith(measure_of(calibration_choice.rows_of(facility, drawn, target)).describe(16))
+    assert said.endswith("drawn, not chosen: calibrate will leave the arms at their URDFs (16 calibration captures "
+                         "for 90 parameters (calibrate.min_arm_redundancy = 3: 45 needed))")
+    from stages.plan.stage import _choose
+
+    chosen = _choose(fitting, facility, target)
+    measured = [measure_of(calibration_choice.rows_of(facility, r, target)) for r in (chosen, drawn)]
     assert measured[0].smallest > measured[1].smallest
     assert len(measured[0].weak) <= len(measured[1].weak)
-    assert facility_rows(config) == [("calibration poses", measured[0].describe(len(chosen)))]
+    assert facility_rows(fitting) == [("calibration poses", measured[0].describe(16))]
 
 
 def test_a_further_calibration_draw_that_runs_out_is_left_out(abb):

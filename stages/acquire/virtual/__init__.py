@@ -38,8 +38,10 @@ class VirtualTestbed:
         self.config, self.workspace, self._plan = config, workspace, plan
         self.target = workspace_target(config, workspace)
         self.body = occluders(self.target)
-        # chosen (where the target declares none) for this room's cameras at the plan's poses
-        self.markers = markers(self.target, mocap.planned_sight(config, self.target, self.samples(), self.body))
+        # chosen (where the target declares none) for this room's cameras at the plan's poses,
+        # where there is a plan (the error models alone have none: a ring of cameras)
+        planned = self._plan if self._plan is not None or workspace is None else self.samples()
+        self.markers = markers(self.target, mocap.planned_sight(config, self.target, planned or [], self.body))
         self.payload = Payload.of(self.target)
         self.truth: Truth = draw_truth(config, self.target)
         self.rig: Rig | None = draw_rig(config) if config.facility.path else None

@@ -105,13 +105,14 @@ def _reduced(normal: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
 
 def choose(rows: Rows, slots: list[list[int]]) -> list[int]:
     """One pose of each slot's candidates (indices into ``rows``), slot after slot, each the
-    one that most raises the smallest eigenvalue of the posterior precision of the arms'
-    parameters given the poses chosen before it (the worst-determined direction's; Nahvi
-    and Hollerbach, ICRA 1996, the measure ``observability`` reports), ties (within 1%, as
-    when the prior still holds that direction) broken by the log-determinant, which keeps
-    every other direction moving. Greedy, as Sun and Hollerbach's active robot calibration
-    (ICRA 2008) is: a slot's choice never depends on later slots, so a resumed plan chooses
-    the same poses."""
+    one that most raises the smallest eigenvalue of the data's information on the arms'
+    parameters (in prior sigmas, the free offsets eliminated) given the poses chosen before
+    it: the square of the smallest singular value ``observability`` reports (Nahvi and
+    Hollerbach's minimum singular value, ICRA 1996). Ties (within 1%, as while fewer poses
+    than parameters leave it at zero) are broken by the log-determinant of the posterior
+    precision, which keeps every other direction moving. Greedy, as Sun and Hollerbach's
+    active robot calibration (ICRA 2008) is: a slot's choice never depends on later slots,
+    so a resumed plan chooses the same poses."""
     chosen: list[int] = []
     aa = np.zeros((rows.arm.shape[-1],) * 2)
     ao = np.zeros((rows.arm.shape[-1], rows.offsets.shape[-1]))
@@ -121,7 +122,10 @@ def choose(rows: Rows, slots: list[list[int]]) -> list[int]:
         for candidate in candidates:
             more = _information(rows, np.array([candidate]))
             eigen = np.linalg.eigvalsh(_reduced((aa + more[0], ao + more[1], oo + more[2])))
-            scores.append((float(eigen[0]), float(np.sum(np.log(eigen)))))
+            # the data's share of the posterior precision (the prior's is the identity); a
+            # rounding error's worth of it is none
+            smallest = eigen[0] - 1.0
+            scores.append((smallest if smallest > 1e-14 * eigen[-1] else 0.0, float(np.sum(np.log(eigen)))))
         best = max(score[0] for score in scores)
         near = [i for i, score in enumerate(scores) if score[0] >= 0.99 * best]
         pick = candidates[max(near, key=lambda i: scores[i][1])]
