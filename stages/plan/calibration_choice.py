@@ -16,6 +16,7 @@ of two singular values does not.
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -89,7 +90,9 @@ def arms_fitted(config: Config, facility: Facility, target: Target) -> tuple[boo
     names = sorted(set(config.plan.calibration_mounts))
     start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, True, True)])
-    free = identification.free_parameters(holders, config.calibrate, names, True, len(params))
+    options = SimpleNamespace(joint_compliance=config.calibrate.joint_compliance,
+                              fixture_anisotropy=config.calibrate.fixture_anisotropy)
+    free = identification.free_parameters(holders, options, names, True, len(params))
     dropped = identification.identifiable(holders, names, True, params, free, Payload.of(target), WORLD_UP)
     parameters = int(free.sum()) - len(dropped)
     needed = config.calibrate.min_arm_redundancy * parameters / 6

@@ -6,6 +6,8 @@ configurations that change what it declares."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from core.config import Config, parse_override, with_overrides
@@ -18,7 +20,8 @@ from tests.pipeline.config_reads import WHOLE, package_reads
 NOT_RESULTS = {"run", "target"}
 VARIANTS = ((), ("plan.mode=trajectory",), ("acquire.backend=replay", "acquire.source=somewhere"),
             ("render.set=train",), ("export.sets=[\"testbed\",\"twins\",\"train\"]",), ("export.format=robot",),
-            ("export.format=session",))
+            ("export.format=session",),
+            (f'facility.path="{Path(__file__).resolve().parents[1] / "facilities" / "ur10_tripod"}"',))
 
 
 def _config(overrides: tuple[str, ...]) -> Config:
