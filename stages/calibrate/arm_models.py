@@ -121,13 +121,8 @@ class FacilityArms:
     def parameters(self, fixtures: list[str], compliant: bool) -> int:
         """How many parameters the fit would estimate on samples of ``fixtures``: the arms'
         identifiable ones and the offsets."""
-        names = sorted(set(fixtures))
-        start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
-        params = np.concatenate([np.zeros(self.holders.size), rwhe.pack(start, names, compliant, compliant)])
-        free = identification.free_parameters(self.holders, self.settings, names, compliant, len(params))
-        dropped = identification.identifiable(self.holders, fixtures, compliant, params, free, self.payload,
-                                              np.asarray(self.settings.world_up, float))
-        return int(free.sum()) - len(dropped)
+        return identification.fitted_parameter_count(self.holders, self.settings, fixtures, compliant, self.payload,
+                                                     np.asarray(self.settings.world_up, float))
 
     def kinematics(self, fit: identification.Fitted, note: str) -> ArmKinematics:
         record = fit.record()

@@ -23,7 +23,6 @@ import numpy as np
 
 from core.config import Config
 from core.progress import track
-from stages.common import rwhe
 from stages.common.arms import Payload
 from stages.common.robots import identification, observability
 from stages.common.robots.errors import HolderModel, Holders
@@ -85,16 +84,12 @@ def arms_fitted(config: Config, facility: Facility, target: Target) -> tuple[boo
         return False, "calibrate.arm_kinematics = off" if holders.robots else "no robot"
     if setting == "on":
         return True, "calibrate.arm_kinematics = on"
-    # as calibrate counts them (stages/calibrate/arm_models.py: FacilityArms.parameters), with
-    # the fixtures' compliance, which it fits where the payload loads them
-    names = sorted(set(config.plan.calibration_mounts))
-    start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
-    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, True, True)])
+    # as calibrate counts them (FacilityArms.parameters), with the fixtures' compliance, which
+    # it fits where the payload loads them
     options = SimpleNamespace(joint_compliance=config.calibrate.joint_compliance,
                               fixture_anisotropy=config.calibrate.fixture_anisotropy)
-    free = identification.free_parameters(holders, options, names, True, len(params))
-    dropped = identification.identifiable(holders, names, True, params, free, Payload.of(target), WORLD_UP)
-    parameters = int(free.sum()) - len(dropped)
+    parameters = identification.fitted_parameter_count(holders, options, sorted(set(config.plan.calibration_mounts)),
+                                                       True, Payload.of(target), WORLD_UP)
     needed = config.calibrate.min_arm_redundancy * parameters / 6
     count = config.plan.n_calibration
     return count >= needed, (f"{count} calibration captures for {parameters} parameters (calibrate.min_arm_redundancy "

@@ -195,9 +195,12 @@ def facility_rows(config: Config, calibration_poses: int | None = None) -> list[
     count = config.plan.n_calibration if calibration_poses is None else calibration_poses
     config = config.replace(plan=dataclasses.replace(config.plan, n_dataset=0, n_calibration=count))
     fitted, why = calibration_choice.arms_fitted(config, facility, target)
-    rows = (_choose(config, facility, target) if fitted else
-            [plan_sample(config, "calibration", i, sample_id, target) for i, sample_id in
-             enumerate(_calibration_ids(config))])
+    try:
+        rows = (_choose(config, facility, target) if fitted else
+                [plan_sample(config, "calibration", i, sample_id, target) for i, sample_id in
+                 enumerate(_calibration_ids(config))])
+    except PlanningError as error:  # the rest of the facility's table is still worth showing
+        return [("calibration poses", f"none planned: {error}")]
     said = calibration_choice.describe(facility, rows, target)
     if said is None:
         return []

@@ -313,3 +313,15 @@ def test_a_further_calibration_draw_that_runs_out_is_left_out(abb):
 
     with pytest.raises(PlanningError, match="sample 0"):
         calibration_choice.choose_calibration(facility, target, 4, failing)
+
+
+def test_calibration_poses_nobody_can_reach_are_said_not_raised_by_the_facility_report():
+    """``speedplus facility`` keeps its table when the profile's calibration poses cannot be
+    planned there: its row says why, naming the sample."""
+    from stages.plan.stage import facility_rows
+
+    config = load_config("smoke", overrides=[f"facility.path={FACILITIES / 'ur10_tripod'}",
+                                             "plan.calibration_distance_m=[30.0, 31.0]", "plan.max_redraws=1"])
+    (what, said), = facility_rows(config, calibration_poses=2)
+    assert what == "calibration poses"
+    assert said.startswith("none planned: sample cal000000: no reachable robot configuration in 2 draws"), said

@@ -253,6 +253,18 @@ def free_parameters(holders: Holders, c: Any, names: list[str], compliant: bool,
     return free
 
 
+def fitted_parameter_count(holders: Holders, c: Any, fixtures: list[str], compliant: bool, payload: arms.Payload,
+                           world_up: np.ndarray) -> int:
+    """How many parameters ``fit`` would estimate on samples of ``fixtures``: the arms'
+    identifiable ones and the offsets (``c``: what ``free_parameters`` reads)."""
+    names = sorted(set(fixtures))
+    start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, compliant, compliant)])
+    free = free_parameters(holders, c, names, compliant, len(params))
+    dropped = identifiable(holders, list(fixtures), compliant, params, free, payload, world_up)
+    return int(free.sum()) - len(dropped)
+
+
 def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Solution, compliant: bool,
         payload: arms.Payload) -> Fitted:
     """The robots (the parameters ``identifiable`` keeps), ``Z``, ``X_f`` (and ``k_f``,
