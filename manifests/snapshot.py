@@ -6,7 +6,9 @@ a marker names (images, masks, models) byte for byte as it found them.
 ```
 W/.snapshot/manifests/...     the manifests folder (parts hard-linked, markers copied)
 W/.snapshot/files/<relpath>   config.toml, the JSON files, report/, and each file a marker names
-W/.snapshot/present.json      the top-level files that existed (others are removed on restore)
+W/.snapshot/present.json      the files the record globs cover that existed
+W/.snapshot/tree.json         every file and folder of the workspace that existed: what the
+                              command made besides (images of a failed stage) goes on restore
 ```
 
 Parts and media are hard links: every writer replaces files by rename (``manifests.files``),
@@ -22,6 +24,7 @@ import shutil
 from pathlib import Path
 
 from manifests.io import mark_diagnostics
+from manifests.lock import LOCK_FILE
 from manifests.workspace import (
     CONFIG_FILE,
     MANIFESTS_DIR,
@@ -78,6 +81,32 @@ def _keep(source: Path, destination: Path) -> None:
             shutil.copy2(source, destination)
 
 
+def _tree(root: Path) -> dict[str, list[str]]:
+    """The workspace's files and folders (relative paths), the snapshot and the lock aside."""
+    files, folders = [], []
+    for path in root.rglob("*"):
+        relpath = path.relative_to(root)
+        if relpath.parts[0] in (SNAPSHOT_DIR, LOCK_FILE):
+            continue
+        (folders if path.is_dir() else files).append(relpath.as_posix())
+    return {"files": sorted(files), "folders": sorted(folders)}
+
+
+def _remove_new(root: Path, before: dict[str, list[str]], kept: set[str]) -> None:
+    """Remove what was made since ``before`` (``_tree``): files, then the folders left empty;
+    the manifests of ``kept`` stay."""
+    files, folders = set(before["files"]), set(before["folders"])
+    now = _tree(root)
+    keep = tuple(f"{MANIFESTS_DIR}/{name}/" for name in kept)
+    for relpath in now["files"]:
+        if relpath not in files and not relpath.startswith(keep):
+            (root / relpath).unlink(missing_ok=True)
+    for relpath in sorted(now["folders"], key=lambda r: -r.count("/")):  # deepest first
+        path = root / relpath
+        if relpath not in folders and not f"{relpath}/".startswith(keep) and not any(path.iterdir()):
+            path.rmdir()
+
+
 class Snapshot:
     """The record of ``workspace`` taken by ``take``; ``restore`` puts it back, ``drop``
     forgets it. Only one command holds the workspace (``manifests.lock``), so one snapshot."""
@@ -103,11 +132,12 @@ class Snapshot:
             if path.is_file() and not relpath.startswith(SNAPSHOT_DIR):
                 _keep(path, self.folder / "files" / relpath)
         (self.folder / "present.json").write_text(json.dumps(sorted(present)))
+        (self.folder / "tree.json").write_text(json.dumps(_tree(root)))
         return self
 
     def restore(self, keep_new: tuple[str, ...] = ()) -> None:
-        """The workspace's record as ``take`` found it (files made since that nobody named
-        before are left alone, except the top-level ones the record globs cover).
+        """The workspace as ``take`` found it: its record put back, and every file and folder
+        made since removed (a failed stage's images, a new folder of the report).
         ``keep_new``: manifests to leave as they are now where the snapshot had none of
         them (a refusal's diagnostics: nothing of the user's is replaced by them)."""
         root = self.workspace.root
@@ -135,6 +165,7 @@ class Snapshot:
                 path.unlink()
         _move_back(saved, manifests)
         _move_back(self.folder / "files", root)
+        _remove_new(root, json.loads((self.folder / "tree.json").read_text()), kept)
         for name in kept:
             mark_diagnostics(self.workspace, name)
         self.drop()

@@ -29,6 +29,7 @@ from typer.core import TyperGroup
 from core.command import FacilityOption, Request, TargetOption, folders, overrides
 from core.command import key_help as section_key_help
 from core.config import Config, Override, documented, with_overrides, write_config
+from core.engines import EngineError
 from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
 from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
@@ -275,6 +276,10 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
         else:
             snapshot.restore()
         _interrupted(interrupt, force, kept)
+    except EngineError as error:
+        if not _engine_failed(error, name, began, saved, snapshot, ws, force) and began:
+            started.remove(name)
+        raise
     except BaseException as error:
         snapshot.restore(error.keep if isinstance(error, RefusalError) else ())
         if began:
@@ -286,6 +291,23 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
         out.print(f"[green]{name}[/]: up to date ({rows})")
     else:
         out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+
+
+def _engine_failed(error: EngineError, name: str, began: bool, saved: Config, snapshot: Snapshot,
+                   ws: Workspace, force: bool) -> bool:
+    """A stage its engine could not finish (a Ray node lost, the cluster gone) keeps the rows
+    it finished, as Ctrl-C does: each was written whole with its files by the driver and is
+    what any engine makes, so they resume; a stage's own error puts its work back instead,
+    since its rows may be what the error made (docs/architecture.md section 4)."""
+    kept = getattr(error, "kept_rows", 0)
+    if not began or not kept:
+        snapshot.restore()
+        return False
+    write_config(saved, ws.config_path)
+    snapshot.drop()
+    again = "run it again without --force" if force else "run the same command"
+    error.add_note(f"kept: {kept} finished rows of {name} (the engine failed, not the data); {again} to resume them")
+    return True
 
 
 def _interrupted(interrupt: KeyboardInterrupt, force: bool, kept: list[str]) -> None:

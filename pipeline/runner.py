@@ -24,7 +24,7 @@ from pyarrow import ArrowInvalid
 
 from core import progress
 from core.config import Config
-from core.engines import single_threaded_blas
+from core.engines import EngineError, single_threaded_blas
 from core.progress import console
 from manifests import (
     SCHEMA_VERSION,
@@ -358,6 +358,9 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         kept = row_count(workspace, outputs[0]) if outputs else 0
         remaining = progress.remaining()
         raise Interrupted(stage.name, kept, None if remaining is None else kept + remaining) from None
+    except EngineError as error:  # the cluster failed, not the data: the finished rows resume
+        error.kept_rows = row_count(workspace, outputs[0]) if outputs else 0
+        raise
     seconds = time.perf_counter() - started
     rows = {name: row_count(workspace, name) for name in outputs}
     members = {**(previous.members if previous else {}), **resolved.members} if resolved.members else None

@@ -47,10 +47,10 @@ def smoke_finished(smoke_labelled, tmp_path_factory):
 
 def speedplus(*args, env=None, timeout=1800, cwd=None):
     """Run the CLI in a fresh process (as users do). An ``env`` that sets
-    ``SPEEDPLUS_FAULT_KILL_AT_PART`` or ``SPEEDPLUS_FAULT_FAIL_STAGE`` gets the fault
-    injection of tests/faults/sitecustomize.py."""
+    ``SPEEDPLUS_FAULT_KILL_AT_PART``, ``_FAIL_STAGE`` or ``_ENGINE_LOST_AFTER`` gets the
+    fault injection of tests/faults/sitecustomize.py."""
     env = {**os.environ, "COLUMNS": "200", **(env or {})}
-    if env.get("SPEEDPLUS_FAULT_KILL_AT_PART") or env.get("SPEEDPLUS_FAULT_FAIL_STAGE"):
+    if any(env.get(f"SPEEDPLUS_FAULT_{name}") for name in ("KILL_AT_PART", "FAIL_STAGE", "ENGINE_LOST_AFTER")):
         faults = str(Path(__file__).resolve().parent / "faults")
         env["PYTHONPATH"] = os.pathsep.join(p for p in (faults, env.get("PYTHONPATH", "")) if p)
     return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,

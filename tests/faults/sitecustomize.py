@@ -6,7 +6,10 @@ env sets one of these):
   that interrupted stages resume cleanly;
 - ``SPEEDPLUS_FAULT_FAIL_STAGE=NAME``: stage NAME raises once its own ``run`` has written
   all it writes, before the runner completes it, to prove that a chain keeps the stages
-  before it and puts back that stage's work (issue 58).
+  before it and puts back that stage's work (issue 58);
+- ``SPEEDPLUS_FAULT_ENGINE_LOST_AFTER=N``: the engine's map fails (``EngineError``, as when
+  a Ray cluster loses its nodes) after yielding N results, to prove that a stage keeps the
+  rows it finished when its engine fails (issue 58).
 
 The production paths hold no hook of their own."""
 
@@ -38,9 +41,11 @@ if _FAIL:
 
     _load = _registry._load
 
+    _FAILING = next(f"{entry.package}.stage:run" for entry in _registry.STAGES if entry.name == _FAIL)
+
     def _load_then_fail(entry_point):  # noqa: ANN001, ANN202 - the wrapped function's own signature
         function = _load(entry_point)
-        if entry_point != f"stages.{_FAIL.replace('-', '_')}.stage:run":
+        if entry_point != _FAILING:
             return function
 
         def failing(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
@@ -50,3 +55,18 @@ if _FAIL:
         return failing
 
     _registry._load = _load_then_fail
+
+_LOST = os.environ.get("SPEEDPLUS_FAULT_ENGINE_LOST_AFTER")
+
+if _LOST:
+    import core.engines as _engines
+
+    _map = _engines.map_engine
+
+    def _map_then_lose(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202 - the wrapped function's own signature
+        for count, result in enumerate(_map(*args, **kwargs)):
+            if count == int(_LOST):
+                raise _engines.EngineError("injected fault: the engine lost its workers")
+            yield result
+
+    _engines.map_engine = _map_then_lose

@@ -67,15 +67,23 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
 
 
 def test_without_out_the_models_stay_in_the_workspace(tmp_path, monkeypatch):
-    """Run from the repository's root, as issue 42's user did: the shipped models are untouched."""
+    """Run from the repository's root, as issue 42's user did: the shipped models are untouched.
+    Training that fails keeps the training set rendered before it (issue 58), and the same
+    command resumes from training."""
     from stages.evaluate.stage import SHIPPED_MODELS
 
     repository = Path(__file__).resolve().parents[3]
     shipped = {name: (repository / name).read_bytes() for name in SHIPPED_MODELS}
-    result = speedplus("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"), "--set",
-                       "reference.images=6", "--set", "reference.variants=[\"plain\"]", "--steps", "1",
-                       cwd=repository)
+    args = ("train-reference", "--profile", "smoke", "--workspace", str(tmp_path / "w"), "--set",
+            "reference.images=6", "--set", "reference.variants=[\"plain\"]", "--steps", "1")
+    failed = speedplus(*args, cwd=repository, env={"SPEEDPLUS_FAULT_FAIL_STAGE": "train-reference"})
+    said = " ".join(failed.stderr.split())
+    assert failed.returncode == 1 and "injected fault" in said and "kept: render (completed;" in said, said
+    images = sorted((tmp_path / "w" / "renders" / "train").glob("*.png"))
+    assert len(images) == 6 and not (tmp_path / "w" / "models").exists()
+    result = speedplus(*args, cwd=repository)
     assert result.returncode == 0, result.stderr
+    assert "render: up to date" in result.stdout
     assert (tmp_path / "w" / "models" / "reference.onnx").is_file()
     assert {name: (repository / name).read_bytes() for name in SHIPPED_MODELS} == shipped
     assert "w/models/reference.onnx: trained on 5 images" in result.stdout
