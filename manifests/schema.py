@@ -222,7 +222,8 @@ CALIBRATION_SAMPLES = ManifestSpec(
         Column("fixture", pa.string(), "", "model fixture of the capture"),
         Column("corners", pa.int32(), "count", "pattern corners detected"),
         Column("used", pa.bool_(), "", "the capture entered the calibration"),
-        Column("reason", pa.string(), "", "why it did not; null when used", nullable=True),
+        Column("reason", pa.string(), "", "why it did not, or why one source left it out (motion capture did not "
+               "measure it, an outlier of one source); null when every source used it", nullable=True),
         Column("pnp_rms_px", pa.float64(), "px", "RMS reprojection error of the PnP pose", nullable=True),
         *pose("cam_from_target_cal", "PnP pose of the pattern, mock-up scale", nullable=True),
         *pose("kuka_cam_from_target", "robots' estimate with the calibrated offsets", nullable=True),

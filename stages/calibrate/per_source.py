@@ -123,17 +123,18 @@ def markers_seen(observations: list[obs.Observation], by_id: dict[str, dict[str,
     if not lost:
         return "motion capture measured every posed capture"
 
-    def seen(sample_id: str) -> str:
-        row = by_id[sample_id]
-        target, camera = row.get("vicon_targetrb_markers"), row.get("vicon_camrb_markers")
-        return (f"{sample_id} target body {'-' if target is None else target}, "
-                f"camera body {'-' if camera is None else camera}")
-
     more = f" and {len(lost) - most} more" if len(lost) > most else ""
     return (f"motion capture lost {len(lost)} posed capture(s), markers seen (a rigid body needs 3): "
-            + "; ".join(seen(s) for s in lost[:most]) + more
+            + "; ".join(f"{s} {markers_of(by_id[s], needs=False)}" for s in lost[:most]) + more
             + "; place the target's markers where the facility's cameras see them over the planned poses "
             "(target.toml [mockup] markers)")
+
+
+def markers_of(capture: dict[str, Any], needs: bool = True) -> str:
+    """The markers motion capture saw of each rigid body on one capture (``captures`` row)."""
+    target, camera = capture.get("vicon_targetrb_markers"), capture.get("vicon_camrb_markers")
+    seen = f"target body {'-' if target is None else target}, camera body {'-' if camera is None else camera}"
+    return f"markers seen: {seen}; a rigid body needs 3" if needs else seen
 
 
 def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.EstimatedCamera,

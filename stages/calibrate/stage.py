@@ -5,6 +5,7 @@ Writes ``W/calibration.json`` and the ``calibration_samples`` manifest.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -28,7 +29,7 @@ from speedplus.errors import InputError, RefusalError
 from stages.calibrate import observations as obs
 from stages.calibrate import per_source, screening
 from stages.calibrate.fitting import load_truth
-from stages.calibrate.per_source import SourceFit
+from stages.calibrate.per_source import SourceFit, markers_of
 from stages.calibrate.robots import arm_decision, compliance_decision, source_names, write_robot_urdfs
 from stages.common import geometry as g
 from stages.common import rwhe
@@ -75,11 +76,11 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     try:
         calibration, fits = _calibrate(config, workspace, session, spec, by_id, observations)
     except InputError as error:  # refused: the images' reasons are still what the user needs
-        _write_samples(config, workspace, observations, by_id, {})
+        _write_samples(config, workspace, observations, by_id, {}, session.sources)
         raise RefusalError(f"{error}{_dropped(observations)}", keep=("calibration_samples",)) from None
     write_calibration(workspace, calibration)
     write_robot_urdfs(config, workspace, calibration.kuka.arm_kinematics.chains)
-    _write_samples(config, workspace, observations, by_id, fits)
+    _write_samples(config, workspace, observations, by_id, fits, session.sources)
     print_table(calibration)
     return read_manifest(workspace, "calibration_samples")
 
@@ -96,9 +97,10 @@ def _dropped(observations: list[obs.Observation], most: int = 10) -> str:
 
 
 def _write_samples(config: Config, workspace: Workspace, observations: list[obs.Observation],
-                   by_id: dict[str, dict[str, Any]], fits: dict[str, SourceFit]) -> None:
-    """One ``calibration_samples`` row per capture, each unusable one with its reason; the
-    manifest is rewritten whole (a calibration is all or nothing)."""
+                   by_id: dict[str, dict[str, Any]], fits: dict[str, SourceFit], sources: Iterable[str]) -> None:
+    """One ``calibration_samples`` row per capture, each unusable one with its reason, and
+    each that a source could not use with that source's reason; the manifest is rewritten
+    whole (a calibration is all or nothing)."""
     clear_manifest(workspace, "calibration_samples")
     with open_sink(workspace, "calibration_samples", config.run.part_rows) as sink:
         for o in observations:
@@ -106,6 +108,8 @@ def _write_samples(config: Config, workspace: Workspace, observations: list[obs.
             flagged = [s for s in SOURCES if s in fits and o.sample_id in fits[s].calibration.outliers]
             if reason is None and flagged:
                 reason = "outlier of " + " and ".join(flagged) + " (excluded from that source's calibration)"
+            if reason is None and "vicon" in sources and measured_b(by_id[o.sample_id], "vicon") is None:
+                reason = f"motion capture did not measure it ({markers_of(by_id[o.sample_id])}): robots only"
             row = {"sample_id": o.sample_id, "fixture": by_id[o.sample_id]["fixture"], "corners": len(o.ids),
                    "used": o.cam_from_target is not None, "reason": reason, "pnp_rms_px": o.rms_px,
                    "corners_px": np.asarray(o.pixels, float) if len(o.ids) else None,

@@ -25,3 +25,24 @@ def test_the_lost_captures_are_named_with_the_markers_seen():
     assert "cal000001 target body 2, camera body 5" in said and "cal000002 target body 1" in said
     assert "cal000003 target body -" in said and "cal000000" not in said and "cal000004" not in said
     assert "[mockup] markers" in said
+
+
+def test_each_capture_motion_capture_lost_has_its_reason_in_the_manifest(tmp_path):
+    """The refusal sends the user to calibration_samples for every image's reason (issue 58,
+    part 3): a capture the robots measured and motion capture did not says why there."""
+    from manifests import Workspace, read_manifest
+    from pipeline.config import load_config
+    from stages.calibrate.stage import _write_samples
+
+    rows = {r["sample_id"]: {**r, "fixture": "A"} for r in (_row("cal000000", 6, 5, True),
+                                                             _row("cal000001", 2, 5, False))}
+    observations = [SimpleNamespace(sample_id=s, cam_from_target=np.eye(4), reason=None, ids=[], rms_px=0.1,
+                                    pixels=[], object_points=[]) for s in rows]
+    ws = Workspace(tmp_path).for_run({"calibration_samples": "test"})
+    _write_samples(load_config("smoke"), ws, observations, rows, {}, ("kuka", "vicon"))
+    reasons = {r["sample_id"]: r["reason"] for r in read_manifest(ws, "calibration_samples").to_pylist()}
+    assert reasons["cal000000"] is None
+    assert reasons["cal000001"] == ("motion capture did not measure it (markers seen: target body 2, camera body 5; "
+                                    "a rigid body needs 3): robots only")
+    _write_samples(load_config("smoke"), ws, observations, rows, {}, ("kuka",))  # no motion capture: no reason
+    assert all(r["reason"] is None for r in read_manifest(ws, "calibration_samples").to_pylist())
