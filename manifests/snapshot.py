@@ -23,7 +23,7 @@ import os
 import shutil
 from pathlib import Path
 
-from manifests.io import mark_diagnostics
+from manifests.io import DIAGNOSTICS_FILE, mark_diagnostics
 from manifests.lock import LOCK_FILE
 from manifests.workspace import (
     CONFIG_FILE,
@@ -135,14 +135,16 @@ class Snapshot:
         (self.folder / "tree.json").write_text(json.dumps(_tree(root)))
         return self
 
-    def restore(self, keep_new: tuple[str, ...] = ()) -> None:
+    def restore(self, keep_new: tuple[str, ...] = ()) -> set[str]:
         """The workspace as ``take`` found it: its record put back, and every file and folder
         made since removed (a failed stage's images, a new folder of the report).
         ``keep_new``: manifests to leave as they are now where the snapshot had none of
-        them (a refusal's diagnostics: nothing of the user's is replaced by them)."""
+        them, or only an earlier refusal's (a refusal's diagnostics: no results are replaced
+        by them). Returns the manifests so kept."""
         root = self.workspace.root
         saved = self.folder / MANIFESTS_DIR
-        kept = {name for name in keep_new if not (saved / name).is_dir()}
+        # the last refusal's diagnostics give way to this one's; results are never replaced
+        kept = {name for name in keep_new if not (saved / name).is_dir() or (saved / name / DIAGNOSTICS_FILE).is_file()}
         before = set(json.loads((self.folder / "present.json").read_text()))
         for pattern in RECORD_GLOBS:
             for path in root.glob(pattern):
@@ -169,6 +171,7 @@ class Snapshot:
         for name in kept:
             mark_diagnostics(self.workspace, name)
         self.drop()
+        return kept
 
     def drop(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)

@@ -222,14 +222,16 @@ def _transaction(stages: list[str], resolved: Config, transient: list[Override],
             write_config(resolved, ws.config_path)
         except Exception as error:
             if done and not isinstance(error, typer.Exit):
-                error.add_note(_kept_note(done, ws))
+                error.add_note(_kept_note(done, ws, force))
             raise
 
 
-def _kept_note(done: list[str], ws: Workspace) -> str:
-    """What a chain that failed after some stages kept, and how to go on."""
+def _kept_note(done: list[str], ws: Workspace, force: bool) -> str:
+    """What a chain that failed after some stages kept, and how to go on (without --force,
+    which would redo what was kept)."""
+    again = "run it again without --force" if force else "run the same command"
     return (f"kept: {', '.join(done)} (completed; `speedplus status -w {ws.location}` shows them); after the fix, "
-            "run the same command to resume from the stage that failed")
+            f"{again} to resume from the stage that failed")
 
 
 def _chain(stages: list[str], resolved: Config, ws: Workspace, switched_from: str | None) -> list[str]:
@@ -281,7 +283,10 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
             started.remove(name)
         raise
     except BaseException as error:
-        snapshot.restore(error.keep if isinstance(error, RefusalError) else ())
+        keep = error.keep if isinstance(error, RefusalError) else ()
+        for name in sorted(set(keep) - snapshot.restore(keep)):
+            error.add_note(f"the {name} manifest still holds the results made before it (a refusal never replaces "
+                           "results): this refusal's reasons are only those above")
         if began:
             started.remove(name)
         raise
@@ -316,7 +321,7 @@ def _interrupted(interrupt: KeyboardInterrupt, force: bool, kept: list[str]) -> 
     said = str(interrupt) if isinstance(interrupt, runner.Interrupted) else (
         f"interrupted before it changed anything; kept: {', '.join(kept)}; run the same command to resume" if kept
         else "interrupted: nothing was changed; run the same command to start again")
-    if force and isinstance(interrupt, runner.Interrupted):
+    if force:  # --force again would redo what was kept
         said = said.replace("run the same command to resume", "run it again without --force to resume")
     err.print(f"[yellow]{escape(said)}[/]", highlight=False)
     raise typer.Exit(130)
@@ -502,7 +507,7 @@ def verify_command(workspace: WorkspaceOption = None, profile: ProfileOption = N
     damaged = sorted({f.stage for f in findings if f.problems}, key=registry.STAGE_NAMES.index)
     if damaged:
         raise InputError(f"{ws.location}: damaged results; redo {', '.join(damaged)} with --force "
-                         f"(`speedplus {damaged[0]} -w {ws.location} --force`, then `speedplus run`)")
+                         f"(`speedplus {damaged[0]} -w {ws.location} --force`, then `speedplus run -w {ws.location}`)")
     out.print(f"{len(findings)} completed manifests intact" if findings else "nothing completed yet")
 
 

@@ -40,7 +40,7 @@ from manifests import (
 from manifests import clear as clear_manifest
 from manifests.integrity import compact, damage, damaged_files, file_records, part_records, recover
 from manifests.io import is_diagnostics
-from manifests.marker import CompletionMarker, FileRecord, PartRecord
+from manifests.marker import CompletionMarker, FileRecord, MarkerError, PartRecord
 from manifests.schema import MANIFESTS
 from pipeline.registry import STAGES, StageEntry
 from speedplus.errors import InputError
@@ -136,6 +136,8 @@ def differences(recorded: Any, current: dict[str, Any] | None, most: int = 4) ->
     old_in, new_in = recorded.get("inputs", {}), current.get("inputs", {})
     said += [f"input {name} was redone" for name in sorted(old_in.keys() | new_in.keys())
              if old_in.get(name) != new_in.get(name)]
+    if "target" in recorded and recorded.get("target") != current.get("target"):
+        said.append("the target's files changed (its target.toml or mesh)")
     if recorded.get("schema_version") != current.get("schema_version"):
         said.append(f"schema {recorded.get('schema_version')} -> {current.get('schema_version')}")
     return "; ".join(said) or "made with another configuration or inputs"
@@ -174,7 +176,10 @@ def status(stage: StageEntry, config: Config, workspace: Workspace) -> StageStat
     inputs, outputs = resolved.inputs, resolved.outputs
     rows = {name: row_count(workspace, name) for name in outputs}
     current = fingerprint(stage, config, workspace)
-    markers = [read_marker(workspace, name) for name in outputs]
+    try:
+        markers = [read_marker(workspace, name) for name in outputs]
+    except MarkerError as error:  # damaged: --force, which this status lets through, writes it anew
+        return StageStatus(stage.name, "damaged", rows, f"{error}")
     if current is not None and all(m is not None and m.fingerprint == current for m in markers):
         for name, marker in zip(outputs, markers, strict=True):
             problem = damage(list_parts(workspace, name), marker)
@@ -282,7 +287,7 @@ def _refuse_outdated_inputs(stage: StageEntry, config: Config, workspace: Worksp
         raise StageError(f"stage {stage.name!r} reads {said}, made with another configuration than this "
                          f"command's. Redo {'them' if len(outdated) > 1 else 'it'} first (`speedplus {first} -w "
                          f"{workspace.location} --force`, with this command's --set and --config), or the whole "
-                         "chain (`speedplus run --force`)")
+                         f"chain (`speedplus run -w {workspace.location} --force`)")
 
 
 def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False,
@@ -300,7 +305,8 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     if current is None:
         missing = [name for name in inputs if read_marker(workspace, name) is None]
         raise StageError(f"stage {stage.name!r} needs the complete manifest(s) {', '.join(missing)} in "
-                         f"{workspace.root}; run the stage(s) before it first (or `speedplus run`)")
+                         f"{workspace.root}; run the stage(s) before it first (or `speedplus run -w "
+                         f"{workspace.location}`)")
     for name in inputs:  # before anything is discarded: a damaged input stops the stage
         problem = damage(list_parts(workspace, name), read_marker(workspace, name))
         if problem is not None:
@@ -328,7 +334,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
             f"made with another configuration or other inputs ({state.detail}); rerun it with --force to discard "
             f"them (`speedplus {stage.name} -w {workspace.location} --force`, with this command's --set and "
-            "--config; a later `speedplus run` redoes the stages after it)")
+            f"--config; a later `speedplus run -w {workspace.location}` redoes the stages after it)")
     if state.state == "damaged" and not force:
         raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
     previous = None if force else read_marker(workspace, outputs[0]) if outputs else None

@@ -162,3 +162,31 @@ def exported(rendered, tmp_path_factory):
         assert result.returncode == 0, result.stderr
         out[export_format] = folder
     return out
+
+
+def missing_named(message: str, root: Path) -> list[str]:
+    """What an error message sends the user to that does not exist after the command (issue
+    58): a manifest it names (``the X manifest``, ``manifest X``, ``X manifest``), a path
+    under the workspace ``root``, a ``speedplus`` command, and the workspace such a command
+    is given with ``-w``/``--workspace``. Empty when all exist."""
+    import re
+
+    from pipeline.cli import app
+
+    said = " ".join(message.split())
+    missing = []
+    for name in {a or b for a, b in re.findall(r"the (\w+) manifest|manifest (\w+)", said)}:
+        if not any((root / "manifests" / name).glob("*.parquet")):
+            missing.append(f"manifest {name}")
+    for found in re.findall(re.escape(str(root)) + r"(/[\w./-]*)?", said):
+        path = root / found.strip("/").rstrip(".") if found else root
+        if not path.exists():
+            missing.append(str(path))
+    commands = {c.name for c in app.registered_commands} | {g.name for g in app.registered_groups}
+    for command, rest in re.findall(r"`speedplus ([\w-]+)([^`]*)`", said):
+        if command not in commands:
+            missing.append(f"command speedplus {command}")
+        workspace = re.search(r"(?:-w|--workspace) (\S+)", rest)
+        if workspace and not Path(workspace.group(1)).exists():
+            missing.append(f"workspace {workspace.group(1)}")
+    return missing

@@ -30,7 +30,8 @@ def load(path: Path, version: int, writer: str, again: str | None = None) -> Fie
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
-        raise SidecarError(f"{path}: missing; run {writer} first") from None
+        raise SidecarError(f"{path}: missing; {again} (a finished stage writes it anew only when forced)"
+                           ) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise SidecarError(f"{path}: not valid JSON ({error}); {again}") from None
     if not isinstance(data, dict):

@@ -80,7 +80,10 @@ def preflight(config: Config, workspace: Workspace | None = None) -> None:
         return
     frames = (config.trajectory.frames * len(config.trajectory.presets) if config.plan.mode == "trajectory"
               else config.plan.n_dataset)
-    count = config.plan.n_calibration + frames - len(read_keys(workspace, "captures"))
+    try:
+        count = config.plan.n_calibration + frames - len(read_keys(workspace, "captures"))
+    except InputError:  # damaged: acquire says so itself, and --force captures them all anew
+        count = config.plan.n_calibration + frames
     folder = next((p for p in (workspace.root, *workspace.root.parents) if p.exists()), None)
     if folder is None:
         return

@@ -185,7 +185,8 @@ def gt_info(out: Path, item: dict[str, Any], camera_matrix: np.ndarray, vertices
     mask_path = folder / "mask" / f"{item['im_id']:06d}_000000.png"
     written = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
     if written is None:  # recorded in the manifest, since removed from the export folder
-        raise InputError(f"{mask_path}: missing or unreadable; rerun the export with --force")
+        raise InputError(f"{mask_path}: missing or unreadable; rerun the same export command (its --format and "
+                         "--out) with --force")
     mask = written > 0
     depth_path = folder / "depth" / f"{item['im_id']:06d}.png"
     valid = mask & (cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED) > 0) if depth_path.exists() else mask & False

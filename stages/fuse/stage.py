@@ -75,7 +75,8 @@ class SourceModel:
         self.holders = holders if kinematics.chains is not None else None
         if kinematics.chains is not None and (holders is None or holders.names != kinematics.chains.parameter_names):
             raise InputError("calibration.json: arm_kinematics.chains was fitted to other robots than the facility "
-                             "folder's (its parameter names differ); rerun calibrate --force")
+                             "folder's (its parameter names differ); rerun calibrate with --force (`speedplus "
+                             "calibrate -w W --force`)")
         self.testbed = testbed
         self.payload = payload
         self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}

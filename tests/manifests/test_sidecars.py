@@ -67,7 +67,7 @@ def test_a_malformed_session_names_the_file_and_key(tmp_path, change, message):
 
 def test_missing_or_corrupt_sessions_say_what_to_rerun(tmp_path):
     workspace = Workspace(tmp_path)
-    with pytest.raises(SidecarError, match="session.json: missing; run acquire first"):
+    with pytest.raises(SidecarError, match="session.json: missing; rerun acquire with --force"):
         read_session(workspace)
     workspace.session_path.write_text('{"version": 1, "backend": ')
     with pytest.raises(SidecarError, match="session.json: not valid JSON .*; rerun acquire with --force"):
@@ -170,7 +170,7 @@ def test_a_malformed_calibration_names_the_file_and_the_key(tmp_path, path, valu
 
 
 def test_missing_calibration_says_to_run_calibrate(tmp_path):
-    with pytest.raises(SidecarError, match="calibration.json: missing; run calibrate first"):
+    with pytest.raises(SidecarError, match="calibration.json: missing; rerun calibrate with --force"):
         read_calibration(Workspace(tmp_path))
 
 

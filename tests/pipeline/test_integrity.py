@@ -113,3 +113,20 @@ def test_a_manifest_without_rows_is_compacted_into_one_empty_part_it_can_be_read
     assert [p.name for p in list_parts(workspace, "comparisons")] == ["part-00000.parquet"]
     table = read_manifest(workspace, "comparisons")
     assert table.num_rows == 0 and table.schema.names == [c.name for c in COMPARISONS.columns]
+
+
+def test_a_marker_that_is_not_json_is_damaged_and_force_writes_it_anew(tmp_path):
+    """The message says "redo the stage that writes it with --force": that works (issue 58,
+    part 3), and the chain's checks before the first stage do not stop on it either."""
+    config, ws = load_config("smoke"), Workspace(tmp_path)
+    plan = registry.stage("plan")
+    runner.run_stage(plan, config, ws)
+    ws.marker_path("plan").write_text("{not json")
+    ws.marker_path("captures").write_text("{not json")
+    state = runner.status(plan, config, ws)
+    assert state.state == "damaged" and "not valid JSON" in state.detail and "--force" in state.detail
+    with pytest.raises(runner.StageError, match="damaged"):
+        runner.run_stage(plan, config, ws)
+    registry.stage("acquire").check(config, ws)  # its disk check counts every capture as still to make
+    assert runner.run_stage(plan, config, ws, force=True).action == "ran"
+    assert runner.status(plan, config, ws).state == "done"

@@ -115,3 +115,12 @@ def test_a_stage_run_stamps_its_parts_and_nothing_else_can(smoke, tmp_path):
     assert part_fingerprints(ws, "plan") == {runner.fingerprint(PLAN, smoke, ws)}
     with pytest.raises(RuntimeError):  # the runner's view of the workspace was its own
         ws.output_fingerprint("plan")
+
+
+def test_stale_results_say_when_the_target_s_files_changed():
+    """A target edited in place (same target.path, another mesh) is named, not "another
+    configuration" (issue 58, part 3)."""
+    made = {"config": {"plan": {"seed": 1}}, "inputs": {}, "target": "aaa", "schema_version": "1"}
+    said = runner.differences(made, {**made, "target": "bbb"})
+    assert said == "the target's files changed (its target.toml or mesh)"
+    assert runner.differences(made, made) == "made with another configuration or inputs"

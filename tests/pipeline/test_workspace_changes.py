@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import Workspace, read_manifest
-from tests.conftest import speedplus
+from tests.conftest import missing_named, speedplus
 
 REPOSITORY = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -63,6 +63,8 @@ def test_a_refused_command_leaves_every_byte_as_it_was(finished, command, tmp_pa
     result = speedplus(command, "--workspace", str(finished), *args)
     assert result.returncode == 1, result.stdout + result.stderr
     assert "--force" in result.stderr
+    # what the message sends the user to exists; export's names the folder it would make instead
+    assert command == "export" or not missing_named(result.stderr, finished), result.stderr
     assert digest(finished) == before
 
 
@@ -72,6 +74,8 @@ def test_a_stage_that_fails_puts_back_what_force_discarded(finished):
     result = speedplus("calibrate", "--workspace", str(finished), "--force", "--set",
                        "calibrate.max_rotation_error_rad=1e-9")
     assert result.returncode == 1 and "calibration refused" in result.stderr
+    said = " ".join(result.stderr.split())
+    assert not missing_named(said, finished) and "calibration_samples manifest still holds the results" in said, said
     assert digest(finished) == before
     assert speedplus("status", "--workspace", str(finished)).stdout.count("done") >= 8
 
@@ -240,6 +244,7 @@ def test_a_chain_that_fails_late_keeps_the_stages_it_completed(tmp_path):
     last = said[said.index("calibration refused"):]
     assert "kept: plan, acquire (completed;" in last and f"speedplus status -w {root}" in last, last
     assert said.endswith("run the same command to resume from the stage that failed")
+    assert not missing_named(said, root), said
     status = " ".join(speedplus("status", "--workspace", str(root)).stdout.split())
     assert "│ plan │ done" in status and "│ acquire │ done" in status and "│ calibrate │ partial" in status, status
     assert f"kept: plan, acquire; `speedplus run -w {root}` goes on from calibrate" in status
@@ -356,6 +361,7 @@ def test_a_chain_failing_at_each_stage_keeps_every_stage_before_it_byte_for_byte
             lost = speedplus(*args, env={"SPEEDPLUS_FAULT_ENGINE_LOST_AFTER": "3"})
             said = " ".join(lost.stderr.split())
             assert lost.returncode == 1 and "kept: 3 finished rows of render (the engine failed" in said, said
+            assert not missing_named(said, root), said
             assert "kept: plan, acquire, calibrate, fuse, label (completed;" in said
             kept_rows = 3
         failed = speedplus(*args, env={"SPEEDPLUS_FAULT_FAIL_STAGE": failing})
@@ -365,7 +371,7 @@ def test_a_chain_failing_at_each_stage_keeps_every_stage_before_it_byte_for_byte
         if index == 0:
             assert not root.exists()  # nothing completed: no folder left behind
             continue
-        assert f"kept: {', '.join(chain[:index])} (completed;" in said, said
+        assert f"kept: {', '.join(chain[:index])} (completed;" in said and not missing_named(said, root), said
         for stage in chain[:index]:
             for name in _outputs(stage):
                 _same_results(root, reference, name)
