@@ -68,6 +68,9 @@ class ManifestSpec:
     key: str = "sample_id"
     #: path columns naming workspace files whose sizes and hashes the completion marker records
     files: tuple[str, ...] = ()
+    #: the command that makes it, where that is not the chain's stage of its name (what a
+    #: reader that misses it is told to run, with ``-w W``)
+    made_by: str = ""
 
     def schema(self) -> pa.Schema:
         return pa.schema(
@@ -301,7 +304,8 @@ RENDERS = ManifestSpec("renders", "synthetic twins of the labelled testbed captu
                        _RENDER_COLUMNS, files=("image_path", "mask_path", "ground_truth_path"))
 
 TRAIN = ManifestSpec("train", "the synthetic training set: SO(3)-uniform poses, random lights (SPEED+-like)",
-                     _RENDER_COLUMNS, files=("image_path", "mask_path", "ground_truth_path"))
+                     _RENDER_COLUMNS, files=("image_path", "mask_path", "ground_truth_path"),
+                     made_by="speedplus render --set train")
 
 PREDICTION_DOMAINS = ("synthetic", "lightbox", "sunlamp")
 

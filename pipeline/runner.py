@@ -304,9 +304,13 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     current = None if made_with is None else _digest(made_with)
     if current is None:
         missing = [name for name in inputs if read_marker(workspace, name) is None]
+        made = {MANIFESTS[name].made_by for name in missing if name in MANIFESTS and MANIFESTS[name].made_by}
+        how = ("; ".join(f"make it first: `{command} -w {workspace.location}`" for command in sorted(made))
+               if made else f"run the stage(s) before it first (or `speedplus run -w {workspace.location}`)")
+        if made and any(name not in MANIFESTS or not MANIFESTS[name].made_by for name in missing):
+            how += f"; and run the stages before it (`speedplus run -w {workspace.location}`)"
         raise StageError(f"stage {stage.name!r} needs the complete manifest(s) {', '.join(missing)} in "
-                         f"{workspace.root}; run the stage(s) before it first (or `speedplus run -w "
-                         f"{workspace.location}`)")
+                         f"{workspace.root}; {how}")
     for name in inputs:  # before anything is discarded: a damaged input stops the stage
         problem = damage(list_parts(workspace, name), read_marker(workspace, name))
         if problem is not None:

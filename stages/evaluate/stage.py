@@ -12,6 +12,7 @@ prints Table 2 for each and each comparison.
 
 from __future__ import annotations
 
+import shlex
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -109,10 +110,12 @@ def _default_models(config: Config, workspace: Workspace | None) -> list[str]:
 def _no_model(config: Config, workspace: Workspace | None) -> InputError:
     where = "W" if workspace is None else workspace.location
     target = workspace_target(config, workspace).name
+    # the target as the command named it: a workspace refused before its first stage saved nothing
+    folder = f" --set target.path={shlex.quote(config.target.path)}" if config.target.path else ""
     return InputError(f"evaluate.models is empty and {where}/models/ holds no model: this workspace's target is "
-                      f"{target!r}, and the shipped models are of {BUILTIN_TARGET!r}; train one for it (speedplus "
-                      f"train-reference -w {where}: its models stay in {where}/models/, where evaluate finds them)"
-                      f", or name one (evaluate --model FILE)")
+                      f"{target!r}, and the shipped models are of {BUILTIN_TARGET!r}; train one for it (`speedplus "
+                      f"train-reference -w {where} --profile {config.profile}{folder}`: its models stay in "
+                      f"{where}/models/, where evaluate finds them), or name one (evaluate --model FILE)")
 
 
 def _digest(path: Path) -> str:

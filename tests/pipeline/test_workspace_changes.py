@@ -117,6 +117,12 @@ def test_status_and_verify_refuse_a_missing_workspace(tmp_path):
     assert not (tmp_path / "nowhere").exists()
 
 
+def test_an_export_of_a_training_set_not_rendered_gives_the_command_that_renders_it(finished):
+    result = speedplus("export", "--workspace", str(finished), "--set", 'export.sets=["train"]')
+    said = " ".join(result.stderr.split())
+    assert result.returncode == 1 and f"make it first: `speedplus render --set train -w {finished}`" in said, said
+
+
 def test_a_refused_command_on_a_new_folder_leaves_no_folder(tmp_path):
     result = speedplus("calibrate", "--workspace", str(tmp_path / "new"))
     assert result.returncode == 1 and "needs the complete manifest" in " ".join(result.stderr.split())
@@ -389,3 +395,15 @@ def test_a_chain_failing_at_each_stage_keeps_every_stage_before_it_byte_for_byte
         for name in _outputs(stage):
             _same_results(root, reference, name)
     assert (root / "report" / "index.html").is_file()
+
+
+def test_a_target_without_a_model_is_refused_first_with_a_command_that_trains_for_it(tmp_path):
+    """Issue 58: the chain is refused before the plan, and the training command it gives
+    names the same target and profile (the refused workspace saved neither)."""
+    root, target = tmp_path / "new", os.path.join(REPOSITORY, "data", "targets", "cubesat3u")
+    refused = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--target", target)
+    said = " ".join(refused.stderr.split())
+    assert refused.returncode == 1 and "holds no model" in said and not root.exists(), said
+    command = said[said.index("`speedplus train-reference") + 1:]
+    command = command[: command.index("`")]
+    assert command == f"speedplus train-reference -w {root} --profile smoke --set target.path={target}", command
