@@ -104,6 +104,10 @@ def claim(out: Path, workspace: Workspace, export_format: str) -> None:
             theirs = json.loads(mark.read_text())
         except (OSError, ValueError):
             theirs = None
+        # a folder inside the workspace is its own, wherever the workspace was when it was written
+        inside = workspace.remote is None and out.resolve().is_relative_to(workspace.root.resolve())
+        if inside and isinstance(theirs, dict):
+            theirs = {**theirs, "workspace": workspace.location}
         if theirs != ours:
             what = (f"a {theirs.get('format')} export of {theirs.get('workspace')}" if isinstance(theirs, dict)
                     else "files speedplus did not write")

@@ -5,6 +5,7 @@ stage, settings layer on the saved configuration, stale results say why, models 
 added beside the shipped ones, and Ctrl-C says what it kept."""
 
 import hashlib
+import json
 import os
 import shutil
 import signal
@@ -407,3 +408,15 @@ def test_a_target_without_a_model_is_refused_first_with_a_command_that_trains_fo
     command = said[said.index("`speedplus train-reference") + 1:]
     command = command[: command.index("`")]
     assert command == f"speedplus train-reference -w {root} --profile smoke --set target.path={target}", command
+
+
+def test_a_moved_workspace_exports_again_into_its_own_export_folder(finished, tmp_path):
+    """The refusal of a foreign export folder says to leave --out out: the workspace's own
+    folder stays its own when the workspace is moved (issue 58, part 3)."""
+    assert speedplus("export", "--workspace", str(finished)).returncode == 0
+    moved = tmp_path / "moved"
+    finished.rename(moved)
+    again = speedplus("export", "--workspace", str(moved), "--force")
+    assert again.returncode == 0, again.stderr
+    mark = json.loads((moved / "export" / "speedplus" / ".speedplus-export.json").read_text())
+    assert mark["workspace"] == str(moved)
