@@ -114,8 +114,9 @@ def _no_model(config: Config, workspace: Workspace | None) -> InputError:
     folder = f" --set target.path={shlex.quote(config.target.path)}" if config.target.path else ""
     return InputError(f"evaluate.models is empty and {where}/models/ holds no model: this workspace's target is "
                       f"{target!r}, and the shipped models are of {BUILTIN_TARGET!r}; train one for it (`speedplus "
-                      f"train-reference -w {where} --profile {config.profile}{folder}`: its models stay in "
-                      f"{where}/models/, where evaluate finds them), or name one (evaluate --model FILE)")
+                      f"train-reference -w {where}{folder}`, with this command's --profile, --config and --set: its "
+                      f"models stay in {where}/models/, where evaluate finds them), or name one (evaluate --model "
+                      "FILE)")
 
 
 def _digest(path: Path) -> str:

@@ -1,0 +1,112 @@
+"""The docs are tests (issue 59): every fenced block of README.md and docs/*.md says what
+it is (``tests/docs_blocks.py``), the command summaries name commands and options that
+exist, the blocks that need a cluster, a bucket or hours name the tests that run them, and
+the walk runs every other command and Python block as written, in order, on the smoke
+profile, in a sandbox with the repository's layout."""
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from functools import cache
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from tests.docs_blocks import DOCUMENTS, KINDS, ROOT, Block, all_blocks
+
+#: what the walk changes in a documented command, and only this: every profile is the smoke
+#: profile (seconds per stage; a command that names none gets it), and a placeholder stands
+#: for the shipped example the block names
+PROFILE = re.compile(r"(?<!\S)(-p|--profile)\s+\w+")
+
+
+def test_every_block_says_what_it_is():
+    found = all_blocks()
+    assert len(found) >= 20  # the parser still finds them
+    assert [b.where for b in found if b.kind not in KINDS] == []
+
+
+def test_a_block_covered_elsewhere_names_tests_that_exist():
+    for block in (b for b in all_blocks() if b.kind == "covered-by"):
+        assert block.arguments, block.where
+        for cited in block.arguments:
+            path, _, name = cited.partition("::")
+            text = (ROOT / path).read_text()
+            if name:
+                assert f"def {name}(" in text, (block.where, cited)
+            else:  # a script that runs the block's commands itself (.ci/run: make dataset, make test)
+                assert all(command.split(" ")[:2] == ["make", "dataset"] and "make dataset" in text
+                           or command in text for command in block.commands()), (block.where, cited)
+
+
+@cache
+def _help(command: str) -> str:
+    result = CliRunner().invoke(app, [command, "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, (command, result.output)
+    return result.output
+
+
+def test_every_command_summary_names_commands_and_options_that_exist():
+    for block in (b for b in all_blocks() if b.kind in ("synopsis", "run", "covered-by")):
+        for line in block.text.splitlines():
+            words = line.split("#")[0].replace("[", " ").replace("]", " ").split()
+            if words[:1] != ["speedplus"]:
+                continue
+            first_option = next((i for i, w in enumerate(words) if w.startswith("-")), len(words))
+            commands = [w for w in words[1:first_option] if w != "|" and not w.isupper()]
+            options = {w.split("=")[0] for w in words if re.fullmatch(r"--?[a-z][\w-]*(=.*)?", w)}
+            for command in commands:
+                shown = _help(command)
+                assert [o for o in options if o not in shown] == [], (block.where, command, line)
+
+
+def _sandbox(root: Path) -> Path:
+    """A folder laid out as the repository (its entries linked) with its own ``data/`` (the
+    shipped targets linked in) and ``../shared`` beside it: what the docs write stays here."""
+    repository = root / "speedplus-builder"
+    repository.mkdir()
+    for entry in ROOT.iterdir():
+        if entry.name not in ("data", "exports", ".git"):
+            (repository / entry.name).symlink_to(entry)
+    (repository / "data").mkdir()
+    (repository / "data" / "targets").symlink_to(ROOT / "data" / "targets")
+    (root / "shared").symlink_to((ROOT.parent / "shared").resolve())
+    return repository
+
+
+def _shell(block: Block, command: str, cwd: Path) -> None:
+    line = PROFILE.sub(lambda m: f"{m.group(1)} smoke", command)
+    words = shlex.split(line)
+    if not PROFILE.search(line) and len(words) > 1 and "--profile" in _help(words[1]):
+        line += " --profile smoke"  # a new workspace takes the default profile: the walk's is smoke
+    for name, value in block.placeholders.items():
+        line = re.sub(rf"(?<![\w/]){name}(?![\w/])", value, line)
+    assert shlex.split(line)[0] == "speedplus", f"{block.where}: {line}: only speedplus commands run in the walk"
+    env = {**os.environ, "COLUMNS": "100", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    result = subprocess.run(line, shell=True, cwd=cwd, env=env, capture_output=True, text=True, timeout=1200)
+    said = result.stdout[-1500:] + result.stderr[-3000:]
+    assert result.returncode == 0, f"{block.where}: `{line}` exited {result.returncode}:\n{said}"
+    assert "Traceback" not in result.stderr, f"{block.where}: `{line}`:\n{said}"
+
+
+@pytest.mark.skipif(not (ROOT.parent / "shared" / "external").is_dir(), reason="the docs cite ../shared/external")
+def test_the_docs_run_as_written(tmp_path):
+    """Every run block, document by document in reading order; then every Python block on
+    the workspaces and exports they made."""
+    cwd = _sandbox(tmp_path)
+    ran = []
+    for block in (b for name in DOCUMENTS for b in all_blocks() if b.where.startswith(f"{name}:") and b.kind == "run"):
+        for command in block.commands():
+            _shell(block, command, cwd)
+            ran.append(command)
+    assert len(ran) >= 15
+    for block in (b for b in all_blocks() if b.kind == "python"):
+        script = tmp_path / "block.py"
+        script.write_text(block.text)
+        result = subprocess.run([sys.executable, str(script)], cwd=cwd, capture_output=True, text=True, timeout=600,
+                                env={**os.environ, "PYTHONPATH": str(ROOT)})
+        assert result.returncode == 0, f"{block.where}:\n{result.stderr[-3000:]}"
