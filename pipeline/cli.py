@@ -177,7 +177,7 @@ def _reading(ws: Workspace) -> Iterator[Workspace]:
 
 def _run(stages: list[str], workspace: str | None, profile: str | None, config: Path | None,
          saved: list[Override], force: bool, transient: list[Override] = (),
-         redo: tuple[str, ...] = ()) -> Workspace:
+         redo: tuple[str, ...] = (), command: str = "run") -> Workspace:
     """Run ``stages``; ``saved`` overrides go into W/config.toml, ``transient`` ones (which
     choose what a command does: render's image set) apply to this run only, and so do those
     of the ``run`` section (how to execute, never what: engine, workers), wherever they come
@@ -192,7 +192,7 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
     resolved, ws, switched_from = _context(workspace, profile, config, saved)
     existed = ws.root.exists()
     try:
-        _transaction(stages, resolved, transient, ws, force, switched_from, redo)
+        _transaction(stages, resolved, transient, ws, force, switched_from, redo, command)
     finally:
         if ws.remote is None and not existed and not _exists(ws):
             shutil.rmtree(ws.root, ignore_errors=True)  # refused before anything was made: no empty folder left
@@ -202,7 +202,7 @@ def _run(stages: list[str], workspace: str | None, profile: str | None, config: 
 
 
 def _transaction(stages: list[str], resolved: Config, transient: list[Override], ws: Workspace, force: bool,
-                 switched_from: str | None, redo: tuple[str, ...]) -> None:
+                 switched_from: str | None, redo: tuple[str, ...], command: str) -> None:
     """The stages under the workspace's lock, each stage its own transaction
     (``manifests.snapshot``, docs/architecture.md section 4): a stage that completes is
     kept, whatever comes after it, as make and Snakemake keep every finished target; a
@@ -217,7 +217,7 @@ def _transaction(stages: list[str], resolved: Config, transient: list[Override],
         try:
             for name in _chain(stages, resolved, ws, switched_from):
                 _one_stage(name, resolved, with_overrides(resolved, transient), ws, force, started, redo,
-                           follow=len(stages) > 1, kept=done)
+                           follow=len(stages) > 1, kept=done, command=command)
                 done.append(name)
             write_config(resolved, ws.config_path)
         except Exception as error:
@@ -252,7 +252,7 @@ def _chain(stages: list[str], resolved: Config, ws: Workspace, switched_from: st
 
 
 def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force: bool, started: list[str],
-               redo: tuple[str, ...], follow: bool, kept: list[str]) -> None:
+               redo: tuple[str, ...], follow: bool, kept: list[str], command: str) -> None:
     """One stage of the command, its own transaction: a failure or refusal puts back what it
     changed (``W/config.toml`` too when it was the first to start); Ctrl-C keeps its rows.
     ``kept``: the stages of the chain done before it."""
@@ -270,7 +270,7 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
 
     try:
         outcome = runner.run_stage(registry.stage(name), resolved, ws, force=force, on_start=starting, redo=redo,
-                                   follow=follow)
+                                   follow=follow, command=command)
     except KeyboardInterrupt as interrupt:
         if began:  # rows made under this configuration are kept: save it, so that they resume
             write_config(saved, ws.config_path)
@@ -384,7 +384,7 @@ def _execute(entry: registry.StageEntry, request: Request, common: dict[str, Any
         out.print(escape(note), highlight=False)
     transient = [*request.transient, *_engine(common.get("engine"), common.get("ray_address"), common.get("workers"))]
     ws = _run(list(request.stages or (entry.name,)), workspace, profile, config, saved, bool(force), transient,
-              request.redo)
+              request.redo, entry.name)
     for line in request.report(ws) if request.report is not None else ():
         out.print(escape(line), highlight=False)
 
@@ -472,7 +472,7 @@ def _print_status(resolved: Config, ws: Workspace) -> None:
             rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
             detail = state.detail or (entry.note(config, ws) if state.state == "done" else "")
             table.add_row(label, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(detail))
-            if entry.chained and not entry.skipped_in_chain(config):
+            if entry.chained and label == entry.name and not entry.skipped_in_chain(config):  # render train: not run's
                 chain.append((entry.name, state.state))
     out.print(table)
     done = [name for name, state in chain if state == "done"]

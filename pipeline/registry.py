@@ -119,7 +119,7 @@ STAGES: tuple[StageEntry, ...] = (
     StageEntry("fuse", "per-source poses, rejection, Bayesian fusion (W/fusion.json)", "stages.fuse"),
     StageEntry("label", "SPEED+ labels, keypoints, boxes", "stages.label"),
     StageEntry("render", "Mitsuba 3 synthetic twins of the labels (or, with --set train, the training set)",
-               "stages.render", engines=True),
+               "stages.render", engines=True, views=True),
     StageEntry("evaluate", "ONNX model scores on twins and testbed images (Table 2)", "stages.evaluate",
                preflight=True, engines=True),
     StageEntry("report", "static HTML report (W/report/index.html)", "stages.report", replace_stale=True),
@@ -127,7 +127,7 @@ STAGES: tuple[StageEntry, ...] = (
                replace_stale=True, engines=True, views=True),
     StageEntry("train-reference", "train the reference keypoint CNNs (plain and augmented) on the synthetic "
                "training set and export ONNX (W/models/reference.onnx, reference_augmented.onnx)",
-               "stages.reference", chained=False, engines=True),
+               "stages.reference", chained=False, engines=True, views=True),
 )
 STAGE_NAMES = tuple(stage.name for stage in STAGES)
 CHAIN = tuple(stage.name for stage in STAGES if stage.chained)

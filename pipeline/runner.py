@@ -292,12 +292,14 @@ def _refuse_outdated_inputs(stage: StageEntry, config: Config, workspace: Worksp
 
 def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force: bool = False,
               on_start: Callable[[], None] | None = None, redo: tuple[str, ...] = (),
-              follow: bool = False) -> StageOutcome:
+              follow: bool = False, command: str = "run") -> StageOutcome:
     """Run (or resume, or skip) one stage; see the module docstring. ``on_start`` is called
     once every check has passed, just before anything in the workspace changes. ``redo``
     with ``force``: redo only these members (evaluate's models) and keep the others'.
     ``follow`` (a chain of stages): results stale only because an input was redone (an
-    earlier stage's ``--force``) are redone, saying so, instead of refused."""
+    earlier stage's ``--force``) are redone, saying so, instead of refused. ``command``: the
+    command the user ran, which a refusal tells them to run again with --force (the stage's
+    own where it is ``run``)."""
     resolved = stage.resolved(config, workspace)
     inputs, outputs = resolved.inputs, resolved.outputs
     made_with = fingerprint_payload(stage, config, workspace)
@@ -334,11 +336,14 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
                           f"{'were' if len(redone) > 1 else 'was'} redone; redoing it")
             replacing = True
     if state.state == "stale" and not (force or replacing):
+        again = stage.name if command == "run" else command
+        after = (f"; a later `speedplus run -w {workspace.location}` redoes the stages after it"
+                 if stage.chained and command in ("run", stage.name) else "")
         raise StageError(
             f"{workspace.display(workspace.manifest_dir(outputs[0]))} holds results of stage {stage.name!r} "
             f"made with another configuration or other inputs ({state.detail}); rerun it with --force to discard "
-            f"them (`speedplus {stage.name} -w {workspace.location} --force`, with this command's --set and "
-            f"--config; a later `speedplus run -w {workspace.location}` redoes the stages after it)")
+            f"them (`speedplus {again} -w {workspace.location} --force`, with this command's options, --set and "
+            f"--config{after})")
     if state.state == "damaged" and not force:
         raise StageError(f"stage {stage.name!r}: its results are damaged ({state.detail})")
     previous = None if force else read_marker(workspace, outputs[0]) if outputs else None
@@ -483,14 +488,17 @@ class Finding:
 
 
 def verify(config: Config, workspace: Workspace, stages: tuple[StageEntry, ...]) -> list[Finding]:
-    """Every completed manifest against its marker, and every file it recorded against its
-    size and hash; one finding per manifest (no problems: intact)."""
-    findings = []
-    for stage in stages:
-        for name in stage.resolved(config, workspace).outputs:
+    """Every completed manifest ``status`` lists against its marker, and every file it
+    recorded against its size and hash; one finding per manifest (no problems: intact)."""
+    findings, seen = [], set()
+    for stage in stages:  # under each view status shows (render's training set, every export)
+        names = [name for _, view in stage.status_views(config, workspace)
+                 for name in stage.resolved(view, workspace).outputs]
+        for name in dict.fromkeys(names):
             marker = read_marker(workspace, name)
-            if marker is None:
+            if marker is None or name in seen:
                 continue
+            seen.add(name)
             problem = damage(list_parts(workspace, name), marker)
             findings.append(Finding(stage.name, name, ([problem] if problem else [])
                                     + damaged_files(workspace, marker)))

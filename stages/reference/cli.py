@@ -30,14 +30,12 @@ def options(
 
     def recipe(config: Config, workspace: Workspace, force: bool) -> Request:
         from stages.reference.publish import publish_destinations, published
-        from stages.reference.stage import model_names
+        from stages.reference.stage import model_names, refuse_replacing, training_set
 
+        refuse_replacing(config, workspace, force)  # before anything is rendered or trained
         destinations = {} if out_dir is None else publish_destinations(  # refused before training
             config, workspace, list(model_names(config)), out_dir.expanduser().resolve(), force)
-        transient = (Override.of("render.set", "train", "train-reference"),
-                     Override.of("render.train_count", config.reference.images, "reference.images"),
-                     Override.of("render.train_resolution_scale", config.reference.resolution_scale,
-                                 "reference.resolution_scale"))
+        transient = training_set(config)
         if steps is not None:
             transient += (Override.of("reference.max_steps", steps, "--steps"),)
         return Request(transient=transient, stages=("render", "train-reference"),

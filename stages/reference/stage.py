@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import pyarrow as pa
 
-from core.config import Config
+from core.config import Config, Override, with_overrides
 from core.stage_io import Resolved
-from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests import Workspace, open_sink, read_keys, read_manifest, read_marker
 from manifests.integrity import sha256
+from speedplus.errors import InputError
 from stages.common.target import Target
 from stages.common.workspace_target import workspace_target
 
@@ -18,6 +19,33 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     metadata record the training set's camera (the input size) and render keys."""
     recorded = ("camera", "render.seed", "render.train_count", "render.train_resolution_scale", "render.train_spp")
     return Resolved(("train",), ("reference", *recorded), {}, ("models",))
+
+
+def training_set(config: Config) -> tuple[Override, ...]:
+    """The render settings of the training set train-reference renders and trains on: its
+    recipe's (``reference.images``, ``reference.resolution_scale``), for the command only."""
+    return (Override.of("render.set", "train", "train-reference"),
+            Override.of("render.train_count", config.reference.images, "reference.images"),
+            Override.of("render.train_resolution_scale", config.reference.resolution_scale,
+                        "reference.resolution_scale"))
+
+
+def status_views(config: Config, workspace: Workspace) -> list[tuple[str, Config]]:
+    """``status`` judges the models under the training set they were trained on, as the
+    command runs them (else a training set sized by ``render --count`` made them stale)."""
+    return [("train-reference", with_overrides(config, training_set(config)))]
+
+
+def refuse_replacing(config: Config, workspace: Workspace, force: bool) -> None:
+    """A training set of another size than the recipe's (``render --set train --count N``)
+    is the user's: replaced only with --force, and the refusal says how to train on it."""
+    marker = read_marker(workspace, "train")
+    if marker is None or marker.rows == config.reference.images or force:
+        return
+    raise InputError(f"{workspace.display(workspace.manifest_dir('train'))} holds a training set of {marker.rows} "
+                     f"images, and reference.images asks for {config.reference.images}: train on those with "
+                     f"`speedplus train-reference -w {workspace.location} --set reference.images={marker.rows}`, or "
+                     f"replace them by {config.reference.images} with --force")
 
 
 def model_names(config: Config) -> list[str]:

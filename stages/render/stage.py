@@ -8,6 +8,8 @@ pixels and an interrupted run resumes with the missing ``sample_id``s.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pyarrow as pa
 
 from core.config import Config
@@ -15,7 +17,7 @@ from core.config.params import keys_for
 from core.engines import store, threads_per_worker
 from core.progress import console, track
 from core.stage_io import Resolved
-from manifests import Workspace, open_sink, read_keys, read_manifest
+from manifests import Workspace, list_parts, open_sink, read_keys, read_manifest, read_marker
 from manifests.files import write_json_atomic
 from stages.common.cameras import train_camera
 from stages.common.dispatch import map_config
@@ -45,6 +47,15 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     lights = ("testbed.light_box_centres_m", "testbed.sun_lamp_position_m")  # where the twin's light comes from
     return Resolved(inputs, (*lights, "camera.sensor", "camera.gamma", "plan.mode", *keys), {},
                     (output_name(config),))
+
+
+def status_views(config: Config, workspace: Workspace) -> list[tuple[str, Config]]:
+    """The twins, and the training set where the workspace has one (``render --set train``
+    makes it, under the configuration's ``render.train_*``)."""
+    views = [("render", config.replace(render=replace(config.render, set="twin")))]
+    if read_marker(workspace, "train") is not None or list_parts(workspace, "train"):
+        views.append(("render train", config.replace(render=replace(config.render, set="train"))))
+    return views
 
 
 def response(config: Config) -> Response:

@@ -136,3 +136,30 @@ def test_an_interrupted_training_resumes_to_the_weights_of_an_uninterrupted_one(
     # a checkpoint of another run (another fingerprint) is ignored, never resumed from
     other, other_log = training.train(data, recipe, target, "augmented", checkpoint=checkpoint, tag="run-b")
     assert [entry["step"] for entry in other_log] == [2, 4, 6]
+
+
+def test_a_training_set_the_user_rendered_is_trained_on_or_replaced_only_with_force(tmp_path):
+    """Issue 59: 2000 images of `render --set train --count 2000` are not replaced by the
+    recipe's count without a word; the refusal's command trains on them, and `status` and
+    train-reference then agree that the models are up to date."""
+    ws = tmp_path / "w"
+    tiny = ("--set", "reference.max_steps=1", "--set", 'reference.variants=["plain"]')
+    made = speedplus("render", "--profile", "smoke", "-w", str(ws), "--set", "train", "--count", "8")
+    assert made.returncode == 0, made.stderr
+    before = sorted(p.name for p in (ws / "renders" / "train").glob("*.png"))
+    refused = speedplus("train-reference", "-w", str(ws), "--set", "reference.images=6", *tiny)
+    said = " ".join(refused.stderr.split())
+    assert refused.returncode == 1 and "holds a training set of 8 images" in said, said
+    command = said[said.index("`speedplus train-reference") + 1:]
+    command = command[: command.index("`")].split()
+    assert command == ["speedplus", "train-reference", "-w", str(ws), "--set", "reference.images=8"]
+    assert sorted(p.name for p in (ws / "renders" / "train").glob("*.png")) == before and not (ws / "models").exists()
+    trained = speedplus(*command[1:], *tiny)
+    assert trained.returncode == 0, trained.stderr
+    assert "render: up to date" in trained.stdout and "trained on 7 images" in " ".join(trained.stdout.split())
+    status = " ".join(speedplus("status", "-w", str(ws)).stdout.split())
+    assert "│ train-reference │ done │" in status and "│ render train │ done │ train 8" in status, status
+    again = speedplus(*command[1:], *tiny)
+    assert again.returncode == 0 and "train-reference: up to date" in again.stdout, again.stdout + again.stderr
+    verified = " ".join(speedplus("verify", "-w", str(ws)).stdout.split())  # what status lists, verify checks
+    assert "│ render │ train │ intact │" in verified and "│ train-reference │ models │ intact │" in verified, verified
