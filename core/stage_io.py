@@ -25,3 +25,7 @@ class Resolved:
     #: output column that names a row's member
     member_key: str | None = None
     member_column: str | None = None
+    #: members and ``extra`` keys whose files a stage of this workspace makes (evaluate: the
+    #: models train-reference writes in W/models/): a chain redoes the stage when only they
+    #: changed, as when an input manifest was redone
+    retrained: frozenset[str] = frozenset()

@@ -335,6 +335,15 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             console.print(f"{stage.name}: its input{'s' if len(redone) > 1 else ''} {', '.join(redone)} "
                           f"{'were' if len(redone) > 1 else 'was'} redone; redoing it")
             replacing = True
+    if state.state == "stale" and follow and not (force or replacing):
+        retrained = _retrained(stage, config, workspace, state, resolved)
+        if retrained:
+            console.print(f"{stage.name}: {', '.join(retrained)} retrained in this workspace; redoing "
+                          f"{'what it made' if not state.members_changed else 'its results'}")
+            if state.members_changed:
+                force, state, forget = _member_redo(stage.name, state, resolved, True, state.members_changed)
+            else:
+                replacing = True
     if state.state == "stale" and not (force or replacing):
         again = stage.name if command == "run" else command
         after = (f"; a later `speedplus run -w {workspace.location}` redoes the stages after it"
@@ -407,6 +416,25 @@ def _write_markers(stage: StageEntry, workspace: Workspace, outputs: tuple[str, 
             current, rows[name], stage.name, SCHEMA_VERSION, metadata.version("speedplus-builder"),
             round(seconds, 3), resumed, datetime.now(UTC).isoformat(timespec="seconds"), made_with, parts, files,
             dict(members or {})))
+
+
+def _retrained(stage: StageEntry, config: Config, workspace: Workspace, state: StageStatus,
+               resolved: Any) -> list[str]:
+    """What alone made the results stale, where it is files a stage of this workspace remade
+    (``Resolved.retrained``): the changed members, or the changed ``extra`` keys; else none."""
+    if state.members_changed:
+        return list(state.members_changed) if set(state.members_changed) <= resolved.retrained else []
+    recorded = [m.made_with for m in (read_marker(workspace, name) for name in resolved.outputs) if m]
+    current = fingerprint_payload(stage, config, workspace)
+    if current is None or not recorded or not all(isinstance(r, dict) for r in recorded):
+        return []
+    same = ("stage", "schema_version", "config", "inputs", "target")
+    if any({k: r.get(k) for k in same} != {k: current.get(k) for k in same} for r in recorded):
+        return []
+    new = current.get("extra", {})
+    changed = {key for r in recorded for old in (r.get("extra", {}),) for key in old.keys() | new.keys()
+               if old.get(key) != new.get(key)}
+    return sorted(changed) if changed and changed <= resolved.retrained else []
 
 
 def _only_members_differ(state: StageStatus, resolved: Any) -> bool:

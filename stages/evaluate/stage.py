@@ -131,11 +131,19 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     detector = detector_path(config, workspace)
     # the detector starts every model's self crop: a new one redoes them all
     extra = {"detector": "search" if detector is None else _digest(detector)}
+    paths = model_paths(config, workspace)
+    ours = None if workspace is None or workspace.remote is not None else workspace.resolve(MODELS_DIR).resolve()
+
+    def trained_here(path: Path | None) -> bool:
+        return ours is not None and path is not None and path.resolve().is_relative_to(ours)
+
+    retrained = frozenset({*(p.stem for p in paths if trained_here(p)), *(("detector",) if trained_here(detector)
+                                                                            else ())})
     return Resolved(("labels", "renders", "captures") + (("plan",) if sequences else ()), ("evaluate", "plan.mode"),
                     extra,
                     ("predictions", "scores", "comparisons") + (("tracks",) if sequences else ()),
-                    members={path.stem: _digest(path) for path in model_paths(config, workspace)},
-                    member_key="evaluate.models", member_column="model")
+                    members={path.stem: _digest(path) for path in paths},
+                    member_key="evaluate.models", member_column="model", retrained=retrained)
 
 
 def preflight(config: Config, workspace: Workspace | None = None) -> None:

@@ -421,3 +421,23 @@ def test_a_moved_workspace_exports_again_into_its_own_export_folder(finished, tm
     assert again.returncode == 0, again.stderr
     mark = json.loads((moved / "export" / "speedplus" / ".speedplus-export.json").read_text())
     assert mark["workspace"] == str(moved)
+
+
+def test_run_rescores_after_models_are_trained_in_the_workspace(finished):
+    """Issue 59: models and a detector that train-reference made in W/models/ are this
+    workspace's own work, as a redone input is: after they are trained again, `speedplus run`
+    rescores with them, saying so, where it used to refuse until `evaluate --force`."""
+    recipe = ("--set", "reference.images=6", "--set", 'reference.variants=["plain", "detector"]')
+    for steps in (1, 2):
+        trained = speedplus("train-reference", "--workspace", str(finished), *recipe, "--set",
+                            f"reference.max_steps={steps}", *(("--force",) if steps > 1 else ()))
+        assert trained.returncode == 0, trained.stderr
+        result = speedplus("run", "--workspace", str(finished))
+        said = " ".join((result.stdout + result.stderr).split())
+        assert result.returncode == 0, result.stderr
+        assert "evaluate: ran" in said, said
+    assert "evaluate: detector retrained in this workspace" in said, said
+    scored = {row["model"] for row in read_manifest(Workspace(finished), "scores").to_pylist()}
+    assert "reference" in scored, scored
+    again = speedplus("run", "--workspace", str(finished))
+    assert again.returncode == 0 and "evaluate: up to date" in again.stdout, again.stdout + again.stderr
