@@ -329,7 +329,7 @@ PREDICTIONS = ManifestSpec(
         Column("pose_found", pa.bool_(), "", "the model's output gave a pose that the image supports (else scored "
                "as the worst case, e_q = pi and e_t = 1: non-finite outputs, and refused poses)"),
         Column("pose_refused", pa.string(), "", "why a decoded pose was refused: the target drawn at it outside the "
-               "crop the model saw, or not about the crop's size (stages/evaluate/support.py); null when not",
+               "crop the model saw, or not about the crop's size (stages/common/pose_support.py); null when not",
                nullable=True),
         Column("pnp_method", pa.string(), "", "how the pose was found: AP3P in RANSAC, EPnP on all points "
                "(no consensus), the model's own pose output, or none", kind="enum",

@@ -6,6 +6,7 @@ relative to ``W`` and may never leave it.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -239,11 +240,12 @@ class Workspace:
         return self.root / check_relative(relpath)
 
     def display(self, path: Path) -> str:
-        """A path as users should read it in messages: relative to the workspace's parent
-        (in the store: its URI)."""
+        """A path as users can paste it: relative to the current directory when it lies
+        below it, else absolute (in the store: its URI)."""
         if self.remote is not None and path.is_relative_to(self.root):
             return f"{self.location}/{path.relative_to(self.root).as_posix()}"
+        absolute = Path(os.path.abspath(path))
         try:
-            return str(path.relative_to(self.root.parent))
-        except ValueError:
-            return str(path)
+            return str(absolute.relative_to(Path.cwd()))
+        except (ValueError, OSError):  # outside it, or the current directory is gone
+            return str(absolute)

@@ -33,6 +33,7 @@ from core.engines import EngineError
 from manifests import Workspace
 from manifests.lock import WorkspaceLock, holder
 from manifests.remote import Remote, RemoteCopy, is_remote, working_copy_for
+from manifests.schema import MANIFESTS
 from manifests.snapshot import Snapshot
 from manifests.workspace import CONFIG_FILE
 from pipeline import registry, runner
@@ -291,11 +292,13 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
             started.remove(name)
         raise
     snapshot.drop()
-    rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items())
+    # a marker-only output (the report's folder) has no rows to count
+    rows = ", ".join(f"{k} {v} rows" for k, v in outcome.rows.items() if k in MANIFESTS)
+    rows = f" ({rows})" if rows else ""
     if outcome.action == "skipped":
-        out.print(f"[green]{name}[/]: up to date ({rows})")
+        out.print(f"[green]{name}[/]: up to date{rows}")
     else:
-        out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s ({rows})")
+        out.print(f"[green]{name}[/]: {outcome.action} in {outcome.seconds:.1f} s{rows}")
 
 
 def _engine_failed(error: EngineError, name: str, began: bool, saved: Config, snapshot: Snapshot,
@@ -469,7 +472,7 @@ def _print_status(resolved: Config, ws: Workspace) -> None:
     for entry in registry.STAGES:
         for label, config in entry.status_views(resolved, ws):
             state = runner.status(entry, config, ws)
-            rows = ", ".join(f"{k} {v}" for k, v in state.rows.items()) or "-"
+            rows = ", ".join(f"{k} {v}" for k, v in state.rows.items() if k in MANIFESTS) or "-"
             detail = state.detail or (entry.note(config, ws) if state.state == "done" else "")
             table.add_row(label, f"[{colours[state.state]}]{state.state}[/]", escape(rows), escape(detail))
             if entry.chained and label == entry.name and not entry.skipped_in_chain(config):  # render train: not run's

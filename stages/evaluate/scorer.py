@@ -19,8 +19,8 @@ from stages.common.keypoint_pnp import PnPSolution, plausible, pose_from_keypoin
 from stages.common.model_contract import CROP_MARGIN
 from stages.common.model_input import apply_affine, points_box
 from stages.common.pose_model import PoseModel
+from stages.common.pose_support import refusal
 from stages.common.scores import score
-from stages.evaluate.support import refusal
 
 
 @dataclass(frozen=True)
@@ -262,7 +262,7 @@ def predict(model: PoseModel, items: list[dict[str, Any]], camera_matrix: np.nda
 def _scored(solution: PnPSolution | None, item: dict[str, Any], model: PoseModel, box: np.ndarray | None,
             camera_matrix: np.ndarray, dist: np.ndarray, shape: tuple[int, ...]) -> tuple[str | None, dict[str, float]]:
     """Why the image cannot support ``solution`` (None: it can) and its scores: a pose
-    refused or missing scores the worst case, ``e_q = pi``, ``e_t = 1`` (support.py)."""
+    refused or missing scores the worst case, ``e_q = pi``, ``e_t = 1`` (stages/common/pose_support.py)."""
     refused = None if solution is None else refusal(solution, model.contract.keypoints_m, box, camera_matrix, dist,
                                                     shape[1], shape[0])
     if solution is not None and refused is None:

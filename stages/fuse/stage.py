@@ -32,6 +32,7 @@ from core.progress import track
 from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest
 from manifests.sidecars import Calibration, FusionRecord, SourceCalibration, read_calibration, write_fusion
+from manifests.workspace import FUSION_FILE
 from speedplus.errors import InputError
 from stages.common import arms
 from stages.common import geometry as g
@@ -348,10 +349,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         offset_sigma_m=tuple(float(v) for v in offset.sigma_m), offset_from=offset.removed_from,
         offset_why=offset.why, marker_sigma_m=None if geometry is None else geometry.marker_sigma_m,
         sigma_why=f"motion capture's fit: {geometry_why}{short_why}"))
-    print(f"fuse: sigma factors: position x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f} "
-          f"(as measured {measured.t[0]:.2f} {measured.t[1]:.2f} {measured.t[2]:.2f}), rotation {factor.r:.2f} "
-          f"({why}); position x, y, z: {', '.join(sources)} ({axis_why}); offset: {offset.why}; motion capture's "
-          f"fit: {geometry_why}{short_why}")
+    # one short line; why each figure is what it is stays in W/fusion.json (why, axes.why, offset.why)
+    print(f"fuse: sigma factors x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, rotation {factor.r:.2f}"
+          f"; position x, y, z: {', '.join(sources)}; why: {workspace.display(workspace.root / FUSION_FILE)}")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]
     with open_sink(workspace, "poses", config.run.part_rows) as sink:

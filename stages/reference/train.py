@@ -32,6 +32,7 @@ from stages.common.image_io import read_image, to_uint8
 from stages.common.model_contract import IR_VERSION, OPSET, Channels, ModelContract
 from stages.common.model_input import apply_affine, normalise, points_box, prepare
 from stages.common.pose_model import PoseModel
+from stages.common.pose_support import refusal
 from stages.common.scores import score
 from stages.common.target import Target
 from stages.reference.augment import augment, geometric
@@ -254,7 +255,11 @@ def held_out_scores(path: Path, data: dict[str, np.ndarray], camera_matrix: np.n
         solutions, _ = poses_from_heatmaps(model.infer(batch)[0], list(data["maps"][first:first + 32]), model.contract,
                                            camera_matrix, dist, [0.01 * row["width"] for row in rows])
         for row, solution in zip(rows, solutions, strict=True):
-            if solution is None:  # non-finite outputs: the worst case, as evaluate scores it
+            # a pose the crop cannot support is a miss, as evaluate scores it: the worst case,
+            # so that no mean reads above pi + 1 (stages/common/pose_support.py)
+            refused = solution is None or refusal(solution, model.contract.keypoints_m, points_box(row["keypoints_px"]),
+                                                  camera_matrix, dist, row["width"], row["height"]) is not None
+            if refused:
                 errors.append({"err_q_rad": np.pi, "err_t_norm": 1.0, "score_speed": np.pi + 1.0})
                 continue
             errors.append(score(solution.q, solution.t, row["q_vbs2tango_true"], row["r_Vo2To_vbs_true"]))

@@ -52,6 +52,7 @@ def test_recipe_runs_a_few_steps_and_exports_loadable_plain_and_augmented_models
         card = json.loads(path.with_suffix(".json").read_text())
         assert card["training_images"] == 9 and card["held_out"]["images"] == 1
         assert card["augmentation"] == augmentation
+        assert 0 <= card["held_out"]["mean_speed_score"] <= np.pi + 1  # a miss scores the worst case, no more
         assert ws.resolve(rows[name]["path"]).read_bytes() == path.read_bytes()
     detector = Detector(out / "tango_detector.onnx")
     assert detector.contract.channels == "gray" and detector.contract.width == recipe.detector_input_width

@@ -7,7 +7,7 @@ import pytest
 from stages.common import geometry as g
 from stages.common.keypoint_pnp import PnPSolution
 from stages.common.model_input import points_box
-from stages.evaluate.support import refusal
+from stages.common.pose_support import refusal
 
 CAMERA = np.array([[2988.0, 0.0, 960.0], [0.0, 2988.0, 600.0], [0.0, 0.0, 1.0]])
 DIST = np.zeros(5)
