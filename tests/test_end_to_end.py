@@ -107,6 +107,29 @@ def test_report_is_browsable_every_sample_and_calibration_capture_in_it(finished
     assert "paper (TRON)" in page
 
 
+def test_the_report_opens_with_how_good_the_labels_are(finished):
+    """Issue 59: the first section is the labels' accuracy against the truth, under the
+    SPEED+ thresholds, the same count the truth gives; then the definitions, then the tables;
+    every figure has its caption; a comparison on too few images claims nothing."""
+    from manifests.sidecars import read_session
+    from stages.common.label_accuracy import label_accuracy
+
+    ws, _ = finished
+    page = (ws.root / "report" / "index.html").read_text()
+    headings = re.findall(r"<h2[^>]*>([^<]+)</h2>", page)
+    assert headings[1:4] == ["How good the labels are", "What the figures mean",
+                            "Table 2: domain gap of the models (oracle box)"], headings
+    accuracy = label_accuracy(read_manifest(ws, "truth").to_pylist(), read_manifest(ws, "labels").to_pylist(),
+                              read_manifest(ws, "poses").to_pylist(), read_session(ws).mockup_scale)
+    under, count, _, _ = accuracy.share()
+    first = page[page.index("How good the labels are</h2>"):page.index("What the figures mean</h2>")]
+    assert f"{under} of {count} labels" in first and "meet both SPEED+ thresholds" in first
+    assert "mean SPEED score" in first  # the domain gap, in one line a model
+    figures = re.findall(r'<img src="figures/[^"]+"[^>]*>(<figcaption>[^<]+</figcaption>)?', page)
+    assert figures and all(figures), "a figure without its caption"
+    assert "not shown different from </li>" not in page
+
+
 def test_report_fits_a_1280_pixel_window(finished, tmp_path):
     """Chromium lays the page out 1280 pixels wide: nothing wider than the window (tables
     scroll in their own box)."""

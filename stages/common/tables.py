@@ -120,11 +120,18 @@ def table2_groups(scores: list[dict[str, Any]], model: str, crop: str) -> list[t
     return out
 
 
-def verdict(low: float, high: float) -> str:
-    """What a 95% interval of ``model - reference`` (scores: lower is better) says, to be
-    followed by the reference's name."""
+#: images under which a comparison claims nothing: a bootstrap over fewer resamples a
+#: handful of values, and its 95% interval is not one
+MIN_COMPARED = 8
+
+
+def verdict(low: float, high: float, count: int) -> str:
+    """What a 95% interval of ``model - reference`` (scores: lower is better) over ``count``
+    images says: better, worse, not shown different, or too few images to tell."""
+    if count < MIN_COMPARED:
+        return f"too few images to tell ({count} < {MIN_COMPARED})"
     if high < 0:
-        return "better than"
+        return "better"
     if low > 0:
-        return "worse than"
-    return "not shown different from"
+        return "worse"
+    return "not shown different"

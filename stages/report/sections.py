@@ -116,22 +116,24 @@ def comparisons_section(comparisons: list[dict[str, Any]]) -> str:
         return "<p>One model: nothing to compare.</p>"
     rows, sentences = [], []
     for row in comparisons:
-        words = tables.verdict(row["mean_difference_speed_low"], row["mean_difference_speed_high"])
+        words = tables.verdict(row["mean_difference_speed_low"], row["mean_difference_speed_high"], row["count"])
         rows.append([f"{row['model']} ({row['crop']})", f"{row['reference']} ({row['reference_crop']})",
                      row["domain"], f"{row['view']}, {row['light']}", row["count"],
                      f"{row['mean_difference_speed']:+.4f} [{row['mean_difference_speed_low']:+.4f}, "
                      f"{row['mean_difference_speed_high']:+.4f}]", f"{100 * row['better_share']:.0f}%", words])
         if row["view"] == "all":
+            reference = f"{row['reference']} ({row['reference_crop']})"
+            claim = (f"{words} against {reference}" if words.startswith("too few") else
+                     f"{words} {'from' if words == 'not shown different' else 'than'} {reference} at 95%")
             sentences.append(f"<li>{html.escape(row['model'])} ({html.escape(row['crop'])}) on the "
-                             f"{html.escape(row['domain'])} images: {html.escape(words)} "
-                             f"{html.escape(row['reference'])} ({html.escape(row['reference_crop'])}) at 95%, mean "
-                             f"SPEED difference {row['mean_difference_speed']:+.3f} "
-                             f"[{row['mean_difference_speed_low']:+.3f}, {row['mean_difference_speed_high']:+.3f}]"
-                             "</li>")
+                             f"{html.escape(row['domain'])} images: {html.escape(claim)}, mean SPEED difference "
+                             f"{row['mean_difference_speed']:+.3f} [{row['mean_difference_speed_low']:+.3f}, "
+                             f"{row['mean_difference_speed_high']:+.3f}]</li>")
     header = ["model (crop)", "reference (crop)", "domain", "configuration", "images",
-              "mean SPEED difference [95%]", "images where better", "at 95%"]
+              "mean SPEED difference [95%]", "images where better", "than the reference, at 95%"]
     return ("<p>Model minus reference on the same images: below zero, the model scores lower (better). Paired "
-            "bootstrap, stratified by configuration.</p>" + f"<ul>{''.join(sentences)}</ul>" + _table(header, rows))
+            f"bootstrap, stratified by configuration; no claim under {tables.MIN_COMPARED} images.</p>"
+            + f"<ul>{''.join(sentences)}</ul>" + _table(header, rows))
 
 
 def per_sample_table(labels: list[dict[str, Any]], poses: dict[str, dict], predictions: list[dict[str, Any]],

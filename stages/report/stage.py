@@ -20,13 +20,14 @@ from core.stage_io import Resolved
 from manifests import Workspace, read_manifest, read_marker
 from manifests.facility import read_facility_spec
 from manifests.files import write_bytes_atomic
-from manifests.sidecars import read_calibration
+from manifests.sidecars import read_calibration, read_session
 from manifests.workspace import REPORT_DIR, REPORT_PAGE
 from stages.common.json_arrays import calibrated_camera
 from stages.common.robots.facility import presented_share
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target
 from stages.report import figures
+from stages.report.answer import gap_sentence, labels_sentence
 from stages.report.gallery import calibration_overlays, sample_gallery
 from stages.report.sections import (
     DEFINITIONS,
@@ -84,6 +85,29 @@ def facility_sentence(config: Config, workspace: Workspace) -> str:
     return " " + html.escape(presented_share(rows, read_facility_spec(Path(config.facility.path)).name)) + "."
 
 
+RESIDUALS_CAPTION = ("Each calibration capture: how far each source's calibrated pose lies from the pattern's own "
+                     "(PnP) pose, the figures Table 1's in-sample rows average.")
+POSES_CAPTION = "The labels' poses: positions at full scale and the attitudes' Euler angles, over the dataset."
+SCORES_CAPTION = ("Each label's SPEED score on its synthetic twin against its testbed image (the paper's Figure 12): "
+                  "above the diagonal, the testbed image scored worse.")
+CDF_CAPTION = ("The share of images under each rotation error, per configuration and crop: solid on the testbed "
+               "images, dashed on their twins, a colour per model.")
+
+
+def _figure(name: str, alt: str, caption: str) -> str:
+    return (f'<figure><img src="figures/{name}" alt="{html.escape(alt)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def sigmas_note(mockup_scale: float | None) -> str:
+    """Why a label's sigma reads larger than Table 1's millimetres."""
+    scale = (f"divided by the mock-up's scale ({mockup_scale:g}: {1 / mockup_scale:.3g} times larger)"
+             if mockup_scale else "at the target's full scale")
+    return ("<p>Table 1 is the calibration's error on its own captures, at mock-up scale. A label's sigma (the "
+            f"per-sample table, sigma t) is that label's uncertainty at full scale: the calibration's error carried "
+            f"to the dataset's ranges and {html.escape(scale)}, so it reads larger than Table 1's figures.</p>")
+
+
 def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Reads everything a run made (a trajectory plan's tracks too); writes ``W/report/``
     (its marker: ``report``)."""
@@ -123,19 +147,22 @@ def run(config: Config, workspace: Workspace) -> None:
         "cdf": figures.rotation_cdf(predictions, models, figure_dir / "rotation_cdf.png"),
     }
     wireframe = feature_edges(workspace_target(config, workspace))
+    scale = read_session(workspace).mockup_scale
     sections = [
+        ("How good the labels are", labels_sentence(config, workspace, calibration, labels, list(poses.values()))
+         + gap_sentence(scores, models, crops)),
+        ("What the figures mean", f"<p>{html.escape(DEFINITIONS)}</p>"),
         *((f"Table 2: domain gap of the models ({crop.replace('_', ' ')})", table2(scores, models, crop))
           for crop in crops),
         ("Each model against the reference", comparisons_section(comparisons)),
-        ("What the figures mean", f"<p>{html.escape(DEFINITIONS)}</p>"),
-        ("Table 1: calibration accuracy", table1(calibration)),
-        ("Calibration residuals", f'<img src="figures/{made["residuals"]}" alt="calibration residuals">'),
-        ("Pose distribution of the labels", f'<img src="figures/{made["poses"]}" alt="pose distribution">'),
+        ("Table 1: calibration accuracy", table1(calibration) + sigmas_note(scale)),
+        ("Calibration residuals", _figure(made["residuals"], "calibration residuals", RESIDUALS_CAPTION)),
+        ("Pose distribution of the labels", _figure(made["poses"], "pose distribution", POSES_CAPTION)),
         ("Motion-capture rejection and label sources", rejection_table(list(poses.values()), labels)),
         ("Every sample", per_sample_table(labels, poses, predictions, runs)),
         (f"Per-sample scores ({models[0] if models else '-'})",
-         f'<img src="figures/{made["scores"]}" alt="per-sample scores">'),
-        ("Rotation-error CDFs", f'<img src="figures/{made["cdf"]}" alt="rotation error CDF">'),
+         _figure(made["scores"], "per-sample scores", SCORES_CAPTION)),
+        ("Rotation-error CDFs", _figure(made["cdf"], "rotation error CDF", CDF_CAPTION)),
         ("Calibration captures", calibration_overlays(workspace, out, samples, captures, camera)),
         ("Pictures of every sample", sample_gallery(workspace, out, labels, captures, renders, camera, wireframe,
                                                      (f"{models[0]} ({crops[0]})" if primary else "", primary))),
