@@ -44,3 +44,18 @@ def test_a_wrapped_or_misnumbered_citation_is_found(tmp_path):
     sample = tmp_path / "sample.py"
     sample.write_text('"""See docs/architecture.md\n    section 42 and docs/architecture.md section 2."""\n')
     assert citations([sample], tmp_path) == [("sample.py:1", 42), ("sample.py:2", 2)]
+
+
+def test_every_cache_the_code_keeps_is_in_the_guide():
+    """Issue 59: what is kept outside the workspace is documented, where it is and how to
+    clear it: each ``~/.cache/speedplus/<name>`` the code builds is in the guide's table."""
+    code = [p for package in ("core", "pipeline", "stages", "manifests", "speedplus")
+            for p in (ROOT / package).rglob("*.py")]
+    names = {name for path in code
+             for name in re.findall(r'"speedplus"\s*/\s*f?"([^"]+)"', path.read_text())}
+    assert {"drjit", "targets", "crashes", "workspaces"} <= names and any(n.startswith("earth-") for n in names)
+    guide = (ROOT / "docs" / "user-guide.md").read_text()
+    table = guide[guide.index("### What is kept outside the workspace"):]
+    for name in names:  # a name's {placeholder} is written in capitals in the guide
+        pattern = re.sub(r"\\\{\w+\\\}", "[A-Z]+", re.escape(f"~/.cache/speedplus/{name}"))
+        assert re.search(pattern, table), name
