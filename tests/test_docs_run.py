@@ -57,7 +57,8 @@ def test_every_command_summary_names_commands_and_options_that_exist():
             if words[:1] != ["speedplus"]:
                 continue
             first_option = next((i for i, w in enumerate(words) if w.startswith("-")), len(words))
-            commands = [w for w in words[1:first_option] if w != "|" and not w.isupper()]
+            # the command, and the alternatives a summary gives it (plan | acquire | ...); not its arguments
+            commands = [words[1], *(words[i + 1] for i in range(1, first_option - 1) if words[i] == "|")]
             options = {w.split("=")[0] for w in words if re.fullmatch(r"--?[a-z][\w-]*(=.*)?", w)}
             for command in commands:
                 shown = _help(command)
