@@ -27,10 +27,11 @@ from bench.common import report
 from manifests import Workspace, read_manifest
 from manifests.sidecars import read_calibration, read_fusion
 from stages.common import geometry as g
+from stages.common.scores import ROTATION_THRESHOLD_RAD, TRANSLATION_THRESHOLD
 from stages.common.tables import PAPER
 
-SPEEDPLUS_ROTATION_RAD = np.radians(0.169)
-SPEEDPLUS_TRANSLATION = 2.173e-3
+#: the SPEED+ label precision, defined once (stages/common/scores.py)
+SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION = ROTATION_THRESHOLD_RAD, TRANSLATION_THRESHOLD
 #: nominal arms, rigid fixtures, the calibrated sigmas as they are: no variance factor, no
 #: motion-capture scale growth (lost motion needs calibrated arms: off with them)
 PAPERS_METHOD = ("calibrate.fixture_compliance=off", "calibrate.arm_kinematics=off", "fuse.sigma_scale=calibration",

@@ -28,7 +28,7 @@ The second table judges the sigmas per axis against what honest sigmas would sho
 same facilities (``bench/honest_odds.py``: the model's own errors, shared by a facility's
 labels as its calibration shares them).
 
-    python -m bench honesty [SEEDS] [ROOT] [SET...] [--target DIR]...
+    python -m bench honesty [SEEDS] [ROOT] [SET...] [--target DIR]... [--profile P]
     python -m bench honesty --facility DIR [SEEDS] [ROOT] [SET...] [--target DIR] [--profile P]
         (a facility folder rehearsed on the virtual testbed: bench/rehearsal.py)
         (default: seeds 11-19, 31-34, 41-44, 51-54, 61-64 and 81-84, data/honesty; ~3-8 min a seed to acquire,
@@ -351,17 +351,17 @@ def split_targets(arguments: tuple[str, ...]) -> tuple[list[str], list[Path]]:
 
 
 def main(*arguments: str) -> None:
-    if "--facility" in arguments:  # issue 46's rehearsal of a facility folder (bench/rehearsal.py)
+    rest, profile = list(arguments), "default"
+    if "--profile" in rest:
+        rest, profile = _option(rest, "--profile")
+    if "--facility" in rest:  # issue 46's rehearsal of a facility folder (bench/rehearsal.py)
         from bench import rehearsal
 
-        rest, facility = _option(list(arguments), "--facility")
-        profile = "default"
-        if "--profile" in rest:
-            rest, profile = _option(rest, "--profile")
+        rest, facility = _option(rest, "--facility")
         positional, targets = split_targets(tuple(rest))
         rehearsal.main(Path(facility).resolve(), positional, targets, profile)
         return
-    positional, targets = split_targets(arguments)
+    positional, targets = split_targets(tuple(rest))
     seeds = positional[0] if positional else ",".join(str(s) for s in DEVELOPMENT_SEEDS + HELD_OUT)
     root = Path(positional[1] if len(positional) > 1 else "data/honesty")
     settings = positional[2:]
@@ -370,7 +370,7 @@ def main(*arguments: str) -> None:
         name = "tango" if target is None else load_target(target).name
         folder = root if target is None else root / name
         for seed in (int(s) for s in seeds.split(",")):
-            ours = run_facility(folder / f"seed{seed}", seed, list(settings), target)
+            ours = run_facility(folder / f"seed{seed}", seed, list(settings), target, profile=profile)
             copy = folder / f"seed{seed}_papers"
             shutil.rmtree(copy, ignore_errors=True)
             try:

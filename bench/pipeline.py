@@ -3,7 +3,7 @@ of one profile with the commit's code (a temporary worktree) and with this tree,
 fresh workspace, one after the other on the same machine; then what the speed-ups moved in
 what users read (Table 1's figures, Table 2's mean SPEED scores).
 
-    python -m bench pipeline REF [--profile default] [--root data/bench_pipeline]
+    python -m bench pipeline REF [--profile default] [--root data/bench_pipeline] [--until STAGE]
 
 The two workspaces are kept under ROOT (``before``, ``after``) for the benchmarks that judge
 a finished workspace (``bench acquire ROOT/after``). Results: bench/results/pipeline.json.
@@ -30,12 +30,14 @@ _OWN = ("before", "after", "tree")
 _STAGE_TIME = re.compile(r"^(\w+): ran in ([0-9.]+) s", re.MULTILINE)
 
 
-def timed_run(code: Path, profile: str, workspace: Path) -> dict[str, float]:
-    """Seconds of each stage (as the CLI prints them) and in all of ``speedplus run``."""
+def timed_run(code: Path, profile: str, workspace: Path, until: str | None = None) -> dict[str, float]:
+    """Seconds of each stage (as the CLI prints them) and in all of ``speedplus run``
+    (``--until`` ``until``, where given)."""
     started = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
                            "from pipeline.cli import main; sys.argv = ['speedplus'] + sys.argv[2:]; main()",
-                           str(code), "run", "--profile", profile, "--workspace", str(workspace)],
+                           str(code), "run", "--profile", profile, "--workspace", str(workspace),
+                           *(("--until", until) if until else ())],
                           cwd=code, env=worktree_env(code), capture_output=True, text=True)
     total = time.perf_counter() - started
     if done.returncode != 0:
@@ -44,7 +46,9 @@ def timed_run(code: Path, profile: str, workspace: Path) -> dict[str, float]:
 
 
 def _table1(root: Path) -> dict[str, float]:
-    """Table 1's means (mm, deg, px) per source and kind."""
+    """Table 1's means (mm, deg, px) per source and kind (none before calibrate)."""
+    if not (root / "calibration.json").is_file():
+        return {}
     calibration = json.loads((root / "calibration.json").read_text())
     out = {}
     for source in ("kuka", "vicon", "fused"):
@@ -57,6 +61,8 @@ def _table1(root: Path) -> dict[str, float]:
 
 def _table2(root: Path) -> dict[str, float]:
     """Table 2's mean SPEED score of each model, crop and domain over all views and lights."""
+    if not (root / "manifests" / "scores").is_dir():
+        return {}
     rows = pq.read_table(root / "manifests" / "scores").to_pylist()
     return {f"Table 2 {r['model']} {r['crop']} {r['domain']}": r["mean_score_speed"] for r in rows
             if r["view"] == "all" and r["light"] == "all"}
@@ -66,6 +72,8 @@ def _crop_seconds(root: Path) -> dict[str, float]:
     """Evaluate's mean seconds per prediction of each crop (the ``seconds`` column: a
     batch's time over its items, in its worker; a batch that holds both crops, where the
     images of a model are not a multiple of ``evaluate.batch_size``, counts alike for both)."""
+    if not (root / "manifests" / "predictions").is_dir():
+        return {}
     rows = pq.read_table(root / "manifests" / "predictions", columns=["crop", "seconds"]).to_pylist()
     crops = sorted({row["crop"] for row in rows})
     return {f"evaluate {crop} crop [s per prediction]": sum(r["seconds"] for r in rows if r["crop"] == crop)
@@ -92,10 +100,10 @@ def main(*args: str) -> None:
     if added.returncode != 0:
         sys.exit(f"cannot check out {ref!r}: {added.stderr.strip()}")
     try:
-        before = timed_run(tree, profile, root / "before")
+        before = timed_run(tree, profile, root / "before", options.get("--until"))
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, check=False)
-    after = timed_run(REPO, profile, root / "after")
+    after = timed_run(REPO, profile, root / "after", options.get("--until"))
     rows: list[dict[str, Any]] = [
         {"what": f"{stage} [s]", "before": before.get(stage, 0.0), "after": after.get(stage, 0.0),
          "ratio": after.get(stage, 0.0) / before[stage] if before.get(stage) else float("nan")}

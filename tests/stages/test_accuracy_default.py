@@ -14,11 +14,12 @@ import pytest
 from bench.accuracy import PAPERS_METHOD
 from manifests import Workspace, read_manifest
 from stages.common import geometry as g
+from stages.common.scores import ROTATION_THRESHOLD_RAD, TRANSLATION_THRESHOLD
 from stages.common.tables import PAPER
 from tests.conftest import speedplus
 
-SPEEDPLUS_ROTATION_RAD = np.radians(0.169)
-SPEEDPLUS_TRANSLATION = 2.173e-3
+#: the SPEED+ label precision, defined once (stages/common/scores.py)
+SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION = ROTATION_THRESHOLD_RAD, TRANSLATION_THRESHOLD
 
 
 def labelled_copy(default_acquisition, root, *settings):

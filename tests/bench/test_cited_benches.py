@@ -1,0 +1,79 @@
+"""The benchmarks the docs cite run (issue 59): each on a tiny setting, checked for running and
+writing its table, not for its figures (``bench honesty``: tests/bench/test_honesty.py).
+None of them writes into the repository here: results go to a temporary folder, and the
+model cards they fill are copies."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+import bench.common
+from stages.common.detector import DETECTOR_NAME
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def results(tmp_path, monkeypatch):
+    monkeypatch.setattr(bench.common, "RESULTS", tmp_path / "results")
+    return tmp_path / "results"
+
+
+def _rows(results: Path, name: str) -> list[dict]:
+    return json.loads((results / f"{name}.json").read_text())["rows"]
+
+
+def test_bench_detector_measures_the_boxes_of_a_finished_workspace(smoke_finished, results, tmp_path):
+    from bench import detector
+
+    copy = tmp_path / f"{DETECTOR_NAME}.onnx"  # named: the shipped card is not written
+    shutil.copy(ROOT / "models" / f"{DETECTOR_NAME}.onnx", copy)
+    detector.main(str(smoke_finished[0].root), str(copy))
+    rows = _rows(results, "detector")
+    assert {row["domain"] for row in rows} >= {"synthetic", "testbed"} and all(row["images"] > 0 for row in rows)
+
+
+def test_bench_model_cards_writes_table_2_into_copies_of_the_cards(smoke_finished, results, tmp_path, monkeypatch):
+    from bench import model_cards
+
+    models = tmp_path / "models"
+    shutil.copytree(ROOT / "models", models)
+    monkeypatch.setattr(model_cards, "MODELS", models)
+    shipped = {p.name: p.read_bytes() for p in (ROOT / "models").glob("*.json")}
+    model_cards.main(str(smoke_finished[0].root))
+    rows = _rows(results, "model_cards")
+    assert rows and {row["crop"] for row in rows} <= {"oracle_box", "self"}
+    card = json.loads((models / f"{rows[0]['model']}.json").read_text())
+    assert card["table2"]["profile"] == "smoke" and card["table2"]["groups"]
+    assert {p.name: p.read_bytes() for p in (ROOT / "models").glob("*.json")} == shipped
+
+
+@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="bench pipeline checks out a commit")
+def test_bench_pipeline_times_a_commit_against_this_tree(results, tmp_path):
+    from bench import pipeline
+
+    pipeline.main("HEAD", "--profile", "smoke", "--until", "plan", "--root", str(tmp_path / "timed"))
+    rows = {row["what"]: row for row in _rows(results, "pipeline")}
+    assert rows["plan [s]"]["before"] > 0 and rows["plan [s]"]["after"] > 0 and "total [s]" in rows
+    assert not (tmp_path / "timed" / "tree").exists()  # the commit's worktree is removed
+
+
+def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_path):
+    """The guide's rehearsal (``--facility DIR``, writing DIR/rehearsal.json) and the accuracy
+    figures of a target folder (``--target DIR``), one smoke facility each."""
+    from bench import honesty
+    from manifests.rehearsal import read_rehearsal
+
+    facility = tmp_path / "abb_rail"
+    shutil.copytree(ROOT / "tests" / "facilities" / "abb_rail", facility)
+    (facility / "rehearsal.json").unlink(missing_ok=True)
+    honesty.main("--facility", str(facility), "5", str(tmp_path / "rehearsed"), "--profile", "smoke")
+    record = read_rehearsal(facility)
+    assert record.labels == 8 and record.profile == "smoke" and 0 <= record.under_speedplus <= 8
+    honesty.main("5", str(tmp_path / "targets"), "--target", str(ROOT / "data" / "targets" / "cubesat3u"),
+                 "--profile", "smoke")
+    assert _rows(results, "rehearsal_abb-rail")
+    rows = _rows(results, "honesty_targets")
+    assert any(row.get("target") == "cubesat3u" and row.get("seed") == 5 for row in rows), rows
