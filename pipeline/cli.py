@@ -266,6 +266,9 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
         # saved before the first stage changes anything: rows a killed command leaves resume
         # under the configuration they were made with (a failure puts the old file back)
         if not started:
+            if not ws.config_path.exists():  # a new workspace says what it was made with
+                out.print(escape(f"{ws.location}: a new workspace, profile {saved.profile} (--profile chooses "
+                                 "another; `speedplus status` shows it)"), highlight=False)
             write_config(saved, ws.config_path)
         started.append(name)
 

@@ -247,6 +247,7 @@ def test_a_chain_that_fails_late_keeps_the_stages_it_completed(tmp_path):
     args = ("run", "--workspace", str(root), "--profile", "smoke", "--until", "calibrate")
     refused = speedplus(*args, "--set", "calibrate.max_rotation_error_rad=1e-9")
     assert refused.returncode == 1 and "calibration refused" in refused.stderr
+    assert f"{root}: a new workspace, profile smoke" in " ".join(refused.stdout.split())  # said, not silent
     said = " ".join(refused.stderr.split())
     last = said[said.index("calibration refused"):]
     assert "kept: plan, acquire (completed;" in last and f"speedplus status -w {root}" in last, last
