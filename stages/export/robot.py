@@ -223,6 +223,10 @@ def urscript(robot: Robot, rows: list[list[Any]]) -> str:
     return "\n".join([*lines, "end", f"{name}()", ""])
 
 
+#: the controllers a program is written for, and its language
+PROGRAMS = {"kuka": "KRL", "ur": "URScript"}
+
+
 def write_programs(out: Path, facility: Facility, points: list[Waypoint], timing: Timing,
                    plan_order_s: float) -> dict[str, float]:
     """Every robot's CSV, JSON and controller program in ``out``; returns the tour's time."""

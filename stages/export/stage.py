@@ -253,6 +253,10 @@ def robot_programs(config: Config, workspace: Workspace, out: Path) -> pa.Table:
     print(f"export: {len(points)} waypoints for {', '.join(r.spec.name for r in facility.robots)} (robot) in {out}; "
           f"moves and light changes {times['moves_s'] / 60:.1f} min, {times['plan_order_moves_s'] / 60:.1f} in the "
           "plan's order")
+    for member in (r for r in facility.robots if r.spec.controller not in robot.PROGRAMS):
+        print(f"export: {member.spec.name}: its joint waypoints only ({member.spec.name}.csv, .json): facility.toml "
+              f"gives it controller {member.spec.controller!r}; a program is written for controller "
+              f"{' or '.join(f'{c} ({language})' for c, language in robot.PROGRAMS.items())}")
     return read_manifest(workspace, "export_robot")
 
 

@@ -129,6 +129,9 @@ def test_the_programs_carry_the_plans_joints(abb, tripod):
                                            (tripod[0], "camera_joints_rad", "ur10", "rad")):
         result = speedplus("export", "-w", str(workspace), "--format", "robot")
         assert result.returncode == 0, result.stderr
+        if robot == "camera_arm":  # an ABB arm: no program, and the command says why
+            said = " ".join(result.stdout.split())
+            assert "camera_arm: its joint waypoints only" in said and "controller 'none'" in said, said
         plan = {row["sample_id"]: row for row in pq.read_table(workspace / "manifests" / "plan").to_pylist()}
         with open(workspace / "export" / "robot" / f"{robot}.csv", newline="") as handle:
             for row in csv.DictReader(handle):
