@@ -178,14 +178,31 @@ def check_motions(observations: list[obs.Observation], b: dict[str, np.ndarray],
             "angle_limit_rad": angle_limit, "pitch_limit_m": pitch_limit, "travel_limit_m": travel_limit}
 
 
+#: what a recording's refusal advises: where a lab's files go wrong
+INLIER_ADVICE = ("check the pose file's transform and units, [setup] camera_on, and the pairing of images and "
+                 "poses")
+RESULT_ADVICE = ("check the pose file's units and transform, the pairing of images and poses, and the [pattern] "
+                 "definition")
+#: what a virtual run's refusal advises instead: it has no pose file, and pairs images and poses itself
+VIRTUAL_ADVICE = ("the virtual testbed pairs its images and poses itself, so its calibration poses do not determine "
+                  "the offsets: plan more of them (plan.n_calibration), or check the target folder's [mockup] board "
+                  "and fixture")
+
+
+def advice_for(message: str, backend: str) -> str:
+    """A refusal's message with the advice that fits the backend that made the captures."""
+    if backend != "virtual":
+        return message
+    return message.replace(INLIER_ADVICE, VIRTUAL_ADVICE).replace(RESULT_ADVICE, VIRTUAL_ADVICE)
+
+
 def check_inliers(name: str, inliers: int, total: int) -> None:
     """The offsets must explain most samples: when the robust solve keeps fewer than half,
     it has found a pattern in noise, not the calibration."""
     if inliers < 0.5 * total:
         raise InconsistentPatternError(
             f"calibration refused: the {name} offsets fit only {inliers} of {total} samples (the others are outliers "
-            "beyond median + outlier_k robust sigmas); check the pose file's transform and units, [setup] camera_on, "
-            "and the pairing of images and poses")
+            f"beyond median + outlier_k robust sigmas); {INLIER_ADVICE}")
 
 
 def check_result(name: str, in_sample: dict[str, list[float]], cross_validated: dict[str, list[float]] | None,
@@ -211,5 +228,4 @@ def check_result(name: str, in_sample: dict[str, list[float]], cross_validated: 
             raise InconsistentPatternError(
                 f"calibration refused: {name} {kind} E_R {np.degrees(e_r):.3g} deg, E_p {e_p:.4g} px (at most "
                 f"{np.degrees(limits.max_rotation_error_rad):g} deg and {limits.max_reprojection_fraction:g} of the "
-                f"{diagonal:.0f} px diagonal): the offsets do not predict the pattern; check the pose file's "
-                f"units and transform, the pairing of images and poses, and the [pattern] definition{note}")
+                f"{diagonal:.0f} px diagonal): the offsets do not predict the pattern; {RESULT_ADVICE}{note}")

@@ -77,7 +77,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         calibration, fits = _calibrate(config, workspace, session, spec, by_id, observations)
     except InputError as error:  # refused: the images' reasons are still what the user needs
         _write_samples(config, workspace, observations, by_id, {}, session.sources)
-        raise RefusalError(f"{error}{_dropped(observations)}", keep=("calibration_samples",)) from None
+        said = screening.advice_for(str(error), session.backend)
+        raise RefusalError(f"{said}{_dropped(observations)}", keep=("calibration_samples",)) from None
     write_calibration(workspace, calibration)
     write_robot_urdfs(config, workspace, calibration.kuka.arm_kinematics.chains)
     _write_samples(config, workspace, observations, by_id, fits, session.sources)

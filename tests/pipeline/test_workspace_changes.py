@@ -249,6 +249,7 @@ def test_a_chain_that_fails_late_keeps_the_stages_it_completed(tmp_path):
     assert refused.returncode == 1 and "calibration refused" in refused.stderr
     assert f"{root}: a new workspace, profile smoke" in " ".join(refused.stdout.split())  # said, not silent
     said = " ".join(refused.stderr.split())
+    assert "pose file" not in said and "plan more of them (plan.n_calibration)" in said, said  # a virtual run's advice
     last = said[said.index("calibration refused"):]
     assert "kept: plan, acquire (completed;" in last and f"speedplus status -w {root}" in last, last
     assert said.endswith("run the same command to resume from the stage that failed")
