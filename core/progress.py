@@ -17,6 +17,7 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+from rich.table import Column
 from rich.text import Text
 
 T = TypeVar("T")
@@ -48,14 +49,27 @@ def remaining() -> int | None:
     return _Tally.pending
 
 
+#: what the count, rate, elapsed time and ETA take of a line, with the spaces between columns
+_FIXED = 44
+
+
+def columns(width: int) -> tuple[ProgressColumn, ...]:
+    """A bar's columns for a terminal ``width`` characters wide: the count, rate, elapsed
+    time and ETA whole; the description (cut with an ellipsis) and the bar share the rest."""
+    left = max(width - _FIXED, 16)
+    bar = max(min(40, left // 3), 5)
+    described = Column(max_width=left - bar, no_wrap=True, overflow="ellipsis")
+    return (TextColumn("[bold]{task.description}", table_column=described), BarColumn(bar_width=bar),
+            MofNCompleteColumn(), _RateColumn(), TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
+
+
 def track(items: Iterable[T], total: int, description: str, rows: Sequence[int] | None = None) -> Iterator[T]:
     """Iterate ``items`` showing ``description``, n/total, a bar, rate, elapsed and ETA.
     ``rows``: the output rows each item makes (default one each), for ``remaining``."""
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), _RateColumn(),
-               TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
     weights = list(rows) if rows is not None else [1] * total
     _Tally.pending = (_Tally.pending or 0) + sum(weights)
-    with Progress(*columns, console=console, transient=False, disable=total == 0 or not sys.stderr) as progress:
+    with Progress(*columns(console.width), console=console, transient=False,
+                  disable=total == 0 or not sys.stderr) as progress:
         task = progress.add_task(description, total=total)
         for index, item in enumerate(items):
             yield item
