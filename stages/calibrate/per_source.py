@@ -140,7 +140,8 @@ def markers_of(capture: dict[str, Any], needs: bool = True) -> str:
 def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.EstimatedCamera,
         truth: dict[str, np.ndarray] | None) -> tuple[SourceFit, tuple[str, ...]]:
     """The source's calibration from its samples, and the outliers its robust solve dropped."""
-    progress.note(f"calibrate {source}: robust solve on {len(samples.used)} samples")
+    progress.note(f"calibrate {source}: robust solve on the {len(samples.used)} captures it measured with the "
+                  "pattern found")
     solution, keep = robust_solve(config, samples.a, samples.b, samples.fixtures, samples.used, intrinsics,
                                   samples.up)
     screening.check_inliers(source, int(keep.sum()), len(keep))
@@ -150,7 +151,8 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     if s.kinematic:
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, (s.arms, s.readings),
                                f"calibrate {source}")
-        progress.note(f"calibrate {source}: the arms' fit on all {len(s.used)} samples")
+        progress.note(f"calibrate {source}: the arms' fit on {len(s.used)} of those {len(samples.used)}"
+                      + (f", less the outlier(s) {', '.join(outliers)}" if outliers else ""))
         fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None)
         solution = fitted.offsets
         b, up_arms = fitted.corrected_b(s.readings)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from core import progress
 from core.config import Config
 from core.stage_io import Resolved
 from manifests import Workspace, open_sink, read_keys, read_manifest, read_marker
@@ -129,6 +130,10 @@ def _calibrate(config: Config, workspace: Workspace, session: Session, spec: Pat
     intrinsics = _intrinsics(config, workspace, session, spec, observations)
     obs.solve_pnp(observations, intrinsics)
     checks = _screen(config, spec, by_id, observations, intrinsics)
+    dropped = [o for o in observations if o.cam_from_target is None]
+    progress.note(f"calibrate: {len(observations)} calibration captures, the pattern posed on "
+                  f"{len(observations) - len(dropped)}" + "".join(f"; {o.sample_id}: {o.reason}" for o in dropped[:3])
+                  + (f" and {len(dropped) - 3} more (calibration_samples says why)" if len(dropped) > 3 else ""))
     truth = load_truth(workspace)
     fits = {}
     for source in SOURCES:

@@ -99,7 +99,7 @@ def print_table(calibration: Calibration) -> None:
     if fused and (fused.metrics.truth or fused.metrics.cross_validated):
         kind = "truth" if fused.metrics.truth else "cross_validated"
         same = {**fused.sources_on_the_same_samples, "fused": fused.metrics}
-        Console().print(f"On the {fused.samples} samples both sources measured, E_T {kind.replace('_', '-')}: "
+        Console().print(f"On the {fused.samples} captures both sources measured, E_T {kind.replace('_', '-')}: "
                         + ", ".join(f"{label} {same[name].kind(kind).E_T_m[0] * 1000:.4f} mm"
                                     for name, label in columns(calibration)))
 
