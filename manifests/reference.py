@@ -35,7 +35,7 @@ def layout() -> str:
     width = max(len(path) for path, _ in LAYOUT) + 4
     lines = [f"W/{path}".ljust(width + 2) + what for path, what in LAYOUT]
     versions = ", ".join(f"`{name}` {version}" for name, version in JSON_VERSIONS.items())
-    return "\n".join([LAYOUT_BEGIN, "", "```", *lines, "```", "",
+    return "\n".join([LAYOUT_BEGIN, "", "<!-- docs: text -->", "```", *lines, "```", "",
                       f"The JSON files' format versions: {versions} (`manifests/sidecars/`, one dataclass each).",
                       "", LAYOUT_END])
 

@@ -288,8 +288,8 @@ def _one_stage(name: str, saved: Config, resolved: Config, ws: Workspace, force:
         raise
     except BaseException as error:
         keep = error.keep if isinstance(error, RefusalError) else ()
-        for name in sorted(set(keep) - snapshot.restore(keep)):
-            error.add_note(f"the {name} manifest still holds the results made before it (a refusal never replaces "
+        for manifest in sorted(set(keep) - snapshot.restore(keep)):
+            error.add_note(f"the {manifest} manifest still holds the results made before it (a refusal never replaces "
                            "results): this refusal's reasons are only those above")
         if began:
             started.remove(name)

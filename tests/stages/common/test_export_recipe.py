@@ -13,7 +13,7 @@ MODELS_DOC = Path(__file__).resolve().parents[3] / "docs" / "models.md"
 
 def recipe() -> str:
     text = MODELS_DOC.read_text()
-    found = re.search(r"<!-- recipe: export -->\s*```python\n(.*?)```", text, re.S)
+    found = re.search(r"<!-- recipe: export -->\s*(?:<!-- docs: python -->\s*)?```python\n(.*?)```", text, re.S)
     assert found, "docs/models.md lost its export recipe"
     return found.group(1)
 
