@@ -272,6 +272,15 @@ class LoadedScene:
         """Apply what was set (before a ray cast; ``render`` does it itself)."""
         self._params.update()
 
+    def render_with(self, camera: Any, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
+        """``render`` through another sensor ``camera`` (a loaded one: a crop of the film)."""
+        import drjit as dr
+
+        for key in opaque:
+            dr.make_opaque(self._params[key])
+        self._params.update()
+        return np.array(self.mi.render(self.scene, sensor=camera, spp=spp, seed=seed))
+
     def render(self, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
         """The film (H, W, C) as numpy, after making ``opaque`` keys opaque and applying what
         was set."""

@@ -24,6 +24,7 @@ from stages.common import geometry as g
 from stages.common.lens import LensCamera, pixel_rays
 from stages.common.mitsuba_adapter import bsdf, load_mitsuba, load_scene, mesh, surface_hits
 from stages.common.target import MeshPart
+from stages.common.windows import Window
 
 BACKGROUND = "background"
 
@@ -105,6 +106,21 @@ class TargetSurfaces:
         """Maps of an undistorted ``width x height`` image with intrinsics ``camera_matrix``."""
         return self.cast(cam_from_target, pinhole_rays(camera_matrix, width, height), (height, width))
 
-    def through_lens(self, cam_from_target: np.ndarray, camera: LensCamera) -> SurfaceMaps:
-        """Maps of the camera's distorted image (the pixels of its renders and captures)."""
-        return self.cast(cam_from_target, pixel_rays(camera), (camera.height, camera.width))
+    def through_lens(self, cam_from_target: np.ndarray, camera: LensCamera,
+                     window: Window | None = None) -> SurfaceMaps:
+        """Maps of the camera's distorted image (the pixels of its renders and captures), cast
+        in ``window`` only (``stages.common.windows``: where the target can be; the rest sees
+        nothing), or at every pixel."""
+        if window is None:
+            return self.cast(cam_from_target, pixel_rays(camera), (camera.height, camera.width))
+        rows, columns = window.slices()
+        rays = pixel_rays(camera).reshape(camera.height, camera.width, 3)[rows, columns].reshape(-1, 3)
+        inside = self.cast(cam_from_target, rays, (window.height, window.width)) if not window.empty else None
+        full = SurfaceMaps(np.full((camera.height, camera.width), np.nan, np.float32),
+                           np.full((camera.height, camera.width, 3), np.nan, np.float32),
+                           np.full((camera.height, camera.width, 3), np.nan, np.float32),
+                           np.zeros((camera.height, camera.width), np.uint8), self.ids)
+        if inside is not None:
+            for name in ("depth_m", "normal_cam", "body_m", "part"):
+                getattr(full, name)[rows, columns] = getattr(inside, name)
+        return full

@@ -18,9 +18,20 @@ import numpy as np
 from stages.common import geometry as g
 from stages.common.lens import Lens, LensCamera, pixel_rays
 from stages.common.looks import synthetic_look
-from stages.common.mitsuba_adapter import LoadedScene, bsdf, first_hit_on, load_mitsuba, mesh, rays, sensor, set_threads
+from stages.common.mitsuba_adapter import (
+    LoadedScene,
+    bsdf,
+    first_hit_on,
+    load_mitsuba,
+    mesh,
+    rays,
+    sensor,
+    sensor_to_world,
+    set_threads,
+)
 from stages.common.surface import shape_id
 from stages.common.target import Target
+from stages.common.windows import Window, film_window
 
 
 class TargetRenderer:
@@ -34,11 +45,14 @@ class TargetRenderer:
         self.lens = Lens(camera)
         self.spp = spp
         geometry = self.lens.geometry
+        # box filter: alpha is exact coverage
+        self.sensor_spec = sensor(mi, geometry, far_clip_m=1000.0, rfilter="box", pixel_format="rgba")
+        #: every vertex (N, 3, body frame, m): where the target can be in an image
+        self.points_m = np.concatenate([part.vertices for part in target.parts.values()])
         objects: dict[str, Any] = {
             "type": "scene",
             "integrator": {"type": "path", "max_depth": max_depth, "hide_emitters": True},
-            # box filter: alpha is exact coverage
-            "sensor": sensor(mi, geometry, far_clip_m=1000.0, rfilter="box", pixel_format="rgba"),
+            "sensor": self.sensor_spec,
             "sun": {"type": "directional", "direction": [0.0, 0.0, -1.0],
                     "irradiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
         }
@@ -48,10 +62,16 @@ class TargetRenderer:
         self.loaded = LoadedScene(mi, objects)
         self.scene = self.loaded.scene
 
+    def film_window(self, cam_from_target: np.ndarray) -> Window | None:
+        """The pinhole film's window that holds the target at this pose (None: all of it)."""
+        return film_window(self.lens.geometry, cam_from_target, self.points_m)
+
     def render(self, cam_from_target: np.ndarray, light_dir_cam: np.ndarray, irradiance: float,
                seed: int) -> np.ndarray:
         """cam_from_target (4, 4) full scale; light_dir_cam (3,) unit, from the target towards
-        the light; irradiance W/m^2; returns (H, W, 4) float32 through the lens."""
+        the light; irradiance W/m^2; returns (H, W, 4) float32 through the lens. Only the film
+        window that holds the target is rendered (``stages.common.windows``); the rest of the
+        film is black space, as a full render's."""
         target_from_cam = g.invert(cam_from_target)
         travel = -(target_from_cam[:3, :3] @ np.asarray(light_dir_cam, float))
         # the directional emitter sends its light along its local +z axis
@@ -60,10 +80,21 @@ class TargetRenderer:
         self.loaded.set_camera(target_from_cam)
         self.loaded.set_transform("sun.to_world", g.make_transform(sun_rotation, np.zeros(3)))
         self.loaded.set_grey("sun.irradiance.value", irradiance)
-        # opaque: one compiled kernel for every pose and light, whatever rendered before
-        pinhole = self.loaded.render(self.spp, seed, opaque=("sensor.to_world", "sun.to_world",
-                                                             "sun.irradiance.value"))
-        return self.lens.distort(np.asarray(pinhole, dtype=np.float32))
+        window = self.film_window(cam_from_target)
+        if window is None:
+            # opaque: one compiled kernel for every pose and light, whatever rendered before
+            pinhole = self.loaded.render(self.spp, seed, opaque=("sensor.to_world", "sun.to_world",
+                                                                 "sun.irradiance.value"))
+            return self.lens.distort(np.asarray(pinhole, dtype=np.float32))
+        geometry = self.lens.geometry
+        pinhole = np.zeros((geometry.height, geometry.width, 4), np.float32)
+        if not window.empty:
+            film = {**self.sensor_spec["film"], "crop_offset_x": window.x, "crop_offset_y": window.y,
+                    "crop_width": window.width, "crop_height": window.height}
+            cropped = {**self.sensor_spec, "film": film, "to_world": sensor_to_world(self.mi, target_from_cam)}
+            pinhole[window.slices()] = self.loaded.render_with(self.mi.load_dict(cropped), self.spp, seed,
+                                                               opaque=("sun.to_world", "sun.irradiance.value"))
+        return self.lens.distort(pinhole)
 
 
 def ray_traced_mask(renderer: TargetRenderer, cam_from_target: np.ndarray) -> np.ndarray:

@@ -5,7 +5,8 @@ files go back to the driver with the row (``core.engines.Produced``).
 
 The mask and the ground truth are ray-cast at the output pixel centres through the lens
 (``stages.common.surface``) in the render's own scene: exact per pixel, where remapping a
-rendered AOV image would blend ids and coordinates across edges.
+rendered AOV image would blend ids and coordinates across edges; only in the window where
+the target can be (``stages.common.windows``), as the render draws only there.
 
 The image is what the camera would make of the radiance (``stages.common.tone``): grey for a
 mono camera (SPEED+'s), colour for a colour one, through the camera's gamma; the exposure
@@ -28,6 +29,7 @@ from stages.common.lens import LensCamera
 from stages.common.surface import TargetSurfaces
 from stages.common.target import Target
 from stages.common.tone import Response
+from stages.common.windows import image_window
 from stages.render.jobs import RenderJob
 from stages.render.scene import TargetRenderer
 
@@ -76,7 +78,9 @@ class RenderWorker:
         target covers no pixel centre, ``{"sample_id", "rejected": reason}`` and no files."""
         started = time.perf_counter()
         radiance, earth = self.radiance(job)
-        maps = self.surfaces.through_lens(job.cam_from_target(), self.camera)
+        # the ray cast where the target can be, the window the render drew (stages.common.windows)
+        window = image_window(self.renderer.lens, self.renderer.film_window(job.cam_from_target()))
+        maps = self.surfaces.through_lens(job.cam_from_target(), self.camera, window)
         mask = maps.mask
         if not mask.any():
             return Produced({"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"})
