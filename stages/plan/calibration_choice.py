@@ -60,13 +60,13 @@ def rows_of(facility: Facility, rows: list[dict[str, Any]], target: Target) -> o
     return observability.jacobian_rows(holders, m, prior, Payload.of(target), WORLD_UP)
 
 
-def describe(facility: Facility, rows: list[dict[str, Any]], target: Target) -> str | None:
+def describe(facility: Facility, rows: list[dict[str, Any]], target: Target, brief: bool = False) -> str | None:
     """What the calibration rows among ``rows`` determine of the facility's robots, in
     words; None without calibration rows or robots."""
     chosen = [row for row in rows if row["session"] == "calibration"]
     if not chosen or not Holders.of(facility).robots:
         return None
-    return observability.measure_of(rows_of(facility, chosen, target)).describe(len(chosen))
+    return observability.measure_of(rows_of(facility, chosen, target)).describe(len(chosen), brief)
 
 
 def arms_fitted(config: Config, facility: Facility, target: Target) -> tuple[bool, str]:

@@ -303,7 +303,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     table = read_manifest(workspace, "plan")
     if facility is not None:
         print(f"plan: {presented_share(table.to_pylist(), facility.spec.name)}")
-        observed = calibration_choice.describe(facility, table.to_pylist(), target)
+        observed = calibration_choice.describe(facility, table.to_pylist(), target, brief=True)
         if observed is not None:
             print(f"plan: {observed}")
     return table

@@ -45,7 +45,11 @@ class Observability:
     under_prior: int  # directions with a singular value under 1
     weak: dict[str, float]
 
-    def describe(self, poses: int) -> str:
+    def describe(self, poses: int, brief: bool = False) -> str:
+        """In words; ``brief``: one short line (the plan's), without the weak directions' names."""
+        if brief:
+            return (f"{poses} calibration poses determine the robots' {self.parameters} identifiable parameters, "
+                    f"{self.under_prior} direction(s) less well than the priors (speedplus facility names them)")
         weakest = sorted(self.weak.items(), key=lambda item: -item[1])[:4]
         named = ", ".join(f"{name} ({ratio:.0%} of its prior)" for name, ratio in weakest)
         return (f"{poses} calibration poses determine the robots' {self.parameters} identifiable parameters with "
