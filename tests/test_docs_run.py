@@ -66,15 +66,14 @@ def test_every_command_summary_names_commands_and_options_that_exist():
 
 
 def _sandbox(root: Path) -> Path:
-    """A folder laid out as the repository (its entries linked) with its own ``data/`` (the
-    shipped targets linked in) and ``../shared`` beside it: what the docs write stays here."""
+    """A folder laid out as the repository (its tracked entries linked) with its own, empty
+    ``data/`` and ``../shared`` beside it: what the docs write stays here."""
     repository = root / "speedplus-builder"
     repository.mkdir()
     for entry in ROOT.iterdir():
         if entry.name not in ("data", "exports", ".git"):
             (repository / entry.name).symlink_to(entry)
     (repository / "data").mkdir()
-    (repository / "data" / "targets").symlink_to(ROOT / "data" / "targets")
     (root / "shared").symlink_to((ROOT.parent / "shared").resolve())
     return repository
 
@@ -111,3 +110,15 @@ def test_the_docs_run_as_written(tmp_path):
         result = subprocess.run([sys.executable, str(script)], cwd=cwd, capture_output=True, text=True, timeout=600,
                                 env={**os.environ, "PYTHONPATH": str(ROOT)})
         assert result.returncode == 0, f"{block.where}:\n{result.stderr[-3000:]}"
+
+
+def test_the_shipped_example_target_is_the_one_its_code_writes(tmp_path):
+    """The guide's example (examples/targets/cubesat3u) is what ``bench.targets.cubesat3u``
+    makes, byte for byte: written once, in code."""
+    from bench.targets import cubesat3u
+
+    made = cubesat3u(tmp_path / "cubesat3u")
+    shipped = ROOT / "examples" / "targets" / "cubesat3u"
+    assert sorted(p.name for p in shipped.iterdir()) == sorted(p.name for p in made.iterdir())
+    for path in made.iterdir():
+        assert (shipped / path.name).read_bytes() == path.read_bytes(), path.name

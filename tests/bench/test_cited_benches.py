@@ -72,7 +72,7 @@ def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_pat
     honesty.main("--facility", str(facility), "5", str(tmp_path / "rehearsed"), "--profile", "smoke")
     record = read_rehearsal(facility)
     assert record.labels == 8 and record.profile == "smoke" and 0 <= record.under_speedplus <= 8
-    honesty.main("5", str(tmp_path / "targets"), "--target", str(ROOT / "data" / "targets" / "cubesat3u"),
+    honesty.main("5", str(tmp_path / "targets"), "--target", str(ROOT / "examples" / "targets" / "cubesat3u"),
                  "--profile", "smoke")
     assert _rows(results, "rehearsal_abb-rail")
     rows = _rows(results, "honesty_targets")

@@ -403,7 +403,7 @@ def test_a_chain_failing_at_each_stage_keeps_every_stage_before_it_byte_for_byte
 def test_a_target_without_a_model_is_refused_first_with_a_command_that_trains_for_it(tmp_path):
     """Issue 58: the chain is refused before the plan, and the training command it gives
     names the same target (the refused workspace saved none)."""
-    root, target = tmp_path / "new", os.path.join(REPOSITORY, "data", "targets", "cubesat3u")
+    root, target = tmp_path / "new", os.path.join(REPOSITORY, "examples", "targets", "cubesat3u")
     refused = speedplus("run", "--workspace", str(root), "--profile", "smoke", "--target", target)
     said = " ".join(refused.stderr.split())
     assert refused.returncode == 1 and "holds no model" in said and not root.exists(), said
