@@ -307,7 +307,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
     if current is None:
         missing = [name for name in inputs if read_marker(workspace, name) is None]
         made = {MANIFESTS[name].made_by for name in missing if name in MANIFESTS and MANIFESTS[name].made_by}
-        how = ("; ".join(f"make it first: `{command} -w {workspace.location}`" for command in sorted(made))
+        how = ("; ".join(f"make it first: `{maker} -w {workspace.location}`" for maker in sorted(made))
                if made else f"run the stage(s) before it first (or `speedplus run -w {workspace.location}`)")
         if made and any(name not in MANIFESTS or not MANIFESTS[name].made_by for name in missing):
             how += f"; and run the stages before it (`speedplus run -w {workspace.location}`)"
@@ -339,7 +339,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
         retrained = _retrained(stage, config, workspace, state, resolved)
         if retrained:
             console.print(f"{stage.name}: {', '.join(retrained)} retrained in this workspace; redoing "
-                          f"{'what it made' if not state.members_changed else 'its results'}")
+                          f"{'their results' if state.members_changed else 'it'}")
             if state.members_changed:
                 force, state, forget = _member_redo(stage.name, state, resolved, True, state.members_changed)
             else:

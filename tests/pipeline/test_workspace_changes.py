@@ -67,6 +67,13 @@ def test_a_refused_command_leaves_every_byte_as_it_was(finished, command, tmp_pa
     # what the message sends the user to exists; export's names the folder it would make instead
     assert command == "export" or not missing_named(result.stderr, finished), result.stderr
     assert digest(finished) == before
+    if command in ("plan", "fuse", "label"):  # the command it suggests clears it (run: a few seconds each)
+        said = " ".join(result.stderr.split())
+        suggested = said[said.index("(`speedplus ") + 2:]
+        suggested = suggested[: suggested.index("`")].split()
+        cleared = speedplus(*suggested[1:], *args)
+        assert cleared.returncode == 0, cleared.stderr
+        assert speedplus(command, "--workspace", str(finished), *args).returncode == 0  # up to date now
 
 
 def test_a_stage_that_fails_puts_back_what_force_discarded(finished):
