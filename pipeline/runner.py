@@ -244,16 +244,23 @@ class Interrupted(KeyboardInterrupt):
 def redone_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> list[str]:
     """The inputs redone since the stage's results were made, when nothing else differs (its
     configuration, extras, target and schema are those it was made with); else none."""
+    return _changed_only(stage, config, workspace, "inputs")
+
+
+def _changed_only(stage: StageEntry, config: Config, workspace: Workspace, part: str) -> list[str]:
+    """The keys of the fingerprint payload's ``part`` (``inputs``, ``extra``) that differ from
+    what every output's results were made with, when all the rest is the same; else none."""
     markers = [read_marker(workspace, name) for name in stage.resolved(config, workspace).outputs]
     recorded = [None if marker is None else marker.made_with for marker in markers]
     current = fingerprint_payload(stage, config, workspace)
     if current is None or not recorded or not all(isinstance(r, dict) for r in recorded):
         return []
-    same = ("stage", "schema_version", "config", "extra", "target")
+    same = tuple(k for k in ("stage", "schema_version", "config", "inputs", "extra", "target") if k != part)
     if any({k: r.get(k) for k in same} != {k: current.get(k) for k in same} for r in recorded):
         return []
-    old, new = recorded[0].get("inputs", {}), current.get("inputs", {})
-    return sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    new = current.get(part, {})
+    return sorted({key for r in recorded for old in (r.get(part, {}),) for key in old.keys() | new.keys()
+                   if old.get(key) != new.get(key)})
 
 
 def outdated_inputs(stage: StageEntry, config: Config, workspace: Workspace) -> list[tuple[str, StageStatus]]:
@@ -422,19 +429,8 @@ def _retrained(stage: StageEntry, config: Config, workspace: Workspace, state: S
                resolved: Any) -> list[str]:
     """What alone made the results stale, where it is files a stage of this workspace remade
     (``Resolved.retrained``): the changed members, or the changed ``extra`` keys; else none."""
-    if state.members_changed:
-        return list(state.members_changed) if set(state.members_changed) <= resolved.retrained else []
-    recorded = [m.made_with for m in (read_marker(workspace, name) for name in resolved.outputs) if m]
-    current = fingerprint_payload(stage, config, workspace)
-    if current is None or not recorded or not all(isinstance(r, dict) for r in recorded):
-        return []
-    same = ("stage", "schema_version", "config", "inputs", "target")
-    if any({k: r.get(k) for k in same} != {k: current.get(k) for k in same} for r in recorded):
-        return []
-    new = current.get("extra", {})
-    changed = {key for r in recorded for old in (r.get("extra", {}),) for key in old.keys() | new.keys()
-               if old.get(key) != new.get(key)}
-    return sorted(changed) if changed and changed <= resolved.retrained else []
+    changed = list(state.members_changed) or _changed_only(stage, config, workspace, "extra")
+    return changed if changed and set(changed) <= resolved.retrained else []
 
 
 def _only_members_differ(state: StageStatus, resolved: Any) -> bool:

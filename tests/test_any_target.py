@@ -161,6 +161,21 @@ def test_its_own_model_is_scored_on_its_views(made):
     assert (ws.root / "report" / "index.html").is_file()
 
 
+def test_its_report_opens_with_how_good_its_labels_are(made):
+    """Issue 59, on a target of another shape: the report's first section counts its labels
+    under the SPEED+ thresholds as the truth does, and gives its own model's domain gap."""
+    from manifests.sidecars import read_session
+    from stages.common.label_accuracy import label_accuracy
+
+    _, ws, _, _ = made
+    page = (ws.root / "report" / "index.html").read_text()
+    first = page[page.index("How good the labels are</h2>"):page.index("What the figures mean</h2>")]
+    accuracy = label_accuracy(read_manifest(ws, "truth").to_pylist(), read_manifest(ws, "labels").to_pylist(),
+                              read_manifest(ws, "poses").to_pylist(), read_session(ws).mockup_scale)
+    under, count, _, _ = accuracy.share()
+    assert f"{under} of {count} labels" in first and "reference (oracle box): mean SPEED score" in first, first
+
+
 def test_the_devkits_loader_reads_the_targets_keypoints(made):
     target, _, root, _ = made
     points = loadmat(str(root / "speedplus" / "tangoPoints.mat"))["tango3Dpoints"]

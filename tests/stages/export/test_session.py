@@ -47,3 +47,10 @@ def test_a_session_export_replays_to_the_same_captures(smoke_labelled, tmp_path)
                 assert abs(value - again[column]) < 1e-12, column
             else:
                 assert value == again[column], column
+    # a lab's recording, run to its report: no truth to measure the labels against, and it says so
+    result = speedplus("run", "-w", str(replayed))
+    assert result.returncode == 0, result.stderr
+    page = (replayed / "report" / "index.html").read_text()
+    first = page[page.index("How good the labels are</h2>"):page.index("What the figures mean</h2>")]
+    assert "A recording has no truth" in first and "cross-validated fused error" in first, first
+    assert "meet both SPEED+ thresholds" not in first and "mean SPEED score" in first
