@@ -31,14 +31,15 @@ def free_port() -> int:
 
 
 class LocalCluster:
-    """``ray start --head`` with ``head_cpus`` CPUs; ``add_node`` starts another node."""
+    """``ray start --head`` with ``head_cpus`` CPUs (``env``: variables its workers inherit);
+    ``add_node`` starts another node."""
 
-    def __init__(self, head_cpus: int = 1) -> None:
+    def __init__(self, head_cpus: int = 1, env: dict[str, str] | None = None) -> None:
         self.address = f"127.0.0.1:{free_port()}"
         self.cpus = 0
-        self.head = self._start([RAY, "start", "--head", f"--num-cpus={head_cpus}",
-                                 f"--port={self.address.split(':')[1]}", "--include-dashboard=false",
-                                 "--disable-usage-stats", "--block"])
+        self.head = self._start(["env", *(f"{k}={v}" for k, v in (env or {}).items()), RAY, "start", "--head",
+                                 f"--num-cpus={head_cpus}", f"--port={self.address.split(':')[1]}",
+                                 "--include-dashboard=false", "--disable-usage-stats", "--block"])
         self.nodes: list[subprocess.Popen] = []
         self._wait_for_cpus(head_cpus)
 

@@ -48,10 +48,16 @@ def local_reference(smoke_finished):
 
 @pytest.fixture(scope="module")
 def cluster(places):
+    """The head and a second node; while ``cluster.slow`` exists, each twin a node renders
+    takes a second longer (tests/faults/sitecustomize.py)."""
     hidden, _ = places
-    with LocalCluster(head_cpus=1) as running:
-        running.hidden = hidden
-        running.second = running.add_node(1, hidden)
+    slow = hidden.parent / "second-node-slow"
+    faults = str(Path(__file__).resolve().parents[1] / "faults")
+    env = {"PYTHONPATH": os.pathsep.join(p for p in (faults, os.environ.get("PYTHONPATH", "")) if p),
+           "SPEEDPLUS_FAULT_SLOW_RENDER_WHILE": str(slow)}
+    with LocalCluster(head_cpus=1, env=env) as running:
+        running.hidden, running.slow = hidden, slow
+        running.second = running.add_node(1, hidden, env=env)
         yield running
 
 
@@ -125,7 +131,13 @@ def test_a_node_lost_mid_chain_keeps_what_finished_and_resumes_to_the_local_byte
     render and the twins finished; then the same command resumes. Either way, the bytes of
     a local run."""
     ws = _copy(smoke_labelled, cluster.hidden, "killed")
-    result = _interrupted(cluster, lambda: cluster.kill_node(cluster.second), "run", "--workspace", str(ws.root))
+    cluster.slow.touch()  # a twin takes each node a second: the second is lost mid-render
+    try:
+        result = _interrupted(cluster, lambda: cluster.kill_node(cluster.second), "run", "--workspace",
+                              str(ws.root))
+    finally:
+        cluster.slow.unlink()
+    assert result.returncode != 0 or "a worker died" in result.stderr, result.stderr  # lost mid-render
     if result.returncode != 0:  # at most one resume
         said = " ".join(result.stderr.split())
         assert "kept: plan, acquire, calibrate, fuse, label (completed;" in said and "Traceback" not in said, said

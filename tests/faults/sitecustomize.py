@@ -9,7 +9,10 @@ env sets one of these):
   before it and puts back that stage's work (issue 58);
 - ``SPEEDPLUS_FAULT_ENGINE_LOST_AFTER=N``: the engine's map fails (``EngineError``, as when
   a Ray cluster loses its nodes) after yielding N results, to prove that a stage keeps the
-  rows it finished when its engine fails (issue 58).
+  rows it finished when its engine fails (issue 58);
+- ``SPEEDPLUS_FAULT_SLOW_RENDER_WHILE=PATH``: while PATH exists, each twin this process
+  renders takes a second longer: a node set up with it stays busy long enough to be lost
+  mid-stage (``tests/core/test_cluster.py``), however fast the twins are.
 
 The production paths hold no hook of their own."""
 
@@ -70,3 +73,19 @@ if _LOST:
             yield result
 
     _engines.map_engine = _map_then_lose
+
+_SLOW = os.environ.get("SPEEDPLUS_FAULT_SLOW_RENDER_WHILE")
+
+if _SLOW:
+    import time
+
+    import stages.render.worker as _worker
+
+    _render = _worker.RenderWorker.render
+
+    def _render_slowly(self, job):  # noqa: ANN001, ANN202 - the wrapped method's own signature
+        if os.path.exists(_SLOW):
+            time.sleep(1.0)
+        return _render(self, job)
+
+    _worker.RenderWorker.render = _render_slowly
