@@ -1,48 +1,72 @@
-"""Shared, expensive fixtures: run once per test session."""
+"""Shared, expensive fixtures: built once per test run, whatever the number of pytest-xdist
+workers (``once``), and read only: copy one to change it."""
 
 import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
 from manifests import Workspace
+
+
+def once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """The folder ``name``, made by ``build(folder)`` once for the whole run: under pytest-xdist
+    the first worker to ask builds it, under a lock, and the others wait and read the same
+    folder (each would otherwise build its own, minutes of captures each)."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder, done = shared / "once" / name, shared / "once" / f"{name}.done"
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with FileLock(str(shared / "once" / f"{name}.lock")):
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)  # a build that failed in another worker
+            build(folder)
+            done.touch()
+    return folder
 
 
 @pytest.fixture(scope="session")
 def default_acquisition(tmp_path_factory):
     """A workspace after `speedplus run --profile default --until acquire` (several minutes:
     112 Mitsuba captures), shared by every test that needs realistic captures."""
-    root = tmp_path_factory.mktemp("default") / "w"
-    result = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "--profile", "default", "--workspace",
-                             str(root), "--until", "acquire"], capture_output=True, text=True,
-                            env={**os.environ, "COLUMNS": "200"}, timeout=1800)
-    assert result.returncode == 0, result.stderr
-    return Workspace(root)
+    def build(folder: Path) -> None:
+        result = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "--profile", "default",
+                                 "--workspace", str(folder / "w"), "--until", "acquire"], capture_output=True,
+                                text=True, env={**os.environ, "COLUMNS": "200"}, timeout=1800)
+        assert result.returncode == 0, result.stderr
+
+    return Workspace(once(tmp_path_factory, "default", build) / "w")
 
 
 @pytest.fixture(scope="session")
 def default_labelled(default_acquisition, tmp_path_factory):
     """``default_acquisition`` calibrated, fused and labelled with the default configuration
     (read only: copy it to change it)."""
-    root = tmp_path_factory.mktemp("default_labelled") / "w"
-    shutil.copytree(default_acquisition.root, root)
-    result = speedplus("run", "--workspace", str(root), "--until", "label")
-    assert result.returncode == 0, result.stderr
-    return Workspace(root)
+    def build(folder: Path) -> None:
+        shutil.copytree(default_acquisition.root, folder / "w")
+        result = speedplus("run", "--workspace", str(folder / "w"), "--until", "label")
+        assert result.returncode == 0, result.stderr
+
+    return Workspace(once(tmp_path_factory, "default_labelled", build) / "w")
 
 
 @pytest.fixture(scope="session")
 def smoke_finished(smoke_labelled, tmp_path_factory):
     """A copy of ``smoke_labelled`` after the rest of the chain (render, evaluate, report)
     with the local engine, and the run's standard output (read only: copy it to change it)."""
-    root = tmp_path_factory.mktemp("e2e") / "w"
-    shutil.copytree(smoke_labelled.root, root)
-    result = speedplus("run", "--workspace", str(root))
-    assert result.returncode == 0, result.stderr
-    return Workspace(root), result.stdout
+    def build(folder: Path) -> None:
+        shutil.copytree(smoke_labelled.root, folder / "w")
+        result = speedplus("run", "--workspace", str(folder / "w"))
+        assert result.returncode == 0, result.stderr
+        (folder / "stdout.txt").write_text(result.stdout)
+
+    folder = once(tmp_path_factory, "e2e", build)
+    return Workspace(folder / "w"), (folder / "stdout.txt").read_text()
 
 
 def speedplus(*args, env=None, timeout=1800, cwd=None):
@@ -60,11 +84,12 @@ def speedplus(*args, env=None, timeout=1800, cwd=None):
 @pytest.fixture(scope="session")
 def smoke_labelled(tmp_path_factory):
     """A smoke workspace after `speedplus run --until label` (about half a minute)."""
-    root = tmp_path_factory.mktemp("smoke") / "w"
-    result = speedplus("run", "--profile", "smoke", "--workspace", str(root), "--until", "label")
-    assert result.returncode == 0, result.stderr
-    assert "Table 1" in result.stdout and "KUKA-only" in result.stdout
-    return Workspace(root)
+    def build(folder: Path) -> None:
+        result = speedplus("run", "--profile", "smoke", "--workspace", str(folder / "w"), "--until", "label")
+        assert result.returncode == 0, result.stderr
+        assert "Table 1" in result.stdout and "KUKA-only" in result.stdout
+
+    return Workspace(once(tmp_path_factory, "smoke", build) / "w")
 
 
 def reseal(workspace, name):
@@ -143,25 +168,26 @@ ALL_SETS = "export.sets=[\"testbed\", \"twins\", \"train\"]"
 
 @pytest.fixture(scope="session")
 def rendered(smoke_labelled, tmp_path_factory):
-    root = tmp_path_factory.mktemp("export") / "w"
-    shutil.copytree(smoke_labelled.root, root)
-    for args in (("render",), ("render", "--set", "train", "--count", "6")):
-        result = speedplus(*args, "--workspace", str(root))
-        assert result.returncode == 0, result.stderr
-    return Workspace(root)
+    def build(folder: Path) -> None:
+        shutil.copytree(smoke_labelled.root, folder / "w")
+        for args in (("render",), ("render", "--set", "train", "--count", "6")):
+            result = speedplus(*args, "--workspace", str(folder / "w"))
+            assert result.returncode == 0, result.stderr
+
+    return Workspace(once(tmp_path_factory, "export", build) / "w")
 
 
 @pytest.fixture(scope="session")
 def exported(rendered, tmp_path_factory):
     """{format: export folder} of every set."""
-    out = {}
-    for export_format in ("bop", "speedplus"):
-        folder = tmp_path_factory.mktemp(export_format) / "out"
-        result = speedplus("export", "--workspace", str(rendered.root), "--format", export_format, "--out",
-                           str(folder), "--set", ALL_SETS)
-        assert result.returncode == 0, result.stderr
-        out[export_format] = folder
-    return out
+    def build(folder: Path) -> None:
+        for export_format in ("bop", "speedplus"):
+            result = speedplus("export", "--workspace", str(rendered.root), "--format", export_format, "--out",
+                               str(folder / export_format), "--set", ALL_SETS)
+            assert result.returncode == 0, result.stderr
+
+    folder = once(tmp_path_factory, "exported", build)
+    return {export_format: folder / export_format for export_format in ("bop", "speedplus")}
 
 
 def missing_named(message: str, root: Path) -> list[str]:
