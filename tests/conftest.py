@@ -13,6 +13,36 @@ from filelock import FileLock
 
 from manifests import Workspace
 
+#: the modules whose end-to-end runs take a minute or more of the suite (their durations:
+#: ``pytest --durations=30``): marked ``slow`` (``-m "not slow"`` leaves them out of a quick
+#: local run) and scheduled first, so that the pytest-xdist workers finish together
+SLOW_MODULES = frozenset({
+    "tests/test_docs_run.py", "tests/bench/test_cited_benches.py", "tests/pipeline/test_workspace_changes.py",
+    "tests/stages/test_plan_facility.py", "tests/test_any_target.py", "tests/stages/acquire/test_acquire_default.py",
+    "tests/stages/test_accuracy_default.py", "tests/stages/render/test_twins_default.py",
+    "tests/pipeline/test_object_storage.py", "tests/core/test_cluster.py",
+    "tests/stages/acquire/test_facility_rehearsal.py", "tests/stages/calibrate/test_real_kuka.py",
+})
+#: the fixtures of the default profile's captures: their tests go to one xdist worker, which
+#: builds them while the other works on (two would wait on one lock)
+DEFAULT_PROFILE = frozenset({"default_acquisition", "default_labelled"})
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Mark the slow modules' tests, group the tests that share a module-scoped fixture (or
+    the default profile's) for ``--dist loadgroup``, and run the slow ones first."""
+    for item in items:
+        module = item.nodeid.split("::")[0]
+        if module in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
+        fixtures = getattr(item, "_fixtureinfo", None)
+        definitions = fixtures.name2fixturedefs if fixtures is not None else {}
+        if DEFAULT_PROFILE & set(item.fixturenames):
+            item.add_marker(pytest.mark.xdist_group("default-profile"))
+        elif any(d.scope == "module" for defs in definitions.values() for d in defs):
+            item.add_marker(pytest.mark.xdist_group(module))
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
 
 def once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
     """The folder ``name``, made by ``build(folder)`` once for the whole run: under pytest-xdist
