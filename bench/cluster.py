@@ -103,7 +103,9 @@ def main(images: str = "24") -> None:
                       "CPU-s per training image": per_image, "captures": samples, "twins (at most)": dataset,
                       "training images": config.reference.images, "CPU-s in all": cpu_seconds})
     report("cluster_costs", "cost model: CPU-seconds per item, one worker of one CPU", costs)
+    paper = next(row for row in costs if row["profile"] == "paper")
     if images == "costs":
+        speedplus_scale(paper, None)
         return
     count = int(images)
 
@@ -128,7 +130,6 @@ def main(images: str = "24") -> None:
     report("cluster_scaling", "Ray engine: one node against two (default training images; the driver shares the "
            "2 cores)", scaling)
 
-    paper = next(row for row in costs if row["profile"] == "paper")
     projection = []
     for nodes in (1, 4, 16, 64):
         for cores in (16,):
@@ -137,3 +138,25 @@ def main(images: str = "24") -> None:
                                "assumes efficiency": efficiency})
     report("cluster_projection", "paper profile: projected wall time (CPU-seconds / (nodes x cores x efficiency))",
            projection, {"efficiency": efficiency, "paper_cpu_seconds": paper["CPU-s in all"]})
+    speedplus_scale(paper, efficiency)
+
+
+#: SPEED+ itself (Park et al. 2022): its testbed images (lightbox and sunlamp) and its
+#: synthetic ones, all at 1920 x 1200
+SPEEDPLUS_CAPTURES, SPEEDPLUS_SYNTHETIC = 9_531, 59_960
+
+
+def speedplus_scale(paper: dict, efficiency: float | None) -> None:
+    """SPEED+'s own scale from the paper profile's measured per-image costs: its captures at
+    the cost of a dataset capture, its synthetic images at a twin's (1920 x 1200, the
+    render's samples), on one 16-core machine and on docs/cluster.md's clusters of 16-core
+    nodes, at the scaling's measured efficiency (1: ideal, where only the costs were run)."""
+    cpu_seconds = SPEEDPLUS_CAPTURES * paper["CPU-s per capture"] + SPEEDPLUS_SYNTHETIC * paper["CPU-s per twin"]
+    used = 1.0 if efficiency is None else efficiency
+    rows = [{"machine": f"{nodes} x 16 cores", "hours": cpu_seconds / (nodes * 16 * used) / 3600,
+             "assumes efficiency": used} for nodes in (1, 4, 16)]
+    rows.insert(0, {"machine": "1 core", "hours": cpu_seconds / 3600, "assumes efficiency": 1.0})
+    report("speedplus_scale", f"SPEED+ at its own scale ({SPEEDPLUS_CAPTURES} captures, {SPEEDPLUS_SYNTHETIC} "
+           "synthetic images at 1920 x 1200): projected wall time", rows,
+           {"cpu_seconds": cpu_seconds, "captures": SPEEDPLUS_CAPTURES, "synthetic": SPEEDPLUS_SYNTHETIC,
+            "per_capture_cpu_s": paper["CPU-s per capture"], "per_synthetic_cpu_s": paper["CPU-s per twin"]})

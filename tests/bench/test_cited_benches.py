@@ -77,3 +77,18 @@ def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_pat
     assert _rows(results, "rehearsal_abb-rail")
     rows = _rows(results, "honesty_targets")
     assert any(row.get("target") == "cubesat3u" and row.get("seed") == 5 for row in rows), rows
+
+
+def test_bench_cluster_projects_speedplus_own_scale_from_the_paper_profiles_costs(results):
+    """Issue 60, part 4: SPEED+'s 9,531 captures and 59,960 synthetic images at the paper
+    profile's measured CPU-seconds an image, over one core, one 16-core machine and the
+    clusters of docs/cluster.md, at the scaling's efficiency."""
+    from bench.cluster import SPEEDPLUS_CAPTURES, SPEEDPLUS_SYNTHETIC, speedplus_scale
+
+    paper = {"CPU-s per capture": 7.0, "CPU-s per twin": 1.5}
+    speedplus_scale(paper, 0.8)
+    rows = {row["machine"]: row for row in _rows(results, "speedplus_scale")}
+    cpu_hours = (SPEEDPLUS_CAPTURES * 7.0 + SPEEDPLUS_SYNTHETIC * 1.5) / 3600
+    assert rows["1 core"]["hours"] == pytest.approx(cpu_hours)
+    for nodes in (1, 4, 16):
+        assert rows[f"{nodes} x 16 cores"]["hours"] == pytest.approx(cpu_hours / (nodes * 16 * 0.8))
