@@ -28,34 +28,52 @@ SLOW_MODULES = frozenset({
 DEFAULT_PROFILE = frozenset({"default_acquisition", "default_labelled"})
 
 
+def _group_of(item) -> str | None:
+    """The pytest-xdist group of a test: the default profile's, or its module's where it uses
+    a module-scoped fixture (built once per worker that runs the module); None: any worker."""
+    if DEFAULT_PROFILE & set(item.fixturenames):
+        return "default-profile"
+    fixtures = getattr(item, "_fixtureinfo", None)
+    definitions = fixtures.name2fixturedefs if fixtures is not None else {}
+    if any(d.scope == "module" for defs in definitions.values() for d in defs):
+        return item.nodeid.split("::")[0]
+    return None
+
+
+# tryfirst: xdist's own hook turns the xdist_group marks into the names its scheduler reads,
+# so the marks must be on before it runs
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items) -> None:
-    """Mark the slow modules' tests, group the tests that share a module-scoped fixture (or
-    the default profile's) for ``--dist loadgroup``, and run the slow ones first."""
+    """Mark the slow modules' tests, group the tests for ``--dist loadgroup`` (``_group_of``),
+    and run the slow ones first."""
     for item in items:
-        module = item.nodeid.split("::")[0]
-        if module in SLOW_MODULES:
+        if item.nodeid.split("::")[0] in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-        fixtures = getattr(item, "_fixtureinfo", None)
-        definitions = fixtures.name2fixturedefs if fixtures is not None else {}
-        if DEFAULT_PROFILE & set(item.fixturenames):
-            item.add_marker(pytest.mark.xdist_group("default-profile"))
-        elif any(d.scope == "module" for defs in definitions.values() for d in defs):
-            item.add_marker(pytest.mark.xdist_group(module))
+        group = _group_of(item) if config.pluginmanager.hasplugin("xdist") else None
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 def once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
     """The folder ``name``, made by ``build(folder)`` once for the whole run: under pytest-xdist
     the first worker to ask builds it, under a lock, and the others wait and read the same
-    folder (each would otherwise build its own, minutes of captures each)."""
+    folder (each would otherwise build its own, minutes of captures each). A build that
+    failed fails the others at once with its error, rather than each building it again."""
     base = tmp_path_factory.getbasetemp()
     shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-    folder, done = shared / "once" / name, shared / "once" / f"{name}.done"
+    folder = shared / "once" / name
+    done, failed = folder.with_name(f"{name}.done"), folder.with_name(f"{name}.failed")
     folder.parent.mkdir(parents=True, exist_ok=True)
-    with FileLock(str(shared / "once" / f"{name}.lock")):
+    with FileLock(str(folder.with_name(f"{name}.lock"))):
+        if failed.exists():
+            pytest.fail(f"the shared fixture {name} failed in another worker:\n{failed.read_text()}")
         if not done.exists():
-            shutil.rmtree(folder, ignore_errors=True)  # a build that failed in another worker
-            build(folder)
+            try:
+                build(folder)
+            except BaseException as error:
+                failed.write_text(f"{type(error).__name__}: {error}")
+                raise
             done.touch()
     return folder
 

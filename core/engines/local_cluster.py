@@ -37,14 +37,14 @@ class LocalCluster:
     def __init__(self, head_cpus: int = 1, env: dict[str, str] | None = None) -> None:
         self.address = f"127.0.0.1:{free_port()}"
         self.cpus = 0
-        self.head = self._start(["env", *(f"{k}={v}" for k, v in (env or {}).items()), RAY, "start", "--head",
-                                 f"--num-cpus={head_cpus}", f"--port={self.address.split(':')[1]}",
-                                 "--include-dashboard=false", "--disable-usage-stats", "--block"])
+        self.head = self._start([RAY, "start", "--head", f"--num-cpus={head_cpus}",
+                                 f"--port={self.address.split(':')[1]}", "--include-dashboard=false",
+                                 "--disable-usage-stats", "--block"], env)
         self.nodes: list[subprocess.Popen] = []
         self._wait_for_cpus(head_cpus)
 
-    def _start(self, command: list[str]) -> subprocess.Popen:
-        return subprocess.Popen(command, env={**os.environ, **ENV}, start_new_session=True,
+    def _start(self, command: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
+        return subprocess.Popen(command, env={**os.environ, **ENV, **(env or {})}, start_new_session=True,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
     def total_cpus(self) -> float:

@@ -1,5 +1,6 @@
 """Fault injection for the tests (put on PYTHONPATH by ``tests.conftest.speedplus`` when its
-env sets one of these):
+env sets one of the first three, and by ``tests/core/test_cluster.py`` on its Ray nodes for
+the last):
 
 - ``SPEEDPLUS_FAULT_KILL_AT_PART=N``: SIGKILL this process while it writes its Nth manifest
   part, after the temporary file is complete and before it is linked into place, to prove

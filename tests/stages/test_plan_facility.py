@@ -263,7 +263,7 @@ def test_the_redraws_a_share_needs():
     assert needed_redraws(1.0, 10) == 0
 
 
-def test_calibration_poses_are_chosen_for_what_they_determine(abb, monkeypatch):
+def test_calibration_poses_are_chosen_for_what_they_determine(abb):
     """Where calibrate will fit the arms, the plan keeps, of each calibration sample's
     candidates, the one that best determines the robots (stages/plan/calibration_choice.py):
     its smallest singular value is above that of the poses drawn one by one, which the smoke
@@ -285,16 +285,13 @@ def test_calibration_poses_are_chosen_for_what_they_determine(abb, monkeypatch):
     assert said.startswith(measure_of(calibration_choice.rows_of(facility, drawn, target)).describe(16))
     assert said.endswith("drawn, not chosen: calibrate will leave the arms at their URDFs (16 calibration captures "
                          "for 90 parameters (calibrate.min_arm_redundancy = 3: 45 needed))")
-    from stages.plan import stage
+    from stages.plan.stage import _choose
 
-    choices, choose = [], stage._choose  # the plan's own choice, made once (about 20 s) as the command makes it
-    monkeypatch.setattr(stage, "_choose", lambda *args: choices.append(choose(*args)) or choices[-1])
-    said = facility_rows(fitting)
-    (chosen,) = choices
+    chosen = _choose(fitting, facility, target)
     measured = [measure_of(calibration_choice.rows_of(facility, r, target)) for r in (chosen, drawn)]
     assert measured[0].smallest > measured[1].smallest
     assert len(measured[0].weak) <= len(measured[1].weak)
-    assert said == [("calibration poses", measured[0].describe(16))]
+    assert facility_rows(fitting) == [("calibration poses", measured[0].describe(16))]
 
 
 def test_a_further_calibration_draw_that_runs_out_is_left_out(abb):

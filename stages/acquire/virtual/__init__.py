@@ -54,7 +54,7 @@ class VirtualTestbed:
                         "dataset": Sensor(cameras["dataset"], config.virtual, self.sensor.geometry)}
         self._scene = None
         self._surfaces = None
-        self._surfaces_points: np.ndarray | None = None  # every vertex (N, 3) of the full-scale target
+        self._points_m: np.ndarray | None = None  # every vertex (N, 3) of the full-scale target
         self._moments: dict[str, Moment] | None = None
         self.camera_markers_rb = g.apply(g.invert(self.truth.camee_from_camrb),
                                          np.asarray(config.virtual.camera_markers_m))
@@ -179,14 +179,14 @@ class VirtualTestbed:
 
         if self._surfaces is None:
             self._surfaces = TargetSurfaces(self.target.parts)
-            self._surfaces_points = np.concatenate([part.vertices for part in self.target.parts.values()])
+            self._points_m = np.concatenate([part.vertices for part in self.target.parts.values()])
         scale = self.target.mockup_scale
         full_scale = cam_from_target.copy()
         full_scale[:3, 3] /= scale  # the mesh is the full-scale target; the mock-up is it scaled
         camera = lens_camera(self.sensors[session].camera)
         lens = self.sensors[session].lens
         # cast only where the mock-up can be (stages.common.windows), as the twins' truth is
-        window = image_window(lens, film_window(lens.geometry, full_scale, self._surfaces_points))
+        window = image_window(lens, film_window(lens.geometry, full_scale, self._points_m))
         maps = self._surfaces.through_lens(full_scale, camera, window)
         return ground_truth.encode(ground_truth.channels_of(maps, None, ground_truth.TRUTH, scale), camera,
                                    cam_from_target, maps.ids, scale)

@@ -135,10 +135,11 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
         assert np.array_equal(a, b), name
 
 
-def test_a_captures_truth_maps_cast_in_its_window_are_the_full_casts_bytes(smoke_workspace):
+def test_a_captures_truth_maps_cast_in_its_window_are_the_full_casts_bytes(smoke_workspace, monkeypatch):
     """Issue 60: a dataset capture's ground truth is ray-cast only in the image window that
-    can hold the mock-up (``stages.common.windows``); its EXR is byte for byte the one a
-    cast at every pixel writes (at the truth's pose as its manifest rounds it)."""
+    can hold the mock-up (``stages.common.windows``), smaller than the image; its EXR is
+    byte for byte the one a cast at every pixel writes (at the truth's pose as its manifest
+    rounds it)."""
     from pipeline.config import load_config
     from stages.acquire.virtual import VirtualTestbed
     from stages.common import surface
@@ -147,12 +148,20 @@ def test_a_captures_truth_maps_cast_in_its_window_are_the_full_casts_bytes(smoke
     testbed = VirtualTestbed(load_config(None, ws.config_path), ws)
     rows = [r for r in read_manifest(ws, "truth").to_pylist() if r["maps_path"]]
     assert rows
-    full_cast = surface.TargetSurfaces.through_lens
+    cast, windows = surface.TargetSurfaces.through_lens, []
+
+    def windowed_cast(self, pose, camera, window=None):
+        windows.append((window, camera.width * camera.height))
+        return cast(self, pose, camera, window)
+
+    def full_cast(self, pose, camera, window=None):
+        return cast(self, pose, camera)
+
     for row in rows:
         cam_from_target = g.transform_from_qt(row["cam_from_target_q"], row["cam_from_target_t"])
+        monkeypatch.setattr(surface.TargetSurfaces, "through_lens", windowed_cast)
         windowed = testbed.truth_maps("dataset", cam_from_target)
-        surface.TargetSurfaces.through_lens = lambda self, pose, camera, window=None: full_cast(self, pose, camera)
-        try:
-            assert testbed.truth_maps("dataset", cam_from_target) == windowed
-        finally:
-            surface.TargetSurfaces.through_lens = full_cast
+        monkeypatch.setattr(surface.TargetSurfaces, "through_lens", full_cast)
+        assert testbed.truth_maps("dataset", cam_from_target) == windowed
+    assert all(window is not None for window, _ in windows)
+    assert all(window.width * window.height < pixels for window, pixels in windows)  # less than the image
