@@ -23,35 +23,16 @@ SLOW_MODULES = frozenset({
     "tests/pipeline/test_object_storage.py", "tests/core/test_cluster.py",
     "tests/stages/acquire/test_facility_rehearsal.py", "tests/stages/calibrate/test_real_kuka.py",
 })
-#: the fixtures of the default profile's captures: their tests go to one xdist worker, which
-#: builds them while the other works on (two would wait on one lock)
-DEFAULT_PROFILE = frozenset({"default_acquisition", "default_labelled"})
 
 
-def _group_of(item) -> str | None:
-    """The pytest-xdist group of a test: the default profile's, or its module's where it uses
-    a module-scoped fixture (built once per worker that runs the module); None: any worker."""
-    if DEFAULT_PROFILE & set(item.fixturenames):
-        return "default-profile"
-    fixtures = getattr(item, "_fixtureinfo", None)
-    definitions = fixtures.name2fixturedefs if fixtures is not None else {}
-    if any(d.scope == "module" for defs in definitions.values() for d in defs):
-        return item.nodeid.split("::")[0]
-    return None
-
-
-# tryfirst: xdist's own hook turns the xdist_group marks into the names its scheduler reads,
-# so the marks must be on before it runs
-@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items) -> None:
-    """Mark the slow modules' tests, group the tests for ``--dist loadgroup`` (``_group_of``),
-    and run the slow ones first."""
+    """Mark the slow modules' tests, and run them first: under ``--dist loadfile`` (a module's
+    tests on one worker, so each module-scoped fixture is built once) the pytest-xdist
+    workers then finish together. (``--dist loadgroup`` cannot group here: xdist 3.8 renames
+    a grouped test's ``_nodeid``, which pytest 9 no longer reads.)"""
     for item in items:
         if item.nodeid.split("::")[0] in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-        group = _group_of(item) if config.pluginmanager.hasplugin("xdist") else None
-        if group is not None:
-            item.add_marker(pytest.mark.xdist_group(group))
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
