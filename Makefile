@@ -43,7 +43,7 @@ dataset: $(RUN_STAMP)
 
 test: setup
 	$(BIN)/ruff check core pipeline stages manifests speedplus tests bench
-	$(BIN)/python -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=15
+	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=15
 
 bench: setup
 	$(BIN)/python -m bench

@@ -14,31 +14,26 @@ from filelock import FileLock
 from manifests import Workspace
 
 #: the modules whose end-to-end runs take a minute or more of the suite (their durations:
-#: ``pytest --durations=30``), in the order they start: marked ``slow`` (``-m "not slow"``
-#: leaves them out of a quick local run) and scheduled first, so that the pytest-xdist
-#: workers finish together; the default profile's captures are built first and their
-#: other readers come last, so that no worker waits on that fixture's lock
-SLOW_MODULES = (
-    "tests/stages/acquire/test_acquire_default.py", "tests/test_docs_run.py", "tests/bench/test_cited_benches.py",
-    "tests/pipeline/test_workspace_changes.py", "tests/stages/test_plan_facility.py", "tests/test_any_target.py",
+#: ``pytest --durations=30``): marked ``slow`` (``-m "not slow"`` leaves them out of a quick
+#: local run) and scheduled first, so that the pytest-xdist workers finish together
+SLOW_MODULES = frozenset({
+    "tests/test_docs_run.py", "tests/bench/test_cited_benches.py", "tests/pipeline/test_workspace_changes.py",
+    "tests/stages/test_plan_facility.py", "tests/test_any_target.py", "tests/stages/acquire/test_acquire_default.py",
+    "tests/stages/test_accuracy_default.py", "tests/stages/render/test_twins_default.py",
     "tests/pipeline/test_object_storage.py", "tests/core/test_cluster.py",
     "tests/stages/acquire/test_facility_rehearsal.py", "tests/stages/calibrate/test_real_kuka.py",
-    "tests/stages/test_accuracy_default.py", "tests/stages/render/test_twins_default.py",
-)
+})
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    """Mark the slow modules' tests, and run them first, in ``SLOW_MODULES``' order: under
-    ``--dist loadfile --no-loadscope-reorder`` (a module's tests on one worker, so each
-    module-scoped fixture is built once; the modules in this order, not by their test
-    counts) the pytest-xdist workers then finish together. (``--dist loadgroup`` cannot
-    group here: xdist 3.8 renames a grouped test's ``_nodeid``, which pytest 9 no longer
-    reads.)"""
-    rank = {module: index for index, module in enumerate(SLOW_MODULES)}
+    """Mark the slow modules' tests, and run them first: under ``--dist loadfile`` (a module's
+    tests on one worker, so each module-scoped fixture is built once) the pytest-xdist
+    workers then finish together. (``--dist loadgroup`` cannot group here: xdist 3.8 renames
+    a grouped test's ``_nodeid``, which pytest 9 no longer reads.)"""
     for item in items:
-        if item.nodeid.split("::")[0] in rank:
+        if item.nodeid.split("::")[0] in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 def once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
