@@ -1,7 +1,7 @@
 """What honest sigmas would show on one facility, from the method's own error model.
 
 A facility's labels share one calibration: the arms' fitted parameters err by one draw,
-which reaches every capture through its own configuration (``arms.pose_jacobians``), so
+which reaches every capture through its own configuration (``identification.pose_jacobians``), so
 48 labels are far from 48 independent draws, most of all in depth. This simulates a
 facility's label errors as the model says they are: the parameters' posterior covariance
 (shared by all captures), each capture's joint lost motion and calibrated noise, motion
@@ -23,6 +23,7 @@ from manifests import Workspace, read_manifest
 from manifests.sidecars import read_fusion
 from pipeline.config import load_config
 from stages.common import arms
+from stages.common.robots import identification
 from stages.common.workspace_target import workspace_target
 from stages.fuse.stage import estimate, load_models, with_marker_geometry
 
@@ -58,7 +59,8 @@ class FacilityModel:
 
     jacobian: np.ndarray  # (N, 3, P) m per unit of each calibrated arm parameter
     covariance: np.ndarray  # (P, P) the parameters' posterior
-    joint_variance_rad2: np.ndarray  # (N, 12) each capture's lost motion
+    joint_variance_rad2: np.ndarray  # (N, K) each capture's lost motion, per joint of both robots
+    joint_columns: np.ndarray  # (K,) those joints' columns of ``jacobian``
     calibrated_m: np.ndarray  # (N, 3) the robots' own sigma, independent between captures
     vicon_m: np.ndarray  # (N, 3) motion capture's sigma (0 where it did not track)
     vicon_weight: np.ndarray  # (N, 3) motion capture's share of each label (0: not fused)
@@ -77,7 +79,8 @@ def facility_model(root: Path) -> FacilityModel:
     config = load_config(None, root / "config.toml")
     payload = arms.Payload.of(workspace_target(config, workspace))
     target = workspace_target(config, workspace)
-    kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma)
+    kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma,
+                                         config.facility.path)
     accepted = {r["sample_id"]: r["vicon_accepted"] for r in read_manifest(workspace, "poses").to_pylist()}
     captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
                       key=lambda r: r["sample_id"])
@@ -87,13 +90,12 @@ def facility_model(root: Path) -> FacilityModel:
     rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
                    if r["session"] == "dataset" and r["status"] == "ok" and r["sample_id"] in accepted),
                   key=lambda r: r["sample_id"])
-    if kuka.arms is None:
+    if kuka.holders is None:
         raise SystemExit(f"{root}: the arms were not calibrated; the model has no parameter covariance")
-    readings = arms.readings(rows, payload)
-    jacobian = arms.pose_jacobians(config.testbed, kuka.kinematics.fit, readings, [r["fixture"] for r in rows],
-                                   kuka.world_up)[:, 3:]
-    flanks = arms.flank_variances(config.testbed, readings, config.fuse.lost_motion_rad,
-                                  config.fuse.backlash_preload_nm)
+    measured = identification.measured(kuka.holders, rows, payload, kuka.world_up)
+    jacobian = identification.pose_jacobians(kuka.holders, kuka.kinematics.chains, measured, kuka.world_up)[:, 3:]
+    flanks = identification.flank_variances(kuka.holders, measured, None if config.facility.path
+                                            else config.fuse.lost_motion_rad, config.fuse.backlash_preload_nm)
     covariances = kuka.parameter_covariances(rows, config.fuse)
     estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]
     sigma_kuka = np.stack([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in estimates])
@@ -104,6 +106,7 @@ def facility_model(root: Path) -> FacilityModel:
                             for e in estimates])
     weight = np.where(fused, sigma_kuka**2 / np.maximum(sigma_kuka**2 + sigma_vicon**2, 1e-300), 0.0)
     return FacilityModel(jacobian, np.asarray(kuka.kinematics.covariance), flanks,
+                         identification.joint_columns(kuka.holders),
                          np.stack([kuka.sigma_at(e.kuka).t_m for e in estimates]), sigma_vicon, weight,
                          config.fuse.session_offset == "on" and vicon is not None)
 
@@ -116,8 +119,8 @@ def draw(model: FacilityModel, draws: int, seed: int) -> HonestDraws:
     parameters = rng.multivariate_normal(np.zeros(len(model.covariance)), model.covariance, size=draws,
                                          method="eigh")
     robots = np.einsum("nap,dp->dna", model.jacobian, parameters)  # one draw shared by the captures
-    joints = rng.standard_normal((draws, captures, 12)) * np.sqrt(model.joint_variance_rad2)[None]
-    robots += np.einsum("nap,dnp->dna", model.jacobian[:, :, :12], joints)
+    joints = rng.standard_normal((draws,) + model.joint_variance_rad2.shape) * np.sqrt(model.joint_variance_rad2)[None]
+    robots += np.einsum("nap,dnp->dna", model.jacobian[:, :, model.joint_columns], joints)
     robots += rng.standard_normal(robots.shape) * model.calibrated_m[None]
     difference = rng.standard_normal(robots.shape) * model.vicon_m[None] - robots
     fused = model.vicon_weight > 0

@@ -3,7 +3,7 @@ in seconds: a render-free facility (docs/architecture.md section 5). Each facili
 robots move through the default profile's plan with its timeline; the calibration
 session's PnP poses are the truth plus PnP-sized noise (0.05 mm, 0.026 deg: what the
 rendered board gives on the default profile) instead of rendered images; ``calibrate``'s
-own solvers (``stages.common.rwhe``, ``stages.common.arms``) fit the robots; the fit
+own solvers (``stages.common.rwhe``, ``stages.calibrate.arm_models``) fit the robots; the fit
 predicts the dataset captures. No motion capture, no fusion: ``bench honesty`` and
 ``bench budget`` run the whole pipeline.
 
@@ -27,9 +27,11 @@ from pipeline.config import load_config
 from stages.acquire.virtual import robots
 from stages.acquire.virtual.timeline import timeline
 from stages.acquire.virtual.truth import draw_truth
+from stages.calibrate.arm_models import arms_model
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.geometry import pose_columns
+from stages.common.robots import identification
 from stages.common.workspace_target import planned_target
 from stages.plan.stage import plan_sample, planned_samples
 
@@ -60,20 +62,20 @@ def facility(seed: int, sources: list[str], settings: tuple[str, ...] = ()) -> t
 
 def robots_only(config: Config, sessions: dict[str, Any], rng: np.random.Generator) -> dict[str, float]:
     """Calibrate the robots on the calibration session; their errors on both sessions."""
-    c, testbed = config.calibrate, config.testbed
-    world_up = np.asarray(c.world_up, float)
+    world_up = np.asarray(config.calibrate.world_up, float)
     captures, true = sessions["calibration"]
     noise = np.stack([g.make_transform(g.rotvec_to_matrix(rng.normal(0, PNP_SIGMA_RAD / np.sqrt(3), 3)),
                                        rng.normal(0, PNP_SIGMA_M / np.sqrt(3), 3)) for _ in true])
     payload = arms.Payload.of(planned_target(config))
-    a, fixtures, readings = true @ noise, [x["fixture"] for x in captures], arms.readings(captures, payload)
-    b, up = arms.corrected_b(testbed, arms.NOMINAL, readings, world_up)
+    model = arms_model(config, payload)
+    a, fixtures, readings = true @ noise, [x["fixture"] for x in captures], model.readings(captures)
+    b, up = identification.corrected_b(model.holders, np.zeros(model.size), readings, world_up)
     start = rwhe.frobenius(a, b, fixtures, rwhe.shah(a, b, fixtures), up)
-    fit = arms.fit(testbed, c, a, readings, fixtures, start, True)
+    fitted = model.fit(a, readings, fixtures, start, True)
     out = {}
     for session, (captures, true) in sessions.items():
-        b, up = arms.corrected_b(testbed, fit.errors, arms.readings(captures, payload), world_up)
-        predicted = fit.offsets.predict(b, [x["fixture"] for x in captures], up)
+        b, up = fitted.corrected_b(model.readings(captures))
+        predicted = fitted.offsets.predict(b, [x["fixture"] for x in captures], up)
         rotation = np.degrees(g.angular_distance(predicted[:, :3, :3], true[:, :3, :3]))
         out[f"{session} E_T (mm)"] = float(np.linalg.norm(predicted[:, :3, 3] - true[:, :3, 3], axis=1).mean() * 1000)
         out[f"{session} E_R (deg)"] = float(rotation.mean())

@@ -56,8 +56,8 @@ LAYOUT: tuple[tuple[str, str], ...] = (
     (TRUTH_MAPS_TEMPLATE.format(sample_id="<sample_id>"), "virtual testbed: depth and part ids at the true pose"),
     (SESSION_FILE, "the capture session: backend, pattern, camera, sources"),
     (CALIBRATION_FILE, "calibrated offsets, sigmas, Table 1"),
-    (ROBOT_URDF_TEMPLATE.format(name="<robot>"), "a facility folder's robot as calibrated: its URDF with the "
-     "identified joint offsets and frames written in (for a controller, MoveIt or a planner)"),
+    (ROBOT_URDF_TEMPLATE.format(name="<robot>"), "each robot as calibrated (TRON's KR 16-2 arms too): its URDF "
+     "with the identified joint offsets and frames written in (for a controller, MoveIt or a planner)"),
     (FUSION_FILE, "the session's variance factor, each axis's source, the session offset, the sigmas' notes"),
     (TRUTH_FILE, "virtual testbed only: the hidden true offsets"),
     (MARKERS_FILE, "virtual testbed only: where the motion-capture markers sat on the mock-up"),

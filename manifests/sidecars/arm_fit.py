@@ -1,10 +1,9 @@
 """The arms' identified kinematics in ``W/calibration.json`` (each source's
-``arm_kinematics``, when calibrate estimated them): TRON's KR 16-2 pair (``ArmFit``: the
-corrections to the nominal arms, ``stages.common.arms``, whose module docstring gives the
-model and its parameters) or a facility folder's robots from their URDFs (``ChainFit``:
-``stages.common.robots.errors``), each with the fixtures and compliance they were fitted
-with and the packed parameters with their covariance, which fuse propagates to each
-capture's configuration."""
+``arm_kinematics``, when calibrate estimated them): the facility's robots from their URDFs
+(``ChainFit``: ``stages.common.robots.errors`` gives the model; TRON's KR 16-2 pair is the
+built-in facility's), with the fixtures and compliance they were fitted with and the
+packed parameters with their covariance, which fuse propagates to each capture's
+configuration."""
 
 from __future__ import annotations
 
@@ -12,103 +11,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from manifests.sidecars.base import Fields, SidecarError
-
-#: the link lengths and offsets of the arm model that are corrected (Craig's a and c of the
-#: KR 16-2's data sheet), in the packed parameters' order
-ARM_LINKS = ("a1", "a2", "c1", "c2", "c3", "c4")
-#: the joints whose compliance is estimated (A2, A3, A5), in the packed parameters' order
-COMPLIANCE_KEYS = ("a2", "a3", "a5")
-
-
-def _named(f: Fields, name: str, names: tuple[str, ...]) -> dict[str, float]:
-    entry = f.child(name)
-    entry.only(*names)
-    return {key: entry.number(key) for key in names}
-
-
-@dataclass(frozen=True)
-class BaseCorrection:
-    """A robot base's correction: rotation vector (3,) rad and translation (3,) m."""
-
-    rotvec_rad: tuple[float, ...]
-    t_m: tuple[float, ...]
-
-    def to_json(self) -> dict[str, list[float]]:
-        return {"rotvec_rad": list(self.rotvec_rad), "t_m": list(self.t_m)}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> BaseCorrection:
-        f.only("rotvec_rad", "t_m")
-        return cls(f.vector("rotvec_rad", 3), f.vector("t_m", 3))
-
-
-@dataclass(frozen=True)
-class ArmCorrections:
-    """The corrections to the nominal arms, by name: joint zero offsets (6,) rad per arm,
-    link deltas (m) by ``ARM_LINKS``, the bases', the rail's scale error, and the joints'
-    compliance (rad/(N m)) by ``COMPLIANCE_KEYS``."""
-
-    camera_joint_offsets_rad: tuple[float, ...]
-    target_joint_offsets_rad: tuple[float, ...]
-    camera_link_deltas_m: dict[str, float]
-    target_link_deltas_m: dict[str, float]
-    camera_base_correction: BaseCorrection
-    target_base_correction: BaseCorrection
-    rail_scale_error: float
-    camera_compliance_rad_per_nm: dict[str, float]
-    target_compliance_rad_per_nm: dict[str, float]
-
-    KEYS = ("camera_joint_offsets_rad", "target_joint_offsets_rad", "camera_link_deltas_m", "target_link_deltas_m",
-            "camera_base_correction", "target_base_correction", "rail_scale_error", "camera_compliance_rad_per_nm",
-            "target_compliance_rad_per_nm")
-
-    def to_json(self) -> dict[str, Any]:
-        return {"camera_joint_offsets_rad": list(self.camera_joint_offsets_rad),
-                "target_joint_offsets_rad": list(self.target_joint_offsets_rad),
-                "camera_link_deltas_m": dict(self.camera_link_deltas_m),
-                "target_link_deltas_m": dict(self.target_link_deltas_m),
-                "camera_base_correction": self.camera_base_correction.to_json(),
-                "target_base_correction": self.target_base_correction.to_json(),
-                "rail_scale_error": self.rail_scale_error,
-                "camera_compliance_rad_per_nm": dict(self.camera_compliance_rad_per_nm),
-                "target_compliance_rad_per_nm": dict(self.target_compliance_rad_per_nm)}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> ArmCorrections:
-        return cls(f.vector("camera_joint_offsets_rad", 6), f.vector("target_joint_offsets_rad", 6),
-                   _named(f, "camera_link_deltas_m", ARM_LINKS), _named(f, "target_link_deltas_m", ARM_LINKS),
-                   BaseCorrection.from_fields(f.child("camera_base_correction")),
-                   BaseCorrection.from_fields(f.child("target_base_correction")), f.number("rail_scale_error"),
-                   _named(f, "camera_compliance_rad_per_nm", COMPLIANCE_KEYS),
-                   _named(f, "target_compliance_rad_per_nm", COMPLIANCE_KEYS))
-
-
-@dataclass(frozen=True)
-class ArmFit:
-    """The arms' fit: the corrections, the fixtures the offsets are per, whether the
-    fixtures were compliant, the packed parameters (P,) (the arms', then the offsets') and
-    their covariance (P, P)."""
-
-    corrections: ArmCorrections
-    fixtures: tuple[str, ...]
-    compliant: bool
-    parameters: tuple[float, ...]
-    covariance: tuple[tuple[float, ...], ...]
-
-    def to_json(self) -> dict[str, Any]:
-        return {**self.corrections.to_json(), "fixtures": list(self.fixtures), "compliant": self.compliant,
-                "parameters": list(self.parameters), "covariance": [list(row) for row in self.covariance]}
-
-    @classmethod
-    def from_fields(cls, f: Fields, *allowed: str) -> ArmFit:
-        """``allowed``: the other keys of the object it is part of."""
-        f.only(*ArmCorrections.KEYS, "fixtures", "compliant", "parameters", "covariance", *allowed)
-        parameters = f.vector("parameters")
-        names = f.raw("fixtures")
-        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise f.fail("fixtures", "a list of fixture names")
-        return cls(ArmCorrections.from_fields(f), tuple(names), f.boolean("compliant"), parameters,
-                   f.matrix("covariance", len(parameters), len(parameters)))
 
 
 @dataclass(frozen=True)

@@ -13,15 +13,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from manifests.sidecars.arm_fit import ArmFit, ChainFit
+from manifests.sidecars.arm_fit import ChainFit
 from manifests.sidecars.base import Fields, Pose, SidecarError, read, save
 from manifests.sidecars.screening import Screening
 from manifests.sidecars.table1 import Baseline, FusedColumn, Metrics
 from manifests.workspace import Workspace
 
 # 2: the arms' joint compliances (arm_kinematics); 3: metrics.cross_validation (the folds
-# that could not determine the offsets, left out of the cross-validated means)
-CALIBRATION_VERSION = 3
+# that could not determine the offsets, left out of the cross-validated means); 4: every
+# arm from its URDF (arm_kinematics.chains; TRON's KR 16-2 record, arm_kinematics' own
+# corrections, is gone)
+CALIBRATION_VERSION = 4
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}
@@ -110,17 +112,15 @@ class FixtureCompliance:
 
 @dataclass(frozen=True)
 class ArmKinematics:
-    """The arms' identified kinematics, when calibrate estimated them (``fit``,
+    """The arms' identified kinematics, when calibrate estimated them (``chains``,
     ``manifests/sidecars/arm_fit.py``), and why or why not."""
 
     estimated: bool
     why: str | None
-    fit: ArmFit | None = None  # TRON's KR 16-2 arms
-    chains: ChainFit | None = None  # a facility folder's robots, from their URDFs
+    chains: ChainFit | None = None  # the facility's robots, from their URDFs
 
     def to_json(self) -> dict[str, Any]:
         return {"estimated": self.estimated, **({"why": self.why} if self.why is not None else {}),
-                **(self.fit.to_json() if self.fit is not None else {}),
                 **({"chains": self.chains.to_json()} if self.chains is not None else {})}
 
     @classmethod
@@ -130,16 +130,12 @@ class ArmKinematics:
         if not estimated:
             f.only("estimated", "why")
             return cls(False, why)
-        if f.optional("chains"):
-            f.only("estimated", "why", "chains")
-            return cls(True, why, None, ChainFit.from_fields(f.child("chains")))
-        return cls(True, why, ArmFit.from_fields(f, "estimated", "why"))
+        f.only("estimated", "why", "chains")
+        return cls(True, why, ChainFit.from_fields(f.child("chains")))
 
     @property
     def covariance(self) -> tuple[tuple[float, ...], ...]:
-        if self.chains is not None:
-            return self.chains.covariance
-        return () if self.fit is None else self.fit.covariance
+        return () if self.chains is None else self.chains.covariance
 
 
 @dataclass(frozen=True)

@@ -43,12 +43,13 @@ class CalibrateConfig:
     world_up: tuple[float, float, float] = param(
         (0.0, 0.0, 1.0), "the up direction (against gravity) in the robot world K", "1")
     arm_kinematics: Literal["auto", "on", "off"] = param(
-        "auto", "calibrate the arms themselves (joint offsets, link lengths, bases, rail scale) with the offsets: "
-        "on, off, or auto (on when every calibration capture has the robots' encoder readings)", "")
+        "auto", "calibrate the arms themselves from their URDFs (joint zero offsets and frames, bases, rail scale, "
+        "compliance) with the offsets: on, off, or auto (on when every calibration capture has the robots' encoder "
+        "readings, and on a facility folder calibrate.min_arm_redundancy holds)", "")
     arm_prior_joint_rad: float = param(2e-3, "prior 1-sigma of a joint's zero offset (mastering tolerance)", "rad")
     arm_prior_length_m: float = param(2e-3, "prior 1-sigma of an arm dimension against the data sheet", "m")
     min_arm_redundancy: float = param(
-        3.0, "under arm_kinematics = auto, a facility folder's robots are fitted from their URDFs only where the "
+        3.0, "under arm_kinematics = auto, a facility folder's robots (not TRON's own) are fitted only where the "
         "calibration captures give this many equations (six a capture) per fitted parameter; fewer and the fit "
         "follows the poses' noise (stages/calibrate/arm_models.py)", "1")
     arm_prior_frame_rad: float = param(
@@ -61,18 +62,19 @@ class CalibrateConfig:
         "metre, and steel expands 1.2e-5 per K; the calibration's 1.2 m of rail travel barely constrains it, so at "
         "the dataset's 3-5 m this prior is most of the robots' depth sigma (docs/architecture.md section 6)", "1")
     joint_compliance: Literal["on", "off"] = param(
-        "on", "with the arms' kinematics, also estimate the gearbox compliance of A2, A3 and A5 under gravity "
-        "(stages/common/arms.py)", "")
+        "on", "with the arms' kinematics, also estimate each joint's gearbox compliance under gravity "
+        "(stages/common/robots/errors.py)", "")
     fixture_anisotropy: Literal["on", "off"] = param(
         "on", "with the arms' kinematics and a compliant fixture, also estimate how much stiffer the fixture is "
         "about one axis than another (stages/common/rwhe.py fixture_tilt)", "")
     fixture_anisotropy_prior: float = param(
         0.5, "prior 1-sigma of each entry of a compliant fixture's anisotropy D_f (with the arms' kinematics): "
         "a bracket can be half again as stiff about one axis as about another", "1")
-    arm_prior_compliance_rad_per_nm: tuple[float, float, float] = param(
-        (4e-6, 8e-6, 3e-5), "prior 1-sigma of the joint compliance of A2, A3 and A5 (zero mean): twice the "
-        "compliance of KR-class joints (stiffness of order 1e5-1e6 N m/rad; Dumas et al., Robotics and "
-        "Computer-Integrated Manufacturing 27(4), 2011)", "rad/(N m)")
+    arm_prior_compliance_rad_per_nm: float = param(
+        3e-5, "prior 1-sigma of a joint's compliance (zero mean), and at most what winds the joint by "
+        "arm_prior_joint_rad under its largest gravity torque: twice the compliance of an industrial wrist joint "
+        "(stiffness of order 1e5-1e6 N m/rad; Dumas et al., Robotics and Computer-Integrated Manufacturing 27(4), "
+        "2011; stages/common/robots/identification.py)", "rad/(N m)")
     max_intrinsics_rms_px: float = param(
         2.0, "an estimated camera whose reprojection RMS over the kept images exceeds this is refused: corners of "
         "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see "
@@ -101,7 +103,7 @@ class CalibrateConfig:
         if self.min_arm_redundancy < 1:
             raise ConfigError("calibrate.min_arm_redundancy: expected at least 1 equation per parameter")
         if min(self.arm_prior_joint_rad, self.arm_prior_length_m, self.arm_prior_frame_rad, self.arm_prior_base_m,
-               self.arm_prior_base_rad, self.arm_prior_rail_scale, *self.arm_prior_compliance_rad_per_nm) <= 0:
+               self.arm_prior_base_rad, self.arm_prior_rail_scale, self.arm_prior_compliance_rad_per_nm) <= 0:
             raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
         if self.fixture_anisotropy_prior <= 0:
             raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")

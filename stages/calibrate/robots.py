@@ -60,10 +60,7 @@ def arm_decision(config: Config, readings: object | None) -> tuple[bool, str]:
         if mode == "on":
             raise InputError("calibrate.arm_kinematics = on needs the frobenius or reprojection solver")
         return False, "Shah's closed form has no arm kinematics"
-    count = len(readings.rail_m)
-    if config.facility.path:
-        return True, f"encoder readings of {count} calibration captures, the arms' URDFs"
-    return True, f"encoder readings of {count} calibration captures"
+    return True, f"encoder readings of {len(readings.rail_m)} calibration captures, the arms' URDFs"
 
 
 def compliance_record(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],
@@ -86,7 +83,7 @@ def write_robot_urdfs(config: Config, workspace: Workspace, chains: ChainFit | N
     folder = workspace.root / "robots"
     written = set()
     if chains is not None:
-        facility = load_facility(Path(config.facility.path))
+        facility = load_facility(Path(config.facility.path) if config.facility.path else None)
         for correction in chains.robots:
             spec = next(robot.spec for robot in facility.robots if robot.spec.name == correction.robot)
             path = workspace.robot_urdf_path(correction.robot)

@@ -4,8 +4,9 @@ Industrial arms are stiff links on compliant joints (gearbox and shaft windup): 
 ``j`` carrying the gravity torque ``tau_j`` turns by ``tau_j / k_j`` beyond what its
 motor encoder reads (Dumas, Caro, Garnier, Furet, "Joint stiffness identification of
 six-revolute industrial serial robots", Robotics and Computer-Integrated Manufacturing
-27(4), 2011). The virtual testbed uses this with its true masses and stiffnesses;
-``calibrate`` with the lab's nominal masses and estimated compliances.
+27(4), 2011). The virtual testbed uses this with TRON's true masses and stiffnesses;
+``calibrate`` takes the same nominal masses from ``core/facilities/tron/kr16_2.urdf``'s
+``<inertial>`` elements (``SerialChain.gravity_torques``; a test holds the two equal).
 
 Torques are the generalised gravity forces ``tau = -dU/dq`` of the potential energy
 ``U = g sum m_i z_i(q)`` of the moving masses, ``z`` the world's up axis: positive when

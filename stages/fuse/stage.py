@@ -21,7 +21,6 @@ The session-level measures are in ``session.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -39,8 +38,7 @@ from stages.common import geometry as g
 from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejection_reason, with_scale_error
 from stages.common.json_arrays import matrix
 from stages.common.robots import identification
-from stages.common.robots.errors import Holders
-from stages.common.robots.facility import load_facility
+from stages.common.robots.errors import Holders, configured_holders
 from stages.common.rwhe import fixture_tilt
 from stages.common.sources import measured_b, up_targetee
 from stages.common.workspace_target import workspace_target
@@ -66,19 +64,18 @@ __all__ = ["Estimates", "SessionOffset", "applied_factor", "axis_sources", "fuse
 class SourceModel:
     """One source's calibrated offsets, fixture compliance and uncertainty."""
 
-    def __init__(self, entry: SourceCalibration, calibration: Calibration, testbed: TestbedConfig,
-                 payload: arms.Payload, scale_sigma: float = 0.0, holders: Holders | None = None) -> None:
+    def __init__(self, entry: SourceCalibration, calibration: Calibration, payload: arms.Payload,
+                 scale_sigma: float = 0.0, holders: Holders | None = None, tron: bool = False) -> None:
+        self.tron = tron  # TRON's own arms: the KR 16-2's lost motion applies
         self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
-        self.arms = arms.ArmErrors.from_record(kinematics.fit.corrections) if kinematics.fit is not None else None
         self.kinematics = kinematics
-        #: a facility's robots, fitted from their URDFs (``kinematics.chains``)
+        #: the facility's robots, fitted from their URDFs (``kinematics.chains``)
         self.holders = holders if kinematics.chains is not None else None
         if kinematics.chains is not None and (holders is None or holders.names != kinematics.chains.parameter_names):
             raise InputError("calibration.json: arm_kinematics.chains was fitted to other robots than the facility "
                              "folder's (its parameter names differ); rerun calibrate with --force (`speedplus "
                              "calibrate -w W --force`)")
-        self.testbed = testbed
         self.payload = payload
         self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
@@ -114,13 +111,6 @@ class SourceModel:
             b_arms, up_arms = identification.corrected_b(self.holders, np.asarray(self.kinematics.chains.parameters)
                                                          [:size], measured, self.world_up)
             b, up = b_arms[0], up_arms[0]
-        elif self.arms is not None:
-            readings = arms.readings([row], self.payload)
-            if readings is None:
-                raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
-                                 "calibration of the arms needs (calibrate.arm_kinematics)")
-            b_arms, up_arms = arms.corrected_b(self.testbed, self.arms, readings, self.world_up)
-            b, up = b_arms[0], up_arms[0]
         if fixture in self.compliance:
             d = self.anisotropy[fixture][None] if fixture in self.anisotropy else None
             b = b @ fixture_tilt(up[None], self.compliance[fixture][None], d)[0]
@@ -133,36 +123,24 @@ class SourceModel:
         return with_scale_error(grown, pose[:3, 3], self.calibration_distance_m, self.scale_sigma)
 
     def parameter_covariances(self, rows: list[dict[str, Any]], fuse: FuseConfig) -> list[ArmUncertainty | None]:
-        """Each capture's pose uncertainty from the calibrated arms' parameters and the
-        joints' lost motion (``arms.flank_variances``; None without calibrated arms); all
-        captures at once."""
+        """Each capture's pose uncertainty from the calibrated arms' parameters and, on
+        TRON's arms, the joints' lost motion (``fuse.lost_motion_rad``, the KR 16-2's rating;
+        a facility folder's URDF gives no gearbox data; ``identification.flank_variances``);
+        None without calibrated arms. All captures at once."""
         for row in rows:  # before the arms' model meets a fixture it has no offset for
             self.check_fixture(row)
-        if self.holders is not None and rows:
-            return self._chain_covariances(rows)
-        if self.arms is None or not rows:
+        if self.holders is None or not rows:
             return [None] * len(rows)
-        readings = arms.readings(rows, self.payload)
-        if readings is None:
-            raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
-                             "of the arms needs (calibrate.arm_kinematics)")
-        flanks = arms.flank_variances(self.testbed, readings, fuse.lost_motion_rad, fuse.backlash_preload_nm)
-        jacobians = arms.pose_jacobians(self.testbed, self.kinematics.fit, readings, [r["fixture"] for r in rows],
-                                        self.world_up)
-        parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
-        shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks)
-        return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
-
-    def _chain_covariances(self, rows: list[dict[str, Any]]) -> list[ArmUncertainty]:
-        """``parameter_covariances`` of a facility's robots: the fitted parameters' covariance
-        alone (a URDF gives no gearbox data for the lost motion of TRON's arms)."""
         measured = identification.measured(self.holders, rows, self.payload, self.world_up)
         if measured is None:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
         jacobians = identification.pose_jacobians(self.holders, self.kinematics.chains, measured, self.world_up)
         parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
-        shared, own = arms.pose_covariance_parts(jacobians, parameters)
+        flanks = identification.flank_variances(self.holders, measured, fuse.lost_motion_rad if self.tron else None,
+                                                fuse.backlash_preload_nm)
+        shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks,
+                                                 identification.joint_columns(self.holders))
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
 
 
@@ -183,16 +161,17 @@ class ArmUncertainty:
         return with_mean, np.einsum("ap,pq,aq->a", mean_jacobian_t, self.parameters, mean_jacobian_t)
 
 
-def load_models(workspace: Workspace, testbed: TestbedConfig, payload: arms.Payload,
-                vicon_scale_sigma: float, facility: str = "") -> tuple[SourceModel, SourceModel | None, Sigma | None]:
+def load_models(workspace: Workspace, testbed: TestbedConfig, payload: arms.Payload, vicon_scale_sigma: float,
+                facility: str = "") -> tuple[SourceModel, SourceModel | None, Sigma | None]:
     """Both sources' calibrated models and the rejection sigma, from ``W/calibration.json``;
-    ``facility``: the facility folder's path, whose robots calibrate fitted (empty: TRON)."""
+    ``facility``: the facility folder's path, whose robots calibrate fitted (empty: TRON's,
+    placed by ``testbed``)."""
     calibration = read_calibration(workspace)
-    holders = Holders.of(load_facility(Path(facility))) if facility else None
-    kuka = SourceModel(calibration.kuka, calibration, testbed, payload, holders=holders)
+    holders = configured_holders(facility, testbed)[0]
+    kuka = SourceModel(calibration.kuka, calibration, payload, holders=holders, tron=not facility)
     vicon = rejection = None
     if calibration.vicon is not None:
-        vicon = SourceModel(calibration.vicon, calibration, testbed, payload, vicon_scale_sigma)
+        vicon = SourceModel(calibration.vicon, calibration, payload, vicon_scale_sigma)
         rejection = Sigma.from_record(calibration.rejection)
     return kuka, vicon, rejection
 

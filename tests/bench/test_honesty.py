@@ -17,7 +17,7 @@ def model(shared_m: float, own_m: float, vicon_m: float = 0.0, weight: float = 0
     sideways by their own 1 mm alone."""
     jacobian = np.zeros((CAPTURES, 3, 13))
     jacobian[:, 2, 12] = 1.0  # a parameter past the 12 joint offsets, which the lost motion drives
-    return FacilityModel(jacobian, np.diag([0.0] * 12 + [shared_m**2]), np.zeros((CAPTURES, 12)),
+    return FacilityModel(jacobian, np.diag([0.0] * 12 + [shared_m**2]), np.zeros((CAPTURES, 12)), np.arange(12),
                          np.tile([1e-3, 1e-3, own_m], (CAPTURES, 1)), np.full((CAPTURES, 3), vicon_m),
                          np.full((CAPTURES, 3), weight), offset_removed)
 

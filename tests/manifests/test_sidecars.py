@@ -35,7 +35,7 @@ from manifests.sidecars import (
     write_session,
     write_truth,
 )
-from manifests.sidecars.arm_fit import ARM_LINKS, COMPLIANCE_KEYS, ArmCorrections, ArmFit, BaseCorrection
+from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
 from manifests.sidecars.truth import POSE_KEYS, HolderTruth
 
 SESSION = Session("replay", "handeye", ("kuka",), SessionCamera(1928, 1208, None, None),
@@ -95,11 +95,13 @@ def source(name: str, kinematics: ArmKinematics) -> SourceCalibration:
 CALIBRATION = Calibration(
     Intrinsics(((1500.0, 0.0, 480.0), (0.0, 1500.0, 300.0), (0.0, 0.0, 1.0)), (-0.2, 0.5, 0.0, 0.0, -0.1), 960, 600,
                0.08, True),
-    source("kuka", ArmKinematics(True, "encoders", ArmFit(
-        ArmCorrections((1e-4,) * 6, (-1e-4,) * 6, dict.fromkeys(ARM_LINKS, 2e-4), dict.fromkeys(ARM_LINKS, -2e-4),
-                       BaseCorrection((0.0, 1e-4, 0.0), (1e-3, 0.0, 0.0)), BaseCorrection((0.0,) * 3, (0.0,) * 3),
-                       1e-4, dict.fromkeys(COMPLIANCE_KEYS, 1e-5), dict.fromkeys(COMPLIANCE_KEYS, 2e-5)),
-        ("minus_x", "plus_x"), True, (0.0, 1.0), ((1.0, 0.0), (0.0, 1.0))))),
+    source("kuka", ArmKinematics(True, "encoders", ChainFit(
+        (RobotCorrection("slide", "camera", ("a1",), (1e-4,), ((0.0, 1e-4, 0.0, 1e-3, 0.0, 0.0), (0.0,) * 6), 2e-5,
+                         (1e-6,)),),
+        ("slide.a1.zero", *(f"slide.{frame}.{axis}" for frame in ("a1.origin", "flange")
+                            for axis in ("rx", "ry", "rz", "x", "y", "z")), "slide.rail.scale", "slide.a1.compliance"),
+        {"slide.flange.z": "a combination of the hand-eye offsets"}, {"slide.rail.scale": 0.9}, ("minus_x", "plus_x"),
+        True, (0.0,) * 16, tuple(tuple(float(i == j) for j in range(16)) for i in range(16)), (1e-3,) * 15))),
     source("vicon", ArmKinematics(False, "motion capture tracks the model itself")),
     0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
     FusedColumn(55, ON_BOTH, {"kuka": ON_BOTH, "vicon": ON_BOTH}),
@@ -112,7 +114,7 @@ def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(
     write_calibration(workspace, CALIBRATION)
     assert read_calibration(workspace) == CALIBRATION
     stored = json.loads(workspace.calibration_path.read_text())
-    assert stored["version"] == 3
+    assert stored["version"] == 4
     assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
     assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
     # the first fixture's offset stands for the source's target offset
@@ -133,7 +135,7 @@ def _edit(data: dict, path: str, value) -> dict:
 
 
 @pytest.mark.parametrize("path, value, message", [
-    ("version", KeyError, r"version None, this program reads version 3 .*rerun calibrate with --force"),
+    ("version", KeyError, r"version None, this program reads version 4 .*rerun calibrate with --force"),
     ("kuka.fixture_compliance.anisotropy_by_fixture.minus_x", [0.1, 0.2],
      "key kuka.fixture_compliance.anisotropy_by_fixture.minus_x: expected"),
     ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),
@@ -143,10 +145,12 @@ def _edit(data: dict, path: str, value) -> dict:
     ("vicon.sigma_r_rad", float("nan"), r"key vicon.sigma_r_rad: expected a finite number"),
     ("kuka.fixture_compliance.k_rad_by_fixture.plus_x", [0.0], r"key kuka.fixture_compliance.k_rad_by_fixture."
                                                                r"plus_x: expected a list of 3"),
-    ("kuka.arm_kinematics.covariance", [[1.0]], r"key kuka.arm_kinematics.covariance: expected a 2 x 2"),
-    ("kuka.arm_kinematics.camera_link_deltas_m.c3", KeyError,
-     r"key kuka.arm_kinematics.camera_link_deltas_m.c3 missing"),
-    ("kuka.arm_kinematics.target_base_correction.t_m", [0.0], r"key kuka.arm_kinematics.target_base_correction.t_m"),
+    ("kuka.arm_kinematics.chains.covariance", [[1.0]], r"key kuka.arm_kinematics.chains.covariance: expected a "
+                                                       r"16 x 16"),
+    ("kuka.arm_kinematics.chains.robots", KeyError, r"key kuka.arm_kinematics.chains.robots missing"),
+    ("kuka.arm_kinematics.chains.parameter_names", ["slide.a1.zero"],
+     r"key kuka.arm_kinematics.chains.parameter_names: .*15 names"),
+    ("kuka.arm_kinematics.fit", {}, r"unknown key\(s\) in kuka.arm_kinematics fit"),
     ("vicon.metrics.in_sample.E_T_m", [0.1], r"key vicon.metrics.in_sample.E_T_m: expected a list of 2"),
     ("kuka.metrics.cross_validation.undetermined_folds", [6], r"key kuka.metrics.cross_validation."
                                                               r"undetermined_folds: expected a list of fold numbers"),

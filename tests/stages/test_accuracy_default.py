@@ -65,12 +65,15 @@ def test_compliance_and_arm_kinematics_remove_most_of_the_robots_error(labelled,
     for kind in ("cross_validated", "truth"):
         assert kuka["metrics"][kind]["E_R_rad"][0] < 0.2 * papers["metrics"][kind]["E_R_rad"][0]
         assert kuka["metrics"][kind]["E_T_m"][0] < 0.2 * papers["metrics"][kind]["E_T_m"][0]
+    # TRON's arms are fitted from their URDF, and written back for a controller
+    robots = {robot["role"]: robot for robot in kuka["arm_kinematics"]["chains"]["robots"]}
+    assert sorted(robots) == ["camera", "target"]
+    assert all((labelled.root / "robots" / f"{robot['robot']}.urdf").is_file() for robot in robots.values())
     # the arms' corrections are of the size the lab's tolerances allow, not fitted noise
-    arms = kuka["arm_kinematics"]
-    assert np.abs(arms["camera_joint_offsets_rad"] + arms["target_joint_offsets_rad"]).max() < 0.01
+    assert np.abs(np.concatenate([robot["zero_offsets"] for robot in robots.values()])).max() < 0.01
     # A2's gearbox compliance is found, of the order of KR-class joints (1e5-1e6 N m/rad)
-    for robot in ("camera", "target"):
-        assert 3e-7 < arms[f"{robot}_compliance_rad_per_nm"]["a2"] < 1e-5
+    for robot in robots.values():
+        assert 3e-7 < robot["compliance_rad_per_nm"][robot["joints"].index("joint_a2")] < 1e-5
     # with backlash, elasticity and thermal drift left in the arms, the calibrated robots are
     # about as good as real calibrated arms (a few tenths of a mm), not better
     assert 0.1e-3 < kuka["metrics"]["truth"]["E_T_m"][0] < 1e-3

@@ -13,11 +13,12 @@ Calibration*, Wiley 1991, ch. 3):
   scale is off (``virtual.rail_scale_sigma``);
 - with ``elasticity`` among ``virtual.unmodelled``, each joint winds up under the gravity
   torque of what the arm carries (its ``payload_kg``, or the mock-up), the Jacobian's
-  transpose applied to the payload's weight, over a stiffness drawn as TRON's arms' are.
+  transpose applied to the payload's weight, and of its links' own masses where the URDF
+  gives them (``<inertial>``), over a stiffness drawn as TRON's arms' are.
 
 A static mount stands where the folder puts it, off by a base error. TRON's arms have more
-(windup under the links' own weight, lost motion, warming), which needs link masses a URDF
-may not give: a facility's rehearsal leaves them out, and says so in docs/user-guide.md.
+(lost motion, warming): a facility's rehearsal leaves them out, and says so in
+docs/user-guide.md.
 """
 
 from __future__ import annotations
@@ -122,16 +123,19 @@ def draw_rig(config: Config) -> Rig:
 def windup(holder: Holder, world_from_base: np.ndarray, links: np.ndarray, mass_kg: float,
            load_in_flange_m: np.ndarray) -> np.ndarray:
     """(J,) rad each link turns past its motor: the gravity torque of ``mass_kg`` at
-    ``load_in_flange_m`` (3,), tau = J^T (F, M) with the flange's geometric Jacobian,
-    over each joint's stiffness."""
-    if np.all(np.isinf(holder.stiffness_nm_per_rad)) or mass_kg == 0.0:
+    ``load_in_flange_m`` (3,), tau = J^T (F, M) with the flange's geometric Jacobian, and of
+    the links' own masses where the URDF gives them, over each joint's stiffness."""
+    if np.all(np.isinf(holder.stiffness_nm_per_rad)):
         return np.zeros_like(links)
     chain = holder.true_chain
-    base_from_flange = chain.forward(links)
-    force = world_from_base[:3, :3].T @ np.array([0.0, 0.0, -mass_kg * GRAVITY_M_S2])  # N, base frame
-    lever = base_from_flange[:3, :3] @ load_in_flange_m
-    wrench = np.concatenate([force, np.cross(lever, force)])  # about the flange's origin
-    return chain.jacobian(links).T @ wrench / holder.stiffness_nm_per_rad
+    gravity = world_from_base[:3, :3].T @ np.array([0.0, 0.0, -GRAVITY_M_S2])  # m/s^2, base frame
+    torque = chain.gravity_torques(links[None], gravity[None])[0]
+    if mass_kg != 0.0:
+        force = mass_kg * gravity  # N, base frame
+        lever = chain.forward(links)[:3, :3] @ load_in_flange_m
+        wrench = np.concatenate([force, np.cross(lever, force)])  # about the flange's origin
+        torque = torque + chain.jacobian(links).T @ wrench
+    return torque / holder.stiffness_nm_per_rad
 
 
 def _read(row: dict[str, Any], key: str, holder: Holder, rng: np.random.Generator, sigma: float) -> np.ndarray | None:

@@ -16,7 +16,6 @@ import numpy as np
 
 from core.config import Config
 from manifests.sidecars import TruthRecord
-from manifests.sidecars.arm_fit import ARM_LINKS
 from manifests.sidecars.truth import HolderTruth
 from stages.acquire.virtual.unmodelled import Unmodelled, draw_unmodelled
 from stages.common import geometry as g
@@ -26,6 +25,9 @@ from stages.common.kinematics import ArmModel, arm_model
 from stages.common.robots.facility import load_facility
 from stages.common.target import Target
 from stages.common.workspace_target import planned_target
+
+#: the KR 16-2's dimensions the true arms are drawn off (Craig's a and c of its data sheet), in the draw's order
+ARM_LINKS = ("a1", "a2", "c1", "c2", "c3", "c4")
 
 
 @dataclass(frozen=True)

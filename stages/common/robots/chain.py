@@ -39,6 +39,16 @@ class Capsule:
 
 
 @dataclass(frozen=True)
+class LinkMass:
+    """A link's mass (the URDF's ``<inertial>``) at its centre (m, in the frame of the joint
+    that moves it)."""
+
+    joint: int  # the index of the moving joint whose frame holds it; -1: the base link's
+    mass_kg: float
+    centre_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class SerialChain:
     """The moving joints between base and flange, each after the fixed transforms before it."""
 
@@ -54,6 +64,7 @@ class SerialChain:
     upper: np.ndarray  # (J,)
     capsules: tuple[Capsule, ...]
     velocity: np.ndarray | None = None  # (J,) rad/s or m/s, the URDF's <limit velocity>; NaN where absent
+    masses: tuple[LinkMass, ...] = ()  # the moving links' <inertial> masses; none where the URDF gives none
 
     @property
     def dof(self) -> int:
@@ -106,6 +117,30 @@ class SerialChain:
             else:
                 columns.append(np.concatenate([np.cross(axis_base, flange - frames[index, :3, 3]), axis_base]))
         return np.stack(columns, axis=1)
+
+    def gravity_torques(self, joints: np.ndarray, gravity_in_base: np.ndarray) -> np.ndarray:
+        """(N, J) N m: the generalised gravity force on each joint of the links' own masses,
+        ``tau_j = sum_k J_j(c_k)^T m_k g`` (the potential's ``-dU/dq``, as ``statics``), at
+        joints (N, J) with gravity's acceleration ``gravity_in_base`` (N, 3) m/s^2 in the
+        base frame. Zero where the URDF gives no masses."""
+        joints = np.asarray(joints, dtype=np.float64)
+        out = np.zeros(joints.shape)
+        moving = [m for m in self.masses if m.joint >= 0]
+        if not moving:
+            return out
+        frames = self.frames(joints)  # (N, J + 1, 4, 4)
+        for mass in moving:
+            held = frames[:, mass.joint]
+            centre = held[:, :3, :3] @ np.asarray(mass.centre_m) + held[:, :3, 3]  # (N, 3)
+            force = mass.mass_kg * np.asarray(gravity_in_base, float)  # (N, 3)
+            for index in range(mass.joint + 1):
+                axis = frames[:, index, :3, :3] @ self.axes[index]
+                if self.kinds[index] == "prismatic":
+                    out[:, index] += np.einsum("ni,ni->n", axis, force)
+                else:
+                    lever = np.cross(axis, centre - frames[:, index, :3, 3])
+                    out[:, index] += np.einsum("ni,ni->n", lever, force)
+        return out
 
     def within_limits(self, joints: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """(...) whether every joint of (..., J) is inside its limits less ``margin``."""
@@ -185,11 +220,13 @@ def _assemble(path: Path, name: str, joints: list, links: dict) -> SerialChain:
     origins, axes, kinds, names, lower, upper, velocity = [], [], [], [], [], [], []
     pending = np.eye(4)
     capsules: list[Capsule] = list(_link_capsules(links[joints[0].parent], -1, pending) if joints else [])
+    masses: list[LinkMass] = []
     for joint in joints:
         origin = np.eye(4) if joint.origin is None else np.asarray(joint.origin, float)
         pending = pending @ origin
         if joint.type == "fixed":
             capsules += _link_capsules(links[joint.child], len(names) - 1, pending)
+            masses += _link_mass(path, links[joint.child], len(names) - 1, pending)
             continue
         if joint.type not in MOVING:
             raise FileError(path, f"<joint name=\"{joint.name}\"> is {joint.type!r}; a serial arm's joints are "
@@ -208,11 +245,12 @@ def _assemble(path: Path, name: str, joints: list, links: dict) -> SerialChain:
         speed = getattr(joint.limit, "velocity", None) if joint.limit is not None else None
         velocity.append(float(speed) if speed else float("nan"))
         capsules += _link_capsules(links[joint.child], len(names) - 1, np.eye(4))
+        masses += _link_mass(path, links[joint.child], len(names) - 1, np.eye(4))
     if not names:
         raise FileError(path, "no moving joint between the base and flange links")
     origins.append(pending)
     chain = SerialChain(name, str(path), tuple(names), tuple(kinds), np.stack(origins), np.stack(axes),
-                        np.array(lower), np.array(upper), (), np.array(velocity))
+                        np.array(lower), np.array(upper), (), np.array(velocity), tuple(masses))
     covered = {capsule.joint for capsule in capsules}
     return SerialChain(**{**chain.__dict__, "capsules": (*capsules, *_segment_capsules(chain, covered))})
 
@@ -227,6 +265,17 @@ def _limits(path: Path, joint: object) -> tuple[float, float]:
         raise FileError(path, f"<joint name=\"{joint.name}\">: <limit> upper {limit.upper} is not above lower "
                               f"{limit.lower}")
     return float(limit.lower), float(limit.upper)
+
+
+def _link_mass(path: Path, link: object, joint: int, link_in_joint: np.ndarray) -> list[LinkMass]:
+    """The link's ``<inertial>`` mass at its centre in the frame of ``joint``; none without one."""
+    inertial = getattr(link, "inertial", None)
+    if inertial is None or not inertial.mass:
+        return []
+    if not np.isfinite(inertial.mass) or inertial.mass < 0:
+        raise FileError(path, f"<link name=\"{link.name}\">: <mass value> {inertial.mass} is not a mass in kg")
+    pose = link_in_joint @ (np.eye(4) if inertial.origin is None else np.asarray(inertial.origin, float))
+    return [LinkMass(joint, float(inertial.mass), _point(pose[:3, 3]))]
 
 
 def _link_capsules(link: object, joint: int, link_in_joint: np.ndarray) -> list[Capsule]:

@@ -14,7 +14,8 @@ moving joints ``0..J-1`` after fixed origins ``O_0..O_J`` (``SerialChain.origins
   always absorbs;
 - ``s``: the rail encoder's scale error (a railed robot only);
 - ``c_j``: joint j's compliance (rad/(N m)) under ``tau_j``, the gravity torque of the
-  payload (the flange Jacobian's transpose of its weight), evaluated at the nominal arm.
+  payload (the flange Jacobian's transpose of its weight) and of the links' own masses
+  where the URDF gives them (``<inertial>``), evaluated at the nominal arm.
 
 Many of these are not separable from each other or from the hand-eye offsets (a frame's
 turn about the next joint's axis is that joint's zero offset; one base against the other
@@ -26,12 +27,15 @@ A static mount has no parameters: its placement error is the hand-eye offset's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
+from core.config import TestbedConfig
+from stages.common import layout
 from stages.common.robots.chain import SerialChain
-from stages.common.robots.facility import Facility, Robot, pose_matrix
+from stages.common.robots.facility import Facility, Robot, load_facility, pose_matrix
 from stages.common.rwhe import transform_from_vector
 from stages.common.statics import GRAVITY_M_S2
 
@@ -113,15 +117,17 @@ class HolderModel:
     def torques(self, joints: np.ndarray, rail_m: np.ndarray, mass_kg: float, load_in_flange_m: np.ndarray,
                 world_up: np.ndarray) -> np.ndarray:
         """(N, J) N m: each joint's gravity torque from ``mass_kg`` at ``load_in_flange_m``
-        (N, 3), tau = J^T (F, M) with the nominal flange's geometric Jacobian."""
-        out = np.zeros((len(joints), self.joints))
+        (N, 3), tau = J^T (F, M) with the nominal flange's geometric Jacobian, and from the
+        links' own masses where the URDF gives them (``SerialChain.gravity_torques``)."""
+        bases = self.base_at(rail_m)
+        gravity = np.einsum("nji,j->ni", bases[:, :3, :3], -GRAVITY_M_S2 * np.asarray(world_up, float))  # base frame
+        out = self.chain.gravity_torques(joints, gravity)
         if mass_kg == 0.0:
             return out
-        bases = self.base_at(rail_m)
-        for i, (q, base) in enumerate(zip(joints, bases, strict=True)):
-            force = base[:3, :3].T @ (-mass_kg * GRAVITY_M_S2 * np.asarray(world_up, float))  # N, base frame
+        for i, q in enumerate(joints):
+            force = mass_kg * gravity[i]
             lever = self.chain.forward(q)[:3, :3] @ load_in_flange_m[i]
-            out[i] = self.chain.jacobian(q).T @ np.concatenate([force, np.cross(lever, force)])
+            out[i] += self.chain.jacobian(q).T @ np.concatenate([force, np.cross(lever, force)])
         return out
 
 
@@ -174,3 +180,21 @@ class Holders:
             out += zero + frames + ([rail_scale] if robot.rail_axis is not None else [])
             out += [compliance_rad_per_nm] * j
         return np.array(out, float)
+
+
+def configured_holders(facility_path: str, testbed: TestbedConfig) -> tuple[Holders, Facility]:
+    """The holders calibrate fits and fuse applies: a facility folder's robots, or TRON's
+    KR 16-2 pair (the built-in folder's URDF) placed as the configuration's ``[testbed]``
+    places them (its bases, the camera's payload; the plan and the virtual testbed read the
+    same keys), so that an override of ``testbed.*`` reaches the arms' model as it reaches
+    the robots."""
+    facility = load_facility(Path(facility_path) if facility_path else None)
+    holders = Holders.of(facility)
+    if facility_path:
+        return holders, facility
+    camera, target = holders.camera, holders.target
+    assert isinstance(camera, HolderModel) and isinstance(target, HolderModel)  # the built-in folder's two arms
+    camera = replace(camera, world_from_base=layout.world_from_camera_base(testbed, 0.0),
+                     payload_kg=float(testbed.camera_payload_kg),
+                     load_in_flange_m=0.5 * np.asarray(testbed.camee_from_cam_t_m, float))
+    return Holders(camera, replace(target, world_from_base=layout.world_from_target_base(testbed))), facility

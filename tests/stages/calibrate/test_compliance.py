@@ -8,6 +8,9 @@ from speedplus.errors import InputError
 from stages.calibrate.stage import arm_decision, compliance_decision
 from stages.common import arms, rwhe
 from stages.common import geometry as g
+from stages.common.robots import identification
+from stages.common.robots.errors import Holders
+from stages.common.robots.facility import load_facility
 from stages.common.sources import up_targetee
 from stages.common.workspace_target import planned_target
 
@@ -54,8 +57,11 @@ def test_up_direction_comes_from_the_target_flange_telemetry():
 
 def test_arm_kinematics_need_encoder_readings():
     payload = arms.Payload.of(planned_target(load_config("smoke")))
-    readings = arms.Readings(np.zeros((10, 6)), np.zeros((10, 6)), np.zeros(10), payload)
-    assert arm_decision(config_with(), readings) == (True, "encoder readings of 10 calibration captures")
+    rows = [{"kuka_camera_joints_rad": [0.0] * 6, "kuka_target_joints_rad": [0.0] * 6, "kuka_rail_m": 1.0,
+             "fixture": "minus_x"}] * 10
+    readings = identification.measured(Holders.of(load_facility()), rows, payload, np.array([0.0, 0.0, 1.0]))
+    assert arm_decision(config_with(), readings) == (True, "encoder readings of 10 calibration captures, the arms' "
+                                                           "URDFs")
     assert arm_decision(config_with(), None) == (False, "the captures have no encoder readings")
     assert arm_decision(config_with(arm_kinematics="off"), readings)[0] is False
     with pytest.raises(InputError, match="lack the robots' encoder readings.*kuka_camera_joints_rad"):

@@ -21,7 +21,7 @@ UP = np.array([0.0, 0.0, 1.0])
 SETTINGS = SimpleNamespace(
     world_up=(0.0, 0.0, 1.0), arm_prior_joint_rad=2e-3, arm_prior_length_m=2e-3, arm_prior_frame_rad=2e-4,
     arm_prior_base_m=2e-3, arm_prior_base_rad=2e-3, arm_prior_rail_scale=1e-4,
-    arm_prior_compliance_rad_per_nm=(4e-6, 8e-6, 3e-5), joint_compliance="on", fixture_anisotropy="on",
+    arm_prior_compliance_rad_per_nm=3e-5, joint_compliance="on", fixture_anisotropy="on",
     fixture_anisotropy_prior=0.5)
 OFFSETS = rwhe.Solution(g.make_transform(g.rotvec_to_matrix([0.1, 0.2, 0.3]), [0.01, 0.02, 0.1]),
                         {"minus_x": g.make_transform(g.rotvec_to_matrix([0.3, -0.2, 0.1]), [0.0, 0.05, 0.02])})
