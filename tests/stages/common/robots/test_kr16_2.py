@@ -171,3 +171,17 @@ def test_forward_differences_step_as_scipy_does():
     x = rng.normal(size=4)
     np.testing.assert_array_equal(arms._forward_differences(residuals, x),
                                   approx_derivative(lambda v: residuals(v[None])[0], x, method="2-point"))
+
+
+def test_trons_arms_stand_where_the_configuration_puts_them():
+    """An override of ``[testbed]`` moves the arms' model as it moves the planned robots."""
+    from stages.common.robots.errors import configured_holders
+
+    config = load_config("default", overrides=["testbed.target_base_m=[0.7, 1.4, 0.0]",
+                                               "testbed.rail_origin_m=[1.5, 1.5, 3.0]", "testbed.camera_payload_kg=3.5"])
+    holders, _ = configured_holders("", config.testbed)
+    np.testing.assert_allclose(holders.target.world_from_base, layout.world_from_target_base(config.testbed))
+    np.testing.assert_allclose(holders.camera.base_at(np.array([2.0]))[0],
+                               layout.world_from_camera_base(config.testbed, 2.0))
+    assert holders.camera.payload_kg == 3.5
+    assert configured_holders("", load_config("default").testbed)[0].target.world_from_base[0, 3] == 0.6
