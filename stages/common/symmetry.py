@@ -46,7 +46,7 @@ def candidates(target: Target) -> list[tuple[str, np.ndarray]]:
 
 def symmetries(target: Target) -> list[tuple[str, np.ndarray]]:
     """The candidates that map the mesh onto itself."""
-    vertices = np.concatenate([part.vertices for part in target.parts.values()])
+    vertices = target.vertices_m
     tree = cKDTree(vertices)
     tolerance = SYMMETRY_TOLERANCE * target.diameter_m
     return [(name, m) for name, m in candidates(target) if tree.query(g.apply(m, vertices))[0].max() <= tolerance]

@@ -96,6 +96,12 @@ class Target:
     #: them; else None: ``stages.common.markers`` chooses them on the parts
     markers_m: np.ndarray | None = None
 
+    @property
+    def vertices_m(self) -> np.ndarray:
+        """(V, 3) every part's vertices, full scale, in T (m): where the target can be, for
+        the film windows of its renders and casts and for its symmetries."""
+        return np.concatenate([part.vertices for part in self.parts.values()])
+
     def view_of(self, camera_in_target_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
         """The view name (...) of camera positions (..., 3) in the body frame, metres at the
         given model scale: ``view_names[0]`` on the side of the plane through the centre

@@ -48,7 +48,7 @@ class TargetRenderer:
         # box filter: alpha is exact coverage
         self.sensor_spec = sensor(mi, geometry, far_clip_m=1000.0, rfilter="box", pixel_format="rgba")
         #: every vertex (N, 3, body frame, m): where the target can be in an image
-        self.points_m = np.concatenate([part.vertices for part in target.parts.values()])
+        self.points_m = target.vertices_m
         objects: dict[str, Any] = {
             "type": "scene",
             "integrator": {"type": "path", "max_depth": max_depth, "hide_emitters": True},

@@ -179,7 +179,7 @@ class VirtualTestbed:
 
         if self._surfaces is None:
             self._surfaces = TargetSurfaces(self.target.parts)
-            self._points_m = np.concatenate([part.vertices for part in self.target.parts.values()])
+            self._points_m = self.target.vertices_m
         scale = self.target.mockup_scale
         full_scale = cam_from_target.copy()
         full_scale[:3, 3] /= scale  # the mesh is the full-scale target; the mock-up is it scaled
