@@ -178,7 +178,8 @@ def test_trons_arms_stand_where_the_configuration_puts_them():
     from stages.common.robots.errors import configured_holders
 
     config = load_config("default", overrides=["testbed.target_base_m=[0.7, 1.4, 0.0]",
-                                               "testbed.rail_origin_m=[1.5, 1.5, 3.0]", "testbed.camera_payload_kg=3.5"])
+                                               "testbed.rail_origin_m=[1.5, 1.5, 3.0]",
+                                               "testbed.camera_payload_kg=3.5"])
     holders, _ = configured_holders("", config.testbed)
     np.testing.assert_allclose(holders.target.world_from_base, layout.world_from_target_base(config.testbed))
     np.testing.assert_allclose(holders.camera.base_at(np.array([2.0]))[0],
