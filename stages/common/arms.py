@@ -95,17 +95,16 @@ def _redundancy_scales(difference: np.ndarray, jacobian: np.ndarray) -> np.ndarr
     return np.concatenate([np.full((3, 3), scales[0]), np.full((3, 1), scales[1])], axis=1)
 
 
-def _residual_scales(difference: np.ndarray, twist: bool = False) -> np.ndarray:
-    """(3, 4) RMS of the Frobenius residuals (N, 4, 4): one for the rotation entries, one
-    for the translation entries (m); with ``twist``, of the rotation vectors in column 0."""
-    rotation_entries = difference[:, :3, :1] if twist else difference[:, :3, :3]
-    rotation = max(float(np.sqrt(np.mean(rotation_entries ** 2))), 1e-12)
+def _residual_scales(difference: np.ndarray) -> np.ndarray:
+    """(3, 4) RMS of the twist residuals (N, 3, 4): one for the rotation vectors (column 0,
+    rad), one for the translations (column 3, m)."""
+    rotation = max(float(np.sqrt(np.mean(difference[:, :3, 0] ** 2))), 1e-12)
     translation = max(float(np.sqrt(np.mean(difference[:, :3, 3] ** 2))), 1e-12)
     return np.concatenate([np.full((3, 3), rotation), np.full((3, 1), translation)], axis=1)
 
 
 def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np.ndarray, free: np.ndarray,
-            prior: np.ndarray, priored: np.ndarray, twist: bool = False) -> tuple[np.ndarray, np.ndarray]:
+            prior: np.ndarray, priored: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The maximum a posteriori parameters (P,) and their covariance (P, P) of any arms'
     model: ``batch`` predicts ``cam_from_target`` (K, N, 4, 4) of packed parameters (K, P),
     ``a`` (N, 4, 4) the PnP poses, ``params`` (P,) the start, ``free`` (P,) bool the ones
@@ -113,13 +112,13 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
     the free parameters at indices ``priored`` (zero-mean priors). The two residual scales
     are re-estimated from each fit until they settle (below: why).
 
-    The residuals are the paper's Frobenius entries, or with ``twist`` each pose's rotation
-    vector (rad) and translation (m): a rotation's nine matrix entries carry its three
-    degrees of freedom, so weighing them as nine independent residuals takes three times
-    the information they hold, and the covariance of a rotation-driven parameter comes out
-    sqrt(3) too narrow. With ``twist`` the scales are also estimated from the residuals'
-    redundancy (Helmert's variance components: each group's sum of squares over its count
-    less the parameters it absorbs, the trace of its block of the hat matrix): a model of
+    The residuals are each pose's rotation vector (rad) and translation (m), not the paper's
+    Frobenius entries: a rotation's nine matrix entries carry its three degrees of freedom,
+    so weighing them as nine independent residuals takes three times the information they
+    hold, and the covariance of a rotation-driven parameter comes out sqrt(3) too narrow.
+    The scales are estimated from the residuals' redundancy (Helmert's variance components:
+    each group's sum of squares over its count less the parameters it absorbs, the trace of
+    its block of the hat matrix): a model of
     many parameters fitted to few poses leaves residuals smaller than the noise, and a
     scale taken from them alone would weigh the data ever higher, fit after fit
     (docs/architecture.md section 6)."""
@@ -130,8 +129,6 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         return out
 
     def difference(predicted: np.ndarray) -> np.ndarray:
-        if not twist:
-            return a - predicted
         out = np.zeros(predicted.shape[:-2] + (3, 4))
         out[..., :3, 0] = g.matrix_to_rotvec(a[..., :3, :3] @ np.swapaxes(predicted[..., :3, :3], -1, -2))
         out[..., :3, 3] = a[..., :3, 3] - predicted[..., :3, 3]
@@ -139,9 +136,9 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
 
     def residuals_of(delta: np.ndarray, scale: np.ndarray) -> np.ndarray:
         whitened = delta[..., :3, :] / scale
-        return whitened[..., :, [0, 3]].reshape(len(delta), -1) if twist else whitened.reshape(len(delta), -1)
+        return whitened[..., :, [0, 3]].reshape(len(delta), -1)
 
-    scale = _residual_scales(difference(batch(params[None])[0]), twist)
+    scale = _residual_scales(difference(batch(params[None])[0]))
     for _ in range(_MAX_FITS):
         def residuals(q: np.ndarray, scale: np.ndarray = scale) -> np.ndarray:
             """Whitened residuals (K, M) of a batch of free parameters (K, F)."""
@@ -152,7 +149,7 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
                                xtol=1e-10, ftol=1e-10, jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
         delta = difference(batch(params[None])[0])
-        scale, previous = (_redundancy_scales(delta, result.jac) if twist else _residual_scales(delta)), scale
+        scale, previous = _redundancy_scales(delta, result.jac), scale
         if np.all(np.abs(scale / previous - 1.0) < _SCALES_SETTLED):
             break
     covariance = np.zeros((len(params), len(params)))

@@ -92,3 +92,17 @@ def test_bench_cluster_projects_speedplus_own_scale_from_the_paper_profiles_cost
     assert rows["1 core"]["hours"] == pytest.approx(cpu_hours)
     for nodes in (1, 4, 16):
         assert rows[f"{nodes} x 16 cores"]["hours"] == pytest.approx(cpu_hours / (nodes * 16 * 0.8))
+
+
+def test_bench_unmodelled_calibrates_render_free_facilities(results):
+    """docs/accuracy.md cites ``python -m bench unmodelled``: one facility, two of its rows.
+    The robots calibrated from PnP-sized noise alone carry over to the dataset to tenths of a
+    millimetre, and every unmodelled source on costs them more."""
+    from bench import unmodelled
+
+    unmodelled.main("21", "none,all")
+    rows = {row["unmodelled errors on"]: row for row in _rows(results, "unmodelled")}
+    assert set(rows) == {"none", "all"}
+    assert rows["none"]["dataset E_T (mm)"] < 0.5 < rows["all"]["dataset E_T (mm)"]
+    with pytest.raises(SystemExit, match="unknown row 'sag'"):
+        unmodelled.main("21", "none,sag")

@@ -78,11 +78,14 @@ def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.
 
 def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload,
              world_up: np.ndarray) -> Measured | None:
-    """The captures' readings, or None when any capture lacks a robot's joints."""
+    """The captures' readings, or None when any capture lacks a robot's joints or a railed robot's rail."""
     camera = _joints(holders.camera, rows, "kuka_camera_joints_rad")
     target = _joints(holders.target, rows, "kuka_target_joints_rad")
     if camera is None or target is None or not rows:
         return None
+    railed = any(robot.rail_axis is not None for robot in holders.robots)
+    if railed and any(row.get("kuka_rail_m") is None for row in rows):
+        return None  # a rail's reading is as much the arm's configuration as a joint's
     rail = np.array([0.0 if row.get("kuka_rail_m") is None else row["kuka_rail_m"] for row in rows], float)
     fixtures = tuple(str(row.get("fixture") or "fixed") for row in rows)
     return measure(holders, (camera, target), rail, fixtures, payload, world_up)
@@ -311,7 +314,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     def batch(p: np.ndarray) -> np.ndarray:
         return predict_batch(holders, p, names, compliant, m, world_up)
 
-    params, covariance = arms.map_fit(batch, a, params, free, all_prior, priored, twist=True)
+    params, covariance = arms.map_fit(batch, a, params, free, all_prior, priored)
     offsets = rwhe.unpack(params[size:], names, compliant, anisotropic=compliant)
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior)
 
@@ -328,9 +331,11 @@ def flank_variances(holders: Holders, m: Measured, lost_motion_rad: tuple[float,
                     preload_nm: float) -> np.ndarray:
     """(N, joints of both robots) variance (rad^2) of each joint's angle from its gearbox's
     lost motion ``lost_motion_rad`` (one rating per joint, the same for both robots; None:
-    none), as ``arms.flank_variances``: a joint whose gravity torque (its links' and payload's,
-    ``Measured``) exceeds ``preload_nm`` rests on its loaded flank, which the offsets absorb;
-    any other on the flank its last move left it on."""
+    none). A joint whose gravity torque (its links' and payload's, ``Measured``) exceeds
+    ``preload_nm`` rests on its loaded flank, at the same place for every capture with that
+    load, which the offsets absorb. Any other rests on the flank its last move left it on,
+    ``+-l / 2`` from the middle; the rating is a maximum, a unit's ``l`` uniform on 50-100%
+    of it, so the variance is ``E[l^2] / 4 = 7 / 12 (rating / 2)^2`` (``arms.UNIT_SHARE``)."""
     out = []
     for robot, torque in ((holders.camera, m.camera_torque), (holders.target, m.target_torque)):
         if not isinstance(robot, HolderModel):
@@ -338,7 +343,9 @@ def flank_variances(holders: Holders, m: Measured, lost_motion_rad: tuple[float,
         if lost_motion_rad is None:
             out.append(np.zeros_like(torque))
             continue
-        rating = np.resize(np.asarray(lost_motion_rad, float), robot.joints)
+        rating = np.asarray(lost_motion_rad, float)
+        if rating.shape != (robot.joints,):
+            raise ValueError(f"{robot.robot}: {len(rating)} lost-motion ratings for {robot.joints} joints")
         out.append(np.where(np.abs(torque) <= preload_nm, arms.UNIT_SHARE * (rating / 2) ** 2, 0.0))
     return np.concatenate(out, axis=1) if out else np.zeros((len(m.rail_m), 0))
 

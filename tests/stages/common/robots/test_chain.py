@@ -98,9 +98,25 @@ LIMIT = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
     (LINKS + '<link name="b"/>' + JOINT.format(kind="revolute", limit=LIMIT), "b", "no serial chain joins them"),
     (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace("</joint><joint", "</joint<joint"), "tool0",
      "not valid XML"),
+    (LINKS.replace('<link name="a"/>', '<link name="a"><inertial><mass value="-3"/></inertial></link>')
+     + JOINT.format(kind="revolute", limit=LIMIT), "tool0", '<link name="a">: <mass value> -3.0 is not a mass'),
 ])
 def test_a_bad_urdf_is_refused_naming_the_element(tmp_path, body, flange, message):
     path = _urdf(tmp_path, body)
     with pytest.raises(FileError) as raised:
         load_chain(path, "base_link", flange)
     assert str(raised.value).startswith(str(path)) and message in str(raised.value), raised.value
+
+
+def test_a_links_mass_hangs_on_the_joint_that_moves_it(tmp_path):
+    """An <inertial> on a moving link, and one on a link fixed after it, both turn with that
+    joint: 2 kg at 0.5 m and 1 kg at the flange's 0.5 + 0.25 m, under gravity along -y of
+    the base, load the joint by their weights' levers."""
+    body = LINKS.replace('<link name="a"/>', '<link name="a"><inertial><origin xyz="0.5 0 0"/><mass value="2"/>'
+                         '</inertial></link>').replace(
+        '<link name="tool0"/>', '<link name="tool0"><inertial><origin xyz="0.25 0 0"/><mass value="1"/>'
+        '</inertial></link>') + JOINT.format(kind="revolute", limit=LIMIT)
+    chain = load_chain(_urdf(tmp_path, body), "base_link", "tool0")
+    assert [(m.joint, m.mass_kg) for m in chain.masses] == [(0, 2.0), (0, 1.0)]
+    torque = chain.gravity_torques(np.zeros((1, 1)), np.array([[0.0, -9.81, 0.0]]))
+    np.testing.assert_allclose(torque, [[-9.81 * (2 * 0.5 + 1 * 0.75)]])

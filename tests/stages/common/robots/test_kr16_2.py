@@ -48,7 +48,7 @@ def test_the_urdf_gives_the_data_sheets_gravity_torques(seed):
         assert np.abs(expected[:, 1]).max() > 100.0  # the shoulder carries hundreds of N m
 
 
-def true_poses(rng: np.random.Generator, rows: list[dict], truth: dict) -> np.ndarray:
+def true_poses(rows: list[dict], truth: dict) -> np.ndarray:
     """``cam_from_target`` (N, 4, 4) of TRON's true arms (the closed form, as the virtual
     testbed moves them) holding the camera and a rigidly fixed target."""
     testbed = load_config("default").testbed
@@ -99,7 +99,7 @@ def test_trons_true_arms_are_fitted_by_their_urdf_and_carry_over(seed):
     assert [robot.chain.source.endswith("kr16_2.urdf") for robot in model.holders.robots] == [True, True]
     truth = draw_truth(rng)
     rows = readings(rng, 64)
-    a = true_poses(rng, rows, truth)
+    a = true_poses(rows, truth)
     measured = model.readings(rows)
     fixtures = [row["fixture"] for row in rows]
     b, up = identification.corrected_b(model.holders, np.zeros(model.size), measured, np.array([0.0, 0.0, 1.0]))
@@ -107,7 +107,7 @@ def test_trons_true_arms_are_fitted_by_their_urdf_and_carry_over(seed):
     fitted = model.fit(a, measured, fixtures, start, False)
 
     others = readings(rng, 40)  # the dataset's configurations
-    expected = true_poses(rng, others, truth)
+    expected = true_poses(others, truth)
     b_fitted, _ = fitted.corrected_b(model.readings(others))
     predicted = fitted.offsets.predict(b_fitted, [row["fixture"] for row in others], None)
     error_m = np.linalg.norm(predicted[:, :3, 3] - expected[:, :3, 3], axis=1)
@@ -186,3 +186,13 @@ def test_trons_arms_stand_where_the_configuration_puts_them():
                                layout.world_from_camera_base(config.testbed, 2.0))
     assert holders.camera.payload_kg == 3.5
     assert configured_holders("", load_config("default").testbed)[0].target.world_from_base[0, 3] == 0.6
+
+
+def test_a_capture_without_its_rail_reading_gives_the_arms_no_readings():
+    """The camera robot rides a rail: a capture without ``kuka_rail_m`` is not taken at rail
+    0 (its arm would be placed metres off), it leaves the arms without readings."""
+    rows = readings(np.random.default_rng(3), 4)
+    holders = Holders.of(load_facility())
+    assert identification.measured(holders, rows, PAYLOAD, np.array([0.0, 0.0, 1.0])) is not None
+    rows[2] = {key: value for key, value in rows[2].items() if key != "kuka_rail_m"}
+    assert identification.measured(holders, rows, PAYLOAD, np.array([0.0, 0.0, 1.0])) is None
