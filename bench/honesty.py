@@ -88,7 +88,9 @@ TARGET_SEEDS = (91, 92)
 #: which was made after 91 and 92 had been looked at; acquired after it, for the four
 #: targets and for Tango
 TAIL_SEEDS = (93, 94)
-HELD_OUT = HELD_OUT_SEEDS + LATER_SEEDS + SIGMA_SEEDS + LAST_SEEDS + OFFSET_SEEDS + CENTRED_SEEDS + TAIL_SEEDS
+#: chosen (issue 57 part 4) to measure short sessions, TRON's smoke profile, before any was run
+SHORT_SEEDS = (101, 102, 103, 104)
+HELD_OUT = HELD_OUT_SEEDS + LATER_SEEDS + SIGMA_SEEDS + LAST_SEEDS + OFFSET_SEEDS + CENTRED_SEEDS + TAIL_SEEDS + SHORT_SEEDS
 
 
 #: the sections of the method under test: a kept acquisition gets this code's defaults for them
@@ -245,6 +247,24 @@ def better_source(data: dict[str, Any]) -> str:
     return f"{(data['both_fused'].mean() / better - 1) * 100:+.1f}% ({name})"
 
 
+def pooled_against_sources(data: list[dict[str, Any]]) -> str:
+    """Issue 57 part 4, pooled over builds: the labels' mean E_T on the captures both sources
+    measured against each source's on the same captures, and against the better of the two
+    pooled; then against an oracle that keeps, build by build, whichever source was better
+    there (which two sources alone cannot know: their differences say only the sum of their
+    variances)."""
+    both = [d for d in data if len(d["both_fused"])]
+    if not both:
+        return "no two-source capture"
+    fused, kuka, vicon = (float(np.mean(np.concatenate([d[k] for d in both]))) * 1000
+                          for k in ("both_fused", "both_kuka", "vicon"))
+    oracle = float(np.mean(np.concatenate([d["both_kuka"] if d["both_kuka"].mean() <= d["vicon"].mean()
+                                           else d["vicon"] for d in both]))) * 1000
+    better, name = (kuka, "robots") if kuka <= vicon else (vicon, "motion capture")
+    return (f"{fused:.3f}/{kuka:.3f}/{vicon:.3f} mm: {(fused / better - 1) * 100:+.1f}% against {name}; "
+            f"{(fused / oracle - 1) * 100:+.1f}% against each build's better")
+
+
 def papers_columns(papers: Workspace | str) -> dict[str, Any]:
     """The (a) columns: the paper's method on the same acquisition, or why it was refused
     (``papers`` the message then: the plausibility gate of calibrate)."""
@@ -322,13 +342,17 @@ def facility_row(seed: int, ours: Workspace, papers: Workspace | str) -> tuple[d
     inside, rms = sigma_coverage(normalised)
     row.update({f"(d) inside 1.96 sigma {a}": float(inside[i]) for i, a in enumerate(AXES)})
     row.update({f"(d) rms(err/sigma) {a}": float(rms[i]) for i, a in enumerate(AXES)})
-    return row, {"normalised": normalised, "under": under, "honest": simulate(ours.root)}
+    return row, {"normalised": normalised, "under": under, "honest": simulate(ours.root), "data": data}
 
 
-def pooled_row(label: str, normalised: list[np.ndarray], under: list[np.ndarray]) -> dict[str, Any]:
+def pooled_row(label: str, normalised: list[np.ndarray], under: list[np.ndarray],
+               data: list[dict[str, Any]]) -> dict[str, Any]:
+    """The row over ``data``'s builds (``dataset``'s, with their normalised errors and
+    labels under the thresholds)."""
     pooled = np.concatenate(normalised)
     summary: dict[str, Any] = {"target": label, "seed": "",
-                               "(b) under SPEED+ thresholds": float(np.concatenate(under).mean())}
+                               "(b) under SPEED+ thresholds": float(np.concatenate(under).mean()),
+                               "(c) dataset fused against the better source": pooled_against_sources(data)}
     inside, rms = sigma_coverage(pooled)
     for i, a in enumerate(AXES):
         summary[f"(d) inside 1.96 sigma {a}"] = float(inside[i])
@@ -396,7 +420,8 @@ def main(*arguments: str) -> None:
             "pooled, 81-84": [raw for _, seed, raw in raws if seed in CENTRED_SEEDS]})
     for label, chosen in groups.items():
         if chosen and (label == "pooled, all" or len(chosen) < len(raws)):  # a group that is all is said once
-            summary = pooled_row(label, [r["normalised"] for r in chosen], [r["under"] for r in chosen])
+            summary = pooled_row(label, [r["normalised"] for r in chosen], [r["under"] for r in chosen],
+                                 [r["data"] for r in chosen])
             rows.append({key: summary.get(key, "") for key in rows[0]})
     name = "honesty_targets" if targets else "honesty"
     report(name, "acceptance over independent virtual facilities (issue 13)"

@@ -34,7 +34,15 @@ from typing import Any
 import numpy as np
 
 from bench.common import report
-from bench.honesty import AXES, dataset, run_facility, sigma_coverage, under_speedplus
+from bench.honesty import (
+    AXES,
+    better_source,
+    dataset,
+    pooled_against_sources,
+    run_facility,
+    sigma_coverage,
+    under_speedplus,
+)
 from manifests.facility import facility_digest, read_facility_spec
 from manifests.rehearsal import RehearsalRecord, write_rehearsal
 from manifests.sidecars import read_calibration
@@ -68,6 +76,7 @@ def rehearsal_row(seed: int, data: dict[str, Any], calibration_mm: dict[str, flo
         "(c) cal E_T vs truth, fused/robots/mocap (mm)": "/".join(
             f"{calibration_mm[s]:.3f}" if s in calibration_mm else "-" for s in ("fused", "kuka", "vicon")),
         "(c) dataset E_T robots/mocap (mm)": sources,
+        "(c) labels against the better source, two-source captures": better_source(data),
         **_coverage_columns(data["axis_error"] / data["axis_sigma"]),
     }
 
@@ -92,6 +101,7 @@ def pooled(columns: list[str], data: list[dict[str, Any]]) -> dict[str, Any]:
     row.update({"seed": "pooled", "labels": len(under),
                 "(b) mean E_T label (mm)": round(float(np.mean(np.concatenate([d["fused"] for d in data]))) * 1000, 3),
                 "(b) under SPEED+ thresholds [95%]": _share(under),
+                "(c) labels against the better source, two-source captures": pooled_against_sources(data),
                 **_coverage_columns(np.concatenate([d["axis_error"] / d["axis_sigma"] for d in data]))})
     return row
 
