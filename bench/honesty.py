@@ -90,7 +90,8 @@ TARGET_SEEDS = (91, 92)
 TAIL_SEEDS = (93, 94)
 #: chosen (issue 57 part 4) to measure short sessions, TRON's smoke profile, before any was run
 SHORT_SEEDS = (101, 102, 103, 104)
-HELD_OUT = HELD_OUT_SEEDS + LATER_SEEDS + SIGMA_SEEDS + LAST_SEEDS + OFFSET_SEEDS + CENTRED_SEEDS + TAIL_SEEDS + SHORT_SEEDS
+HELD_OUT = (HELD_OUT_SEEDS + LATER_SEEDS + SIGMA_SEEDS + LAST_SEEDS + OFFSET_SEEDS + CENTRED_SEEDS + TAIL_SEEDS
+            + SHORT_SEEDS)
 
 
 #: the sections of the method under test: a kept acquisition gets this code's defaults for them

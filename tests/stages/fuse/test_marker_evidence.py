@@ -176,3 +176,37 @@ def test_a_short_sessions_sigmas_cover():
     in_sample = np.mean(np.abs(np.concatenate(covered["in-sample"])) <= 1.96, axis=0)
     assert np.all(widened >= 0.85), widened
     assert np.min(in_sample) < 0.8, in_sample
+
+
+def short_sessions(robots_claim: float = 1.0):
+    """40 builds of 8 two-source captures (fewer than ``fuse.min_scale_samples``): each
+    source errs at the dataset by its own factor of what its calibration says (log-normal,
+    a factor of 1.6 either way at 1 sigma: the robots' arm fit and motion capture's
+    extrapolation each grow beyond it by an amount the session cannot see), right on
+    average over builds. ``robots_claim``: the robots' sigma that fuse is told, over the
+    true one. Returns each build's mean E_T (mm) of the labels and of each source."""
+    out = []
+    for seed in range(40):
+        rng = np.random.default_rng(1000 + seed)
+        robots_mm = np.array([1.2, 1.2, 0.6]) * np.exp(rng.normal(scale=0.5))
+        marker_m = 2e-4 * np.exp(rng.normal(scale=0.5))
+        truths, estimates = clustered_session(seed, marker_m, 2e-4, captures=SHORT, robots_mm=tuple(robots_mm))
+        e_t, _, _ = fuse_session(truths, estimates, kuka_sigma_mm=tuple(np.array([1.2, 1.2, 0.6]) * robots_claim))
+        out.append(e_t)
+    return {name: np.array([e[name] for e in out]) for name in ("fused", "kuka", "vicon")}
+
+
+def test_a_short_session_is_fused_without_harm_pooled_over_builds():
+    """Issue 57 part 4: in sessions too short to test the sources, the labels pooled over
+    builds are no worse than the better source pooled by more than 1%. Build by build two
+    sources cannot say which errs more (their differences give only the sum of their
+    variances), so some builds are fused to harm; pooled they gain (the sources are alike
+    here: 1.56 and 1.40 mm). Robots that claim a quarter of their true sigma pull the labels
+    to them, and pooled they lose to motion capture."""
+    honest = short_sessions()
+    pooled = {name: float(values.mean()) for name, values in honest.items()}
+    assert pooled["fused"] <= 1.01 * min(pooled["kuka"], pooled["vicon"]), pooled
+    per_build_better = np.minimum(honest["kuka"], honest["vicon"])
+    assert np.any(honest["fused"] > 1.01 * per_build_better)  # the sessions include builds fused to harm
+    overclaimed = {name: float(values.mean()) for name, values in short_sessions(robots_claim=1 / 4).items()}
+    assert overclaimed["fused"] > 1.01 * min(overclaimed["kuka"], overclaimed["vicon"]), overclaimed
