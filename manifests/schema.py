@@ -19,16 +19,16 @@ import pyarrow as pa
 #: 1.10: captures' vicon_targetrb_used and _residual_m, poses' per-source sigmas; 1.11: scores'
 #: intervals, median and failure share; 1.12: models' detector rows (the box IoU; no SPEED score),
 #: predictions' scores under each RANSAC seed; 1.13: the plan's joints nullable (a static mount),
-#: the export_robot manifest
-SCHEMA_VERSION = "1.13"
+#: the export_robot manifest; 1.14: captures' marker counts nullable (a ROS 2 bag records none)
+SCHEMA_VERSION = "1.14"
 #: older versions whose parts still read when their columns are this version's by name and
 #: type, less nullable columns added since (read as nulls): 1.7 differs only in the
 #: keypoint columns' fixed length (11) and the view columns' enumeration, 1.8 lacks the
 #: plan's trajectory columns and captures' move_s, 1.9 the target body's used markers and
 #: residual and the poses' per-source sigmas, 1.10 the scores' intervals (a scores part of
-#: 1.10 does not read: evaluate writes it again), 1.11 the models' box IoU, 1.12 the same columns (nullability
-#: aside); a kept recording reads as it is
-READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10", "1.11", "1.12")
+#: 1.10 does not read: evaluate writes it again), 1.11 the models' box IoU, 1.12 and 1.13 the same columns
+#: (nullability aside); a kept recording reads as it is
+READABLE_VERSIONS = ("1.7", "1.8", "1.9", "1.10", "1.11", "1.12", "1.13")
 
 QUAT = pa.list_(pa.float64(), 4)
 VEC3 = pa.list_(pa.float64(), 3)
@@ -188,8 +188,10 @@ CAPTURES = ManifestSpec(
                "previous frame of a sequence); null for the first capture or when not recorded", nullable=True),
         *pose("vicon_world_from_camrb", "motion capture, frame V; null when not tracked", nullable=True),
         *pose("vicon_world_from_targetrb", "motion capture, frame V; null when not tracked", nullable=True),
-        Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body"),
-        Column("vicon_targetrb_markers", pa.int8(), "count", "markers used for the target rigid body"),
+        Column("vicon_camrb_markers", pa.int8(), "count", "markers used for the camera rigid body; null when not "
+               "recorded (a ROS bag's PoseStamped carries none)", nullable=True),
+        Column("vicon_targetrb_markers", pa.int8(), "count", "markers used for the target rigid body; null when not "
+               "recorded", nullable=True),
         Column("vicon_targetrb_used", pa.list_(pa.int8()), "", "which markers the target rigid body's fit used: "
                "indices into the target's markers (W/markers.json, target.toml [mockup] markers); null when not "
                "recorded (fuse then takes motion capture's calibrated sigma as it is)", nullable=True),
@@ -491,6 +493,19 @@ EXPORT_SESSION = ManifestSpec(
     key="export_id",
 )
 
+EXPORT_ROSBAG = ManifestSpec(
+    "export_rosbag",
+    "captures written by export --format rosbag: a ROS 2 bag (MCAP) that replay --format rosbag reads back",
+    (
+        Column("export_id", pa.string(), "", "<session>/<sample_id>: one exported capture", kind="value"),
+        _sample_id(),
+        Column("session", pa.string(), "", "capture session", kind="enum", allowed=SESSIONS),
+        Column("stamp_ns", pa.int64(), "ns", "the capture's stamp in the bag (its image's header and its trigger)"),
+        Column("source_image", pa.string(), "", "the workspace image in the bag, relative to W", kind="path"),
+    ),
+    key="export_id",
+)
+
 MODELS = ManifestSpec(
     "models",
     "models trained by train-reference, with their held-out synthetic accuracy",
@@ -516,5 +531,5 @@ MODELS = ManifestSpec(
 MANIFESTS: dict[str, ManifestSpec] = {
     spec.name: spec for spec in (PLAN, CAPTURES, TRUTH, CALIBRATION_SAMPLES, POSES, LABELS, RENDERS, TRAIN,
                                   PREDICTIONS, SCORES, COMPARISONS, TRACKS, EXPORT_SPEEDPLUS, EXPORT_BOP, EXPORT_SHIRT,
-                                  EXPORT_ROBOT, EXPORT_SESSION, MODELS)
+                                  EXPORT_ROBOT, EXPORT_SESSION, EXPORT_ROSBAG, MODELS)
 }

@@ -12,7 +12,7 @@ from manifests.workspace import Workspace
 
 SESSION_VERSION = 1
 BACKENDS = ("virtual", "replay")
-FORMATS = ("virtual", "session", "handeye", "tabb")
+FORMATS = ("virtual", "session", "handeye", "tabb", "rosbag")
 SOURCES = ("kuka", "vicon")
 
 

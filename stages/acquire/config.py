@@ -19,11 +19,12 @@ class AcquireConfig:
 
     backend: Literal["virtual", "replay"] = param(
         "virtual", "virtual (embedded digital twin) or replay (recorded session on disk)", "")
-    format: Literal["session", "handeye", "tabb"] = param(
+    format: Literal["session", "handeye", "tabb", "rosbag"] = param(
         "session", "replay format: session (a TRON-like logger's folder), handeye (images and a "
-        "pose file described by dataset.toml) or tabb (Tabb's robot-world/hand-eye folders, a "
-        "preset of handeye); see docs/user-guide.md", "")
-    source: str = param("", "replay: the recorded session directory", "")
+        "pose file described by dataset.toml), tabb (Tabb's robot-world/hand-eye folders, a "
+        "preset of handeye) or rosbag (a ROS 2 bag's folder with its rosbag.toml mapping); see "
+        "docs/user-guide.md", "")
+    source: str = param("", "replay: the recorded session directory (rosbag: the bag's folder)", "")
 
     def check(self, config: Config) -> None:
         """A replay names its recording."""

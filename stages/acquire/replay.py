@@ -16,7 +16,7 @@ robot.csv      sample_id, session, rail, camee_x, camee_y, camee_z, camee_a, cam
                readings (axis angles A1-A6, in angle_unit; all twelve or none), which let calibrate
                calibrate the arms themselves
 mocap.csv      sample_id, body (camrb | targetrb), x, y, z, qw, qx, qy, qz, markers
-               (optional; all zeros or NaN: not tracked)
+               (optional; all zeros or NaN: not tracked; markers nan: not recorded)
 images/<sample_id>.<png|bmp|tif|tiff|jpg|jpeg|exr>
 ```
 """
@@ -221,7 +221,7 @@ class SessionReplay:
                 positions.append(values[:3])
                 labels.append(where)
                 pose = g.transform_from_qt(values[3:], [_to_metres(v, length) for v in values[:3]])
-            count = 0 if not math.isfinite(markers) else int(markers)
+            count = None if not math.isfinite(markers) else int(markers)  # nan: not recorded
             mocap[(sample_id, body)] = {"pose": pose, "markers": count}
         if positions:
             check_translation(path, "rigid-body position", np.array(positions), length, labels)
@@ -247,7 +247,7 @@ class SessionReplay:
         relpath = self.workspace.image_relpath(robot["session"], sample_id)
         stored, converted = ingest_image(self.images[sample_id], self.workspace.resolve(relpath))
         image_path = Path(relpath).with_suffix(stored.suffix).as_posix()
-        empty = {"pose": None, "markers": 0}
+        empty = {"pose": None, "markers": None}
         camera_body = self.mocap.get((sample_id, "camrb"), empty)
         target_body = self.mocap.get((sample_id, "targetrb"), empty)
         captures = {

@@ -2,7 +2,8 @@
 
 Backends (``acquire.backend``): ``virtual`` (the embedded digital twin; captures the
 plan) and ``replay`` (a recorded session on disk: ``acquire.format`` ``session``,
-``handeye`` or its preset ``tabb``). Interrupted runs resume with the samples missing from the manifests.
+``handeye`` or its preset ``tabb``, or a ROS 2 bag, ``rosbag``). Interrupted runs resume
+with the samples missing from the manifests.
 """
 
 from __future__ import annotations
@@ -43,6 +44,10 @@ def open_testbed(config: Config, root: str, plan: list[dict[str, Any]] | None = 
         if config.acquire.format == "tabb":
             return HandEyeReplay(tabb_dataset(source), workspace, "tabb")
         return HandEyeReplay(read_dataset_toml(source), workspace)
+    if config.acquire.format == "rosbag":
+        from stages.acquire.rosbag import BagReplay
+
+        return BagReplay(Path(config.acquire.source), workspace)
     from stages.acquire.replay import SessionReplay
 
     return SessionReplay(Path(config.acquire.source), workspace)

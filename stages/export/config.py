@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from core.config.model import Config
 
 ExportSet = Literal["testbed", "twins", "train"]
-ExportFormat = Literal["speedplus", "bop", "shirt", "robot", "session"]
+ExportFormat = Literal["speedplus", "bop", "shirt", "robot", "session", "rosbag"]
 EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)
 
 
@@ -25,7 +25,8 @@ class ExportConfig:
         "speedplus", "speedplus (the layout the Stanford SPEED+ devkits read), bop (bop_toolkit's scenes; a "
         "trajectory plan's sequences are its scenes), shirt (SHIRT's sequences, plan.mode = trajectory) or robot "
         "(the plan as each robot's waypoints and controller program: KUKA KRL, URScript) or session (the captures "
-        "in the layout of a lab's logger, which replay reads back)", "")
+        "in the layout of a lab's logger, which replay reads back) or rosbag (the captures as a ROS 2 bag, MCAP, "
+        "with its rosbag.toml mapping, which replay --format rosbag reads back)", "")
     out: str = param("", "export folder; empty: W/export/<format>", "")
     sets: tuple[ExportSet, ...] = param(
         ("testbed", "twins"), "image sets exported: testbed (the labelled captures), twins (their synthetic twins, "

@@ -87,7 +87,8 @@ def mocap_rows(captures: list[dict[str, Any]]) -> list[list[Any]]:
         for body, column in (("camrb", "vicon_world_from_camrb"), ("targetrb", "vicon_world_from_targetrb")):
             q, t = row[f"{column}_q"], row[f"{column}_t"]
             pose = [0.0] * 7 if q is None else [*(float(v) * 1000.0 for v in t), *(float(v) for v in q)]
-            rows.append([row["sample_id"], body, *(repr(v) for v in pose), row[f"vicon_{body}_markers"]])
+            markers = row[f"vicon_{body}_markers"]
+            rows.append([row["sample_id"], body, *(repr(v) for v in pose), "nan" if markers is None else markers])
     return rows
 
 

@@ -29,7 +29,7 @@ from stages.common.json_arrays import calibrated_camera
 from stages.common.lens import LensCamera
 from stages.common.robots.facility import load_facility
 from stages.common.workspace_target import workspace_target
-from stages.export import bop, robot, session, shirt, speedplus
+from stages.export import bop, robot, rosbag, session, shirt, speedplus
 from stages.export.config import EXPORT_FORMATS
 
 #: in the export folder: whose export it is (the devkits and bop_toolkit ignore hidden files);
@@ -42,8 +42,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     """Per ``export.sets`` the labels with their captures, renders or the training set (and a
     trajectory plan's sequences); one output manifest per format, so the exports coexist.
     The robot programs read the plan alone, and time its moves as the virtual testbed does."""
-    if config.export.format == "session":
-        return Resolved(("captures",), ("export.format", "export.out"), {}, ("export_session",))
+    if config.export.format in ("session", "rosbag"):
+        return Resolved(("captures",), ("export.format", "export.out"), {}, (f"export_{config.export.format}",))
     if config.export.format == "robot":
         timing = ("virtual.speed_override", "virtual.rail_speed_m_s", "virtual.light_change_s")
         extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}
@@ -196,6 +196,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         return robot_programs(config, workspace, out)
     if config.export.format == "session":
         return session_layout(config, workspace, out)
+    if config.export.format == "rosbag":
+        return rosbag_layout(workspace, out)
     claim(out, workspace, config.export.format)
     chosen, by_set = items(config, workspace), cameras(config, workspace)
     if config.export.format == "speedplus" and "train" in by_set:
@@ -283,3 +285,25 @@ def session_layout(config: Config, workspace: Workspace, out: Path) -> pa.Table:
     print(f"export: {len(captures)} captures as a logger's session (session) in {out}; replay it with `speedplus "
           f"acquire -w W2 --backend replay --format session --source {out}`")
     return read_manifest(workspace, "export_session")
+
+
+def rosbag_layout(workspace: Workspace, out: Path) -> pa.Table:
+    """The captures as a ROS 2 bag and its mapping (``stages.export.rosbag``): one file,
+    written whole (an interrupted export writes it again), then its rows."""
+    captures = sorted(read_manifest(workspace, "captures").to_pylist(),
+                      key=lambda row: (row["session"] != "calibration", row["sample_id"]))
+    claim(out, workspace, "rosbag")
+
+    def image(row: dict[str, Any]) -> tuple[bytes, str]:
+        return workspace.fetch(row["image_path"]).read_bytes(), PurePosixPath(row["image_path"]).suffix[1:]
+
+    stamps = rosbag.write_bag(out, read_session(workspace), captures, image)
+    done = read_keys(workspace, "export_rosbag")
+    with open_sink(workspace, "export_rosbag", len(captures) or 1) as sink:
+        for row, stamp in zip(captures, stamps, strict=True):
+            if f"{row['session']}/{row['sample_id']}" not in done:
+                sink.add({"export_id": f"{row['session']}/{row['sample_id']}", "sample_id": row["sample_id"],
+                          "session": row["session"], "stamp_ns": stamp, "source_image": row["image_path"]})
+    print(f"export: {len(captures)} captures as a ROS 2 bag (rosbag, MCAP) in {out / rosbag.BAG_DIR}; replay it "
+          f"with `speedplus acquire -w W2 --backend replay --format rosbag --source {out / rosbag.BAG_DIR}`")
+    return read_manifest(workspace, "export_rosbag")

@@ -41,8 +41,11 @@ exposure_s = 0.01                 # ...and through it
 tolerance_rad = 1e-5              # "still": no joint or /tf rotation moved more than this
 tolerance_m = 1e-5                # nor a joint or /tf translation
 clock_jump_s = 0.5                # a topic whose stamp steps against its recording time by more is refused
+max_message_gap_s = 0.1           # the robots' messages over the stand-still at most this far apart
 sessions = [["calibration", 0.0, 60.0], ["dataset", 60.0, 1e9]]   # seconds after the bag's first
                                   # message: which captures belong to which session
+fixtures = [["minus_x", 0.0, 30.0]]   # optional, the same way: which model fixture (mount) held the
+                                  # target; a capture in no window: "fixed"
 ```
 """
 
@@ -68,7 +71,7 @@ SETUP_KEYS = ("camera_on", "target_on")
 ROBOTS = ("camera", "target")
 #: the defaults of [captures]; each is a number
 CAPTURE_DEFAULTS = {"still_s": 0.5, "exposure_s": 0.01, "tolerance_rad": 1e-5, "tolerance_m": 1e-5,
-                    "clock_jump_s": 0.5}
+                    "clock_jump_s": 0.5, "max_message_gap_s": 0.1}
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,8 @@ class BodySource:
 
 @dataclass(frozen=True)
 class SessionWindow:
-    """Captures stamped in [from_s, to_s) seconds after the bag's first message belong to ``session``."""
+    """Captures stamped in [from_s, to_s) seconds after the bag's first message belong to
+    ``session`` (a session's name, or a fixture's in ``captures.fixtures``)."""
 
     session: str
     from_s: float
@@ -119,11 +123,17 @@ class BagMapping:
     tolerance_rad: float
     tolerance_m: float
     clock_jump_s: float
+    max_message_gap_s: float
     sessions: tuple[SessionWindow, ...]
+    fixtures: tuple[SessionWindow, ...] = ()
 
     def session_at(self, seconds: float) -> str | None:
         """The session of a capture stamped ``seconds`` after the bag's start (None: in no window)."""
         return next((w.session for w in self.sessions if w.from_s <= seconds < w.to_s), None)
+
+    def fixture_at(self, seconds: float) -> str:
+        """The model fixture of a capture stamped ``seconds`` after the bag's start."""
+        return next((w.session for w in self.fixtures if w.from_s <= seconds < w.to_s), "fixed")
 
     def to_toml(self) -> str:
         document: dict[str, Any] = {"format_version": MAPPING_VERSION, "sources": list(self.sources),
@@ -144,7 +154,10 @@ class BagMapping:
         captures: dict[str, Any] = {"trigger_topic": self.trigger_topic} if self.trigger_topic else {}
         captures.update({"still_s": self.still_s, "exposure_s": self.exposure_s, "tolerance_rad": self.tolerance_rad,
                          "tolerance_m": self.tolerance_m, "clock_jump_s": self.clock_jump_s,
+                         "max_message_gap_s": self.max_message_gap_s,
                          "sessions": [[w.session, w.from_s, w.to_s] for w in self.sessions]})
+        if self.fixtures:
+            captures["fixtures"] = [[w.session, w.from_s, w.to_s] for w in self.fixtures]
         document["captures"] = captures
         return tomli_w.dumps(document)
 
@@ -230,22 +243,26 @@ def _bodies(top: _Table) -> tuple[str | None, dict[str, BodySource], float]:
     return world, bodies, mocap.number("max_gap_s", 0.05)
 
 
-def _sessions(captures: _Table) -> tuple[SessionWindow, ...]:
-    value = captures.data.get("sessions")
-    if not isinstance(value, list) or not value:
-        raise captures.fail("sessions", "a list of [session, from_s, to_s]")
+def _windows(captures: _Table, key: str, names: tuple[str, ...] | None) -> tuple[SessionWindow, ...]:
+    """``[[name, from_s, to_s], ...]`` under ``key``: ``names`` the allowed names (None: any
+    name of a fixture), windows that do not overlap."""
+    value = captures.data.get(key, [] if names is None else None)
+    if not isinstance(value, list) or (names is not None and not value):
+        raise captures.fail(key, "a list of [name, from_s, to_s]")
     windows = []
     for index, entry in enumerate(value):
-        if (not isinstance(entry, list) or len(entry) != 3 or entry[0] not in SESSIONS
+        if (not isinstance(entry, list) or len(entry) != 3 or not isinstance(entry[0], str) or not entry[0]
+                or (names is not None and entry[0] not in names)
                 or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in entry[1:])
                 or not entry[1] < entry[2]):
-            raise FileError(captures.path, f"key captures.sessions[{index}]: expected [session, from_s, to_s] with "
-                                           f"session one of {', '.join(SESSIONS)} and from_s < to_s, got {entry!r}")
+            allowed = f"one of {', '.join(names)}" if names else "a fixture's name"
+            raise FileError(captures.path, f"key captures.{key}[{index}]: expected [name, from_s, to_s] with the "
+                                           f"name {allowed} and from_s < to_s, got {entry!r}")
         windows.append(SessionWindow(entry[0], float(entry[1]), float(entry[2])))
     ordered = sorted(windows, key=lambda w: w.from_s)
     for a, b in zip(ordered, ordered[1:], strict=False):
         if b.from_s < a.to_s:
-            raise FileError(captures.path, f"key captures.sessions: windows {a.session} [{a.from_s:g}, {a.to_s:g}) "
+            raise FileError(captures.path, f"key captures.{key}: windows {a.session} [{a.from_s:g}, {a.to_s:g}) "
                                            f"and {b.session} [{b.from_s:g}, {b.to_s:g}) overlap")
     return tuple(windows)
 
@@ -277,11 +294,12 @@ def read_mapping(path: Path) -> BagMapping:
     world, bodies, gap = _bodies(top) if "vicon" in sources else (None, {}, 0.05)
     if "vicon" not in sources and "motion_capture" in data:
         raise FileError(path, "[motion_capture] given, but sources does not list vicon")
-    captures = top.table("captures", {"trigger_topic", "sessions", *CAPTURE_DEFAULTS})
+    captures = top.table("captures", {"trigger_topic", "sessions", "fixtures", *CAPTURE_DEFAULTS})
     numbers = {key: captures.number(key, default) for key, default in CAPTURE_DEFAULTS.items()}
     if "pattern" in data and not isinstance(data["pattern"], dict):
         raise FileError(path, "[pattern] must be a table")
     return BagMapping(path, tuple(sorted(sources, key=("kuka", "vicon").index)), top.text("world_frame", "world"),
                       setup, camera.text("topic"), camera.optional_text("info_topic"), data.get("pattern"),
                       _robots(top, setup), rail, world, bodies, gap, captures.optional_text("trigger_topic"),
-                      sessions=_sessions(captures), **numbers)
+                      sessions=_windows(captures, "sessions", SESSIONS),
+                      fixtures=_windows(captures, "fixtures", None), **numbers)

@@ -1,0 +1,242 @@
+"""``acquire --backend replay --format rosbag`` (stages/acquire/rosbag.py) and ``export
+--format rosbag`` (stages/export/rosbag.py): a ROS 2 lab's bag replayed without a
+converter. A bag written here with ``rosbags``' writer, as a lab records one (joints at
+100 Hz through the moves, a /tf tree of static and moving edges, motion capture at 120 Hz
+that loses a body, raw camera images), replays to the values at each image's stamp; the
+export of a virtual session replays to the same captures as ``--format session`` of it;
+each bad input is refused naming the topic, the stamp or the key, with nothing written."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import tomli_w
+
+from manifests import Workspace
+from speedplus.errors import FileError
+from stages.acquire.rosbag import BagReplay
+from stages.common import geometry as g
+from stages.common.rosbag import messages as msg
+from tests.conftest import speedplus
+
+NS = 1_000_000_000
+START = 1_700_000_000 * NS
+#: the lab's three captures (s after START): the robots stand still from 1 s before each to 0.3 s after
+CAPTURES_S = (2.0, 5.0, 8.0)
+JOINTS = {"camera": [f"cam_j{k}" for k in range(1, 7)], "target": [f"tgt_j{k}" for k in range(1, 7)]}
+WORLD_FROM_CAMERA_BASE = g.make_transform(g.rotvec_to_matrix([0.0, 0.0, 0.3]), [1.0, 0.5, 0.0])
+
+
+def joints_at(robot: str, seconds: float) -> np.ndarray:
+    """(6,) rad: still about each capture, moving linearly between."""
+    def pose(k: int) -> np.ndarray:
+        return np.linspace(0.1, 0.6, 6) * (k + 1) * (1.0 if robot == "camera" else -0.5)
+
+    for k, c in enumerate(CAPTURES_S):
+        if c - 1.0 <= seconds <= c + 0.3:
+            return pose(k)
+        if seconds < c - 1.0:
+            if k == 0:
+                return pose(0)
+            previous = CAPTURES_S[k - 1] + 0.3
+            share = (seconds - previous) / (c - 1.0 - previous)
+            return pose(k - 1) + share * (pose(k) - pose(k - 1))
+    return pose(len(CAPTURES_S) - 1)
+
+
+def flange_from_joints(joints: np.ndarray) -> np.ndarray:
+    """A stand-in for an arm's forward kinematics (what robot_state_publisher puts on /tf)."""
+    return g.make_transform(g.rotvec_to_matrix([joints[3], joints[4], joints[0]]),
+                            [0.8 + 0.1 * joints[1], 0.2 * joints[2], 1.2 + 0.05 * joints[5]])
+
+
+def mapping(**changes) -> dict:
+    document = {
+        "format_version": 1, "sources": ["kuka", "vicon"], "world_frame": "world",
+        "camera": {"topic": "/cam/image_raw"},
+        "robots": {"camera": {"joints_topic": "/joint_states", "joints": JOINTS["camera"],
+                              "flange_frame": "cam_tool0"},
+                   "target": {"joints_topic": "/joint_states", "joints": JOINTS["target"],
+                              "flange_frame": "tgt_tool0"}},
+        "rail": {"topic": "/joint_states", "joint": "rail"},
+        "motion_capture": {"camera_body": {"topic": "/vrpn/cam/pose"}, "target_body": {"topic": "/vrpn/tgt/pose"}},
+        "captures": {"still_s": 0.5, "exposure_s": 0.02, "sessions": [["calibration", 0.0, 6.0],
+                                                                     ["dataset", 6.0, 100.0]]},
+    }
+    for key, value in changes.items():
+        section, _, name = key.partition("__")
+        if name:
+            document[section][name] = value
+        elif value is None:
+            document.pop(section)
+        else:
+            document[section] = value
+    return document
+
+
+def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=None) -> Path:
+    """The lab's bag in ``folder`` with its ``rosbag.toml``. ``skip``: topics not recorded
+    ("joints gap": /joint_states between 4 and 6 s); ``clock_jump``: /joint_states'
+    stamps step 2 s against the recorder at 6.5 s; ``moved``: the camera arm drifts 1 mrad
+    through the second capture's exposure."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    store, items = msg.typestore(), []
+    for k in range(0, 1000):  # joints at 100 Hz over 10 s
+        seconds = k / 100
+        camera, target = joints_at("camera", seconds), joints_at("target", seconds)
+        if moved and 4.9 <= seconds <= 5.1:
+            camera = camera + (seconds - 4.9) * 5e-3
+        stamp = START + round(seconds * NS) + (2 * NS if clock_jump and seconds >= 6.5 else 0)
+        if not ("joints gap" in skip and 4.0 <= seconds <= 6.0):
+            items.append((START + round(seconds * NS), "/joint_states", msg.JOINT_STATE, msg.joint_state(
+                stamp, JOINTS["camera"] + JOINTS["target"] + ["rail"], [*camera, *target, 0.5])))
+        edges = [msg.transform_stamped(stamp, "cam_base", "cam_link6", flange_from_joints(camera)),
+                 msg.transform_stamped(stamp, "world", "tgt_tool0", flange_from_joints(target))]
+        items.append((START + round(seconds * NS), "/tf", msg.TF, msg.tf_message(edges)))
+    static = [msg.transform_stamped(START, "world", "cam_base", WORLD_FROM_CAMERA_BASE),
+              msg.transform_stamped(START, "cam_link6", "cam_tool0", g.make_transform(np.eye(3), [0, 0, 0.1]))]
+    items.append((START, "/tf_static", msg.TF, msg.tf_message(static)))
+    for k in range(0, 1200):  # motion capture at 120 Hz; the target body lost from 7.5 s
+        seconds = k / 120
+        stamp = START + round(seconds * NS)
+        items.append((stamp, "/vrpn/cam/pose", msg.POSE_STAMPED, msg.pose_stamped(
+            stamp, "", flange_from_joints(joints_at("camera", seconds)) @ g.make_transform(np.eye(3), [0, 0, 0.2]))))
+        if seconds < 7.5:
+            items.append((stamp, "/vrpn/tgt/pose", msg.POSE_STAMPED, msg.pose_stamped(
+                stamp, "", flange_from_joints(joints_at("target", seconds)))))
+    pixels = np.arange(6 * 8 * 3, dtype=np.uint8).reshape(6, 8, 3)
+    image_type = store.types[msg.IMAGE]
+    for k, seconds in enumerate(CAPTURES_S):
+        stamp = START + round(seconds * NS)
+        items.append((stamp + 30_000_000, "/cam/image_raw", msg.IMAGE, image_type(
+            header=msg.header(stamp, "camera"), height=6, width=8, encoding="rgb8", is_bigendian=0, step=24,
+            data=(pixels + k).reshape(-1))))
+    bag = folder / "bag"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {}
+        for logged, topic, kind, message in sorted(items, key=lambda item: item[0]):
+            if topic in skip:
+                continue
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, kind, typestore=store)
+            writer.write(connections[topic], logged, store.serialize_cdr(message, kind))
+    (bag / "rosbag.toml").write_text(tomli_w.dumps(document or mapping()))
+    return bag
+
+
+def test_a_labs_bag_replays_to_the_values_at_each_images_stamp(tmp_path):
+    replay = BagReplay(lab_bag(tmp_path), Workspace(tmp_path / "w"))
+    assert [(s["sample_id"], s["session"]) for s in replay.samples()] == [
+        ("cal000000", "calibration"), ("cal000001", "calibration"), ("img000000", "dataset")]
+    for capture, seconds in zip(replay.captures, CAPTURES_S, strict=True):
+        row = capture.row
+        camera, target = joints_at("camera", seconds), joints_at("target", seconds)
+        np.testing.assert_allclose(row["kuka_camera_joints_rad"], camera, atol=1e-12)
+        np.testing.assert_allclose(row["kuka_target_joints_rad"], target, atol=1e-12)
+        assert row["kuka_rail_m"] == pytest.approx(0.5, abs=1e-12)
+        world_from_flange = WORLD_FROM_CAMERA_BASE @ flange_from_joints(camera) @ g.make_transform(
+            np.eye(3), [0, 0, 0.1])
+        got = g.transform_from_qt(row["kuka_world_from_camee_q"], row["kuka_world_from_camee_t"])
+        np.testing.assert_allclose(got, world_from_flange, atol=1e-9)
+        body = g.transform_from_qt(row["vicon_world_from_camrb_q"], row["vicon_world_from_camrb_t"])
+        np.testing.assert_allclose(body[:3, 3], flange_from_joints(camera)[:3, 3] + flange_from_joints(camera)[:3, 2]
+                                   * 0.2, atol=1e-9)
+    assert replay.captures[2].row["vicon_world_from_targetrb_q"] is None  # lost from 7.5 s: not tracked
+    assert replay.captures[0].row["vicon_world_from_targetrb_q"] is not None
+    assert replay.captures[1].row["capture_time_s"] == pytest.approx(3.0)
+    session = replay.session()
+    assert (session.format, session.camera.width, session.camera.height) == ("rosbag", 8, 6)
+    record = replay.capture(replay.samples()[1])
+    from stages.common.image_io import read_image
+
+    stored = read_image(tmp_path / "w" / record.captures["image_path"])
+    np.testing.assert_array_equal(stored, (np.arange(144, dtype=np.uint8).reshape(6, 8, 3) + 1)[:, :, ::-1])
+    assert "rgb8 -> png" in record.captures["image_conversion"]
+
+
+@pytest.mark.parametrize(("case", "said"), [
+    ({"skip": ("/vrpn/tgt/pose",)}, "motion_capture.target_body.topic: topic /vrpn/tgt/pose is not in the bag"),
+    ({"clock_jump": True}, "/joint_states joints of the camera robot: at stamp 1700000008.500000000 s the stamps "
+                           "stepped +2.000 s"),
+    ({"skip": ("joints gap",)},
+     "capture cal000001 at 1700000005.000000000 s: no message of /joint_states joints of the camera robot covers"),
+    ({"moved": True}, "capture cal000001 at 1700000005.000000000 s: moved: /tf cam_base -> cam_link6 changed by"),
+    ({"document": mapping(robots={"camera": {"joints_topic": "/joint_states", "joints": JOINTS["camera"],
+                                             "flange_frame": "cam_flange"},
+                                  "target": {"joints_topic": "/joint_states", "joints": JOINTS["target"],
+                                             "flange_frame": "tgt_tool0"}})},
+     "key robots.camera.flange_frame: frame cam_flange is not in /tf or /tf_static"),
+    ({"document": mapping(captures={"sessions": [["calibration", 0.0, 4.0]]})},
+     "key captures.sessions: the capture at 1700000005.000000000 s (5.000 s after the bag's start) is in no window"),
+    ({"document": mapping(camera={"topic": "/vrpn/cam/pose"})},
+     "key camera.topic: topic /vrpn/cam/pose carries geometry_msgs/msg/PoseStamped"),
+    ({"document": {**mapping(), "captures": {"sesions": []}}}, "unknown key(s) in [captures] sesions (did you mean "
+                                                               "sessions?)"),
+])
+def test_each_bad_input_is_refused_naming_it(tmp_path, case, said):
+    with pytest.raises(FileError) as refused:
+        BagReplay(lab_bag(tmp_path, **case), Workspace(tmp_path / "w"))
+    assert said in str(refused.value), str(refused.value)
+
+
+def test_a_refused_bag_writes_nothing(tmp_path):
+    bag = lab_bag(tmp_path, moved=True)
+    result = speedplus("acquire", "-w", str(tmp_path / "w"), "--backend", "replay", "--format", "rosbag",
+                       "--source", str(bag))
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert "capture cal000001" in result.stderr and "moved" in result.stderr, result.stderr
+    assert not (tmp_path / "w" / "manifests" / "captures").exists()
+
+
+NOT_IN_A_BAG = {"vicon_targetrb_used", "vicon_targetrb_residual_m", "move_s", "vicon_camrb_markers",
+                "vicon_targetrb_markers"}
+PATHS = {"image_path", "source_image", "image_conversion"}
+
+
+def _captures(workspace: Path) -> dict[str, dict]:
+    return {r["sample_id"]: r for r in pq.read_table(workspace / "manifests" / "captures").to_pylist()}
+
+
+def test_an_exported_bag_replays_to_the_captures_of_the_session_folder(smoke_labelled, tmp_path):
+    """The same virtual session exported both ways and replayed: the same captures, images
+    byte for byte, poses, joints, rail and times to 1e-9; and the bag's bytes do not
+    depend on the run."""
+    workspace = tmp_path / "w"
+    shutil.copytree(smoke_labelled.root, workspace)
+    for export in ("session", "rosbag"):
+        result = speedplus("export", "-w", str(workspace), "--format", export)
+        assert result.returncode == 0, result.stderr
+    replayed = {}
+    for export, source in (("session", workspace / "export" / "session"),
+                           ("rosbag", workspace / "export" / "rosbag" / "bag")):
+        replayed[export] = tmp_path / f"from_{export}"
+        result = speedplus("acquire", "-w", str(replayed[export]), "--profile", "smoke", "--backend", "replay",
+                           "--format", export, "--source", str(source))
+        assert result.returncode == 0, result.stderr
+    original, folder, bag = (_captures(p) for p in (workspace, replayed["session"], replayed["rosbag"]))
+    assert set(original) == set(folder) == set(bag)
+    for sample_id, row in folder.items():
+        again = bag[sample_id]
+        digest = {hashlib.sha256((p / r[sample_id]["image_path"]).read_bytes()).hexdigest()
+                  for p, r in ((workspace, original), (replayed["session"], folder), (replayed["rosbag"], bag))}
+        assert len(digest) == 1
+        for column, value in row.items():
+            if column in NOT_IN_A_BAG | PATHS:
+                continue
+            if isinstance(value, list) and value and isinstance(value[0], float):
+                sign = -1.0 if column.endswith("_q") and np.dot(value, again[column]) < 0 else 1.0
+                assert np.allclose(value, sign * np.asarray(again[column]), rtol=0, atol=1e-9), column
+            elif isinstance(value, float):
+                assert abs(value - again[column]) < 1e-9, column
+            else:
+                assert value == again[column], (sample_id, column)
+    first = (workspace / "export" / "rosbag" / "bag" / "bag.mcap").read_bytes()
+    result = speedplus("export", "-w", str(workspace), "--format", "rosbag", "--force")
+    assert result.returncode == 0, result.stderr
+    assert (workspace / "export" / "rosbag" / "bag" / "bag.mcap").read_bytes() == first
