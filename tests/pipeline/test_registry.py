@@ -26,6 +26,8 @@ CONFIGS = {
     "export all sets": ['export.sets=["testbed", "twins", "train"]'],
     "robot programs": ["export.format=robot"],
     "logger's session": ["export.format=session"],
+    "ROS 2 bag": ["export.format=rosbag", "acquire.backend=replay", "acquire.format=rosbag",
+                  "acquire.source='/nowhere/bag'"],
 }
 
 
