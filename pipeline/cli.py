@@ -589,6 +589,45 @@ def facility_command(
     out.print(table)
 
 
+@app.command("view")
+def view_command(
+    folder: Annotated[Path, typer.Argument(help="a facility folder (facility.toml) or a workspace (config.toml)")],
+    out_file: Annotated[Path | None, typer.Option(
+        "--out", help="the recording to write (default: DIR/view.rrd, in the folder or the workspace)")] = None,
+    open_viewer: Annotated[bool | None, typer.Option(
+        "--open/--no-open", help="open it in the Rerun viewer (default: where a display exists)")] = None,
+) -> None:
+    """Write a 3D recording of a facility folder or a workspace, and open it in the Rerun
+    viewer where a display exists (``rerun FILE`` opens it anywhere): the room, its
+    obstacles, the robots' links and rails, the motion-capture cameras and the lights; for a
+    workspace also, on the ``capture`` timeline, the arms at each planned pose, the camera's
+    frustum with its image, motion capture's lines of sight to the markers, and the
+    labelled target against the true one, green where it meets the SPEED+ thresholds."""
+    from stages.common.view import record_facility, record_workspace  # the shared layer: rerun loads only there
+
+    out_path = (out_file or folder / "view.rrd").resolve()
+    if (folder / CONFIG_FILE).is_file():
+        workspace = Workspace(folder)
+        written, words = record_workspace(load_config(None, folder / CONFIG_FILE), workspace, out_path)
+    else:
+        written, words = record_facility(folder, out_path)
+    out.print(f"view: {escape(words)} in {escape(str(written))}")
+    display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or sys.platform == "darwin"
+    if open_viewer if open_viewer is not None else display:
+        import subprocess
+
+        subprocess.Popen([sys.executable, "-m", "rerun", str(written)], start_new_session=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    else:
+        out.print(f"open it with `rerun {escape(str(written))}` (pip install rerun-sdk=={_rerun_version()})")
+
+
+def _rerun_version() -> str:
+    from importlib.metadata import version
+
+    return version("rerun-sdk")
+
+
 def _crash_log(error: BaseException) -> Path:
     """Where an unexpected error's traceback goes (the message names it): the user's cache,
     else the system's temporary folder."""
