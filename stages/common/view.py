@@ -125,10 +125,40 @@ def label_colour(error_t_m: float, range_m: float, error_r_rad: float) -> tuple[
     return MET if met else MISSED
 
 
+def _stations(config: Config, workspace: Workspace, facility: Facility) -> list[dict[str, Any]]:
+    """Each capture's sample id, the camera in K (4, 4), the arms' joints by what they carry
+    (None: not drawn) and the rail: as planned on the virtual testbed; on a replay as the
+    recording measured them (the flange composed with the calibrated ``cam_from_camee``
+    where calibrate ran), the arms drawn only on a facility folder of the lab's own."""
+    plan = _rows(workspace, "plan")
+    if plan:
+        fixture = facility.fixture("camera")
+        return [{"sample_id": r["sample_id"], "rail_m": r["rail_m"],
+                 "world_from_cam": g.transform_from_qt(r["world_from_camee_q"], r["world_from_camee_t"]) @ fixture,
+                 "joints": {"camera": r["camera_joints_rad"], "target": r["target_joints_rad"]},
+                 "cam_from_target": g.transform_from_qt(r["cam_from_target_q"], r["cam_from_target_t"])}
+                for r in plan]
+    camee_from_cam = np.eye(4)
+    if workspace.calibration_path.exists():
+        from manifests.sidecars import read_calibration
+
+        offset = read_calibration(workspace).kuka.cam_from_offset
+        camee_from_cam = g.invert(g.transform_from_qt(offset.q, offset.t))
+    own = bool(config.facility.path)
+    return [{"sample_id": r["sample_id"], "rail_m": r["kuka_rail_m"] or 0.0,
+             "world_from_cam": g.transform_from_qt(r["kuka_world_from_camee_q"], r["kuka_world_from_camee_t"])
+             @ camee_from_cam,
+             "joints": {"camera": r["kuka_camera_joints_rad"] if own else None,
+                        "target": r["kuka_target_joints_rad"] if own else None},
+             "cam_from_target": None}
+            for r in sorted(_rows(workspace, "captures"), key=lambda r: (r["session"] != "calibration",
+                                                                          r["sample_id"]))]
+
+
 def log_captures(rr: Any, recording: Any, config: Config, workspace: Workspace, facility: Facility) -> int:
-    """Per planned capture on the ``capture`` timeline: the arms, the camera and its image,
-    the true and labelled target, motion capture's lines of sight. Returns the count."""
-    plan = read_manifest(workspace, "plan").to_pylist()
+    """Per capture on the ``capture`` timeline (``_stations``): the arms, the camera and its
+    image, the true and labelled target, motion capture's lines of sight. Returns the count."""
+    stations = _stations(config, workspace, facility)
     captures = {r["sample_id"]: r for r in _rows(workspace, "captures")}
     truth = {r["sample_id"]: r for r in _rows(workspace, "truth")}
     poses = {r["sample_id"]: r for r in _rows(workspace, "poses")}
@@ -137,39 +167,39 @@ def log_captures(rr: Any, recording: Any, config: Config, workspace: Workspace, 
     markers = np.asarray(read_markers(workspace).centres_m) if workspace.markers_path.exists() else np.zeros((0, 3))
     matrix, width, height = _camera(config, workspace)
     holders = {carried: facility.holder(carried) for carried in ("camera", "target")}
-    for index, row in enumerate(plan):
+    for index, station in enumerate(stations):
+        sample_id, world_from_cam = station["sample_id"], station["world_from_cam"]
         recording.set_time(TIMELINE, sequence=index)
-        joints = {"camera": row["camera_joints_rad"], "target": row["target_joints_rad"]}
         for carried, holder in holders.items():
-            if isinstance(holder, Robot) and joints[carried] is not None:
-                rail = row["rail_m"] if holder.spec.rail is not None else 0.0
-                recording.log(f"room/robots/{holder.spec.name}", robot_links(rr, holder, joints[carried], rail))
-        world_from_cam = g.transform_from_qt(row["world_from_camee_q"], row["world_from_camee_t"]) @ \
-            facility.fixture("camera")
+            joints = station["joints"][carried]
+            if isinstance(holder, Robot) and joints is not None:
+                rail = station["rail_m"] if holder.spec.rail is not None else 0.0
+                recording.log(f"room/robots/{holder.spec.name}", robot_links(rr, holder, joints, rail))
         recording.log("room/camera", transform(rr, world_from_cam))
         recording.log("room/camera", rr.Pinhole(image_from_camera=matrix, width=width, height=height,
                                                  image_plane_distance=0.3))
-        capture = captures.get(row["sample_id"])
-        if capture is not None:
-            recording.log("room/camera/image", rr.EncodedImage(path=workspace.fetch(capture["image_path"])))
-        cam_from_target = g.transform_from_qt(row["cam_from_target_q"], row["cam_from_target_t"])
-        if row["sample_id"] in truth:
-            true = truth[row["sample_id"]]
-            cam_from_target = g.transform_from_qt(true["cam_from_target_q"], true["cam_from_target_t"])
-            recording.log("room/target/true", rr.Points3D(g.apply(world_from_cam @ cam_from_target, points),
-                                                          radii=0.004, colors=TRUE))
-        if len(markers) and facility.spec.motion_capture is not None:
-            seen = g.apply(world_from_cam @ cam_from_target, markers)
+        if sample_id in captures:
+            recording.log("room/camera/image", rr.EncodedImage(path=workspace.fetch(captures[sample_id]["image_path"])))
+        true = None
+        if sample_id in truth:
+            true = g.transform_from_qt(truth[sample_id]["cam_from_target_q"], truth[sample_id]["cam_from_target_t"])
+            recording.log("room/target/true", rr.Points3D(g.apply(world_from_cam @ true, points), radii=0.004,
+                                                          colors=TRUE))
+        seen_at = true if true is not None else station["cam_from_target"]
+        if sample_id in poses:
+            labelled = _log_label(rr, recording, world_from_cam, true, poses[sample_id], points)
+            seen_at = labelled if seen_at is None else seen_at
+        if seen_at is not None and len(markers) and facility.spec.motion_capture is not None:
+            seen = g.apply(world_from_cam @ seen_at, markers)
             sight = [[position, marker] for position, _ in facility.spec.motion_capture.cameras for marker in seen]
             recording.log("room/motion_capture/sight", rr.LineStrips3D(sight, radii=0.002, colors=(60, 160, 220)))
-        if row["sample_id"] in poses:
-            _log_label(rr, recording, world_from_cam, cam_from_target if row["sample_id"] in truth else None,
-                       poses[row["sample_id"]], points)
-    return len(plan)
+    return len(stations)
 
 
 def _log_label(rr: Any, recording: Any, world_from_cam: np.ndarray, true: np.ndarray | None,
-               pose: dict[str, Any], points: np.ndarray) -> None:
+               pose: dict[str, Any], points: np.ndarray) -> np.ndarray:
+    """The labelled target, coloured by its errors against ``true`` (None: a recording has
+    no truth); returns its ``cam_from_target`` (4, 4)."""
     labelled = g.transform_from_qt(pose["cam_from_target_q"], pose["cam_from_target_t"])
     colour, text = (200, 200, 200), "no truth to measure the label against"
     if true is not None:
@@ -180,6 +210,7 @@ def _log_label(rr: Any, recording: Any, world_from_cam: np.ndarray, true: np.nda
     recording.log("room/target/labelled", rr.Points3D(g.apply(world_from_cam @ labelled, points), radii=0.004,
                                                       colors=colour))
     recording.log("room/target/labelled/error", rr.TextDocument(text))
+    return labelled
 
 
 def _rows(workspace: Workspace, name: str) -> list[dict[str, Any]]:

@@ -85,11 +85,11 @@ def facility_sentence(config: Config, workspace: Workspace) -> str:
     return " " + html.escape(presented_share(rows, read_facility_spec(Path(config.facility.path)).name)) + "."
 
 
-VIEW_NOTE = ("<p><code>speedplus view W</code> writes <a href=\"../view.rrd\">W/view.rrd</a>, which the Rerun "
-             "viewer opens (<code>rerun W/view.rrd</code>): the room, the arms at each planned pose on the "
-             "<em>capture</em> timeline, the camera's frustum with its image, motion capture's lines of sight, and "
-             "each label's target against the true one, green where it meets both SPEED+ thresholds and red where "
-             "it misses one.</p>")
+VIEW_NOTE = ("<p><code>speedplus view W</code> writes <code>W/view.rrd</code>, which the Rerun viewer opens "
+             "(<code>rerun W/view.rrd</code>): the room, the arms at each planned pose on the <em>capture</em> "
+             "timeline, the camera's frustum with its image, motion capture's lines of sight, and each label's target "
+             "against the true one, green where it meets both SPEED+ thresholds and red where it misses one. It is "
+             "made on demand, not with the report: a recording's bytes carry the time it was written.</p>")
 RESIDUALS_CAPTION = ("Each calibration capture: how far each source's calibrated pose lies from the pattern's own "
                      "(PnP) pose, the figures Table 1's in-sample rows average.")
 POSES_CAPTION = "The labels' poses: positions at full scale and the attitudes' Euler angles, over the dataset."

@@ -56,7 +56,7 @@ def test_every_entry_runs_with_config_and_workspace_only():
 
 def test_the_cli_has_a_command_per_stage_and_no_unbuilt_path():
     commands = {command.name for command in app.registered_commands}
-    assert set(registry.STAGE_NAMES) | {"run", "status", "verify", "target", "facility", "keys"} == commands
+    assert set(registry.STAGE_NAMES) | {"run", "status", "verify", "target", "facility", "keys", "view"} == commands
     assert registry.CHAIN == ("plan", "acquire", "calibrate", "fuse", "label", "render", "evaluate", "report")
     result = CliRunner().invoke(app, ["export", "--help"])
     help_text = " ".join(result.output.replace("│", " ").split())

@@ -87,3 +87,23 @@ def test_a_workspaces_recording_holds_the_planned_poses_and_the_labels_errors(sm
 def _packed(rgb: tuple[int, int, int]) -> int:
     """Rerun's colour as it stores it: 0xRRGGBBAA."""
     return (rgb[0] << 24) | (rgb[1] << 16) | (rgb[2] << 8) | 255
+
+
+def test_a_recordings_view_follows_its_captures(tmp_path):
+    """A replayed ROS 2 bag has no plan: the camera follows the recorded flange at each
+    capture, and no arm is drawn without the lab's own facility folder."""
+    from tests.stages.acquire.test_rosbag import lab_bag
+
+    workspace = tmp_path / "w"
+    result = speedplus("acquire", "-w", str(workspace), "--backend", "replay", "--format", "rosbag", "--source",
+                       str(lab_bag(tmp_path)))
+    assert result.returncode == 0, result.stderr
+    result = speedplus("view", str(workspace), "--no-open")
+    assert result.returncode == 0 and "3 capture(s)" in result.stdout, result.stderr + result.stdout
+    rows = read_back(workspace / "view.rrd")
+    captures = sorted(read_manifest(Workspace(workspace), "captures").to_pylist(),
+                      key=lambda r: (r["session"] != "calibration", r["sample_id"]))
+    camera = [r for r in rows["/room/camera"] if "Transform3D:translation" in r]
+    np.testing.assert_allclose([r["Transform3D:translation"][0] for r in camera],
+                               [c["kuka_world_from_camee_t"] for c in captures], atol=1e-9)
+    assert all("capture" not in r for path, found in rows.items() if path.startswith("/room/robots/") for r in found)
