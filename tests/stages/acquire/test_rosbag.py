@@ -79,11 +79,11 @@ def mapping(**changes) -> dict:
     return document
 
 
-def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=None) -> Path:
+def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=None, storage="mcap") -> Path:
     """The lab's bag in ``folder`` with its ``rosbag.toml``. ``skip``: topics not recorded
     ("joints gap": /joint_states between 4 and 6 s); ``clock_jump``: /joint_states'
     stamps step 2 s against the recorder at 6.5 s; ``moved``: the camera arm drifts 1 mrad
-    through the second capture's exposure."""
+    through the second capture's exposure; ``storage``: "mcap" (ROS 2 Iron on) or "sqlite3"."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     store, items = msg.typestore(), []
@@ -118,7 +118,8 @@ def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=No
             header=msg.header(stamp, "camera"), height=6, width=8, encoding="rgb8", is_bigendian=0, step=24,
             data=(pixels + k).reshape(-1))))
     bag = folder / "bag"
-    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(bag, version=9, storage_plugin=plugin) as writer:
         connections = {}
         for logged, topic, kind, message in sorted(items, key=lambda item: item[0]):
             if topic in skip:
@@ -130,8 +131,9 @@ def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=No
     return bag
 
 
-def test_a_labs_bag_replays_to_the_values_at_each_images_stamp(tmp_path):
-    replay = BagReplay(lab_bag(tmp_path), Workspace(tmp_path / "w"))
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_labs_bag_replays_to_the_values_at_each_images_stamp(tmp_path, storage):
+    replay = BagReplay(lab_bag(tmp_path, storage=storage), Workspace(tmp_path / "w"))
     assert [(s["sample_id"], s["session"]) for s in replay.samples()] == [
         ("cal000000", "calibration"), ("cal000001", "calibration"), ("img000000", "dataset")]
     for capture, seconds in zip(replay.captures, CAPTURES_S, strict=True):
