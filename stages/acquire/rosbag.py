@@ -72,10 +72,11 @@ class BagReplay:
     def _reader(self) -> Any:
         from rosbags.highlevel import AnyReader
 
-        try:
-            return AnyReader([self.source], default_typestore=msg.typestore())
-        except Exception as error:  # rosbags' own errors say what is wrong with the files
-            raise FileError(self.source, f"not a readable bag ({type(error).__name__}: {error})") from None
+        return AnyReader([self.source], default_typestore=msg.typestore())
+
+    def _unreadable(self, error: Exception) -> FileError:
+        """rosbags' own errors say what is wrong with the bag's files."""
+        return FileError(self.source, f"not a readable bag ({type(error).__name__}: {error})")
 
     def _topics(self, reader: Any) -> dict[str, Any]:
         """The mapped topics' connections, each checked for its message type."""
@@ -113,12 +114,17 @@ class BagReplay:
         self.bodies = {body: Series(f"{s.topic}", True) for body, s in m.bodies.items() if s.topic}
         self.tree, self.images, self.triggers = FrameTree(), [], []
         self.info: Any = None
-        with self._reader() as reader:
-            connections = self._topics(reader)
-            self.start = int(reader.start_time)
-            for connection, logged, raw in reader.messages(connections=list(connections.values())):
-                message = reader.deserialize(raw, connection.msgtype)
-                self._take(connection.topic, connection.msgtype, message, int(logged))
+        try:
+            with self._reader() as reader:
+                connections = self._topics(reader)
+                self.start = int(reader.start_time)
+                for connection, logged, raw in reader.messages(connections=list(connections.values())):
+                    message = reader.deserialize(raw, connection.msgtype)
+                    self._take(connection.topic, connection.msgtype, message, int(logged))
+        except FileError:
+            raise
+        except Exception as error:  # noqa: BLE001 - any of rosbags' readers' errors: the bag is damaged
+            raise self._unreadable(error) from None
         for series in [*self.joints.values(), *([self.rail] if self.rail else []), *self.bodies.values(),
                        *self.tree.dynamic.values()]:
             problem = series.clock_problem(m.clock_jump_s)
@@ -325,6 +331,18 @@ class BagReplay:
     def _image_bytes(self, capture: Capture) -> tuple[bytes, str, str | None]:
         """The capture's image as a file's bytes (PNG, or the compressed format it came in),
         its suffix, and what was converted (a raw image's pixels to PNG; None: as recorded)."""
+        try:
+            found = self._fetch(capture)
+        except FileError:
+            raise
+        except Exception as error:  # noqa: BLE001 - as in _read
+            raise self._unreadable(error) from None
+        if found is None:
+            raise FileError(self.source, f"capture {capture.sample_id}: its image at "
+                                         f"{capture.image_stamp / NS:.9f} s could not be read again")
+        return found
+
+    def _fetch(self, capture: Capture) -> tuple[bytes, str, str | None] | None:
         with self._reader() as reader:
             connection = next(c for c in reader.connections if c.topic == self.mapping.camera_topic)
             for _, _, raw in reader.messages(connections=[connection], start=capture.image_logged,
@@ -339,8 +357,7 @@ class BagReplay:
                 if data.startswith(PNG_SIGNATURE):
                     return data, ".png", None
                 return data, ".jpg" if data[:3] == b"\xff\xd8\xff" else f".{message.format.split(';')[0].strip()}", None
-        raise FileError(self.source, f"capture {capture.sample_id}: its image at {capture.image_stamp / NS:.9f} s "
-                                     "could not be read again")
+        return None
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:
         capture = next(c for c in self.captures if c.sample_id == sample["sample_id"])

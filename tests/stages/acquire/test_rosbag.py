@@ -242,3 +242,11 @@ def test_an_exported_bag_replays_to_the_captures_of_the_session_folder(smoke_lab
     result = speedplus("export", "-w", str(workspace), "--format", "rosbag", "--force")
     assert result.returncode == 0, result.stderr
     assert (workspace / "export" / "rosbag" / "bag" / "bag.mcap").read_bytes() == first
+
+
+def test_a_damaged_bag_is_refused_as_such(tmp_path):
+    bag = lab_bag(tmp_path)
+    data = (bag / "bag.mcap").read_bytes()
+    (bag / "bag.mcap").write_bytes(data[: len(data) // 2])  # a recording cut short
+    with pytest.raises(FileError, match="not a readable bag"):
+        BagReplay(bag, Workspace(tmp_path / "w"))
