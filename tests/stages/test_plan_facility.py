@@ -263,7 +263,7 @@ def test_the_redraws_a_share_needs():
     assert needed_redraws(1.0, 10) == 0
 
 
-def test_calibration_poses_are_chosen_for_what_they_determine(abb):
+def test_calibration_poses_are_chosen_for_what_they_determine(abb, monkeypatch):
     """Where calibrate will fit the arms, the plan keeps, of each calibration sample's
     candidates, the one that best determines the robots (stages/plan/calibration_choice.py):
     its smallest singular value is above that of the poses drawn one by one, which the smoke
@@ -284,15 +284,25 @@ def test_calibration_poses_are_chosen_for_what_they_determine(abb):
     assert said.startswith(measure_of(calibration_choice.rows_of(facility, drawn, target)).describe(16))
     assert said.endswith("drawn, not chosen: calibrate will leave the arms at their URDFs (16 calibration captures "
                          "for 90 parameters (calibrate.min_arm_redundancy = 3: 45 needed))")
-    from stages.plan.stage import _calibration_ids, _choose, plan_sample
+    from stages.plan import stage as plan_stage
+    from stages.plan.stage import _calibration_ids, plan_sample
 
     # 24 poses, where the choice's criterion decides most slots: of the smoke profile's 16
     # (96 equations for 66 unknowns) the first 11 leave the data's smallest eigenvalue at
     # zero, and the log-determinant breaks those ties
     wider = load_config("smoke", overrides=[f"facility.path={folder}", "calibrate.arm_kinematics=on",
                                             "plan.n_calibration=24"])
-    chosen = measure_of(calibration_choice.rows_of(facility, _choose(wider, facility, target), target))
-    assert facility_rows(wider) == [("calibration poses", chosen.describe(24))]
+    planned: list[list[dict]] = []  # the plan's own choice, as speedplus facility runs it (made once)
+    original = plan_stage._choose
+
+    def choose(*arguments):
+        planned.append(original(*arguments))
+        return planned[-1]
+
+    monkeypatch.setattr(plan_stage, "_choose", choose)
+    said = facility_rows(wider)
+    chosen = measure_of(calibration_choice.rows_of(facility, planned[0], target))
+    assert said == [("calibration poses", chosen.describe(24))]
     ids = _calibration_ids(wider)
     drawn = measure_of(calibration_choice.rows_of(
         facility, [plan_sample(wider, "calibration", i, ids[i], target, wider.plan.max_redraws)
