@@ -23,6 +23,11 @@ from stages.common import geometry as g
 NS = 1_000_000_000
 
 
+def seconds(ns: int) -> str:
+    """A stamp (ns) as seconds to the nanosecond, without a float's rounding."""
+    return f"{'-' if ns < 0 else ''}{abs(ns) // NS}.{abs(ns) % NS:09d}"
+
+
 @dataclass
 class Series:
     """One measured quantity over the bag: header stamps (ns, non-decreasing), values
@@ -48,13 +53,13 @@ class Series:
         back = np.flatnonzero(np.diff(stamps) < 0)
         if len(back):
             i = int(back[0])
-            return (f"{self.name}: stamp {stamps[i + 1] / NS:.9f} s comes after {stamps[i] / NS:.9f} s: the clock "
-                    "went back")
+            return (f"{self.name}: stamp {seconds(int(stamps[i + 1]))} s comes after {seconds(int(stamps[i]))} s: the "
+                    "clock went back")
         lag = logged - stamps
         steps = np.flatnonzero(np.abs(np.diff(lag)) > jump_s * NS)
         if len(steps):
             i = int(steps[0])
-            return (f"{self.name}: at stamp {stamps[i + 1] / NS:.9f} s the stamps stepped "
+            return (f"{self.name}: at stamp {seconds(int(stamps[i + 1]))} s the stamps stepped "
                     f"{(lag[i] - lag[i + 1]) / NS:+.3f} s against the recording's clock (more than clock_jump_s "
                     f"{jump_s:g})")
         return None
@@ -105,13 +110,13 @@ def still_value(series: Series, window: Window, tolerance: float, tolerance_rad:
     last = bisect.bisect_left(series.stamps, window.end)
     gaps = np.diff(series.stamps[max(first, 0):last + 1]) if first >= 0 and last < len(series.stamps) else [np.inf]
     if first < 0 or last >= len(series.stamps) or np.max(gaps, initial=0) > max_gap:
-        return (f"no message of {series.name} covers [{window.start / NS:.6f}, {window.end / NS:.6f}] s (the "
+        return (f"no message of {series.name} covers [{seconds(window.start)}, {seconds(window.end)}] s (the "
                 f"robots' stand still before and through the exposure) at most {max_gap / NS:g} s apart")
     shift, turn = series.moved(first, last)
     if shift > tolerance or turn > tolerance_rad:
         what = f"{shift:.3g} (tolerance {tolerance:g})" if shift > tolerance else \
             f"{turn:.3g} rad (tolerance {tolerance_rad:g})"
-        return f"moved: {series.name} changed by {what} within [{window.start / NS:.6f}, {window.end / NS:.6f}] s"
+        return f"moved: {series.name} changed by {what} within [{seconds(window.start)}, {seconds(window.end)}] s"
     return series.interpolate(window.stamp)
 
 
@@ -129,36 +134,50 @@ def nearest_value(series: Series, stamp: int, max_gap: int) -> np.ndarray | None
 
 class FrameTree:
     """/tf and /tf_static: each child frame's parent and the edge's series (dynamic) or
-    pose (static), and the poses of frames below a root at a window's stamp."""
+    pose (static), and the poses of frames below a root at a window's stamp. What is wrong
+    with an edge (a second parent, a bad quaternion, static and moving at once) is kept, and
+    said only where a mapped chain uses it: a lab's /tf carries edges nobody asked for."""
 
     def __init__(self) -> None:
         self.parent: dict[str, str] = {}
         self.static: dict[str, np.ndarray] = {}
         self.dynamic: dict[str, Series] = {}
+        self.problems: dict[str, str] = {}
 
-    def add(self, parent: str, child: str, pose: np.ndarray, stamp: int, logged: int, static: bool,
-            topic: str) -> str | None:
-        """Record one transform; the problem, if its child already hangs from another parent."""
+    def add(self, parent: str, child: str, pose: np.ndarray | str, stamp: int, logged: int, static: bool,
+            topic: str) -> None:
+        """Record one transform (``pose``: (4, 4), or what is wrong with it)."""
         known = self.parent.setdefault(child, parent)
         if known != parent:
-            return f"{topic}: frame {child} has two parents, {known} and {parent}"
+            self.problems.setdefault(child, f"{topic}: frame {child} has two parents, {known} and {parent}")
+        if isinstance(pose, str):
+            self.problems.setdefault(child, pose)
+            return
         if static:
             self.static[child] = pose
         else:
             self.dynamic.setdefault(child, Series(f"{topic} {parent} -> {child}", True)).add(stamp, pose, logged)
-        return None
+        if child in self.static and child in self.dynamic:
+            self.problems.setdefault(child, f"frame {child} is on /tf_static and on /tf: fixed or moving?")
 
     def frames(self) -> set[str]:
         return set(self.parent) | set(self.parent.values())
 
-    def chain(self, root: str, frame: str) -> list[str] | str:
-        """The frames from below ``root`` down to ``frame``; else why not."""
+    def chain(self, root: str, frame: str, jump_s: float = float("inf")) -> list[str] | str:
+        """The frames from below ``root`` down to ``frame``, each edge's problems (and its
+        clock's, against ``jump_s``) checked; else why not."""
         if frame not in self.frames():
             return f"frame {frame} is not in /tf or /tf_static"
         path, at = [], frame
         while at != root:
             if at not in self.parent:
                 return f"frame {frame} is not below {root} in /tf (its root is {at})"
+            if at in path:
+                return f"/tf holds a loop through frame {at}"
+            problem = self.problems.get(at) or (self.dynamic[at].clock_problem(jump_s) if at in self.dynamic
+                                                else None)
+            if problem:
+                return problem
             path.append(at)
             at = self.parent[at]
         return path[::-1]

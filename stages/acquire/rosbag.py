@@ -1,7 +1,7 @@
 """Replay of a ROS 2 bag (``acquire --backend replay --format rosbag --source BAG``): a
 lab's own recording, read without ROS and without a converter. BAG is the bag's folder
-(``metadata.yaml`` and its MCAP or sqlite3 files, ROS 2 Humble and later, or a ROS 1
-``.bag``'s folder), and ``BAG/rosbag.toml`` says which topics and frames are what
+(``metadata.yaml`` and its MCAP or sqlite3 files, ROS 2 Humble and later; ROS 1 bags are
+not read), and ``BAG/rosbag.toml`` says which topics and frames are what
 (``stages/common/rosbag/mapping.py``, whose docstring is the format).
 
 Each capture (an image message, or a trigger's ``time_ref``) takes the arms' joints, the
@@ -32,7 +32,7 @@ from manifests.files import write_bytes_atomic
 from manifests.sidecars import Session, SessionCamera
 from speedplus.errors import FileError
 from stages.acquire.backend import CaptureRecord
-from stages.acquire.bag_streams import NS, FrameTree, Series, Window, nearest_value, still_value
+from stages.acquire.bag_streams import NS, FrameTree, Series, Window, nearest_value, seconds, still_value
 from stages.common.geometry import pose_columns
 from stages.common.image_io import encode_png, ingest_image
 from stages.common.patterns import pattern_from_table
@@ -78,8 +78,8 @@ class BagReplay:
         """rosbags' own errors say what is wrong with the bag's files."""
         return FileError(self.source, f"not a readable bag ({type(error).__name__}: {error})")
 
-    def _topics(self, reader: Any) -> dict[str, Any]:
-        """The mapped topics' connections, each checked for its message type."""
+    def _topics(self, reader: Any) -> list[Any]:
+        """The mapped topics' connections (and /tf's), each checked for its message type."""
         m = self.mapping
         wanted: list[tuple[str, str, tuple[str, ...]]] = [(m.camera_topic, "camera.topic", msg.IMAGE_TYPES)]
         if m.info_topic:
@@ -95,16 +95,20 @@ class BagReplay:
             if source.topic:
                 key = "camera_body" if body == "camrb" else "target_body"
                 wanted.append((source.topic, f"motion_capture.{key}.topic", (msg.POSE_STAMPED,)))
-        present = {c.topic: c for c in reader.connections}
+        present: dict[str, list[Any]] = {}
+        for connection in reader.connections:  # every publisher's connection of a topic
+            present.setdefault(connection.topic, []).append(connection)
         for topic, key, types in wanted:
             if topic not in present:
                 raise FileError(m.path, f"key {key}: topic {topic} is not in the bag {self.source} (it has: "
                                         f"{', '.join(sorted(present)) or 'no topics'})")
-            if present[topic].msgtype not in types:
-                raise FileError(m.path, f"key {key}: topic {topic} carries {present[topic].msgtype}, expected "
+            wrong = sorted({c.msgtype for c in present[topic]} - set(types))
+            if wrong:
+                raise FileError(m.path, f"key {key}: topic {topic} carries {', '.join(wrong)}, expected "
                                         f"{' or '.join(types)}")
-        tf = [c for c in reader.connections if c.topic in ("/tf", "/tf_static") and c.msgtype == msg.TF]
-        return {**{topic: present[topic] for topic, _, _ in wanted}, **{c.topic: c for c in tf}}
+        topics = {topic for topic, _, _ in wanted} | {"/tf", "/tf_static"}
+        return [c for c in reader.connections if c.topic in topics and (c.topic not in ("/tf", "/tf_static")
+                                                                       or c.msgtype == msg.TF)]
 
     def _read(self) -> None:
         m = self.mapping
@@ -118,15 +122,15 @@ class BagReplay:
             with self._reader() as reader:
                 connections = self._topics(reader)
                 self.start = int(reader.start_time)
-                for connection, logged, raw in reader.messages(connections=list(connections.values())):
+                for connection, logged, raw in reader.messages(connections=connections):
                     message = reader.deserialize(raw, connection.msgtype)
                     self._take(connection.topic, connection.msgtype, message, int(logged))
         except FileError:
             raise
         except Exception as error:  # noqa: BLE001 - any of rosbags' readers' errors: the bag is damaged
             raise self._unreadable(error) from None
-        for series in [*self.joints.values(), *([self.rail] if self.rail else []), *self.bodies.values(),
-                       *self.tree.dynamic.values()]:
+        # /tf's edges are checked where a mapped chain uses them (FrameTree.chain)
+        for series in [*self.joints.values(), *([self.rail] if self.rail else []), *self.bodies.values()]:
             problem = series.clock_problem(m.clock_jump_s)
             if problem:
                 raise FileError(self.source, problem)
@@ -144,12 +148,12 @@ class BagReplay:
             self.triggers.append((int(message.time_ref.sec) * NS + int(message.time_ref.nanosec), str(message.source)))
         elif msgtype == msg.TF:
             for transform in message.transforms:
-                pose = self._checked_pose(topic, msg.stamp_ns(transform.header), transform.transform.translation,
-                                          transform.transform.rotation)
-                problem = self.tree.add(transform.header.frame_id, transform.child_frame_id, pose,
-                                        msg.stamp_ns(transform.header), logged, topic == "/tf_static", topic)
-                if problem:
-                    raise FileError(self.source, problem)
+                stamp = msg.stamp_ns(transform.header)
+                problem = self._pose_problem(topic, stamp, transform.transform.translation,
+                                             transform.transform.rotation)
+                pose = problem or msg.pose_matrix(transform.transform.translation, transform.transform.rotation)
+                self.tree.add(transform.header.frame_id, transform.child_frame_id, pose, stamp, logged,
+                              topic == "/tf_static", topic)
         elif msgtype == msg.POSE_STAMPED:
             for body, source in m.bodies.items():
                 if source.topic == topic:
@@ -165,20 +169,32 @@ class BagReplay:
             raise FileError(self.source, f"{topic}: poses in frame {frame_id!r}, but the mapping's "
                                          f"motion_capture.world_frame is {world!r}")
 
-    def _checked_pose(self, topic: str, stamp: int, position: Any, orientation: Any) -> np.ndarray:
+    @staticmethod
+    def _pose_problem(topic: str, stamp: int, position: Any, orientation: Any) -> str | None:
         norm = msg.quaternion_norm(orientation)
-        if abs(norm - 1.0) > 1e-3:
-            raise FileError(self.source, f"{topic}, stamp {stamp / NS:.9f} s: quaternion norm {norm:.6f} is not 1")
+        if not abs(norm - 1.0) <= 1e-3:
+            return f"{topic}, stamp {seconds(stamp)} s: quaternion norm {norm:.6f} is not 1"
         values = [position.x, position.y, position.z]
         if not np.all(np.isfinite(values)) or max(abs(v) for v in values) > 1000.0:
-            raise FileError(self.source, f"{topic}, stamp {stamp / NS:.9f} s: position {values} is not a plausible "
-                                         "position in metres (ROS poses are in m)")
+            return (f"{topic}, stamp {seconds(stamp)} s: position {values} is not a plausible position in metres "
+                    "(ROS poses are in m)")
+        return None
+
+    def _checked_pose(self, topic: str, stamp: int, position: Any, orientation: Any) -> np.ndarray:
+        problem = self._pose_problem(topic, stamp, position, orientation)
+        if problem:
+            raise FileError(self.source, problem)
         return msg.pose_matrix(position, orientation)
 
     def _joint_state(self, topic: str, message: Any, logged: int) -> None:
         names = list(message.name)
+        mapped = {j for r in self.mapping.robots.values() if r.joints_topic == topic for j in r.joints}
+        if self.mapping.rail and self.mapping.rail[0] == topic:
+            mapped.add(self.mapping.rail[1])
+        if not mapped & set(names) or not len(message.position):  # another publisher's, or efforts only
+            return
         if len(message.position) != len(names):
-            raise FileError(self.source, f"{topic}, stamp {msg.stamp_ns(message.header) / NS:.9f} s: "
+            raise FileError(self.source, f"{topic}, stamp {seconds(msg.stamp_ns(message.header))} s: "
                                          f"{len(names)} names but {len(message.position)} positions")
         at = {name: i for i, name in enumerate(names)}
         stamp = msg.stamp_ns(message.header)
@@ -192,11 +208,11 @@ class BagReplay:
         stamp = msg.stamp_ns(message.header)
         if msgtype == msg.IMAGE:
             if message.encoding not in msg.ENCODINGS:
-                raise FileError(self.source, f"{self.mapping.camera_topic}, stamp {stamp / NS:.9f} s: encoding "
+                raise FileError(self.source, f"{self.mapping.camera_topic}, stamp {seconds(stamp)} s: encoding "
                                              f"{message.encoding!r} is not read (read: {', '.join(msg.ENCODINGS)})")
             size = (int(message.width), int(message.height))
-        else:
-            size = None  # a compressed image's size is in its bytes: checked when it is written
+        else:  # a compressed image's size from its header (another format's once decoded)
+            size = msg.compressed_size(bytes(message.data[:65536]))
         self.images.append((stamp, logged, size))
 
     # -- the captures -------------------------------------------------------------------------
@@ -206,15 +222,19 @@ class BagReplay:
         stamps = [s for s, _, _ in images]
         if not self.mapping.trigger_topic:
             return [(s, "", logged, s) for s, logged, _ in images]
-        out = []
-        reach = int((self.mapping.exposure_s + 1e-3) * NS)
+        out, taken = [], {}
+        reach = int(self.mapping.trigger_window_s * NS)
         for stamp, name in sorted(self.triggers):
             i = int(np.argmin(np.abs(np.asarray(stamps) - stamp)))
+            said = f"{self.mapping.trigger_topic}: trigger at {seconds(stamp)} s{f' ({name})' if name else ''}"
             if abs(stamps[i] - stamp) > reach:
-                raise FileError(self.source, f"{self.mapping.trigger_topic}: trigger at {stamp / NS:.9f} s"
-                                             f"{f' ({name})' if name else ''} has no image on "
-                                             f"{self.mapping.camera_topic} within {reach / NS:g} s")
-            out.append((stamp, name, images[i][1], stamps[i]))
+                raise FileError(self.source, f"{said} has no image on {self.mapping.camera_topic} within "
+                                             f"{reach / NS:g} s (captures.trigger_window_s)")
+            if i in taken:
+                raise FileError(self.source, f"{said} has the image at {seconds(stamps[i])} s, which the trigger at "
+                                             f"{seconds(taken[i])} s has already: a frame was dropped")
+            taken[i] = stamp
+            out.append((stamp, name if self.mapping.trigger_names_samples else "", images[i][1], stamps[i]))
         if not out:
             raise FileError(self.source, f"no trigger on {self.mapping.trigger_topic}")
         return out
@@ -227,12 +247,12 @@ class BagReplay:
         for stamp, name, logged, image_stamp in self._capture_stamps():
             session = m.session_at((stamp - self.start) / NS)
             if session is None:
-                raise FileError(m.path, f"key captures.sessions: the capture at {stamp / NS:.9f} s "
+                raise FileError(m.path, f"key captures.sessions: the capture at {seconds(stamp)} s "
                                         f"({(stamp - self.start) / NS:.3f} s after the bag's start) is in no window")
             sample_id = name or sample_ids.make(session, counts.get(session, 0))
             counts[session] = counts.get(session, 0) + 1
             if not SAMPLE_ID.fullmatch(sample_id) or sample_id in seen:
-                raise FileError(self.source, f"{m.trigger_topic}: trigger at {stamp / NS:.9f} s names sample "
+                raise FileError(self.source, f"{m.trigger_topic}: trigger at {seconds(stamp)} s names sample "
                                              f"{sample_id!r}: {'a duplicate' if sample_id in seen else 'not an id'}")
             seen.add(sample_id)
             first.setdefault(session, stamp)
@@ -246,18 +266,18 @@ class BagReplay:
         window = Window(stamp, stamp - int(m.still_s * NS), stamp + int(m.exposure_s * NS))
         value = still_value(series, window, tolerance, m.tolerance_rad, int(m.max_message_gap_s * NS))
         if isinstance(value, str):
-            raise FileError(self.source, f"capture {sample_id} at {stamp / NS:.9f} s: {value}")
+            raise FileError(self.source, f"capture {sample_id} at {seconds(stamp)} s: {value}")
         return value
 
     def _flange(self, sample_id: str, stamp: int, robot: str) -> np.ndarray:
         m = self.mapping
-        chain = self.tree.chain(m.world_frame, m.robots[robot].flange_frame)
+        chain = self.tree.chain(m.world_frame, m.robots[robot].flange_frame, m.clock_jump_s)
         if isinstance(chain, str):
             raise FileError(m.path, f"key robots.{robot}.flange_frame: {chain}")
         window = Window(stamp, stamp - int(m.still_s * NS), stamp + int(m.exposure_s * NS))
         pose = self.tree.pose(chain, window, m.tolerance_m, m.tolerance_rad, int(m.max_message_gap_s * NS))
         if isinstance(pose, str):
-            raise FileError(self.source, f"capture {sample_id} at {stamp / NS:.9f} s: {pose}")
+            raise FileError(self.source, f"capture {sample_id} at {seconds(stamp)} s: {pose}")
         return pose
 
     def _body(self, body: str, stamp: int) -> np.ndarray | None:
@@ -265,7 +285,7 @@ class BagReplay:
         gap = int(m.max_gap_s * NS)
         if body in self.bodies:
             return nearest_value(self.bodies[body], stamp, gap)
-        chain = self.tree.chain(m.mocap_world_frame or "", m.bodies[body].frame or "")
+        chain = self.tree.chain(m.mocap_world_frame or "", m.bodies[body].frame or "", m.clock_jump_s)
         if isinstance(chain, str):
             key = "camera_body" if body == "camrb" else "target_body"
             raise FileError(m.path, f"key motion_capture.{key}.frame: {chain}")
@@ -339,7 +359,7 @@ class BagReplay:
             raise self._unreadable(error) from None
         if found is None:
             raise FileError(self.source, f"capture {capture.sample_id}: its image at "
-                                         f"{capture.image_stamp / NS:.9f} s could not be read again")
+                                         f"{seconds(capture.image_stamp)} s could not be read again")
         return found
 
     def _fetch(self, capture: Capture) -> tuple[bytes, str, str | None] | None:

@@ -33,7 +33,7 @@ import numpy as np
 from core.config import Config
 from manifests import Workspace, read_manifest
 from manifests.facility import FACILITY_FILE, StaticSpec
-from manifests.sidecars import read_markers, read_session
+from manifests.sidecars import read_markers
 from manifests.workspace import CONFIG_FILE
 from speedplus.errors import InputError
 from stages.common import geometry as g
@@ -101,10 +101,13 @@ def log_facility(rr: Any, recording: Any, facility: Facility) -> None:
                                                      colors=(255, 220, 80)), static=True)
 
 
-def _target_points(config: Config, workspace: Workspace, scale: float) -> np.ndarray:
+def _target_points(config: Config, workspace: Workspace) -> np.ndarray:
+    """(P, 3) the target's vertices at mock-up scale (its own ``mockup_scale``, as label
+    takes it: a recording's session has none), in T, m."""
     from stages.common.workspace_target import workspace_target
 
-    vertices = workspace_target(config, workspace).vertices_m * scale
+    target = workspace_target(config, workspace)
+    vertices = target.vertices_m * target.mockup_scale
     step = max(1, len(vertices) // TARGET_POINTS)
     return vertices[::step]
 
@@ -162,8 +165,7 @@ def log_captures(rr: Any, recording: Any, config: Config, workspace: Workspace, 
     captures = {r["sample_id"]: r for r in _rows(workspace, "captures")}
     truth = {r["sample_id"]: r for r in _rows(workspace, "truth")}
     poses = {r["sample_id"]: r for r in _rows(workspace, "poses")}
-    scale = (read_session(workspace).mockup_scale or 1.0) if workspace.session_path.exists() else 1.0
-    points = _target_points(config, workspace, scale)
+    points = _target_points(config, workspace)
     markers = np.asarray(read_markers(workspace).centres_m) if workspace.markers_path.exists() else np.zeros((0, 3))
     matrix, width, height = _camera(config, workspace)
     holders = {carried: facility.holder(carried) for carried in ("camera", "target")}

@@ -82,22 +82,39 @@ def mapping(session: Session, captures: list[dict[str, Any]], at: list[int], out
               for robot in moving}
     rail = all(r["kuka_rail_m"] is not None for r in captures)
     start = min(at) + int(AROUND_S[0] * NS)
-    calibration_end = max((s for s, r in zip(at, captures, strict=True) if r["session"] == "calibration"),
-                          default=start)
-    split = (calibration_end - start) / NS + SESSION_GAP_S / 2
-    windows = (SessionWindow("calibration", 0.0, split), SessionWindow("dataset", split, 1e9))
-    fixtures = tuple(SessionWindow(r["fixture"], (s - start) / NS - SPACING_S / 2, (s - start) / NS + SPACING_S / 2)
-                     for s, r in zip(at, captures, strict=True) if r["fixture"] != "fixed")
+    calibration = [stamp for stamp, r in zip(at, captures, strict=True) if r["session"] == "calibration"]
+    if calibration:
+        split = (max(calibration) - start) / NS + SESSION_GAP_S / 2
+        windows = (SessionWindow("calibration", 0.0, split), SessionWindow("dataset", split, 1e9))
+    else:
+        windows = (SessionWindow("dataset", 0.0, 1e9),)
     bodies = {body: BodySource(TOPICS[body], None) for body in ("camrb", "targetrb")} \
         if "vicon" in session.sources else {}
     # the export writes the robots at three instants about each capture, not at a controller's rate
-    numbers = {**CAPTURE_DEFAULTS, "still_s": STILL_S, "exposure_s": EXPOSURE_S, "max_message_gap_s": STILL_S + 0.1}
+    numbers = {**CAPTURE_DEFAULTS, "still_s": STILL_S, "exposure_s": EXPOSURE_S, "max_message_gap_s": STILL_S + 0.1,
+               "trigger_window_s": 0.001}
     return BagMapping(out, tuple(session.sources), "world",
                       {"camera_on": "flange" if "camera" in moving else "world",
                        "target_on": "flange" if "target" in moving else "world"},
                       TOPICS["image"], TOPICS["info"], session.pattern, robots,
                       (TOPICS["joints"], RAIL_JOINT) if rail else None, "mocap" if bodies else None, bodies, 0.05,
-                      TOPICS["trigger"], sessions=windows, fixtures=fixtures, **numbers)
+                      TOPICS["trigger"], sessions=windows, fixtures=fixture_windows(captures, at, start),
+                      trigger_names_samples=True, **numbers)
+
+
+def fixture_windows(captures: list[dict[str, Any]], at: list[int], start: int) -> tuple[SessionWindow, ...]:
+    """``captures.fixtures``: one window per run of consecutive captures on the same model
+    fixture (none for "fixed"), from a fifth of ``SPACING_S`` before its first capture to a
+    fifth after its last, so that windows of captures ``SPACING_S`` apart never touch."""
+    runs: list[list[Any]] = []
+    for stamp, row in sorted(zip(at, captures, strict=True), key=lambda item: item[0]):
+        if runs and runs[-1][0] == row["fixture"]:
+            runs[-1][2] = stamp
+        else:
+            runs.append([row["fixture"], stamp, stamp])
+    margin = int(SPACING_S / 5 * NS)
+    return tuple(SessionWindow(name, (first - margin - start) / NS, (last + margin - start) / NS)
+                 for name, first, last in runs if name != "fixed")
 
 
 def _robot_messages(row: dict[str, Any], stamp: int, plan: BagMapping) -> list[tuple[int, str, str, Any]]:

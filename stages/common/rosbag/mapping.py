@@ -16,7 +16,8 @@ target_on = "flange"
 topic = "/camera/image"           # sensor_msgs/Image or sensor_msgs/CompressedImage
 info_topic = "/camera/info"       # optional: sensor_msgs/CameraInfo (K, and plumb_bob distortion)
 
-[pattern]                         # optional: the calibration pattern, as session.toml's
+[pattern]                         # optional: the calibration pattern, as session.toml's (its
+                                  # target_from_pattern_q is (w, x, y, z), not ROS's (x, y, z, w))
 
 [robots.camera]                   # the arm that carries the camera (absent when camera_on = "world")
 joints_topic = "/joint_states"    # sensor_msgs/JointState: positions in rad (revolute joints)
@@ -35,7 +36,9 @@ max_gap_s = 0.05                  # a body's pose within this of the stamp, or i
 
 [captures]
 trigger_topic = "/camera/trigger" # optional: sensor_msgs/TimeReference (time_ref: the exposure's
-                                  # instant; source: the sample id, optional); default: each image
+                                  # instant); default: each image is a capture
+trigger_window_s = 0.1            # a trigger's image: the nearest one stamped within this of it
+trigger_names_samples = false     # true: each trigger's source is its sample id (export writes it so)
 still_s = 0.5                     # the robots stood still this long before the exposure...
 exposure_s = 0.01                 # ...and through it
 tolerance_rad = 1e-5              # "still": no joint or /tf rotation moved more than this
@@ -71,7 +74,7 @@ SETUP_KEYS = ("camera_on", "target_on")
 ROBOTS = ("camera", "target")
 #: the defaults of [captures]; each is a number
 CAPTURE_DEFAULTS = {"still_s": 0.5, "exposure_s": 0.01, "tolerance_rad": 1e-5, "tolerance_m": 1e-5,
-                    "clock_jump_s": 0.5, "max_message_gap_s": 0.1}
+                    "clock_jump_s": 0.5, "max_message_gap_s": 0.1, "trigger_window_s": 0.1}
 
 
 @dataclass(frozen=True)
@@ -124,8 +127,10 @@ class BagMapping:
     tolerance_m: float
     clock_jump_s: float
     max_message_gap_s: float
+    trigger_window_s: float
     sessions: tuple[SessionWindow, ...]
     fixtures: tuple[SessionWindow, ...] = ()
+    trigger_names_samples: bool = False
 
     def session_at(self, seconds: float) -> str | None:
         """The session of a capture stamped ``seconds`` after the bag's start (None: in no window)."""
@@ -154,7 +159,8 @@ class BagMapping:
         captures: dict[str, Any] = {"trigger_topic": self.trigger_topic} if self.trigger_topic else {}
         captures.update({"still_s": self.still_s, "exposure_s": self.exposure_s, "tolerance_rad": self.tolerance_rad,
                          "tolerance_m": self.tolerance_m, "clock_jump_s": self.clock_jump_s,
-                         "max_message_gap_s": self.max_message_gap_s,
+                         "max_message_gap_s": self.max_message_gap_s, "trigger_window_s": self.trigger_window_s,
+                         "trigger_names_samples": self.trigger_names_samples,
                          "sessions": [[w.session, w.from_s, w.to_s] for w in self.sessions]})
         if self.fixtures:
             captures["fixtures"] = [[w.session, w.from_s, w.to_s] for w in self.fixtures]
@@ -294,12 +300,17 @@ def read_mapping(path: Path) -> BagMapping:
     world, bodies, gap = _bodies(top) if "vicon" in sources else (None, {}, 0.05)
     if "vicon" not in sources and "motion_capture" in data:
         raise FileError(path, "[motion_capture] given, but sources does not list vicon")
-    captures = top.table("captures", {"trigger_topic", "sessions", "fixtures", *CAPTURE_DEFAULTS})
+    captures = top.table("captures", {"trigger_topic", "sessions", "fixtures", "trigger_names_samples",
+                                      *CAPTURE_DEFAULTS})
     numbers = {key: captures.number(key, default) for key, default in CAPTURE_DEFAULTS.items()}
+    names_samples = captures.data.get("trigger_names_samples", False)
+    if not isinstance(names_samples, bool):
+        raise captures.fail("trigger_names_samples", "true or false")
     if "pattern" in data and not isinstance(data["pattern"], dict):
         raise FileError(path, "[pattern] must be a table")
     return BagMapping(path, tuple(sorted(sources, key=("kuka", "vicon").index)), top.text("world_frame", "world"),
                       setup, camera.text("topic"), camera.optional_text("info_topic"), data.get("pattern"),
                       _robots(top, setup), rail, world, bodies, gap, captures.optional_text("trigger_topic"),
                       sessions=_windows(captures, "sessions", SESSIONS),
-                      fixtures=_windows(captures, "fixtures", None), **numbers)
+                      fixtures=_windows(captures, "fixtures", None), trigger_names_samples=names_samples,
+                      **numbers)

@@ -79,11 +79,13 @@ def mapping(**changes) -> dict:
     return document
 
 
-def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=None, storage="mcap") -> Path:
+def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=None, storage="mcap",
+            extra=()) -> Path:
     """The lab's bag in ``folder`` with its ``rosbag.toml``. ``skip``: topics not recorded
     ("joints gap": /joint_states between 4 and 6 s); ``clock_jump``: /joint_states'
     stamps step 2 s against the recorder at 6.5 s; ``moved``: the camera arm drifts 1 mrad
-    through the second capture's exposure; ``storage``: "mcap" (ROS 2 Iron on) or "sqlite3"."""
+    through the second capture's exposure; ``storage``: "mcap" (ROS 2 Iron on) or "sqlite3";
+    ``extra``: more (recording ns, topic, type, message) to record."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     store, items = msg.typestore(), []
@@ -117,6 +119,7 @@ def lab_bag(folder: Path, *, skip=(), clock_jump=False, moved=False, document=No
         items.append((stamp + 30_000_000, "/cam/image_raw", msg.IMAGE, image_type(
             header=msg.header(stamp, "camera"), height=6, width=8, encoding="rgb8", is_bigendian=0, step=24,
             data=(pixels + k).reshape(-1))))
+    items += list(extra)
     bag = folder / "bag"
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(bag, version=9, storage_plugin=plugin) as writer:
@@ -250,3 +253,73 @@ def test_a_damaged_bag_is_refused_as_such(tmp_path):
     (bag / "bag.mcap").write_bytes(data[: len(data) // 2])  # a recording cut short
     with pytest.raises(FileError, match="not a readable bag"):
         BagReplay(bag, Workspace(tmp_path / "w"))
+
+
+def _at(seconds: float) -> int:
+    return START + round(seconds * NS)
+
+
+def _edge(seconds: float, parent: str, child: str, quaternion=(0.0, 0.0, 0.0, 1.0)):
+    transform = msg.transform_stamped(_at(seconds), parent, child, np.eye(4))
+    transform.transform.rotation.x, transform.transform.rotation.y, transform.transform.rotation.z, \
+        transform.transform.rotation.w = quaternion
+    return (_at(seconds), "/tf", msg.TF, msg.tf_message([transform]))
+
+
+def test_what_a_labs_bag_holds_beside_the_mapped_topics_is_left_alone(tmp_path):
+    """A gripper's efforts-only JointState on /joint_states, an unrelated /tf edge with a
+    zero quaternion republished with one stamp: neither is the mapping's, neither refuses."""
+    extra = [(_at(s), "/joint_states", msg.JOINT_STATE, msg.joint_state(_at(s), ["gripper"], []))
+             for s in (1.0, 3.0)]
+    extra += [_edge(s, "world", "camera_stand", (0.0, 0.0, 0.0, 0.0)) for s in (1.0, 2.0, 3.0)]
+    replay = BagReplay(lab_bag(tmp_path, extra=extra), Workspace(tmp_path / "w"))
+    assert len(replay.captures) == 3
+
+
+def test_a_loop_in_tf_is_refused(tmp_path):
+    """Two frames each other's parent, the mapped flange one of them: refused, not a hang."""
+    extra = [_edge(1.0, "loop_a", "loop_b"), _edge(1.0, "loop_b", "loop_a")]
+    document = mapping(robots={"camera": {"joints_topic": "/joint_states", "joints": JOINTS["camera"],
+                                          "flange_frame": "loop_a"},
+                               "target": {"joints_topic": "/joint_states", "joints": JOINTS["target"],
+                                          "flange_frame": "tgt_tool0"}})
+    with pytest.raises(FileError, match="key robots.camera.flange_frame: /tf holds a loop through frame loop_a"):
+        BagReplay(lab_bag(tmp_path, extra=extra, document=document), Workspace(tmp_path / "w"))
+
+
+def test_a_trigger_takes_the_image_within_its_window_once(tmp_path):
+    """Triggers 30 ms before each image (a driver that stamps on arrival): taken; a trigger
+    whose frame was dropped, refused; a trigger's source names a clock, not a sample."""
+    triggers = [(_at(s) - 30_000_000, "/cam/trigger", msg.TIME_REFERENCE, msg.time_reference(_at(s) - 30_000_000,
+                                                                                          "hw_clock"))
+                for s in CAPTURES_S]
+    document = mapping(captures={"trigger_topic": "/cam/trigger", "still_s": 0.5, "exposure_s": 0.02,
+                                 "sessions": [["calibration", 0.0, 6.0], ["dataset", 6.0, 100.0]]})
+    replay = BagReplay(lab_bag(tmp_path / "a", extra=triggers, document=document), Workspace(tmp_path / "w"))
+    assert [c.sample_id for c in replay.captures] == ["cal000000", "cal000001", "img000000"]
+    assert [c.image_stamp - c.stamp for c in replay.captures] == [30_000_000] * 3
+    dropped = triggers + [(_at(2.5), "/cam/trigger", msg.TIME_REFERENCE, msg.time_reference(_at(2.04), "hw_clock"))]
+    with pytest.raises(FileError, match="a frame was dropped"):
+        BagReplay(lab_bag(tmp_path / "b", extra=dropped, document=document), Workspace(tmp_path / "w"))
+
+
+def test_an_export_of_the_dataset_alone_keeps_its_session(tmp_path):
+    from manifests.sidecars import Session, SessionCamera
+    from stages.export.rosbag import mapping as bag_mapping
+    from stages.export.rosbag import stamps
+
+    rows = [{"session": "dataset", "capture_time_s": None, "fixture": "fixed", "kuka_camera_joints_rad": None,
+             "kuka_target_joints_rad": None, "kuka_rail_m": None} for _ in range(4)]
+    at = stamps(rows)
+    plan = bag_mapping(Session("replay", "session", ("kuka",), SessionCamera(8, 6, None, None), None), rows, at,
+                       tmp_path)
+    assert {plan.session_at((s - min(at)) / NS + 0.55) for s in at} == {"dataset"}
+
+
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+def test_a_compressed_images_size_is_read_from_its_header(suffix):
+    import cv2
+
+    ok, data = cv2.imencode(suffix, np.zeros((6, 8, 3), np.uint8))
+    assert ok and msg.compressed_size(data.tobytes()) == (8, 6)
+    assert msg.compressed_size(b"GIF89a....") is None
