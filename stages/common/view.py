@@ -33,7 +33,7 @@ import numpy as np
 from core.config import Config
 from manifests import Workspace, read_manifest
 from manifests.facility import FACILITY_FILE, StaticSpec
-from manifests.sidecars import read_markers
+from manifests.sidecars import read_markers, read_session
 from manifests.workspace import CONFIG_FILE
 from speedplus.errors import InputError
 from stages.common import geometry as g
@@ -113,13 +113,23 @@ def _target_points(config: Config, workspace: Workspace) -> np.ndarray:
 
 
 def _camera(config: Config, workspace: Workspace) -> tuple[np.ndarray, int, int]:
-    """K (3, 3), width, height: calibrated where calibrate ran, else as configured."""
+    """K (3, 3), width, height: calibrated where calibrate ran, else as the session recorded
+    it (a replay's images and their K where given), else as configured."""
     if workspace.calibration_path.exists():
         from stages.common.json_arrays import calibrated_camera
 
         camera = calibrated_camera(workspace)
         return np.asarray(camera.camera_matrix, float), camera.width, camera.height
-    return config.camera.camera_matrix(), config.camera.width_px, config.camera.height_px
+    configured = config.camera.camera_matrix(), config.camera.width_px, config.camera.height_px
+    if not workspace.session_path.exists():
+        return configured
+    recorded = read_session(workspace).camera
+    if recorded.camera_matrix is not None:
+        return np.asarray(recorded.camera_matrix, float), recorded.width, recorded.height
+    from core.config import resize_camera_matrix  # the configured lens on the recorded sensor
+
+    return (resize_camera_matrix(configured[0], recorded.width / configured[1], recorded.height / configured[2]),
+            recorded.width, recorded.height)
 
 
 def label_colour(error_t_m: float, range_m: float, error_r_rad: float) -> tuple[int, int, int]:

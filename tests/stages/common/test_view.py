@@ -107,3 +107,5 @@ def test_a_recordings_view_follows_its_captures(tmp_path):
     np.testing.assert_allclose([r["Transform3D:translation"][0] for r in camera],
                                [c["kuka_world_from_camee_t"] for c in captures], atol=1e-9)
     assert all("capture" not in r for path, found in rows.items() if path.startswith("/room/robots/") for r in found)
+    pinhole = next(r for r in rows["/room/camera"] if "Pinhole:resolution" in r)
+    assert list(pinhole["Pinhole:resolution"][0]) == [8, 6]  # the recorded camera, not the profile's
