@@ -35,7 +35,7 @@ from stages.acquire.backend import CaptureRecord
 from stages.acquire.bag_contents import BagContents
 from stages.acquire.bag_streams import NS, Series, Window, nearest_value, seconds, still_value
 from stages.common.geometry import pose_columns
-from stages.common.image_io import encode_png, ingest_image
+from stages.common.image_io import IMAGE_SUFFIXES, encode_png, ingest_image
 from stages.common.patterns import pattern_from_table
 from stages.common.rosbag import messages as msg
 from stages.common.rosbag.mapping import MAPPING_FILE, read_mapping
@@ -230,7 +230,14 @@ class BagReplay(BagContents):
                 data = bytes(message.data)
                 if data.startswith(PNG_SIGNATURE):
                     return data, ".png", None
-                return data, ".jpg" if data[:3] == b"\xff\xd8\xff" else f".{message.format.split(';')[0].strip()}", None
+                if data[:3] == b"\xff\xd8\xff":
+                    return data, ".jpg", None
+                suffix = f".{message.format.split(';')[0].strip().lower()}"  # the bag's own word: checked
+                if suffix not in IMAGE_SUFFIXES:
+                    raise FileError(self.source, f"{self.mapping.camera_topic}, stamp {seconds(capture.image_stamp)} "
+                                                 f"s: compressed format {message.format!r} is not read (read: PNG, "
+                                                 f"JPEG, {', '.join(IMAGE_SUFFIXES)})")
+                return data, suffix, None
         return None
 
     def capture(self, sample: dict[str, Any]) -> CaptureRecord:

@@ -42,6 +42,8 @@ from stages.common.scores import ROTATION_THRESHOLD_RAD, TRANSLATION_THRESHOLD
 
 TIMELINE = "capture"
 MET, MISSED, TRUE = (40, 200, 80), (220, 50, 50), (120, 120, 255)
+#: the first bytes of an .rrd: a file view may replace
+RRD_MAGIC = b"RRF2"
 #: vertices drawn of the target: enough to see its shape, few enough for a light recording
 TARGET_POINTS = 3000
 
@@ -231,10 +233,17 @@ def _rows(workspace: Workspace, name: str) -> list[dict[str, Any]]:
     return read_manifest(workspace, name).to_pylist() if read_marker(workspace, name) is not None else []
 
 
+def _first_bytes(path: Path) -> bytes:
+    with path.open("rb") as file:
+        return file.read(len(RRD_MAGIC))
+
+
 class Recording:
     """An ``.rrd`` written beside its place, then moved there whole."""
 
     def __init__(self, out: Path, name: str) -> None:
+        if out.is_dir() or (out.exists() and _first_bytes(out) != RRD_MAGIC):
+            raise InputError(f"{out}: not a Rerun recording, and view replaces only its own; choose another --out")
         self.rr, self.out = _rr(), out
         out.parent.mkdir(parents=True, exist_ok=True)
         self.partial = out.with_name(f".{out.name}.partial")

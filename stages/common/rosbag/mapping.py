@@ -282,6 +282,8 @@ def read_mapping(path: Path) -> BagMapping:
             from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise FileError(path, f"not valid TOML ({error})") from None
+    except OSError as error:
+        raise FileError(path, f"unreadable ({error.strerror})") from None
     top = _Table(data, path, "", TOP_KEYS)
     if data.get("format_version") != MAPPING_VERSION:
         raise top.fail("format_version", str(MAPPING_VERSION))

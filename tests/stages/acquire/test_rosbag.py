@@ -23,6 +23,7 @@ from stages.acquire.rosbag import BagReplay
 from stages.common import geometry as g
 from stages.common.rosbag import messages as msg
 from tests.conftest import speedplus
+from tests.stages.export.test_session import assert_same_row
 
 NS = 1_000_000_000
 START = 1_700_000_000 * NS
@@ -231,16 +232,7 @@ def test_an_exported_bag_replays_to_the_captures_of_the_session_folder(smoke_lab
         digest = {hashlib.sha256((p / r[sample_id]["image_path"]).read_bytes()).hexdigest()
                   for p, r in ((workspace, original), (replayed["session"], folder), (replayed["rosbag"], bag))}
         assert len(digest) == 1
-        for column, value in row.items():
-            if column in NOT_IN_A_BAG | PATHS:
-                continue
-            if isinstance(value, list) and value and isinstance(value[0], float):
-                sign = -1.0 if column.endswith("_q") and np.dot(value, again[column]) < 0 else 1.0
-                assert np.allclose(value, sign * np.asarray(again[column]), rtol=0, atol=1e-9), column
-            elif isinstance(value, float):
-                assert abs(value - again[column]) < 1e-9, column
-            else:
-                assert value == again[column], (sample_id, column)
+        assert_same_row(row, again, NOT_IN_A_BAG | PATHS, 1e-9)
     first = (workspace / "export" / "rosbag" / "bag" / "bag.mcap").read_bytes()
     result = speedplus("export", "-w", str(workspace), "--format", "rosbag", "--force")
     assert result.returncode == 0, result.stderr

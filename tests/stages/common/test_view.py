@@ -49,6 +49,10 @@ def test_a_facilitys_recording_holds_its_room_robots_motion_capture_and_lights(t
         facility.spec.sun_lamp is not None)
     result = speedplus("view", str(tmp_path / "nothing"), "--no-open")
     assert result.returncode == 1 and "neither a facility folder" in result.stderr
+    notes = tmp_path / "notes.txt"  # a file of the user's is never replaced
+    notes.write_text("mine")
+    result = speedplus("view", str(folder), "--out", str(notes), "--no-open")
+    assert result.returncode == 1 and "not a Rerun recording" in result.stderr and notes.read_text() == "mine"
 
 
 def test_a_workspaces_recording_holds_the_planned_poses_and_the_labels_errors(smoke_labelled, tmp_path):

@@ -16,6 +16,20 @@ NOT_LOGGED = {"vicon_targetrb_used", "vicon_targetrb_residual_m", "move_s"}  # r
 PATHS = {"image_path", "source_image", "image_conversion"}
 
 
+def assert_same_row(row: dict, again: dict, skipped: set[str], tolerance: float) -> None:
+    """Two captures rows alike, column by column (a quaternion up to its sign), but ``skipped``."""
+    for column, value in row.items():
+        if column in skipped:
+            continue
+        if isinstance(value, list) and value and isinstance(value[0], float):
+            sign = -1.0 if column.endswith("_q") and np.dot(value, again[column]) < 0 else 1.0
+            assert np.allclose(value, sign * np.asarray(again[column]), rtol=0, atol=tolerance), column
+        elif isinstance(value, float):
+            assert abs(value - again[column]) < tolerance, column
+        else:
+            assert value == again[column], (row["sample_id"], column)
+
+
 def _digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -37,16 +51,7 @@ def test_a_session_export_replays_to_the_same_captures(smoke_labelled, tmp_path)
     for sample_id, row in before.items():
         again = after[sample_id]
         assert _digest(workspace / row["image_path"]) == _digest(replayed / again["image_path"])
-        for column, value in row.items():
-            if column in NOT_LOGGED | PATHS:
-                continue
-            if isinstance(value, list) and value and isinstance(value[0], float):
-                sign = -1.0 if column.endswith("_q") and np.dot(value, again[column]) < 0 else 1.0
-                assert np.allclose(value, sign * np.asarray(again[column]), rtol=0, atol=1e-12), column
-            elif isinstance(value, float):
-                assert abs(value - again[column]) < 1e-12, column
-            else:
-                assert value == again[column], column
+        assert_same_row(row, again, NOT_LOGGED | PATHS, 1e-12)
     # a lab's recording, run to its report: no truth to measure the labels against, and it says so
     result = speedplus("run", "-w", str(replayed))
     assert result.returncode == 0, result.stderr
