@@ -40,6 +40,14 @@ TRON = read_facility_spec(TRON_FOLDER)
 _CAMERA_ROBOT, _TARGET_ROBOT = TRON.carrier("camera"), TRON.carrier("target")
 
 
+
+def stratified_grid(spp: int) -> tuple[int, int]:
+    """The rows and the samples per pixel Mitsuba's ``multijitter`` sampler takes when asked
+    for ``spp``: floor(sqrt(spp)) rows of as many columns as reach ``spp``, so a count that
+    does not fill its grid (10, 32) is rounded up (12, 35)."""
+    rows = max(1, math.isqrt(spp))
+    return rows, rows * -(-spp // rows)
+
 @dataclass(frozen=True)
 class RunConfig:
     """How stages execute (not part of any stage fingerprint: it never changes results)."""
@@ -260,7 +268,9 @@ class VirtualConfig:
         ((0.12, 0.08, 0.02), (-0.12, 0.09, 0.04), (0.10, -0.11, 0.10), (-0.11, -0.10, 0.13), (0.0, 0.13, 0.18)),
         "camera rigid-body markers in the camera flange frame (5 markers on a plate around the camera, "
         "spread about 25 cm so that the camera's pointing is tracked to about 0.05 deg)", "m")
-    spp: int = param(16, "Mitsuba samples per pixel of a capture", "count")
+    spp: int = param(
+        9, "Mitsuba samples per pixel of a capture, stratified on a jittered grid of floor(sqrt(spp)) rows: a count "
+        "that fills its grid (4, 6, 8, 9, 12, 16, ...; docs/architecture.md section 5)", "count")
     max_depth: int = param(4, "Mitsuba path length (4: direct light and two interreflections)", "count")
     rr_depth: int = param(
         1, "path length from which Mitsuba's Russian roulette may end a path (unbiased: a survivor's weight is "
@@ -343,8 +353,13 @@ class VirtualConfig:
     remount_sigma_rad: float = param(1e-4, "mount: 1-sigma rotation change at the remount", "rad")
 
     def check(self, config: Config) -> None:
-        """Renderer counts of at least one, a ghost rate that is a probability, unit quaternions."""
+        """Renderer counts of at least one, a sample count that fills its grid, a ghost rate that is
+        a probability, unit quaternions."""
         at_least("virtual", self, {"spp": 1, "max_depth": 1, "rr_depth": 1})
+        rows, filled = stratified_grid(self.spp)
+        if filled != self.spp:
+            raise ConfigError(f"virtual.spp: {self.spp} does not fill the sampler's grid of {rows} rows (it would "
+                              f"render {filled}); use {rows * (self.spp // rows)} or {filled}")
         if not 0 <= self.vicon_ghost_rate <= 1:
             raise ConfigError(f"virtual.vicon_ghost_rate: expected a probability in [0, 1], got "
                               f"{self.vicon_ghost_rate}")

@@ -100,11 +100,9 @@ def mitsuba_variant() -> dict[str, str]:
 
 
 def set_one_thread() -> None:
-    """One Dr.Jit thread for this process, whatever the engine reserved: the testbed's
-    Gaussian reconstruction filter splats each sample onto neighbouring pixels by atomic
-    adds, whose order, with several threads, changes the last bit of a few pixels (seen as
-    1-2 pixels of 8-bit captures one level apart between 1 and 2 threads, enough to move a
-    detected corner). Run as many workers as cores instead."""
+    """One Dr.Jit thread for this process, whatever the engine reserved: the testbed runs as
+    many workers as cores instead, which keeps the cores as busy without a Dr.Jit thread pool
+    in every worker."""
     import drjit as dr
 
     dr.set_thread_count(1)
@@ -113,7 +111,7 @@ def set_one_thread() -> None:
 def set_threads(threads: int) -> None:
     """Dr.Jit's thread count for this process: ``threads``, or in a Ray worker the CPUs Ray
     reserved for it. For the box-filtered twins the pixels do not depend on it (measured
-    bit-identical with 1 and 2); the testbed's Gaussian filter does (``set_one_thread``)."""
+    bit-identical with 1 and 2)."""
     import drjit as dr
 
     from core.engines import reserved_cpus
@@ -121,12 +119,15 @@ def set_threads(threads: int) -> None:
     dr.set_thread_count(max(1, reserved_cpus(threads)))
 
 
-def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, rfilter: Literal["box", "gaussian"],
-           pixel_format: Literal["rgb", "rgba"]) -> dict[str, Any]:
+def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, pixel_format: Literal["rgb", "rgba"],
+           sampler: Literal["independent", "multijitter"] = "independent") -> dict[str, Any]:
     """A perspective sensor of the pinhole ``geometry`` (centred principal point, square
-    pixels), posed later by ``sensor_to_world``. A box filter puts a sample in its own pixel
-    only (alpha is then exact coverage); the Gaussian one resembles a real sensor's blur."""
-    film_filter = {"type": "box"} if rfilter == "box" else {"type": "gaussian", "stddev": 0.4}
+    pixels), posed later by ``sensor_to_world``. Its box filter puts a sample in its own
+    pixel only: alpha is exact coverage, the pixels do not depend on the thread count, and no
+    sample is splatted onto neighbours (a blur, where wanted, is applied to the film after:
+    ``stages/acquire/virtual/scene.py``). ``multijitter`` stratifies each pixel's samples on a
+    jittered grid (Kensler, "Correlated Multi-Jittered Sampling", Pixar 2013),
+    ``independent`` draws them uniformly."""
     return {
         "type": "perspective",
         "fov_axis": "x",
@@ -134,9 +135,9 @@ def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, rfilter: Lit
         "near_clip": 0.05,
         "far_clip": far_clip_m,
         "to_world": sensor_to_world(mi, np.eye(4)),
-        "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height, "rfilter": film_filter,
+        "film": {"type": "hdrfilm", "width": geometry.width, "height": geometry.height, "rfilter": {"type": "box"},
                  "pixel_format": pixel_format},
-        "sampler": {"type": "independent"},
+        "sampler": {"type": sampler},
     }
 
 

@@ -46,7 +46,7 @@ class TargetRenderer:
         self.spp = spp
         geometry = self.lens.geometry
         # box filter: alpha is exact coverage
-        self.sensor_spec = sensor(mi, geometry, far_clip_m=1000.0, rfilter="box", pixel_format="rgba")
+        self.sensor_spec = sensor(mi, geometry, far_clip_m=1000.0, pixel_format="rgba")
         #: every vertex (N, 3, body frame, m): where the target can be in an image
         self.points_m = target.vertices_m
         objects: dict[str, Any] = {

@@ -73,6 +73,8 @@ def test_overrides_are_typed():
         ("camera.width_px=1000", "does not have the aspect"),
         ("plan.lights=['moon']", "plan.lights"),
         ("virtual.rr_depth=0", "virtual.rr_depth: expected at least 1, got 0"),
+        ("virtual.spp=32", "virtual.spp: 32 does not fill the sampler's grid of 5 rows (it would render 35); "
+                           "use 30 or 35"),
         ("evaluate.threads=-1", "evaluate.threads: expected at least 0, got -1"),
         ("evaluate.ransac_seed=-2", "evaluate.ransac_seed: expected at least 0, got -2"),
         ("render.spp=-5", "render.spp: expected at least 1, got -5"),  # the bad value echoed, one key named

@@ -198,8 +198,8 @@ def interrupt_when(ready, *args, timeout=300):
 
 def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_path):
     ws = tmp_path / "w"
-    # slower captures (32 spp) so that the press falls between the first captures and the last
-    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws), "--set", "virtual.spp=32").returncode == 0
+    # slower captures (36 spp) so that the press falls between the first captures and the last
+    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws), "--set", "virtual.spp=36").returncode == 0
     code, _, err = interrupt_when(lambda: len(list((ws / "images").rglob("*.png"))) >= 2, "acquire", "--workspace",
                                   str(ws))
     assert code == 130, err

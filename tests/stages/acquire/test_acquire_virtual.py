@@ -165,3 +165,30 @@ def test_a_captures_truth_maps_cast_in_its_window_are_the_full_casts_bytes(smoke
         assert testbed.truth_maps("dataset", cam_from_target) == windowed
     assert all(window is not None for window, _ in windows)
     assert all(window.width * window.height < pixels for window, pixels in windows)  # less than the image
+
+
+def test_the_sample_counts_allowed_are_those_mitsubas_stratified_sampler_takes_as_given():
+    from core.config.facility import stratified_grid
+    from stages.common.mitsuba_adapter import load_mitsuba
+
+    mi = load_mitsuba()
+    for spp in range(1, 65):
+        taken = mi.load_dict({"type": "multijitter", "sample_count": spp}).sample_count()
+        assert stratified_grid(spp)[1] == taken, spp
+
+
+def test_the_films_blur_has_the_footprint_of_the_gaussian_filter_it_replaces():
+    """A box-filtered pixel integrates its own square (variance 1/12 px^2 an axis); the blur
+    widens that to the 0.4 px Gaussian's 0.16, keeps the light and moves nothing."""
+    from stages.acquire.virtual.scene import sensor_blur
+
+    impulse = np.zeros((9, 9), np.float32)
+    impulse[4, 4] = 1.0
+    blurred = sensor_blur(impulse)
+    ys, xs = np.mgrid[0:9, 0:9] - 4
+    assert blurred.sum() == pytest.approx(1.0, abs=1e-6)
+    assert (xs * blurred).sum() == pytest.approx(0.0, abs=1e-7) and (ys * blurred).sum() == pytest.approx(0.0, abs=1e-7)
+    assert (xs**2 * blurred).sum() + 1.0 / 12.0 == pytest.approx(0.4**2, abs=1e-6)
+    rng = np.random.default_rng(3)
+    film = rng.uniform(0.0, 1.0, (40, 60)).astype(np.float32)
+    assert sensor_blur(film).mean() == pytest.approx(film.mean(), rel=2e-3)
