@@ -4,6 +4,13 @@ agreement of detected corners with the hidden truth.
 
     python -m bench acquire [CAPTURES_PER_SESSION]      (default 6)
     python -m bench acquire WORKSPACE                    (e.g. data/default after acquire)
+    python -m bench acquire BEFORE AFTER                 (two acquisitions of one plan and seed)
+
+The last compares the ChArUco corners detected in the calibration images of two
+acquisitions of the same plan and seed made by two versions of the renderer (``bench
+pipeline REF`` keeps them as ROOT/before and ROOT/after): how far each corner moved against
+how far either lies from the truth (its noise), and the mean shift, which a change of the
+images' statistics would show and noise would not.
 """
 
 from __future__ import annotations
@@ -80,8 +87,54 @@ def detection(root: str) -> None:
     report("acquire_detection", f"acquire: ChArUco detection in {Path(root).name}", rows)
 
 
+def _corners(ws: Workspace) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]:
+    """{(sample_id, corner id): (detected (2,) px, true (2,) px)} of the calibration images."""
+    session = json.loads(ws.session_path.read_text())
+    spec = PatternSpec.from_json(session["pattern"])
+    camera_matrix, dist = np.array(session["camera"]["K"]), np.array(session["camera"]["dist"])
+    target_from_board = g.transform_from_qt(spec.target_from_pattern_q, spec.target_from_pattern_t)
+    truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}
+    out = {}
+    for row in read_manifest(ws, "captures").to_pylist():
+        if row["session"] != "calibration":
+            continue
+        corners, ids = detect(cv2.imread(str(ws.resolve(row["image_path"])), cv2.IMREAD_GRAYSCALE), spec)
+        if not len(ids):
+            continue
+        true = truth[row["sample_id"]]
+        cam_from_target = g.transform_from_qt(true["cam_from_target_q"], true["cam_from_target_t"])
+        expected = g.project(cam_from_target @ target_from_board, spec.object_points()[ids], camera_matrix, dist)
+        out.update({(row["sample_id"], int(i)): (c, e) for i, c, e in zip(np.ravel(ids), corners, expected,
+                                                                           strict=True)})
+    return out
+
+
+def moved(before_root: str, after_root: str) -> None:
+    before, after = _corners(Workspace(before_root)), _corners(Workspace(after_root))
+    both = sorted(set(before) & set(after))
+    shift = np.array([after[k][0] - before[k][0] for k in both])  # (N, 2) px
+    error_before = np.array([np.linalg.norm(before[k][0] - before[k][1]) for k in both])
+    error_after = np.array([np.linalg.norm(after[k][0] - after[k][1]) for k in both])
+    distance = np.linalg.norm(shift, axis=1)
+    mean, sem = shift.mean(axis=0), shift.std(axis=0, ddof=1) / np.sqrt(len(shift))
+    rows = [{"metric": "corners detected in both / before only / after only",
+             "value": f"{len(both)} / {len(set(before) - set(after))} / {len(set(after) - set(before))}"},
+            {"metric": "detected vs true, before: median / 95th percentile (px)",
+             "value": f"{np.median(error_before):.3f} / {np.percentile(error_before, 95):.3f}"},
+            {"metric": "detected vs true, after: median / 95th percentile (px)",
+             "value": f"{np.median(error_after):.3f} / {np.percentile(error_after, 95):.3f}"},
+            {"metric": "moved, after against before: median / 95th percentile (px)",
+             "value": f"{np.median(distance):.3f} / {np.percentile(distance, 95):.3f}"},
+            {"metric": "mean shift x, y +- standard error (px)",
+             "value": f"{mean[0]:+.4f} +- {sem[0]:.4f}, {mean[1]:+.4f} +- {sem[1]:.4f}"}]
+    report("acquire_corners_moved", f"acquire: corners of {Path(before_root).name} and {Path(after_root).name}", rows,
+           {"before": str(before_root), "after": str(after_root)})
+
+
 def main(*args: str) -> None:
-    if args and not args[0].isdigit():
+    if len(args) == 2:
+        moved(*args)
+    elif args and not args[0].isdigit():
         detection(args[0])
     else:
         timing(int(args[0]) if args else 6)

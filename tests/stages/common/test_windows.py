@@ -2,6 +2,7 @@
 half out of the image, the windowed twin differs from the full film's only in its noise, and
 the windowed mask and ground truth are the full ray cast's, pixel for pixel."""
 
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -9,8 +10,10 @@ from pipeline.config import load_config
 from stages.acquire.virtual.sensor import lens_camera
 from stages.common import geometry as g
 from stages.common import tango
+from stages.common.lens import RenderGeometry
+from stages.common.mitsuba_adapter import sensor_to_world
 from stages.common.surface import TargetSurfaces
-from stages.common.windows import Window, film_window, image_window
+from stages.common.windows import Window, film_window, image_window, kernel_window
 from stages.common.workspace_target import planned_target
 from stages.render.scene import TargetRenderer
 
@@ -95,3 +98,67 @@ def test_a_target_behind_the_camera_or_out_of_the_frame_gets_no_window_or_an_emp
     window = film_window(geometry, aside, points)
     assert window is not None and window.empty
     assert image_window(renderer.lens, window) == Window(0, 0, 0, 0)
+
+
+def test_a_kernel_window_holds_its_window_inside_the_film_at_a_size_of_the_ladder():
+    geometry = RenderGeometry(991, 623, 1494.3)
+    rng = np.random.default_rng(60)
+    for _ in range(500):
+        x, y = int(rng.integers(0, geometry.width)), int(rng.integers(0, geometry.height))
+        window = Window(x, y, int(rng.integers(1, geometry.width - x + 1)),
+                        int(rng.integers(1, geometry.height - y + 1)))
+        grown = kernel_window(window, geometry)
+        assert grown.x <= window.x and grown.y <= window.y
+        assert grown.x + grown.width >= window.x + window.width and grown.y + grown.height >= window.y + window.height
+        assert grown.x >= 0 and grown.y >= 0
+        assert grown.x + grown.width <= geometry.width and grown.y + grown.height <= geometry.height
+        for size, limit in ((grown.width, geometry.width), (grown.height, geometry.height)):
+            step = 1 << max(0, size.bit_length() - 3)
+            assert size % step == 0 or size == limit  # a size of the ladder, or the whole film
+        assert grown.width <= 1.25 * window.width + 1 and grown.height <= 1.25 * window.height + 1
+
+
+def test_a_window_sensor_casts_the_full_films_rays_through_the_same_pixels(renderer):
+    mi, geometry = renderer.mi, renderer.lens.geometry
+    full = mi.load_dict(renderer.sensor_spec)
+    q = np.array([0.9, 0.1, -0.3, 0.2])
+    world_from_cam = g.transform_from_qt(q / np.linalg.norm(q), [0.3, -1.0, 2.0])
+    params = mi.traverse(full)
+    params["to_world"] = sensor_to_world(mi, world_from_cam)
+    params.update()
+
+    def directions(sensor, xs, ys, width, height):
+        ray, _ = sensor.sample_ray(0.0, 0.0, mi.Point2f((xs + 0.5) / width, (ys + 0.5) / height), mi.Point2f(0.5, 0.5))
+        d = np.stack([np.array(ray.d.x), np.array(ray.d.y), np.array(ray.d.z)], 1).astype(np.float64)
+        return d / np.linalg.norm(d, axis=1, keepdims=True), np.stack([np.array(ray.o.x), np.array(ray.o.y),
+                                                                        np.array(ray.o.z)], 1)
+
+    for window in (Window(400, 67, 320, 384), Window(0, 0, 64, 48), Window(geometry.width - 96, geometry.height - 40,
+                                                                            96, 40)):
+        sensor = renderer.windows.aimed(window.x, window.y, window.width, window.height, world_from_cam)
+        ys, xs = np.mgrid[0:window.height:7, 0:window.width:5]
+        xs, ys = xs.ravel().astype(np.float32), ys.ravel().astype(np.float32)
+        inside, origin = directions(sensor, xs, ys, window.width, window.height)
+        expected, expected_origin = directions(full, xs + window.x, ys + window.y, geometry.width, geometry.height)
+        angle_px = np.linalg.norm(inside - expected, axis=1) * geometry.focal_px  # small angles, in film pixels
+        assert angle_px.max() < 2e-3, window
+        assert np.abs(origin - expected_origin).max() < 1e-6
+
+
+def test_a_window_of_a_size_met_before_compiles_no_kernel(renderer):
+    light = LIGHT / np.linalg.norm(LIGHT)
+    first = g.transform_from_qt([0.9, 0.1, 0.3, 0.1] / np.linalg.norm([0.9, 0.1, 0.3, 0.1]), [0.1, -0.2, 5.0])
+    moved = first.copy()
+    moved[0, 3] += 0.03  # the window moves by a few pixels and keeps its size
+    assert renderer.film_window(first) != renderer.film_window(moved)
+    assert (renderer.film_window(first).width, renderer.film_window(first).height) == \
+        (renderer.film_window(moved).width, renderer.film_window(moved).height)
+    renderer.render(first, light, 3.0, 1)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        renderer.render(moved, light, 4.0, 2)
+        compiled = [k for k in dr.kernel_history() if str(k["type"]).endswith("JIT") and not k["cache_hit"]]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert compiled == []
