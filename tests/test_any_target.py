@@ -132,16 +132,19 @@ def test_the_markers_are_chosen_on_its_parts_and_recorded(made):
 
 def test_its_labels_sigmas_cover_on_the_short_session(made):
     """Issue 43: a smoke session has too few two-source captures to measure the factor;
-    the sigmas then carry that (``stages/fuse/short_session.py``): at least 85% of the true
-    errors inside 1.96 sigma on every axis (7 of 8 labels)."""
+    the sigmas then carry that (``stages/fuse/short_session.py``): at least 85% of the 24
+    true errors (8 labels, 3 axes) inside 1.96 sigma, and no axis with more than 2 of its 8
+    outside. Honest sigmas fail this on about 3% of builds (4 or more of 24 outside at 5%
+    each); 7 of 8 on every axis, as this asked before, fails on about 16% of them, and did on
+    the CubeSat when the captures' noise changed (issue 60: 0, 1 and 2 outside in x, y, z)."""
     _, ws, _, _ = made
     truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}
     normalised = []
     for pose in read_manifest(ws, "poses").to_pylist():
         true = np.asarray(truth[pose["sample_id"]]["cam_from_target_t"])
         normalised.append((np.asarray(pose["cam_from_target_t"]) - true) / np.asarray(pose["sigma_t_m"]))
-    inside = np.mean(np.abs(np.array(normalised)) <= 1.96, axis=0)
-    assert np.all(inside >= 0.85), inside
+    outside = np.abs(np.array(normalised)) > 1.96  # (8, 3)
+    assert outside.mean() <= 0.15 and outside.sum(axis=0).max() <= 2, outside.sum(axis=0)
 
 
 def test_a_run_without_a_model_of_the_target_says_so_and_how_to_make_one(made):

@@ -101,8 +101,9 @@ def mitsuba_variant() -> dict[str, str]:
 
 def set_one_thread() -> None:
     """One Dr.Jit thread for this process, whatever the engine reserved: the testbed runs as
-    many workers as cores instead, which keeps the cores as busy without a Dr.Jit thread pool
-    in every worker."""
+    many workers as cores instead, which keeps the cores as busy, and a capture's pixels
+    never depend on a thread count (samples of one pixel added from several threads may
+    be summed in another order)."""
     import drjit as dr
 
     dr.set_thread_count(1)
