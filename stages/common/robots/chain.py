@@ -99,10 +99,20 @@ class SerialChain:
             out[..., :3, :3] = np.eye(3)
             out[..., :3, 3] = value[..., None] * axis
             return out
-        cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+        cross, squared = self._rodrigues[index]
         out[..., :3, :3] = (np.eye(3) + np.sin(value)[..., None, None] * cross
-                            + (1.0 - np.cos(value))[..., None, None] * (cross @ cross))
+                            + (1.0 - np.cos(value))[..., None, None] * squared)
         return out
+
+    @property
+    def _rodrigues(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """Each joint's axis's cross-product matrix K (3, 3) and K^2, made once per chain."""
+        made = self.__dict__.get("_rodrigues_made")
+        if made is None:
+            made = tuple((k, k @ k) for k in (np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+                                              for a in self.axes))
+            object.__setattr__(self, "_rodrigues_made", made)
+        return made
 
     def jacobian(self, joints: np.ndarray) -> np.ndarray:
         """(6, J) geometric Jacobian at one joint vector (J,): rows linear (m) then angular

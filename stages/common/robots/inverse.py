@@ -24,21 +24,38 @@ def pose_error(base_from_flange: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     """(..., 6): position error (m) and rotation error (rotation vector, rad), both in the
     base frame, that take ``base_from_flange`` (..., 4, 4) to ``wanted`` (4, 4)."""
     position = wanted[:3, 3] - base_from_flange[..., :3, 3]
-    rotation = g.matrix_to_rotvec(wanted[:3, :3] @ np.swapaxes(base_from_flange[..., :3, :3], -1, -2))
+    rotation = _rotvec(wanted[:3, :3] @ np.swapaxes(base_from_flange[..., :3, :3], -1, -2))
     return np.concatenate([position, rotation], axis=-1)
 
 
+def _rotvec(rotation: np.ndarray) -> np.ndarray:
+    """``geometry.matrix_to_rotvec`` of rotations (..., 3, 3), from the skew part and the
+    trace (angle = atan2(sin, cos)) where the angle is under 150 deg, which is most of the
+    inverse kinematics' steps and costs a fifth of the quaternion route; through the
+    quaternion elsewhere, where the skew part no longer gives the axis well."""
+    skew = np.stack([rotation[..., 2, 1] - rotation[..., 1, 2], rotation[..., 0, 2] - rotation[..., 2, 0],
+                     rotation[..., 1, 0] - rotation[..., 0, 1]], axis=-1)  # 2 sin(angle) axis
+    cosine = (rotation[..., 0, 0] + rotation[..., 1, 1] + rotation[..., 2, 2] - 1.0) / 2.0
+    sine = np.linalg.norm(skew, axis=-1) / 2.0
+    angle = np.arctan2(sine, cosine)
+    # angle / (2 sin): 1/2 + angle^2/12 near zero
+    scale = np.where(sine > 1e-8, angle / (2.0 * np.maximum(sine, 1e-300)), 0.5 + angle**2 / 12.0)
+    out = skew * scale[..., None]
+    wide = cosine < np.cos(np.radians(150.0))
+    if np.any(wide):
+        out[wide] = g.matrix_to_rotvec(rotation[wide])
+    return out
+
+
 def jacobians(chain: SerialChain, frames: np.ndarray) -> np.ndarray:
-    """(S, 6, J) geometric Jacobians from joint frames (S, J + 1, 4, 4) (``SerialChain.frames``)."""
-    flange = frames[:, -1, :3, 3]
-    columns = []
-    for index in range(chain.dof):
-        axis = frames[:, index, :3, :3] @ chain.axes[index]
-        if chain.kinds[index] == "prismatic":
-            columns.append(np.concatenate([axis, np.zeros_like(axis)], axis=-1))
-        else:
-            columns.append(np.concatenate([np.cross(axis, flange - frames[:, index, :3, 3]), axis], axis=-1))
-    return np.stack(columns, axis=-1)
+    """(S, 6, J) geometric Jacobians from joint frames (S, J + 1, 4, 4) (``SerialChain.frames``),
+    every joint at once: the inverse kinematics calls it at every step of every start."""
+    axes = np.einsum("sjab,jb->sja", frames[:, :-1, :3, :3], chain.axes)  # (S, J, 3) in the base frame
+    lever = frames[:, -1:, :3, 3] - frames[:, :-1, :3, 3]  # (S, J, 3) from each joint to the flange
+    linear = axes[..., [1, 2, 0]] * lever[..., [2, 0, 1]] - axes[..., [2, 0, 1]] * lever[..., [1, 2, 0]]
+    prismatic = np.array([kind == "prismatic" for kind in chain.kinds])[None, :, None]
+    columns = np.concatenate([np.where(prismatic, axes, linear), np.where(prismatic, 0.0, axes)], axis=-1)
+    return np.swapaxes(columns, -1, -2)
 
 
 def solve_numeric(chain: SerialChain, base_from_flange: np.ndarray, rng: np.random.Generator, *,

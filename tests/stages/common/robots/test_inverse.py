@@ -73,3 +73,23 @@ def test_every_stop_of_a_real_ur10_is_reached_by_the_ur10_urdf():
     half_turn = np.diag([-1.0, -1.0, 1.0, 1.0])
     for stop, pose in enumerate(base_from_hand, start=1):
         assert any(solve_numeric(chain, frame, rng) is not None for frame in (pose, half_turn @ pose)), f"stop {stop}"
+
+
+def test_the_pose_errors_rotation_is_the_rotation_vector_on_all_of_so3():
+    """The inverse kinematics' fast rotation error (skew part and trace) is
+    ``geometry.matrix_to_rotvec`` everywhere: at the identity, at random, and near 180 deg,
+    where it hands over to the quaternion."""
+    from stages.common import geometry as g
+
+    rng = np.random.default_rng(57)
+    axes = g.quat_to_rotvec(g.random_quats(rng, 3000))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([rng.uniform(0, np.pi, 2000), rng.uniform(0, 1e-9, 500), np.pi - rng.uniform(0, 1e-3, 500)])
+    rotations = g.quat_to_matrix(g.rotvec_to_quat(axes * angles[:, None]))
+    wanted = np.eye(4)
+    current = np.broadcast_to(np.eye(4), (len(angles), 4, 4)).copy()
+    current[:, :3, :3] = np.swapaxes(rotations, -1, -2)  # so that wanted @ current^T is the rotation
+    error = pose_error(current, wanted)[:, 3:]
+    expected = g.matrix_to_rotvec(rotations)
+    same_near_pi = np.minimum(np.abs(error - expected).max(axis=1), np.abs(error + expected).max(axis=1))
+    assert same_near_pi.max() < 1e-12
