@@ -112,6 +112,8 @@ def _corners(ws: Workspace) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarra
 def moved(before_root: str, after_root: str) -> None:
     before, after = _corners(Workspace(before_root)), _corners(Workspace(after_root))
     both = sorted(set(before) & set(after))
+    if len(both) < 2:
+        sys.exit(f"{before_root} and {after_root}: {len(both)} corners detected in both; nothing to compare")
     shift = np.array([after[k][0] - before[k][0] for k in both])  # (N, 2) px
     error_before = np.array([np.linalg.norm(before[k][0] - before[k][1]) for k in both])
     error_after = np.array([np.linalg.norm(after[k][0] - after[k][1]) for k in both])

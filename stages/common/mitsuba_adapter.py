@@ -124,11 +124,10 @@ def sensor(mi: Any, geometry: RenderGeometry, *, far_clip_m: float, pixel_format
            sampler: Literal["independent", "multijitter"] = "independent") -> dict[str, Any]:
     """A perspective sensor of the pinhole ``geometry`` (centred principal point, square
     pixels), posed later by ``sensor_to_world``. Its box filter puts a sample in its own
-    pixel only: alpha is exact coverage, the pixels do not depend on the thread count, and no
-    sample is splatted onto neighbours (a blur, where wanted, is applied to the film after:
-    ``stages/acquire/virtual/scene.py``). ``multijitter`` stratifies each pixel's samples on a
-    jittered grid (Kensler, "Correlated Multi-Jittered Sampling", Pixar 2013),
-    ``independent`` draws them uniformly."""
+    pixel only: alpha is exact coverage, and no sample is splatted onto neighbours (a blur,
+    where wanted, is applied to the film after: ``stages/acquire/virtual/scene.py``).
+    ``multijitter`` stratifies each pixel's samples on a jittered grid (Kensler, "Correlated
+    Multi-Jittered Sampling", Pixar 2013), ``independent`` draws them uniformly."""
     return {
         "type": "perspective",
         "fov_axis": "x",
@@ -249,9 +248,13 @@ class WindowSensors:
     sensor's principal-point offset and its pose is ``to_world``, both opaque: one kernel for
     each window size (``stages.common.windows.kernel_window`` keeps the sizes few)."""
 
+    #: loaded sensors kept, the most recently used: each holds its film (5-8 MB at 512 x 384 to
+    #: 768 x 512), and a worker may meet a few hundred sizes over a dataset
+    KEPT = 24
+
     def __init__(self, mi: Any, geometry: RenderGeometry, spec: dict[str, Any]) -> None:
         self.mi, self.geometry, self.spec = mi, geometry, spec
-        self._loaded: dict[tuple[int, int], tuple[Any, Any]] = {}
+        self._loaded: dict[tuple[int, int], tuple[Any, Any]] = {}  # in order of last use
 
     def aimed(self, x: int, y: int, width: int, height: int, world_from_cam: np.ndarray) -> Any:
         """The loaded sensor of the window (``x``, ``y``, ``width``, ``height``) px of the
@@ -263,7 +266,10 @@ class WindowSensors:
             fov = float(np.degrees(2.0 * np.arctan(width / 2.0 / self.geometry.focal_px)))
             loaded = self.mi.load_dict({**self.spec, "film": film, "fov": fov})
             self._loaded[width, height] = (loaded, self.mi.traverse(loaded))
-        loaded, params = self._loaded[width, height]
+            while len(self._loaded) > self.KEPT:
+                del self._loaded[next(iter(self._loaded))]
+        loaded, params = self._loaded.pop((width, height))
+        self._loaded[width, height] = (loaded, params)
         # the window's centre from the film's, in window widths and heights (Mitsuba's
         # principal point offset moves the image, so it is the negative of the optical axis's)
         params["principal_point_offset_x"] = (x + (width - 1) / 2 - (self.geometry.width - 1) / 2) / width
@@ -315,7 +321,7 @@ class LoadedScene:
         self._params.update()
 
     def render_with(self, camera: Any, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
-        """``render`` through another sensor ``camera`` (a loaded one: a crop of the film)."""
+        """``render`` through another sensor ``camera`` (a loaded one: ``WindowSensors``')."""
         import drjit as dr
 
         for key in opaque:

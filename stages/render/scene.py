@@ -81,8 +81,8 @@ class TargetRenderer:
                seed: int) -> np.ndarray:
         """cam_from_target (4, 4) full scale; light_dir_cam (3,) unit, from the target towards
         the light; irradiance W/m^2; returns (H, W, 4) float32 through the lens. Only the film
-        window that holds the target is rendered (``stages.common.windows``); the rest of the
-        film is black space, as a full render's."""
+        window that holds the target is rendered (``film_window``: all of a film under
+        ``WINDOWED_FILM_PX``); the rest of the film is black space, as a full render's."""
         target_from_cam = g.invert(cam_from_target)
         travel = -(target_from_cam[:3, :3] @ np.asarray(light_dir_cam, float))
         # the directional emitter sends its light along its local +z axis

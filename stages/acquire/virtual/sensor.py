@@ -46,7 +46,9 @@ class Sensor:
         haze = strength * 0.02 * np.exp(-max(angle - half_fov, 0.0) / 0.1)
         if lamp_cam[2] <= 0:
             return np.full((h, w), haze, dtype=np.float32)
-        pixel = g.project_points(lamp_cam[None], self.camera.camera_matrix(), self.camera.dist_coeffs())[0]
+        # a lamp nearly 90 deg off the axis projects far away: kept finite in float32
+        pixel = np.clip(g.project_points(lamp_cam[None], self.camera.camera_matrix(), self.camera.dist_coeffs())[0],
+                        -1e6, 1e6)
         if self._pixels is None:
             self._pixels = (np.arange(w, dtype=np.float32)[None], np.arange(h, dtype=np.float32)[:, None])
         du, dv = self._pixels[0] - np.float32(pixel[0]), self._pixels[1] - np.float32(pixel[1])

@@ -162,3 +162,16 @@ def test_a_window_of_a_size_met_before_compiles_no_kernel(renderer):
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert compiled == []
+
+
+def test_a_worker_keeps_the_sensors_of_its_latest_window_sizes_only(renderer):
+    """Each loaded window sensor holds its film: a worker keeps ``KEPT`` of them, the most
+    recently used, however many sizes a dataset brings."""
+    from stages.common.mitsuba_adapter import WindowSensors
+
+    world_from_cam = np.eye(4)
+    for size in range(WindowSensors.KEPT + 10):
+        renderer.windows.aimed(0, 0, 16 + size, 16, world_from_cam)
+    renderer.windows.aimed(0, 0, 16, 16, world_from_cam)  # evicted, loaded again
+    kept = list(renderer.windows._loaded)
+    assert len(kept) == WindowSensors.KEPT and kept[-1] == (16, 16) and (17, 16) not in kept
