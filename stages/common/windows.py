@@ -69,8 +69,8 @@ def kernel_window(window: Window | None, geometry: RenderGeometry) -> Window | N
     most 25% more each, the extra shared either side where the film allows.
 
     Dr.Jit compiles a render's kernel for its film's size: a window of a new size costs a
-    compilation (measured 0.45 s at 960 x 600, as much as the render), a size met before
-    (in this process, or in the kernel cache on disk) costs nothing."""
+    compilation (measured 0.45 s at 960 x 600, as much as the render), a size met before in
+    the same process costs nothing (a new process finds none of these kernels on disk)."""
     if window is None or window.empty:
         return window
     limits = (geometry.width, geometry.height)
