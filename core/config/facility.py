@@ -40,13 +40,13 @@ TRON = read_facility_spec(TRON_FOLDER)
 _CAMERA_ROBOT, _TARGET_ROBOT = TRON.carrier("camera"), TRON.carrier("target")
 
 
-
 def stratified_grid(spp: int) -> tuple[int, int]:
     """The rows and the samples per pixel Mitsuba's ``multijitter`` sampler takes when asked
     for ``spp``: floor(sqrt(spp)) rows of as many columns as reach ``spp``, so a count that
     does not fill its grid (10, 32) is rounded up (12, 35)."""
     rows = max(1, math.isqrt(spp))
     return rows, rows * -(-spp // rows)
+
 
 @dataclass(frozen=True)
 class RunConfig:
