@@ -60,35 +60,8 @@ def timing(per_session: int = 6) -> None:
     report("acquire_timing", "acquire: one worker using all cores", rows)
 
 
-def detection(root: str) -> None:
-    ws = Workspace(root)
-    session = json.loads(ws.session_path.read_text())
-    spec = PatternSpec.from_json(session["pattern"])
-    camera_matrix, dist = np.array(session["camera"]["K"]), np.array(session["camera"]["dist"])
-    target_from_board = g.transform_from_qt(spec.target_from_pattern_q, spec.target_from_pattern_t)
-    truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}
-    calibration = [c for c in read_manifest(ws, "captures").to_pylist() if c["session"] == "calibration"]
-    counts, errors = [], []
-    for row in calibration:
-        corners, ids = detect(cv2.imread(str(ws.resolve(row["image_path"])), cv2.IMREAD_GRAYSCALE), spec)
-        counts.append(len(ids))
-        if len(ids):
-            cam_from_target = g.transform_from_qt(truth[row["sample_id"]]["cam_from_target_q"],
-                                                  truth[row["sample_id"]]["cam_from_target_t"])
-            expected = g.project(cam_from_target @ target_from_board, spec.object_points()[ids], camera_matrix, dist)
-            errors.append(np.linalg.norm(expected - corners, axis=1))
-    counts = np.array(counts)
-    errors = np.concatenate(errors)
-    rows = [{"metric": "calibration captures", "value": len(counts)},
-            {"metric": "with >= 6 ChArUco corners (fraction)", "value": float(np.mean(counts >= 6))},
-            {"metric": "corners per capture (median)", "value": float(np.median(counts))},
-            {"metric": "detected vs true corner, median (px)", "value": float(np.median(errors))},
-            {"metric": "detected vs true corner, 95th percentile (px)", "value": float(np.percentile(errors, 95))}]
-    report("acquire_detection", f"acquire: ChArUco detection in {Path(root).name}", rows)
-
-
-def _corners(ws: Workspace) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]:
-    """{(sample_id, corner id): (detected (2,) px, true (2,) px)} of the calibration images."""
+def _corners(ws: Workspace) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per calibration capture: (ids (N,), detected (N, 2) px, true (N, 2) px) of its ChArUco corners."""
     session = json.loads(ws.session_path.read_text())
     spec = PatternSpec.from_json(session["pattern"])
     camera_matrix, dist = np.array(session["camera"]["K"]), np.array(session["camera"]["dist"])
@@ -99,18 +72,35 @@ def _corners(ws: Workspace) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarra
         if row["session"] != "calibration":
             continue
         corners, ids = detect(cv2.imread(str(ws.resolve(row["image_path"])), cv2.IMREAD_GRAYSCALE), spec)
-        if not len(ids):
-            continue
+        ids = np.ravel(ids).astype(int)
         true = truth[row["sample_id"]]
         cam_from_target = g.transform_from_qt(true["cam_from_target_q"], true["cam_from_target_t"])
-        expected = g.project(cam_from_target @ target_from_board, spec.object_points()[ids], camera_matrix, dist)
-        out.update({(row["sample_id"], int(i)): (c, e) for i, c, e in zip(np.ravel(ids), corners, expected,
-                                                                           strict=True)})
+        expected = (g.project(cam_from_target @ target_from_board, spec.object_points()[ids], camera_matrix, dist)
+                    if len(ids) else np.zeros((0, 2)))
+        out[row["sample_id"]] = (ids, np.reshape(corners, (-1, 2)), np.reshape(expected, (-1, 2)))
     return out
 
 
+def detection(root: str) -> None:
+    captures = _corners(Workspace(root))
+    counts = np.array([len(ids) for ids, _, _ in captures.values()])
+    errors = np.concatenate([np.linalg.norm(found - true, axis=1) for _, found, true in captures.values()])
+    rows = [{"metric": "calibration captures", "value": len(counts)},
+            {"metric": "with >= 6 ChArUco corners (fraction)", "value": float(np.mean(counts >= 6))},
+            {"metric": "corners per capture (median)", "value": float(np.median(counts))},
+            {"metric": "detected vs true corner, median (px)", "value": float(np.median(errors))},
+            {"metric": "detected vs true corner, 95th percentile (px)", "value": float(np.percentile(errors, 95))}]
+    report("acquire_detection", f"acquire: ChArUco detection in {Path(root).name}", rows)
+
+
+def _by_corner(ws: Workspace) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray]]:
+    """{(sample_id, corner id): (detected (2,), true (2,)) px}."""
+    return {(sample, int(i)): (c, e) for sample, (ids, found, true) in _corners(ws).items()
+            for i, c, e in zip(ids, found, true, strict=True)}
+
+
 def moved(before_root: str, after_root: str) -> None:
-    before, after = _corners(Workspace(before_root)), _corners(Workspace(after_root))
+    before, after = _by_corner(Workspace(before_root)), _by_corner(Workspace(after_root))
     both = sorted(set(before) & set(after))
     if len(both) < 2:
         sys.exit(f"{before_root} and {after_root}: {len(both)} corners detected in both; nothing to compare")

@@ -106,3 +106,29 @@ def test_bench_unmodelled_calibrates_render_free_facilities(results):
     assert rows["none"]["dataset E_T (mm)"] < 0.5 < rows["all"]["dataset E_T (mm)"]
     with pytest.raises(SystemExit, match="unknown row 'sag'"):
         unmodelled.main("21", "none,sag")
+
+
+def test_bench_acquire_reads_a_workspaces_corners_and_compares_two(smoke_labelled, results, tmp_path):
+    """``bench acquire WORKSPACE`` and ``bench acquire BEFORE AFTER`` (docs/architecture.md
+    section 5): one acquisition against itself moved no corner; against a copy with one
+    image shifted a pixel, that image's corners moved and the mean shift shows it."""
+    import cv2
+    import numpy as np
+
+    from bench import acquire
+    from manifests import read_manifest
+
+    root = smoke_labelled.root
+    acquire.main(str(root))
+    assert _rows(results, "acquire_detection")[0]["value"] > 0
+    acquire.main(str(root), str(root))
+    rows = {row["metric"]: row["value"] for row in _rows(results, "acquire_corners_moved")}
+    assert rows["moved, after against before: median / 95th percentile (px)"] == "0.000 / 0.000"
+    copy = tmp_path / "shifted"
+    shutil.copytree(root, copy)
+    first = next(r for r in read_manifest(smoke_labelled, "captures").to_pylist() if r["session"] == "calibration")
+    image = cv2.imread(str(copy / first["image_path"]), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(copy / first["image_path"]), np.roll(image, 1, axis=1))  # one pixel to the right
+    acquire.main(str(root), str(copy))
+    rows = {row["metric"]: row["value"] for row in _rows(results, "acquire_corners_moved")}
+    assert float(rows["mean shift x, y +- standard error (px)"].split(" ")[0]) > 0.0
