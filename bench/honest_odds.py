@@ -82,20 +82,20 @@ def facility_model(root: Path) -> FacilityModel:
     kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma,
                                          config.facility.path)
     accepted = {r["sample_id"]: r["vicon_accepted"] for r in read_manifest(workspace, "poses").to_pylist()}
-    captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
-                      key=lambda r: r["sample_id"])
+    every = identification.move_directions(read_manifest(workspace, "captures").to_pylist())
+    captured = sorted((r for r in every if r["status"] == "ok"), key=lambda r: r["sample_id"])
     geometry = None
     if vicon is not None:  # motion capture's sigma as fuse has it: its fit's geometry at each capture
         geometry = with_marker_geometry(workspace, captured, target, kuka, vicon, rejection)[0]
-    rows = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
+    rows = sorted((r for r in every
                    if r["session"] == "dataset" and r["status"] == "ok" and r["sample_id"] in accepted),
                   key=lambda r: r["sample_id"])
     if kuka.holders is None:
         raise SystemExit(f"{root}: the arms were not calibrated; the model has no parameter covariance")
-    measured = identification.measured(kuka.holders, rows, payload, kuka.world_up)
+    measured = identification.measured(kuka.holders, rows, payload, kuka.world_up, kuka.preload_nm)
     jacobian = identification.pose_jacobians(kuka.holders, kuka.kinematics.chains, measured, kuka.world_up)[:, 3:]
-    flanks = identification.flank_variances(kuka.holders, measured, None if config.facility.path
-                                            else config.fuse.lost_motion_rad, config.fuse.backlash_preload_nm)
+    flanks = identification.flank_variances(kuka.holders, measured, kuka.kinematics.chains,
+                                            None if config.facility.path else config.fuse.lost_motion_rad)
     covariances = kuka.parameter_covariances(rows, config.fuse)
     estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]
     sigma_kuka = np.stack([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in estimates])

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from bench.accuracy import SPEEDPLUS_ROTATION_RAD, SPEEDPLUS_TRANSLATION, papers_method
+from bench.arm_accuracy import arm_accuracy, describe
 from bench.common import report
 from bench.honest_odds import pooled_range, simulate
 from core.config import parse_override, with_overrides, write_config
@@ -335,6 +336,7 @@ def facility_row(seed: int, ours: Workspace, papers: Workspace | str) -> tuple[d
             f"{'/'.join(fusion.axis_sources)}"),
         "(c) fuse: session offset x/y/z (mm), removed from": (
             f"{'/'.join(f'{v * 1000:+.2f}' for v in fusion.offset_m)}, {'/'.join(fusion.offset_from)}"),
+        "(c) each arm's flange vs truth, dataset, registered (bench/arm_accuracy.py)": describe(arm_accuracy(ours)),
         "(c) fusion beats each": "yes" if (samples["fused"] < min(samples["kuka"], samples["vicon"])
                                            and data["both_fused"].mean() < min(data["both_kuka"].mean(),
                                                                                data["vicon"].mean())) else "no",

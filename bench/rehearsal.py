@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.arm_accuracy import arm_accuracy, describe
 from bench.common import report
 from bench.honesty import (
     AXES,
@@ -63,8 +64,10 @@ def _share(under: np.ndarray) -> str:
     return f"{under.mean():.0%} [{low:.0%}, {high:.0%}]"
 
 
-def rehearsal_row(seed: int, data: dict[str, Any], calibration_mm: dict[str, float]) -> dict[str, Any]:
-    """One build's figures: (b) the labels against the truth, (c) against each source, (d) sigmas."""
+def rehearsal_row(seed: int, data: dict[str, Any], calibration_mm: dict[str, float], arms: str = "-"
+                  ) -> dict[str, Any]:
+    """One build's figures: (b) the labels against the truth, (c) against each source and
+    each arm's own accuracy (``bench/arm_accuracy.py``, in words), (d) sigmas."""
     sources = f"{np.mean(data['kuka']) * 1000:.3f}" + (f"/{np.mean(data['vicon']) * 1000:.3f}"
                                                        if len(data["vicon"]) else "/-")
     return {
@@ -77,6 +80,7 @@ def rehearsal_row(seed: int, data: dict[str, Any], calibration_mm: dict[str, flo
             f"{calibration_mm[s]:.3f}" if s in calibration_mm else "-" for s in ("fused", "kuka", "vicon")),
         "(c) dataset E_T robots/mocap (mm)": sources,
         "(c) labels against the better source, two-source captures": better_source(data),
+        "(c) each arm's flange vs truth, dataset, registered (bench/arm_accuracy.py)": arms,
         **_coverage_columns(data["axis_error"] / data["axis_sigma"]),
     }
 
@@ -128,7 +132,7 @@ def main(facility: Path, positional: list[str], targets: list[Path], profile: st
     for seed in (int(s) for s in seeds):
         ws = run_facility(root / f"seed{seed}", seed, settings, target, facility=facility, profile=profile)
         data.append(dataset(ws))
-        rows.append(rehearsal_row(seed, data[-1], calibration_vs_truth_mm(ws)))
+        rows.append(rehearsal_row(seed, data[-1], calibration_vs_truth_mm(ws), describe(arm_accuracy(ws))))
     rows.append(pooled(list(rows[0]), data))
     record = card(facility, profile, settings, target, seeds, data)
     write_rehearsal(facility, record)  # the facility's card, beside its folder

@@ -56,9 +56,11 @@ def facility(seed: int, sources: list[str], settings: tuple[str, ...] = ()) -> t
         states = [robots.move(config, truth, r, np.random.default_rng([seed, index, 7]), moments[r["sample_id"]])
                   for index, r in enumerate(chosen)]
         true = np.stack([g.invert(s.world_from_cam) @ s.world_from_target for s in states])
-        captures = [{**pose_columns("kuka_world_from_targetee", s.kuka_world_from_targetee),
-                     "kuka_camera_joints_rad": s.camera_joints_rad, "kuka_target_joints_rad": s.target_joints_rad,
-                     "kuka_rail_m": s.rail_m, "fixture": r["mount"]} for s, r in zip(states, chosen, strict=True)]
+        captures = identification.move_directions([
+            {**pose_columns("kuka_world_from_targetee", s.kuka_world_from_targetee), "session": session,
+             "capture_time_s": moments[r["sample_id"]].time_s, "kuka_camera_joints_rad": s.camera_joints_rad,
+             "kuka_target_joints_rad": s.target_joints_rad, "kuka_rail_m": s.rail_m, "fixture": r["mount"]}
+            for s, r in zip(states, chosen, strict=True)])
         sessions[session] = (captures, true)
     return config, sessions
 

@@ -19,7 +19,8 @@ class RobotCorrection:
     model): the encoders' zero offsets (J,) rad (m for a prismatic joint), in its URDF's
     joint order; each origin's frame error (J + 1, 6), a rotation vector (rad) then a
     translation (m) in that origin's frame, the last the flange's; the rail's scale error
-    (None without a rail); each joint's compliance (J,) rad/(N m)."""
+    (None without a rail); each joint's compliance (J,) rad/(N m) and lost motion (J,) rad
+    (gearbox backlash plus hysteresis; 0 where not fitted)."""
 
     robot: str
     role: str  # "camera" or "target": what it carries
@@ -28,15 +29,18 @@ class RobotCorrection:
     frame_errors: tuple[tuple[float, ...], ...]
     rail_scale_error: float | None
     compliance_rad_per_nm: tuple[float, ...]
+    lost_motion_rad: tuple[float, ...]
 
     def to_json(self) -> dict[str, Any]:
         return {"robot": self.robot, "role": self.role, "joints": list(self.joints),
                 "zero_offsets": list(self.zero_offsets), "frame_errors": [list(row) for row in self.frame_errors],
-                "rail_scale_error": self.rail_scale_error, "compliance_rad_per_nm": list(self.compliance_rad_per_nm)}
+                "rail_scale_error": self.rail_scale_error, "compliance_rad_per_nm": list(self.compliance_rad_per_nm),
+                "lost_motion_rad": list(self.lost_motion_rad)}
 
     @classmethod
     def from_fields(cls, f: Fields) -> RobotCorrection:
-        f.only("robot", "role", "joints", "zero_offsets", "frame_errors", "rail_scale_error", "compliance_rad_per_nm")
+        f.only("robot", "role", "joints", "zero_offsets", "frame_errors", "rail_scale_error", "compliance_rad_per_nm",
+               "lost_motion_rad")
         joints = f.raw("joints")
         if not isinstance(joints, list) or not joints or not all(isinstance(n, str) for n in joints):
             raise f.fail("joints", "a list of joint names")
@@ -44,7 +48,7 @@ class RobotCorrection:
         rail = None if f.raw("rail_scale_error") is None else f.number("rail_scale_error")
         return cls(f.text("robot"), f.text("role", ("camera", "target")), tuple(joints),
                    f.vector("zero_offsets", count), f.matrix("frame_errors", count + 1, 6), rail,
-                   f.vector("compliance_rad_per_nm", count))
+                   f.vector("compliance_rad_per_nm", count), f.vector("lost_motion_rad", count))
 
 
 def _names(f: Fields, key: str) -> tuple[str, ...]:
@@ -66,7 +70,9 @@ class ChainFit:
     as inseparable, each with what absorbs it; the kept ones the calibration poses leave
     weakly determined (posterior over prior 1-sigma); the fixtures of the offsets, whether
     they were compliant; the packed parameters (P,) (the arms', then the offsets') with
-    their covariance (P, P); the arms' prior 1-sigmas."""
+    their covariance (P, P); the arms' prior 1-sigmas; the gravity torque (N m) above which
+    a joint was taken to rest on its loaded flank (``calibrate.backlash_preload_nm``), which
+    fuse must take the same."""
 
     robots: tuple[RobotCorrection, ...]
     parameter_names: tuple[str, ...]
@@ -77,17 +83,19 @@ class ChainFit:
     parameters: tuple[float, ...]
     covariance: tuple[tuple[float, ...], ...]
     prior_sigma: tuple[float, ...]
+    backlash_preload_nm: float
 
     def to_json(self) -> dict[str, Any]:
         return {"robots": [robot.to_json() for robot in self.robots], "parameter_names": list(self.parameter_names),
                 "dropped": dict(self.dropped), "weak": dict(self.weak), "fixtures": list(self.fixtures),
                 "compliant": self.compliant, "parameters": list(self.parameters),
-                "covariance": [list(row) for row in self.covariance], "prior_sigma": list(self.prior_sigma)}
+                "covariance": [list(row) for row in self.covariance], "prior_sigma": list(self.prior_sigma),
+                "backlash_preload_nm": self.backlash_preload_nm}
 
     @classmethod
     def from_fields(cls, f: Fields) -> ChainFit:
         f.only("robots", "parameter_names", "dropped", "weak", "fixtures", "compliant", "parameters", "covariance",
-               "prior_sigma")
+               "prior_sigma", "backlash_preload_nm")
         robots = f.raw("robots")
         if not isinstance(robots, list) or not robots:
             raise f.fail("robots", "a list of robot corrections")
@@ -101,8 +109,8 @@ class ChainFit:
         roles = [robot.role for robot in corrections]
         if len(set(roles)) != len(roles):
             raise f.fail("robots", "one correction per role (camera, target)")
-        # each robot packs J zero offsets, J + 1 frame errors of 6, its rail's scale, J compliances
-        size = sum(len(r.joints) * 8 + 6 + (r.rail_scale_error is not None) for r in corrections)
+        # each robot packs J zero offsets, J + 1 frame errors of 6, its rail's scale, J compliances, J lost motions
+        size = sum(len(r.joints) * 9 + 6 + (r.rail_scale_error is not None) for r in corrections)
         if len(names) != size:
             raise f.fail("parameter_names", f"{size} names, as the robots' joints and rails pack them")
         if len(parameters) < size:
@@ -114,4 +122,5 @@ class ChainFit:
                                "of parameter_names")
         return cls(corrections, names, {name: dropped.text(name) for name in dropped.data}, weak,
                    _names(f, "fixtures"), f.boolean("compliant"), parameters,
-                   f.matrix("covariance", len(parameters), len(parameters)), f.vector("prior_sigma", len(names)))
+                   f.matrix("covariance", len(parameters), len(parameters)), f.vector("prior_sigma", len(names)),
+                   f.number("backlash_preload_nm"))

@@ -22,8 +22,9 @@ from manifests.workspace import Workspace
 # 2: the arms' joint compliances (arm_kinematics); 3: metrics.cross_validation (the folds
 # that could not determine the offsets, left out of the cross-validated means); 4: every
 # arm from its URDF (arm_kinematics.chains; TRON's KR 16-2 record, arm_kinematics' own
-# corrections, is gone)
-CALIBRATION_VERSION = 4
+# corrections, is gone); 5: each joint's lost motion (arm_kinematics.chains: robots[].lost_motion_rad and
+# its parameters)
+CALIBRATION_VERSION = 5
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}

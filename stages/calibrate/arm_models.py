@@ -58,7 +58,10 @@ class ArmsModel:
         return self.holders.size
 
     def readings(self, rows: list[dict[str, Any]]) -> Readings | None:
-        return identification.measured(self.holders, rows, self.payload, np.asarray(self.settings.world_up))
+        """The readings of capture ``rows`` (with ``identification.move_directions``' keys where
+        the session's order of moves is known)."""
+        return identification.measured(self.holders, rows, self.payload, np.asarray(self.settings.world_up),
+                                       self.settings.backlash_preload_nm)
 
     def fit(self, a: np.ndarray, r: Readings, fixtures: list[str], start: rwhe.Solution,
             compliant: bool) -> Fitted:

@@ -75,6 +75,22 @@ class CalibrateConfig:
         "arm_prior_joint_rad under its largest gravity torque: twice the compliance of an industrial wrist joint "
         "(stiffness of order 1e5-1e6 N m/rad; Dumas et al., Robotics and Computer-Integrated Manufacturing 27(4), "
         "2011; stages/common/robots/identification.py)", "rad/(N m)")
+    lost_motion: Literal["auto", "on", "off"] = param(
+        "auto", "with the arms' kinematics, also fit each joint's lost motion on the flank its last move chose "
+        "(stages/common/robots/errors.py): auto where the calibration captures show it (an F test at 1% of the "
+        "fit with it against the fit without; a model with parameters the data do not need carries their noise "
+        "to the dataset's poses), on always, off never", "")
+    arm_prior_lost_motion_rad: float = param(
+        2.9e-4, "prior 1-sigma of a joint's lost motion (gearbox backlash plus hysteresis, zero mean), fitted where "
+        "the captures' times give the order of the moves and so the flank each joint rests on "
+        "(stages/common/robots/errors.py): RV reducers of main axes are rated 1 arcmin at most, wrist gears "
+        "about 2 (Nabtesco RV-N data sheet); at TRON's default profile 1 arcmin fitted better than 2 with lost "
+        "motion (0.86 against 0.93 mm on the dataset, bench unmodelled) and without (0.65 against 0.66); 0: not "
+        "fitted (fuse then takes fuse.lost_motion_rad as noise)", "rad")
+    backlash_preload_nm: float = param(
+        15.0, "a joint whose gravity torque (the lab's nominal mass model) exceeds this rests on its loaded flank "
+        "whatever its last move. RV reducers' lost motion is specified within +-3% of the rated torque: 15 N m for "
+        "a 500 N m main axis", "N m")
     max_intrinsics_rms_px: float = param(
         2.0, "an estimated camera whose reprojection RMS over the kept images exceeds this is refused: corners of "
         "one printed pattern fit a real camera to 0.1-0.5 px (Tabb's DS1 and Ali's KUKA set: see "
@@ -105,6 +121,8 @@ class CalibrateConfig:
         if min(self.arm_prior_joint_rad, self.arm_prior_length_m, self.arm_prior_frame_rad, self.arm_prior_base_m,
                self.arm_prior_base_rad, self.arm_prior_rail_scale, self.arm_prior_compliance_rad_per_nm) <= 0:
             raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
+        if min(self.arm_prior_lost_motion_rad, self.backlash_preload_nm) < 0:
+            raise ConfigError("calibrate.arm_prior_lost_motion_rad/backlash_preload_nm: expected values of at least 0")
         if self.fixture_anisotropy_prior <= 0:
             raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
         if not math.isclose(float(np.linalg.norm(self.world_up)), 1.0, rel_tol=1e-6):

@@ -36,6 +36,7 @@ from stages.common import geometry as g
 from stages.common import rwhe
 from stages.common.fusion import lever_sq
 from stages.common.patterns import PatternSpec, pattern_from_table
+from stages.common.robots import identification
 from stages.common.sources import measured_b
 from stages.common.tables import print_table
 
@@ -66,8 +67,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     spec = pattern_from_table(session.pattern, str(workspace.session_path))
     # in sample_id order: acquire writes rows as its workers finish, and the folds, the
     # solvers' sums and the screening's medians must not depend on that
-    captures = sorted((r for r in read_manifest(workspace, "captures").to_pylist()
-                       if r["session"] == "calibration" and r["status"] == "ok"), key=lambda r: r["sample_id"])
+    session_rows = [r for r in read_manifest(workspace, "captures").to_pylist() if r["session"] == "calibration"]
+    captures = sorted((r for r in identification.move_directions(session_rows) if r["status"] == "ok"),
+                      key=lambda r: r["sample_id"])
     if read_marker(workspace, "plan") is not None and session.backend == "virtual":
         unknown = sorted({r["sample_id"] for r in captures} - read_keys(workspace, "plan"))
         if unknown:

@@ -46,20 +46,17 @@ class FuseConfig:
     lost_motion_rad: tuple[float, float, float, float, float, float] = param(
         (2.9e-4, 2.9e-4, 2.9e-4, 5.8e-4, 5.8e-4, 5.8e-4),
         "the arms' gearbox lost motion (backlash plus hysteresis) of A1-A6, as the data sheet rates it, a "
-        "maximum (RV reducers of the main axes: 1 arcmin; wrist: about 2 arcmin). A joint below "
-        "fuse.backlash_preload_nm rests on the flank its last move left it on, which no calibration models: "
-        "with a unit's lost motion uniform on 50-100% of the rating, it adds 7/12 (rating / 2)^2 to its angle's "
-        "variance, propagated to the robots' pose at each dataset capture (with calibrated arms); 0: none", "rad")
-    backlash_preload_nm: float = param(
-        15.0, "a joint whose gravity torque (the lab's nominal mass model) exceeds this rests on its loaded flank "
-        "whatever its last move, and gains no lost-motion variance. RV reducers' lost motion is specified "
-        "within +-3% of the rated torque: 15 N m for a 500 N m main axis", "N m")
+        "maximum (RV reducers of the main axes: 1 arcmin; wrist: about 2 arcmin), for the joints whose flank the "
+        "calibration did not model: a joint below calibrate.backlash_preload_nm whose last move is unknown (the "
+        "session's first capture, captures without times) or whose lost motion was not fitted "
+        "(calibrate.arm_prior_lost_motion_rad = 0). With a unit's lost motion uniform on 50-100% of the rating, "
+        "it adds 7/12 (rating / 2)^2 to its angle's variance, propagated to the robots' pose at each dataset "
+        "capture (with calibrated arms); 0: none", "rad")
 
     def check(self, config: Config) -> None:
-        """Lost motion, preload and scale sigma of at least 0."""
-        if min(*self.lost_motion_rad, self.backlash_preload_nm, self.vicon_scale_sigma) < 0:
-            raise ConfigError("fuse.lost_motion_rad/backlash_preload_nm/vicon_scale_sigma: expected values of at "
-                              "least 0")
+        """Lost motion and scale sigma of at least 0."""
+        if min(*self.lost_motion_rad, self.vicon_scale_sigma) < 0:
+            raise ConfigError("fuse.lost_motion_rad/vicon_scale_sigma: expected values of at least 0")
 
 
 #: this stage's sections: name -> dataclass

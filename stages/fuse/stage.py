@@ -72,6 +72,8 @@ class SourceModel:
         self.kinematics = kinematics
         #: the facility's robots, fitted from their URDFs (``kinematics.chains``)
         self.holders = holders if kinematics.chains is not None else None
+        #: above it a joint rests on its loaded flank, as calibrate took it
+        self.preload_nm = kinematics.chains.backlash_preload_nm if kinematics.chains is not None else np.inf
         if kinematics.chains is not None and (holders is None or holders.names != kinematics.chains.parameter_names):
             raise InputError("calibration.json: arm_kinematics.chains was fitted to other robots than the facility "
                              "folder's (its parameter names differ); rerun calibrate with --force (`speedplus "
@@ -103,7 +105,7 @@ class SourceModel:
         fixture = row["fixture"]
         up = up_targetee(row, self.world_up)
         if self.holders is not None:
-            measured = identification.measured(self.holders, [row], self.payload, self.world_up)
+            measured = identification.measured(self.holders, [row], self.payload, self.world_up, self.preload_nm)
             if measured is None:
                 raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
                                  "calibration of the arms needs (calibrate.arm_kinematics)")
@@ -123,22 +125,23 @@ class SourceModel:
         return with_scale_error(grown, pose[:3, 3], self.calibration_distance_m, self.scale_sigma)
 
     def parameter_covariances(self, rows: list[dict[str, Any]], fuse: FuseConfig) -> list[ArmUncertainty | None]:
-        """Each capture's pose uncertainty from the calibrated arms' parameters and, on
-        TRON's arms, the joints' lost motion (``fuse.lost_motion_rad``, the KR 16-2's rating;
-        a facility folder's URDF gives no gearbox data; ``identification.flank_variances``);
-        None without calibrated arms. All captures at once."""
+        """Each capture's pose uncertainty from the calibrated arms' parameters and the
+        joints' lost motion the fit leaves out (``identification.flank_variances``: where the
+        flank is unknown, the fitted lost motion; where it was not fitted, on TRON's arms,
+        ``fuse.lost_motion_rad``, the KR 16-2's rating, as a facility folder's URDF gives no
+        gearbox data); None without calibrated arms. All captures at once."""
         for row in rows:  # before the arms' model meets a fixture it has no offset for
             self.check_fixture(row)
         if self.holders is None or not rows:
             return [None] * len(rows)
-        measured = identification.measured(self.holders, rows, self.payload, self.world_up)
+        measured = identification.measured(self.holders, rows, self.payload, self.world_up, self.preload_nm)
         if measured is None:
             raise InputError("captures: dataset captures lack the robots' encoder readings, which the calibration "
                              "of the arms needs (calibrate.arm_kinematics)")
         jacobians = identification.pose_jacobians(self.holders, self.kinematics.chains, measured, self.world_up)
         parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
-        flanks = identification.flank_variances(self.holders, measured, fuse.lost_motion_rad if self.tron else None,
-                                                fuse.backlash_preload_nm)
+        flanks = identification.flank_variances(self.holders, measured, self.kinematics.chains,
+                                                fuse.lost_motion_rad if self.tron else None)
         shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks,
                                                  identification.joint_columns(self.holders))
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]
@@ -303,8 +306,9 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma,
                                          config.facility.path)
     # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
-    captured = sorted((r for r in read_manifest(workspace, "captures").to_pylist() if r["status"] == "ok"),
-                      key=lambda r: r["sample_id"])
+    # each joint's last move from every capture's readings in capture order, failed ones too
+    captured = sorted((r for r in identification.move_directions(read_manifest(workspace, "captures").to_pylist())
+                       if r["status"] == "ok"), key=lambda r: r["sample_id"])
     rows = [r for r in captured if r["session"] == "dataset"]
     geometry, geometry_why = None, "no motion capture in this session"
     if vicon is not None:

@@ -97,11 +97,13 @@ CALIBRATION = Calibration(
                0.08, True),
     source("kuka", ArmKinematics(True, "encoders", ChainFit(
         (RobotCorrection("slide", "camera", ("a1",), (1e-4,), ((0.0, 1e-4, 0.0, 1e-3, 0.0, 0.0), (0.0,) * 6), 2e-5,
-                         (1e-6,)),),
+                         (1e-6,), (2e-4,)),),
         ("slide.a1.zero", *(f"slide.{frame}.{axis}" for frame in ("a1.origin", "flange")
-                            for axis in ("rx", "ry", "rz", "x", "y", "z")), "slide.rail.scale", "slide.a1.compliance"),
+                            for axis in ("rx", "ry", "rz", "x", "y", "z")), "slide.rail.scale", "slide.a1.compliance",
+         "slide.a1.lost_motion"),
         {"slide.flange.z": "a combination of the hand-eye offsets"}, {"slide.rail.scale": 0.9}, ("minus_x", "plus_x"),
-        True, (0.0,) * 16, tuple(tuple(float(i == j) for j in range(16)) for i in range(16)), (1e-3,) * 15))),
+        True, (0.0,) * 17, tuple(tuple(float(i == j) for j in range(17)) for i in range(17)), (1e-3,) * 16,
+        15.0))),
     source("vicon", ArmKinematics(False, "motion capture tracks the model itself")),
     0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
     FusedColumn(55, ON_BOTH, {"kuka": ON_BOTH, "vicon": ON_BOTH}),
@@ -114,7 +116,7 @@ def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(
     write_calibration(workspace, CALIBRATION)
     assert read_calibration(workspace) == CALIBRATION
     stored = json.loads(workspace.calibration_path.read_text())
-    assert stored["version"] == 4
+    assert stored["version"] == 5
     assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
     assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
     # the first fixture's offset stands for the source's target offset
@@ -135,7 +137,7 @@ def _edit(data: dict, path: str, value) -> dict:
 
 
 @pytest.mark.parametrize("path, value, message", [
-    ("version", KeyError, r"version None, this program reads version 4 .*rerun calibrate with --force"),
+    ("version", KeyError, r"version None, this program reads version 5 .*rerun calibrate with --force"),
     ("kuka.fixture_compliance.anisotropy_by_fixture.minus_x", [0.1, 0.2],
      "key kuka.fixture_compliance.anisotropy_by_fixture.minus_x: expected"),
     ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),
@@ -146,10 +148,10 @@ def _edit(data: dict, path: str, value) -> dict:
     ("kuka.fixture_compliance.k_rad_by_fixture.plus_x", [0.0], r"key kuka.fixture_compliance.k_rad_by_fixture."
                                                                r"plus_x: expected a list of 3"),
     ("kuka.arm_kinematics.chains.covariance", [[1.0]], r"key kuka.arm_kinematics.chains.covariance: expected a "
-                                                       r"16 x 16"),
+                                                       r"17 x 17"),
     ("kuka.arm_kinematics.chains.robots", KeyError, r"key kuka.arm_kinematics.chains.robots missing"),
     ("kuka.arm_kinematics.chains.parameter_names", ["slide.a1.zero"],
-     r"key kuka.arm_kinematics.chains.parameter_names: .*15 names"),
+     r"key kuka.arm_kinematics.chains.parameter_names: .*16 names"),
     ("kuka.arm_kinematics.fit", {}, r"unknown key\(s\) in kuka.arm_kinematics fit"),
     ("vicon.metrics.in_sample.E_T_m", [0.1], r"key vicon.metrics.in_sample.E_T_m: expected a list of 2"),
     ("kuka.metrics.cross_validation.undetermined_folds", [6], r"key kuka.metrics.cross_validation."

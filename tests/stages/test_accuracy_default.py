@@ -74,9 +74,14 @@ def test_compliance_and_arm_kinematics_remove_most_of_the_robots_error(labelled,
     # A2's gearbox compliance is found, of the order of KR-class joints (1e5-1e6 N m/rad)
     for robot in robots.values():
         assert 3e-7 < robot["compliance_rad_per_nm"][robot["joints"].index("joint_a2")] < 1e-5
-    # with backlash, elasticity and thermal drift left in the arms, the calibrated robots are
-    # about as good as real calibrated arms (a few tenths of a mm), not better
-    assert 0.1e-3 < kuka["metrics"]["truth"]["E_T_m"][0] < 1e-3
+    # every joint's lost motion is fitted on the flank its last move chose (the captures'
+    # times order the moves), and some of it is found: a wrist's rating is 2 arcmin
+    lost = np.concatenate([robot["lost_motion_rad"] for robot in robots.values()])
+    assert np.abs(lost).max() > 1e-4 and np.abs(lost).max() < 2e-3
+    # with thermal drift, the mount's micro-slip and the flanks of the session's first capture
+    # left in the arms, the calibrated robots are about as good as real calibrated arms (a
+    # tenth of a mm on the board's captures), not better than the PnP noise would allow
+    assert 0.03e-3 < kuka["metrics"]["truth"]["E_T_m"][0] < 1e-3
 
 
 def test_fused_calibration_beats_the_papers_fused_figures_and_is_never_worse_than_a_source(labelled):

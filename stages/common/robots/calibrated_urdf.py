@@ -74,7 +74,9 @@ def calibrated_urdf(urdf: Path, flange_link: str, correction: RobotCorrection, n
             else "",
             "joint compliance (rad/(N m)) " + ", ".join(f"{j} {c!r}" for j, c in
                                                      zip(correction.joints, correction.compliance_rad_per_nm,
-                                                         strict=True))]
+                                                         strict=True)),
+            "joint lost motion (rad, backlash plus hysteresis) " + ", ".join(
+                f"{j} {c!r}" for j, c in zip(correction.joints, correction.lost_motion_rad, strict=True))]
     comment = ElementTree.Comment(
         f" {note}. Joint zero offsets and frame errors are folded into the joints' origins; not expressible in "
         f"URDF: {'; '.join(k for k in kept if k)} ")

@@ -15,7 +15,14 @@ moving joints ``0..J-1`` after fixed origins ``O_0..O_J`` (``SerialChain.origins
 - ``s``: the rail encoder's scale error (a railed robot only);
 - ``c_j``: joint j's compliance (rad/(N m)) under ``tau_j``, the gravity torque of the
   payload (the flange Jacobian's transpose of its weight) and of the links' own masses
-  where the URDF gives them (``<inertial>``), evaluated at the nominal arm.
+  where the URDF gives them (``<inertial>``), evaluated at the nominal arm;
+- ``l_j``: joint j's lost motion (rad; gearbox backlash plus hysteresis), entering as
+  ``+ l_j f_j / 2`` with ``f_j`` the flank the joint rests on: the sign of its gravity
+  torque where that exceeds the gearbox's preload, else the direction of its last move
+  (``Measured``; 0 where unknown). A loaded joint's flank never changes, so its lost
+  motion is its zero offset's; an unloaded one's changes with the order of the moves,
+  which calibrations that fit offsets alone leave as noise (Mooring, Roth and Driels
+  ch. 3: backlash as a configuration-dependent joint error).
 
 Many of these are not separable from each other or from the hand-eye offsets (a frame's
 turn about the next joint's axis is that joint's zero offset; one base against the other
@@ -77,27 +84,28 @@ class HolderModel:
     @property
     def names(self) -> tuple[str, ...]:
         """Every parameter's name, in the packed order: zero offsets, frame errors (each
-        joint's origin, then the flange's), the rail's scale, the compliances."""
+        joint's origin, then the flange's), the rail's scale, the compliances, the lost motions."""
         joints = self.chain.joint_names
         frames = [*(f"{j}.origin" for j in joints), "flange"]
         return (*(f"{self.robot}.{j}.zero" for j in joints),
                 *(f"{self.robot}.{frame}.{axis}" for frame in frames for axis in FRAME_AXES),
                 *((f"{self.robot}.rail.scale",) if self.rail_axis is not None else ()),
-                *(f"{self.robot}.{j}.compliance" for j in joints))
+                *(f"{self.robot}.{j}.compliance" for j in joints),
+                *(f"{self.robot}.{j}.lost_motion" for j in joints))
 
     @property
     def size(self) -> int:
         return len(self.names)
 
-    def split(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Zero offsets (K, J), frame errors (K, J + 1, 6), rail scale (K,), compliances (K, J)
-        of packed parameters (K, size)."""
+    def split(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Zero offsets (K, J), frame errors (K, J + 1, 6), rail scale (K,), compliances (K, J),
+        lost motions (K, J) of packed parameters (K, size)."""
         j = self.joints
         zero, frames = p[:, :j], p[:, j:j + 6 * (j + 1)].reshape(len(p), j + 1, 6)
         at = j + 6 * (j + 1)
         scale = p[:, at] if self.rail_axis is not None else np.zeros(len(p))
         at += self.rail_axis is not None
-        return zero, frames, scale, p[:, at:at + j]
+        return zero, frames, scale, p[:, at:at + j], p[:, at + j:at + 2 * j]
 
     def base_at(self, rail_m: np.ndarray) -> np.ndarray:
         """(..., 4, 4) the base in K at rail positions (...)."""
@@ -107,11 +115,15 @@ class HolderModel:
             out[..., :3, 3] += rail_m[..., None] * self.rail_axis
         return out
 
-    def flanges(self, p: np.ndarray, joints: np.ndarray, rail_m: np.ndarray, torque: np.ndarray) -> np.ndarray:
+    def flanges(self, p: np.ndarray, joints: np.ndarray, rail_m: np.ndarray, torque: np.ndarray,
+                flank: np.ndarray | None = None) -> np.ndarray:
         """``world_from_flange`` (K, N, 4, 4) of packed parameters (K, size) at encoder
-        readings ``joints`` (N, J), rail (N,) m, gravity torques (N, J) N m."""
-        zero, frames, scale, compliance = self.split(p)
+        readings ``joints`` (N, J), rail (N,) m, gravity torques (N, J) N m, and the flanks
+        (N, J) the joints rest on (+-1, 0 unknown; None: all unknown)."""
+        zero, frames, scale, compliance, lost = self.split(p)
         links = joints[None] + zero[:, None] + compliance[:, None] * torque[None]  # (K, N, J)
+        if flank is not None:
+            links = links + 0.5 * lost[:, None] * flank[None]
         errors = transform_from_vector(frames)  # (K, J + 1, 4, 4)
         current = self.base_at(rail_m[None] * (1.0 + scale[:, None]))  # (K, N, 4, 4)
         for index in range(self.joints):
@@ -174,16 +186,17 @@ class Holders:
         return out
 
     def priors(self, joint_rad: float, length_m: float, frame_rad: float, base: tuple[float, float],
-               rail_scale: float, compliance_rad_per_nm: float) -> np.ndarray:
+               rail_scale: float, compliance_rad_per_nm: float, lost_motion_rad: float = 0.0) -> np.ndarray:
         """(size,) 1-sigma of each parameter before calibration (the lab's tolerances): the
-        first frame's, the base's survey (``base``: rad, m)."""
+        first frame's, the base's survey (``base``: rad, m); a lost motion's prior of 0 holds it
+        at zero (``free_parameters``)."""
         out = []
         for robot in self.robots:
             j = robot.joints
             zero = [length_m if kind == "prismatic" else joint_rad for kind in robot.chain.kinds]
             frames = [base[0]] * 3 + [base[1]] * 3 + ([frame_rad] * 3 + [length_m] * 3) * j
             out += zero + frames + ([rail_scale] if robot.rail_axis is not None else [])
-            out += [compliance_rad_per_nm] * j
+            out += [compliance_rad_per_nm] * j + [lost_motion_rad] * j
         return np.array(out, float)
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.stats import f as f_distribution
 
 from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
 from stages.common import arms, rwhe
@@ -33,11 +34,19 @@ RANK_CONFIGURATIONS = 96
 WEAK_RATIO = 0.7
 
 
+#: a joint whose reading changed by less than this between two captures did not move and keeps
+#: its flank: 7 times the repeatability of a KR 16-class joint (1.5e-5 rad), far below any planned move
+STILL_RAD = 1e-4
+#: the keys ``move_directions`` adds to capture rows: each joint's last move (+-1, 0 unknown)
+DIRECTION_KEYS = {"camera": "camera_move_direction", "target": "target_move_direction"}
+
+
 @dataclass(frozen=True)
 class Measured:
     """A session's encoder readings for a facility's holders: joints (N, J) of each robot
-    ((N, 0) for a static mount), rail (N,) m, the fixture of each capture, and the nominal
-    gravity torques (N, J) N m of what each robot carries."""
+    ((N, 0) for a static mount), rail (N,) m, the fixture of each capture, the nominal
+    gravity torques (N, J) N m of what each robot carries, and the gear flank (N, J) each
+    joint rests on (+-1; 0 unknown; ``errors.py``)."""
 
     camera_joints: np.ndarray
     target_joints: np.ndarray
@@ -45,11 +54,43 @@ class Measured:
     fixtures: tuple[str, ...]
     camera_torque: np.ndarray
     target_torque: np.ndarray
+    camera_flank: np.ndarray
+    target_flank: np.ndarray
 
     def subset(self, mask: np.ndarray) -> Measured:
         return Measured(self.camera_joints[mask], self.target_joints[mask], self.rail_m[mask],
-                        tuple(f for f, keep in zip(self.fixtures, mask, strict=True) if keep),
-                        self.camera_torque[mask], self.target_torque[mask])
+                        tuple(np.asarray(self.fixtures, object)[mask]), self.camera_torque[mask],
+                        self.target_torque[mask], self.camera_flank[mask], self.target_flank[mask])
+
+
+def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` (capture rows of any sessions) with each robot's last move per joint under
+    ``DIRECTION_KEYS``: the sign of its reading's change from the session's capture before,
+    in the order of ``capture_time_s``; a joint that did not move (``STILL_RAD``) keeps its
+    direction; 0 for the session's first capture, and for every capture of a session whose
+    captures lack a time (their order, and so the flanks, unknown). A capture without the
+    robot's readings gets None. Call it on a session's every capture, failed ones included,
+    before choosing some: a dropped capture still moved the arms."""
+    out = [dict(row) for row in rows]
+    for session in dict.fromkeys(row.get("session") for row in out):
+        chosen = [row for row in out if row.get("session") == session]
+        timed = all(row.get("capture_time_s") is not None for row in chosen)
+        for robot, key in DIRECTION_KEYS.items():
+            column = f"kuka_{robot}_joints_rad"
+            read = sorted((row for row in chosen if row.get(column) is not None),
+                          key=lambda row: float(row["capture_time_s"]) if timed else 0.0)
+            for row in chosen:
+                row[key] = None
+            last, previous = None, None
+            for row in read:
+                reading = np.asarray(row[column], float)
+                if previous is None or not timed:
+                    last = np.zeros(len(reading))
+                else:
+                    change = reading - previous
+                    last = np.where(np.abs(change) > STILL_RAD, np.sign(change), last)
+                row[key], previous = last.tolist(), reading
+    return out
 
 
 def _joints(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], key: str) -> np.ndarray | None:
@@ -60,9 +101,23 @@ def _joints(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], key: s
     return np.array([row[key] for row in rows], float).reshape(len(rows), -1)[:, :holder.joints]
 
 
+def _directions(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], role: str) -> np.ndarray:
+    joints = holder.joints if isinstance(holder, HolderModel) else 0
+    return np.array([row.get(DIRECTION_KEYS[role]) or [0.0] * joints for row in rows], float
+                    ).reshape(len(rows), -1)[:, :joints]
+
+
+def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.ndarray:
+    """(N, J) the gear flank each joint rests on: its gravity torque's sign where that
+    exceeds ``preload_nm``, else the direction of its last move (0: unknown)."""
+    return np.where(np.abs(torque) > preload_nm, np.sign(torque), direction)
+
+
 def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.ndarray, fixtures: tuple[str, ...],
-            payload: arms.Payload, world_up: np.ndarray) -> Measured:
-    """``Measured`` of readings: the camera's and target's joints (N, J), rail (N,) m."""
+            payload: arms.Payload, world_up: np.ndarray, directions: tuple[np.ndarray, np.ndarray] | None = None,
+            preload_nm: float = np.inf) -> Measured:
+    """``Measured`` of readings: the camera's and target's joints (N, J), rail (N,) m, and
+    each joint's last move (N, J) (+-1, 0 unknown; None: all unknown)."""
     torque = []
     for holder, q in zip((holders.camera, holders.target), joints, strict=True):
         if not isinstance(holder, HolderModel):
@@ -73,12 +128,16 @@ def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.
         else:
             load = np.stack([payload.centre_in_flange(f) for f in fixtures]) if fixtures else np.zeros((0, 3))
             torque.append(holder.torques(q, rail_m, payload.mass_kg, load, world_up))
-    return Measured(joints[0], joints[1], np.asarray(rail_m, float), tuple(fixtures), torque[0], torque[1])
+    if directions is None:
+        directions = (np.zeros_like(torque[0]), np.zeros_like(torque[1]))
+    flanks = [flank(t, d, preload_nm) for t, d in zip(torque, directions, strict=True)]
+    return Measured(joints[0], joints[1], np.asarray(rail_m, float), tuple(fixtures), torque[0], torque[1], *flanks)
 
 
 def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload,
-             world_up: np.ndarray) -> Measured | None:
-    """The captures' readings, or None when any capture lacks a robot's joints or a railed robot's rail."""
+             world_up: np.ndarray, preload_nm: float = np.inf) -> Measured | None:
+    """The captures' readings, or None when any capture lacks a robot's joints or a railed
+    robot's rail; each joint's flank from ``move_directions``' keys where the rows have them."""
     camera = _joints(holders.camera, rows, "kuka_camera_joints_rad")
     target = _joints(holders.target, rows, "kuka_target_joints_rad")
     if camera is None or target is None or not rows:
@@ -88,17 +147,19 @@ def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload
         return None  # a rail's reading is as much the arm's configuration as a joint's
     rail = np.array([0.0 if row.get("kuka_rail_m") is None else row["kuka_rail_m"] for row in rows], float)
     fixtures = tuple(str(row.get("fixture") or "fixed") for row in rows)
-    return measure(holders, (camera, target), rail, fixtures, payload, world_up)
+    directions = (_directions(holders.camera, rows, "camera"), _directions(holders.target, rows, "target"))
+    return measure(holders, (camera, target), rail, fixtures, payload, world_up, directions, preload_nm)
 
 
 def flanges(holders: Holders, p: np.ndarray, m: Measured) -> tuple[np.ndarray, np.ndarray]:
     """``world_from_camee`` and ``world_from_targetee`` (K, N, 4, 4) of the arms' packed
     parameters (K, size)."""
     slices, out = holders.slices(), []
-    for role, holder, joints, torque in (("camera", holders.camera, m.camera_joints, m.camera_torque),
-                                         ("target", holders.target, m.target_joints, m.target_torque)):
+    for role, holder, joints, torque, flank_ in (
+            ("camera", holders.camera, m.camera_joints, m.camera_torque, m.camera_flank),
+            ("target", holders.target, m.target_joints, m.target_torque, m.target_flank)):
         if isinstance(holder, HolderModel):
-            out.append(holder.flanges(p[:, slices[role]], joints, m.rail_m, torque))
+            out.append(holder.flanges(p[:, slices[role]], joints, m.rail_m, torque, flank_))
         else:
             out.append(np.broadcast_to(holder, (len(p), len(m.rail_m), 4, 4)))
     return out[0], out[1]
@@ -134,7 +195,7 @@ def central_jacobian(function: Any, x: np.ndarray, step: float = 1e-6) -> np.nda
 
 
 def _draw_configurations(holders: Holders, fixtures: list[str], payload: arms.Payload, world_up: np.ndarray,
-                         seed: int) -> Measured:
+                         seed: int, preload_nm: float = np.inf) -> Measured:
     rng = np.random.default_rng(seed)
     joints = []
     for holder in (holders.camera, holders.target):
@@ -147,12 +208,14 @@ def _draw_configurations(holders: Holders, fixtures: list[str], payload: arms.Pa
     travel = max((h.rail_travel_m for h in holders.robots if h.rail_axis is not None), default=(0.0, 0.0))
     rail = rng.uniform(travel[0], travel[1], RANK_CONFIGURATIONS)
     chosen = tuple(fixtures[i % len(fixtures)] for i in range(RANK_CONFIGURATIONS))
-    return measure(holders, (joints[0], joints[1]), rail, chosen, payload, world_up)
+    directions = (rng.choice([-1.0, 1.0], joints[0].shape), rng.choice([-1.0, 1.0], joints[1].shape))
+    return measure(holders, (joints[0], joints[1]), rail, chosen, payload, world_up, directions, preload_nm)
 
 
 def preference(holders: Holders, offsets: int) -> np.ndarray:
     """The order (P,) in which parameters are kept when they are separable: the offsets
-    (the last ``offsets``), then per robot zero offsets, rail, compliances, frames."""
+    (the last ``offsets``), then per robot zero offsets, rail, compliances, frames, lost
+    motions (last: a joint's lost motion on a flank that never changes is its zero offset)."""
     order, at = [holders.size + i for i in range(offsets)], 0
     for robot in holders.robots:
         j, frames = robot.joints, 6 * (robot.joints + 1)
@@ -162,17 +225,19 @@ def preference(holders: Holders, offsets: int) -> np.ndarray:
         order += [at + j + frames + rail + i for i in range(j)]  # compliances
         order += [at + j + 6 * k + 3 + i for k in range(robot.joints + 1) for i in range(3)]  # translations
         order += [at + j + 6 * k + i for k in range(robot.joints + 1) for i in range(3)]  # then rotations
+        order += [at + j + frames + rail + j + i for i in range(j)]  # lost motions
         at += robot.size
     return np.array(order)
 
 
 def identifiable(holders: Holders, fixtures: list[str], compliant: bool, params: np.ndarray, free: np.ndarray,
-                 payload: arms.Payload, world_up: np.ndarray, seed: int = 0) -> dict[str, str]:
+                 payload: arms.Payload, world_up: np.ndarray, seed: int = 0,
+                 preload_nm: float = np.inf) -> dict[str, str]:
     """The free arm parameters (indices < ``holders.size`` of ``params``) that no data can
     separate from the kept ones, by name, each with what absorbs it; the structural rank
     test of the module docstring, at ``params`` (P,)."""
     names = sorted(set(fixtures))
-    m = _draw_configurations(holders, fixtures, payload, world_up, seed)
+    m = _draw_configurations(holders, fixtures, payload, world_up, seed, preload_nm)
 
     def poses(p: np.ndarray) -> np.ndarray:
         return predict_batch(holders, p, names, compliant, m, world_up)[..., :3, :].reshape(len(p), -1)
@@ -219,6 +284,7 @@ class Fitted:
     compliant: bool
     dropped: dict[str, str]
     prior: np.ndarray  # (holders.size,) 1-sigma before calibration
+    preload_nm: float  # above it a joint rests on its loaded flank (``flank``)
 
     def corrected_b(self, m: Measured, world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return corrected_b(self.holders, self.params[:self.holders.size], m, world_up)
@@ -235,23 +301,28 @@ class Fitted:
     def record(self) -> ChainFit:
         at, robots = 0, []
         for robot in self.holders.robots:
-            zero, frames, scale, compliance = robot.split(self.params[None, at:at + robot.size])
+            zero, frames, scale, compliance, lost = robot.split(self.params[None, at:at + robot.size])
             robots.append(RobotCorrection(
                 robot.robot, robot.role, robot.chain.joint_names, tuple(float(v) for v in zero[0]),
                 tuple(tuple(float(v) for v in frame) for frame in frames[0]),
-                float(scale[0]) if robot.rail_axis is not None else None, tuple(float(v) for v in compliance[0])))
+                float(scale[0]) if robot.rail_axis is not None else None, tuple(float(v) for v in compliance[0]),
+                tuple(float(v) for v in lost[0])))
             at += robot.size
         return ChainFit(tuple(robots), tuple(self.holders.names), dict(self.dropped), self.weak(),
                         tuple(self.names), self.compliant, tuple(float(v) for v in self.params),
-                        tuple(tuple(row) for row in self.covariance.tolist()), tuple(float(v) for v in self.prior))
+                        tuple(tuple(row) for row in self.covariance.tolist()), tuple(float(v) for v in self.prior),
+                        float(self.preload_nm))
 
 
 def free_parameters(holders: Holders, c: Any, names: list[str], compliant: bool, count: int) -> np.ndarray:
     """(count,) which packed parameters the fit estimates: all but the compliances with
-    ``c.joint_compliance`` off and the fixtures' anisotropy with ``c.fixture_anisotropy`` off."""
+    ``c.joint_compliance`` off, the lost motions with ``c.lost_motion`` off or
+    ``c.arm_prior_lost_motion_rad`` 0 and the fixtures' anisotropy with ``c.fixture_anisotropy`` off."""
     free = np.ones(count, bool)
     if c.joint_compliance != "on":
         free[[i for i, n in enumerate(holders.names) if n.endswith(".compliance")]] = False
+    if c.lost_motion == "off" or c.arm_prior_lost_motion_rad <= 0:
+        free[[i for i, n in enumerate(holders.names) if n.endswith(".lost_motion")]] = False
     shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
     free[holders.size + shape.start:holders.size + shape.stop] = c.fixture_anisotropy == "on"
     return free
@@ -265,8 +336,58 @@ def fitted_parameter_count(holders: Holders, c: Any, fixtures: list[str], compli
     start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, compliant, compliant)])
     free = free_parameters(holders, c, names, compliant, len(params))
-    dropped = identifiable(holders, list(fixtures), compliant, params, free, payload, world_up)
+    dropped = identifiable(holders, list(fixtures), compliant, params, free, payload, world_up,
+                           preload_nm=c.backlash_preload_nm)
     return int(free.sum()) - len(dropped)
+
+
+#: the lost motions are fitted under ``calibrate.lost_motion = auto`` when the F test rejects
+#: the model without them at this level
+LOST_MOTION_TEST_LEVEL = 0.01
+
+
+def lost_motion_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.ndarray, added: int,
+                      parameters: int) -> tuple[bool, str]:
+    """Whether the calibration captures show the joints' lost motion: the F test of the fit
+    with its ``added`` parameters (``with_``, P,) against the fit without (``without``), on
+    the residuals of PnP poses ``a`` (N, 4, 4) whitened by the fit without's rotation and
+    translation RMS, ``parameters`` estimated in all (Seber and Wild, *Nonlinear
+    Regression*, Wiley 1989, section 5.3: the extra-sum-of-squares test); and in words."""
+    def residuals(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        predicted = batch(params[None])[0]
+        turn = g.matrix_to_rotvec(a[:, :3, :3] @ np.swapaxes(predicted[:, :3, :3], -1, -2))
+        return turn, a[:, :3, 3] - predicted[:, :3, 3]
+
+    null = residuals(without)
+    scales = [max(float(np.sqrt(np.mean(r**2))), 1e-15) for r in null]
+
+    def whitened_sum(parts: tuple[np.ndarray, np.ndarray]) -> float:
+        return float(sum(np.sum((r / s) ** 2) for r, s in zip(parts, scales, strict=True)))
+
+    redundancy = 6 * len(a) - parameters
+    if redundancy <= 0:
+        return False, "too few calibration captures to test for it"
+    rss_without, rss_with = whitened_sum(null), whitened_sum(residuals(with_))
+    statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
+    p = float(f_distribution.sf(statistic, added, redundancy))
+    said = (f"the calibration captures do not show it (F test of the {added} lost motions: F = {statistic:.2f}, "
+            f"p = {p:.2g} >= {LOST_MOTION_TEST_LEVEL:g}; calibrate.lost_motion = on fits them anyway)")
+    return p < LOST_MOTION_TEST_LEVEL, said
+
+
+def unknown_flanks(holders: Holders, m: Measured, free: np.ndarray) -> dict[str, str]:
+    """The free lost motions no capture of ``m`` can see: their joint's flank is unknown on
+    every one (captures without times, whose order of moves is unknown), by name, with why."""
+    out = {}
+    for robot, flanks in ((holders.camera, m.camera_flank), (holders.target, m.target_flank)):
+        if not isinstance(robot, HolderModel):
+            continue
+        for joint, column in zip(robot.chain.joint_names, flanks.T, strict=True):
+            name = f"{robot.robot}.{joint}.lost_motion"
+            if free[holders.names.index(name)] and not np.any(column):
+                out[name] = ("no capture tells its flank: the order of the moves is unknown (captures without "
+                             "capture_time_s) and its gravity torque never exceeds calibrate.backlash_preload_nm")
+    return out
 
 
 def bounded_compliance(holders: Holders, prior: np.ndarray, drawn: Measured, windup_rad: float) -> np.ndarray:
@@ -298,25 +419,38 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     size = holders.size
     prior = holders.priors(c.arm_prior_joint_rad, c.arm_prior_length_m, c.arm_prior_frame_rad,
                            (c.arm_prior_base_rad, c.arm_prior_base_m), c.arm_prior_rail_scale,
-                           c.arm_prior_compliance_rad_per_nm)
+                           c.arm_prior_compliance_rad_per_nm, c.arm_prior_lost_motion_rad)
     prior = bounded_compliance(holders, prior, _draw_configurations(holders, list(m.fixtures), payload, world_up, 0),
                                c.arm_prior_joint_rad)
     params = np.concatenate([np.zeros(size), rwhe.pack(start, names, compliant, anisotropic=compliant)])
     shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
     shape = slice(size + shape.start, size + shape.stop)
     free = free_parameters(holders, c, names, compliant, len(params))
-    dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up)
+    dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
+                           preload_nm=c.backlash_preload_nm)
+    dropped.update(unknown_flanks(holders, m, free))
     free[[holders.names.index(n) for n in dropped]] = False
     all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
-    priored = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop)])
-    all_prior, priored = all_prior[free[priored]], priored[free[priored]]
+    priored_all = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop)])
 
     def batch(p: np.ndarray) -> np.ndarray:
         return predict_batch(holders, p, names, compliant, m, world_up)
 
-    params, covariance = arms.map_fit(batch, a, params, free, all_prior, priored)
+    def fitted(chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        keep = chosen[priored_all]
+        return arms.map_fit(batch, a, params, chosen, all_prior[keep], priored_all[keep])
+
+    lost = np.array([name.endswith(".lost_motion") for name in holders.names] + [False] * (len(params) - size))
+    result = fitted(free)
+    if c.lost_motion == "auto" and np.any(free & lost):
+        without = fitted(free & ~lost)
+        shown, said = lost_motion_shown(batch, a, without[0], result[0], int(np.sum(free & lost)), int(free.sum()))
+        if not shown:
+            dropped.update({holders.names[i]: said for i in np.flatnonzero(free & lost)})
+            free, result = free & ~lost, without
+    params, covariance = result
     offsets = rwhe.unpack(params[size:], names, compliant, anisotropic=compliant)
-    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior)
+    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm)
 
 
 def joint_columns(holders: Holders) -> np.ndarray:
@@ -327,26 +461,38 @@ def joint_columns(holders: Holders) -> np.ndarray:
                            for robot in holders.robots]).astype(int) if holders.robots else np.zeros(0, int)
 
 
-def flank_variances(holders: Holders, m: Measured, lost_motion_rad: tuple[float, ...] | None,
-                    preload_nm: float) -> np.ndarray:
+def flank_variances(holders: Holders, m: Measured, chains: ChainFit,
+                    lost_motion_rad: tuple[float, ...] | None) -> np.ndarray:
     """(N, joints of both robots) variance (rad^2) of each joint's angle from its gearbox's
-    lost motion ``lost_motion_rad`` (one rating per joint, the same for both robots; None:
-    none). A joint whose gravity torque (its links' and payload's, ``Measured``) exceeds
-    ``preload_nm`` rests on its loaded flank, at the same place for every capture with that
-    load, which the offsets absorb. Any other rests on the flank its last move left it on,
-    ``+-l / 2`` from the middle; the rating is a maximum, a unit's ``l`` uniform on 50-100%
-    of it, so the variance is ``E[l^2] / 4 = 7 / 12 (rating / 2)^2`` (``arms.UNIT_SHARE``)."""
+    lost motion that the fitted arms ``chains`` leave out. A joint whose gravity torque
+    exceeds the fit's preload rests on its loaded flank, at the same place for every capture
+    with that load, which the offsets absorb. Any other rests on the flank its last move left
+    it on, ``+-l / 2`` from the middle:
+
+    - where the fit estimated ``l`` (``errors.py``) and ``m`` knows the flank, the fit's
+      covariance carries it (``pose_jacobians``): 0 here;
+    - where it estimated ``l`` but the flank is unknown (the session's first capture),
+      ``(l^2 + var l) / 4``;
+    - where it did not, the rating ``lost_motion_rad`` (one per joint, the same for both
+      robots; None: none) is a maximum, a unit's ``l`` uniform on 50-100% of it, so the
+      variance is ``E[l^2] / 4 = 7 / 12 (rating / 2)^2`` (``arms.UNIT_SHARE``)."""
     out = []
-    for robot, torque in ((holders.camera, m.camera_torque), (holders.target, m.target_torque)):
+    parameters, covariance = np.asarray(chains.parameters, float), np.asarray(chains.covariance, float)
+    for robot, torque, flanks in ((holders.camera, m.camera_torque, m.camera_flank),
+                                  (holders.target, m.target_torque, m.target_flank)):
         if not isinstance(robot, HolderModel):
             continue
-        if lost_motion_rad is None:
-            out.append(np.zeros_like(torque))
-            continue
-        rating = np.asarray(lost_motion_rad, float)
+        unloaded = np.abs(torque) <= chains.backlash_preload_nm
+        rating = np.zeros(robot.joints) if lost_motion_rad is None else np.asarray(lost_motion_rad, float)
         if rating.shape != (robot.joints,):
             raise ValueError(f"{robot.robot}: {len(rating)} lost-motion ratings for {robot.joints} joints")
-        out.append(np.where(np.abs(torque) <= preload_nm, arms.UNIT_SHARE * (rating / 2) ** 2, 0.0))
+        variance = np.where(unloaded, arms.UNIT_SHARE * (rating / 2) ** 2, 0.0)
+        for joint, name in enumerate(robot.chain.joint_names):
+            index = holders.names.index(f"{robot.robot}.{name}.lost_motion")
+            if chains.prior_sigma[index] > 0 and chains.parameter_names[index] not in chains.dropped:
+                fitted = (parameters[index] ** 2 + covariance[index, index]) / 4
+                variance[:, joint] = np.where(flanks[:, joint] == 0, fitted, 0.0)
+        out.append(variance)
     return np.concatenate(out, axis=1) if out else np.zeros((len(m.rail_m), 0))
 
 

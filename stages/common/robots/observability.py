@@ -73,13 +73,15 @@ class Rows:
 
 def jacobian_rows(holders: Holders, m: Measured, prior: np.ndarray, payload: arms.Payload,
                   world_up: np.ndarray) -> Rows:
-    """``Rows`` of the module's identification at readings ``m``, offsets at identity."""
+    """``Rows`` of the module's identification at readings ``m``, offsets at identity; the
+    parameters whose ``prior`` is 0 are left out (the joints' lost motion, which the order of
+    the captures' moves determines, not their poses)."""
     names = sorted(set(m.fixtures))
     start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, False)])
-    free = np.ones(len(params), bool)
+    free = np.concatenate([np.asarray(prior) > 0, np.ones(len(params) - holders.size, bool)])
     dropped = identifiable(holders, list(m.fixtures), False, params, free, payload, world_up)
-    kept = np.array([i for i, name in enumerate(holders.names) if name not in dropped])
+    kept = np.array([i for i, name in enumerate(holders.names) if name not in dropped and free[i]])
     centre = predict_batch(holders, params[None], names, False, m, world_up)[0]
 
     def twists(p: np.ndarray) -> np.ndarray:

@@ -22,7 +22,8 @@ SETTINGS = SimpleNamespace(
     world_up=(0.0, 0.0, 1.0), arm_prior_joint_rad=2e-3, arm_prior_length_m=2e-3, arm_prior_frame_rad=2e-4,
     arm_prior_base_m=2e-3, arm_prior_base_rad=2e-3, arm_prior_rail_scale=1e-4,
     arm_prior_compliance_rad_per_nm=3e-5, joint_compliance="on", fixture_anisotropy="on",
-    fixture_anisotropy_prior=0.5)
+    fixture_anisotropy_prior=0.5, arm_prior_lost_motion_rad=2.9e-4, lost_motion="auto",
+    backlash_preload_nm=1e9)  # every joint rests on the flank its last move left it on, as the draws' are
 OFFSETS = rwhe.Solution(g.make_transform(g.rotvec_to_matrix([0.1, 0.2, 0.3]), [0.01, 0.02, 0.1]),
                         {"minus_x": g.make_transform(g.rotvec_to_matrix([0.3, -0.2, 0.1]), [0.0, 0.05, 0.02])})
 
@@ -64,7 +65,7 @@ def test_the_rank_test_is_structural_not_an_accident_of_the_draw(holders):
 def test_the_fit_recovers_seeded_errors_within_its_covariance(holders, seed):
     rng = np.random.default_rng(seed)
     dropped = _dropped(holders)
-    prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5)
+    prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5, 2.9e-4)
     kept = np.array([name not in dropped for name in holders.names])
     truth = np.where(kept, rng.normal(0.0, 0.5, holders.size) * prior, 0.0)
     m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, seed + 100).subset(np.arange(96) < 48)
@@ -76,6 +77,8 @@ def test_the_fit_recovers_seeded_errors_within_its_covariance(holders, seed):
                           dict(OFFSETS.x))
     fitted = ident.fit(holders, SETTINGS, a, m, start, False, PAYLOAD)
     assert set(fitted.dropped) == set(dropped)
+    # every joint's lost motion is kept: the draws' moves leave joints on either flank
+    assert not [name for name in dropped if name.endswith(".lost_motion")]
     sigma = np.sqrt(np.diag(fitted.covariance)[:holders.size])[kept]
     z = (fitted.params[:holders.size][kept] - truth[kept]) / sigma
     assert 0.6 < np.sqrt(np.mean(z**2)) < 1.4  # honest: neither over- nor under-confident
@@ -126,19 +129,19 @@ def test_the_calibrated_urdf_moves_as_the_fitted_arm(holders, tmp_path):
     robot = holders.robots[0]
     prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5)[:robot.size]
     params = rng.normal(0.0, 1.0, robot.size) * prior
-    zero, frames, _, compliance = robot.split(params[None])
+    zero, frames, _, compliance, lost = robot.split(params[None])
     correction = RobotCorrection(robot.robot, "camera", robot.chain.joint_names, tuple(zero[0]),
-                                       tuple(tuple(f) for f in frames[0]), 0.0, tuple(compliance[0]))
+                                 tuple(tuple(f) for f in frames[0]), 0.0, tuple(compliance[0]), tuple(lost[0]))
     text = calibrated_urdf(FACILITIES / "ur_rail_pair" / "ur10.urdf", "tool0", correction, "a test")
     (tmp_path / "ur10.urdf").write_text(text)
     chain = load_chain(tmp_path / "ur10.urdf", "base_link", "tool0")
     joints = rng.uniform(-np.pi, np.pi, (20, robot.joints))
     params_rigid = params.copy()
-    params_rigid[-robot.joints:] = 0.0  # no compliance
+    params_rigid[-2 * robot.joints:] = 0.0  # no compliance, no lost motion
     expected = robot.flanges(params_rigid[None], joints, np.zeros(20), np.zeros((20, robot.joints)))[0]
     got = robot.base_at(np.zeros(20)) @ chain.forward(joints)
     assert np.allclose(got, expected, atol=1e-9)
-    assert "joint compliance" in text and "a test" in text
+    assert "joint compliance" in text and "joint lost motion" in text and "a test" in text
 
 
 def test_the_observability_measure_names_what_the_poses_leave_to_the_prior(holders):
@@ -175,3 +178,50 @@ def test_the_greedy_choice_takes_the_pose_that_determines_the_worst_direction():
     assert choose(rows, [[2, 0], [1, 2]]) == [0, 2]
     assert measure_of(Rows(rows.arm[[0, 2]], rows.offsets[[0, 2]], ("a", "b"))).weak == {}
     assert set(measure_of(Rows(rows.arm[[0, 1]], rows.offsets[[0, 1]], ("a", "b"))).weak) == {"b"}
+
+
+def test_each_joints_last_move_follows_the_captures_times_not_the_rows_order():
+    """The flank a joint rests on is set by its last move: the sign of its reading's change
+    from the capture before in time, kept while it stands still; unknown (0) on a session's
+    first capture, and everywhere in a session whose captures lack times."""
+    def row(sample: str, time_s: float | None, joints: list[float], session: str = "calibration") -> dict:
+        return {"sample_id": sample, "session": session, "capture_time_s": time_s,
+                "kuka_camera_joints_rad": joints, "kuka_target_joints_rad": None}
+
+    rows = [row("c", 20.0, [0.3, 0.2]), row("a", 0.0, [0.1, 0.1]), row("b", 10.0, [0.2, 0.1 + 1e-6]),
+            row("x", None, [0.0, 0.0], "dataset"), row("y", 5.0, [0.1, 0.0], "dataset")]
+    out = {r["sample_id"]: r for r in ident.move_directions(rows)}
+    assert out["a"]["camera_move_direction"] == [0.0, 0.0]
+    assert out["b"]["camera_move_direction"] == [1.0, 0.0]  # the second joint stood still (noise)
+    assert out["c"]["camera_move_direction"] == [1.0, 1.0]
+    assert out["a"]["target_move_direction"] is None  # no readings: a static mount's
+    assert out["y"]["camera_move_direction"] == [0.0, 0.0]  # a session with an untimed capture
+    assert "camera_move_direction" not in rows[0]  # the caller's rows are left as they were
+
+
+def test_a_lost_motion_no_capture_can_see_is_named_and_held(holders):
+    """Captures without times give no flank: the fit holds every unloaded joint's lost
+    motion at zero and says why, instead of reporting its prior as a weak estimate."""
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 5).subset(np.arange(96) < 48)
+    blind = ident.measure(holders, (m.camera_joints, m.target_joints), m.rail_m, m.fixtures, PAYLOAD, UP)
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
+    a = ident.predict_batch(holders, params[None], ["minus_x"], False, blind, UP)[0]
+    fitted = ident.fit(holders, SETTINGS, a, blind, OFFSETS, False, PAYLOAD)
+    lost = [name for name in holders.names if name.endswith(".lost_motion")]
+    assert all("capture_time_s" in fitted.dropped[name] for name in lost)
+    assert not set(lost) & set(fitted.weak())
+
+
+def test_lost_motion_the_captures_do_not_show_is_not_fitted(holders):
+    """Under ``auto`` the joints' lost motions are fitted only where the captures show them
+    (an F test): arms without any keep their parameters' noise out of the dataset's poses."""
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 8).subset(np.arange(96) < 48)
+    rng = np.random.default_rng(8)
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
+    truth = ident.predict_batch(holders, params[None], ["minus_x"], False, m, UP)[0]
+    noise = rwhe.transform_from_vector(np.concatenate([rng.normal(0, 1e-4, (48, 3)), rng.normal(0, 1e-4, (48, 3))],
+                                                      axis=1))
+    fitted = ident.fit(holders, SETTINGS, truth @ noise, m, OFFSETS, False, PAYLOAD)
+    lost = [name for name in holders.names if name.endswith(".lost_motion")]
+    assert all("F test" in fitted.dropped[name] for name in lost)
+    assert not np.any(fitted.params[[holders.names.index(name) for name in lost]])

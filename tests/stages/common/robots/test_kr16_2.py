@@ -128,12 +128,15 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     config = load_config("default")
     holders = Holders.of(load_facility())
     rows = readings(rng, 300)
-    m = identification.measured(holders, rows, PAYLOAD, np.array([0.0, 0.0, 1.0]))
+    lost, preload = config.fuse.lost_motion_rad, config.calibrate.backlash_preload_nm
+    m = identification.measured(holders, rows, PAYLOAD, np.array([0.0, 0.0, 1.0]), preload)
     names = ["minus_x", "plus_x"]
     solution = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(solution, names, False, anisotropic=False)])
-    lost, preload = config.fuse.lost_motion_rad, config.fuse.backlash_preload_nm
-    variances = identification.flank_variances(holders, m, lost, preload)
+    unfitted = np.array([0.0 if name.endswith(".lost_motion") else 1.0 for name in holders.names])
+    record = identification.Fitted(holders, solution, params, np.zeros((len(params), len(params))), names, False,
+                                   {}, unfitted, preload).record()
+    variances = identification.flank_variances(holders, m, record, lost)
     loaded = np.abs(np.concatenate([m.camera_torque, m.target_torque], axis=1)) > preload
     assert loaded.any() and (~loaded).any()
     assert np.all(variances[loaded] == 0)
@@ -142,12 +145,10 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     unit = rng.uniform(0.5, 1.0, (300, 12)) * np.tile(np.asarray(lost), 2)
     flank = np.where(loaded, 0.0, rng.choice([-1.0, 1.0], (300, 12)) * unit / 2)
     turned = identification.Measured(m.camera_joints + flank[:, :6], m.target_joints + flank[:, 6:], m.rail_m,
-                                     m.fixtures, m.camera_torque, m.target_torque)
+                                     m.fixtures, m.camera_torque, m.target_torque, m.camera_flank, m.target_flank)
     up = np.array([0.0, 0.0, 1.0])
     true = identification.predict_batch(holders, params[None], names, False, turned, up)[0]
     estimate = identification.predict_batch(holders, params[None], names, False, m, up)[0]
-    record = identification.Fitted(holders, solution, params, np.zeros((len(params), len(params))), names, False,
-                                   {}, np.ones(holders.size)).record()
     jacobians = identification.pose_jacobians(holders, record, m, up)
     shared, own = arms.pose_covariance_parts(jacobians, np.zeros((len(params), len(params))), variances,
                                              identification.joint_columns(holders))
@@ -156,7 +157,7 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     assert np.sqrt(np.mean(error**2)) > 1e-4  # tenths of a mm at these reaches
     normalised = error / np.sqrt(np.diagonal(own, axis1=1, axis2=2)[:, 3:])
     np.testing.assert_allclose(np.sqrt(np.mean(normalised**2, axis=0)), 1.0, atol=0.12)
-    assert identification.flank_variances(holders, m, None, preload).max() == 0.0
+    assert identification.flank_variances(holders, m, record, None).max() == 0.0
 
 
 def test_forward_differences_step_as_scipy_does():
