@@ -29,7 +29,7 @@ from manifests.sidecars import read_calibration
 from pipeline.config import load_config
 from stages.common import arms
 from stages.common import geometry as g
-from stages.common.robots import identification
+from stages.common.robots import identification, lost_motion
 from stages.common.robots.errors import configured_holders
 from stages.common.rwhe import transform_from_vector
 from stages.common.workspace_target import workspace_target
@@ -65,7 +65,7 @@ def arm_accuracy(ws: Workspace, session: str = "dataset") -> dict[str, dict[str,
     if chains is None:
         return {}
     holders = configured_holders(config.facility.path, config.testbed)[0]
-    every = identification.move_directions(read_manifest(ws, "captures").to_pylist())
+    every = lost_motion.move_directions(read_manifest(ws, "captures").to_pylist())
     rows = sorted((r for r in every if r["session"] == session and r["status"] == "ok"),
                   key=lambda r: r["sample_id"])
     truth = {r["sample_id"]: r for r in read_manifest(ws, "truth").to_pylist()}

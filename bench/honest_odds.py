@@ -23,7 +23,7 @@ from manifests import Workspace, read_manifest
 from manifests.sidecars import read_fusion
 from pipeline.config import load_config
 from stages.common import arms
-from stages.common.robots import identification
+from stages.common.robots import identification, lost_motion
 from stages.common.workspace_target import workspace_target
 from stages.fuse.stage import estimate, load_models, with_marker_geometry
 
@@ -82,7 +82,7 @@ def facility_model(root: Path) -> FacilityModel:
     kuka, vicon, rejection = load_models(workspace, config.testbed, payload, config.fuse.vicon_scale_sigma,
                                          config.facility.path)
     accepted = {r["sample_id"]: r["vicon_accepted"] for r in read_manifest(workspace, "poses").to_pylist()}
-    every = identification.move_directions(read_manifest(workspace, "captures").to_pylist())
+    every = lost_motion.move_directions(read_manifest(workspace, "captures").to_pylist())
     captured = sorted((r for r in every if r["status"] == "ok"), key=lambda r: r["sample_id"])
     geometry = None
     if vicon is not None:  # motion capture's sigma as fuse has it: its fit's geometry at each capture
@@ -94,7 +94,7 @@ def facility_model(root: Path) -> FacilityModel:
         raise SystemExit(f"{root}: the arms were not calibrated; the model has no parameter covariance")
     measured = identification.measured(kuka.holders, rows, payload, kuka.world_up, kuka.preload_nm)
     jacobian = identification.pose_jacobians(kuka.holders, kuka.kinematics.chains, measured, kuka.world_up)[:, 3:]
-    flanks = identification.flank_variances(kuka.holders, measured, kuka.kinematics.chains,
+    flanks = lost_motion.flank_variances(kuka.holders, measured, kuka.kinematics.chains,
                                             None if config.facility.path else config.fuse.lost_motion_rad)
     covariances = kuka.parameter_covariances(rows, config.fuse)
     estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]

@@ -34,7 +34,7 @@ from stages.calibrate.arm_models import arms_model
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.geometry import pose_columns
-from stages.common.robots import identification
+from stages.common.robots import identification, lost_motion
 from stages.common.workspace_target import planned_target
 from stages.plan.stage import plan_sample, planned_samples
 
@@ -56,7 +56,7 @@ def facility(seed: int, sources: list[str], settings: tuple[str, ...] = ()) -> t
         states = [robots.move(config, truth, r, np.random.default_rng([seed, index, 7]), moments[r["sample_id"]])
                   for index, r in enumerate(chosen)]
         true = np.stack([g.invert(s.world_from_cam) @ s.world_from_target for s in states])
-        captures = identification.move_directions([
+        captures = lost_motion.move_directions([
             {**pose_columns("kuka_world_from_targetee", s.kuka_world_from_targetee), "session": session,
              "capture_time_s": moments[r["sample_id"]].time_s, "kuka_camera_joints_rad": s.camera_joints_rad,
              "kuka_target_joints_rad": s.target_joints_rad, "kuka_rail_m": s.rail_m, "fixture": r["mount"]}

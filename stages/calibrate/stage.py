@@ -36,7 +36,7 @@ from stages.common import geometry as g
 from stages.common import rwhe
 from stages.common.fusion import lever_sq
 from stages.common.patterns import PatternSpec, pattern_from_table
-from stages.common.robots import identification
+from stages.common.robots import lost_motion
 from stages.common.sources import measured_b
 from stages.common.tables import print_table
 
@@ -68,7 +68,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     # in sample_id order: acquire writes rows as its workers finish, and the folds, the
     # solvers' sums and the screening's medians must not depend on that
     session_rows = [r for r in read_manifest(workspace, "captures").to_pylist() if r["session"] == "calibration"]
-    captures = sorted((r for r in identification.move_directions(session_rows) if r["status"] == "ok"),
+    captures = sorted((r for r in lost_motion.move_directions(session_rows) if r["status"] == "ok"),
                       key=lambda r: r["sample_id"])
     if read_marker(workspace, "plan") is not None and session.backend == "virtual":
         unknown = sorted({r["sample_id"] for r in captures} - read_keys(workspace, "plan"))

@@ -37,7 +37,7 @@ from stages.common import arms
 from stages.common import geometry as g
 from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejection_reason, with_scale_error
 from stages.common.json_arrays import matrix
-from stages.common.robots import identification
+from stages.common.robots import identification, lost_motion
 from stages.common.robots.errors import Holders, configured_holders
 from stages.common.rwhe import fixture_tilt
 from stages.common.sources import measured_b, up_targetee
@@ -126,7 +126,7 @@ class SourceModel:
 
     def parameter_covariances(self, rows: list[dict[str, Any]], fuse: FuseConfig) -> list[ArmUncertainty | None]:
         """Each capture's pose uncertainty from the calibrated arms' parameters and the
-        joints' lost motion the fit leaves out (``identification.flank_variances``: where the
+        joints' lost motion the fit leaves out (``lost_motion.flank_variances``: where the
         flank is unknown, the fitted lost motion; where it was not fitted, on TRON's arms,
         ``fuse.lost_motion_rad``, the KR 16-2's rating, as a facility folder's URDF gives no
         gearbox data); None without calibrated arms. All captures at once."""
@@ -140,7 +140,7 @@ class SourceModel:
                              "of the arms needs (calibrate.arm_kinematics)")
         jacobians = identification.pose_jacobians(self.holders, self.kinematics.chains, measured, self.world_up)
         parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
-        flanks = identification.flank_variances(self.holders, measured, self.kinematics.chains,
+        flanks = lost_motion.flank_variances(self.holders, measured, self.kinematics.chains,
                                                 fuse.lost_motion_rad if self.tron else None)
         shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks,
                                                  identification.joint_columns(self.holders))
@@ -307,7 +307,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
                                          config.facility.path)
     # in sample_id order, not in the order acquire's workers finished: same inputs, same bytes
     # each joint's last move from every capture's readings in capture order, failed ones too
-    captured = sorted((r for r in identification.move_directions(read_manifest(workspace, "captures").to_pylist())
+    captured = sorted((r for r in lost_motion.move_directions(read_manifest(workspace, "captures").to_pylist())
                        if r["status"] == "ok"), key=lambda r: r["sample_id"])
     rows = [r for r in captured if r["session"] == "dataset"]
     geometry, geometry_why = None, "no motion capture in this session"

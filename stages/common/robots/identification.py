@@ -21,24 +21,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.stats import f as f_distribution
 
 from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.robots.errors import RANK_TOLERANCE, HolderModel, Holders
+from stages.common.robots.lost_motion import DIRECTION_KEYS, flank, lost_motion_shown, unknown_flanks
 
 #: configurations drawn for the structural rank test
 RANK_CONFIGURATIONS = 96
 #: a kept parameter is weakly determined when the data narrow its prior by less than this
 WEAK_RATIO = 0.7
-
-
-#: a joint whose reading changed by less than this between two captures did not move and keeps
-#: its flank: 7 times the repeatability of a KR 16-class joint (1.5e-5 rad), far below any planned move
-STILL_RAD = 1e-4
-#: the keys ``move_directions`` adds to capture rows: each joint's last move (+-1, 0 unknown)
-DIRECTION_KEYS = {"camera": "camera_move_direction", "target": "target_move_direction"}
 
 
 @dataclass(frozen=True)
@@ -63,36 +56,6 @@ class Measured:
                         self.target_torque[mask], self.camera_flank[mask], self.target_flank[mask])
 
 
-def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """``rows`` (capture rows of any sessions) with each robot's last move per joint under
-    ``DIRECTION_KEYS``: the sign of its reading's change from the session's capture before,
-    in the order of ``capture_time_s``; a joint that did not move (``STILL_RAD``) keeps its
-    direction; 0 for the session's first capture, and for every capture of a session whose
-    captures lack a time (their order, and so the flanks, unknown). A capture without the
-    robot's readings gets None. Call it on a session's every capture, failed ones included,
-    before choosing some: a dropped capture still moved the arms."""
-    out = [dict(row) for row in rows]
-    for session in dict.fromkeys(row.get("session") for row in out):
-        chosen = [row for row in out if row.get("session") == session]
-        timed = all(row.get("capture_time_s") is not None for row in chosen)
-        for robot, key in DIRECTION_KEYS.items():
-            column = f"kuka_{robot}_joints_rad"
-            read = sorted((row for row in chosen if row.get(column) is not None),
-                          key=lambda row: float(row["capture_time_s"]) if timed else 0.0)
-            for row in chosen:
-                row[key] = None
-            last, previous = None, None
-            for row in read:
-                reading = np.asarray(row[column], float)
-                if previous is None or not timed:
-                    last = np.zeros(len(reading))
-                else:
-                    change = reading - previous
-                    last = np.where(np.abs(change) > STILL_RAD, np.sign(change), last)
-                row[key], previous = last.tolist(), reading
-    return out
-
-
 def _joints(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], key: str) -> np.ndarray | None:
     if not isinstance(holder, HolderModel):
         return np.zeros((len(rows), 0))
@@ -105,12 +68,6 @@ def _directions(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], ro
     joints = holder.joints if isinstance(holder, HolderModel) else 0
     return np.array([row.get(DIRECTION_KEYS[role]) or [0.0] * joints for row in rows], float
                     ).reshape(len(rows), -1)[:, :joints]
-
-
-def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.ndarray:
-    """(N, J) the gear flank each joint rests on: its gravity torque's sign where that
-    exceeds ``preload_nm``, else the direction of its last move (0: unknown)."""
-    return np.where(np.abs(torque) > preload_nm, np.sign(torque), direction)
 
 
 def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.ndarray, fixtures: tuple[str, ...],
@@ -341,55 +298,6 @@ def fitted_parameter_count(holders: Holders, c: Any, fixtures: list[str], compli
     return int(free.sum()) - len(dropped)
 
 
-#: the lost motions are fitted under ``calibrate.lost_motion = auto`` when the F test rejects
-#: the model without them at this level
-LOST_MOTION_TEST_LEVEL = 0.01
-
-
-def lost_motion_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.ndarray, added: int,
-                      parameters: int) -> tuple[bool, str]:
-    """Whether the calibration captures show the joints' lost motion: the F test of the fit
-    with its ``added`` parameters (``with_``, P,) against the fit without (``without``), on
-    the residuals of PnP poses ``a`` (N, 4, 4) whitened by the fit without's rotation and
-    translation RMS, ``parameters`` estimated in all (Seber and Wild, *Nonlinear
-    Regression*, Wiley 1989, section 5.3: the extra-sum-of-squares test); and in words."""
-    def residuals(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        predicted = batch(params[None])[0]
-        turn = g.matrix_to_rotvec(a[:, :3, :3] @ np.swapaxes(predicted[:, :3, :3], -1, -2))
-        return turn, a[:, :3, 3] - predicted[:, :3, 3]
-
-    null = residuals(without)
-    scales = [max(float(np.sqrt(np.mean(r**2))), 1e-15) for r in null]
-
-    def whitened_sum(parts: tuple[np.ndarray, np.ndarray]) -> float:
-        return float(sum(np.sum((r / s) ** 2) for r, s in zip(parts, scales, strict=True)))
-
-    redundancy = 6 * len(a) - parameters
-    if redundancy <= 0:
-        return False, "too few calibration captures to test for it"
-    rss_without, rss_with = whitened_sum(null), whitened_sum(residuals(with_))
-    statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
-    p = float(f_distribution.sf(statistic, added, redundancy))
-    said = (f"the calibration captures do not show it (F test of the {added} lost motions: F = {statistic:.2f}, "
-            f"p = {p:.2g} >= {LOST_MOTION_TEST_LEVEL:g}; calibrate.lost_motion = on fits them anyway)")
-    return p < LOST_MOTION_TEST_LEVEL, said
-
-
-def unknown_flanks(holders: Holders, m: Measured, free: np.ndarray) -> dict[str, str]:
-    """The free lost motions no capture of ``m`` can see: their joint's flank is unknown on
-    every one (captures without times, whose order of moves is unknown), by name, with why."""
-    out = {}
-    for robot, flanks in ((holders.camera, m.camera_flank), (holders.target, m.target_flank)):
-        if not isinstance(robot, HolderModel):
-            continue
-        for joint, column in zip(robot.chain.joint_names, flanks.T, strict=True):
-            name = f"{robot.robot}.{joint}.lost_motion"
-            if free[holders.names.index(name)] and not np.any(column):
-                out[name] = ("no capture tells its flank: the order of the moves is unknown (captures without "
-                             "capture_time_s) and its gravity torque never exceeds calibrate.backlash_preload_nm")
-    return out
-
-
 def bounded_compliance(holders: Holders, prior: np.ndarray, drawn: Measured, windup_rad: float) -> np.ndarray:
     """``prior`` (size,) with each joint's compliance sigma at most what winds the joint by
     ``windup_rad`` (the mastering tolerance) under its largest gravity torque over ``drawn``
@@ -459,41 +367,6 @@ def joint_columns(holders: Holders) -> np.ndarray:
     slices = holders.slices()
     return np.concatenate([np.arange(slices[robot.role].start, slices[robot.role].start + robot.joints)
                            for robot in holders.robots]).astype(int) if holders.robots else np.zeros(0, int)
-
-
-def flank_variances(holders: Holders, m: Measured, chains: ChainFit,
-                    lost_motion_rad: tuple[float, ...] | None) -> np.ndarray:
-    """(N, joints of both robots) variance (rad^2) of each joint's angle from its gearbox's
-    lost motion that the fitted arms ``chains`` leave out. A joint whose gravity torque
-    exceeds the fit's preload rests on its loaded flank, at the same place for every capture
-    with that load, which the offsets absorb. Any other rests on the flank its last move left
-    it on, ``+-l / 2`` from the middle:
-
-    - where the fit estimated ``l`` (``errors.py``) and ``m`` knows the flank, the fit's
-      covariance carries it (``pose_jacobians``): 0 here;
-    - where it estimated ``l`` but the flank is unknown (the session's first capture),
-      ``(l^2 + var l) / 4``;
-    - where it did not, the rating ``lost_motion_rad`` (one per joint, the same for both
-      robots; None: none) is a maximum, a unit's ``l`` uniform on 50-100% of it, so the
-      variance is ``E[l^2] / 4 = 7 / 12 (rating / 2)^2`` (``arms.UNIT_SHARE``)."""
-    out = []
-    parameters, covariance = np.asarray(chains.parameters, float), np.asarray(chains.covariance, float)
-    for robot, torque, flanks in ((holders.camera, m.camera_torque, m.camera_flank),
-                                  (holders.target, m.target_torque, m.target_flank)):
-        if not isinstance(robot, HolderModel):
-            continue
-        unloaded = np.abs(torque) <= chains.backlash_preload_nm
-        rating = np.zeros(robot.joints) if lost_motion_rad is None else np.asarray(lost_motion_rad, float)
-        if rating.shape != (robot.joints,):
-            raise ValueError(f"{robot.robot}: {len(rating)} lost-motion ratings for {robot.joints} joints")
-        variance = np.where(unloaded, arms.UNIT_SHARE * (rating / 2) ** 2, 0.0)
-        for joint, name in enumerate(robot.chain.joint_names):
-            index = holders.names.index(f"{robot.robot}.{name}.lost_motion")
-            if chains.prior_sigma[index] > 0 and chains.parameter_names[index] not in chains.dropped:
-                fitted = (parameters[index] ** 2 + covariance[index, index]) / 4
-                variance[:, joint] = np.where(flanks[:, joint] == 0, fitted, 0.0)
-        out.append(variance)
-    return np.concatenate(out, axis=1) if out else np.zeros((len(m.rail_m), 0))
 
 
 def pose_jacobians(holders: Holders, fit: ChainFit, m: Measured, world_up: np.ndarray,

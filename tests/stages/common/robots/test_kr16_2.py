@@ -14,7 +14,7 @@ from stages.calibrate.arm_models import arms_model
 from stages.common import arms, layout, rwhe
 from stages.common import geometry as g
 from stages.common.kinematics import arm_model, forward
-from stages.common.robots import identification
+from stages.common.robots import identification, lost_motion
 from stages.common.robots.errors import Holders
 from stages.common.robots.facility import load_facility
 from stages.common.statics import KR16_2_MASSES, gravity_torques
@@ -136,7 +136,7 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     unfitted = np.array([0.0 if name.endswith(".lost_motion") else 1.0 for name in holders.names])
     record = identification.Fitted(holders, solution, params, np.zeros((len(params), len(params))), names, False,
                                    {}, unfitted, preload).record()
-    variances = identification.flank_variances(holders, m, record, lost)
+    variances = lost_motion.flank_variances(holders, m, record, lost)
     loaded = np.abs(np.concatenate([m.camera_torque, m.target_torque], axis=1)) > preload
     assert loaded.any() and (~loaded).any()
     assert np.all(variances[loaded] == 0)
@@ -157,7 +157,7 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     assert np.sqrt(np.mean(error**2)) > 1e-4  # tenths of a mm at these reaches
     normalised = error / np.sqrt(np.diagonal(own, axis1=1, axis2=2)[:, 3:])
     np.testing.assert_allclose(np.sqrt(np.mean(normalised**2, axis=0)), 1.0, atol=0.12)
-    assert identification.flank_variances(holders, m, record, None).max() == 0.0
+    assert lost_motion.flank_variances(holders, m, record, None).max() == 0.0
 
 
 def test_forward_differences_step_as_scipy_does():
