@@ -87,10 +87,8 @@ def arms_fitted(config: Config, facility: Facility, target: Target) -> tuple[boo
     # as calibrate counts them (FacilityArms.parameters), with the fixtures' compliance, which
     # it fits where the payload loads them
     options = SimpleNamespace(joint_compliance=config.calibrate.joint_compliance,
-                              fixture_anisotropy=config.calibrate.fixture_anisotropy,
-                              lost_motion=config.calibrate.lost_motion,
-                              arm_prior_lost_motion_rad=config.calibrate.arm_prior_lost_motion_rad,
-                              backlash_preload_nm=config.calibrate.backlash_preload_nm)
+                              fixture_anisotropy=config.calibrate.fixture_anisotropy, lost_motion="off",
+                              arm_prior_lost_motion_rad=0.0)
     parameters = identification.fitted_parameter_count(holders, options, sorted(set(config.plan.calibration_mounts)),
                                                        True, Payload.of(target), WORLD_UP)
     needed = config.calibrate.min_arm_redundancy * parameters / 6

@@ -76,8 +76,7 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
     sequences. Writes ``plan`` (and ``W/trajectories.json``, ``W/target/``)."""
     # on a facility, whether calibrate will fit its arms decides how the calibration poses are drawn
     fitting = tuple(f"calibrate.{key}" for key in ("arm_kinematics", "min_arm_redundancy", "joint_compliance",
-                                                   "fixture_anisotropy", "lost_motion", "arm_prior_lost_motion_rad",
-                                                   "backlash_preload_nm")) if config.facility.path else ()
+                                                   "fixture_anisotropy")) if config.facility.path else ()
     sections = ("plan", "camera", "testbed", "facility.path", *fitting) + (
         ("trajectory",) if config.plan.mode == "trajectory" else ())
     extra = {"facility": facility_digest(Path(config.facility.path))} if config.facility.path else {}

@@ -267,7 +267,7 @@ def test_calibration_poses_are_chosen_for_what_they_determine(abb, monkeypatch):
     """Where calibrate will fit the arms, the plan keeps, of each calibration sample's
     candidates, the one that best determines the robots (stages/plan/calibration_choice.py):
     its smallest singular value is above that of the poses drawn one by one, which the smoke
-    profile's plan keeps (16 captures for 102 parameters: the arms stay at their URDFs), and
+    profile's plan keeps (16 captures for 90 parameters: the arms stay at their URDFs), and
     ``speedplus facility`` measures the same poses as the plan."""
     from stages.common.robots.observability import measure_of
     from stages.plan import calibration_choice
@@ -279,11 +279,11 @@ def test_calibration_poses_are_chosen_for_what_they_determine(abb, monkeypatch):
     smoke = load_config("smoke", overrides=[f"facility.path={folder}"])
     facility, target = load_facility(folder), load_target(workspace / "target")
     assert calibration_choice.arms_fitted(smoke, facility, target) == (
-        False, "16 calibration captures for 102 parameters (calibrate.min_arm_redundancy = 3: 51 needed)")
+        False, "16 calibration captures for 90 parameters (calibrate.min_arm_redundancy = 3: 45 needed)")
     (_, said), = facility_rows(smoke)
     assert said.startswith(measure_of(calibration_choice.rows_of(facility, drawn, target)).describe(16))
     assert said.endswith("drawn, not chosen: calibrate will leave the arms at their URDFs (16 calibration captures "
-                         "for 102 parameters (calibrate.min_arm_redundancy = 3: 51 needed))")
+                         "for 90 parameters (calibrate.min_arm_redundancy = 3: 45 needed))")
     from stages.plan import stage as plan_stage
     from stages.plan.stage import _calibration_ids, plan_sample
 

@@ -287,14 +287,16 @@ def free_parameters(holders: Holders, c: Any, names: list[str], compliant: bool,
 
 def fitted_parameter_count(holders: Holders, c: Any, fixtures: list[str], compliant: bool, payload: arms.Payload,
                            world_up: np.ndarray) -> int:
-    """How many parameters ``fit`` would estimate on samples of ``fixtures``: the arms'
-    identifiable ones and the offsets (``c``: what ``free_parameters`` reads)."""
+    """How many parameters ``fit`` would estimate on samples of ``fixtures`` from their poses:
+    the arms' identifiable ones and the offsets (``c``: what ``free_parameters`` reads). The
+    joints' lost motions are not counted: the order of the moves determines them, not the
+    poses, and a facility's plan (which asks this count) must not change with them."""
     names = sorted(set(fixtures))
     start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, compliant, compliant)])
     free = free_parameters(holders, c, names, compliant, len(params))
-    dropped = identifiable(holders, list(fixtures), compliant, params, free, payload, world_up,
-                           preload_nm=c.backlash_preload_nm)
+    free[[i for i, name in enumerate(holders.names) if name.endswith(".lost_motion")]] = False
+    dropped = identifiable(holders, list(fixtures), compliant, params, free, payload, world_up)
     return int(free.sum()) - len(dropped)
 
 
