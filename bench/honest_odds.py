@@ -95,7 +95,8 @@ def facility_model(root: Path) -> FacilityModel:
     measured = identification.measured(kuka.holders, rows, payload, kuka.world_up, kuka.preload_nm)
     jacobian = identification.pose_jacobians(kuka.holders, kuka.kinematics.chains, measured, kuka.world_up)[:, 3:]
     flanks = lost_motion.flank_variances(kuka.holders, measured, kuka.kinematics.chains,
-                                            None if config.facility.path else config.fuse.lost_motion_rad)
+                                         None if config.facility.path else config.fuse.lost_motion_rad,
+                                         kuka.parameter_scale)
     covariances = kuka.parameter_covariances(rows, config.fuse)
     estimates = [estimate(row, kuka, vicon, c, geometry) for row, c in zip(rows, covariances, strict=True)]
     sigma_kuka = np.stack([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m for e in estimates])

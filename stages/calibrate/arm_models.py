@@ -84,7 +84,7 @@ class ArmsModel:
                       f"{len(record.weak)} weakly determined by these poses"
                       + (f" (weakest: {_weakest(record.weak)})" if record.weak else ""))
         return ArmKinematics(True, f"{note}; {kept} of {len(record.parameter_names)} parameters identifiable, "
-                             f"{len(record.dropped)} dropped as inseparable (named in chains.dropped)", record)
+                             f"{len(record.dropped)} held at zero (named in chains.dropped, with why)", record)
 
 
 def _weakest(weak: dict[str, float]) -> str:

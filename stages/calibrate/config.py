@@ -121,8 +121,9 @@ class CalibrateConfig:
         if min(self.arm_prior_joint_rad, self.arm_prior_length_m, self.arm_prior_frame_rad, self.arm_prior_base_m,
                self.arm_prior_base_rad, self.arm_prior_rail_scale, self.arm_prior_compliance_rad_per_nm) <= 0:
             raise ConfigError("calibrate.arm_prior_*: expected positive sigmas")
-        if min(self.arm_prior_lost_motion_rad, self.backlash_preload_nm) < 0:
-            raise ConfigError("calibrate.arm_prior_lost_motion_rad/backlash_preload_nm: expected values of at least 0")
+        if not (self.arm_prior_lost_motion_rad >= 0 and 0 <= self.backlash_preload_nm < math.inf):
+            raise ConfigError("calibrate.arm_prior_lost_motion_rad/backlash_preload_nm: expected finite values of at "
+                              "least 0")
         if self.fixture_anisotropy_prior <= 0:
             raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
         if not math.isclose(float(np.linalg.norm(self.world_up)), 1.0, rel_tol=1e-6):

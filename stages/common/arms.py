@@ -64,7 +64,7 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
     the covariance from the parameters' covariance ``parameters`` (P, P), one draw shared by
     every capture of the session, which grows where the arms' configuration differs from
     the calibration's; and each capture's own, from the noise of its joint angles
-    ``joint_variance_rad2`` (N, K) (``identification.flank_variances``; zeros without),
+    ``joint_variance_rad2`` (N, K) (``lost_motion.flank_variances``; zeros without),
     whose columns of the Jacobian are ``joint_columns`` (K,) (the joints' zero offsets)."""
     shared = jacobian @ parameters @ np.swapaxes(jacobian, -1, -2)
     own = np.zeros_like(shared)

@@ -141,7 +141,7 @@ class SourceModel:
         jacobians = identification.pose_jacobians(self.holders, self.kinematics.chains, measured, self.world_up)
         parameters = np.asarray(self.kinematics.covariance) * self.parameter_scale**2
         flanks = lost_motion.flank_variances(self.holders, measured, self.kinematics.chains,
-                                                fuse.lost_motion_rad if self.tron else None)
+                                             fuse.lost_motion_rad if self.tron else None, self.parameter_scale)
         shared, own = arms.pose_covariance_parts(jacobians, parameters, flanks,
                                                  identification.joint_columns(self.holders))
         return [ArmUncertainty(s + o, j[3:], parameters) for s, o, j in zip(shared, own, jacobians, strict=True)]

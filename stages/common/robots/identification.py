@@ -65,9 +65,10 @@ def _joints(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], key: s
 
 
 def _directions(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], role: str) -> np.ndarray:
-    joints = holder.joints if isinstance(holder, HolderModel) else 0
-    return np.array([row.get(DIRECTION_KEYS[role]) or [0.0] * joints for row in rows], float
-                    ).reshape(len(rows), -1)[:, :joints]
+    if not isinstance(holder, HolderModel):
+        return np.zeros((len(rows), 0))
+    return np.array([(row.get(DIRECTION_KEYS[role]) or [0.0] * holder.joints)[:holder.joints] for row in rows],
+                    float).reshape(len(rows), holder.joints)
 
 
 def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.ndarray, fixtures: tuple[str, ...],
@@ -339,6 +340,9 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
                            preload_nm=c.backlash_preload_nm)
     dropped.update(unknown_flanks(holders, m, free))
+    dropped.update({name: "not fitted (calibrate.lost_motion = off, or calibrate.arm_prior_lost_motion_rad = 0)"
+                    for i, name in enumerate(holders.names) if name.endswith(".lost_motion") and not free[i]
+                    and name not in dropped})
     free[[holders.names.index(n) for n in dropped]] = False
     all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
     priored_all = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop)])

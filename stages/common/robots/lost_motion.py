@@ -45,7 +45,7 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         for robot, key in DIRECTION_KEYS.items():
             column = f"kuka_{robot}_joints_rad"
             read = sorted((row for row in chosen if row.get(column) is not None),
-                          key=lambda row: float(row["capture_time_s"]) if timed else 0.0)
+                          key=lambda row: (float(row["capture_time_s"]) if timed else 0.0, str(row.get("sample_id"))))
             for row in chosen:
                 row[key] = None
             last, previous = None, None
@@ -116,7 +116,7 @@ def unknown_flanks(holders: Holders, m: Measured, free: np.ndarray) -> dict[str,
 
 
 def flank_variances(holders: Holders, m: Measured, chains: ChainFit,
-                    lost_motion_rad: tuple[float, ...] | None) -> np.ndarray:
+                    lost_motion_rad: tuple[float, ...] | None, parameter_scale: float = 1.0) -> np.ndarray:
     """(N, joints of both robots) variance (rad^2) of each joint's angle from its gearbox's
     lost motion that the fitted arms ``chains`` leave out. A joint whose gravity torque
     exceeds the fit's preload rests on its loaded flank, at the same place for every capture
@@ -126,12 +126,13 @@ def flank_variances(holders: Holders, m: Measured, chains: ChainFit,
     - where the fit estimated ``l`` (``errors.py``) and ``m`` knows the flank, the fit's
       covariance carries it (``pose_jacobians``): 0 here;
     - where it estimated ``l`` but the flank is unknown (the session's first capture),
-      ``(l^2 + var l) / 4``;
+      ``(l^2 + var l) / 4``, ``var l`` widened by ``parameter_scale`` as the parameters' is;
     - where it did not, the rating ``lost_motion_rad`` (one per joint, the same for both
       robots; None: none) is a maximum, a unit's ``l`` uniform on 50-100% of it, so the
       variance is ``E[l^2] / 4 = 7 / 12 (rating / 2)^2`` (``arms.UNIT_SHARE``)."""
     out = []
-    parameters, covariance = np.asarray(chains.parameters, float), np.asarray(chains.covariance, float)
+    parameters = np.asarray(chains.parameters, float)
+    covariance = np.asarray(chains.covariance, float) * parameter_scale**2
     for robot, torque, flanks in ((holders.camera, m.camera_torque, m.camera_flank),
                                   (holders.target, m.target_torque, m.target_flank)):
         if not isinstance(robot, HolderModel):

@@ -12,6 +12,7 @@ from manifests.sidecars.base import Fields, SidecarError
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.robots import identification as ident
+from stages.common.robots import lost_motion
 from stages.common.robots.errors import Holders
 from stages.common.robots.facility import load_facility
 
@@ -206,3 +207,22 @@ def test_lost_motion_the_captures_do_not_show_is_not_fitted(holders):
     lost = [name for name in holders.names if name.endswith(".lost_motion")]
     assert all("F test" in fitted.dropped[name] for name in lost)
     assert not np.any(fitted.params[[holders.names.index(name) for name in lost]])
+
+
+def test_lost_motion_switched_off_is_named_and_left_to_the_rating(holders):
+    """``calibrate.lost_motion = off``: the lost motions are held and named as such, so that
+    fuse takes the gearboxes' rating for every unloaded joint instead of a fit of zero."""
+    from dataclasses import replace as replaced
+
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 6).subset(np.arange(96) < 48)
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
+    a = ident.predict_batch(holders, params[None], ["minus_x"], False, m, UP)[0]
+    settings = SimpleNamespace(**{**vars(SETTINGS), "lost_motion": "off"})
+    record = ident.fit(holders, settings, a, m, OFFSETS, False, PAYLOAD).record()
+    lost = [name for name in holders.names if name.endswith(".lost_motion")]
+    assert all("calibrate.lost_motion = off" in record.dropped[name] for name in lost)
+    rating = (2.9e-4,) * 3 + (5.8e-4,) * 3
+    off = lost_motion.flank_variances(holders, m, record, rating)
+    assert off.max() > 0  # the unloaded joints carry their rating
+    fitted = replaced(record, dropped={k: v for k, v in record.dropped.items() if k not in lost})
+    assert lost_motion.flank_variances(holders, m, fitted, rating).max() == 0  # known flanks, fitted: none
