@@ -339,7 +339,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     free = free_parameters(holders, c, names, compliant, len(params))
     dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
                            preload_nm=c.backlash_preload_nm)
-    dropped.update(unknown_flanks(holders, m, free))
+    dropped.update({name: why for name, why in unknown_flanks(holders, m, free).items() if name not in dropped})
     dropped.update({name: "not fitted (calibrate.lost_motion = off, or calibrate.arm_prior_lost_motion_rad = 0)"
                     for i, name in enumerate(holders.names) if name.endswith(".lost_motion") and not free[i]
                     and name not in dropped})
