@@ -60,19 +60,10 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-#: the share of the preload by which a nominal gravity torque may be off: the lab's mass model
-#: is a data sheet's, and a joint whose torque is that near the preload may rest on either flank
-PRELOAD_BAND = 0.5
-
-
 def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.ndarray:
     """(N, J) the gear flank each joint rests on: its gravity torque's sign where that
-    exceeds ``preload_nm`` by more than ``PRELOAD_BAND`` of it, the direction of its last
-    move where the torque is below the band or pushes the same way, and 0 (unknown) where
-    the two disagree inside the band (or the direction is unknown)."""
-    loaded = np.abs(torque) > preload_nm * (1.0 + PRELOAD_BAND)
-    free = (np.abs(torque) < preload_nm * (1.0 - PRELOAD_BAND)) | (np.sign(torque) == direction)
-    return np.where(loaded, np.sign(torque), np.where(free, direction, 0.0))
+    exceeds ``preload_nm``, else the direction of its last move (0: unknown)."""
+    return np.where(np.abs(torque) > preload_nm, np.sign(torque), direction)
 
 
 #: the lost motions are fitted under ``calibrate.lost_motion = auto`` when the F test rejects

@@ -20,14 +20,3 @@ def test_each_joints_last_move_follows_the_captures_times_not_the_rows_order():
     assert out["a"]["target_move_direction"] is None  # no readings: a static mount's
     assert out["y"]["camera_move_direction"] == [0.0, 0.0]  # a session with an untimed capture
     assert "camera_move_direction" not in rows[0]  # the caller's rows are left as they were
-
-
-def test_a_joint_loaded_near_its_preload_rests_on_an_unknown_flank():
-    """Well above the preload the load decides, well below the last move; in between, where
-    the lab's nominal masses may be off, only a load and a move that agree tell the flank."""
-    import numpy as np
-
-    preload = 15.0
-    torque = np.array([[40.0, -40.0, 2.0, 14.0, 14.0, -16.0]])
-    direction = np.array([[-1.0, 1.0, -1.0, 1.0, -1.0, 0.0]])
-    np.testing.assert_array_equal(lost_motion.flank(torque, direction, preload), [[1, -1, -1, 1, 0, 0]])
