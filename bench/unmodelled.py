@@ -79,8 +79,9 @@ def robots_only(config: Config, sessions: dict[str, Any], rng: np.random.Generat
     fitted = model.fit(a, readings, fixtures, start, True)
     out = {}
     for session, (captures, true) in sessions.items():
-        b, up = fitted.corrected_b(model.readings(captures))
-        predicted = fitted.offsets.predict(b, [x["fixture"] for x in captures], up)
+        readings = model.readings(captures)
+        b, up = fitted.corrected_b(readings)
+        predicted = fitted.offsets.predict(b, [x["fixture"] for x in captures], up, fitted.up_before(readings))
         rotation = np.degrees(g.angular_distance(predicted[:, :3, :3], true[:, :3, :3]))
         out[f"{session} E_T (mm)"] = float(np.linalg.norm(predicted[:, :3, 3] - true[:, :3, 3], axis=1).mean() * 1000)
         out[f"{session} E_R (deg)"] = float(rotation.mean())

@@ -24,7 +24,7 @@ from manifests.workspace import Workspace
 # arm from its URDF (arm_kinematics.chains; TRON's KR 16-2 record, arm_kinematics' own
 # corrections, is gone); 5: each joint's lost motion (arm_kinematics.chains: robots[].lost_motion_rad and
 # its parameters)
-CALIBRATION_VERSION = 5
+CALIBRATION_VERSION = 6
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}
@@ -76,8 +76,9 @@ class SigmaRecord:
 @dataclass(frozen=True)
 class FixtureCompliance:
     """The model fixtures' gravity sag (stages.common.rwhe.fixture_tilt), when calibrate
-    estimated it: per fixture ``k`` (3,) rad and, with anisotropy, ``D_f`` (6,); the tilts
-    they imply over the calibration samples (rad)."""
+    estimated it: per fixture ``k`` (3,) rad and, with anisotropy, ``D_f`` (6,), and with
+    the arms' kinematics its play ``w_f`` (rad, ``fixture_lag``; 0 where the captures did
+    not show it); the tilts they imply over the calibration samples (rad)."""
 
     estimated: bool
     why: str | None  # the decision's reason (None: a file that did not record it)
@@ -85,6 +86,7 @@ class FixtureCompliance:
     anisotropy_by_fixture: dict[str, tuple[float, ...]] | None = None
     tilt_rad_mean: float | None = None
     tilt_rad_max: float | None = None
+    play_rad_by_fixture: dict[str, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"estimated": self.estimated}
@@ -96,11 +98,13 @@ class FixtureCompliance:
             out["anisotropy_by_fixture"] = None if self.anisotropy_by_fixture is None else {
                 name: list(d) for name, d in self.anisotropy_by_fixture.items()}
             out["tilt_rad_mean"], out["tilt_rad_max"] = self.tilt_rad_mean, self.tilt_rad_max
+            out["play_rad_by_fixture"] = None if self.play_rad_by_fixture is None else dict(self.play_rad_by_fixture)
         return out
 
     @classmethod
     def from_fields(cls, f: Fields) -> FixtureCompliance:
-        f.only("estimated", "why", "k_rad_by_fixture", "anisotropy_by_fixture", "tilt_rad_mean", "tilt_rad_max")
+        f.only("estimated", "why", "k_rad_by_fixture", "anisotropy_by_fixture", "tilt_rad_mean", "tilt_rad_max",
+               "play_rad_by_fixture")
         by_fixture: dict[str, dict[str, tuple[float, ...]] | None] = {}
         for key, length in (("k_rad_by_fixture", 3), ("anisotropy_by_fixture", 6)):
             entry = f.child(key) if f.optional(key) else None
@@ -108,7 +112,12 @@ class FixtureCompliance:
         return cls(f.boolean("estimated"), f.text("why") if f.optional("why") else None,
                    by_fixture["k_rad_by_fixture"], by_fixture["anisotropy_by_fixture"],
                    f.number("tilt_rad_mean") if f.optional("tilt_rad_mean") else None,
-                   f.number("tilt_rad_max") if f.optional("tilt_rad_max") else None)
+                   f.number("tilt_rad_max") if f.optional("tilt_rad_max") else None, _plays(f))
+
+
+def _plays(f: Fields) -> dict[str, float] | None:
+    entry = f.child("play_rad_by_fixture") if f.optional("play_rad_by_fixture") else None
+    return None if entry is None else {name: entry.number(name) for name in entry.data}
 
 
 @dataclass(frozen=True)
@@ -194,6 +203,11 @@ class SourceCalibration:
     def compliance_anisotropy(self) -> dict[str, tuple[float, ...]]:
         """Per fixture (6,): stages.common.rwhe.fixture_tilt's D_f; empty: isotropic."""
         return self.fixture_compliance.anisotropy_by_fixture or {}
+
+    @property
+    def compliance_play_rad(self) -> dict[str, float]:
+        """Per fixture: stages.common.rwhe.fixture_lag's w_f; empty: no play."""
+        return self.fixture_compliance.play_rad_by_fixture or {}
 
     def to_json(self) -> dict[str, Any]:
         z_key, x_key = OFFSET_KEYS[self.source]

@@ -33,6 +33,11 @@ class Fitted:
         """``B`` (N, 4, 4) and the up direction in the target flange (N, 3) of readings ``r``."""
         return self.model.corrected_b(self.fit, r)
 
+    def up_before(self, r: Readings) -> np.ndarray:
+        """(N, 3) the up direction in the target flange at each capture's one before (NaN:
+        none), for ``offsets.predict``'s fixture play."""
+        return self.fit.up_before(r, np.asarray(self.model.settings.world_up, float))
+
     def kinematics(self, note: str) -> ArmKinematics:
         return self.model.kinematics(self.fit, note)
 

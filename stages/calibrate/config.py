@@ -70,6 +70,19 @@ class CalibrateConfig:
     fixture_anisotropy_prior: float = param(
         0.5, "prior 1-sigma of each entry of a compliant fixture's anisotropy D_f (with the arms' kinematics): "
         "a bracket can be half again as stiff about one axis as about another", "1")
+    link_mass_uncertainty: float = param(
+        0.25, "relative 1-sigma of the URDF's link masses (a data sheet's or a CAD model's): a joint whose nominal "
+        "gravity torque lies within twice what that moves it of calibrate.backlash_preload_nm, and whose load and "
+        "last move disagree, rests on an unknown flank (stages/common/robots/lost_motion.py flank)", "1")
+    fixture_play: Literal["auto", "on", "off"] = param(
+        "auto", "with the arms' kinematics and a compliant fixture, also fit the fixture's play: micro-slip in its "
+        "clamped joints holds its tilt back against the direction the tilt last changed in, which the captures' "
+        "order gives (stages/common/rwhe.py fixture_lag). auto where the calibration captures show it (an F test "
+        "at 1%, as for the lost motion), on always, off never", "")
+    fixture_play_prior_rad: float = param(
+        1e-3, "prior 1-sigma of a compliant fixture's play (zero mean): a few percent of a sag of a few tenths of "
+        "a degree; bolted joints slip by some 5% of their elastic deflection (Gaul and Lenz, Acta Mechanica 125, "
+        "1997)", "rad")
     arm_prior_compliance_rad_per_nm: float = param(
         3e-5, "prior 1-sigma of a joint's compliance (zero mean), and at most what winds the joint by "
         "arm_prior_joint_rad under its largest gravity torque: twice the compliance of an industrial wrist joint "
@@ -124,6 +137,10 @@ class CalibrateConfig:
         if not (self.arm_prior_lost_motion_rad >= 0 and 0 <= self.backlash_preload_nm < math.inf):
             raise ConfigError("calibrate.arm_prior_lost_motion_rad/backlash_preload_nm: expected finite values of at "
                               "least 0")
+        if not 0 <= self.link_mass_uncertainty < math.inf:
+            raise ConfigError("calibrate.link_mass_uncertainty: expected a finite value of at least 0")
+        if not 0 < self.fixture_play_prior_rad < math.inf:
+            raise ConfigError("calibrate.fixture_play_prior_rad: expected a positive, finite sigma")
         if self.fixture_anisotropy_prior <= 0:
             raise ConfigError("calibrate.fixture_anisotropy_prior: expected a positive sigma")
         if not math.isclose(float(np.linalg.norm(self.world_up)), 1.0, rel_tol=1e-6):

@@ -189,14 +189,15 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
         solution = solve(config, a[train], b[train], train_fixtures,
                          [o for o, keep in zip(used, train, strict=True) if keep], intrinsics, _subset(up, train))
         test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]
-        b_test, up_test = b[test], _subset(up, test)
+        b_test, up_test, before = b[test], _subset(up, test), None
         if arms is not None:
             model, readings = arms
             fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None)
             solution = fitted.offsets
             b_test, up_arms = fitted.corrected_b(readings.subset(test))
             up_test = None if up is None else up_arms
-        predicted[test] = solution.predict(b_test, test_fixtures, up_test)
+            before = fitted.up_before(readings.subset(test))
+        predicted[test] = solution.predict(b_test, test_fixtures, up_test, before)
         determined |= test
     return CrossValidation(predicted, determined, int(config.calibrate.folds), tuple(sorted(why)), why)
 

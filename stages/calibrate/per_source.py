@@ -147,7 +147,7 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     screening.check_inliers(source, int(keep.sum()), len(keep))
     outliers = tuple(o.sample_id for o, k in zip(samples.used, keep, strict=True) if not k)
     s = samples.inliers(keep)
-    b, up, fitted = s.b, s.up, None
+    b, up, fitted, before = s.b, s.up, None, None
     if s.kinematic:
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, (s.arms, s.readings),
                                f"calibrate {source}")
@@ -157,9 +157,10 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         solution = fitted.offsets
         b, up_arms = fitted.corrected_b(s.readings)
         up = None if up is None else up_arms
+        before = fitted.up_before(s.readings)
     else:
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, label=f"calibrate {source}")
-    predicted = solution.predict(b, s.fixtures, up)
+    predicted = solution.predict(b, s.fixtures, up, before)
     offsets = _offset_uncertainty(source, s, solution, b, up, fitted)
     in_sample = metrics(predicted, s.a, s.used, intrinsics)
     if not cross.judged:
@@ -171,7 +172,8 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     calibration = SourceCalibration(
         source=source, cam_from_offset=record(solution.z),
         target_from_offset_by_fixture={f: record(x) for f, x in solution.x.items()},
-        fixture_compliance=compliance_record(solution, up, s.fixtures, s.compliance_note),
+        fixture_compliance=compliance_record(solution, up, s.fixtures, s.compliance_note,
+                                             fitted.fit.play_why if fitted is not None else ""),
         arm_kinematics=fitted.kinematics(s.arm_note) if fitted is not None else ArmKinematics(False, s.arm_note),
         sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,

@@ -64,17 +64,20 @@ def arm_decision(config: Config, readings: object | None) -> tuple[bool, str]:
 
 
 def compliance_record(solution: rwhe.Solution, up: np.ndarray | None, fixtures: list[str],
-                      note: str) -> FixtureCompliance:
-    """The estimated compliances ``k_f`` (rad) and the tilts they imply over the samples."""
+                      note: str, play_why: str = "") -> FixtureCompliance:
+    """The estimated compliances ``k_f`` (rad), the plays ``w_f`` (rad; with why where they
+    were not fitted, ``play_why``) and the tilts they imply over the samples."""
     if not solution.compliance or up is None:
         return FixtureCompliance(False, note)
     k = np.stack([solution.compliance[f] for f in fixtures])
     d = np.stack([solution.anisotropy[f] for f in fixtures]) if solution.anisotropy else None
     tilt = np.linalg.norm(g.matrix_to_rotvec(rwhe.fixture_tilt(up, k, d)[:, :3, :3]), axis=1)
     return FixtureCompliance(
-        True, note, {f: tuple(float(v) for v in k_f) for f, k_f in solution.compliance.items()},
+        True, f"{note}; the play {play_why}" if play_why else note,
+        {f: tuple(float(v) for v in k_f) for f, k_f in solution.compliance.items()},
         {f: tuple(float(v) for v in d_f) for f, d_f in solution.anisotropy.items()} if solution.anisotropy else None,
-        float(tilt.mean()), float(tilt.max()))
+        float(tilt.mean()), float(tilt.max()),
+        {f: float(w) for f, w in solution.play.items()} if solution.play else None)
 
 
 def write_robot_urdfs(config: Config, workspace: Workspace, chains: ChainFit | None) -> None:

@@ -23,6 +23,13 @@ at capture i (from the robot's telemetry), ``k_f = c m g p`` (3,) radians, with 
 fixture's compliance (rad / N m), ``m g`` the model's weight and ``p`` its centre of mass
 in the flange frame. Then ``A_i X_f = Z B_i S(up_i x k_f)``; ``k_f`` is estimated with the
 offsets when the flange's attitude varies enough to observe it (``gravity_spread``).
+
+A clamped fixture also micro-slips: its tilt lags its elastic value by up to its play
+``w_f`` (rad) against the direction the tilt last changed in (``fixture_lag``: the first-order
+play operator of bolted joints' hysteresis; Gaul and Lenz, Acta Mechanica 125, 1997), so
+``S`` becomes ``S(t_i) L(t_i - t_before)`` with ``t`` the elastic tilt at capture i and at
+the capture before it (with this fixture's ``k_f``, ``D_f``: a change of mount keeps the
+adapter that slips clamped); where no capture came before, no lag.
 """
 
 from __future__ import annotations
@@ -57,10 +64,26 @@ def fixture_tilt(up_targetee: np.ndarray, compliance: np.ndarray, anisotropy: np
     whose centre lies along ``k``, times one compliance. A bracket is stiffer in one plane
     than in another: ``I + D`` is its compliance's shape (a symmetric matrix, as every
     linear elastic compliance is)."""
+    return g.make_transform(g.rotvec_to_matrix(tilt_rotvec(up_targetee, compliance, anisotropy)), np.zeros(3))
+
+
+def tilt_rotvec(up_targetee: np.ndarray, compliance: np.ndarray, anisotropy: np.ndarray | None = None) -> np.ndarray:
+    """The elastic tilt's rotation vector (..., N, 3, rad, flange frame) of ``fixture_tilt``."""
     rotvec = np.cross(up_targetee, compliance)
     if anisotropy is not None:
         rotvec = rotvec + np.einsum("...ij,...j->...i", symmetric(anisotropy), rotvec)
-    return g.make_transform(g.rotvec_to_matrix(rotvec), np.zeros(3))
+    return rotvec
+
+
+def fixture_lag(tilt_now: np.ndarray, tilt_before: np.ndarray, play_rad: np.ndarray) -> np.ndarray:
+    """Rotations (..., N, 4, 4, flange frame) by which micro-slip holds a fixture back from
+    its elastic tilt ``tilt_now`` (..., N, 3, rotation vector): ``min(|c|, w) c / |c|`` against
+    the change ``c`` from ``tilt_before`` (NaN: no capture before it, no lag), ``w`` the
+    play ``play_rad`` (..., N)."""
+    change = np.nan_to_num(tilt_now - tilt_before)
+    size = np.linalg.norm(change, axis=-1)
+    scale = np.minimum(size, np.asarray(play_rad, float)) / np.maximum(size, 1e-300)
+    return g.make_transform(g.rotvec_to_matrix(-scale[..., None] * change), np.zeros(3))
 
 
 def gravity_spread(up_targetee: np.ndarray) -> float:
@@ -80,10 +103,13 @@ class Solution:
     x: dict[str, np.ndarray]
     compliance: dict[str, np.ndarray] = field(default_factory=dict)
     anisotropy: dict[str, np.ndarray] = field(default_factory=dict)
+    play: dict[str, float] = field(default_factory=dict)  # w_f (rad) per compliant fixture; empty: none
 
-    def predict(self, b: np.ndarray, fixtures: list[str], up_targetee: np.ndarray | None = None) -> np.ndarray:
-        """``cam_from_target`` (N, 4, 4) = Z B_i S_i X_f^-1; ``up_targetee`` (N, 3) is needed
-        when the solution has compliant fixtures."""
+    def predict(self, b: np.ndarray, fixtures: list[str], up_targetee: np.ndarray | None = None,
+                up_before: np.ndarray | None = None) -> np.ndarray:
+        """``cam_from_target`` (N, 4, 4) = Z B_i S_i L_i X_f^-1; ``up_targetee`` (N, 3) is needed
+        when the solution has compliant fixtures; ``up_before`` (N, 3): the up direction in
+        the flange at each capture's previous one (NaN rows: none; None: no lag at all)."""
         inverses = {f: g.invert(self.x[f]) for f in set(fixtures)}
         x_inv = np.stack([inverses[f] for f in fixtures])
         if not self.compliance:
@@ -92,7 +118,12 @@ class Solution:
             raise ValueError("a solution with compliant fixtures predicts from the up directions")
         k = np.stack([self.compliance[f] for f in fixtures])
         d = np.stack([self.anisotropy[f] for f in fixtures]) if self.anisotropy else None
-        return self.z @ b @ fixture_tilt(np.asarray(up_targetee, float), k, d) @ x_inv
+        tilt = fixture_tilt(np.asarray(up_targetee, float), k, d)
+        if self.play and up_before is not None:
+            w = np.array([self.play[f] for f in fixtures], float)
+            tilt = tilt @ fixture_lag(tilt_rotvec(np.asarray(up_targetee, float), k, d),
+                                      tilt_rotvec(np.asarray(up_before, float), k, d), w)
+        return self.z @ b @ tilt @ x_inv
 
 
 def diversity_problem(b: np.ndarray, fixtures: list[str], min_samples: int, min_spread_rad: float) -> str | None:
@@ -250,9 +281,11 @@ def transform_from_vector(vector: np.ndarray) -> np.ndarray:
     return g.make_transform(g.rotvec_to_matrix(vector[..., :3]), vector[..., 3:6])
 
 
-def pack(solution: Solution, names: list[str], compliant: bool, anisotropic: bool = False) -> np.ndarray:
+def pack(solution: Solution, names: list[str], compliant: bool, anisotropic: bool = False,
+         played: bool = False) -> np.ndarray:
     """Parameter vector: Z, each X_f (rotation vector, translation), then each ``k_f`` when
-    ``compliant``, then each ``D_f`` when also ``anisotropic``."""
+    ``compliant``, then each ``D_f`` when also ``anisotropic``, then each ``w_f`` when also
+    ``played``."""
     parts = [g.matrix_to_rotvec(solution.z[:3, :3]), solution.z[:3, 3]]
     for name in names:
         parts += [g.matrix_to_rotvec(solution.x[name][:3, :3]), solution.x[name][:3, 3]]
@@ -260,6 +293,8 @@ def pack(solution: Solution, names: list[str], compliant: bool, anisotropic: boo
         parts += [solution.compliance.get(name, np.zeros(3)) for name in names]
         if anisotropic:
             parts += [solution.anisotropy.get(name, np.zeros(6)) for name in names]
+            if played:
+                parts.append(np.array([solution.play.get(name, 0.0) for name in names], float))
     return np.concatenate(parts)
 
 
@@ -269,7 +304,14 @@ def anisotropy_slice(names: list[str]) -> slice:
     return slice(start, start + 6 * len(names))
 
 
-def unpack(params: np.ndarray, names: list[str], compliant: bool, anisotropic: bool = False) -> Solution:
+def play_slice(names: list[str]) -> slice:
+    """Where ``pack`` puts the ``w_f`` of a played (so anisotropic and compliant) solution."""
+    start = anisotropy_slice(names).stop
+    return slice(start, start + len(names))
+
+
+def unpack(params: np.ndarray, names: list[str], compliant: bool, anisotropic: bool = False,
+           played: bool = False) -> Solution:
     vectors = params[:6 * (1 + len(names))].reshape(-1, 6)
     poses = g.make_transform(g.rotvec_to_matrix(vectors[:, :3]), vectors[:, 3:])  # at once: an inner loop
 
@@ -282,14 +324,20 @@ def unpack(params: np.ndarray, names: list[str], compliant: bool, anisotropic: b
     if compliant and anisotropic:
         first = anisotropy_slice(names).start
         anisotropy = {name: params[first + 6 * j:first + 6 * j + 6] for j, name in enumerate(names)}
-    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)}, compliance, anisotropy)
+    play = {}
+    if compliant and anisotropic and played:
+        first = play_slice(names).start
+        play = {name: float(params[first + j]) for j, name in enumerate(names)}
+    return Solution(pose(0), {name: pose(1 + j) for j, name in enumerate(names)}, compliance, anisotropy, play)
 
 
 def predict_packed(params: np.ndarray, names: list[str], compliant: bool, anisotropic: bool, b: np.ndarray,
-                   fixtures: list[str], up_targetee: np.ndarray | None = None) -> np.ndarray:
+                   fixtures: list[str], up_targetee: np.ndarray | None = None, played: bool = False,
+                   up_before: np.ndarray | None = None) -> np.ndarray:
     """``Solution.predict`` of ``unpack`` for a batch of packed parameters (K, Q) at once:
     ``cam_from_target`` (K, N, 4, 4) from ``b`` (K, N, 4, 4) and, when ``compliant``, the
-    up directions (K, N, 3). A finite-difference Jacobian evaluates every step in one call."""
+    up directions (K, N, 3) (and, when ``played``, those at the captures before, NaN rows
+    where none). A finite-difference Jacobian evaluates every step in one call."""
     count = len(names)
     index = np.array([names.index(f) for f in fixtures])
     poses = transform_from_vector(params[:, :6 * (1 + count)].reshape(len(params), -1, 6))  # (K, 1 + F, 4, 4)
@@ -305,7 +353,12 @@ def predict_packed(params: np.ndarray, names: list[str], compliant: bool, anisot
     if anisotropic:
         first = anisotropy_slice(names).start
         d = params[:, first:first + 6 * count].reshape(len(params), count, 6)[:, index]
-    return cam_from_targetee @ fixture_tilt(np.asarray(up_targetee, float), k, d) @ x_inv
+    up_targetee = np.asarray(up_targetee, float)
+    tilt = fixture_tilt(up_targetee, k, d)
+    if played and anisotropic and up_before is not None:
+        w = params[:, play_slice(names)][:, index]
+        tilt = tilt @ fixture_lag(tilt_rotvec(up_targetee, k, d), tilt_rotvec(np.asarray(up_before, float), k, d), w)
+    return cam_from_targetee @ tilt @ x_inv
 
 
 def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution,

@@ -39,7 +39,7 @@ from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejec
 from stages.common.json_arrays import matrix
 from stages.common.robots import identification, lost_motion
 from stages.common.robots.errors import Holders, configured_holders
-from stages.common.rwhe import fixture_tilt
+from stages.common.rwhe import fixture_lag, fixture_tilt, tilt_rotvec
 from stages.common.sources import measured_b, up_targetee
 from stages.common.workspace_target import workspace_target
 from stages.fuse.config import FuseConfig
@@ -82,6 +82,7 @@ class SourceModel:
         self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
         self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
         self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
+        self.play = dict(entry.compliance_play_rad)
         self.sigma = Sigma.from_record(entry.sigma)
         self.metrics, self.samples = entry.metrics, entry.samples
         #: how much wider the arms' parameters are than their fit says (a short session's widening)
@@ -103,19 +104,24 @@ class SourceModel:
         """``cam_from_target`` (4, 4) of a capture from this source's measurement ``b``."""
         self.check_fixture(row)
         fixture = row["fixture"]
-        up = up_targetee(row, self.world_up)
+        up, before = up_targetee(row, self.world_up), None
         if self.holders is not None:
             measured = identification.measured(self.holders, [row], self.payload, self.world_up, self.preload_nm)
             if measured is None:
                 raise InputError(f"captures: sample {row['sample_id']} lacks the robots' encoder readings, which the "
                                  "calibration of the arms needs (calibrate.arm_kinematics)")
             size = self.holders.size
-            b_arms, up_arms = identification.corrected_b(self.holders, np.asarray(self.kinematics.chains.parameters)
-                                                         [:size], measured, self.world_up)
+            arm_params = np.asarray(self.kinematics.chains.parameters)[:size]
+            b_arms, up_arms = identification.corrected_b(self.holders, arm_params, measured, self.world_up)
             b, up = b_arms[0], up_arms[0]
+            before = identification.up_before(self.holders, arm_params[None], measured, self.world_up)[0, 0]
         if fixture in self.compliance:
+            k = self.compliance[fixture][None]
             d = self.anisotropy[fixture][None] if fixture in self.anisotropy else None
-            b = b @ fixture_tilt(up[None], self.compliance[fixture][None], d)[0]
+            b = b @ fixture_tilt(up[None], k, d)[0]
+            if self.play.get(fixture) and before is not None:
+                b = b @ fixture_lag(tilt_rotvec(up[None], k, d), tilt_rotvec(before[None], k, d),
+                                    np.array([self.play[fixture]]))[0]
         return self.z @ b @ g.invert(self.x[fixture])
 
     def sigma_at(self, pose: np.ndarray, sigma: Sigma | None = None) -> Sigma:

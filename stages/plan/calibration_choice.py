@@ -88,7 +88,7 @@ def arms_fitted(config: Config, facility: Facility, target: Target) -> tuple[boo
     # it fits where the payload loads them
     options = SimpleNamespace(joint_compliance=config.calibrate.joint_compliance,
                               fixture_anisotropy=config.calibrate.fixture_anisotropy, lost_motion="off",
-                              arm_prior_lost_motion_rad=0.0)
+                              arm_prior_lost_motion_rad=0.0, fixture_play="off")
     parameters = identification.fitted_parameter_count(holders, options, sorted(set(config.plan.calibration_mounts)),
                                                        True, Payload.of(target), WORLD_UP)
     needed = config.calibrate.min_arm_redundancy * parameters / 6

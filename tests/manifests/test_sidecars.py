@@ -86,7 +86,8 @@ PATTERN = {"kind": "charuco", "size": [11, 11], "square_m": 0.03, "marker_m": 0.
 
 def source(name: str, kinematics: ArmKinematics) -> SourceCalibration:
     compliance = FixtureCompliance(True, "spread", {"minus_x": (0.0, 1e-3, 0.0), "plus_x": (1e-3, 0.0, 0.0)},
-                                   {"minus_x": (0.1, -0.2, 0.0, 0.05, 0.0, 0.0), "plus_x": (0.0,) * 6}, 1e-3, 2e-3)
+                                   {"minus_x": (0.1, -0.2, 0.0, 0.05, 0.0, 0.0), "plus_x": (0.0,) * 6}, 1e-3, 2e-3,
+                                   {"minus_x": 4e-4, "plus_x": 0.0})
     return SourceCalibration(name, POSE, {"minus_x": POSE, "plus_x": Pose((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.1))},
                              compliance, kinematics, SigmaRecord((1e-5, 2e-5, 3e-5), 1e-4, 5e-5), 60, ("cal000003",),
                              METRICS)
@@ -116,7 +117,7 @@ def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(
     write_calibration(workspace, CALIBRATION)
     assert read_calibration(workspace) == CALIBRATION
     stored = json.loads(workspace.calibration_path.read_text())
-    assert stored["version"] == 5
+    assert stored["version"] == 6
     assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
     assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
     # the first fixture's offset stands for the source's target offset
@@ -137,7 +138,9 @@ def _edit(data: dict, path: str, value) -> dict:
 
 
 @pytest.mark.parametrize("path, value, message", [
-    ("version", KeyError, r"version None, this program reads version 5 .*rerun calibrate with --force"),
+    ("version", KeyError, r"version None, this program reads version 6 .*rerun calibrate with --force"),
+    ("kuka.fixture_compliance.play_rad_by_fixture.minus_x", "x",
+     "key kuka.fixture_compliance.play_rad_by_fixture.minus_x: expected"),
     ("kuka.fixture_compliance.anisotropy_by_fixture.minus_x", [0.1, 0.2],
      "key kuka.fixture_compliance.anisotropy_by_fixture.minus_x: expected"),
     ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),

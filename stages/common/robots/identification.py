@@ -26,7 +26,14 @@ from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
 from stages.common import arms, rwhe
 from stages.common import geometry as g
 from stages.common.robots.errors import RANK_TOLERANCE, HolderModel, Holders
-from stages.common.robots.lost_motion import DIRECTION_KEYS, flank, lost_motion_shown, unknown_flanks
+from stages.common.robots.lost_motion import (
+    BEFORE_KEY,
+    DIRECTION_KEYS,
+    flank,
+    hysteresis_shown,
+    loaded_flanks,
+    unknown_flanks,
+)
 
 #: configurations drawn for the structural rank test
 RANK_CONFIGURATIONS = 96
@@ -39,7 +46,8 @@ class Measured:
     """A session's encoder readings for a facility's holders: joints (N, J) of each robot
     ((N, 0) for a static mount), rail (N,) m, the fixture of each capture, the nominal
     gravity torques (N, J) N m of what each robot carries, and the gear flank (N, J) each
-    joint rests on (+-1; 0 unknown; ``errors.py``)."""
+    joint rests on (+-1; 0 unknown; ``errors.py``); ``target_before`` (N, J): the target
+    robot's joints at the capture before (NaN rows: none; ``rwhe.fixture_lag``)."""
 
     camera_joints: np.ndarray
     target_joints: np.ndarray
@@ -49,11 +57,17 @@ class Measured:
     target_torque: np.ndarray
     camera_flank: np.ndarray
     target_flank: np.ndarray
+    target_before: np.ndarray | None = None  # None: NaN everywhere
+
+    def __post_init__(self) -> None:
+        if self.target_before is None:
+            object.__setattr__(self, "target_before", np.full(self.target_joints.shape, np.nan))
 
     def subset(self, mask: np.ndarray) -> Measured:
         return Measured(self.camera_joints[mask], self.target_joints[mask], self.rail_m[mask],
                         tuple(np.asarray(self.fixtures, object)[mask]), self.camera_torque[mask],
-                        self.target_torque[mask], self.camera_flank[mask], self.target_flank[mask])
+                        self.target_torque[mask], self.camera_flank[mask], self.target_flank[mask],
+                        self.target_before[mask])
 
 
 def _joints(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], key: str) -> np.ndarray | None:
@@ -73,9 +87,10 @@ def _directions(holder: HolderModel | np.ndarray, rows: list[dict[str, Any]], ro
 
 def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.ndarray, fixtures: tuple[str, ...],
             payload: arms.Payload, world_up: np.ndarray, directions: tuple[np.ndarray, np.ndarray] | None = None,
-            preload_nm: float = np.inf) -> Measured:
+            preload_nm: float = np.inf, target_before: np.ndarray | None = None) -> Measured:
     """``Measured`` of readings: the camera's and target's joints (N, J), rail (N,) m, and
-    each joint's last move (N, J) (+-1, 0 unknown; None: all unknown)."""
+    each joint's last move (N, J) (+-1, 0 unknown; None: all unknown); the target's joints
+    at the capture before (N, J; NaN rows: none; None: none anywhere)."""
     torque = []
     for holder, q in zip((holders.camera, holders.target), joints, strict=True):
         if not isinstance(holder, HolderModel):
@@ -89,7 +104,8 @@ def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.
     if directions is None:
         directions = (np.zeros_like(torque[0]), np.zeros_like(torque[1]))
     flanks = [flank(t, d, preload_nm) for t, d in zip(torque, directions, strict=True)]
-    return Measured(joints[0], joints[1], np.asarray(rail_m, float), tuple(fixtures), torque[0], torque[1], *flanks)
+    return Measured(joints[0], joints[1], np.asarray(rail_m, float), tuple(fixtures), torque[0], torque[1], *flanks,
+                    target_before)
 
 
 def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload,
@@ -106,7 +122,8 @@ def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload
     rail = np.array([0.0 if row.get("kuka_rail_m") is None else row["kuka_rail_m"] for row in rows], float)
     fixtures = tuple(str(row.get("fixture") or "fixed") for row in rows)
     directions = (_directions(holders.camera, rows, "camera"), _directions(holders.target, rows, "target"))
-    return measure(holders, (camera, target), rail, fixtures, payload, world_up, directions, preload_nm)
+    before = np.array([row.get(BEFORE_KEY) or [np.nan] * target.shape[1] for row in rows], float).reshape(target.shape)
+    return measure(holders, (camera, target), rail, fixtures, payload, world_up, directions, preload_nm, before)
 
 
 def flanges(holders: Holders, p: np.ndarray, m: Measured) -> tuple[np.ndarray, np.ndarray]:
@@ -126,12 +143,34 @@ def flanges(holders: Holders, p: np.ndarray, m: Measured) -> tuple[np.ndarray, n
 def predict_batch(holders: Holders, params: np.ndarray, names: list[str], compliant: bool, m: Measured,
                   world_up: np.ndarray) -> np.ndarray:
     """``cam_from_target`` (K, N, 4, 4) of packed parameters (K, P): the arms', then
-    ``rwhe.pack`` of the offsets of fixtures ``names`` (compliant fixtures: anisotropic)."""
+    ``rwhe.pack`` of the offsets of fixtures ``names`` (compliant fixtures: anisotropic, with
+    their play)."""
     world_from_camee, world_from_targetee = flanges(holders, params[:, :holders.size], m)
     up = np.einsum("knji,j->kni", world_from_targetee[..., :3, :3], np.asarray(world_up, float))
     b = g.invert(world_from_camee) @ world_from_targetee
+    # at the first parameters for every row: the lag follows the tilt's change of direction,
+    # which the arms' corrections move by microradians, and a second pass of the chain per
+    # parameter step would double the fit's cost
+    before = up_before(holders, params[:1, :holders.size], m, world_up)[0] if compliant else None
     return rwhe.predict_packed(params[:, holders.size:], names, compliant, compliant, b, list(m.fixtures),
-                               up if compliant else None)
+                               up if compliant else None, played=compliant, up_before=before)
+
+
+def up_before(holders: Holders, arm_params: np.ndarray, m: Measured, world_up: np.ndarray) -> np.ndarray:
+    """(K, N, 3) the up direction in the target flange at each capture's one before (NaN rows:
+    none), of the arms' packed parameters (K, size); the joints' windup and flank taken as
+    at the capture itself (a fixture's lag needs only the direction of its tilt's change)."""
+    known = ~np.isnan(m.target_before).any(axis=1) & (m.target_before.shape[1] > 0)
+    out = np.full((len(arm_params), len(m.rail_m), 3), np.nan)
+    if not isinstance(holders.target, HolderModel) or not known.any():
+        return out
+    joints = np.where(known[:, None], np.nan_to_num(m.target_before), m.target_joints)
+    slices = holders.slices()
+    world_from_targetee = holders.target.flanges(arm_params[:, slices["target"]], joints, m.rail_m, m.target_torque,
+                                                 m.target_flank)
+    up = np.einsum("knji,j->kni", world_from_targetee[..., :3, :3], np.asarray(world_up, float))
+    out[:, known] = up[:, known]
+    return out
 
 
 def corrected_b(holders: Holders, arm_params: np.ndarray, m: Measured,
@@ -243,9 +282,14 @@ class Fitted:
     dropped: dict[str, str]
     prior: np.ndarray  # (holders.size,) 1-sigma before calibration
     preload_nm: float  # above it a joint rests on its loaded flank (``flank``)
+    play_why: str = ""  # why the fixtures' play was not fitted ("": fitted, or rigid fixtures)
 
     def corrected_b(self, m: Measured, world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return corrected_b(self.holders, self.params[:self.holders.size], m, world_up)
+
+    def up_before(self, m: Measured, world_up: np.ndarray) -> np.ndarray:
+        """(N, 3) ``up_before`` of the fitted arms, for ``offsets.predict``."""
+        return up_before(self.holders, self.params[None, :self.holders.size], m, world_up)[0]
 
     def weak(self) -> dict[str, float]:
         """Kept parameters the calibration poses narrow by less than ``WEAK_RATIO`` of their
@@ -275,8 +319,12 @@ class Fitted:
 def free_parameters(holders: Holders, c: Any, names: list[str], compliant: bool, count: int) -> np.ndarray:
     """(count,) which packed parameters the fit estimates: all but the compliances with
     ``c.joint_compliance`` off, the lost motions with ``c.lost_motion`` off or
-    ``c.arm_prior_lost_motion_rad`` 0 and the fixtures' anisotropy with ``c.fixture_anisotropy`` off."""
+    ``c.arm_prior_lost_motion_rad`` 0, the fixtures' anisotropy with ``c.fixture_anisotropy`` off
+    and their play with ``c.fixture_play`` off."""
     free = np.ones(count, bool)
+    if compliant:
+        play = rwhe.play_slice(names)
+        free[holders.size + play.start:holders.size + play.stop] = c.fixture_play != "off"
     if c.joint_compliance != "on":
         free[[i for i, n in enumerate(holders.names) if n.endswith(".compliance")]] = False
     if c.lost_motion == "off" or c.arm_prior_lost_motion_rad <= 0:
@@ -291,12 +339,15 @@ def fitted_parameter_count(holders: Holders, c: Any, fixtures: list[str], compli
     """How many parameters ``fit`` would estimate on samples of ``fixtures`` from their poses:
     the arms' identifiable ones and the offsets (``c``: what ``free_parameters`` reads). The
     joints' lost motions are not counted: the order of the moves determines them, not the
-    poses, and a facility's plan (which asks this count) must not change with them."""
+    poses, and a facility's plan (which asks this count) must not change with them; nor,
+    for the same reason, the fixtures' play."""
     names = sorted(set(fixtures))
     start = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
-    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, compliant, compliant)])
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(start, names, compliant, compliant, compliant)])
     free = free_parameters(holders, c, names, compliant, len(params))
     free[[i for i, name in enumerate(holders.names) if name.endswith(".lost_motion")]] = False
+    if compliant:
+        free[holders.size + rwhe.play_slice(names).start:holders.size + rwhe.play_slice(names).stop] = False
     dropped = identifiable(holders, list(fixtures), compliant, params, free, payload, world_up)
     return int(free.sum()) - len(dropped)
 
@@ -333,19 +384,28 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
                            c.arm_prior_compliance_rad_per_nm, c.arm_prior_lost_motion_rad)
     prior = bounded_compliance(holders, prior, _draw_configurations(holders, list(m.fixtures), payload, world_up, 0),
                                c.arm_prior_joint_rad)
-    params = np.concatenate([np.zeros(size), rwhe.pack(start, names, compliant, anisotropic=compliant)])
+    params = np.concatenate([np.zeros(size), rwhe.pack(start, names, compliant, compliant, compliant)])
     shape = rwhe.anisotropy_slice(names) if compliant else slice(0, 0)
     shape = slice(size + shape.start, size + shape.stop)
+    play = rwhe.play_slice(names) if compliant else slice(0, 0)
+    play = slice(size + play.start, size + play.stop)
     free = free_parameters(holders, c, names, compliant, len(params))
     dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
                            preload_nm=c.backlash_preload_nm)
     dropped.update({name: why for name, why in unknown_flanks(holders, m, free).items() if name not in dropped})
+    dropped.update({name: why for name, why in loaded_flanks(holders, m, free, c.backlash_preload_nm,
+                                                              c.link_mass_uncertainty, world_up).items()
+                    if name not in dropped})
     dropped.update({name: "not fitted (calibrate.lost_motion = off, or calibrate.arm_prior_lost_motion_rad = 0)"
                     for i, name in enumerate(holders.names) if name.endswith(".lost_motion") and not free[i]
                     and name not in dropped})
     free[[holders.names.index(n) for n in dropped]] = False
-    all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior)])
-    priored_all = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop)])
+    if compliant and np.isnan(m.target_before).any(axis=1).all():
+        free[play] = False  # no capture knows the one before it: no tilt change to lag behind
+    all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior),
+                                np.full(play.stop - play.start, c.fixture_play_prior_rad)])
+    priored_all = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop),
+                                  np.arange(play.start, play.stop)])
 
     def batch(p: np.ndarray) -> np.ndarray:
         return predict_batch(holders, p, names, compliant, m, world_up)
@@ -355,16 +415,29 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
         return arms.map_fit(batch, a, params, chosen, all_prior[keep], priored_all[keep])
 
     lost = np.array([name.endswith(".lost_motion") for name in holders.names] + [False] * (len(params) - size))
+    played = np.zeros(len(params), bool)
+    played[play] = True
+    play_why = "" if np.any(free & played) or not compliant else (
+        "not fitted (calibrate.fixture_play = off)" if c.fixture_play == "off"
+        else "not fitted: no calibration capture has a capture before it (captures without capture_time_s)")
     result = fitted(free)
-    if c.lost_motion == "auto" and np.any(free & lost):
-        without = fitted(free & ~lost)
-        shown, said = lost_motion_shown(batch, a, without[0], result[0], int(np.sum(free & lost)), int(free.sum()))
-        if not shown:
-            dropped.update({holders.names[i]: said for i in np.flatnonzero(free & lost)})
-            free, result = free & ~lost, without
+    # each hysteresis tested against the fit without it, the play first: a fixture's lag
+    # left out is taken up by the lost motions of the joints whose moves it follows
+    for group, setting, what in ((played, c.fixture_play, "play"), (lost, c.lost_motion, "lost motion")):
+        if setting == "auto" and np.any(free & group):
+            without = fitted(free & ~group)
+            shown, said = hysteresis_shown(batch, a, without[0], result[0], int(np.sum(free & group)),
+                                           int(free.sum()), what)
+            if not shown:
+                if what == "play":
+                    play_why = said
+                else:
+                    dropped.update({holders.names[i]: said for i in np.flatnonzero(free & group)})
+                free, result = free & ~group, without
     params, covariance = result
-    offsets = rwhe.unpack(params[size:], names, compliant, anisotropic=compliant)
-    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm)
+    offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
+    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
+                  play_why)
 
 
 def joint_columns(holders: Holders) -> np.ndarray:

@@ -28,6 +28,10 @@ if TYPE_CHECKING:
 STILL_RAD = 1e-4
 #: the keys ``move_directions`` adds to capture rows: each joint's last move (+-1, 0 unknown)
 DIRECTION_KEYS = {"camera": "camera_move_direction", "target": "target_move_direction"}
+#: and the target robot's readings at the session's capture before (None: none), whose fixture
+#: tilt the fixture's play lags behind (``rwhe.fixture_lag``); a change of mount between the two
+#: keeps the lag: the adapter plate that slips stays clamped to the flange
+BEFORE_KEY = "target_joints_before_rad"
 
 
 def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -36,8 +40,10 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     in the order of ``capture_time_s``; a joint that did not move (``STILL_RAD``) keeps its
     direction; 0 for the session's first capture, and for every capture of a session whose
     captures lack a time (their order, and so the flanks, unknown). A capture without the
-    robot's readings gets None. Call it on a session's every capture, failed ones included,
-    before choosing some: a dropped capture still moved the arms."""
+    robot's readings gets None. Under ``BEFORE_KEY``, the target robot's readings at the
+    capture before (None for the first). Call it on a session's
+    every capture, failed ones included, before choosing some: a dropped capture still
+    moved the arms."""
     out = [dict(row) for row in rows]
     for session in dict.fromkeys(row.get("session") for row in out):
         chosen = [row for row in out if row.get("session") == session]
@@ -48,6 +54,8 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                           key=lambda row: (float(row["capture_time_s"]) if timed else 0.0, str(row.get("sample_id"))))
             for row in chosen:
                 row[key] = None
+                if robot == "target":
+                    row[BEFORE_KEY] = None
             last, previous = None, None
             for row in read:
                 reading = np.asarray(row[column], float)
@@ -56,6 +64,8 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 else:
                     change = reading - previous
                     last = np.where(np.abs(change) > STILL_RAD, np.sign(change), last)
+                    if robot == "target":
+                        row[BEFORE_KEY] = previous.tolist()
                 row[key], previous = last.tolist(), reading
     return out
 
@@ -71,9 +81,10 @@ def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.nd
 LOST_MOTION_TEST_LEVEL = 0.01
 
 
-def lost_motion_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.ndarray, added: int,
-                      parameters: int) -> tuple[bool, str]:
-    """Whether the calibration captures show the joints' lost motion: the F test of the fit
+def hysteresis_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.ndarray, added: int,
+                     parameters: int, what: str = "lost motion") -> tuple[bool, str]:
+    """Whether the calibration captures show the joints' lost motion (or the fixtures' play,
+    ``what``: "lost motion" or "play", whose ``calibrate.*`` switch the words name): the F test of the fit
     with its ``added`` parameters (``with_``, P,) against the fit without (``without``), on
     the residuals of PnP poses ``a`` (N, 4, 4) whitened by the fit without's rotation and
     translation RMS, ``parameters`` estimated in all (Seber and Wild, *Nonlinear
@@ -95,8 +106,9 @@ def lost_motion_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.
     rss_without, rss_with = whitened_sum(null), whitened_sum(residuals(with_))
     statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
     p = float(f_distribution.sf(statistic, added, redundancy))
-    said = (f"the calibration captures do not show it (F test of the {added} lost motions: F = {statistic:.2f}, "
-            f"p = {p:.2g} >= {LOST_MOTION_TEST_LEVEL:g}; calibrate.lost_motion = on fits them anyway)")
+    setting = {"lost motion": "lost_motion", "play": "fixture_play"}[what]
+    said = (f"the calibration captures do not show it (F test of the {added} {what}s: F = {statistic:.2f}, "
+            f"p = {p:.2g} >= {LOST_MOTION_TEST_LEVEL:g}; calibrate.{setting} = on fits them anyway)")
     return p < LOST_MOTION_TEST_LEVEL, said
 
 
@@ -112,6 +124,35 @@ def unknown_flanks(holders: Holders, m: Measured, free: np.ndarray) -> dict[str,
             if free[holders.names.index(name)] and not np.any(column):
                 out[name] = ("no capture tells its flank: the order of the moves is unknown (captures without "
                              "capture_time_s) and its gravity torque never exceeds calibrate.backlash_preload_nm")
+    return out
+
+
+#: a lost motion is fitted only where at least this many captures rest on the flank their last
+#: move chose whatever the lab's mass model errs by (``loaded_flanks``)
+MIN_FREE_FLANKS = 8
+
+
+def loaded_flanks(holders: Holders, m: Measured, free: np.ndarray, preload_nm: float, mass_uncertainty: float,
+                  world_up: np.ndarray) -> dict[str, str]:
+    """The free lost motions whose joint rests on the flank its last move chose on fewer than
+    ``MIN_FREE_FLANKS`` captures of ``m`` beyond doubt: where its nominal gravity torque
+    plus twice its links' share times ``mass_uncertainty`` (the lab's link masses' relative
+    1-sigma) stays under ``preload_nm``. On the others the load decides the flank, which
+    the joint's zero offset and compliance take up, or the model's wrong masses may have
+    decided it. By name, with why."""
+    out = {}
+    for robot, joints, torque, flanks in ((holders.camera, m.camera_joints, m.camera_torque, m.camera_flank),
+                                          (holders.target, m.target_joints, m.target_torque, m.target_flank)):
+        if not isinstance(robot, HolderModel):
+            continue
+        links = robot.torques(joints, m.rail_m, 0.0, np.zeros((len(joints), 3)), world_up)
+        certain = (np.abs(torque) + 2.0 * mass_uncertainty * np.abs(links) < preload_nm) & (flanks != 0)
+        for joint, count in zip(robot.chain.joint_names, certain.sum(axis=0), strict=True):
+            name = f"{robot.robot}.{joint}.lost_motion"
+            if free[holders.names.index(name)] and count < MIN_FREE_FLANKS:
+                out[name] = (f"its load decides its flank on all but {int(count)} calibration captures, beyond "
+                             "doubt of the link masses (calibrate.link_mass_uncertainty): the joint's zero offset "
+                             "and compliance take up a loaded flank")
     return out
 
 

@@ -176,3 +176,42 @@ def test_an_anisotropic_fixture_tilts_by_its_compliance_shape():
                              {"a": d[0], "b": d[1]})
     again = rwhe.unpack(rwhe.pack(solution, ["a", "b"], True, True), ["a", "b"], True, True)
     np.testing.assert_allclose(again.anisotropy["b"], d[1])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_fixtures_play_holds_its_tilt_back_against_its_change(seed):
+    """The lag is the play operator's: against the tilt's change, as long as the change up to
+    the play ``w``, never longer; none where no capture came before; and a played solution
+    packs, unpacks and predicts as its packed form does."""
+    rng = np.random.default_rng(seed)
+    now, before = rng.normal(0, 1e-3, (50, 3)), rng.normal(0, 1e-3, (50, 3))
+    before[:5] = now[:5] + rng.normal(0, 1e-5, (5, 3))  # changes shorter than the play
+    before[-3:] = np.nan
+    w = rng.uniform(1e-4, 8e-4, 50)
+    lag = g.matrix_to_rotvec(rwhe.fixture_lag(now, before, w)[:, :3, :3])
+    change = now - before
+    size = np.linalg.norm(change, axis=1)
+    np.testing.assert_allclose(np.linalg.norm(lag[:-3], axis=1), np.minimum(size, w)[:-3], rtol=1e-9)
+    np.testing.assert_allclose(np.cross(lag[:-3], change[:-3]), 0.0, atol=1e-15)
+    assert np.all(np.einsum("ij,ij->i", lag[:-3], change[:-3]) < 0)
+    np.testing.assert_allclose(lag[:5], -change[:5], atol=1e-15)  # the whole change, held back
+    np.testing.assert_array_equal(lag[-3:], 0.0)
+    names = ["a", "b"]
+    solution = rwhe.Solution(random_pose(rng), {n: random_pose(rng) for n in names},
+                             {n: rng.normal(0, 0.01, 3) for n in names}, {n: rng.normal(0, 0.3, 6) for n in names},
+                             {"a": 3e-4, "b": 6e-4})
+    packed = rwhe.pack(solution, names, True, True, True)
+    assert list(packed[rwhe.play_slice(names)]) == [3e-4, 6e-4]
+    assert rwhe.unpack(packed, names, True, True, True).play == solution.play
+    b = np.stack([random_pose(rng, 1.0) for _ in range(6)])
+    fixtures = ["a", "b", "a", "b", "b", "a"]
+    up = rng.normal(size=(6, 3))
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    up_before = np.roll(up, 1, axis=0)
+    up_before[0] = np.nan
+    direct = solution.predict(b, fixtures, up, up_before)
+    batched = rwhe.predict_packed(packed[None], names, True, True, b[None], fixtures, up[None], True, up_before)[0]
+    np.testing.assert_allclose(batched, direct, atol=1e-12)
+    still = solution.predict(b, fixtures, up)  # no capture before any: no lag
+    np.testing.assert_allclose(direct[0], still[0], atol=1e-15)
+    assert np.abs(direct[1:] - still[1:]).max() > 1e-6

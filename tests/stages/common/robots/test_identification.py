@@ -1,6 +1,7 @@
 """Any URDF arm's calibration (issue 57): the structural rank test names what no data can
 separate, and the fit recovers seeded errors within the covariance it reports."""
 
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -24,7 +25,8 @@ SETTINGS = SimpleNamespace(
     arm_prior_base_m=2e-3, arm_prior_base_rad=2e-3, arm_prior_rail_scale=1e-4,
     arm_prior_compliance_rad_per_nm=3e-5, joint_compliance="on", fixture_anisotropy="on",
     fixture_anisotropy_prior=0.5, arm_prior_lost_motion_rad=2.9e-4, lost_motion="auto",
-    backlash_preload_nm=1e9)  # every joint rests on the flank its last move left it on, as the draws' are
+    backlash_preload_nm=1e9, link_mass_uncertainty=0.25, fixture_play="auto",
+    fixture_play_prior_rad=1e-3)  # every joint rests on the flank its last move left it on, as the draws' are
 OFFSETS = rwhe.Solution(g.make_transform(g.rotvec_to_matrix([0.1, 0.2, 0.3]), [0.01, 0.02, 0.1]),
                         {"minus_x": g.make_transform(g.rotvec_to_matrix([0.3, -0.2, 0.1]), [0.0, 0.05, 0.02])})
 
@@ -226,3 +228,59 @@ def test_lost_motion_switched_off_is_named_and_left_to_the_rating(holders):
     assert off.max() > 0  # the unloaded joints carry their rating
     fitted = replaced(record, dropped={k: v for k, v in record.dropped.items() if k not in lost})
     assert lost_motion.flank_variances(holders, m, fitted, rating).max() == 0  # known flanks, fitted: none
+
+
+def _played(m: ident.Measured) -> ident.Measured:
+    """``m`` as one session in its rows' order: each capture's target joints before it."""
+    before = np.roll(m.target_joints, 1, axis=0)
+    before[0] = np.nan
+    return replace(m, target_before=before)
+
+
+@pytest.mark.parametrize("play_rad", [4e-4, 0.0])
+def test_a_fixtures_play_is_fitted_where_the_captures_show_it(holders, play_rad):
+    """A compliant fixture whose tilt lags its change by ``play_rad``: the fit finds the play
+    within its covariance and keeps the arms' lost motions unbiased; where there is none, the
+    F test holds it at zero and says so."""
+    rng = np.random.default_rng(11)
+    names = ["minus_x"]
+    m = _played(ident._draw_configurations(holders, names, PAYLOAD, UP, 31).subset(np.arange(96) < 64))
+    dropped = _dropped(holders)
+    prior = holders.priors(2e-3, 2e-3, 2e-4, (2e-3, 2e-3), 1e-4, 3e-5, 2.9e-4)
+    kept = np.array([name not in dropped for name in holders.names])
+    truth = np.where(kept, rng.normal(0.0, 0.5, holders.size) * prior, 0.0)
+    offsets = rwhe.Solution(OFFSETS.z, dict(OFFSETS.x), {"minus_x": np.array([4e-3, -3e-3, 1e-3])},
+                            {"minus_x": np.zeros(6)}, {"minus_x": play_rad})
+    params = np.concatenate([truth, rwhe.pack(offsets, names, True, True, True)])
+    a = ident.predict_batch(holders, params[None], names, True, m, UP)[0]
+    a = a @ rwhe.transform_from_vector(rng.normal(0, 5e-5, (64, 6)))
+    start = rwhe.Solution(offsets.z, dict(offsets.x), dict(offsets.compliance), dict(offsets.anisotropy))
+    fitted = ident.fit(holders, SETTINGS, a, m, start, True, PAYLOAD)
+    index = holders.size + rwhe.play_slice(names).start
+    if play_rad:
+        assert fitted.play_why == ""
+        assert abs(fitted.params[index] - play_rad) < 4 * np.sqrt(fitted.covariance[index, index])
+        lost = [i for i, n in enumerate(holders.names) if n.endswith(".lost_motion") and n not in fitted.dropped]
+        z = (fitted.params[lost] - truth[lost]) / np.sqrt(np.diag(fitted.covariance)[lost])
+        assert np.all(np.abs(z) < 4.5)
+    else:
+        assert "F test of the 1 plays" in fitted.play_why and fitted.params[index] == 0.0
+        assert fitted.offsets.play == {"minus_x": 0.0}
+
+
+def test_a_lost_motion_whose_flank_the_load_decides_is_held_and_named():
+    """Above the preload a joint rests on its loaded flank whatever its last move: a lost
+    motion seen on too few captures whose flank the move decides beyond the link masses'
+    doubt would take up what those masses misplace, so it is held and said so. TRON's KR
+    16-2, whose URDF carries the data sheet's link masses: its shoulder and elbow lift the
+    arm (hundreds of N m), its last wrist carries nothing."""
+    kr16 = Holders.of(load_facility(None))
+    m = ident._draw_configurations(kr16, ["minus_x"], PAYLOAD, UP, 5, 15.0).subset(np.arange(96) < 48)
+    free = np.ones(kr16.size, bool)
+    held = lost_motion.loaded_flanks(kr16, m, free, 15.0, 0.25, UP)
+    for robot in ("camera_robot", "target_robot"):
+        assert "its load decides its flank" in held[f"{robot}.joint_a2.lost_motion"]
+        assert f"{robot}.joint_a6.lost_motion" not in held
+    exact = lost_motion.loaded_flanks(kr16, m, free, 15.0, 0.0, UP)
+    assert set(exact) <= set(held)  # the masses' doubt only ever holds more
+    assert not lost_motion.loaded_flanks(kr16, m, free, 1e9, 0.25, UP)  # no preload reached: none

@@ -20,3 +20,15 @@ def test_each_joints_last_move_follows_the_captures_times_not_the_rows_order():
     assert out["a"]["target_move_direction"] is None  # no readings: a static mount's
     assert out["y"]["camera_move_direction"] == [0.0, 0.0]  # a session with an untimed capture
     assert "camera_move_direction" not in rows[0]  # the caller's rows are left as they were
+
+
+def test_the_target_arms_reading_at_the_capture_before_in_time_is_kept():
+    """A fixture's play lags behind its tilt's last change: the target's joints at the
+    session's capture before, in time (failed captures included), none for the first."""
+    rows = [{"sample_id": s, "session": "dataset", "capture_time_s": t, "kuka_camera_joints_rad": [0.0],
+             "kuka_target_joints_rad": q, "fixture": f}
+            for s, t, q, f in (("b", 9.0, [0.2], "plus_x"), ("a", 1.0, [0.1], "minus_x"), ("c", 12.0, [0.4], "plus_x"))]
+    out = {r["sample_id"]: r for r in lost_motion.move_directions(rows)}
+    assert out["a"][lost_motion.BEFORE_KEY] is None
+    assert out["b"][lost_motion.BEFORE_KEY] == [0.1]  # across a change of mount: the adapter stays clamped
+    assert out["c"][lost_motion.BEFORE_KEY] == [0.2]
