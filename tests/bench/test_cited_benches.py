@@ -108,6 +108,19 @@ def test_bench_unmodelled_calibrates_render_free_facilities(results):
         unmodelled.main("21", "none,sag")
 
 
+def test_bench_unmodelled_covering_calibration_poses_cut_the_rotation_tail(results):
+    """docs/accuracy.md cites ``bench unmodelled ... covered``: on facility 23, whose dataset
+    loads the target arm's shoulder three times beyond its calibration poses, calibration
+    poses at the dataset's arm configurations take the rotation tail away."""
+    from bench import unmodelled
+
+    unmodelled.main("23", "covered")
+    planned, covering = _rows(results, "unmodelled")
+    assert "even half" in planned["calibrate"] and "odd half" in covering["calibrate"]
+    assert covering["dataset E_R (deg)"] < 0.8 * planned["dataset E_R (deg)"]
+    assert planned["dataset under 0.169 deg"] < 1.0 == covering["dataset under 0.169 deg"]
+
+
 def test_bench_acquire_reads_a_workspaces_corners_and_compares_two(smoke_labelled, results, tmp_path):
     """``bench acquire WORKSPACE`` and ``bench acquire BEFORE AFTER`` (docs/architecture.md
     section 5): one acquisition against itself moved no corner; against a copy with one
