@@ -23,7 +23,8 @@ from manifests.workspace import Workspace
 # that could not determine the offsets, left out of the cross-validated means); 4: every
 # arm from its URDF (arm_kinematics.chains; TRON's KR 16-2 record, arm_kinematics' own
 # corrections, is gone); 5: each joint's lost motion (arm_kinematics.chains: robots[].lost_motion_rad and
-# its parameters)
+# its parameters); 6: each compliant fixture's play (fixture_compliance.play_rad_by_fixture, and its
+# parameters after the anisotropy's in arm_kinematics.chains)
 CALIBRATION_VERSION = 6
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json

@@ -71,9 +71,10 @@ class CalibrateConfig:
         0.5, "prior 1-sigma of each entry of a compliant fixture's anisotropy D_f (with the arms' kinematics): "
         "a bracket can be half again as stiff about one axis as about another", "1")
     link_mass_uncertainty: float = param(
-        0.25, "relative 1-sigma of the URDF's link masses (a data sheet's or a CAD model's): a joint whose nominal "
-        "gravity torque lies within twice what that moves it of calibrate.backlash_preload_nm, and whose load and "
-        "last move disagree, rests on an unknown flank (stages/common/robots/lost_motion.py flank)", "1")
+        0.25, "relative 1-sigma of the URDF's link masses (a data sheet's or a CAD model's): under "
+        "calibrate.lost_motion = auto a joint's lost motion is held where fewer than 8 calibration captures rest on "
+        "the flank their last move chose beyond twice the torque error those masses allow (stages/common/robots/"
+        "lost_motion.py loaded_flanks)", "1")
     fixture_play: Literal["auto", "on", "off"] = param(
         "auto", "with the arms' kinematics and a compliant fixture, also fit the fixture's play: micro-slip in its "
         "clamped joints holds its tilt back against the direction the tilt last changed in, which the captures' "

@@ -73,7 +73,7 @@ def compliance_record(solution: rwhe.Solution, up: np.ndarray | None, fixtures: 
     d = np.stack([solution.anisotropy[f] for f in fixtures]) if solution.anisotropy else None
     tilt = np.linalg.norm(g.matrix_to_rotvec(rwhe.fixture_tilt(up, k, d)[:, :3, :3]), axis=1)
     return FixtureCompliance(
-        True, f"{note}; the play {play_why}" if play_why else note,
+        True, f"{note}; fixture play: {play_why}" if play_why else note,
         {f: tuple(float(v) for v in k_f) for f, k_f in solution.compliance.items()},
         {f: tuple(float(v) for v in d_f) for f, d_f in solution.anisotropy.items()} if solution.anisotropy else None,
         float(tilt.mean()), float(tilt.max()),

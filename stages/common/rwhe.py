@@ -26,7 +26,8 @@ offsets when the flange's attitude varies enough to observe it (``gravity_spread
 
 A clamped fixture also micro-slips: its tilt lags its elastic value by up to its play
 ``w_f`` (rad) against the direction the tilt last changed in (``fixture_lag``: the first-order
-play operator of bolted joints' hysteresis; Gaul and Lenz, Acta Mechanica 125, 1997), so
+play operator of bolted joints' hysteresis, each move taken as longer than the play; Gaul
+and Lenz, Acta Mechanica 125, 1997; a target that stood still keeps its lag), so
 ``S`` becomes ``S(t_i) L(t_i - t_before)`` with ``t`` the elastic tilt at capture i and at
 the capture before it (with this fixture's ``k_f``, ``D_f``: a change of mount keeps the
 adapter that slips clamped); where no capture came before, no lag.

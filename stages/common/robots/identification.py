@@ -122,7 +122,8 @@ def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload
     rail = np.array([0.0 if row.get("kuka_rail_m") is None else row["kuka_rail_m"] for row in rows], float)
     fixtures = tuple(str(row.get("fixture") or "fixed") for row in rows)
     directions = (_directions(holders.camera, rows, "camera"), _directions(holders.target, rows, "target"))
-    before = np.array([row.get(BEFORE_KEY) or [np.nan] * target.shape[1] for row in rows], float).reshape(target.shape)
+    before = np.array([(row.get(BEFORE_KEY) or [np.nan] * target.shape[1])[:target.shape[1]] for row in rows],
+                      float).reshape(target.shape)
     return measure(holders, (camera, target), rail, fixtures, payload, world_up, directions, preload_nm, before)
 
 
@@ -393,15 +394,16 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
                            preload_nm=c.backlash_preload_nm)
     dropped.update({name: why for name, why in unknown_flanks(holders, m, free).items() if name not in dropped})
-    dropped.update({name: why for name, why in loaded_flanks(holders, m, free, c.backlash_preload_nm,
-                                                              c.link_mass_uncertainty, world_up).items()
-                    if name not in dropped})
+    if c.lost_motion == "auto":
+        dropped.update({name: why for name, why in loaded_flanks(holders, m, free, c.backlash_preload_nm,
+                                                                  c.link_mass_uncertainty, world_up).items()
+                        if name not in dropped})
     dropped.update({name: "not fitted (calibrate.lost_motion = off, or calibrate.arm_prior_lost_motion_rad = 0)"
                     for i, name in enumerate(holders.names) if name.endswith(".lost_motion") and not free[i]
                     and name not in dropped})
     free[[holders.names.index(n) for n in dropped]] = False
-    if compliant and np.isnan(m.target_before).any(axis=1).all():
-        free[play] = False  # no capture knows the one before it: no tilt change to lag behind
+    if compliant and (not isinstance(holders.target, HolderModel) or np.isnan(m.target_before).any(axis=1).all()):
+        free[play] = False  # a static mount's tilt never changes; without times, no change is known
     all_prior = np.concatenate([prior, np.full(shape.stop - shape.start, c.fixture_anisotropy_prior),
                                 np.full(play.stop - play.start, c.fixture_play_prior_rad)])
     priored_all = np.concatenate([np.arange(size), np.arange(shape.start, shape.stop),
@@ -419,8 +421,15 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     played[play] = True
     play_why = "" if np.any(free & played) or not compliant else (
         "not fitted (calibrate.fixture_play = off)" if c.fixture_play == "off"
+        else "not fitted: the target stands on a static mount, whose tilt never changes"
+        if not isinstance(holders.target, HolderModel)
         else "not fitted: no calibration capture has a capture before it (captures without capture_time_s)")
     result = fitted(free)
+    if np.any(free & played) and np.any(result[0][play] < 0):  # a fixture that leads its change: no play seen
+        play_why = (f"fitted below zero ({', '.join(f'{w:.2g}' for w in result[0][play])} rad) and held at 0: the "
+                    "captures show no lag")
+        free = free & ~played
+        result = fitted(free)
     # each hysteresis tested against the fit without it, the play first: a fixture's lag
     # left out is taken up by the lost motions of the joints whose moves it follows
     for group, setting, what in ((played, c.fixture_play, "play"), (lost, c.lost_motion, "lost motion")):

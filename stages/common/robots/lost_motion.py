@@ -28,9 +28,9 @@ if TYPE_CHECKING:
 STILL_RAD = 1e-4
 #: the keys ``move_directions`` adds to capture rows: each joint's last move (+-1, 0 unknown)
 DIRECTION_KEYS = {"camera": "camera_move_direction", "target": "target_move_direction"}
-#: and the target robot's readings at the session's capture before (None: none), whose fixture
-#: tilt the fixture's play lags behind (``rwhe.fixture_lag``); a change of mount between the two
-#: keeps the lag: the adapter plate that slips stays clamped to the flange
+#: and the target robot's readings before its last move (None: none this session), whose fixture
+#: tilt the fixture's play lags behind (``rwhe.fixture_lag``); a target that stood still keeps
+#: its lag, and a change of mount keeps it too: the adapter plate that slips stays clamped
 BEFORE_KEY = "target_joints_before_rad"
 
 
@@ -40,8 +40,9 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     in the order of ``capture_time_s``; a joint that did not move (``STILL_RAD``) keeps its
     direction; 0 for the session's first capture, and for every capture of a session whose
     captures lack a time (their order, and so the flanks, unknown). A capture without the
-    robot's readings gets None. Under ``BEFORE_KEY``, the target robot's readings at the
-    capture before (None for the first). Call it on a session's
+    robot's readings gets None. Under ``BEFORE_KEY``, the target robot's readings before its
+    last move: at the capture before, or, where it stood still since, where that one's came
+    from (None until it has moved). Call it on a session's
     every capture, failed ones included, before choosing some: a dropped capture still
     moved the arms."""
     out = [dict(row) for row in rows]
@@ -56,7 +57,7 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 row[key] = None
                 if robot == "target":
                     row[BEFORE_KEY] = None
-            last, previous = None, None
+            last, previous, before = None, None, None
             for row in read:
                 reading = np.asarray(row[column], float)
                 if previous is None or not timed:
@@ -65,7 +66,9 @@ def move_directions(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                     change = reading - previous
                     last = np.where(np.abs(change) > STILL_RAD, np.sign(change), last)
                     if robot == "target":
-                        row[BEFORE_KEY] = previous.tolist()
+                        # a target that stood still keeps its fixture's lag: the reading before its last move
+                        before = previous if np.any(np.abs(change) > STILL_RAD) else before
+                        row[BEFORE_KEY] = None if before is None else before.tolist()
                 row[key], previous = last.tolist(), reading
     return out
 
@@ -137,22 +140,30 @@ def loaded_flanks(holders: Holders, m: Measured, free: np.ndarray, preload_nm: f
     """The free lost motions whose joint rests on the flank its last move chose on fewer than
     ``MIN_FREE_FLANKS`` captures of ``m`` beyond doubt: where its nominal gravity torque
     plus twice its links' share times ``mass_uncertainty`` (the lab's link masses' relative
-    1-sigma) stays under ``preload_nm``. On the others the load decides the flank, which
-    the joint's zero offset and compliance take up, or the model's wrong masses may have
-    decided it. By name, with why."""
+    1-sigma) stays under ``preload_nm`` and the move's direction is known. On the others the
+    load decides the flank, and the masses may have decided it wrongly: fitted there, the
+    lost motion takes up the windup those masses misplace (docs/accuracy.md, issue 57 part 7).
+    By name, with why."""
     out = {}
     for robot, joints, torque, flanks in ((holders.camera, m.camera_joints, m.camera_torque, m.camera_flank),
                                           (holders.target, m.target_joints, m.target_torque, m.target_flank)):
         if not isinstance(robot, HolderModel):
             continue
         links = robot.torques(joints, m.rail_m, 0.0, np.zeros((len(joints), 3)), world_up)
-        certain = (np.abs(torque) + 2.0 * mass_uncertainty * np.abs(links) < preload_nm) & (flanks != 0)
-        for joint, count in zip(robot.chain.joint_names, certain.sum(axis=0), strict=True):
+        unloaded = np.abs(torque) + 2.0 * mass_uncertainty * np.abs(links) < preload_nm
+        for joint, below, known in zip(robot.chain.joint_names, unloaded.sum(axis=0),
+                                       (unloaded & (flanks != 0)).sum(axis=0), strict=True):
             name = f"{robot.robot}.{joint}.lost_motion"
-            if free[holders.names.index(name)] and count < MIN_FREE_FLANKS:
-                out[name] = (f"its load decides its flank on all but {int(count)} calibration captures, beyond "
-                             "doubt of the link masses (calibrate.link_mass_uncertainty): the joint's zero offset "
-                             "and compliance take up a loaded flank")
+            if not free[holders.names.index(name)] or known >= MIN_FREE_FLANKS:
+                continue
+            if below >= MIN_FREE_FLANKS:
+                out[name] = (f"the order of the moves is known on {int(known)} of the {int(below)} calibration "
+                             "captures where its last move decides its flank (captures without capture_time_s)")
+            else:
+                out[name] = (f"its load decides its flank on all but {int(below)} calibration captures, beyond the "
+                             "doubt of the link masses (calibrate.link_mass_uncertainty): too few to tell its lost "
+                             "motion from the windup those masses misplace (calibrate.lost_motion = on fits it "
+                             "anyway)")
     return out
 
 

@@ -284,3 +284,6 @@ def test_a_lost_motion_whose_flank_the_load_decides_is_held_and_named():
     exact = lost_motion.loaded_flanks(kr16, m, free, 15.0, 0.0, UP)
     assert set(exact) <= set(held)  # the masses' doubt only ever holds more
     assert not lost_motion.loaded_flanks(kr16, m, free, 1e9, 0.25, UP)  # no preload reached: none
+    blind = ident.measure(kr16, (m.camera_joints, m.target_joints), m.rail_m, m.fixtures, PAYLOAD, UP, None, 1e9)
+    unordered = lost_motion.loaded_flanks(kr16, blind, free, 1e9, 0.25, UP)  # unloaded, but no move's order known
+    assert all("order of the moves" in why for why in unordered.values()) and len(unordered) == 12

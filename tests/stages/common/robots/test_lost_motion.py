@@ -23,12 +23,15 @@ def test_each_joints_last_move_follows_the_captures_times_not_the_rows_order():
 
 
 def test_the_target_arms_reading_at_the_capture_before_in_time_is_kept():
-    """A fixture's play lags behind its tilt's last change: the target's joints at the
-    session's capture before, in time (failed captures included), none for the first."""
+    """A fixture's play lags behind its tilt's last change: the target's joints before its
+    last move, in time (failed captures included), none for the first."""
     rows = [{"sample_id": s, "session": "dataset", "capture_time_s": t, "kuka_camera_joints_rad": [0.0],
              "kuka_target_joints_rad": q, "fixture": f}
-            for s, t, q, f in (("b", 9.0, [0.2], "plus_x"), ("a", 1.0, [0.1], "minus_x"), ("c", 12.0, [0.4], "plus_x"))]
+            for s, t, q, f in (("b", 9.0, [0.2], "plus_x"), ("a", 1.0, [0.1], "minus_x"), ("c", 12.0, [0.4], "plus_x"),
+                               ("d", 15.0, [0.4 + 1e-6], "plus_x"), ("e", 20.0, [0.3], "plus_x"))]
     out = {r["sample_id"]: r for r in lost_motion.move_directions(rows)}
     assert out["a"][lost_motion.BEFORE_KEY] is None
     assert out["b"][lost_motion.BEFORE_KEY] == [0.1]  # across a change of mount: the adapter stays clamped
     assert out["c"][lost_motion.BEFORE_KEY] == [0.2]
+    assert out["d"][lost_motion.BEFORE_KEY] == [0.2]  # the target stood still: its fixture keeps its lag
+    assert out["e"][lost_motion.BEFORE_KEY] == [0.4 + 1e-6]
