@@ -47,7 +47,8 @@ class Measured:
     ((N, 0) for a static mount), rail (N,) m, the fixture of each capture, the nominal
     gravity torques (N, J) N m of what each robot carries, and the gear flank (N, J) each
     joint rests on (+-1; 0 unknown; ``errors.py``); ``target_before`` (N, J): the target
-    robot's joints at the capture before (NaN rows: none; ``rwhe.fixture_lag``)."""
+    robot's joints before its last move (NaN rows: none; ``rwhe.fixture_lag``,
+    ``lost_motion.BEFORE_KEY``)."""
 
     camera_joints: np.ndarray
     target_joints: np.ndarray
@@ -90,7 +91,7 @@ def measure(holders: Holders, joints: tuple[np.ndarray, np.ndarray], rail_m: np.
             preload_nm: float = np.inf, target_before: np.ndarray | None = None) -> Measured:
     """``Measured`` of readings: the camera's and target's joints (N, J), rail (N,) m, and
     each joint's last move (N, J) (+-1, 0 unknown; None: all unknown); the target's joints
-    at the capture before (N, J; NaN rows: none; None: none anywhere)."""
+    before its last move (N, J; NaN rows: none; None: none anywhere)."""
     torque = []
     for holder, q in zip((holders.camera, holders.target), joints, strict=True):
         if not isinstance(holder, HolderModel):
@@ -158,8 +159,8 @@ def predict_batch(holders: Holders, params: np.ndarray, names: list[str], compli
 
 
 def up_before(holders: Holders, arm_params: np.ndarray, m: Measured, world_up: np.ndarray) -> np.ndarray:
-    """(K, N, 3) the up direction in the target flange at each capture's one before (NaN rows:
-    none), of the arms' packed parameters (K, size); the joints' windup and flank taken as
+    """(K, N, 3) the up direction in the target flange before each capture's last move of the
+    target (NaN rows: none), of the arms' packed parameters (K, size); the joints' windup and flank taken as
     at the capture itself (a fixture's lag needs only the direction of its tilt's change)."""
     known = ~np.isnan(m.target_before).any(axis=1) & (m.target_before.shape[1] > 0)
     out = np.full((len(arm_params), len(m.rail_m), 3), np.nan)
@@ -424,15 +425,30 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
         else "not fitted: the target stands on a static mount, whose tilt never changes"
         if not isinstance(holders.target, HolderModel)
         else "not fitted: no calibration capture has a capture before it (captures without capture_time_s)")
+    result, play_why = _hysteresis(holders, c, batch, a, fitted, free, {"play": played, "lost motion": lost},
+                                   dropped, play_why)
+    params, covariance = result
+    offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
+    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
+                  play_why)
+
+
+def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any, free: np.ndarray,
+                groups: dict[str, np.ndarray], dropped: dict[str, str], play_why: str) -> tuple[Any, str]:
+    """The fit of the ``free`` parameters (``fitted``: chosen -> (params, covariance)) less
+    the hysteresis groups (the fixtures' play, the joints' lost motions) the captures do not
+    show: a negative play is held at 0, and under ``auto`` each group is F-tested against
+    the fit without it, the play first (a fixture's lag left out is taken up by the lost
+    motions of the joints whose moves it follows). Held lost motions are named in
+    ``dropped``; returns the fit and why the play was not fitted ("": it was)."""
+    played, lost = groups["play"], groups["lost motion"]
     result = fitted(free)
-    if np.any(free & played) and np.any(result[0][play] < 0):  # a fixture that leads its change: no play seen
-        play_why = (f"fitted below zero ({', '.join(f'{w:.2g}' for w in result[0][play])} rad) and held at 0: the "
-                    "captures show no lag")
+    if np.any(free & played) and np.any(result[0][played] < 0):  # a fixture that leads its change: no play seen
+        play_why = (f"fitted below zero ({', '.join(f'{w:.2g}' for w in result[0][played])} rad) and held at 0: "
+                    "the captures show no lag")
         free = free & ~played
         result = fitted(free)
-    # each hysteresis tested against the fit without it, the play first: a fixture's lag
-    # left out is taken up by the lost motions of the joints whose moves it follows
-    for group, setting, what in ((played, c.fixture_play, "play"), (lost, c.lost_motion, "lost motion")):
+    for what, group, setting in (("play", played, c.fixture_play), ("lost motion", lost, c.lost_motion)):
         if setting == "auto" and np.any(free & group):
             without = fitted(free & ~group)
             shown, said = hysteresis_shown(batch, a, without[0], result[0], int(np.sum(free & group)),
@@ -443,10 +459,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
                 else:
                     dropped.update({holders.names[i]: said for i in np.flatnonzero(free & group)})
                 free, result = free & ~group, without
-    params, covariance = result
-    offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
-    return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
-                  play_why)
+    return result, play_why
 
 
 def joint_columns(holders: Holders) -> np.ndarray:
