@@ -117,8 +117,15 @@ class FixtureCompliance:
 
 
 def _plays(f: Fields) -> dict[str, float] | None:
+    """Each fixture's play (rad): a lag, so at least 0 (calibrate holds a negative fit at 0)."""
     entry = f.child("play_rad_by_fixture") if f.optional("play_rad_by_fixture") else None
-    return None if entry is None else {name: entry.number(name) for name in entry.data}
+    if entry is None:
+        return None
+    plays = {name: entry.number(name) for name in entry.data}
+    for name, value in plays.items():
+        if value < 0:
+            raise entry.fail(name, "a play of at least 0 rad")
+    return plays
 
 
 @dataclass(frozen=True)

@@ -123,7 +123,7 @@ def with_marker_geometry(workspace: Workspace, captured: list[dict[str, Any]], t
     calibration = []
     for row in captured:
         b = measured_b(row, "vicon")
-        if row["session"] == "calibration" and b is not None and row["fixture"] in kuka.x:
+        if row["session"] == "calibration" and b is not None and row["fixture"] in kuka.offsets.x:
             calibration.append(geometry.variance(row, kuka.estimate(measured_b(row, "kuka"), row)))
     mean = mean_variance(calibration)
     if mean is None:

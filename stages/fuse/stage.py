@@ -39,7 +39,7 @@ from stages.common.fusion import Sigma, VarianceFactor, at_position, fuse, rejec
 from stages.common.json_arrays import matrix
 from stages.common.robots import identification, lost_motion
 from stages.common.robots.errors import Holders, configured_holders
-from stages.common.rwhe import fixture_lag, fixture_tilt, tilt_rotvec
+from stages.common.rwhe import Solution
 from stages.common.sources import measured_b, up_targetee
 from stages.common.workspace_target import workspace_target
 from stages.fuse.config import FuseConfig
@@ -67,7 +67,6 @@ class SourceModel:
     def __init__(self, entry: SourceCalibration, calibration: Calibration, payload: arms.Payload,
                  scale_sigma: float = 0.0, holders: Holders | None = None, tron: bool = False) -> None:
         self.tron = tron  # TRON's own arms: the KR 16-2's lost motion applies
-        self.z = matrix(entry.cam_from_offset)
         kinematics = entry.arm_kinematics
         self.kinematics = kinematics
         #: the facility's robots, fitted from their URDFs (``kinematics.chains``)
@@ -79,10 +78,13 @@ class SourceModel:
                              "folder's (its parameter names differ); rerun calibrate with --force (`speedplus "
                              "calibrate -w W --force`)")
         self.payload = payload
-        self.x = {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()}
-        self.compliance = {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()}
-        self.anisotropy = {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()}
-        self.play = dict(entry.compliance_play_rad)
+        #: the offsets, the fixtures' sag and play, as ``rwhe.Solution`` predicts with them
+        self.offsets = Solution(
+            matrix(entry.cam_from_offset),
+            {fixture: matrix(pose) for fixture, pose in entry.target_from_offset_by_fixture.items()},
+            {fixture: np.asarray(k, float) for fixture, k in entry.compliance_k_rad.items()},
+            {fixture: np.asarray(d, float) for fixture, d in entry.compliance_anisotropy.items()},
+            dict(entry.compliance_play_rad))
         self.sigma = Sigma.from_record(entry.sigma)
         self.metrics, self.samples = entry.metrics, entry.samples
         #: how much wider the arms' parameters are than their fit says (a short session's widening)
@@ -95,9 +97,9 @@ class SourceModel:
     def check_fixture(self, row: dict[str, Any]) -> None:
         """Refuse a capture on a fixture the calibration never saw, naming it."""
         fixture = row["fixture"]
-        if fixture not in self.x:
+        if fixture not in self.offsets.x:
             raise InputError(f"captures: sample {row['sample_id']} uses fixture {fixture!r}, which the calibration "
-                             f"did not see (calibrated: {', '.join(sorted(self.x))}); add calibration captures "
+                             f"did not see (calibrated: {', '.join(sorted(self.offsets.x))}); add calibration captures "
                              "with it")
 
     def estimate(self, b: np.ndarray, row: dict[str, Any]) -> np.ndarray:
@@ -115,14 +117,8 @@ class SourceModel:
             b_arms, up_arms = identification.corrected_b(self.holders, arm_params, measured, self.world_up)
             b, up = b_arms[0], up_arms[0]
             before = identification.up_before(self.holders, arm_params[None], measured, self.world_up)[0, 0]
-        if fixture in self.compliance:
-            k = self.compliance[fixture][None]
-            d = self.anisotropy[fixture][None] if fixture in self.anisotropy else None
-            b = b @ fixture_tilt(up[None], k, d)[0]
-            if self.play.get(fixture) and before is not None:
-                b = b @ fixture_lag(tilt_rotvec(up[None], k, d), tilt_rotvec(before[None], k, d),
-                                    np.array([self.play[fixture]]))[0]
-        return self.z @ b @ g.invert(self.x[fixture])
+        return self.offsets.predict(b[None], [fixture], None if up is None else up[None],
+                                    None if before is None else before[None])[0]
 
     def sigma_at(self, pose: np.ndarray, sigma: Sigma | None = None) -> Sigma:
         """This source's sigma (or ``sigma``, measured at the calibration) grown to ``pose``:

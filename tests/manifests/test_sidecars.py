@@ -141,6 +141,8 @@ def _edit(data: dict, path: str, value) -> dict:
     ("version", KeyError, r"version None, this program reads version 6 .*rerun calibrate with --force"),
     ("kuka.fixture_compliance.play_rad_by_fixture.minus_x", "x",
      "key kuka.fixture_compliance.play_rad_by_fixture.minus_x: expected"),
+    ("kuka.fixture_compliance.play_rad_by_fixture.minus_x", -1e-4,
+     "key kuka.fixture_compliance.play_rad_by_fixture.minus_x: expected a play of at least 0 rad"),
     ("kuka.fixture_compliance.anisotropy_by_fixture.minus_x", [0.1, 0.2],
      "key kuka.fixture_compliance.anisotropy_by_fixture.minus_x: expected"),
     ("kuka.cam_from_camee.q", [1.0, 0.0, 0.0, 0.1], r"key kuka.cam_from_camee.q: expected a unit quaternion"),
