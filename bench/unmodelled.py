@@ -14,9 +14,9 @@ which unmodelled source costs the robots what, and what the estimator's physical
     python -m bench unmodelled [SEEDS] [ROWS]
         (default seeds 21-28; about 4 s per facility and row; ROWS: the rows to measure, by
         their first column, comma-separated: none, a source of virtual.unmodelled, all,
-        covered (all errors, on the dataset's even half, as planned and with a quarter of
-        the calibration poses at the odd half's target-arm configurations); default every
-        row, the physical models' switches included)
+        uncovered (all errors, and no calibration pose at a dataset pose's target-arm
+        configuration: plan.calibration_cover = 0); default every row, the physical
+        models' switches included)
 """
 
 from __future__ import annotations
@@ -41,24 +41,16 @@ from stages.common.workspace_target import planned_target
 from stages.plan.stage import plan_sample, planned_samples
 
 PNP_SIGMA_M, PNP_SIGMA_RAD = 0.05e-3, np.radians(0.026)
-#: the share of the calibration poses the ``covered`` row gives a dataset pose's target arm
-COVER = 0.25
 SPEEDPLUS_ROTATION_DEG = 0.169
 
 
-def facility(seed: int, sources: list[str], settings: tuple[str, ...] = (), cover: float | None = None
-             ) -> tuple[Config, dict[str, Any]]:
-    """The true relative poses and the robots' telemetry of both sessions of one facility.
-    ``cover`` (None: the plan as it is): the dataset's even half only, and this share of the
-    calibration poses given the target arm's configuration (and mount) of the odd half's
-    poses, in turn: calibration poses that cover the dataset's arms."""
+def facility(seed: int, sources: list[str], settings: tuple[str, ...] = ()) -> tuple[Config, dict[str, Any]]:
+    """The true relative poses and the robots' telemetry of both sessions of one facility."""
     listed = ", ".join(f'"{s}"' for s in sources)
     overrides = [f"virtual.seed={seed}", f"virtual.unmodelled=[{listed}]", *settings]
     config = with_overrides(load_config("default"), [parse_override(o) for o in overrides])
     truth = draw_truth(config)
     rows = [plan_sample(config, *item) for item in planned_samples(config)]
-    if cover is not None:
-        rows = _covering(rows, cover, np.random.default_rng([seed, 11]))
     moments = timeline(config, rows, truth.unmodelled.start_direction)
     sessions = {}
     for session in ("calibration", "dataset"):
@@ -73,20 +65,6 @@ def facility(seed: int, sources: list[str], settings: tuple[str, ...] = (), cove
             for s, r in zip(states, chosen, strict=True)])
         sessions[session] = (captures, true)
     return config, sessions
-
-
-def _covering(rows: list[dict[str, Any]], share: float, rng: np.random.Generator) -> list[dict[str, Any]]:
-    """``facility``'s ``cover``: the dataset's odd half lends its target arm's configurations
-    to ``share`` of the calibration rows (their camera arm and rail as planned: render-free,
-    nothing checks that the board faces the camera) and is left out."""
-    calibration = [r for r in rows if r["session"] == "calibration"]
-    dataset = [r for r in rows if r["session"] == "dataset"]
-    lenders = dataset[1::2]
-    for turn, index in enumerate(sorted(rng.choice(len(calibration), int(share * len(calibration)), replace=False))):
-        lender = lenders[turn % len(lenders)]
-        calibration[index] = {**calibration[index], "target_joints_rad": lender["target_joints_rad"],
-                              "mount": lender["mount"]}
-    return calibration + dataset[0::2]
 
 
 def robots_only(config: Config, sessions: dict[str, Any], rng: np.random.Generator) -> dict[str, float]:
@@ -113,30 +91,28 @@ def robots_only(config: Config, sessions: dict[str, Any], rng: np.random.Generat
     return out
 
 
-def mean_over(seeds: list[int], sources: list[str], settings: tuple[str, ...] = (), cover: float | None = None
-              ) -> dict[str, float]:
-    results = [robots_only(*facility(seed, sources, settings, cover), np.random.default_rng(seed)) for seed in seeds]
+def mean_over(seeds: list[int], sources: list[str], settings: tuple[str, ...] = ()) -> dict[str, float]:
+    results = [robots_only(*facility(seed, sources, settings), np.random.default_rng(seed)) for seed in seeds]
     return {key: float(np.mean([r[key] for r in results])) for key in results[0]}
 
 
 def main(seeds: str = "21,22,23,24,25,26,27,28", rows: str = "") -> None:
     chosen = [int(s) for s in seeds.split(",")]
     every = list(UNMODELLED_SOURCES)
-    wanted = set(rows.split(",")) if rows else {"none", *every, "all", "covered"}
-    unknown = sorted(wanted - {"none", *every, "all", "covered"})
+    wanted = set(rows.split(",")) if rows else {"none", *every, "all", "uncovered"}
+    unknown = sorted(wanted - {"none", *every, "all", "uncovered"})
     if unknown:
         raise SystemExit(f"bench unmodelled: unknown row {unknown[0]!r}; rows: none, {', '.join(every)}, all, "
-                         "covered")
+                         "uncovered")
     table = [{"unmodelled errors on": "none", "calibrate": "as shipped", **mean_over(chosen, [])}] \
         if "none" in wanted else []
     table += [{"unmodelled errors on": s, "calibrate": "as shipped", **mean_over(chosen, [s])}
               for s in every if s in wanted]
     if "all" in wanted:
         table.append({"unmodelled errors on": "all", "calibrate": "as shipped", **mean_over(chosen, every)})
-    if "covered" in wanted:  # the dataset's even half, with the plan's and with covering calibration poses
-        for share, said in ((0.0, "as shipped; dataset's even half"),
-                            (COVER, f"{COVER:.0%} of calibration poses at the odd half's target arms")):
-            table.append({"unmodelled errors on": "all", "calibrate": said, **mean_over(chosen, every, cover=share)})
+    if "uncovered" in wanted:  # no calibration pose at a dataset pose's target-arm configuration
+        table.append({"unmodelled errors on": "all", "calibrate": "as shipped; plan.calibration_cover = 0",
+                      **mean_over(chosen, every, ("plan.calibration_cover=0",))})
     if not rows:
         for switch in ("joint_compliance", "fixture_anisotropy"):
             table.append({"unmodelled errors on": "all", "calibrate": f"{switch} off",

@@ -43,6 +43,11 @@ class PlanConfig:
     calibration_mounts: tuple[str, ...] = param(
         MOUNTS, "model fixtures calibrated, alternated over calibration captures "
         "(each dataset capture uses the one away from the camera)", "")
+    calibration_cover: float = param(
+        0.25, "share of TRON's calibration poses taken with the target arm held at a dataset pose's configuration "
+        "and mount, the camera brought to the board: calibration poses that load the arm as the dataset does, so "
+        "calibrate's compliances are fitted where the labels need them, not extrapolated (stages/plan/covering.py); "
+        "poses mode only; 0: none", "1")
     dataset_range_m: tuple[float, ...] = param(
         (), "camera-to-target distance range, FULL scale, [min, max]; empty: SPEED+'s (6.5-9.5 m for Tango, paper: "
         "at least 6.5 m), for another target the same apparent size (4.75-6.94 of its diameters), clipped to what "
@@ -93,6 +98,8 @@ class PlanConfig:
         low, high = self.light_boxes_per_sample
         if not 1 <= low <= high <= self.n_light_boxes:
             raise ConfigError(f"plan.light_boxes_per_sample: expected 1 <= min <= max <= {self.n_light_boxes}")
+        if not 0 <= self.calibration_cover <= 1:
+            raise ConfigError(f"plan.calibration_cover: expected a share in [0, 1], got {self.calibration_cover}")
         if not 0 <= self.calibration_max_tilt_rad < math.pi / 2:
             raise ConfigError(f"plan.calibration_max_tilt_rad: expected [0, pi/2), got "
                               f"{self.calibration_max_tilt_rad}")

@@ -23,7 +23,7 @@ import numpy as np
 from core.config import TestbedConfig
 from stages.common import geometry as g
 from stages.common import layout
-from stages.common.kinematics import arm_model, limit_margin, solve
+from stages.common.kinematics import ArmModel, arm_model, limit_margin, solve
 from stages.common.target import Target
 from stages.plan.config import PlanConfig
 
@@ -87,6 +87,26 @@ def _move(previous: Reconfiguration, camera_joints: np.ndarray, target_joints: n
     return np.maximum(camera, target) + np.abs(rail - previous.rail_m)
 
 
+def _camera_arm(arm: ArmModel, world_from_camee: np.ndarray, plan: PlanConfig, testbed: TestbedConfig
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera arm's joints (..., O, 6) and whether they reach (..., O) flange poses
+    ``world_from_camee`` (..., 4, 4) from each of the plan's rail offsets (O,), on the rail,
+    and those rail positions (..., O) in m."""
+    offsets = np.asarray(plan.rail_offsets_m)  # (O,)
+    rail = world_from_camee[..., None, 0, 3] + offsets - testbed.rail_origin_m[0]
+    on_rail = (rail >= 0.0) & (rail <= testbed.rail_length_m)
+    base_camera = layout.world_from_camera_base(testbed, np.clip(rail, 0.0, testbed.rail_length_m))
+    camera_joints, camera_ok = solve(arm, g.invert(base_camera) @ world_from_camee[..., None, :, :],
+                                     plan.joint_limit_margin_rad)
+    return camera_joints, camera_ok & on_rail, rail
+
+
+def _in_room(world_from_frame: np.ndarray, plan: PlanConfig, testbed: TestbedConfig) -> np.ndarray:
+    """Whether frames (..., 4, 4) keep ``plan.wall_clearance_m`` from the room's walls (...)."""
+    points, clearance = world_from_frame[..., :3, 3], plan.wall_clearance_m
+    return np.all((points >= clearance) & (points <= np.asarray(testbed.room_m) - clearance), axis=-1)
+
+
 def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testbed: TestbedConfig,
                 target: Target, require_far_side: bool, previous: Reconfiguration | None = None
                 ) -> Reconfiguration | None:
@@ -110,22 +130,11 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     base_target = layout.world_from_target_base(testbed)
     target_joints, target_ok = solve(arm, g.invert(base_target) @ world_from_targetee, plan.joint_limit_margin_rad)
 
-    offsets = np.asarray(plan.rail_offsets_m)  # (O,)
-    rail = world_from_camee[..., None, 0, 3] + offsets - testbed.rail_origin_m[0]  # (P, S, R, O)
-    on_rail = (rail >= 0.0) & (rail <= testbed.rail_length_m)
-    base_camera = layout.world_from_camera_base(testbed, np.clip(rail, 0.0, testbed.rail_length_m))
-    camera_joints, camera_ok = solve(arm, g.invert(base_camera) @ world_from_camee[..., None, :, :],
-                                     plan.joint_limit_margin_rad)
+    camera_joints, camera_ok, rail = _camera_arm(arm, world_from_camee, plan, testbed)
 
-    room = np.asarray(testbed.room_m)
-    clearance = plan.wall_clearance_m
-
-    def in_room(points: np.ndarray) -> np.ndarray:
-        return np.all((points >= clearance) & (points <= room - clearance), axis=-1)
-
-    in_room_ok = (in_room(world_from_cam[..., :3, 3]) & in_room(world_from_camee[..., :3, 3])
-                  & in_room(world_from_targetee[..., :3, 3]))
-    ok = camera_ok & on_rail & (target_ok & in_room_ok)[..., None]
+    in_room_ok = (_in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed)
+                  & _in_room(world_from_targetee, plan, testbed))
+    ok = camera_ok & (target_ok & in_room_ok)[..., None]
     if require_far_side:
         sight = sights[None, :, None, :]
         centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[..., 0, :]
@@ -147,3 +156,33 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
         world_from_targetee=world_from_targetee[p, s, r],
         margin_rad=float(margin[p, s, r, o]),
     )
+
+
+def reconfigure_camera(cam_from_target: np.ndarray, held: Reconfiguration, mount: str, plan: PlanConfig,
+                       testbed: TestbedConfig, target: Target) -> tuple[int, Reconfiguration] | None:
+    """The target arm ``held`` where it is (its joints and flange pose, the model on
+    ``mount``) and the camera arm and rail brought to the first of the candidate relative
+    poses ``cam_from_target`` (N, 4, 4, mock-up scale) they reach, the camera inside the
+    room and on the near side of the target robot's base (the arm never between camera
+    and model): (that candidate's index, its commands), or None when none is reached.
+    Of its rail offsets, the one farthest from the joint limits."""
+    arm = arm_model(testbed.robot_model)
+    world_from_target = held.world_from_targetee @ g.invert(layout.target_from_targetee(target, mount))
+    world_from_cam = world_from_target @ g.invert(cam_from_target)  # (N, 4, 4)
+    world_from_camee = world_from_cam @ g.invert(layout.camee_from_cam(testbed))
+    camera_joints, camera_ok, rail = _camera_arm(arm, world_from_camee, plan, testbed)  # (N, O, ...)
+    centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[0]
+    sight = centre - world_from_cam[:, :3, 3]
+    base_behind = (layout.world_from_target_base(testbed)[:3, 3] - centre) @ sight.T > 0  # (N,)
+    ok = camera_ok & (_in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed)
+                      & base_behind)[:, None]
+    if not ok.any():
+        return None
+    first = int(np.argmax(ok.any(axis=1)))
+    margin = np.where(ok[first], limit_margin(arm, np.nan_to_num(camera_joints[first])), -np.inf)
+    o = int(np.argmax(margin))
+    return first, Reconfiguration(
+        rail_m=float(rail[first, o]), camera_joints_rad=camera_joints[first, o],
+        target_joints_rad=held.target_joints_rad, world_from_camee=world_from_camee[first],
+        world_from_targetee=held.world_from_targetee,
+        margin_rad=float(min(margin[o], limit_margin(arm, held.target_joints_rad))))

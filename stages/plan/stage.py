@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ from stages.common import layout
 from stages.common.robots.facility import Facility, load_facility, presented_share
 from stages.common.target import Target
 from stages.common.workspace_target import install, planned_target
-from stages.plan import calibration_choice
+from stages.plan import calibration_choice, covering
 from stages.plan.config import PlanConfig
 from stages.plan.facility_plan import (
     camera_fixture,
@@ -130,13 +131,17 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         return cam_from_target, mount, reconfigure_on(facility, cam_from_target, mount, target, plan.seed, rng,
                                                       plan.joint_limit_margin_rad, limits, spread_rail=spread_rail)
 
-    redraws, cap = 0, plan.max_redraws if max_redraws is None else max_redraws
-    cam_from_target, mount, commands = draw()
-    while commands is None:
-        if redraws == cap:
-            raise _unreachable(sample_id, redraws + 1, testbed, target, chosen, facility, limits)
-        redraws += 1
-        cam_from_target, mount, commands = draw()
+    covered = None
+    if session == "calibration" and facility is None and not candidate:
+        covered = covering.cover(config, index, target, rng, lambda j: plan_sample(
+            config, "dataset", j, sample_ids.make("dataset", j), target))
+    if covered is not None:
+        cam_from_target, mount, commands, redraws = covered
+    else:
+        cam_from_target, mount, commands, redraws = _drawn(draw, plan.max_redraws if max_redraws is None else
+                                                           max_redraws, lambda draws: _unreachable(
+                                                               sample_id, draws, testbed, target, chosen, facility,
+                                                               limits))
     if session == "dataset" and facility is not None:
         camera_in_target = g.invert(cam_from_target)[:3, 3]
         view = target.view_of(camera_in_target, target.mockup_scale)
@@ -165,6 +170,19 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         "redraws": redraws,
         **dict.fromkeys(SEQUENCE_COLUMNS),
     }
+
+
+def _drawn(draw: Callable[[], tuple[np.ndarray, str, Reconfiguration | None]], cap: int,
+           refusal: Callable[[int], PlanningError]) -> tuple[np.ndarray, str, Reconfiguration, int]:
+    """The first reachable of ``draw()``'s relative poses, redrawn up to ``cap`` times:
+    (``cam_from_target``, mount, commands, redraws); ``refusal(draws)`` is raised past it."""
+    redraws, (cam_from_target, mount, commands) = 0, draw()
+    while commands is None:
+        if redraws == cap:
+            raise refusal(redraws + 1)
+        redraws += 1
+        cam_from_target, mount, commands = draw()
+    return cam_from_target, mount, commands, redraws
 
 
 def _unreachable(sample_id: str, draws: int, testbed: TestbedConfig, target: Target, chosen: DatasetRange | None,
@@ -301,6 +319,10 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         workspace.trajectories_path.unlink(missing_ok=True)
     install(config, workspace)
     table = read_manifest(workspace, "plan")
+    if facility is None and config.plan.mode == "poses" and config.plan.calibration_cover:
+        held, count = covering.count_covering(table.to_pylist())
+        print(f"plan: {held} of {count} calibration poses hold the target arm at a dataset pose's configuration "
+              f"(plan.calibration_cover = {config.plan.calibration_cover:g})")
     if facility is not None:
         print(f"plan: {presented_share(table.to_pylist(), facility.spec.name)}")
         observed = calibration_choice.describe(facility, table.to_pylist(), target, brief=True)

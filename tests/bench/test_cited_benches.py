@@ -109,16 +109,17 @@ def test_bench_unmodelled_calibrates_render_free_facilities(results):
 
 
 def test_bench_unmodelled_covering_calibration_poses_cut_the_rotation_tail(results):
-    """docs/accuracy.md cites ``bench unmodelled ... covered``: on facility 23, whose dataset
-    loads the target arm's shoulder three times beyond its calibration poses, calibration
-    poses at the dataset's arm configurations take the rotation tail away."""
+    """docs/accuracy.md cites ``bench unmodelled ... all,uncovered``: on facility 23, whose
+    dataset loads the target arm's shoulder three times beyond calibration poses drawn round
+    the board alone, the plan's calibration poses at the dataset's arm configurations
+    (``plan.calibration_cover``) take the rotation tail away."""
     from bench import unmodelled
 
-    unmodelled.main("23", "covered")
-    planned, covering = _rows(results, "unmodelled")
-    assert "even half" in planned["calibrate"] and "odd half" in covering["calibrate"]
-    assert covering["dataset E_R (deg)"] < 0.8 * planned["dataset E_R (deg)"]
-    assert planned["dataset under 0.169 deg"] < 1.0 == covering["dataset under 0.169 deg"]
+    unmodelled.main("23", "all,uncovered")
+    covered, uncovered = _rows(results, "unmodelled")
+    assert "calibration_cover = 0" in uncovered["calibrate"] and covered["calibrate"] == "as shipped"
+    assert covered["dataset E_R (deg)"] < 0.8 * uncovered["dataset E_R (deg)"]
+    assert uncovered["dataset under 0.169 deg"] < 1.0 == covered["dataset under 0.169 deg"]
 
 
 def test_bench_acquire_reads_a_workspaces_corners_and_compares_two(smoke_labelled, results, tmp_path):

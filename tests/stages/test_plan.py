@@ -140,6 +140,57 @@ def test_target_robot_is_never_between_camera_and_model(default_config, default_
         assert (row["mount"] == "minus_x") == (camera_in_target[0] > 0)
 
 
+def _shoulder_torques(config, rows):
+    """|gravity torque| (N m) on the target arm's A2 at each row's commands, nominal masses."""
+    from stages.common.arms import Payload
+    from stages.common.statics import KR16_2_MASSES, gravity_torques
+
+    payload = Payload.of(planned_target(config))
+    return np.array([abs(gravity_torques(KR16_2, KR16_2_MASSES, layout.world_from_target_base(config.testbed),
+                                         r["target_joints_rad"], payload.mass_kg,
+                                         payload.centre_in_flange(r["mount"]))[1]) for r in rows])
+
+
+def test_a_quarter_of_the_calibration_poses_load_the_target_arm_as_the_dataset_does(default_config, default_plan):
+    """``plan.calibration_cover``: 16 of 64 calibration poses hold the target arm at a dataset
+    pose's joints (on the fixture the session's alternation gives them), the target robot
+    behind the model; so the calibration's shoulder loads reach the dataset's, where poses
+    drawn round the board alone leave most of the dataset's beyond them (issue 57)."""
+    from stages.plan.covering import count_covering
+
+    assert count_covering(default_plan) == (16, 64)
+    by_joints = {tuple(r["target_joints_rad"]): r for r in dataset(default_plan)}
+    testbed, target = default_config.testbed, planned_target(default_config)
+    for index, row in enumerate(default_plan[:64]):
+        lender = by_joints.get(tuple(row["target_joints_rad"]))
+        assert (lender is not None) == (index % 4 == 3)
+        if lender is not None:
+            assert row["mount"] == lender["mount"] == ("minus_x", "plus_x")[index % 2]
+            np.testing.assert_allclose(pose(row, "world_from_targetee"), pose(lender, "world_from_targetee"), atol=1e-12)
+            world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
+            world_from_target = pose(row, "world_from_targetee") @ g.invert(
+                layout.target_from_targetee(target, row["mount"]))
+            centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[0]
+            assert np.dot(np.asarray(testbed.target_base_m) - centre, centre - world_from_cam[:3, 3]) > 0
+    uncovered_config = default_config.replace(plan=replace(default_config.plan, calibration_cover=0.0))
+    uncovered = [plan_sample(uncovered_config, *item) for item in planned_samples(uncovered_config)[:64]]
+    assert count_covering(uncovered + dataset(default_plan)) == (0, 64)
+    heaviest = _shoulder_torques(default_config, dataset(default_plan)).max()
+    assert _shoulder_torques(default_config, default_plan[:64]).max() > 0.9 * heaviest
+    assert _shoulder_torques(default_config, uncovered).max() < 0.5 * heaviest
+
+
+def test_covering_needs_a_dataset_and_poses_mode(default_config):
+    from stages.plan.covering import covering_turn
+
+    assert [covering_turn(default_config, i) for i in range(8)] == [None, None, None, 0, None, None, None, 1]
+    for plan in (replace(default_config.plan, n_dataset=0), replace(default_config.plan, mode="trajectory"),
+                 replace(default_config.plan, calibration_cover=0.0)):
+        assert covering_turn(default_config.replace(plan=plan), 3) is None
+    half = default_config.replace(plan=replace(default_config.plan, calibration_cover=0.5))
+    assert [covering_turn(half, i) for i in range(4)] == [None, 0, None, 1]
+
+
 def test_light_boxes(default_config, default_plan):
     testbed = default_config.testbed
     centres = np.asarray(testbed.light_box_centres_m)
