@@ -47,7 +47,7 @@ class PlanConfig:
         0.25, "share of TRON's calibration poses taken with the target arm held at a dataset pose's configuration "
         "and mount, the camera brought to the board: calibration poses that load the arm as the dataset does, so "
         "calibrate's compliances are fitted where the labels need them, not extrapolated (stages/plan/covering.py); "
-        "poses mode only; 0: none", "1")
+        "poses mode only; 0: none (the smoke profile: 16 poses cannot spare them)", "1")
     dataset_range_m: tuple[float, ...] = param(
         (), "camera-to-target distance range, FULL scale, [min, max]; empty: SPEED+'s (6.5-9.5 m for Tango, paper: "
         "at least 6.5 m), for another target the same apparent size (4.75-6.94 of its diameters), clipped to what "

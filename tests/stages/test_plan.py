@@ -166,7 +166,8 @@ def test_a_quarter_of_the_calibration_poses_load_the_target_arm_as_the_dataset_d
         assert (lender is not None) == (index % 4 == 3)
         if lender is not None:
             assert row["mount"] == lender["mount"] == ("minus_x", "plus_x")[index % 2]
-            np.testing.assert_allclose(pose(row, "world_from_targetee"), pose(lender, "world_from_targetee"), atol=1e-12)
+            np.testing.assert_allclose(pose(row, "world_from_targetee"), pose(lender, "world_from_targetee"),
+                                       atol=1e-12)
             world_from_cam = pose(row, "world_from_camee") @ layout.camee_from_cam(testbed)
             world_from_target = pose(row, "world_from_targetee") @ g.invert(
                 layout.target_from_targetee(target, row["mount"]))
