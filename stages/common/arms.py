@@ -10,7 +10,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from stages.common import geometry as g
 from stages.common import layout
@@ -122,6 +121,7 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
     many parameters fitted to few poses leaves residuals smaller than the noise, and a
     scale taken from them alone would weigh the data ever higher, fit after fit
     (docs/architecture.md section 6)."""
+    from scipy.optimize import least_squares
 
     def full(q: np.ndarray) -> np.ndarray:
         out = np.repeat(params[None], len(q), axis=0)

@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from stages.common import geometry as g
 from stages.common.target import Target
@@ -63,6 +62,7 @@ def torque_free(inertia_kgm2: np.ndarray, eci_from_body_q: np.ndarray, omega_bod
     """Attitude ``eci_from_body`` quaternions (N, 4) and body rates (N, 3) rad/s at ``times_s``
     (N,), ascending from 0: Euler's equations ``I dw/dt = -w x I w`` and ``dq/dt = q (0, w) / 2``,
     integrated with DOP853 at a relative tolerance of 1e-13."""
+    from scipy.integrate import solve_ivp
     inertia = np.asarray(inertia_kgm2, float)
     inverse = np.linalg.inv(inertia)
 

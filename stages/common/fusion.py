@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import beta, chi2
 
 from manifests.sidecars import SigmaRecord
 from stages.common import geometry as g
@@ -131,6 +130,7 @@ def consistency_bound(samples: int, level: float = CONSISTENCY_LEVEL) -> float:
     ``sqrt(median(r^2) / median(chi2_1))`` of normalised disagreements ``r``; the sample
     median is at most the order statistic ``k = n // 2 + 1`` (the upper of the two middle
     ones when n is even), whose CDF value is Beta(k, n + 1 - k)."""
+    from scipy.stats import beta, chi2
     k = samples // 2 + 1
     quantile = chi2.ppf(beta.ppf(level, k, samples + 1 - k), 1)
     return float(np.sqrt(quantile / _CHI2_1_MEDIAN))

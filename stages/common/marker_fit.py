@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 #: a fit with fewer markers is not tracked (Vicon needs three of a rigid body)
 MIN_FIT_MARKERS = 3
@@ -102,6 +101,7 @@ def marker_sigma(residual_rms_m: np.ndarray, used: np.ndarray) -> float | None:
     (N,) markers each: the median of ``K rms^2 / median(chi2(3K - 6))`` over the fits, a
     median so that the fits a ghost marker entered barely move it. None without a fit of
     more than three markers (three leave 3 degrees of freedom; all fits count)."""
+    from scipy.stats import chi2
     residual_rms_m, used = np.asarray(residual_rms_m, float), np.asarray(used, int)
     keep = np.isfinite(residual_rms_m) & (used >= MIN_FIT_MARKERS)
     if not np.any(keep):

@@ -25,15 +25,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from manifests.target import TargetError
 from stages.common import geometry as g
 from stages.common import layout
 from stages.common.marker_fit import mean_point_variance
 from stages.common.target import MeshPart, Target, farthest_points, main_body_part
+
+if TYPE_CHECKING:
+    from scipy.spatial import ConvexHull
 
 #: markers chosen when the folder declares none: Vicon needs 3 of a rigid body; 6 keep 3 in
 #: sight from most directions
@@ -132,6 +135,7 @@ def _as_hull(points: np.ndarray) -> Hull:
 def _hull(points: np.ndarray) -> ConvexHull:
     """A flat body (a panel modelled as one plane) gets the hull of its points joggled
     by a rounding error: both of its faces, a sheet thin as nothing."""
+    from scipy.spatial import ConvexHull, QhullError
     try:
         return ConvexHull(points)
     except QhullError:

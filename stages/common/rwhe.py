@@ -38,7 +38,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from speedplus.errors import InputError
 from stages.common import geometry as g
@@ -366,6 +365,7 @@ def frobenius(a: np.ndarray, b: np.ndarray, fixtures: list[str], start: Solution
               up_targetee: np.ndarray | None = None) -> Solution:
     """The paper's cost, Levenberg-Marquardt over rotation vectors and translations; with
     ``up_targetee`` (N, 3) also over the fixtures' compliances (from ``start``'s or zero)."""
+    from scipy.optimize import least_squares
     names = sorted(start.x)
     compliant = up_targetee is not None
 
@@ -382,6 +382,7 @@ def reprojection(b: np.ndarray, fixtures: list[str], start: Solution, object_poi
                  up_targetee: np.ndarray | None = None) -> Solution:
     """Refine on the pattern's reprojection error: the detected corners are what was
     measured, with (nearly) independent pixel noise. object_points[i] (M_i, 3) in T."""
+    from scipy.optimize import least_squares
     names = sorted(start.x)
     observed = np.concatenate(pixels)
     compliant = up_targetee is not None

@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from manifests.sidecars.base import Pose
 from manifests.target import (
@@ -258,6 +257,8 @@ def farthest_points(points: np.ndarray, centre: np.ndarray, count: int) -> np.nd
 
 def _hull(vertices: np.ndarray, path: Path) -> np.ndarray:
     """The convex hull's vertices (H, 3) in vertex order; a flat or linear mesh has none."""
+    from scipy.spatial import ConvexHull, QhullError  # 0.4 s: every command resolves the stages that import this
+
     try:
         return vertices[np.sort(ConvexHull(vertices).vertices)]
     except QhullError:

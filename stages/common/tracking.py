@@ -24,7 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from stages.common import geometry as g
 from stages.common.orbits import Elements
@@ -80,6 +79,7 @@ class AttitudeFilter:
     wild estimate can neither start it nor pull it away. Until then it has no estimate."""
 
     def __init__(self, noise: TrackingNoise) -> None:
+        from scipy.stats import chi2
         self.noise, self.q, self.omega, self.time = noise, None, np.zeros(3), 0.0
         self.covariance = np.zeros((6, 6))
         self.rejections = 0
@@ -149,6 +149,7 @@ class PositionFilter:
     """The linear Kalman filter of ``a`` times the ROE at the epoch (module docstring)."""
 
     def __init__(self, chief: Elements, noise: TrackingNoise, prior_range_m: float) -> None:
+        from scipy.stats import chi2
         self.chief, self.noise, self.time, self.prior_range_m = chief, noise, 0.0, prior_range_m
         self.state, self.covariance = np.zeros(6), np.eye(6) * (10.0 * prior_range_m) ** 2
         self.gate = chi2.ppf(noise.gate_probability, 3)

@@ -31,7 +31,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
 
 #: resamples per interval: the 2.5% and 97.5% points of 4000 move by about 1% of the
 #: interval's width between seeds
@@ -91,6 +90,7 @@ def _bca_levels(values: np.ndarray, strata: Sequence[str], means: np.ndarray, me
     the mean's law (the acceleration ``a``, from each value's influence, its deviation from
     its stratum's mean). Scores are skewed (a few misses far out), and on 12 images a
     configuration the plain percentile interval covers about 90%, not 95%."""
+    from scipy.stats import norm
     labels = np.asarray(strata)
     influence = values.copy()
     for stratum in set(strata):

@@ -19,8 +19,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
-from scipy.stats import binom, chi2, norm
-from scipy.stats import t as student_t
 
 from core.config import Config
 from stages.common import geometry as g
@@ -83,6 +81,8 @@ def short_session_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_differenc
     ``PRIOR_DOF`` degrees of freedom (Gelman et al., Bayesian Data Analysis, 3rd ed., 2.6),
     times the Student-t allowance of the predictive interval on that many degrees of
     freedom; never below 1."""
+    from scipy.stats import chi2, norm
+    from scipy.stats import t as student_t
     n = len(pose_a)
     normalised = (pose_b[:, :3, 3] - pose_a[:, :3, 3]) / np.stack([s.t_m for s in sigma_difference])
     squares = np.minimum(normalised**2, chi2.ppf(0.999, 1))
@@ -206,6 +206,7 @@ def rejections(estimates: list[Estimates], vicon: Source | None, rejection: Sigm
                factor: VarianceFactor, k: float, offset: SessionOffset, min_samples: int) -> Rejections:
     """The rejection test's count on the session (``Estimates.rejection``, with the factor
     and offset that fusion applies), and its bound when there are ``min_samples`` or more."""
+    from scipy.stats import binom, chi2, norm
     both = two_source(estimates)
     if vicon is None or rejection is None or not both:
         return Rejections(0, len(both), None)

@@ -26,8 +26,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.stats import norm
-from scipy.stats import t as student_t
 
 from manifests.sidecars import Metrics
 from stages.common.fusion import Sigma
@@ -61,6 +59,8 @@ class Widening:
 def cross_validated(metrics: Metrics, samples: int) -> Widening:
     """A source's widening to what its calibration's cross-validation measured (module
     docstring), from its Table 1 ``metrics``; ``samples``: those the calibration used."""
+    from scipy.stats import norm
+    from scipy.stats import t as student_t
     cross, inside, record = metrics.cross_validated, metrics.in_sample, metrics.cross_validation
     if cross is None or not record.judged:
         ratio_t = ratio_r = 1.0

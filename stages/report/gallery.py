@@ -15,7 +15,6 @@ from manifests import Workspace
 from stages.common import geometry as g
 from stages.common.image_io import read_image, to_uint8, write_png_atomic
 from stages.common.lens import LensCamera
-from stages.report import figures
 
 
 def _link(href: str, thumb: str, alt: str) -> str:
@@ -33,6 +32,8 @@ def sample_gallery(workspace: Workspace, out: Path, labels: list[dict[str, Any]]
     """A figure per label: the testbed image (brightened), its twin and the label's
     wireframe on the image, each a thumbnail linking to the full-size picture; its caption
     gives both SPEED scores of ``scored`` (a model and crop's name, its predictions)."""
+    from stages.report import figures  # matplotlib: not for the commands that only resolve the report
+
     name, predictions = scored
     score = {(p["sample_id"], p["domain"] == "synthetic"): p["score_speed"] for p in predictions}
     figures_html = []
@@ -70,6 +71,8 @@ def calibration_overlays(workspace: Workspace, out: Path, samples: list[dict[str
                          camera: LensCamera) -> str:
     """Every calibration capture with its detected corners (green) and the same corners
     reprojected through the calibrated robots' estimate (red), worst first."""
+    from stages.report import figures
+
     entries = []
     for sample in samples:
         if sample["corners_px"] is None:

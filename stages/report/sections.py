@@ -16,7 +16,6 @@ from core.config import Config
 from manifests import Workspace, read_manifest, read_marker
 from manifests.sidecars import Calibration, SolverRecord
 from stages.common import tables
-from stages.report import figures
 
 PACKAGES = ("speedplus-builder", "numpy", "opencv-contrib-python-headless", "mitsuba", "drjit", "onnxruntime",
             "pyarrow", "ray")
@@ -211,6 +210,8 @@ def tracking_section(config: Config, workspace: Workspace, figure_dir: Path) -> 
              f"{np.mean([r['score_speed'] for r in group]):.4f}",
              f"{sum(r['rotation_used'] for r in group)} / {sum(r['position_used'] for r in group)}"]
             for (sequence, domain, model, crop), group in sorted(groups.items())]
+    from stages.report import figures  # matplotlib: not for the commands that only resolve the report
+
     figure = figures.tracking_errors(tracks, figure_dir / "tracking.png")
     return [("Tracking: per frame against a navigation filter", _table(
         ["sequence", "domain", "model (crop)", "frames", "mean SPEED per frame", "mean SPEED tracked",

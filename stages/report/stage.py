@@ -26,7 +26,6 @@ from stages.common.json_arrays import calibrated_camera
 from stages.common.robots.facility import presented_share
 from stages.common.target import feature_edges
 from stages.common.workspace_target import workspace_target
-from stages.report import figures
 from stages.report.answer import gap_sentence, labels_sentence
 from stages.report.gallery import calibration_overlays, sample_gallery
 from stages.report.sections import (
@@ -122,6 +121,8 @@ def resolve(config: Config, workspace: Workspace | None = None) -> Resolved:
 
 
 def run(config: Config, workspace: Workspace) -> None:
+    from stages.report import figures  # matplotlib, 0.4 s: not for the commands that only resolve this stage
+
     out = workspace.root / REPORT_DIR
     figure_dir = out / "figures"
     calibration = read_calibration(workspace)

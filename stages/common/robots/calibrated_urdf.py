@@ -17,7 +17,6 @@ import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from manifests.sidecars.arm_fit import RobotCorrection
 from stages.common import geometry as g
@@ -25,6 +24,7 @@ from stages.common.rwhe import transform_from_vector
 
 
 def _origin_matrix(joint: ElementTree.Element) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
     origin = joint.find("origin")
     if origin is None:
         return np.eye(4)
@@ -34,6 +34,7 @@ def _origin_matrix(joint: ElementTree.Element) -> np.ndarray:
 
 
 def _set_origin(joint: ElementTree.Element, pose: np.ndarray) -> None:
+    from scipy.spatial.transform import Rotation
     origin = joint.find("origin")
     if origin is None:
         origin = ElementTree.SubElement(joint, "origin")

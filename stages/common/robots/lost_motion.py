@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.stats import f as f_distribution
 
 from manifests.sidecars.arm_fit import ChainFit
 from stages.common import arms
@@ -108,6 +107,8 @@ def hysteresis_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.n
         return False, "too few calibration captures to test for it"
     rss_without, rss_with = whitened_sum(null), whitened_sum(residuals(with_))
     statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
+    from scipy.stats import f as f_distribution  # 0.5 s: every command resolves the stages that import this
+
     p = float(f_distribution.sf(statistic, added, redundancy))
     setting = {"lost motion": "lost_motion", "play": "fixture_play"}[what]
     said = (f"the calibration captures do not show it (F test of the {added} {what}s: F = {statistic:.2f}, "
