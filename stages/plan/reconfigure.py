@@ -163,8 +163,10 @@ def reconfigure_camera(cam_from_target: np.ndarray, held: Reconfiguration, mount
     """The target arm ``held`` where it is (its joints and flange pose, the model on
     ``mount``) and the camera arm and rail brought to the first of the candidate relative
     poses ``cam_from_target`` (N, 4, 4, mock-up scale) they reach, the camera inside the
-    room and on the near side of the target robot's base (the arm never between camera
-    and model): (that candidate's index, its commands), or None when none is reached.
+    room and the target robot's base beyond the model's centre, seen from the camera (as
+    for the ordinary calibration poses, the flange's side is not checked: the board lies on
+    the model's top, the fixtures hold its sides): (that candidate's index, its commands),
+    or None when none is reached.
     Of its rail offsets, the one farthest from the joint limits."""
     arm = arm_model(testbed.robot_model)
     world_from_target = held.world_from_targetee @ g.invert(layout.target_from_targetee(target, mount))
