@@ -131,17 +131,18 @@ def plan_sample(config: Config, session: str, index: int, sample_id: str, target
         return cam_from_target, mount, reconfigure_on(facility, cam_from_target, mount, target, plan.seed, rng,
                                                       plan.joint_limit_margin_rad, limits, spread_rail=spread_rail)
 
-    covered = None
+    covered, discarded = None, 0
     if session == "calibration" and facility is None and not candidate:
-        covered = covering.cover(config, index, target, rng, lambda j: plan_sample(
+        covered, discarded = covering.cover(config, index, target, rng, lambda j: plan_sample(
             config, "dataset", j, sample_ids.make("dataset", j), target))
     if covered is not None:
-        cam_from_target, mount, commands, redraws = covered
+        (cam_from_target, mount, commands), redraws = covered, discarded
     else:
         cam_from_target, mount, commands, redraws = _drawn(draw, plan.max_redraws if max_redraws is None else
                                                            max_redraws, lambda draws: _unreachable(
                                                                sample_id, draws, testbed, target, chosen, facility,
                                                                limits))
+        redraws += discarded  # the covering draws this sample's stream made first
     if session == "dataset" and facility is not None:
         camera_in_target = g.invert(cam_from_target)[:3, 3]
         view = target.view_of(camera_in_target, target.mockup_scale)
