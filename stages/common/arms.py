@@ -76,6 +76,7 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
 #: the arms' fit stops re-estimating its residual scales when they move by less than this
 _SCALES_SETTLED = 0.05
 _MAX_FITS = 4
+_TOLERANCE = 1e-8
 
 
 def _redundancy_scales(difference: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
@@ -145,8 +146,11 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
             p = full(q)
             return np.concatenate([residuals_of(difference(batch(p)), scale), p[:, priored] / prior], axis=1)
 
+        # SciPy's default tolerances (1e-8): 1e-10 spent 4x the iterations creeping along the
+        # weakly determined directions, moving the parameters by under 0.002 of their sigma
+        # (docs/development.md, Speed)
         result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
-                               xtol=1e-10, ftol=1e-10, jac=lambda q: _forward_differences(residuals, q))
+                               xtol=_TOLERANCE, ftol=_TOLERANCE, jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
         delta = difference(batch(params[None])[0])
         scale, previous = _redundancy_scales(delta, result.jac), scale
