@@ -35,6 +35,22 @@ CACHE_SLOTS = 256
 PREFERRED_VARIANT = "llvm_ad_rgb"
 
 
+def _interruptible(render: Any) -> np.ndarray:
+    """The film of ``render()`` as numpy. Dr.Jit wraps an exception raised inside its custom
+    operation (Mitsuba's render) in a RuntimeError: a Ctrl-C that lands mid-render, in a
+    process that renders itself (``run.workers = 1``), is given back as the
+    KeyboardInterrupt it was, which the command reports as an interruption, not a bug."""
+    try:
+        return np.array(render())
+    except RuntimeError as error:
+        cause = error.__cause__
+        while cause is not None and not isinstance(cause, KeyboardInterrupt):
+            cause = cause.__cause__
+        if cause is None:
+            raise
+        raise KeyboardInterrupt from None
+
+
 def private_kernel_cache() -> None:
     """Give this process a Dr.Jit kernel cache of its own (before Dr.Jit is imported).
 
@@ -327,7 +343,7 @@ class LoadedScene:
         for key in opaque:
             dr.make_opaque(self._params[key])
         self._params.update()
-        return np.array(self.mi.render(self.scene, sensor=camera, spp=spp, seed=seed))
+        return _interruptible(lambda: self.mi.render(self.scene, sensor=camera, spp=spp, seed=seed))
 
     def render(self, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
         """The film (H, W, C) as numpy, after making ``opaque`` keys opaque and applying what
@@ -337,4 +353,4 @@ class LoadedScene:
         for key in opaque:
             dr.make_opaque(self._params[key])
         self._params.update()
-        return np.array(self.mi.render(self.scene, spp=spp, seed=seed))
+        return _interruptible(lambda: self.mi.render(self.scene, spp=spp, seed=seed))

@@ -91,7 +91,9 @@ def _busy_workers() -> list[int]:
 
 def _interrupted(cluster: LocalCluster, interrupt, *args: str) -> subprocess.CompletedProcess:
     """A command on the cluster; once two workers are busy, ``interrupt()``; then wait."""
-    command = [sys.executable, "-m", "pipeline.cli", *args, "--engine", "ray", "--ray-address", cluster.address]
+    # two workers, one a node each (the smoke profile runs one)
+    command = [sys.executable, "-m", "pipeline.cli", *args, "--engine", "ray", "--ray-address", cluster.address,
+               "--workers", "2"]
     process = subprocess.Popen(command, env={**os.environ, "COLUMNS": "200", **ENV}, text=True,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120

@@ -23,7 +23,7 @@ def test_plan_smoke_writes_a_valid_plan_then_does_nothing(tmp_path):
                        "run.part_rows=7")
     assert second.returncode == 0 and "up to date" in second.stdout
     saved = tomllib.loads((ws / "config.toml").read_text())["run"]
-    assert (saved["workers"], saved["part_rows"]) == (2, 4)
+    assert (saved["workers"], saved["part_rows"]) == (1, 4)  # the smoke profile's
     status = speedplus("status", "--workspace", str(ws))
     assert status.returncode == 0
     line = next(line for line in status.stdout.splitlines() if "plan" in line and "plan 24" in line)

@@ -194,11 +194,14 @@ def test_calibration_does_not_depend_on_the_order_acquire_wrote_the_captures(lab
 
 
 def test_same_seed_same_bytes_whatever_the_worker_count(labelled, tmp_path):
-    """Acquire's workers finish in another order with one worker than with two; every
-    manifest and JSON file up to the labels must still be the same bytes."""
-    other = tmp_path / "one-worker"
+    """Acquire's workers finish in another order with two workers than with the smoke
+    profile's one; every manifest and JSON file up to the labels must still be the same bytes."""
+    from pipeline.config import load_config
+
+    assert load_config("smoke").run.workers == 1  # the reference ran in one process
+    other = tmp_path / "two-workers"
     result = speedplus("run", "--profile", "smoke", "--workspace", str(other), "--until", "label",
-                       "--set", "run.workers=1", "--set", "run.part_rows=5")
+                       "--set", "run.workers=2", "--set", "run.part_rows=5")
     assert result.returncode == 0, result.stderr
     for name in ("plan", "captures", "truth", "calibration_samples", "poses", "labels"):
         mine = [p.read_bytes() for p in list_parts(Workspace(other), name)]
