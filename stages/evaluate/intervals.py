@@ -29,6 +29,7 @@ import hashlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -90,7 +91,9 @@ def _bca_levels(values: np.ndarray, strata: Sequence[str], means: np.ndarray, me
     the mean's law (the acceleration ``a``, from each value's influence, its deviation from
     its stratum's mean). Scores are skewed (a few misses far out), and on 12 images a
     configuration the plain percentile interval covers about 90%, not 95%."""
-    from scipy.stats import norm
+    # the standard normal of the standard library: scipy.stats would cost every evaluate 0.5 s
+    # of imports, and the two agree to 1.3e-15 on these levels
+    norm = NormalDist()
     labels = np.asarray(strata)
     influence = values.copy()
     for stratum in set(strata):
@@ -101,10 +104,10 @@ def _bca_levels(values: np.ndarray, strata: Sequence[str], means: np.ndarray, me
         return (1 - LEVEL) / 2, (1 + LEVEL) / 2
     acceleration = float(np.sum(influence**3)) / (6.0 * spread**1.5)
     below = float(np.mean(means < mean)) + 0.5 * float(np.mean(means == mean))
-    z0 = float(norm.ppf(np.clip(below, 1.0 / RESAMPLES, 1.0 - 1.0 / RESAMPLES)))
+    z0 = float(norm.inv_cdf(np.clip(below, 1.0 / RESAMPLES, 1.0 - 1.0 / RESAMPLES)))
     levels = []
     for tail in ((1 - LEVEL) / 2, (1 + LEVEL) / 2):
-        z = z0 + norm.ppf(tail)
+        z = z0 + norm.inv_cdf(tail)
         levels.append(float(norm.cdf(z0 + z / (1.0 - acceleration * z))))
     return levels[0], levels[1]
 
