@@ -43,9 +43,9 @@ def _interruptible(render: Any) -> np.ndarray:
     try:
         return np.array(render())
     except RuntimeError as error:
-        cause = error.__cause__
+        cause = error.__cause__ or error.__context__
         while cause is not None and not isinstance(cause, KeyboardInterrupt):
-            cause = cause.__cause__
+            cause = cause.__cause__ or cause.__context__
         if cause is None:
             raise
         raise KeyboardInterrupt from None

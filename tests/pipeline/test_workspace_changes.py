@@ -159,7 +159,8 @@ def test_a_model_is_added_beside_the_others_and_redone_alone(finished, tmp_path)
     assert bad.returncode == 1 and "broken.onnx: not a loadable ONNX model" in bad.stderr
     mine = tmp_path / "mine.onnx"
     fixed_batch_copy(os.path.join(REPOSITORY, "models", "reference.onnx"), mine, 1)
-    added = speedplus("evaluate", "--workspace", str(finished), "--model", str(mine))
+    # scored by two spawned workers, against the shipped model's predictions made in one process
+    added = speedplus("evaluate", "--workspace", str(finished), "--model", str(mine), "--workers", "2")
     assert added.returncode == 0, added.stderr
     assert "Table 2: mine (" in added.stdout and "Table 2: reference_augmented (" in added.stdout
     after = read_manifest(Workspace(finished), "predictions").to_pylist()
@@ -200,8 +201,10 @@ def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_p
     ws = tmp_path / "w"
     # slower captures (36 spp) so that the press falls between the first captures and the last
     assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws), "--set", "virtual.spp=36").returncode == 0
+    # with two spawned workers, which ignore the Ctrl-C and are stopped by the driver (the smoke
+    # profile's own one process is interrupted in test_object_storage.py)
     code, _, err = interrupt_when(lambda: len(list((ws / "images").rglob("*.png"))) >= 2, "acquire", "--workspace",
-                                  str(ws))
+                                  str(ws), "--workers", "2")
     assert code == 130, err
     lines = [line for line in err.splitlines() if line.startswith("interrupted")]
     assert len(lines) == 1 and lines[0].endswith("of 24 rows kept (acquire); run the same command to resume")

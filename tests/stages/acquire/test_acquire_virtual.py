@@ -117,7 +117,8 @@ def test_interrupted_acquisition_resumes_without_duplicates_or_gaps(smoke_worksp
     reference = read_manifest(smoke_workspace, "captures").sort_by("sample_id")
     ws = tmp_path / "killed"
     assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws)).returncode == 0
-    killed = speedplus("acquire", "--workspace", str(ws), env={"SPEEDPLUS_FAULT_KILL_AT_PART": "3"})
+    # two spawned workers (the smoke profile captures in one process), killed with their driver
+    killed = speedplus("acquire", "--workspace", str(ws), "--workers", "2", env={"SPEEDPLUS_FAULT_KILL_AT_PART": "3"})
     assert killed.returncode == -9
     assert len(list_parts(Workspace(ws), "captures")) + len(list_parts(Workspace(ws), "truth")) == 2
     resumed = speedplus("acquire", "--workspace", str(ws))

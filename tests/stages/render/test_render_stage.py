@@ -109,7 +109,10 @@ def test_bad_labels_are_rejected_with_their_reason_and_the_rest_rendered(smoke_l
 
 def test_interrupted_render_resumes_without_duplicates(twins, smoke_labelled, tmp_path):
     ws = copy_of(smoke_labelled, tmp_path, "killed")
-    killed = speedplus("render", "--workspace", str(ws.root), env={"SPEEDPLUS_FAULT_KILL_AT_PART": "2"})
+    # two spawned workers (the smoke profile renders in one process): killed with their driver, they
+    # must not outlive it holding its pipes, and the twins they rendered are the one process's bytes
+    killed = speedplus("render", "--workspace", str(ws.root), "--workers", "2",
+                       env={"SPEEDPLUS_FAULT_KILL_AT_PART": "2"})
     assert killed.returncode == -9 and len(list_parts(ws, "renders")) == 1
     recorded = pq.read_table(list_parts(ws, "renders")[0]).to_pylist()[0]
     ws.resolve(recorded["ground_truth_path"]).unlink()  # a file lost after its row was recorded
