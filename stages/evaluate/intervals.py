@@ -108,7 +108,9 @@ def _bca_levels(values: np.ndarray, strata: Sequence[str], means: np.ndarray, me
     levels = []
     for tail in ((1 - LEVEL) / 2, (1 + LEVEL) / 2):
         z = z0 + norm.inv_cdf(tail)
-        levels.append(float(norm.cdf(z0 + z / (1.0 - acceleration * z))))
+        with np.errstate(divide="ignore"):  # a * z = 1: the level goes to its bound, as under numpy's division
+            shifted = z0 + float(np.divide(z, 1.0 - acceleration * z))
+        levels.append(float(norm.cdf(shifted)))
     return levels[0], levels[1]
 
 

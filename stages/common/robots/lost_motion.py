@@ -91,6 +91,8 @@ def hysteresis_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.n
     the residuals of PnP poses ``a`` (N, 4, 4) whitened by the fit without's rotation and
     translation RMS, ``parameters`` estimated in all (Seber and Wild, *Nonlinear
     Regression*, Wiley 1989, section 5.3: the extra-sum-of-squares test); and in words."""
+    from scipy.stats import f as f_distribution  # 0.5 s: every command resolves the stages that import this
+
     def residuals(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         predicted = batch(params[None])[0]
         turn = g.matrix_to_rotvec(a[:, :3, :3] @ np.swapaxes(predicted[:, :3, :3], -1, -2))
@@ -107,8 +109,6 @@ def hysteresis_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.n
         return False, "too few calibration captures to test for it"
     rss_without, rss_with = whitened_sum(null), whitened_sum(residuals(with_))
     statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
-    from scipy.stats import f as f_distribution  # 0.5 s: every command resolves the stages that import this
-
     p = float(f_distribution.sf(statistic, added, redundancy))
     setting = {"lost motion": "lost_motion", "play": "fixture_play"}[what]
     said = (f"the calibration captures do not show it (F test of the {added} {what}s: F = {statistic:.2f}, "
