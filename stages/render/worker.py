@@ -30,7 +30,7 @@ from stages.common.lens import LensCamera
 from stages.common.surface import TargetSurfaces
 from stages.common.target import Target
 from stages.common.tone import Response
-from stages.common.windows import image_window
+from stages.common.windows import Window, image_window
 from stages.render.jobs import RenderJob
 from stages.render.scene import TargetRenderer
 
@@ -74,6 +74,18 @@ class RenderWorker:
                                                 np.random.default_rng(job.seed)), True
         return rgb + (1.0 - alpha) * background, seen  # the render's rgb is premultiplied by coverage
 
+    def tone(self, radiance: np.ndarray, window: Window | None) -> np.ndarray:
+        """The 8-bit image of the radiance (H, W, 3), toned in ``window`` only where it is
+        given: outside it the radiance is exactly zero (black space, no Earth), and so is
+        its code: the same bytes as toning every pixel."""
+        if window is None:
+            return self.response.image(radiance, EXPOSURE)
+        shape = radiance.shape[:2] if self.response.channels == 1 else radiance.shape
+        pixels = np.zeros(shape, np.uint8)
+        if not window.empty:
+            pixels[window.slices()] = self.response.image(radiance[window.slices()], EXPOSURE)
+        return pixels
+
     def render(self, job: RenderJob) -> Produced:
         """Render; the job's ``renders`` row with its PNGs and ground truth, or, when the
         target covers no pixel centre, ``{"sample_id", "rejected": reason}`` and no files."""
@@ -85,7 +97,7 @@ class RenderWorker:
         mask = maps.mask
         if not mask.any():
             return Produced({"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"})
-        pixels = self.response.image(radiance, EXPOSURE)
+        pixels = self.tone(radiance, None if earth else window)
         files = {job.image_path: encode_png(np.ascontiguousarray(pixels if pixels.ndim == 2 else pixels[..., ::-1])),
                  job.mask_path: encode_png(mask.astype(np.uint8) * 255)}
         ground_truth_path = None
