@@ -185,3 +185,13 @@ def _rewrite_header(path, text):
     source = oiio.ImageBuf(str(path))
     source.specmod().attribute(ground_truth.HEADER_KEY, text)
     assert source.write(str(path))
+
+
+@pytest.mark.parametrize("height", [1, 15, 16, 17, 40])
+def test_channels_are_interleaved_as_stacked(height):
+    from stages.common.ground_truth import _interleaved
+
+    rng = np.random.default_rng(height)
+    planes = [rng.normal(size=(height, 7)).astype(np.float32) for _ in range(5)]
+    planes[1][0, 0] = np.nan
+    assert np.array_equal(_interleaved(planes), np.stack(planes, axis=-1), equal_nan=True)
