@@ -60,6 +60,23 @@ def test_bench_pipeline_times_a_commit_against_this_tree(results, tmp_path):
     assert not (tmp_path / "timed" / "tree").exists()  # the commit's worktree is removed
 
 
+def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
+    """Issue 60: twins and training images, the commit's code and this tree's in turns, with
+    the commit's worktree removed after."""
+    import subprocess
+
+    from bench import image_costs
+
+    image_costs.main("HEAD", "--profile", "smoke", "--images", "2", "--rounds", "1")
+    rows = {row["code"]: row for row in _rows(results, "image_costs")}
+    assert set(rows) == {"HEAD", "this tree", "HEAD / this tree"}
+    for code in ("HEAD", "this tree"):
+        assert rows[code]["CPU-s a twin"].endswith("(n=2)") and rows[code]["CPU-s a training image"].endswith("(n=2)")
+    assert float(rows["HEAD / this tree"]["CPU-s a twin"].rstrip("x")) > 0
+    listed = subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True).stdout
+    assert "speedplus-image-costs-" not in listed
+
+
 def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_path):
     """The guide's rehearsal (``--facility DIR``, writing DIR/rehearsal.json) and the accuracy
     figures of a target folder (``--target DIR``), one smoke facility each."""

@@ -1,0 +1,121 @@
+"""What one synthetic image costs at a profile's resolution, this tree against an earlier
+commit, in one run: twins (black space, the profile's ``render.spp``) and training images
+(the profile's own first jobs: their poses, lights and Earth backgrounds, ``render.train_spp``),
+each with its ground truth, one process with one thread (a worker of one CPU).
+
+    python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2]
+
+The two codes run in turns (REF, this tree, REF, ...), each round a fresh process per kind,
+so that the machine's drift falls on both; every image after the first two of a process
+is timed (scene load and compilation excluded). A twin's pose is drawn 4-10 m away, full
+scale, anywhere in the image, from a fixed seed: the same images for both codes. Mean and
+its standard error per kind (training images with and without the Earth apart), and the
+ratio of the means. Results: bench/results/image_costs.json.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from bench.common import report
+from bench.identity import REPO, worktree_env
+
+#: runs in the code under test (its own modules), prints [[cpu_seconds, earth], ...]
+_CHILD = r"""
+import json, sys, time
+import numpy as np
+from pipeline.config import load_config
+from stages.acquire.virtual.sensor import lens_camera
+from stages.common import geometry as g
+from stages.common.cameras import train_camera
+from stages.common.workspace_target import planned_target
+from stages.render.jobs import RenderJob, train_jobs
+from stages.render.worker import RenderWorker
+
+kind, profile, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
+config = load_config(profile)
+target = planned_target(config)
+if kind == "training":
+    jobs = train_jobs(config, target)[:count + 2]
+    worker = RenderWorker(train_camera(config), target, config.render.train_spp, config.render.max_depth, 1)
+else:
+    rng = np.random.default_rng(60)
+    jobs = []
+    for i, q in enumerate(g.random_quats(rng, count + 2)):
+        depth = rng.uniform(4.0, 10.0)
+        centre = np.array([rng.uniform(-0.3, 0.3) * depth, rng.uniform(-0.2, 0.2) * depth, depth])
+        light = rng.normal(size=3)
+        jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(centre), tuple(light / np.linalg.norm(light)),
+                              3.0, False, i))
+    worker = RenderWorker(lens_camera(config.camera), target, config.render.spp, config.render.max_depth, 1)
+for job in jobs[:2]:
+    worker.render(job)
+seconds = []
+for job in jobs[2:]:
+    started = time.process_time()
+    worker.render(job)
+    seconds.append([time.process_time() - started, bool(job.earth)])
+print(json.dumps(seconds))
+"""
+
+
+def _costs(code: Path, kind: str, profile: str, images: int) -> list[list]:
+    done = subprocess.run([sys.executable, "-c", _CHILD, kind, profile, str(images)], cwd=code,
+                          env=worktree_env(code), capture_output=True, text=True)
+    if done.returncode != 0:
+        sys.exit(f"{code}: {kind} images failed:\n{done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _summary(seconds: list[float]) -> str:
+    if not seconds:
+        return "-"
+    error = statistics.stdev(seconds) / len(seconds) ** 0.5 if len(seconds) > 1 else float("nan")
+    return f"{statistics.mean(seconds):.3f} +- {error:.3f} (n={len(seconds)})"
+
+
+def main(*args: str) -> None:
+    ref = args[0] if args and not args[0].startswith("--") else None
+    options = dict(zip(args[1 if ref else 0::2], args[2 if ref else 1::2], strict=False))
+    unknown = sorted(set(options) - {"--profile", "--images", "--rounds"})
+    if unknown:
+        sys.exit(f"image_costs: unknown option {unknown[0]}\n{__doc__}")
+    profile = options.get("--profile", "paper")
+    images, rounds = int(options.get("--images", 24)), int(options.get("--rounds", 2))
+    codes: dict[str, Path] = {"this tree": REPO}
+    with tempfile.TemporaryDirectory(prefix="speedplus-image-costs-") as scratch:
+        if ref is not None:
+            tree = Path(scratch) / "tree"
+            subprocess.run(["git", "worktree", "add", "--detach", str(tree), ref], cwd=REPO, check=True,
+                           capture_output=True)
+            codes = {ref: tree, **codes}
+        try:
+            measured: dict[tuple[str, str], list[list]] = {}
+            for _ in range(rounds):
+                for name, code in codes.items():
+                    for kind in ("twin", "training"):
+                        measured.setdefault((name, kind), []).extend(_costs(code, kind, profile, images))
+        finally:
+            if ref is not None:
+                subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, check=False)
+    rows, means = [], {}
+    for name in codes:
+        twins = [s for s, _ in measured[name, "twin"]]
+        training = measured[name, "training"]
+        with_earth = [s for s, earth in training if earth]
+        black = [s for s, earth in training if not earth]
+        means[name] = (statistics.mean(twins), statistics.mean(s for s, _ in training))
+        rows.append({"code": name, "CPU-s a twin": _summary(twins),
+                     "CPU-s a training image": _summary([s for s, _ in training]),
+                     "with the Earth": _summary(with_earth), "black space": _summary(black)})
+    if ref is not None:
+        rows.append({"code": f"{ref} / this tree", "CPU-s a twin": f"{means[ref][0] / means['this tree'][0]:.2f}x",
+                     "CPU-s a training image": f"{means[ref][1] / means['this tree'][1]:.2f}x",
+                     "with the Earth": "", "black space": ""})
+    report("image_costs", f"CPU-seconds an image at the {profile} profile's resolution (one worker of one CPU, "
+           "ground truth included)", rows, {"profile": profile, "images": images, "rounds": rounds, "ref": ref})
