@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -78,8 +77,6 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
 _SCALES_SETTLED = 0.05
 _MAX_FITS = 4
 _TOLERANCE = 1e-8
-#: the fits that only estimate the residual scales
-_ROUGH_TOLERANCE = 1e-5
 
 
 def _redundancy_scales(difference: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
@@ -142,29 +139,23 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         whitened = delta[..., :3, :] / scale
         return whitened[..., :, [0, 3]].reshape(len(delta), -1)
 
-    def fitted(start: np.ndarray, scale: np.ndarray, tolerance: float) -> Any:
-        def residuals(q: np.ndarray) -> np.ndarray:
+    scale = _residual_scales(difference(batch(params[None])[0]))
+    for _ in range(_MAX_FITS):
+        def residuals(q: np.ndarray, scale: np.ndarray = scale) -> np.ndarray:
             """Whitened residuals (K, M) of a batch of free parameters (K, F)."""
             p = full(q)
             return np.concatenate([residuals_of(difference(batch(p)), scale), p[:, priored] / prior], axis=1)
 
-        return least_squares(lambda q: residuals(q[None])[0], start[free], method="trf", x_scale="jac",
-                             xtol=tolerance, ftol=tolerance, jac=lambda q: _forward_differences(residuals, q))
-
-    # the scales from rough fits (the sum of squares is stationary at the optimum, so a rough
-    # optimum gives the scales to second order), then one fit to SciPy's default tolerances
-    # (1e-8) at the scales that settled, from the rough one's parameters: the fit converges
-    # linearly, and only the last needs its tail (docs/development.md, Speed)
-    scale = _residual_scales(difference(batch(params[None])[0]))
-    for round_ in range(_MAX_FITS):
-        result = fitted(params, scale, _ROUGH_TOLERANCE)
+        # SciPy's default tolerances (1e-8): 1e-10 spent 4x the iterations creeping along the
+        # weakly determined directions, moving the parameters by under 0.002 of their sigma
+        # (docs/development.md, Speed)
+        result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
+                               xtol=_TOLERANCE, ftol=_TOLERANCE, jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
-        estimated = _redundancy_scales(difference(batch(params[None])[0]), result.jac)
-        if np.all(np.abs(estimated / scale - 1.0) < _SCALES_SETTLED) or round_ == _MAX_FITS - 1:
+        delta = difference(batch(params[None])[0])
+        scale, previous = _redundancy_scales(delta, result.jac), scale
+        if np.all(np.abs(scale / previous - 1.0) < _SCALES_SETTLED):
             break
-        scale = estimated
-    result = fitted(params, scale, _TOLERANCE)
-    params = full(result.x[None])[0]
     covariance = np.zeros((len(params), len(params)))
     covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)
     return params, covariance
