@@ -100,19 +100,39 @@ def _bilinear(width: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return cv2.remap(_wrapped(width), u + 1.0, v + 1.0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
+#: image rows the Earth is computed for at once: its temporaries stay in the cache
+_BAND_ROWS = 32
+
+
 def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: np.ndarray,
                 light_dir_cam: np.ndarray, irradiance: float) -> tuple[np.ndarray, bool]:
     """Linear radiance (H, W, 3) of the Earth whose centre is at ``centre_cam_m`` (3,) in the
     camera frame, its surface turned by ``cam_from_planet`` (3, 3), lit from ``light_dir_cam``
-    (3,) with ``irradiance`` W/m^2; and whether any pixel sees it."""
-    centre = np.asarray(centre_cam_m, float)
+    (3,) with ``irradiance`` W/m^2; and whether any pixel sees it. Computed a band of rows
+    at a time: each pixel is on its own, so the values are those of the whole frame at once,
+    and at 1920 x 1200 it takes 0.14 CPU-s instead of 0.4-1.0 (here every fresh frame-sized
+    temporary is paid in page faults)."""
     rays = pixel_rays(camera)  # cached per camera
+    image = np.zeros((camera.height, camera.width, 3), np.float32)
+    seen = False
+    for row in range(0, camera.height, _BAND_ROWS):
+        rows = min(_BAND_ROWS, camera.height - row)
+        band = slice(row * camera.width, (row + rows) * camera.width)
+        seen |= _earth_band(rays[band], image[row:row + rows], centre_cam_m, cam_from_planet, light_dir_cam,
+                            irradiance)
+    return image, seen
+
+
+def _earth_band(rays: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray, cam_from_planet: np.ndarray,
+                light_dir_cam: np.ndarray, irradiance: float) -> bool:
+    """The Earth's radiance through the rows of ``rays`` (R * W, 3), into ``out`` (R, W, 3);
+    whether any of them sees it."""
+    centre = np.asarray(centre_cam_m, float)
     along = rays @ centre
     miss_sq = along**2 - (centre @ centre - EARTH_RADIUS_M**2)
     hit = (miss_sq > 0) & (along > 0)
-    shape = (camera.height, camera.width)
     if not hit.any():
-        return np.zeros((*shape, 3), np.float32), False
+        return False
     # every pixel at once, the misses zeroed at the end; single precision after the hit test
     # (which needs double): a normal's direction to 1e-7, half the memory traffic
     distance = np.where(hit, along - np.sqrt(np.maximum(miss_sq, 0.0)), 0.0).astype(np.float32)
@@ -127,6 +147,7 @@ def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: n
     longitude, latitude = np.arctan2(surface[1], surface[0]), np.arcsin(np.clip(surface[2], -1, 1))
     u = (longitude + np.float32(np.pi)) * np.float32(ALBEDO_WIDTH / (2 * np.pi)) - 0.5
     v = (np.float32(0.5) - latitude / np.float32(np.pi)) * np.float32(ALBEDO_WIDTH // 2) - 0.5
+    shape = out.shape[:2]
     albedo = _bilinear(ALBEDO_WIDTH, u.reshape(shape), v.reshape(shape))
     light = np.asarray(light_dir_cam, np.float32)
     sun = np.clip(normals[0] * light[0] + normals[1] * light[1] + normals[2] * light[2], 0.0, None)
@@ -138,7 +159,8 @@ def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: n
     glow *= scale * np.float32(0.5) * hit
     albedo *= sun.reshape(*shape, 1)
     albedo += glow.reshape(*shape, 1) * np.array([0.3, 0.5, 1.0], np.float32)
-    return albedo, True
+    out[...] = albedo
+    return True
 
 
 def earth_background(camera: LensCamera, light_dir_cam: np.ndarray, irradiance: float,
