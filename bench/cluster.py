@@ -3,8 +3,10 @@
     python -m bench cluster [TRAIN_IMAGES]      (default 24)
     python -m bench cluster costs               (the cost model alone)
 
-1. Cost model: CPU-seconds per capture (virtual testbed) and per twin at each profile's
-   resolution, one process with one thread (what one Ray worker of one CPU does).
+1. Cost model: CPU-seconds per capture (virtual testbed: 3 of the profile's dataset
+   captures), per twin (8 seeded poses 4-10 m away) and per training image (the profile's
+   first 12, their Earth backgrounds included) at each profile's resolution, one process
+   with one thread (what one Ray worker of one CPU does), after a first item of each.
 2. Scaling: the same stage (rendering 4, then TRAIN_IMAGES default-profile training
    images) on a one-node Ray cluster of one CPU and on two nodes of one CPU each, the
    second in its own mount namespace without the workspace (this machine has two cores,
@@ -31,6 +33,7 @@ from core.engines.local_cluster import ENV, LocalCluster
 from manifests import Workspace
 from pipeline.config import load_config
 from stages.acquire.virtual.sensor import lens_camera
+from stages.common import geometry as g
 from stages.common.cameras import train_camera
 from stages.common.lens import LensCamera
 from stages.common.workspace_target import planned_target
@@ -39,8 +42,8 @@ from stages.render.jobs import RenderJob, train_jobs
 from stages.render.worker import RenderWorker
 
 PROFILES = ("smoke", "default", "paper")
-#: training images timed a profile (after the first)
-_TRAINING_DRAWN = 12
+#: twins and training images timed a profile (after the first)
+_TWINS_DRAWN, _TRAINING_DRAWN = 8, 12
 
 
 def _capture_seconds(profile: str, count: int) -> float:
@@ -60,13 +63,16 @@ def _capture_seconds(profile: str, count: int) -> float:
 
 
 def _twin_jobs(count: int) -> list[RenderJob]:
-    """Twins of the target 4-10 m away, full scale, in a fixed set of attitudes."""
+    """Twins of the target 4-10 m away, full scale, anywhere in the image, in seeded random
+    attitudes and lights (``bench image_costs`` draws the same)."""
+    rng = np.random.default_rng(60)
     jobs = []
-    for i in range(count):
-        q = np.array([0.9, 0.1 * i, 0.3, 0.1])
-        light = np.array([0.3, 0.2, -0.9])
-        jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q / np.linalg.norm(q)), (0.1 * i, -0.2, 4.0 + i),
-                              tuple(light / np.linalg.norm(light)), 3.0, False, i))
+    for i, q in enumerate(g.random_quats(rng, count)):
+        depth = rng.uniform(4.0, 10.0)
+        centre = np.array([rng.uniform(-0.3, 0.3) * depth, rng.uniform(-0.2, 0.2) * depth, depth])
+        light = rng.normal(size=3)
+        jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(centre), tuple(light / np.linalg.norm(light)),
+                              3.0, False, i))
     return jobs
 
 
@@ -98,10 +104,9 @@ def main(images: str = "24") -> None:
     for profile in PROFILES:
         config = load_config(profile)
         samples = len(planned_samples(config))
-        per_capture = _capture_seconds(profile, 1 if profile == "paper" else 3)
-        renders = 2 if profile == "paper" else 4
+        per_capture = _capture_seconds(profile, 3)
         per_twin = _render_seconds(lens_camera(config.camera), config.render.spp, config.render.max_depth,
-                                   _twin_jobs(renders + 1))
+                                   _twin_jobs(_TWINS_DRAWN + 1))
         training = with_overrides(config, [Override.of("render.train_resolution_scale",
                                                        config.reference.resolution_scale, "bench")])
         # the profile's own first training images: their poses, lights and Earth backgrounds
