@@ -29,6 +29,7 @@ import numpy as np
 
 from bench.common import report
 from core.config import Override, with_overrides
+from core.config.model import Config
 from core.engines.local_cluster import ENV, LocalCluster
 from manifests import Workspace
 from pipeline.config import load_config
@@ -76,15 +77,30 @@ def _twin_jobs(count: int) -> list[RenderJob]:
     return jobs
 
 
-def _render_seconds(camera: LensCamera, spp: int, max_depth: int, jobs: list[RenderJob]) -> float:
-    """CPU-seconds of one synthetic image, ground truth included, over ``jobs`` after the
+def _render_seconds(camera: LensCamera, spp: int, max_depth: int, jobs: list[RenderJob]) -> list[float]:
+    """CPU-seconds of each synthetic image, ground truth included, of ``jobs`` after the
     first (scene load and compilation excluded)."""
     worker = RenderWorker(camera, planned_target(load_config("default")), spp, max_depth, 1)
     worker.render(jobs[0])
-    started = time.process_time()
+    seconds = []
     for job in jobs[1:]:
+        started = time.process_time()
         worker.render(job)
-    return (time.process_time() - started) / (len(jobs) - 1)
+        seconds.append(time.process_time() - started)
+    return seconds
+
+
+def _training_seconds(config: Config) -> tuple[float, float, float]:
+    """CPU-seconds of a training image with the Earth, without, and on average at the
+    profile's ``render.train_earth_fraction``, from its own first training images (their
+    poses and lights; a profile without Earth images times only black space)."""
+    drawn = train_jobs(config)[:_TRAINING_DRAWN + 1]
+    seconds = _render_seconds(train_camera(config), config.render.train_spp, config.render.max_depth, drawn)
+    earth = [s for s, job in zip(seconds, drawn[1:], strict=True) if job.earth]
+    black = [s for s, job in zip(seconds, drawn[1:], strict=True) if not job.earth]
+    with_earth, without = float(np.mean(earth)) if earth else float("nan"), float(np.mean(black))
+    share = config.render.train_earth_fraction if earth else 0.0
+    return with_earth, without, share * with_earth + (1 - share) * without
 
 
 def _render_on(cluster: LocalCluster, root: Path, images: int) -> float:
@@ -105,20 +121,17 @@ def main(images: str = "24") -> None:
         config = load_config(profile)
         samples = len(planned_samples(config))
         per_capture = _capture_seconds(profile, 3)
-        per_twin = _render_seconds(lens_camera(config.camera), config.render.spp, config.render.max_depth,
-                                   _twin_jobs(_TWINS_DRAWN + 1))
+        per_twin = float(np.mean(_render_seconds(lens_camera(config.camera), config.render.spp,
+                                                 config.render.max_depth, _twin_jobs(_TWINS_DRAWN + 1))))
         training = with_overrides(config, [Override.of("render.train_resolution_scale",
                                                        config.reference.resolution_scale, "bench")])
-        # the profile's own first training images: their poses, lights and Earth backgrounds
-        # (render.train_earth_fraction of them), which cost more than black space
-        drawn = train_jobs(training)[:_TRAINING_DRAWN + 1]
-        per_image = _render_seconds(train_camera(training), config.render.train_spp, config.render.max_depth, drawn)
+        with_earth, without, per_image = _training_seconds(training)
         dataset = sum(1 for item in planned_samples(config) if item[0] == "dataset")
         cpu_seconds = samples * per_capture + dataset * per_twin + config.reference.images * per_image
         costs.append({"profile": profile, "image": f"{config.camera.width_px}x{config.camera.height_px}",
                       "CPU-s per capture": per_capture, "CPU-s per twin": per_twin,
-                      "CPU-s per training image": per_image,
-                      "with the Earth": sum(job.earth for job in drawn[1:]) / _TRAINING_DRAWN,
+                      "CPU-s per training image": per_image, "of which with the Earth": with_earth,
+                      "without": without, "Earth share": training.render.train_earth_fraction,
                       "captures": samples, "twins (at most)": dataset,
                       "training images": config.reference.images, "CPU-s in all": cpu_seconds})
     report("cluster_costs", "cost model: CPU-seconds per item, one worker of one CPU", costs)
