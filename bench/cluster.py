@@ -65,7 +65,7 @@ def _capture_seconds(profile: str, count: int) -> float:
 
 def _twin_jobs(count: int) -> list[RenderJob]:
     """Twins of the target 4-10 m away, full scale, anywhere in the image, in seeded random
-    attitudes and lights (``bench image_costs`` draws the same)."""
+    attitudes and lights (``bench image_costs`` draws from the same seed, more of them)."""
     rng = np.random.default_rng(60)
     jobs = []
     for i, q in enumerate(g.random_quats(rng, count)):
@@ -93,13 +93,16 @@ def _render_seconds(camera: LensCamera, spp: int, max_depth: int, jobs: list[Ren
 def _training_seconds(config: Config) -> tuple[float, float, float]:
     """CPU-seconds of a training image with the Earth, without, and on average at the
     profile's ``render.train_earth_fraction``, from its own first training images (their
-    poses and lights; a profile without Earth images times only black space)."""
+    poses and lights; where the drawn images are all of one kind, their mean)."""
     drawn = train_jobs(config)[:_TRAINING_DRAWN + 1]
     seconds = _render_seconds(train_camera(config), config.render.train_spp, config.render.max_depth, drawn)
     earth = [s for s, job in zip(seconds, drawn[1:], strict=True) if job.earth]
     black = [s for s, job in zip(seconds, drawn[1:], strict=True) if not job.earth]
-    with_earth, without = float(np.mean(earth)) if earth else float("nan"), float(np.mean(black))
-    share = config.render.train_earth_fraction if earth else 0.0
+    with_earth = float(np.mean(earth)) if earth else float("nan")
+    without = float(np.mean(black)) if black else float("nan")
+    if not earth or not black:  # what was drawn is all there is to go by
+        return with_earth, without, float(np.mean(seconds))
+    share = config.render.train_earth_fraction
     return with_earth, without, share * with_earth + (1 - share) * without
 
 

@@ -5,7 +5,7 @@ each with its ground truth, one process with one thread (a worker of one CPU).
 
     python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2]
 
-The two codes run in turns (REF, this tree, REF, ...), each round a fresh process per kind,
+The two codes run in turns (REF, this tree; then this tree, REF; ...), each a fresh process per kind,
 so that the machine's drift falls on both; every image after the first two of a process
 is timed (scene load and compilation excluded). A twin's pose is drawn 4-10 m away, full
 scale, anywhere in the image, from a fixed seed: the same images for both codes. Mean and
@@ -81,7 +81,10 @@ def _summary(seconds: list[float]) -> str:
 
 def main(*args: str) -> None:
     ref = args[0] if args and not args[0].startswith("--") else None
-    options = dict(zip(args[1 if ref else 0::2], args[2 if ref else 1::2], strict=False))
+    pairs = args[1:] if ref else args
+    if len(pairs) % 2:
+        sys.exit(f"image_costs: option {pairs[-1]} wants a value\n{__doc__}")
+    options = dict(zip(pairs[0::2], pairs[1::2], strict=True))
     unknown = sorted(set(options) - {"--profile", "--images", "--rounds"})
     if unknown:
         sys.exit(f"image_costs: unknown option {unknown[0]}\n{__doc__}")
@@ -96,8 +99,9 @@ def main(*args: str) -> None:
             codes = {ref: tree, **codes}
         try:
             measured: dict[tuple[str, str], list[list]] = {}
-            for _ in range(rounds):
-                for name, code in codes.items():
+            for round_ in range(rounds):
+                # the first code of a round may fill a kernel cache the second then finds: turns
+                for name, code in list(codes.items())[::1 if round_ % 2 == 0 else -1]:
                     for kind in ("twin", "training"):
                         measured.setdefault((name, kind), []).extend(_costs(code, kind, profile, images))
         finally:

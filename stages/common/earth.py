@@ -136,7 +136,7 @@ def _earth_band(rays: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray, cam
     # every pixel at once, the misses zeroed at the end; single precision after the hit test
     # (which needs double): a normal's direction to 1e-7, half the memory traffic
     distance = np.where(hit, along - np.sqrt(np.maximum(miss_sq, 0.0)), 0.0).astype(np.float32)
-    directions = rays.T.astype(np.float32)  # (3, N): one contiguous row per axis
+    directions = np.ascontiguousarray(rays.T, np.float32)  # (3, N): one contiguous row per axis
     normals = directions * distance
     normals -= centre.astype(np.float32)[:, None]
     normals *= np.float32(1.0 / EARTH_RADIUS_M)
@@ -159,7 +159,7 @@ def _earth_band(rays: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray, cam
     glow *= scale * np.float32(0.5) * hit
     albedo *= sun.reshape(*shape, 1)
     albedo += glow.reshape(*shape, 1) * np.array([0.3, 0.5, 1.0], np.float32)
-    out[...] = albedo
+    out[...] = np.where(hit.reshape(*shape, 1), albedo, np.float32(0.0))  # a miss is black, whatever its arithmetic
     return True
 
 

@@ -194,4 +194,43 @@ def test_channels_are_interleaved_as_stacked(height):
     rng = np.random.default_rng(height)
     planes = [rng.normal(size=(height, 7)).astype(np.float32) for _ in range(5)]
     planes[1][0, 0] = np.nan
-    assert np.array_equal(_interleaved(planes), np.stack(planes, axis=-1), equal_nan=True)
+    expected = np.stack(planes, axis=-1)
+    assert np.array_equal(_interleaved(planes), expected, equal_nan=True)
+    reused = np.full_like(expected, 7.0)
+    assert _interleaved(planes, reused) is reused and np.array_equal(reused, expected, equal_nan=True)
+
+
+def test_files_written_one_after_another_each_hold_their_own_channels(tmp_path):
+    """The writer's one buffer a process: files of other sizes and channels in between, and
+    the next of the first size, each read back as written."""
+    rng = np.random.default_rng(60)
+    camera = train_camera(load_config("smoke"))
+    sizes = [(camera.height, camera.width, ("Z", "part")), (camera.height, camera.width, ALL),
+             (camera.height, camera.width, ("Z", "part"))]
+    written = []
+    for index, (height, width, names) in enumerate(sizes):
+        channels = {name: rng.normal(size=(height, width)).astype(np.float32) for name in names}
+        path = tmp_path / f"{index}.exr"
+        ground_truth.write(path, channels, camera, np.eye(4), {"body": 1})
+        written.append((path, channels))
+    for path, channels in written:
+        read = ground_truth.read(path, tuple(channels))
+        assert all(np.array_equal(read.channels[name], values) for name, values in channels.items()), path.name
+
+
+@pytest.mark.parametrize("sensor", ["mono", "colour"])
+def test_a_black_space_image_toned_in_its_window_is_the_whole_frames_tone(sensor):
+    from types import SimpleNamespace
+
+    from stages.common.windows import Window
+
+    rng = np.random.default_rng(7)
+    radiance = np.zeros((40, 64, 3), np.float32)
+    window = Window(9, 5, 30, 21)
+    radiance[window.slices()] = rng.uniform(0.0, 1.5, (21, 30, 3))
+    worker = SimpleNamespace(response=Response(sensor, 2.2))
+    whole = worker.response.image(radiance, EXPOSURE)
+    assert np.array_equal(RenderWorker.tone(worker, radiance, window), whole)
+    assert np.array_equal(RenderWorker.tone(worker, radiance, None), whole)
+    empty = RenderWorker.tone(worker, np.zeros_like(radiance), Window(0, 0, 0, 0))
+    assert empty.shape == whole.shape and not empty.any()
