@@ -63,18 +63,24 @@ def _capture_seconds(profile: str, count: int) -> float:
         return (time.process_time() - started) / count
 
 
-def _twin_jobs(count: int) -> list[RenderJob]:
-    """Twins of the target 4-10 m away, full scale, anywhere in the image, in seeded random
-    attitudes and lights (``bench image_costs`` draws from the same seed, more of them)."""
+def twin_poses(count: int) -> list[tuple[list[float], list[float], list[float]]]:
+    """``count`` twins' (q_vbs2tango (4,), r_Vo2To_vbs (3,) m, light_dir_cam (3,) unit): the
+    target 4-10 m away, full scale, anywhere in the image, in seeded random attitudes and
+    lights (a different ``count`` draws other poses). ``bench image_costs`` times these too."""
     rng = np.random.default_rng(60)
-    jobs = []
-    for i, q in enumerate(g.random_quats(rng, count)):
+    poses = []
+    for q in g.random_quats(rng, count):
         depth = rng.uniform(4.0, 10.0)
         centre = np.array([rng.uniform(-0.3, 0.3) * depth, rng.uniform(-0.2, 0.2) * depth, depth])
         light = rng.normal(size=3)
-        jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(centre), tuple(light / np.linalg.norm(light)),
-                              3.0, False, i))
-    return jobs
+        poses.append(([float(v) for v in q], centre.tolist(), (light / np.linalg.norm(light)).tolist()))
+    return poses
+
+
+def _twin_jobs(count: int) -> list[RenderJob]:
+    """``twin_poses`` as render jobs (irradiance 3 W/m^2, no Earth)."""
+    return [RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(t), tuple(light), 3.0, False, i)
+            for i, (q, t, light) in enumerate(twin_poses(count))]
 
 
 def _render_seconds(camera: LensCamera, spp: int, max_depth: int, jobs: list[RenderJob]) -> list[float]:

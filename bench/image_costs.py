@@ -8,7 +8,8 @@ each with its ground truth, one process with one thread (a worker of one CPU).
 The two codes run in turns (REF, this tree; then this tree, REF; ...), each a fresh process per kind,
 so that the machine's drift falls on both; every image after the first two of a process
 is timed (scene load and compilation excluded). A twin's pose is drawn 4-10 m away, full
-scale, anywhere in the image, from a fixed seed: the same images for both codes. Mean and
+scale, anywhere in the image, from a fixed seed (``bench.cluster.twin_poses``, drawn here and
+handed to both codes): the same images for both. Mean and
 its standard error per kind (training images with and without the Earth apart), and the
 ratio of the means. Results: bench/results/image_costs.json.
 """
@@ -22,6 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench.cluster import twin_poses
 from bench.common import report
 from bench.identity import REPO, worktree_env
 
@@ -31,7 +33,6 @@ import json, sys, time
 import numpy as np
 from pipeline.config import load_config
 from stages.acquire.virtual.sensor import lens_camera
-from stages.common import geometry as g
 from stages.common.cameras import train_camera
 from stages.common.workspace_target import planned_target
 from stages.render.jobs import RenderJob, train_jobs
@@ -44,14 +45,8 @@ if kind == "training":
     jobs = train_jobs(config, target)[:count + 2]
     worker = RenderWorker(train_camera(config), target, config.render.train_spp, config.render.max_depth, 1)
 else:
-    rng = np.random.default_rng(60)
-    jobs = []
-    for i, q in enumerate(g.random_quats(rng, count + 2)):
-        depth = rng.uniform(4.0, 10.0)
-        centre = np.array([rng.uniform(-0.3, 0.3) * depth, rng.uniform(-0.2, 0.2) * depth, depth])
-        light = rng.normal(size=3)
-        jobs.append(RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(centre), tuple(light / np.linalg.norm(light)),
-                              3.0, False, i))
+    jobs = [RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(t), tuple(light), 3.0, False, i)
+            for i, (q, t, light) in enumerate(json.loads(sys.argv[4]))]
     worker = RenderWorker(lens_camera(config.camera), target, config.render.spp, config.render.max_depth, 1)
 for job in jobs[:2]:
     worker.render(job)
@@ -65,7 +60,9 @@ print(json.dumps(seconds))
 
 
 def _costs(code: Path, kind: str, profile: str, images: int) -> list[list]:
-    done = subprocess.run([sys.executable, "-c", _CHILD, kind, profile, str(images)], cwd=code,
+    # the twins' poses from this tree (bench.cluster.twin_poses), the same for every code
+    poses = json.dumps(twin_poses(images + 2))
+    done = subprocess.run([sys.executable, "-c", _CHILD, kind, profile, str(images), poses], cwd=code,
                           env=worktree_env(code), capture_output=True, text=True)
     if done.returncode != 0:
         sys.exit(f"{code}: {kind} images failed:\n{done.stderr[-2000:]}")
@@ -89,13 +86,20 @@ def main(*args: str) -> None:
     if unknown:
         sys.exit(f"image_costs: unknown option {unknown[0]}\n{__doc__}")
     profile = options.get("--profile", "paper")
-    images, rounds = int(options.get("--images", 24)), int(options.get("--rounds", 2))
+    try:
+        images, rounds = int(options.get("--images", 24)), int(options.get("--rounds", 2))
+    except ValueError:
+        sys.exit(f"image_costs: --images and --rounds take whole numbers\n{__doc__}")
+    if images < 2 or rounds < 1:
+        sys.exit("image_costs: --images at least 2 (a spread needs two), --rounds at least 1")
     codes: dict[str, Path] = {"this tree": REPO}
     with tempfile.TemporaryDirectory(prefix="speedplus-image-costs-") as scratch:
         if ref is not None:
             tree = Path(scratch) / "tree"
-            subprocess.run(["git", "worktree", "add", "--detach", str(tree), ref], cwd=REPO, check=True,
-                           capture_output=True)
+            added = subprocess.run(["git", "worktree", "add", "--detach", str(tree), ref], cwd=REPO,
+                                   capture_output=True, text=True)
+            if added.returncode != 0:
+                sys.exit(f"image_costs: cannot check out {ref!r}: {added.stderr.strip()}")
             codes = {ref: tree, **codes}
         try:
             measured: dict[tuple[str, str], list[list]] = {}

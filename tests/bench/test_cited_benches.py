@@ -75,6 +75,10 @@ def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
     assert float(rows["HEAD / this tree"]["CPU-s a twin"].rstrip("x")) > 0
     listed = subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True).stdout
     assert "speedplus-image-costs-" not in listed
+    with pytest.raises(SystemExit, match="cannot check out 'no-such-commit'"):
+        image_costs.main("no-such-commit", "--profile", "smoke", "--images", "2", "--rounds", "1")
+    with pytest.raises(SystemExit, match="option --images wants a value"):
+        image_costs.main("HEAD", "--images")
 
 
 def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_path):
