@@ -69,8 +69,10 @@ class ArmsModel:
                                        self.settings.backlash_preload_nm)
 
     def fit(self, a: np.ndarray, r: Readings, fixtures: list[str], start: rwhe.Solution,
-            compliant: bool) -> Fitted:
-        fitted = identification.fit(self.holders, self.settings, a, r, start, compliant, self.payload)
+            compliant: bool, pnp: np.ndarray | None = None) -> Fitted:
+        """The arms and offsets from PnP poses ``a`` (N, 4, 4) of covariances ``pnp``
+        (N, 6, 6; None: unknown, ``pose_noise.stacked_pnp``)."""
+        fitted = identification.fit(self.holders, self.settings, a, r, start, compliant, self.payload, pnp)
         return Fitted(fitted.offsets, self, fitted)
 
     def corrected_b(self, fit: identification.Fitted, r: Readings) -> tuple[np.ndarray, np.ndarray]:

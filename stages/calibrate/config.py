@@ -89,6 +89,11 @@ class CalibrateConfig:
         "arm_prior_joint_rad under its largest gravity torque: twice the compliance of an industrial wrist joint "
         "(stiffness of order 1e5-1e6 N m/rad; Dumas et al., Robotics and Computer-Integrated Manufacturing 27(4), "
         "2011; stages/common/robots/identification.py)", "rad/(N m)")
+    pose_weights: Literal["pnp", "groups"] = param(
+        "pnp", "how the arms' fit weighs each calibration pose's residual: pnp (by its covariance: the PnP "
+        "pose's own from its corners plus one variance each for the rotations and translations the arms' model "
+        "leaves, stages/common/pose_noise.py) or groups (rotations and translations as two independent groups, "
+        "each of one variance: the smoke profile, docs/accuracy.md)", "")
     lost_motion: Literal["auto", "on", "off"] = param(
         "auto", "with the arms' kinematics, also fit each joint's lost motion on the flank its last move chose "
         "(stages/common/robots/errors.py): auto where the calibration captures show it (an F test at 1% of the "

@@ -17,6 +17,7 @@ from manifests.sidecars import Folds
 from stages.calibrate import observations as obs
 from stages.common import geometry as g
 from stages.common import rwhe
+from stages.common.pose_noise import stacked_pnp
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],
@@ -186,13 +187,14 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
         progress.note(f"  {label}: cross-validation fold {fold + 1} of {config.calibrate.folds}"
                       f"{' (offsets and arms)' if arms is not None else ''}")
         train_fixtures = [f for f, keep in zip(fixtures, train, strict=True) if keep]
-        solution = solve(config, a[train], b[train], train_fixtures,
-                         [o for o, keep in zip(used, train, strict=True) if keep], intrinsics, _subset(up, train))
+        train_used = [o for o, keep in zip(used, train, strict=True) if keep]
+        solution = solve(config, a[train], b[train], train_fixtures, train_used, intrinsics, _subset(up, train))
         test_fixtures = [f for f, keep in zip(fixtures, test, strict=True) if keep]
         b_test, up_test, before = b[test], _subset(up, test), None
         if arms is not None:
             model, readings = arms
-            fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None)
+            fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None,
+                               pose_covariances(config, train_used))
             solution = fitted.offsets
             b_test, up_arms = fitted.corrected_b(readings.subset(test))
             up_test = None if up is None else up_arms
@@ -216,6 +218,12 @@ def opencv_shah_metrics(a: np.ndarray, b: np.ndarray, fixtures: list[str], used:
         return {"failed": " ".join(str(error).split())[-200:]}
     baseline = rwhe.Solution(g.make_transform(r_z, t_z.ravel()), {fixtures[0]: g.make_transform(r_x, t_x.ravel())})
     return metrics(baseline.predict(b, fixtures), a, used, intrinsics)
+
+
+def pose_covariances(config: Config, used: list[obs.Observation]) -> np.ndarray | None:
+    """(N, 6, 6) the PnP poses' covariances the arms' fit whitens by, or None where
+    ``calibrate.pose_weights`` weighs rotations and translations as two groups instead."""
+    return stacked_pnp([o.covariance for o in used]) if config.calibrate.pose_weights == "pnp" else None
 
 
 def pnp_variance(used: list[obs.Observation]) -> tuple[np.ndarray, float]:

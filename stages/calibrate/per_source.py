@@ -36,6 +36,7 @@ from stages.calibrate.fitting import (
     metrics,
     opencv_shah_metrics,
     pnp_variance,
+    pose_covariances,
     robust_solve,
 )
 from stages.calibrate.offset_uncertainty import offsets_covariance, uncertainty
@@ -153,7 +154,8 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
                                f"calibrate {source}")
         progress.note(f"calibrate {source}: the arms' fit on {len(s.used)} of those {len(samples.used)}"
                       + (f", less the outlier(s) {', '.join(outliers)}" if outliers else ""))
-        fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None)
+        fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None,
+                            pose_covariances(config, s.used))
         solution = fitted.offsets
         b, up_arms = fitted.corrected_b(s.readings)
         up = None if up is None else up_arms

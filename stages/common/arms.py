@@ -1,6 +1,6 @@
 """What every arm model of calibrate and fuse shares (the model itself, built from each
 robot's URDF: ``stages.common.robots.errors``; docs/architecture.md section 6): what the
-target robot carries, the maximum a posteriori fit with its residual scales, and a pose's
+target robot carries, the maximum a posteriori fit with its residuals' covariance, and a pose's
 covariance from the fitted parameters and the joints' lost motion.
 """
 
@@ -13,6 +13,7 @@ import numpy as np
 
 from stages.common import geometry as g
 from stages.common import layout
+from stages.common.pose_noise import ResidualCovariance
 from stages.common.target import Target
 
 #: mean square of a unit's lost motion over its rating's square: uniform on 50-100% of it
@@ -73,55 +74,53 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
     return tuple(0.5 * (c + np.swapaxes(c, -1, -2)) for c in (shared, own))  # exactly symmetric despite rounding
 
 
-#: the arms' fit stops re-estimating its residual scales when they move by less than this
+#: the arms' fit stops re-estimating its residual variances when their square roots move by
+#: less than this
 _SCALES_SETTLED = 0.05
 _MAX_FITS = 4
 _TOLERANCE = 1e-8
 
 
-def _redundancy_scales(difference: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
-    """(3, 4) scales of the twist residuals (N, 3, 4) (rotation vector in column 0,
-    translation in column 3) by Helmert's variance components: each group's sum of squares
-    over its redundancy, from the whitened ``jacobian`` (M, F) whose first 6 N rows are
-    the residuals (rotation and translation alternating)."""
-    information = np.linalg.pinv(jacobian.T @ jacobian)
-    data = jacobian[:6 * len(difference)]
-    leverage = np.einsum("ij,jk,ik->i", data, information, data)
-    scales = []
-    for column, absorbed in ((0, leverage[0::2].sum()), (3, leverage[1::2].sum())):
-        entries = difference[:, :3, column]
-        redundancy = max(entries.size - float(absorbed), 1.0)
-        scales.append(max(float(np.sqrt(np.sum(entries**2) / redundancy)), 1e-12))
-    return np.concatenate([np.full((3, 3), scales[0]), np.full((3, 1), scales[1])], axis=1)
+@dataclass(frozen=True)
+class MapFit:
+    """The arms' fit: parameters (P,), their covariance (P, P), and the residuals'
+    covariance it whitened by (``pose_noise``)."""
+
+    params: np.ndarray
+    covariance: np.ndarray
+    noise: ResidualCovariance
 
 
-def _residual_scales(difference: np.ndarray) -> np.ndarray:
-    """(3, 4) RMS of the twist residuals (N, 3, 4): one for the rotation vectors (column 0,
-    rad), one for the translations (column 3, m)."""
-    rotation = max(float(np.sqrt(np.mean(difference[:, :3, 0] ** 2))), 1e-12)
-    translation = max(float(np.sqrt(np.mean(difference[:, :3, 3] ** 2))), 1e-12)
-    return np.concatenate([np.full((3, 3), rotation), np.full((3, 1), translation)], axis=1)
+def pose_difference(a: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """(..., 6) PnP poses ``a`` against ``predicted`` (..., 4, 4): the rotation vector of
+    the turn on the camera side (rad), then the translation (m)."""
+    turn = g.matrix_to_rotvec(a[..., :3, :3] @ np.swapaxes(predicted[..., :3, :3], -1, -2))
+    return np.concatenate([turn, a[..., :3, 3] - predicted[..., :3, 3]], axis=-1)
 
 
 def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np.ndarray, free: np.ndarray,
-            prior: np.ndarray, priored: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            prior: np.ndarray, priored: np.ndarray, pnp: np.ndarray | None = None) -> MapFit:
     """The maximum a posteriori parameters (P,) and their covariance (P, P) of any arms'
     model: ``batch`` predicts ``cam_from_target`` (K, N, 4, 4) of packed parameters (K, P),
-    ``a`` (N, 4, 4) the PnP poses, ``params`` (P,) the start, ``free`` (P,) bool the ones
-    estimated (the rest stay as they start, with no covariance), ``prior`` the 1-sigma of
-    the free parameters at indices ``priored`` (zero-mean priors). The two residual scales
-    are re-estimated from each fit until they settle (below: why).
+    ``a`` (N, 4, 4) the PnP poses, ``pnp`` (N, 6, 6) their covariances (None: unknown),
+    ``params`` (P,) the start, ``free`` (P,) bool the ones estimated (the rest stay as they
+    start, with no covariance), ``prior`` the 1-sigma of the free parameters at indices
+    ``priored`` (zero-mean priors). The residuals' variance components are re-estimated
+    from each fit until they settle (below: why).
 
     The residuals are each pose's rotation vector (rad) and translation (m), not the paper's
     Frobenius entries: a rotation's nine matrix entries carry its three degrees of freedom,
     so weighing them as nine independent residuals takes three times the information they
     hold, and the covariance of a rotation-driven parameter comes out sqrt(3) too narrow.
-    The scales are estimated from the residuals' redundancy (Helmert's variance components:
-    each group's sum of squares over its count less the parameters it absorbs, the trace of
-    its block of the hat matrix): a model of
-    many parameters fitted to few poses leaves residuals smaller than the noise, and a
-    scale taken from them alone would weigh the data ever higher, fit after fit
-    (docs/architecture.md section 6)."""
+    Each pose's residual is whitened by its covariance, the PnP pose's own plus the arms'
+    model's (``pose_noise``): weighed as independent rotations and translations, the PnP
+    poses' sideways shifts, which are one with their turns, counted twice (docs/accuracy.md,
+    "the PnP poses' own covariance"). The variances are
+    estimated from the residuals' redundancy (Helmert's variance components: the trace of
+    each component's share of the hat matrix's complement): a model of many parameters
+    fitted to few poses leaves residuals smaller than the noise, and a scale taken from
+    them alone would weigh the data ever higher, fit after fit (docs/architecture.md
+    section 6)."""
     from scipy.optimize import least_squares
 
     def full(q: np.ndarray) -> np.ndarray:
@@ -129,22 +128,15 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         out[:, free] = q
         return out
 
-    def difference(predicted: np.ndarray) -> np.ndarray:
-        out = np.zeros(predicted.shape[:-2] + (3, 4))
-        out[..., :3, 0] = g.matrix_to_rotvec(a[..., :3, :3] @ np.swapaxes(predicted[..., :3, :3], -1, -2))
-        out[..., :3, 3] = a[..., :3, 3] - predicted[..., :3, 3]
-        return out
-
-    def residuals_of(delta: np.ndarray, scale: np.ndarray) -> np.ndarray:
-        whitened = delta[..., :3, :] / scale
-        return whitened[..., :, [0, 3]].reshape(len(delta), -1)
-
-    scale = _residual_scales(difference(batch(params[None])[0]))
+    noise = ResidualCovariance.start(pose_difference(a, batch(params[None])[0]), pnp)
     for _ in range(_MAX_FITS):
-        def residuals(q: np.ndarray, scale: np.ndarray = scale) -> np.ndarray:
+        whitening = noise.whitening(len(a))
+
+        def residuals(q: np.ndarray, whitening: np.ndarray = whitening) -> np.ndarray:
             """Whitened residuals (K, M) of a batch of free parameters (K, F)."""
             p = full(q)
-            return np.concatenate([residuals_of(difference(batch(p)), scale), p[:, priored] / prior], axis=1)
+            whitened = np.einsum("nij,knj->kni", whitening, pose_difference(a, batch(p)))
+            return np.concatenate([whitened.reshape(len(q), -1), p[:, priored] / prior], axis=1)
 
         # SciPy's default tolerances (1e-8): 1e-10 spent 4x the iterations creeping along the
         # weakly determined directions, moving the parameters by under 0.002 of their sigma
@@ -152,10 +144,9 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
                                xtol=_TOLERANCE, ftol=_TOLERANCE, jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
-        delta = difference(batch(params[None])[0])
-        scale, previous = _redundancy_scales(delta, result.jac), scale
-        if np.all(np.abs(scale / previous - 1.0) < _SCALES_SETTLED):
+        noise, previous = noise.at_fit(result.fun, result.jac, whitening), noise
+        if noise.settled(previous, _SCALES_SETTLED):
             break
     covariance = np.zeros((len(params), len(params)))
     covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)
-    return params, covariance
+    return MapFit(params, covariance, previous)

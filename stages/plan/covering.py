@@ -15,9 +15,9 @@ over the dataset session), and the lender is planned from its own stream, so the
 stays the same whatever order or how many runs make it. A lender whose board no reachable
 camera pose sees, or whose own plan fails (it says why when the dataset is planned), gives
 way to the next; where none of ``LENDERS_TRIED`` does, the sample is an ordinary
-calibration pose. A known gap (docs/accuracy.md): the covering samples are every fourth
-one and the fixtures alternate by index, so with the default share all hold the model on
-``plus_x``.
+calibration pose. The session's fixtures alternate by index, so every other covering
+sample is taken one index earlier (``covering_turn``): at the default share, 8 of TRON's 16
+hold the model on each mount.
 """
 
 from __future__ import annotations
@@ -43,13 +43,24 @@ DRAWS_PER_LENDER = 64
 
 def covering_turn(config: Config, index: int) -> int | None:
     """Which covering sample (0, 1, ...) calibration sample ``index`` is, or None: one in
-    every 1 / ``plan.calibration_cover``, spread evenly over the session; none in
+    every 1 / ``plan.calibration_cover``, spread evenly over the session, each odd one a
+    sample earlier where the share leaves room (at most a half), so that the session's
+    fixtures, which alternate by index, hold the model on both mounts in turn; none in
     trajectory mode (a sequence's frames are not the plan's to lend one by one)."""
     share = config.plan.calibration_cover
     if config.plan.mode != "poses" or config.plan.n_dataset == 0 or share == 0:
         return None
-    before, after = math.floor(index * share), math.floor((index + 1) * share)
-    return before if after > before else None
+
+    def turn_at(i: int) -> int | None:
+        before, after = math.floor(i * share), math.floor((i + 1) * share)
+        return before if after > before else None
+
+    if share > 0.5:
+        return turn_at(index)
+    here, next_one = turn_at(index), turn_at(index + 1)
+    if here is not None and here % 2 == 0:
+        return here
+    return next_one if next_one is not None and next_one % 2 == 1 else None
 
 
 def lenders(config: Config, turn: int) -> list[int]:

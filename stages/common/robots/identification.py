@@ -374,10 +374,11 @@ def bounded_compliance(holders: Holders, prior: np.ndarray, drawn: Measured, win
 
 
 def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Solution, compliant: bool,
-        payload: arms.Payload) -> Fitted:
+        payload: arms.Payload, pnp: np.ndarray | None = None) -> Fitted:
     """The robots (the parameters ``identifiable`` keeps), ``Z``, ``X_f`` (and ``k_f``,
-    ``D_f``) from PnP poses ``a`` (N, 4, 4) and readings ``m``: ``arms.map_fit`` with the
-    lab's tolerances as zero-mean priors (``c``: the calibrate section)."""
+    ``D_f``) from PnP poses ``a`` (N, 4, 4) of covariances ``pnp`` (N, 6, 6; None: unknown)
+    and readings ``m``: ``arms.map_fit`` with the lab's tolerances as zero-mean priors
+    (``c``: the calibrate section)."""
     names = sorted(start.x)
     world_up = np.asarray(c.world_up, float)
     size = holders.size
@@ -413,9 +414,9 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     def batch(p: np.ndarray) -> np.ndarray:
         return predict_batch(holders, p, names, compliant, m, world_up)
 
-    def fitted(chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def fitted(chosen: np.ndarray) -> arms.MapFit:
         keep = chosen[priored_all]
-        return arms.map_fit(batch, a, params, chosen, all_prior[keep], priored_all[keep])
+        return arms.map_fit(batch, a, params, chosen, all_prior[keep], priored_all[keep], pnp)
 
     lost = np.array([name.endswith(".lost_motion") for name in holders.names] + [False] * (len(params) - size))
     played = np.zeros(len(params), bool)
@@ -427,7 +428,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
         else "not fitted: no calibration capture has a capture before it (captures without capture_time_s)")
     result, play_why = _hysteresis(holders, c, batch, a, fitted, free, {"play": played, "lost motion": lost},
                                    dropped, play_why)
-    params, covariance = result
+    params, covariance = result.params, result.covariance
     offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
                   play_why)
@@ -443,15 +444,15 @@ def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any
     ``dropped``; returns the fit and why the play was not fitted ("": it was)."""
     played, lost = groups["play"], groups["lost motion"]
     result = fitted(free)
-    if np.any(free & played) and np.any(result[0][played] < 0):  # a fixture that leads its change: no play seen
-        play_why = (f"fitted below zero ({', '.join(f'{w:.2g}' for w in result[0][played])} rad) and held at 0: "
+    if np.any(free & played) and np.any(result.params[played] < 0):  # a fixture that leads its change: no play seen
+        play_why = (f"fitted below zero ({', '.join(f'{w:.2g}' for w in result.params[played])} rad) and held at 0: "
                     "the captures show no lag")
         free = free & ~played
         result = fitted(free)
     for what, group, setting in (("play", played, c.fixture_play), ("lost motion", lost, c.lost_motion)):
         if setting == "auto" and np.any(free & group):
             without = fitted(free & ~group)
-            shown, said = hysteresis_shown(batch, a, without[0], result[0], int(np.sum(free & group)),
+            shown, said = hysteresis_shown(batch, a, without, result.params, int(np.sum(free & group)),
                                            int(free.sum()), what)
             if not shown:
                 if what == "play":

@@ -16,7 +16,7 @@ import numpy as np
 
 from manifests.sidecars.arm_fit import ChainFit
 from stages.common import arms
-from stages.common import geometry as g
+from stages.common.arms import MapFit, pose_difference
 from stages.common.robots.errors import HolderModel, Holders
 
 if TYPE_CHECKING:
@@ -83,31 +83,26 @@ def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.nd
 LOST_MOTION_TEST_LEVEL = 0.01
 
 
-def hysteresis_shown(batch: Any, a: np.ndarray, without: np.ndarray, with_: np.ndarray, added: int,
+def hysteresis_shown(batch: Any, a: np.ndarray, without: MapFit, with_: np.ndarray, added: int,
                      parameters: int, what: str = "lost motion") -> tuple[bool, str]:
     """Whether the calibration captures show the joints' lost motion (or the fixtures' play,
     ``what``: "lost motion" or "play", whose ``calibrate.*`` switch the words name): the F test of the fit
     with its ``added`` parameters (``with_``, P,) against the fit without (``without``), on
-    the residuals of PnP poses ``a`` (N, 4, 4) whitened by the fit without's rotation and
-    translation RMS, ``parameters`` estimated in all (Seber and Wild, *Nonlinear
+    the residuals of PnP poses ``a`` (N, 4, 4) whitened by the covariance the fit without
+    estimated (``pose_noise``), ``parameters`` estimated in all (Seber and Wild, *Nonlinear
     Regression*, Wiley 1989, section 5.3: the extra-sum-of-squares test); and in words."""
     from scipy.stats import f as f_distribution  # 0.5 s: every command resolves the stages that import this
 
-    def residuals(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        predicted = batch(params[None])[0]
-        turn = g.matrix_to_rotvec(a[:, :3, :3] @ np.swapaxes(predicted[:, :3, :3], -1, -2))
-        return turn, a[:, :3, 3] - predicted[:, :3, 3]
+    whitening = without.noise.whitening(len(a))
 
-    null = residuals(without)
-    scales = [max(float(np.sqrt(np.mean(r**2))), 1e-15) for r in null]
-
-    def whitened_sum(parts: tuple[np.ndarray, np.ndarray]) -> float:
-        return float(sum(np.sum((r / s) ** 2) for r, s in zip(parts, scales, strict=True)))
+    def whitened_sum(params: np.ndarray) -> float:
+        difference = pose_difference(a, batch(params[None])[0])
+        return float(np.sum(np.einsum("nij,nj->ni", whitening, difference) ** 2))
 
     redundancy = 6 * len(a) - parameters
     if redundancy <= 0:
         return False, "too few calibration captures to test for it"
-    rss_without, rss_with = whitened_sum(null), whitened_sum(residuals(with_))
+    rss_without, rss_with = whitened_sum(without.params), whitened_sum(with_)
     statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
     p = float(f_distribution.sf(statistic, added, redundancy))
     setting = {"lost motion": "lost_motion", "play": "fixture_play"}[what]
