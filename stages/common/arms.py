@@ -76,7 +76,7 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
 
 #: the arms' fit stops re-estimating its residual variances when their square roots move by
 #: less than this
-_SCALES_SETTLED = 0.05
+_VARIANCES_SETTLED = 0.05
 _MAX_FITS = 4
 _TOLERANCE = 1e-8
 
@@ -144,8 +144,8 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
                                xtol=_TOLERANCE, ftol=_TOLERANCE, jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
-        noise, previous = noise.at_fit(result.fun, result.jac, whitening), noise
-        if noise.settled(previous, _SCALES_SETTLED):
+        noise, previous = noise.at_fit(result.fun, result.jac, len(a)), noise
+        if noise.settled(previous, _VARIANCES_SETTLED):
             break
     covariance = np.zeros((len(params), len(params)))
     covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)

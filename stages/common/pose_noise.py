@@ -14,16 +14,17 @@ things make it:
   translations.
 
 So pose ``i``'s covariance is ``S_i = v_pnp P_i + v_rot E_rot + v_t E_t`` (``E``: the
-rotation's or the translation's identity block), and the three variances are Helmert's
-variance components, re-estimated from each fit's residuals and redundancy until they
-settle (Foerstner, "Ein Verfahren zur Schaetzung von Varianz- und Kovarianzkomponenten",
-AVN 86, 1979; Koch, *Parameter Estimation and Hypothesis Testing in Linear Models*, 2nd ed.,
-Springer 1999, section 3.6.3): ``v_k <- v_k (e^T A_k e) / tr(R A_k)``, with ``e`` the
-whitened residuals, ``A_k`` component ``k``'s share of the whitened covariance and ``R`` the
-residuals' redundancy (identity less the data's hat matrix).
+rotation's or the translation's identity block). The three variances are those that maximise
+the restricted likelihood of the fit linearised where it stopped (REML: Patterson and
+Thompson, Biometrika 58, 1971; Koch, *Parameter Estimation and Hypothesis Testing in Linear
+Models*, 2nd ed., Springer 1999, section 3.6), by Fisher scoring in their logarithms. At that
+maximum each component's whitened sum of squares equals its redundancy (Helmert's condition;
+Foerstner, AVN 86, 1979), so a fit of many parameters to few poses does not take its small
+residuals for small noise.
 
-Without PnP covariances (poses from elsewhere) ``v_pnp`` is absent, and the two remaining
-components are each group's sum of squares over its redundancy.
+Without PnP covariances (poses from elsewhere, or ``calibrate.pose_weights = groups``)
+``v_pnp`` is absent, and the two remaining components are each group's sum of squares over its
+redundancy.
 """
 
 from __future__ import annotations
@@ -86,24 +87,26 @@ class ResidualCovariance:
         whitened residual is ``L_i^-1`` times it."""
         return np.linalg.inv(np.linalg.cholesky(self.covariances(count)))
 
-    def at_fit(self, fun: np.ndarray, jacobian: np.ndarray, whitening: np.ndarray, tolerance: float = 1e-2,
+    def at_fit(self, fun: np.ndarray, jacobian: np.ndarray, count: int, tolerance: float = 1e-2,
                rounds: int = 50) -> ResidualCovariance:
         """The variances that maximise the restricted likelihood of the fit linearised where
         it stopped (REML, Patterson and Thompson 1971; at its maximum each component's
         whitened sum of squares equals its redundancy, Helmert's condition): its whitened
-        residuals ``fun`` (M,) and Jacobian ``jacobian`` (M, F) by ``whitening`` (N, 6, 6),
-        the first 6 N rows the poses' (the rest: the priors', which no whitening touches).
+        residuals ``fun`` (M,) and Jacobian ``jacobian`` (M, F), whitened by this covariance
+        (``whitening``), the first 6 N rows the ``count`` poses' (the rest: the priors', which
+        no whitening touches).
         Fisher scoring in the variances' logarithms, halving a step that lowers the
         likelihood, until their square roots move by less than ``tolerance``: Helmert's
         own update, one component at a time, crept for hundreds of rounds where the PnP and
         the model's components overlap."""
-        count = len(whitening)
         problem = _Linearised.of(fun, jacobian, np.linalg.cholesky(self.covariances(count)), count)
         active = [self.pnp is not None, True, True]
         shapes = self.components()
         low, high = (np.log(bound * self.unit[active]) for bound in _BOUNDS)
         theta = np.clip(np.log(np.maximum(self.variances[active], 1e-300)), low, high)
         likelihood, gradient, fisher = problem.evaluate(np.exp(theta), shapes)
+        if not np.isfinite(likelihood):
+            return self
         for _ in range(rounds):
             scale = np.exp(theta)
             step = np.linalg.lstsq(fisher * np.outer(scale, scale), gradient * scale, rcond=None)[0]
@@ -115,9 +118,8 @@ class ResidualCovariance:
                     break
             else:
                 break  # no step raises the likelihood: at its maximum, as far as it can tell
-            moved = np.max(np.abs(trial - theta)) / 2  # in the square roots' logarithms
             theta, (likelihood, gradient, fisher) = trial, tried
-            if moved < tolerance:
+            if np.max(np.abs(step)) / 2 < tolerance:  # the full step, in the square roots' logarithms
                 break
         variances = np.exp(theta)
         return ResidualCovariance(self.pnp, variances if self.pnp is not None else np.array([0.0, *variances]),
@@ -163,12 +165,14 @@ class _Linearised:
         observed = np.concatenate([np.einsum("nij,nj->ni", inverse, self.residual).ravel(), self.prior_residual])
         information = stacked.T @ stacked
         covariance = np.linalg.pinv(information)
-        residual = (observed - stacked @ (covariance @ (stacked.T @ observed)))[:6 * count].reshape(count, 6)
-        sign, log_information = np.linalg.slogdet(information)
+        every = observed - stacked @ (covariance @ (stacked.T @ observed))  # the data's rows, then the priors'
+        residual = every[:6 * count].reshape(count, 6)
+        eigenvalues = np.linalg.eigvalsh(information)
+        log_information = float(np.sum(np.log(eigenvalues[eigenvalues > 1e-12 * max(eigenvalues[-1], 1e-300)])))
         log_determinant = 2 * float(np.sum(np.log(np.abs(np.diagonal(cholesky, axis1=1, axis2=2)))))
-        likelihood = -0.5 * (log_determinant + (log_information if sign > 0 else 0.0)
-                             + float(np.sum(residual**2)) + float(np.sum((observed[6 * count:] - (
-                                 stacked @ (covariance @ (stacked.T @ observed)))[6 * count:]) ** 2)))
+        # -1/2 (log|S| + log|J^T S^-1 J| + e^T S^-1 e): the priors' rows belong to J and e, not to S;
+        # a singular information counts its determined directions only (the pseudo-inverse's)
+        likelihood = -0.5 * (log_determinant + log_information + float(np.sum(every**2)))
         whitened = [inverse @ q @ np.swapaxes(inverse, 1, 2) for q in whole]  # (N, 6, 6) each
         hat = (data @ covariance) @ np.swapaxes(data, 1, 2)  # the hat matrix's diagonal blocks
         flat = data.reshape(6 * count, -1)
@@ -195,4 +199,5 @@ def stacked_pnp(covariances: list[np.ndarray | None]) -> np.ndarray | None:
     if not known:
         return None
     mean = np.mean(known, axis=0)
-    return np.stack([mean if c is None else np.asarray(c, float) for c in covariances])
+    stacked = np.stack([mean if c is None else np.asarray(c, float) for c in covariances])
+    return 0.5 * (stacked + np.swapaxes(stacked, 1, 2))  # exactly symmetric, as Cholesky needs

@@ -43,24 +43,33 @@ DRAWS_PER_LENDER = 64
 
 def covering_turn(config: Config, index: int) -> int | None:
     """Which covering sample (0, 1, ...) calibration sample ``index`` is, or None: one in
-    every 1 / ``plan.calibration_cover``, spread evenly over the session, each odd one a
-    sample earlier where the share leaves room (at most a half), so that the session's
-    fixtures, which alternate by index, hold the model on both mounts in turn; none in
-    trajectory mode (a sequence's frames are not the plan's to lend one by one)."""
-    share = config.plan.calibration_cover
-    if config.plan.mode != "poses" or config.plan.n_dataset == 0 or share == 0:
+    every 1 / ``plan.calibration_cover``, spread evenly over the session; none in
+    trajectory mode (a sequence's frames are not the plan's to lend one by one). The
+    session's fixtures alternate by index, so where the share leaves room (at most a half) a
+    covering sample whose index has the parity of the one before it is taken one index
+    earlier: the covering samples then hold the model on both mounts in turn."""
+    plan = config.plan
+    share = plan.calibration_cover
+    if plan.mode != "poses" or plan.n_dataset == 0 or share == 0:
         return None
 
     def turn_at(i: int) -> int | None:
+        if i >= plan.n_calibration:
+            return None
         before, after = math.floor(i * share), math.floor((i + 1) * share)
         return before if after > before else None
 
     if share > 0.5:
         return turn_at(index)
-    here, next_one = turn_at(index), turn_at(index + 1)
-    if here is not None and here % 2 == 0:
+    first = next((i for i in range(plan.n_calibration) if turn_at(i) == 0), 0)
+
+    def moved(turn: int, i: int) -> bool:  # the parity of turn's own index is not the alternation's
+        return i % 2 != (first + turn) % 2
+
+    here, after = turn_at(index), turn_at(index + 1)
+    if here is not None and not moved(here, index):
         return here
-    return next_one if next_one is not None and next_one % 2 == 1 else None
+    return after if after is not None and moved(after, index + 1) else None
 
 
 def lenders(config: Config, turn: int) -> list[int]:

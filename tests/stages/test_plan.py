@@ -1,6 +1,7 @@
 """The plan stage: the poses asked for, and robot commands that really realise them."""
 
 import collections
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -196,6 +197,14 @@ def test_covering_needs_a_dataset_and_poses_mode(default_config):
     assert [covering_turn(half, i) for i in range(4)] == [None, 0, 1, None]
     every = default_config.replace(plan=replace(default_config.plan, calibration_cover=1.0))
     assert [covering_turn(every, i) for i in range(4)] == [0, 1, 2, 3]
+    for share in (0.2, 0.25, 0.3, 0.4, 0.5):  # each turn once, none past the session, both mounts in turn
+        config = default_config.replace(plan=replace(default_config.plan, calibration_cover=share))
+        covered = [(i, t) for i in range(64) if (t := covering_turn(config, i)) is not None]
+        assert [t for _, t in covered] == list(range(math.floor(64 * share))), share
+        mounts = [i % 2 for i, _ in covered]  # the session's fixtures alternate by index
+        assert abs(sum(mounts) - len(mounts) / 2) <= 1, (share, covered)
+        if share != 0.4:  # two in a row there: turns at 2 and 3 leave no index between them
+            assert all(a != b for a, b in zip(mounts, mounts[1:], strict=False)), (share, covered)
 
 
 def test_light_boxes(default_config, default_plan):

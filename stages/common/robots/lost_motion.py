@@ -83,13 +83,14 @@ def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.nd
 LOST_MOTION_TEST_LEVEL = 0.01
 
 
-def hysteresis_shown(batch: Any, a: np.ndarray, without: MapFit, with_: np.ndarray, added: int,
+def hysteresis_shown(batch: Any, a: np.ndarray, without: MapFit, with_params: np.ndarray, added: int,
                      parameters: int, what: str = "lost motion") -> tuple[bool, str]:
     """Whether the calibration captures show the joints' lost motion (or the fixtures' play,
     ``what``: "lost motion" or "play", whose ``calibrate.*`` switch the words name): the F test of the fit
-    with its ``added`` parameters (``with_``, P,) against the fit without (``without``), on
-    the residuals of PnP poses ``a`` (N, 4, 4) whitened by the covariance the fit without
-    estimated (``pose_noise``), ``parameters`` estimated in all (Seber and Wild, *Nonlinear
+    with its ``added`` parameters (``with_params``, P,) against the fit without (``without``),
+    on the residuals of PnP poses ``a`` (N, 4, 4) whitened by the covariance the fit without
+    estimated (``pose_noise``; the fit with them was made under its own, so the test leans
+    towards not showing them), ``parameters`` estimated in all (Seber and Wild, *Nonlinear
     Regression*, Wiley 1989, section 5.3: the extra-sum-of-squares test); and in words."""
     from scipy.stats import f as f_distribution  # 0.5 s: every command resolves the stages that import this
 
@@ -102,7 +103,7 @@ def hysteresis_shown(batch: Any, a: np.ndarray, without: MapFit, with_: np.ndarr
     redundancy = 6 * len(a) - parameters
     if redundancy <= 0:
         return False, "too few calibration captures to test for it"
-    rss_without, rss_with = whitened_sum(without.params), whitened_sum(with_)
+    rss_without, rss_with = whitened_sum(without.params), whitened_sum(with_params)
     statistic = max(rss_without - rss_with, 0.0) / added / max(rss_with / redundancy, 1e-300)
     p = float(f_distribution.sf(statistic, added, redundancy))
     setting = {"lost motion": "lost_motion", "play": "fixture_play"}[what]

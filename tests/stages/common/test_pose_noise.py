@@ -42,7 +42,7 @@ def fit_linear(design: np.ndarray, observed: np.ndarray, noise: ResidualCovarian
         jacobian = np.einsum("nij,njf->nif", whitening, design).reshape(-1, design.shape[-1])
         whitened = np.einsum("nij,nj->ni", whitening, observed).ravel()
         x = np.linalg.lstsq(jacobian, whitened, rcond=None)[0]
-        noise, previous = noise.at_fit(jacobian @ x - whitened, jacobian, whitening), noise
+        noise, previous = noise.at_fit(jacobian @ x - whitened, jacobian, len(observed)), noise
         if noise.settled(previous, 1e-3):
             break
     return x, previous
