@@ -23,7 +23,9 @@ interval is over labels and is narrower than one over facilities would be; the p
 rows show the spread between builds.
 
 The pooled figures are written beside the folder, ``DIR/rehearsal.json``
-(``manifests/rehearsal.py``): the facility's card, which ``speedplus facility DIR`` shows.
+(``manifests/rehearsal.py``): the facility's card, which ``speedplus facility DIR`` shows. A
+folder that keeps a card of another profile, settings or target keeps it; the run's card then
+goes to ``bench/results/`` (``keep_or_replace``).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from bench import common
 from bench.arm_accuracy import arm_accuracy, describe
 from bench.common import report
 from bench.honesty import (
@@ -45,8 +48,9 @@ from bench.honesty import (
     under_speedplus,
 )
 from manifests.facility import facility_digest, read_facility_spec
-from manifests.rehearsal import RehearsalRecord, write_rehearsal
+from manifests.rehearsal import REHEARSAL_FILE, RehearsalRecord, read_rehearsal, write_rehearsal
 from manifests.sidecars import read_calibration
+from manifests.sidecars.base import save
 from stages.common.robots.facility import wilson
 from stages.common.target import load_target
 
@@ -122,6 +126,24 @@ def card(facility: Path, profile: str, settings: list[str], target: Path | None,
         tuple(round(float(v), 4) for v in inside), tuple(round(float(v), 4) for v in rms))
 
 
+def keep_or_replace(facility: Path, record: RehearsalRecord) -> str:
+    """Write ``record`` as the facility's card (``DIR/rehearsal.json``) unless the folder
+    keeps a card of another profile, settings or target (the tests hold a folder's labels to
+    the card it keeps: a default-profile run must not replace a smoke card); then beside the
+    bench's results instead. Says where it went."""
+    path = facility / REHEARSAL_FILE
+    if path.exists():
+        kept = read_rehearsal(facility)
+        if (kept.profile, kept.settings, kept.target) != (record.profile, record.settings, record.target):
+            common.RESULTS.mkdir(parents=True, exist_ok=True)
+            elsewhere = common.RESULTS / f"rehearsal_card_{facility.name}_{record.profile}.json"
+            save(elsewhere, record.to_json())
+            return (f"{path} is the card of another rehearsal ({kept.profile} profile, settings {list(kept.settings)}, "
+                    f"target {kept.target}): kept; this one's card is {elsewhere}")
+    write_rehearsal(facility, record)  # the facility's card, beside its folder
+    return f"the facility's card: {path}"
+
+
 def main(facility: Path, positional: list[str], targets: list[Path], profile: str = "default") -> None:
     name = read_facility_spec(facility).name
     seeds = positional[0].split(",") if positional else [str(s) for s in REHEARSAL_SEEDS]
@@ -135,7 +157,7 @@ def main(facility: Path, positional: list[str], targets: list[Path], profile: st
         rows.append(rehearsal_row(seed, data[-1], calibration_vs_truth_mm(ws), describe(arm_accuracy(ws))))
     rows.append(pooled(list(rows[0]), data))
     record = card(facility, profile, settings, target, seeds, data)
-    write_rehearsal(facility, record)  # the facility's card, beside its folder
+    print(keep_or_replace(facility, record))
     report(f"rehearsal_{name}", f"what labels {name} can expect: its folder ({facility}) rehearsed on the virtual "
            f"testbed, {profile} profile{'' if target is None else f', target {target}'}", rows,
            {"facility": str(facility), "settings": list(settings), "profile": profile,

@@ -168,3 +168,28 @@ def test_bench_acquire_reads_a_workspaces_corners_and_compares_two(smoke_labelle
     acquire.main(str(root), str(copy))
     rows = {row["metric"]: row["value"] for row in _rows(results, "acquire_corners_moved")}
     assert float(rows["mean shift x, y +- standard error (px)"].split(" ")[0]) > 0.0
+
+
+def test_a_rehearsal_of_another_profile_keeps_the_folders_card(tmp_path, monkeypatch):
+    """A folder's card is what the tests hold its labels to: a default-profile rehearsal of a
+    folder that keeps a smoke card leaves it, and says where its own went; one of the same
+    profile, settings and target replaces it."""
+    import dataclasses
+
+    from bench.rehearsal import keep_or_replace
+    from manifests.rehearsal import read_rehearsal
+
+    monkeypatch.setattr(bench.common, "RESULTS", tmp_path / "results")
+    folder = tmp_path / "abb_rail"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "facilities" / "abb_rail", folder)
+    smoke = read_rehearsal(folder)
+    assert smoke.profile == "smoke"
+    default = dataclasses.replace(smoke, profile="default", mean_e_t_mm=0.28)
+    said = keep_or_replace(folder, default)
+    assert read_rehearsal(folder) == smoke and "kept" in said
+    elsewhere = tmp_path / "results" / "rehearsal_card_abb_rail_default.json"
+    assert json.loads(elsewhere.read_text())["mean_e_t_mm"] == 0.28
+    assert "rehearsal_card_abb_rail_default.json" in said
+    again = dataclasses.replace(smoke, mean_e_t_mm=9.0)
+    assert "the facility's card" in keep_or_replace(folder, again)
+    assert read_rehearsal(folder) == again
