@@ -24,7 +24,7 @@ residuals for small noise.
 
 Without PnP covariances (poses from elsewhere, or ``calibrate.pose_weights = groups``)
 ``v_pnp`` is absent, and the two remaining components are each group's sum of squares over its
-redundancy.
+redundancy, in Helmert's closed form, one step per fit (``_Linearised.helmert``).
 """
 
 from __future__ import annotations
@@ -100,10 +100,11 @@ class ResidualCovariance:
         own update, one component at a time, crept for hundreds of rounds where the PnP and
         the model's components overlap."""
         problem = _Linearised.of(fun, jacobian, np.linalg.cholesky(self.covariances(count)), count)
-        active = [self.pnp is not None, True, True]
+        if self.pnp is None:
+            return ResidualCovariance(None, np.array([0.0, *problem.helmert(self._variances())]), self.unit)
         shapes = self.components()
-        low, high = (np.log(bound * self.unit[active]) for bound in _BOUNDS)
-        theta = np.clip(np.log(np.maximum(self.variances[active], 1e-300)), low, high)
+        low, high = (np.log(bound * self.unit) for bound in _BOUNDS)
+        theta = np.clip(np.log(np.maximum(self.variances, 1e-300)), low, high)
         likelihood, gradient, fisher = problem.evaluate(np.exp(theta), shapes)
         if not np.isfinite(likelihood):
             return self
@@ -121,9 +122,7 @@ class ResidualCovariance:
             theta, (likelihood, gradient, fisher) = trial, tried
             if np.max(np.abs(step)) / 2 < tolerance:  # the full step, in the square roots' logarithms
                 break
-        variances = np.exp(theta)
-        return ResidualCovariance(self.pnp, variances if self.pnp is not None else np.array([0.0, *variances]),
-                                  self.unit)
+        return ResidualCovariance(self.pnp, np.exp(theta), self.unit)
 
     def settled(self, previous: ResidualCovariance, tolerance: float) -> bool:
         """Whether every variance's square root moved by less than ``tolerance`` (relative)."""
@@ -147,6 +146,24 @@ class _Linearised:
         return cls(np.einsum("nij,nj->ni", factor, fun[:6 * count].reshape(count, 6)),
                    np.einsum("nij,njf->nif", factor, jacobian[:6 * count].reshape(count, 6, -1)),
                    fun[6 * count:], jacobian[6 * count:])
+
+    def helmert(self, variances: np.ndarray) -> np.ndarray:
+        """(2,) the rotations' (rad^2) and the translations' (m^2) variances, each group's sum of
+        squares over its redundancy (Helmert's closed form, Foerstner 1979), the redundancy
+        from the fit whitened by ``variances`` (2,): one step, not iterated to the restricted
+        likelihood's maximum. Where the groups are the only components, the fits between the
+        steps move the variances towards that maximum anyway, and iterating each step to it
+        made the outer fits settle 8x slower (docs/accuracy.md, "the smoke profile keeps the two groups")."""
+        count = len(self.residual)
+        sigmas = np.sqrt(np.repeat(variances, 3))  # (6,)
+        data = (self.jacobian / sigmas[None, :, None]).reshape(6 * count, -1)
+        stacked = np.concatenate([data, self.prior_jacobian])
+        leverage = np.einsum("ij,jk,ik->i", data, np.linalg.pinv(stacked.T @ stacked), data).reshape(count, 6)
+        out = np.zeros(2)
+        for group, columns in enumerate((slice(0, 3), slice(3, 6))):
+            redundancy = max(3 * count - float(leverage[:, columns].sum()), 1.0)
+            out[group] = max(float(np.sum(self.residual[:, columns] ** 2)) / redundancy, 1e-24)
+        return out
 
     def evaluate(self, variances: np.ndarray, shapes: list[np.ndarray]) -> tuple[float, np.ndarray, np.ndarray]:
         """The restricted log-likelihood at ``variances`` (K,) of ``shapes`` (each (N, 6, 6)
