@@ -79,6 +79,11 @@ def pose_covariance_parts(jacobian: np.ndarray, parameters: np.ndarray,
 _VARIANCES_SETTLED = 0.05
 _MAX_FITS = 4
 _TOLERANCE = 1e-8
+#: the most iterations one fit takes (each a forward-difference Jacobian): a well-posed fit
+#: converges in under 40 (TRON's default calibration: 24 at most), and one cross-validation
+#: fold of a 3U CubeSat's smoke calibration, nearly degenerate, crept on for 4,587 to a cost
+#: no lower than 33 reached (docs/development.md, Speed)
+_MAX_ITERATIONS = 300
 
 
 @dataclass(frozen=True)
@@ -142,7 +147,8 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         # weakly determined directions, moving the parameters by under 0.002 of their sigma
         # (docs/development.md, Speed)
         result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
-                               xtol=_TOLERANCE, ftol=_TOLERANCE, jac=lambda q: _forward_differences(residuals, q))
+                               xtol=_TOLERANCE, ftol=_TOLERANCE, max_nfev=_MAX_ITERATIONS,
+                               jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
         noise, previous = noise.at_fit(result.fun, result.jac, len(a)), noise
         if noise.settled(previous, _VARIANCES_SETTLED):
