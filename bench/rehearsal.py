@@ -50,7 +50,7 @@ from bench.honesty import (
 from manifests.facility import facility_digest, read_facility_spec
 from manifests.rehearsal import REHEARSAL_FILE, RehearsalRecord, read_rehearsal, write_rehearsal
 from manifests.sidecars import read_calibration
-from manifests.sidecars.base import save
+from manifests.sidecars.base import SidecarError, save
 from stages.common.robots.facility import wilson
 from stages.common.target import load_target
 
@@ -126,20 +126,30 @@ def card(facility: Path, profile: str, settings: list[str], target: Path | None,
         tuple(round(float(v), 4) for v in inside), tuple(round(float(v), 4) for v in rms))
 
 
-def keep_or_replace(facility: Path, record: RehearsalRecord) -> str:
+def kept_card(facility: Path) -> RehearsalRecord | None:
+    """The card the folder keeps (None: none), read before any build: a malformed one is
+    refused, naming the file and key, before minutes of captures rather than after them."""
+    if not (facility / REHEARSAL_FILE).exists():
+        return None
+    try:
+        return read_rehearsal(facility)
+    except SidecarError as error:
+        raise SystemExit(f"{error}\n(move it aside, or mend it, and run the bench again: nothing was built)") from None
+
+
+def keep_or_replace(facility: Path, record: RehearsalRecord, kept: RehearsalRecord | None) -> str:
     """Write ``record`` as the facility's card (``DIR/rehearsal.json``) unless the folder
-    keeps a card of another profile, settings or target (the tests hold a folder's labels to
-    the card it keeps: a default-profile run must not replace a smoke card); then beside the
-    bench's results instead. Says where it went."""
+    keeps a card ``kept`` (``kept_card``) of another profile, settings or target (the tests
+    hold a folder's labels to the card it keeps: a default-profile run must not replace a
+    smoke card); then beside the bench's results instead. Says where it went."""
     path = facility / REHEARSAL_FILE
-    if path.exists():
-        kept = read_rehearsal(facility)
-        if (kept.profile, kept.settings, kept.target) != (record.profile, record.settings, record.target):
-            common.RESULTS.mkdir(parents=True, exist_ok=True)
-            elsewhere = common.RESULTS / f"rehearsal_card_{facility.name}_{record.profile}.json"
-            save(elsewhere, record.to_json())
-            return (f"{path} is the card of another rehearsal ({kept.profile} profile, settings {list(kept.settings)}, "
-                    f"target {kept.target}): kept; this one's card is {elsewhere}")
+    if kept is not None and (kept.profile, kept.settings, kept.target) != (record.profile, record.settings,
+                                                                       record.target):
+        common.RESULTS.mkdir(parents=True, exist_ok=True)
+        elsewhere = common.RESULTS / f"rehearsal_card_{facility.name}_{record.profile}.json"
+        save(elsewhere, record.to_json())
+        return (f"{path} is the card of another rehearsal ({kept.profile} profile, settings {list(kept.settings)}, "
+                f"target {kept.target}): kept; this one's card is {elsewhere}")
     write_rehearsal(facility, record)  # the facility's card, beside its folder
     return f"the facility's card: {path}"
 
@@ -150,6 +160,7 @@ def main(facility: Path, positional: list[str], targets: list[Path], profile: st
     root = Path(positional[1]) if len(positional) > 1 else Path("data/rehearsal") / name
     settings = positional[2:]
     target = targets[0] if targets else None
+    kept = kept_card(facility)
     rows, data = [], []
     for seed in (int(s) for s in seeds):
         ws = run_facility(root / f"seed{seed}", seed, settings, target, facility=facility, profile=profile)
@@ -157,7 +168,7 @@ def main(facility: Path, positional: list[str], targets: list[Path], profile: st
         rows.append(rehearsal_row(seed, data[-1], calibration_vs_truth_mm(ws), describe(arm_accuracy(ws))))
     rows.append(pooled(list(rows[0]), data))
     record = card(facility, profile, settings, target, seeds, data)
-    print(keep_or_replace(facility, record))
+    print(keep_or_replace(facility, record, kept))
     report(f"rehearsal_{name}", f"what labels {name} can expect: its folder ({facility}) rehearsed on the virtual "
            f"testbed, {profile} profile{'' if target is None else f', target {target}'}", rows,
            {"facility": str(facility), "settings": list(settings), "profile": profile,

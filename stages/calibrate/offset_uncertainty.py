@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from manifests.sidecars import OffsetUncertainty
+from stages.common import arms, rwhe
 from stages.common import geometry as g
-from stages.common import rwhe
 
 #: a translation direction of an offset is weakly determined above this 1-sigma (m)
 WEAK_M = 2e-3
@@ -40,12 +40,6 @@ def _inverse(information: np.ndarray) -> np.ndarray:
     return (vectors / np.maximum(values, floor)) @ vectors.T
 
 
-def _twist(a: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-    """(K, N, 6): rotation vector (rad) and translation (m) taking ``predicted`` to ``a``."""
-    rotation = g.matrix_to_rotvec(a[..., :3, :3] @ np.swapaxes(predicted[..., :3, :3], -1, -2))
-    return np.concatenate([rotation, a[..., :3, 3] - predicted[..., :3, 3]], axis=-1)
-
-
 def offsets_covariance(a: np.ndarray, b: np.ndarray, fixtures: list[str], solution: rwhe.Solution,
                        up: np.ndarray | None, step: float = 1e-7) -> np.ndarray:
     """(6 + 6 F, 6 + 6 F) covariance of ``rwhe.pack(solution)``'s Z and X_f (the first 6 + 6 F
@@ -60,7 +54,7 @@ def offsets_covariance(a: np.ndarray, b: np.ndarray, fixtures: list[str], soluti
     count = len(moved)
     predicted = rwhe.predict_packed(moved, names, compliant, anisotropic, np.broadcast_to(b, (count, *b.shape)),
                                     fixtures, None if up is None else np.broadcast_to(up, (count, *up.shape)))
-    residual = _twist(a[None], predicted)  # (P + 1, N, 6)
+    residual = arms.pose_difference(a[None], predicted)  # (P + 1, N, 6)
     jacobian = ((residual[0] - residual[1:]) / step).reshape(size, -1).T  # (6 N, P): d(prediction)/dp
     values = residual[0]
     scale = np.array([np.sqrt(np.mean(values[:, :3] ** 2)), np.sqrt(np.mean(values[:, 3:] ** 2))])

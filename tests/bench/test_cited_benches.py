@@ -5,6 +5,8 @@ model cards they fill are copies."""
 
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -185,11 +187,27 @@ def test_a_rehearsal_of_another_profile_keeps_the_folders_card(tmp_path, monkeyp
     smoke = read_rehearsal(folder)
     assert smoke.profile == "smoke"
     default = dataclasses.replace(smoke, profile="default", mean_e_t_mm=0.28)
-    said = keep_or_replace(folder, default)
+    said = keep_or_replace(folder, default, read_rehearsal(folder))
     assert read_rehearsal(folder) == smoke and "kept" in said
     elsewhere = tmp_path / "results" / "rehearsal_card_abb_rail_default.json"
     assert json.loads(elsewhere.read_text())["mean_e_t_mm"] == 0.28
     assert "rehearsal_card_abb_rail_default.json" in said
     again = dataclasses.replace(smoke, mean_e_t_mm=9.0)
-    assert "the facility's card" in keep_or_replace(folder, again)
+    assert "the facility's card" in keep_or_replace(folder, again, read_rehearsal(folder))
     assert read_rehearsal(folder) == again
+
+
+def test_a_malformed_card_is_refused_before_the_first_build(tmp_path):
+    """The folder's card is read before any capture: a malformed one ends the bench at once,
+    naming the file and key, and nothing is built."""
+    folder = tmp_path / "abb_rail"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "facilities" / "abb_rail", folder)
+    card = json.loads((folder / "rehearsal.json").read_text())
+    card["profile"] = 7
+    (folder / "rehearsal.json").write_text(json.dumps(card))
+    root = tmp_path / "root"
+    result = subprocess.run([sys.executable, "-m", "bench", "honesty", "--facility", str(folder), "71", str(root)],
+                            capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 1, result.stderr
+    assert "rehearsal.json" in result.stderr and "profile" in result.stderr and "Traceback" not in result.stderr
+    assert not root.exists()
