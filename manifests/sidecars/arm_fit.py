@@ -51,6 +51,35 @@ class RobotCorrection:
                    f.vector("compliance_rad_per_nm", count), f.vector("lost_motion_rad", count))
 
 
+@dataclass(frozen=True)
+class ResidualNoise:
+    """What the arms' fit whitened its calibration poses by (``stages/common/pose_noise.py``):
+    the factor on each PnP pose's own covariance (a variance) from its corners, and the
+    1-sigma per axis of what the arms' model leaves unexplained in a pose: its rotation (rad)
+    and its translation (m). Where the poses were weighed as two groups
+    (``calibrate.pose_weights = groups``) ``pnp_scale`` is None and the two 1-sigmas hold the
+    PnP poses' own error too. Each variance is its sum of squares over its redundancy, not
+    the residuals' plain spread, which a fit of many parameters shrinks."""
+
+    pnp_scale: float | None
+    rotation_sigma_rad: float
+    translation_sigma_m: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {"pnp_scale": self.pnp_scale, "rotation_sigma_rad": self.rotation_sigma_rad,
+                "translation_sigma_m": self.translation_sigma_m}
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> ResidualNoise:
+        f.only("pnp_scale", "rotation_sigma_rad", "translation_sigma_m")
+        scale = None if f.raw("pnp_scale") is None else f.number("pnp_scale", positive=True)
+        values = [f.number(key) for key in ("rotation_sigma_rad", "translation_sigma_m")]
+        for key, value in zip(("rotation_sigma_rad", "translation_sigma_m"), values, strict=True):
+            if value < 0:
+                raise f.fail(key, "a 1-sigma >= 0")
+        return cls(scale, *values)
+
+
 def _names(f: Fields, key: str) -> tuple[str, ...]:
     names = f.raw(key)
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
@@ -72,7 +101,7 @@ class ChainFit:
     they were compliant; the packed parameters (P,) (the arms', then the offsets') with
     their covariance (P, P); the arms' prior 1-sigmas; the gravity torque (N m) above which
     a joint was taken to rest on its loaded flank (``calibrate.backlash_preload_nm``), which
-    fuse must take the same."""
+    fuse must take the same; and what the fit whitened the poses by (``ResidualNoise``)."""
 
     robots: tuple[RobotCorrection, ...]
     parameter_names: tuple[str, ...]
@@ -84,18 +113,19 @@ class ChainFit:
     covariance: tuple[tuple[float, ...], ...]
     prior_sigma: tuple[float, ...]
     backlash_preload_nm: float
+    residual_noise: ResidualNoise
 
     def to_json(self) -> dict[str, Any]:
         return {"robots": [robot.to_json() for robot in self.robots], "parameter_names": list(self.parameter_names),
                 "dropped": dict(self.dropped), "weak": dict(self.weak), "fixtures": list(self.fixtures),
                 "compliant": self.compliant, "parameters": list(self.parameters),
                 "covariance": [list(row) for row in self.covariance], "prior_sigma": list(self.prior_sigma),
-                "backlash_preload_nm": self.backlash_preload_nm}
+                "backlash_preload_nm": self.backlash_preload_nm, "residual_noise": self.residual_noise.to_json()}
 
     @classmethod
     def from_fields(cls, f: Fields) -> ChainFit:
         f.only("robots", "parameter_names", "dropped", "weak", "fixtures", "compliant", "parameters", "covariance",
-               "prior_sigma", "backlash_preload_nm")
+               "prior_sigma", "backlash_preload_nm", "residual_noise")
         robots = f.raw("robots")
         if not isinstance(robots, list) or not robots:
             raise f.fail("robots", "a list of robot corrections")
@@ -123,4 +153,4 @@ class ChainFit:
         return cls(corrections, names, {name: dropped.text(name) for name in dropped.data}, weak,
                    _names(f, "fixtures"), f.boolean("compliant"), parameters,
                    f.matrix("covariance", len(parameters), len(parameters)), f.vector("prior_sigma", len(names)),
-                   f.number("backlash_preload_nm"))
+                   f.number("backlash_preload_nm"), ResidualNoise.from_fields(f.child("residual_noise")))

@@ -24,8 +24,9 @@ from manifests.workspace import Workspace
 # arm from its URDF (arm_kinematics.chains; TRON's KR 16-2 record, arm_kinematics' own
 # corrections, is gone); 5: each joint's lost motion (arm_kinematics.chains: robots[].lost_motion_rad and
 # its parameters); 6: each compliant fixture's play (fixture_compliance.play_rad_by_fixture, and its
-# parameters after the anisotropy's in arm_kinematics.chains)
-CALIBRATION_VERSION = 6
+# parameters after the anisotropy's in arm_kinematics.chains); 7: what the arms' fit whitened
+# the poses by (arm_kinematics.chains.residual_noise)
+CALIBRATION_VERSION = 7
 WRITER = "calibrate"
 #: each source's (camera offset, target offset) key in calibration.json
 OFFSET_KEYS = {"kuka": ("cam_from_camee", "target_from_targetee"), "vicon": ("cam_from_camrb", "target_from_targetrb")}

@@ -26,6 +26,7 @@ from manifests.sidecars import (
     SigmaRecord,
     SourceCalibration,
 )
+from manifests.sidecars.arm_fit import ResidualNoise
 from stages.calibrate import observations as obs
 from stages.calibrate import screening
 from stages.calibrate.arm_models import ArmsModel, Fitted, Readings, arms_model, facility_decision
@@ -157,6 +158,7 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None,
                             pose_covariances(config, s.used))
         solution = fitted.offsets
+        _note_residual_noise(source, fitted.fit.residual_noise())
         b, up_arms = fitted.corrected_b(s.readings)
         up = None if up is None else up_arms
         before = fitted.up_before(s.readings)
@@ -187,6 +189,18 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     ids = [o.sample_id for o in s.used]
     determined = {i: p for i, p, d in zip(ids, cross.predicted, cross.determined, strict=True) if d}
     return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), determined), outliers
+
+
+def _note_residual_noise(source: str, noise: ResidualNoise) -> None:
+    """Say what the arms' model leaves unexplained in a calibration pose (calibration.json:
+    ``arm_kinematics.chains.residual_noise``)."""
+    sizes = f"{np.degrees(noise.rotation_sigma_rad):.4f} deg and {noise.translation_sigma_m * 1000:.3f} mm"
+    if noise.pnp_scale is None:
+        progress.note(f"calibrate {source}: the calibration poses differ from the arms' prediction by {sizes} "
+                      "(1-sigma per axis, the PnP poses' own error included: calibrate.pose_weights = groups)")
+    else:
+        progress.note(f"calibrate {source}: the arms' model leaves {sizes} a pose unexplained (1-sigma per axis); "
+                      f"the PnP poses err {np.sqrt(noise.pnp_scale):.2f} times what their corners predict")
 
 
 def _offset_uncertainty(source: str, s: SourceSamples, solution: rwhe.Solution, b: np.ndarray,

@@ -35,7 +35,7 @@ from manifests.sidecars import (
     write_session,
     write_truth,
 )
-from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
+from manifests.sidecars.arm_fit import ChainFit, ResidualNoise, RobotCorrection
 from manifests.sidecars.truth import POSE_KEYS, HolderTruth
 
 SESSION = Session("replay", "handeye", ("kuka",), SessionCamera(1928, 1208, None, None),
@@ -104,7 +104,7 @@ CALIBRATION = Calibration(
          "slide.a1.lost_motion"),
         {"slide.flange.z": "a combination of the hand-eye offsets"}, {"slide.rail.scale": 0.9}, ("minus_x", "plus_x"),
         True, (0.0,) * 17, tuple(tuple(float(i == j) for j in range(17)) for i in range(17)), (1e-3,) * 16,
-        15.0))),
+        15.0, ResidualNoise(1.1, 2e-4, 5e-5)))),
     source("vicon", ArmKinematics(False, "motion capture tracks the model itself")),
     0.9, (0.8, 0.8, 0.005), (0.0, 0.0, 1.0),
     FusedColumn(55, ON_BOTH, {"kuka": ON_BOTH, "vicon": ON_BOTH}),
@@ -117,7 +117,7 @@ def test_a_calibration_survives_its_file_with_the_offsets_named_by_their_frames(
     write_calibration(workspace, CALIBRATION)
     assert read_calibration(workspace) == CALIBRATION
     stored = json.loads(workspace.calibration_path.read_text())
-    assert stored["version"] == 6
+    assert stored["version"] == 7
     assert stored["kuka"]["cam_from_camee"] == {"q": [0.5, 0.5, -0.5, 0.5], "t": [0.1, -0.2, 0.3]}
     assert "target_from_targetrb_by_fixture" in stored["vicon"] and "cam_from_camee" not in stored["vicon"]
     # the first fixture's offset stands for the source's target offset
@@ -138,7 +138,7 @@ def _edit(data: dict, path: str, value) -> dict:
 
 
 @pytest.mark.parametrize("path, value, message", [
-    ("version", KeyError, r"version None, this program reads version 6 .*rerun calibrate with --force"),
+    ("version", KeyError, r"version None, this program reads version 7 .*rerun calibrate with --force"),
     ("kuka.fixture_compliance.play_rad_by_fixture.minus_x", "x",
      "key kuka.fixture_compliance.play_rad_by_fixture.minus_x: expected"),
     ("kuka.fixture_compliance.play_rad_by_fixture.minus_x", -1e-4,
@@ -158,6 +158,10 @@ def _edit(data: dict, path: str, value) -> dict:
     ("kuka.arm_kinematics.chains.parameter_names", ["slide.a1.zero"],
      r"key kuka.arm_kinematics.chains.parameter_names: .*16 names"),
     ("kuka.arm_kinematics.fit", {}, r"unknown key\(s\) in kuka.arm_kinematics fit"),
+    ("kuka.arm_kinematics.chains.residual_noise.translation_sigma_m", -1e-5,
+     r"key kuka.arm_kinematics.chains.residual_noise.translation_sigma_m: expected a 1-sigma >= 0"),
+    ("kuka.arm_kinematics.chains.residual_noise.pnp_scale", 0.0,
+     r"key kuka.arm_kinematics.chains.residual_noise.pnp_scale: expected"),
     ("vicon.metrics.in_sample.E_T_m", [0.1], r"key vicon.metrics.in_sample.E_T_m: expected a list of 2"),
     ("kuka.metrics.cross_validation.undetermined_folds", [6], r"key kuka.metrics.cross_validation."
                                                               r"undetermined_folds: expected a list of fold numbers"),

@@ -22,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from manifests.sidecars.arm_fit import ChainFit, RobotCorrection
+from manifests.sidecars.arm_fit import ChainFit, ResidualNoise, RobotCorrection
 from stages.common import arms, rwhe
 from stages.common import geometry as g
+from stages.common.pose_noise import ResidualCovariance
 from stages.common.robots.errors import RANK_TOLERANCE, HolderModel, Holders
 from stages.common.robots.lost_motion import (
     BEFORE_KEY,
@@ -285,6 +286,14 @@ class Fitted:
     prior: np.ndarray  # (holders.size,) 1-sigma before calibration
     preload_nm: float  # above it a joint rests on its loaded flank (``flank``)
     play_why: str = ""  # why the fixtures' play was not fitted ("": fitted, or rigid fixtures)
+    noise: ResidualCovariance | None = None  # what the fit whitened the poses by (None: not recorded)
+
+    def residual_noise(self) -> ResidualNoise:
+        """``noise`` as its record: the PnP factor and the model's 1-sigmas (zeros without ``noise``)."""
+        if self.noise is None:
+            return ResidualNoise(None, 0.0, 0.0)
+        v_pnp, v_rot, v_t = (float(v) for v in self.noise.variances)
+        return ResidualNoise(None if self.noise.pnp is None else v_pnp, float(np.sqrt(v_rot)), float(np.sqrt(v_t)))
 
     def corrected_b(self, m: Measured, world_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return corrected_b(self.holders, self.params[:self.holders.size], m, world_up)
@@ -315,7 +324,7 @@ class Fitted:
         return ChainFit(tuple(robots), tuple(self.holders.names), dict(self.dropped), self.weak(),
                         tuple(self.names), self.compliant, tuple(float(v) for v in self.params),
                         tuple(tuple(row) for row in self.covariance.tolist()), tuple(float(v) for v in self.prior),
-                        float(self.preload_nm))
+                        float(self.preload_nm), self.residual_noise())
 
 
 def free_parameters(holders: Holders, c: Any, names: list[str], compliant: bool, count: int) -> np.ndarray:
@@ -431,7 +440,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     params, covariance = result.params, result.covariance
     offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
-                  play_why)
+                  play_why, result.noise)
 
 
 def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any, free: np.ndarray,
