@@ -98,7 +98,8 @@ class ResidualCovariance:
         Fisher scoring in the variances' logarithms, halving a step that lowers the
         likelihood, until their square roots move by less than ``tolerance``: Helmert's
         own update, one component at a time, crept for hundreds of rounds where the PnP and
-        the model's components overlap."""
+        the model's components overlap. Without PnP covariances, the two groups' variances
+        in Helmert's closed form, one step (``_Linearised.helmert``)."""
         problem = _Linearised.of(fun, jacobian, np.linalg.cholesky(self.covariances(count)), count)
         if self.pnp is None:
             return ResidualCovariance(None, np.array([0.0, *problem.helmert(self._variances())]), self.unit)
