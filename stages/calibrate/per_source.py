@@ -179,7 +179,7 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
         fixture_compliance=compliance_record(solution, up, s.fixtures, s.compliance_note,
                                              fitted.fit.play_why if fitted is not None else ""),
         arm_kinematics=fitted.kinematics(s.arm_note) if fitted is not None else ArmKinematics(False, s.arm_note),
-        sigma=_own_sigma(fitted, predicted, s).to_record(),
+        sigma=without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used)).to_record(),
         samples=len(s.used), outliers=outliers,
         metrics=_column(in_sample, cross_metrics, cross.record(), _truth_metrics(predicted, s.used, intrinsics, truth)),
         # OpenCV's Shah on the same detections and intrinsics, for comparison
@@ -189,22 +189,6 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     ids = [o.sample_id for o in s.used]
     determined = {i: p for i, p, d in zip(ids, cross.predicted, cross.determined, strict=True) if d}
     return SourceFit(calibration, dict(zip(ids, predicted, strict=True)), determined), outliers
-
-
-def _own_sigma(fitted: Fitted | None, predicted: np.ndarray, s: SourceSamples) -> Sigma:
-    """The source's own error at a capture, independent from capture to capture, at the
-    calibration (fuse grows it to each capture's lever and adds the arms' parameters'
-    uncertainty, ``plus_parameters``). Where the arms were fitted with each pose weighed by
-    its PnP covariance, what the arms' model leaves unexplained, as the fit estimated it
-    (``residual_noise``): the in-sample spread less PnP's mean variance subtracts a noise
-    the fit has partly absorbed from residuals it has shrunk, and on a rig whose model
-    holds it is mostly PnP's noise, which a label 4 m away never sees, grown by that lever
-    (docs/accuracy.md, "the robots' own sigma"). Otherwise that spread less PnP's noise."""
-    if fitted is not None and fitted.fit.noise is not None and fitted.fit.noise.pnp is not None:
-        noise = fitted.fit.residual_noise()
-        return Sigma(np.full(3, noise.translation_sigma_m), float(np.sqrt(3.0) * noise.rotation_sigma_rad),
-                     float(np.sqrt(2.0) * noise.rotation_sigma_rad))
-    return without_reference_noise(sigma_between(predicted, s.a), *pnp_variance(s.used))
 
 
 def _note_residual_noise(source: str, noise: ResidualNoise) -> None:
