@@ -488,10 +488,6 @@ def pose_jacobians(holders: Holders, fit: ChainFit, m: Measured, world_up: np.nd
     moved = np.repeat(params[None], len(params) + 1, axis=0)
     moved[1 + np.arange(len(params)), np.arange(len(params))] += step
     centre, *poses = predict_batch(holders, moved, list(fit.fixtures), fit.compliant, m, world_up)
-    poses = np.stack(poses)
-    jacobian = np.zeros((len(m.rail_m), 6, len(params)))
-    jacobian[:, :3] = np.moveaxis(g.matrix_to_rotvec(poses[..., :3, :3] @ np.swapaxes(centre[:, :3, :3], -1, -2)),
-                                  0, -1) / step
-    jacobian[:, 3:] = np.moveaxis(poses[..., :3, 3] - centre[:, :3, 3], 0, -1) / step
-    return jacobian
+    # each moved prediction against the centre's: (P, N, 6) -> (N, 6, P)
+    return np.moveaxis(arms.pose_difference(np.stack(poses), centre[None]), 0, -1) / step
 
