@@ -285,13 +285,12 @@ class Fitted:
     dropped: dict[str, str]
     prior: np.ndarray  # (holders.size,) 1-sigma before calibration
     preload_nm: float  # above it a joint rests on its loaded flank (``flank``)
+    noise: ResidualCovariance  # what the fit whitened the poses by (``arms.MapFit.noise``)
     play_why: str = ""  # why the fixtures' play was not fitted ("": fitted, or rigid fixtures)
-    noise: ResidualCovariance | None = None  # what the fit whitened the poses by (None: not recorded)
 
     def residual_noise(self) -> ResidualNoise:
-        """``noise`` as its record: the PnP factor and the model's 1-sigmas (zeros without ``noise``)."""
-        if self.noise is None:
-            return ResidualNoise(None, 0.0, 0.0)
+        """``noise`` as its record: the PnP factor (None where the poses were weighed by
+        groups) and the model's 1-sigmas."""
         v_pnp, v_rot, v_t = (float(v) for v in self.noise.variances)
         return ResidualNoise(None if self.noise.pnp is None else v_pnp, float(np.sqrt(v_rot)), float(np.sqrt(v_t)))
 
@@ -440,7 +439,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     params, covariance = result.params, result.covariance
     offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
-                  play_why, result.noise)
+                  result.noise, play_why)
 
 
 def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any, free: np.ndarray,

@@ -16,7 +16,6 @@ import numpy as np
 
 from manifests.sidecars.arm_fit import ChainFit
 from stages.common import arms
-from stages.common.arms import MapFit, pose_difference
 from stages.common.robots.errors import HolderModel, Holders
 
 if TYPE_CHECKING:
@@ -83,7 +82,7 @@ def flank(torque: np.ndarray, direction: np.ndarray, preload_nm: float) -> np.nd
 LOST_MOTION_TEST_LEVEL = 0.01
 
 
-def hysteresis_shown(batch: Any, a: np.ndarray, without: MapFit, with_params: np.ndarray, added: int,
+def hysteresis_shown(batch: Any, a: np.ndarray, without: arms.MapFit, with_params: np.ndarray, added: int,
                      parameters: int, what: str = "lost motion") -> tuple[bool, str]:
     """Whether the calibration captures show the joints' lost motion (or the fixtures' play,
     ``what``: "lost motion" or "play", whose ``calibrate.*`` switch the words name): the F test of the fit
@@ -97,7 +96,7 @@ def hysteresis_shown(batch: Any, a: np.ndarray, without: MapFit, with_params: np
     whitening = without.noise.whitening(len(a))
 
     def whitened_sum(params: np.ndarray) -> float:
-        difference = pose_difference(a, batch(params[None])[0])
+        difference = arms.pose_difference(a, batch(params[None])[0])
         return float(np.sum(np.einsum("nij,nj->ni", whitening, difference) ** 2))
 
     redundancy = 6 * len(a) - parameters

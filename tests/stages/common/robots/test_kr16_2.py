@@ -14,6 +14,7 @@ from stages.calibrate.arm_models import arms_model
 from stages.common import arms, layout, rwhe
 from stages.common import geometry as g
 from stages.common.kinematics import arm_model, forward
+from stages.common.pose_noise import ResidualCovariance
 from stages.common.robots import identification, lost_motion
 from stages.common.robots.errors import Holders
 from stages.common.robots.facility import load_facility
@@ -134,8 +135,9 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     solution = rwhe.Solution(np.eye(4), {name: np.eye(4) for name in names})
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(solution, names, False, anisotropic=False)])
     unfitted = np.array([0.0 if name.endswith(".lost_motion") else 1.0 for name in holders.names])
+    noise = ResidualCovariance(None, np.array([0.0, 1e-8, 1e-8]), np.ones(3))  # the groups' (rad^2, m^2)
     record = identification.Fitted(holders, solution, params, np.zeros((len(params), len(params))), names, False,
-                                   {}, unfitted, preload).record()
+                                   {}, unfitted, preload, noise).record()
     variances = lost_motion.flank_variances(holders, m, record, lost)
     loaded = np.abs(np.concatenate([m.camera_torque, m.target_torque], axis=1)) > preload
     assert loaded.any() and (~loaded).any()
