@@ -331,9 +331,11 @@ def facility_row(seed: int, ours: Workspace, papers: Workspace | str) -> tuple[d
         "(c) dataset E_T best possible fusion (mm)": best_fusion_mm(data),
         "(c) dataset fused against robots": f"{(data['both_fused'].mean() / data['both_kuka'].mean() - 1) * 100:+.1f}%",
         "(c) dataset fused against the better source": better_source(data),
-        "(c) fuse: factor x/y/z (as measured), position from": (
+        "(c) fuse: factor x/y/z (as measured), position from (its own factor)": (
             f"{'/'.join(f'{v:.2f}' for v in fusion.factor_t)} ({'/'.join(f'{v:.2f}' for v in fusion.measured_t)}), "
-            f"{'/'.join(fusion.axis_sources)}"),
+            + "/".join(source if source == "fused" else
+                       f"{source} {(fusion.kuka_t if source == 'kuka' else fusion.vicon_t)[axis]:.2f}"
+                       for axis, source in enumerate(fusion.axis_sources))),
         "(c) fuse: session offset x/y/z (mm), removed from": (
             f"{'/'.join(f'{v * 1000:+.2f}' for v in fusion.offset_m)}, {'/'.join(fusion.offset_from)}"),
         "(c) each arm's flange vs truth, dataset, registered (bench/arm_accuracy.py)": describe(arm_accuracy(ours)),

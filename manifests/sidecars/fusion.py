@@ -13,8 +13,8 @@ from manifests.sidecars.base import Fields, read, save
 from manifests.workspace import Workspace
 
 #: 3: the session offset; 4: the factor as measured beside the one applied; 5: the sigmas'
-#: notes; 6: the rejection test's count and its bound
-FUSION_VERSION = 6
+#: notes; 6: the rejection test's count and its bound; 7: each source's own factor
+FUSION_VERSION = 7
 #: where a position axis's label comes from: both sources fused, or one of them alone
 AXIS_SOURCES = ("fused", "kuka", "vicon")
 SOURCES = ("kuka", "vicon")
@@ -52,11 +52,17 @@ class FusionRecord:
     #: sources stay under at the tails' test level (None: the session was too short to test)
     rejected: int = 0
     rejected_bound: int | None = None
+    #: per camera axis, the factor that scales each source's own sigma: ``factor_t`` on a
+    #: fused axis, the source's expected share of the excess on an axis kept from one source
+    #: (stages/fuse/kept_axes.py); the kept source's is its labels'
+    kuka_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    vicon_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def to_json(self) -> dict[str, Any]:
         return {"version": FUSION_VERSION,
                 "variance_factor": {"t": list(self.factor_t), "measured_t": list(self.measured_t), "r": self.factor_r,
-                                    "samples": self.samples},
+                                    "samples": self.samples,
+                                    "by_source": {"kuka": list(self.kuka_t), "vicon": list(self.vicon_t)}},
                 "why": self.why, "rejection_k": self.rejection_k,
                 "axes": {"sources": list(self.axis_sources), "why": self.axis_why, "rejected": self.rejected,
                          "rejected_bound": self.rejected_bound},
@@ -68,11 +74,15 @@ class FusionRecord:
     def from_fields(cls, f: Fields) -> FusionRecord:
         f.only("version", "variance_factor", "why", "rejection_k", "axes", "offset", "sigmas")
         factor = f.child("variance_factor")
-        factor.only("t", "measured_t", "r", "samples")
+        factor.only("t", "measured_t", "r", "samples", "by_source")
         t, measured_t = factor.vector("t", 3), factor.vector("measured_t", 3)
-        for key, value in (("t", t), ("measured_t", measured_t)):
+        by_source = factor.child("by_source")
+        by_source.only(*SOURCES)
+        kuka_t, vicon_t = by_source.vector("kuka", 3), by_source.vector("vicon", 3)
+        for fields, key, value in ((factor, "t", t), (factor, "measured_t", measured_t), (by_source, "kuka", kuka_t),
+                                   (by_source, "vicon", vicon_t)):
             if min(value) <= 0:
-                raise factor.fail(key, "three positive factors")
+                raise fields.fail(key, "three positive factors")
         axes = f.child("axes")
         axes.only("sources", "why", "rejected", "rejected_bound")
         sources = axes.raw("sources")
@@ -92,7 +102,8 @@ class FusionRecord:
                    f.number("rejection_k", positive=True), tuple(sources), axes.text("why"), measured_t,
                    offset.vector("t_m", 3), offset.vector("sigma_m", 3), tuple(removed_from), offset.text("why"),
                    marker, sigmas.text("why"), axes.integer("rejected"),
-                   None if axes.raw("rejected_bound") is None else axes.integer("rejected_bound"))
+                   None if axes.raw("rejected_bound") is None else axes.integer("rejected_bound"),
+                   tuple(kuka_t), tuple(vicon_t))
 
 
 def write_fusion(workspace: Workspace, record: FusionRecord) -> None:

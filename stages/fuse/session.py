@@ -30,6 +30,7 @@ from stages.common.fusion import (
     consistency_bound,
     variance_factor,
 )
+from stages.fuse.kept_axes import SourceFactors, source_factors
 
 if TYPE_CHECKING:
     from stages.fuse.stage import Estimates
@@ -96,6 +97,14 @@ def short_session_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_differenc
     return VarianceFactor(np.maximum(t, 1.0), max(float(r), 1.0), n)
 
 
+def predicted_errors(estimates: list[Estimates], kuka: Source, vicon: Source) -> tuple[np.ndarray, np.ndarray]:
+    """The robots' and motion capture's predicted errors per camera axis (3,) m, RMS over the
+    session's two-source captures, each from its own measurements there (``better_source``)."""
+    both = two_source(estimates)
+    return (np.sqrt(np.mean([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m ** 2 for e in both], axis=0)),
+            np.sqrt(np.mean([e.vicon_sigma(vicon, e.vicon).t_m ** 2 for e in both], axis=0)))
+
+
 def better_source(estimates: list[Estimates], kuka: Source, vicon: Source) -> tuple[np.ndarray, str]:
     """Per camera axis (3,) the better source on this session ("kuka" or "vicon"), and the
     evidence in words: the one whose error on the two-source captures each source's own
@@ -112,8 +121,7 @@ def better_source(estimates: list[Estimates], kuka: Source, vicon: Source) -> tu
     sigma; with one source's predicted variance nearly constant there is nothing to tell
     them apart by."""
     both = two_source(estimates)
-    robots = np.sqrt(np.mean([e.plus_parameters(kuka.sigma_at(e.kuka)).t_m ** 2 for e in both], axis=0))
-    motion = np.sqrt(np.mean([e.vicon_sigma(vicon, e.vicon).t_m ** 2 for e in both], axis=0))
+    robots, motion = predicted_errors(estimates, kuka, vicon)
     words = ", ".join(f"{a} {k * 1000:.2f}/{v * 1000:.2f}" for a, k, v in zip("xyz", robots, motion, strict=True))
     return (np.where(robots <= motion, "kuka", "vicon"),
             f"RMS predicted error robots/motion capture on {len(both)} captures (mm): {words}")
@@ -257,13 +265,14 @@ def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: 
     sigmas is common to both sources. The offset's own uncertainty is added in
     ``fuse_capture``.
 
-    On an axis kept from one source the same factor applies, not the one as measured: the
-    kept source carries its own offset, whose size its calibrated sigma already holds, and
-    given the measured difference of the two offsets, the share expected of the kept one is
-    ``a_k^2 / (a_k^2 + a_v^2)`` of it (the offsets' prior variances): at 3-5 m motion
-    capture's (its wand's scale, about 1 mm) is several times the robots' (about 0.45 mm
-    in depth), so the expected square of the kept offset barely exceeds its prior. The
-    rotation's factor is as measured (no offset is removed from the rotations)."""
+    On an axis kept from one source each source's share of the excess is judged from this
+    factor, not the one as measured (``kept_axes``): the kept source carries its own offset,
+    whose size its calibrated sigma already holds, and given the measured difference of the
+    two offsets, the share expected of the kept one is ``a_k^2 / (a_k^2 + a_v^2)`` of it (the
+    offsets' prior variances): at 3-5 m motion capture's (its wand's scale, about 1 mm) is
+    several times the robots' (about 0.45 mm in depth), so the expected square of the kept
+    offset barely exceeds its prior. The rotation's factor is as measured (no offset is
+    removed from the rotations)."""
     both = two_source(estimates)
     if vicon is None or rejection is None or measured.samples == 0 or not both or not offset.estimated:
         return measured
@@ -284,16 +293,23 @@ class SessionFusion:
     refused: Rejections
     sources: tuple[str, str, str]
     sources_why: str
+    #: each source's own factor: ``factor`` on a fused axis, its expected share on a kept one
+    by_source: SourceFactors
 
 
 def session_fusion(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
                    rejection: Sigma | None) -> SessionFusion:
     """The session's measures in the order they depend on each other: the factor as
-    measured, the offset, the factor applied, the rejection test's count, the axes' sources."""
+    measured, the offset, the factor applied, the rejection test's count, the axes' sources,
+    each source's own factor (``kept_axes``)."""
     measured, why = session_factor(config, estimates, vicon, rejection)
     offset = session_offset(config, estimates, kuka, vicon)
     factor = applied_factor(estimates, vicon, rejection, measured, offset)
     refused = rejections(estimates, vicon, rejection, factor, config.fuse.rejection_k, offset,
                          config.fuse.min_scale_samples)
     sources, sources_why = axis_sources(config, estimates, kuka, vicon, measured, refused)
-    return SessionFusion(measured, why, offset, factor, refused, sources, sources_why)
+    by_source = SourceFactors.common(factor.t)
+    if vicon is not None and any(source != "fused" for source in sources):
+        by_source = source_factors(factor.t, factor.samples, sources, *predicted_errors(estimates, kuka, vicon),
+                                   config.fuse.sigma_doubt)
+    return SessionFusion(measured, why, offset, factor, refused, sources, sources_why, by_source)

@@ -43,6 +43,7 @@ from stages.common.rwhe import Solution
 from stages.common.sources import measured_b, up_targetee
 from stages.common.workspace_target import workspace_target
 from stages.fuse.config import FuseConfig
+from stages.fuse.kept_axes import SourceFactors
 from stages.fuse.marker_geometry import FitVariance, MarkerGeometry, with_marker_geometry
 from stages.fuse.session import (
     NO_OFFSET,
@@ -262,9 +263,11 @@ def offset_variance(e: Estimates, factor: VarianceFactor, offset: SessionOffset,
 
 def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rejection: Sigma | None,
                  factor: VarianceFactor, rejection_k: float, sources: tuple[str, ...] = ("fused",) * 3,
-                 offset: SessionOffset = NO_OFFSET) -> dict[str, Any]:
+                 offset: SessionOffset = NO_OFFSET, by_source: SourceFactors | None = None) -> dict[str, Any]:
     """One ``poses`` row; ``sources``: per camera axis, fused or one source alone
-    (``axis_sources``); ``offset``: removed before fusing (``session_offset``)."""
+    (``axis_sources``); ``offset``: removed before fusing (``session_offset``); ``by_source``:
+    each source's own factor, which scales its sigma alone (``kept_axes``; None: ``factor``'s)."""
+    by_source = by_source or SourceFactors.common(factor.t)
     calibrated_kuka = e.plus_parameters(kuka.sigma_at(e.kuka))
     # both in the offset of the better source: tested and fused on what
     # varies from capture to capture only, and a robots-only label in the session's offset
@@ -285,14 +288,15 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
         if source != "fused":  # motion capture alone where it passed the rejection test, else the robots
             mocap = source == "vicon" and reason is None
             pose, alone = (vicon_pose, calibrated_vicon) if mocap else (kuka_pose, calibrated_kuka)
-            fused[axis, 3], t_m[axis] = pose[axis, 3], factor.t[axis] * alone.t_m[axis]
+            own = by_source.vicon_t if mocap else by_source.kuka_t
+            fused[axis, 3], t_m[axis] = pose[axis, 3], own[axis] * alone.t_m[axis]
             vicon_weight[axis] = float(mocap)
     t_m = np.sqrt(t_m**2 + offset_variance(e, factor, offset, vicon_weight))
-    vicon_sigma = factor.scale(e.vicon_sigma(vicon, e.vicon)).t_m if vicon is not None and e.tracked else None
+    vicon_sigma = by_source.vicon_t * e.vicon_sigma(vicon, e.vicon).t_m if vicon is not None and e.tracked else None
     return {"sample_id": e.row["sample_id"], **g.pose_columns("kuka_cam_from_target", e.kuka),
             **g.pose_columns("vicon_cam_from_target", e.vicon if e.tracked else None), "vicon_accepted": reason is None,
             "reject_reason": reason, **g.pose_columns("cam_from_target", fused),
-            "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad, "kuka_sigma_t_m": factor.scale(calibrated_kuka).t_m,
+            "sigma_t_m": t_m, "sigma_r_rad": sigma.r_rad, "kuka_sigma_t_m": by_source.kuka_t * calibrated_kuka.t_m,
             "vicon_sigma_t_m": vicon_sigma}
 
 
@@ -328,6 +332,8 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
     refused, sources, axis_why = session.refused, session.sources, session.sources_why
     write_fusion(workspace, FusionRecord(
         factor_t=tuple(float(v) for v in factor.t), factor_r=float(factor.r), samples=factor.samples, why=why,
+        kuka_t=tuple(float(v) for v in session.by_source.kuka_t),
+        vicon_t=tuple(float(v) for v in session.by_source.vicon_t),
         rejection_k=config.fuse.rejection_k, axis_sources=sources, axis_why=axis_why, rejected=refused.count,
         rejected_bound=refused.bound,
         measured_t=tuple(float(v) for v in measured.t), offset_m=tuple(float(v) for v in offset.t_m),
@@ -335,11 +341,16 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         offset_why=offset.why, marker_sigma_m=None if geometry is None else geometry.marker_sigma_m,
         sigma_why=f"motion capture's fit: {geometry_why}{short_why}"))
     # one short line; why each figure is what it is stays in W/fusion.json (why, axes.why, offset.why)
-    print(f"fuse: sigma factors x {factor.t[0]:.2f} y {factor.t[1]:.2f} z {factor.t[2]:.2f}, rotation {factor.r:.2f}"
+    kept = [f" ({'robots' if source == 'kuka' else 'motion capture'} alone "
+            f"{(session.by_source.kuka_t if source == 'kuka' else session.by_source.vicon_t)[axis]:.2f})"
+            if source != "fused" else "" for axis, source in enumerate(sources)]
+    print(f"fuse: sigma factors x {factor.t[0]:.2f}{kept[0]} y {factor.t[1]:.2f}{kept[1]} "
+          f"z {factor.t[2]:.2f}{kept[2]}, rotation {factor.r:.2f}"
           f"; position x, y, z: {', '.join(sources)}; why: {workspace.display(workspace.root / FUSION_FILE)}")
     done = read_keys(workspace, "poses")
     todo = [e for e in estimates if e.row["sample_id"] not in done]
     with open_sink(workspace, "poses", config.run.part_rows) as sink:
         for e in track(todo, len(todo), "fuse"):
-            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k, sources, offset))
+            sink.add(fuse_capture(e, kuka, vicon, rejection, factor, config.fuse.rejection_k, sources, offset,
+                                  session.by_source))
     return read_manifest(workspace, "poses")

@@ -193,7 +193,8 @@ def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
     workspace = Workspace(tmp_path)
     record = FusionRecord((1.02, 1.01, 1.6), 1.29, 44, "robust spread", 1.96, ("fused", "fused", "kuka"),
                           "z: factor 1.60 > 1.32", (1.1, 1.01, 1.6), (0.0021, -0.0004, 0.0011), (3e-4, 3e-4, 1e-4),
-                          ("vicon", "vicon", "kuka"), "median on 44 captures", 6.1e-4, "marker noise 0.61 mm")
+                          ("vicon", "vicon", "kuka"), "median on 44 captures", 6.1e-4, "marker noise 0.61 mm",
+                          kuka_t=(1.02, 1.01, 1.08), vicon_t=(1.02, 1.01, 1.71))
     write_fusion(workspace, record)
     assert read_fusion(workspace) == record
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "sigmas.marker_sigma_m", -1.0)))
@@ -204,6 +205,10 @@ def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
         read_fusion(workspace)
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "variance_factor.measured_t", [1.0, 1.0])))
     with pytest.raises(SidecarError, match=r"fusion.json: key variance_factor.measured_t"):
+        read_fusion(workspace)
+    workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "variance_factor.by_source.vicon",
+                                                      [1.0, -1.0, 1.0])))
+    with pytest.raises(SidecarError, match=r"fusion.json: key variance_factor.by_source.vicon: expected three positive"):
         read_fusion(workspace)
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "axes.sources", ["fused", "pnp", "kuka"])))
     with pytest.raises(SidecarError, match=r"fusion.json: key axes.sources: expected a list of three of fused"):

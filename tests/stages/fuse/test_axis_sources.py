@@ -13,6 +13,8 @@ from core.config import parse_override, with_overrides
 from pipeline.config import default_config
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
+from stages.fuse.kept_axes import source_factors
+from stages.fuse.session import predicted_errors
 from stages.fuse.stage import (
     ArmUncertainty,
     Estimates,
@@ -68,10 +70,11 @@ def session(seed: int, kuka_true_mm, vicon_true_mm, vicon_offset_mm=(0.0, 0.0, 0
 
 def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_offset_mm=(0.0, 0.0, 0.0),
                   offset="on", vicon_sigma_mm=(3.5, 3.5, 0.9), scale_by="applied", arm=None, kuka_sigma_mm=None,
-                  declared=True, gross=None):
+                  declared=True, gross=None, shares=True):
     """Mean E_T (mm) of fused, robots, motion capture (and their depth's rms error, mm);
     errors / sigmas (N, 3); sources. ``scale_by``: the factor fuse applies, or the one as
-    measured (offset included)."""
+    measured (offset included). ``shares``: a kept source's sigma scaled by its own share of
+    the excess (``kept_axes``), else by the common factor."""
     config = with_overrides(default_config(), [parse_override(f"fuse.inconsistent_axes={policy}"),
                                        parse_override(f"fuse.session_offset={offset}")])
     kuka = Calibrated(Sigma(np.asarray(kuka_sigma_mm or (1.2, 1.2, 0.6)) / 1000, 1e-4))
@@ -88,7 +91,9 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_o
         estimates = [dataclasses.replace(e, arm=dataclasses.replace(e.arm, jacobian_t=np.zeros_like(
             e.arm.jacobian_t))) for e in estimates]
     applied = applied_factor(estimates, vicon, rejection, factor, removed) if scale_by == "applied" else factor
-    rows = [fuse_capture(e, kuka, vicon, rejection, applied, 1.96, sources, removed) for e in estimates]
+    by_source = source_factors(applied.t, applied.samples, sources, *predicted_errors(estimates, kuka, vicon),
+                               config.fuse.sigma_doubt) if shares else None
+    rows = [fuse_capture(e, kuka, vicon, rejection, applied, 1.96, sources, removed, by_source) for e in estimates]
     true_t = np.stack([t[:3, 3] for t in truths])
     fused = np.stack([r["cam_from_target_t"] for r in rows])
     positions = (("fused", fused), ("kuka", np.stack([e.kuka[:3, 3] for e in estimates])),
