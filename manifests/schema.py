@@ -253,9 +253,11 @@ POSES = ManifestSpec(
         Column("sigma_t_m", VEC3, "m", "1-sigma of the fused translation per camera axis"),
         Column("sigma_r_rad", pa.float64(), "rad", "1-sigma of the fused rotation angle"),
         Column("kuka_sigma_t_m", VEC3, "m", "1-sigma of the robots' translation per camera axis at this capture "
-               "(calibrated, grown to it, scaled by the session's factor)", nullable=True),
+               "(calibrated, grown to it, scaled by the session's factor; on an axis kept from one source, by its own "
+               "share of it: fusion.json variance_factor.by_source)", nullable=True),
         Column("vicon_sigma_t_m", VEC3, "m", "1-sigma of motion capture's translation per camera axis at this "
-               "capture, its target body's fit there included; null when not tracked", nullable=True),
+               "capture, its target body's fit there included, scaled as kuka_sigma_t_m is; null when not tracked",
+               nullable=True),
     ),
 )
 
