@@ -87,6 +87,12 @@ class ArmsModel:
     def kinematics(self, fit: identification.Fitted, note: str) -> ArmKinematics:
         record = fit.record()
         kept = len(record.parameter_names) - len(record.dropped)
+        if fit.capped:
+            capped = (f"the arms' fit stopped at its cap of {arms.MAX_ITERATIONS} iterations before converging: "
+                      "the poses barely determine some direction of the parameters (chains.weak), and the "
+                      "fit may be short of its optimum there")
+            progress.note(f"calibrate: {self.name}: {capped}")
+            note = f"{note}; {capped}"
         progress.note(f"calibrate: {self.name}: {kept} of {len(record.parameter_names)} parameters identifiable; "
                       f"{len(record.weak)} weakly determined by these poses"
                       + (f" (weakest: {_weakest(record.weak)})" if record.weak else ""))

@@ -17,6 +17,7 @@ from manifests.sidecars import Folds
 from stages.calibrate import observations as obs
 from stages.common import geometry as g
 from stages.common import rwhe
+from stages.common.arms import MAX_ITERATIONS
 from stages.common.pose_noise import stacked_pnp
 
 
@@ -196,6 +197,10 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
             fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None,
                                pose_covariances(config, train_used))
             solution = fitted.offsets
+            if fitted.fit.capped:
+                progress.note(f"  {label}: fold {fold + 1}'s arms' fit stopped at its cap of {MAX_ITERATIONS} "
+                              "iterations before converging (its training poses barely determine some direction); "
+                              "its predictions are those of the capped fit")
             b_test, up_arms = fitted.corrected_b(readings.subset(test))
             up_test = None if up is None else up_arms
             before = fitted.up_before(readings.subset(test))

@@ -83,7 +83,7 @@ _TOLERANCE = 1e-8
 #: converges in under 40 (TRON's default calibration: 24 at most), and one cross-validation
 #: fold of a 3U CubeSat's smoke calibration, nearly degenerate, crept on for 4,587 to a cost
 #: no lower than 33 reached (docs/development.md, Speed)
-_MAX_ITERATIONS = 300
+MAX_ITERATIONS = 300
 
 
 @dataclass(frozen=True)
@@ -94,6 +94,9 @@ class MapFit:
     params: np.ndarray
     covariance: np.ndarray
     noise: ResidualCovariance
+    #: the last fit stopped at ``MAX_ITERATIONS`` before SciPy's tolerances were met: its
+    #: parameters may be short of their optimum, and whoever reports the fit says so
+    capped: bool
 
 
 def pose_difference(a: np.ndarray, predicted: np.ndarray) -> np.ndarray:
@@ -147,7 +150,7 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
         # weakly determined directions, moving the parameters by under 0.002 of their sigma
         # (docs/development.md, Speed)
         result = least_squares(lambda q: residuals(q[None])[0], params[free], method="trf", x_scale="jac",
-                               xtol=_TOLERANCE, ftol=_TOLERANCE, max_nfev=_MAX_ITERATIONS,
+                               xtol=_TOLERANCE, ftol=_TOLERANCE, max_nfev=MAX_ITERATIONS,
                                jac=lambda q: _forward_differences(residuals, q))
         params = full(result.x[None])[0]
         noise, previous = noise.at_fit(result.fun, result.jac, len(a)), noise
@@ -155,4 +158,4 @@ def map_fit(batch: Callable[[np.ndarray], np.ndarray], a: np.ndarray, params: np
             break
     covariance = np.zeros((len(params), len(params)))
     covariance[np.ix_(free, free)] = np.linalg.pinv(result.jac.T @ result.jac)
-    return MapFit(params, covariance, previous)
+    return MapFit(params, covariance, previous, bool(result.status == 0))  # 0: max_nfev reached

@@ -208,7 +208,7 @@ def test_fusion_and_truth_files_survive_and_refuse_what_is_malformed(tmp_path):
         read_fusion(workspace)
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "variance_factor.by_source.vicon",
                                                       [1.0, -1.0, 1.0])))
-    with pytest.raises(SidecarError, match=r"fusion.json: key variance_factor.by_source.vicon: expected three positive"):
+    with pytest.raises(SidecarError, match=r"key variance_factor.by_source.vicon: expected three positive"):
         read_fusion(workspace)
     workspace.fusion_path.write_text(json.dumps(_edit(record.to_json(), "axes.sources", ["fused", "pnp", "kuka"])))
     with pytest.raises(SidecarError, match=r"fusion.json: key axes.sources: expected a list of three of fused"):

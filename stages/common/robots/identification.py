@@ -286,6 +286,7 @@ class Fitted:
     prior: np.ndarray  # (holders.size,) 1-sigma before calibration
     preload_nm: float  # above it a joint rests on its loaded flank (``flank``)
     noise: ResidualCovariance  # what the fit whitened the poses by (``arms.MapFit.noise``)
+    capped: bool  # the fit stopped at its iterations' cap (``arms.MapFit.capped``)
     play_why: str = ""  # why the fixtures' play was not fitted ("": fitted, or rigid fixtures)
 
     def residual_noise(self) -> ResidualNoise:
@@ -439,7 +440,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     params, covariance = result.params, result.covariance
     offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
-                  result.noise, play_why)
+                  result.noise, result.capped, play_why)
 
 
 def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any, free: np.ndarray,

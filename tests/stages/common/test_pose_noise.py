@@ -138,3 +138,22 @@ def test_components_the_data_cannot_tell_apart_stay_finite_and_their_sum_fits():
     assert np.all(np.isfinite(noise.variances)) and np.all(noise.variances > 0)
     total = noise.covariances(count)[0]
     np.testing.assert_allclose(np.diag(total), 3.0 * np.diag(pnp[0]), rtol=0.35)
+
+
+def test_a_fit_stopped_by_the_iterations_cap_says_so(monkeypatch):
+    """``MapFit.capped``: false where SciPy's tolerances stopped the fit, true where the cap
+    did (calibrate then says so, and records it in the arms' note)."""
+    rng = np.random.default_rng(7)
+    nominal = np.stack([g.make_transform(g.rotvec_to_matrix(rng.normal(0, 0.4, 3)),
+                                         [rng.normal(0, 0.1), rng.normal(0, 0.1), rng.uniform(0.6, 0.9)])
+                        for _ in range(24)])
+    a = turned(np.r_[rng.normal(0, 1e-2, 3), rng.normal(0, 1e-2, 3)][None], nominal)[0]
+    a[:, :3, 3] += rng.normal(0, 1e-4, (24, 3))
+
+    def fit():
+        return arms.map_fit(lambda p: turned(p, nominal), a, np.zeros(6), np.ones(6, bool), np.full(6, 0.1),
+                            np.arange(6), pnp_like(rng, 24))
+
+    assert not fit().capped
+    monkeypatch.setattr(arms, "MAX_ITERATIONS", 1)
+    assert fit().capped

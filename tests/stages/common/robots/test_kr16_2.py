@@ -137,7 +137,7 @@ def test_lost_motion_covers_joints_resting_on_either_flank():
     unfitted = np.array([0.0 if name.endswith(".lost_motion") else 1.0 for name in holders.names])
     noise = ResidualCovariance(None, np.array([0.0, 1e-8, 1e-8]), np.ones(3))  # the groups' (rad^2, m^2)
     record = identification.Fitted(holders, solution, params, np.zeros((len(params), len(params))), names, False,
-                                   {}, unfitted, preload, noise).record()
+                                   {}, unfitted, preload, noise, False).record()
     variances = lost_motion.flank_variances(holders, m, record, lost)
     loaded = np.abs(np.concatenate([m.camera_torque, m.target_torque], axis=1)) > preload
     assert loaded.any() and (~loaded).any()
