@@ -88,7 +88,7 @@ class ArmsModel:
         record = fit.record()
         kept = len(record.parameter_names) - len(record.dropped)
         if fit.capped:
-            capped = (f"the arms' fit stopped at its cap of {arms.MAX_ITERATIONS} iterations before converging: "
+            capped = (f"the arms' fit stopped at its cap of {arms.MAX_ITERATIONS} evaluations before converging: "
                       "the poses barely determine some direction of the parameters (chains.weak), and the "
                       "fit may be short of its optimum there")
             progress.note(f"calibrate: {self.name}: {capped}")

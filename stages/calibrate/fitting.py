@@ -17,7 +17,6 @@ from manifests.sidecars import Folds
 from stages.calibrate import observations as obs
 from stages.common import geometry as g
 from stages.common import rwhe
-from stages.common.arms import MAX_ITERATIONS
 from stages.common.pose_noise import stacked_pnp
 
 
@@ -198,8 +197,10 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
                                pose_covariances(config, train_used))
             solution = fitted.offsets
             if fitted.fit.capped:
+                from stages.common.arms import MAX_ITERATIONS  # read now: the cap as the fit had it
+
                 progress.note(f"  {label}: fold {fold + 1}'s arms' fit stopped at its cap of {MAX_ITERATIONS} "
-                              "iterations before converging (its training poses barely determine some direction); "
+                              "evaluations before converging (its training poses barely determine some direction); "
                               "its predictions are those of the capped fit")
             b_test, up_arms = fitted.corrected_b(readings.subset(test))
             up_test = None if up is None else up_arms

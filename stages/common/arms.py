@@ -94,8 +94,8 @@ class MapFit:
     params: np.ndarray
     covariance: np.ndarray
     noise: ResidualCovariance
-    #: the last fit stopped at ``MAX_ITERATIONS`` before SciPy's tolerances were met: its
-    #: parameters may be short of their optimum, and whoever reports the fit says so
+    #: the last fit stopped at ``MAX_ITERATIONS`` evaluations before SciPy's tolerances were
+    #: met: its parameters may be short of their optimum, and whoever reports the fit says so
     capped: bool
 
 

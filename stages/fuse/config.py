@@ -41,10 +41,11 @@ class FuseConfig:
         "(docs/architecture.md section 6); off: fuse as measured (the paper)", "")
     sigma_doubt: float = param(
         2.0, "on a position axis kept from one source (fuse.inconsistent_axes = fall_back), how far either "
-        "source's calibrated sigma may be off at the dataset's range, as one standard deviation of a log-normal "
-        "factor (2: within a factor of 2 either way two times in three): the session's excess over both sigmas "
-        "is split between the sources by how likely each share puts them off, and the kept source's sigma is "
-        "scaled by its own share, not by the common factor (stages/fuse/kept_axes.py)", "1")
+        "source's calibrated sigma may be off at the dataset's range: the log of a source's true over calibrated "
+        "sigma is normal a priori, of standard deviation ln(sigma_doubt), with the calibrated variance as its "
+        "prior mean; the session's excess over both sigmas is split between the sources by how likely each "
+        "share puts them off, and the kept source's sigma is scaled by its own share, not by the common factor "
+        "(stages/fuse/kept_axes.py)", "1")
     vicon_scale_sigma: float = param(
         3e-4, "motion capture: 1-sigma scale error of its wand calibration (Vicon: 0.15 mm on the 500 mm wand, "
         "sub-mm volume accuracy; Merriaux et al., Sensors 17(7) 1591, 2017). The calibration absorbs it at its "
@@ -60,11 +61,11 @@ class FuseConfig:
         "capture (with calibrated arms); 0: none", "rad")
 
     def check(self, config: Config) -> None:
-        """Lost motion and scale sigma of at least 0; a sigma doubt in (1, 10]."""
+        """Lost motion and scale sigma of at least 0; a sigma doubt in (1, 5]."""
         if min(*self.lost_motion_rad, self.vicon_scale_sigma) < 0:
             raise ConfigError("fuse.lost_motion_rad/vicon_scale_sigma: expected values of at least 0")
-        if not 1.0 < self.sigma_doubt <= 10.0:
-            raise ConfigError(f"fuse.sigma_doubt: expected a factor above 1 and at most 10, got {self.sigma_doubt}")
+        if not 1.0 < self.sigma_doubt <= 5.0:
+            raise ConfigError(f"fuse.sigma_doubt: expected a factor above 1 and at most 5, got {self.sigma_doubt}")
 
 
 #: this stage's sections: name -> dataclass

@@ -60,7 +60,7 @@ def session_factor(config: Config, estimates: list[Estimates], vicon: Source | N
     both = two_source(estimates)
     if not both:
         return UNIT_FACTOR, "no capture with both sources: the widened calibrated sigmas"
-    predicted = [e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection)) for e in both]
+    predicted = difference_sigmas(both, vicon, rejection)
     if len(both) < config.fuse.min_scale_samples:
         factor = short_session_factor(np.stack([e.kuka for e in both]), np.stack([e.vicon for e in both]), predicted)
         return factor, (f"{len(both)} captures with both sources < fuse.min_scale_samples "
@@ -95,6 +95,13 @@ def short_session_factor(pose_a: np.ndarray, pose_b: np.ndarray, sigma_differenc
     dof_r = PRIOR_DOF + 3 * n
     r = np.sqrt((PRIOR_DOF + chi.sum()) / dof_r) * student_t.ppf(0.975, dof_r) / norm.ppf(0.975)
     return VarianceFactor(np.maximum(t, 1.0), max(float(r), 1.0), n)
+
+
+def difference_sigmas(both: list[Estimates], vicon: Source, rejection: Sigma) -> list[Sigma]:
+    """Per two-source capture, the sigma the variance factor measures the sources' difference
+    against: the calibration's (``rejection``) grown to the capture, with motion capture's fit
+    and the robots' parameter uncertainty there."""
+    return [e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection)) for e in both]
 
 
 def predicted_errors(estimates: list[Estimates], kuka: Source, vicon: Source) -> tuple[np.ndarray, np.ndarray]:
@@ -268,7 +275,7 @@ def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: 
     On an axis kept from one source each source's share of the excess is judged from this
     factor, not the one as measured (``kept_axes``): the kept source carries its own offset,
     whose size its calibrated sigma already holds, and given the measured difference of the
-    two offsets, the share expected of the kept one is ``a_k^2 / (a_k^2 + a_v^2)`` of it (the
+    two offsets, the share expected of the kept one is ``o_k^2 / (o_k^2 + o_v^2)`` of it (the
     offsets' prior variances): at 3-5 m motion capture's (its wand's scale, about 1 mm) is
     several times the robots' (about 0.45 mm in depth), so the expected square of the kept
     offset barely exceeds its prior. The rotation's factor is as measured (no offset is
@@ -276,7 +283,7 @@ def applied_factor(estimates: list[Estimates], vicon: Source | None, rejection: 
     both = two_source(estimates)
     if vicon is None or rejection is None or measured.samples == 0 or not both or not offset.estimated:
         return measured
-    predicted = [e.plus_parameters(e.vicon_sigma(vicon, e.kuka, rejection)) for e in both]
+    predicted = difference_sigmas(both, vicon, rejection)
     centred = variance_factor(np.stack([offset.robots(e.kuka) for e in both]),
                               np.stack([offset.motion_capture(e.vicon) for e in both]), predicted)
     return VarianceFactor(centred.t, measured.r, measured.samples)
@@ -310,6 +317,8 @@ def session_fusion(config: Config, estimates: list[Estimates], kuka: Source, vic
     sources, sources_why = axis_sources(config, estimates, kuka, vicon, measured, refused)
     by_source = SourceFactors.common(factor.t)
     if vicon is not None and any(source != "fused" for source in sources):
+        difference = np.sqrt(np.mean([s.t_m**2 for s in difference_sigmas(two_source(estimates), vicon, rejection)],
+                                     axis=0))
         by_source = source_factors(factor.t, factor.samples, sources, *predicted_errors(estimates, kuka, vicon),
-                                   config.fuse.sigma_doubt)
+                                   difference, config.fuse.sigma_doubt)
     return SessionFusion(measured, why, offset, factor, refused, sources, sources_why, by_source)

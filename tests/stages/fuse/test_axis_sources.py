@@ -14,7 +14,7 @@ from pipeline.config import default_config
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
 from stages.fuse.kept_axes import source_factors
-from stages.fuse.session import predicted_errors
+from stages.fuse.session import difference_sigmas, predicted_errors, two_source
 from stages.fuse.stage import (
     ArmUncertainty,
     Estimates,
@@ -91,8 +91,10 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_o
         estimates = [dataclasses.replace(e, arm=dataclasses.replace(e.arm, jacobian_t=np.zeros_like(
             e.arm.jacobian_t))) for e in estimates]
     applied = applied_factor(estimates, vicon, rejection, factor, removed) if scale_by == "applied" else factor
+    difference = np.sqrt(np.mean([s.t_m**2 for s in difference_sigmas(two_source(estimates), vicon, rejection)],
+                                 axis=0))
     by_source = source_factors(applied.t, applied.samples, sources, *predicted_errors(estimates, kuka, vicon),
-                               config.fuse.sigma_doubt) if shares else None
+                               difference, config.fuse.sigma_doubt) if shares else None
     rows = [fuse_capture(e, kuka, vicon, rejection, applied, 1.96, sources, removed, by_source) for e in estimates]
     true_t = np.stack([t[:3, 3] for t in truths])
     fused = np.stack([r["cam_from_target_t"] for r in rows])
@@ -123,7 +125,7 @@ def test_a_source_whose_depth_errs_beyond_its_sigma_does_no_harm(errors):
     inside = np.mean(np.abs(pooled) <= 1.96, axis=0)
     if errors == MOCAP_DEPTH_OFF:
         assert np.all(inside >= 0.9), inside
-    else:  # the factor scales both sources alike: the kept robots' depth, 2.7x off, is covered less
+    else:  # the kept robots' depth, 2.7x off, takes only its likely share of the excess: covered less
         assert np.all(inside[:2] >= 0.9) and inside[2] >= 0.7, inside
 
 

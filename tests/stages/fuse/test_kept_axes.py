@@ -15,15 +15,23 @@ from test_axis_sources import SEEDS, fused_session  # noqa: E402
 
 def test_the_share_follows_the_factor_and_the_sources_roles():
     # a floored factor: nothing to share, neither source is scaled
-    assert expected_factors(1.0, 48, 0.4e-3, 3.5e-3, 2.0) == (1.0, 1.0)
-    kuka, vicon = expected_factors(1.9, 48, 0.4e-3, 3.5e-3, 2.0)
+    assert expected_factors(1.0, 48, 0.4e-3, 3.5e-3, 3.52e-3, 2.0) == (1.0, 1.0)
+    kuka, vicon = expected_factors(1.9, 48, 0.4e-3, 3.5e-3, 3.52e-3, 2.0)
     # the excess is far likelier motion capture's: twice its sigma, against the robots' 13x
     assert kuka < 1.15 and vicon == pytest.approx(1.9, abs=0.15)
-    assert expected_factors(1.9, 48, 3.5e-3, 0.4e-3, 2.0) == pytest.approx((vicon, kuka))
-    shares = [expected_factors(f, 48, 0.6e-3, 0.9e-3, 2.0) for f in (1.2, 1.5, 2.0, 3.0)]
+    assert expected_factors(1.9, 48, 3.5e-3, 0.4e-3, 3.52e-3, 2.0) == pytest.approx((vicon, kuka))
+    shares = [expected_factors(f, 48, 0.6e-3, 0.9e-3, 1.08e-3, 2.0) for f in (1.2, 1.5, 2.0, 3.0)]
     assert all(b[0] > a[0] and b[1] > a[1] for a, b in zip(shares, shares[1:], strict=False))
     # sigmas alike: the excess is shared alike
-    assert expected_factors(2.0, 48, 1e-3, 1e-3, 2.0) == pytest.approx(expected_factors(2.0, 48, 1e-3, 1e-3, 2.0)[::-1])
+    alike = expected_factors(2.0, 48, 1e-3, 1e-3, 1.41e-3, 2.0)
+    assert alike[0] == pytest.approx(alike[1])
+    # a gross excess is explained, not clipped by the grid: the shares' variance is the measured
+    # one within two of its standard errors (0.34 in log variance on 48 captures)
+    kuka, vicon = expected_factors(20.0, 48, 0.4e-3, 3.5e-3, 3.52e-3, 2.0)
+    assert abs(np.log((kuka**2 * 0.4**2 + vicon**2 * 3.5**2) / (20.0**2 * 3.52**2))) < 2 * 0.34
+    # nothing to split: the common factor, never a NaN
+    assert expected_factors(1.7, 0, 0.4e-3, 3.5e-3, 3.52e-3, 2.0) == (1.7, 1.7)
+    assert expected_factors(1.7, 48, 0.0, 3.5e-3, 3.52e-3, 2.0) == (1.7, 1.7)
 
 
 # the panelled bus's session: the robots err as they claim (0.5 / 0.5 / 0.6 mm), motion
