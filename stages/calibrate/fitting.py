@@ -167,9 +167,11 @@ def _undetermined(config: Config, b: np.ndarray, fixtures: list[str], train: np.
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
                    used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
                    up: np.ndarray | None = None, arms: tuple[Any, Any] | None = None,
-                   label: str = "calibrate") -> CrossValidation:
+                   label: str = "calibrate", held: frozenset[str] | None = None) -> CrossValidation:
     """Each determined fold predicted by offsets (and arms, with ``arms``: the arms' model,
-    ``arm_models.ArmsModel``, and the samples' readings) fitted without it."""
+    ``arm_models.ArmsModel``, and the samples' readings) fitted without it; ``held``: the
+    arms' hysteresis groups the whole calibration held (``identification.Fitted.held``),
+    which each fold holds too, untested (None: each fold tests them itself)."""
     folds = folds_of(config, b)
     predicted = np.tile(np.eye(4), (len(a), 1, 1))
     determined = np.zeros(len(a), dtype=bool)
@@ -194,7 +196,7 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
         if arms is not None:
             model, readings = arms
             fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None,
-                               pose_covariances(config, train_used))
+                               pose_covariances(config, train_used), held)
             solution = fitted.offsets
             if fitted.fit.capped:
                 from stages.common.arms import MAX_ITERATIONS  # read now: the cap as the fit had it

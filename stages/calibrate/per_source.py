@@ -151,12 +151,13 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
     s = samples.inliers(keep)
     b, up, fitted, before = s.b, s.up, None, None
     if s.kinematic:
-        cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, (s.arms, s.readings),
-                               f"calibrate {source}")
         progress.note(f"calibrate {source}: the arms' fit on {len(s.used)} of those {len(samples.used)}"
                       + (f", less the outlier(s) {', '.join(outliers)}" if outliers else ""))
         fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None,
                             pose_covariances(config, s.used))
+        # the folds judge the model the calibration reports: its hysteresis groups as held here
+        cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, (s.arms, s.readings),
+                               f"calibrate {source}", fitted.fit.held)
         solution = fitted.offsets
         _note_residual_noise(source, fitted.fit.residual_noise())
         b, up_arms = fitted.corrected_b(s.readings)

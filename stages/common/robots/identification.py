@@ -288,6 +288,9 @@ class Fitted:
     noise: ResidualCovariance  # what the fit whitened the poses by (``arms.MapFit.noise``)
     capped: bool  # the fit stopped at its iterations' cap (``arms.MapFit.capped``)
     play_why: str = ""  # why the fixtures' play was not fitted ("": fitted, or rigid fixtures)
+    #: the hysteresis groups ("play", "lost motion") free before the tests and held after them
+    #: (``_hysteresis``): what a cross-validation fold then fits (``fit``'s ``held``)
+    held: frozenset[str] = frozenset()
 
     def residual_noise(self) -> ResidualNoise:
         """``noise`` as its record: the PnP factor (None where the poses were weighed by
@@ -383,11 +386,12 @@ def bounded_compliance(holders: Holders, prior: np.ndarray, drawn: Measured, win
 
 
 def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Solution, compliant: bool,
-        payload: arms.Payload, pnp: np.ndarray | None = None) -> Fitted:
+        payload: arms.Payload, pnp: np.ndarray | None = None, held: frozenset[str] | None = None) -> Fitted:
     """The robots (the parameters ``identifiable`` keeps), ``Z``, ``X_f`` (and ``k_f``,
     ``D_f``) from PnP poses ``a`` (N, 4, 4) of covariances ``pnp`` (N, 6, 6; None: unknown)
     and readings ``m``: ``arms.map_fit`` with the lab's tolerances as zero-mean priors
-    (``c``: the calibrate section)."""
+    (``c``: the calibrate section). ``held``: the hysteresis groups to hold without testing
+    them (a cross-validation fold takes the whole calibration's verdicts, ``Fitted.held``)."""
     names = sorted(start.x)
     world_up = np.asarray(c.world_up, float)
     size = holders.size
@@ -435,23 +439,39 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
         else "not fitted: the target stands on a static mount, whose tilt never changes"
         if not isinstance(holders.target, HolderModel)
         else "not fitted: no calibration capture has a capture before it (captures without capture_time_s)")
-    result, play_why = _hysteresis(holders, c, batch, a, fitted, free, {"play": played, "lost motion": lost},
-                                   dropped, play_why)
+    groups = {"play": played, "lost motion": lost}
+    result, play_why, chosen = _hysteresis(holders, c, batch, a, fitted, free, groups, dropped, play_why, held)
     params, covariance = result.params, result.covariance
     offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
+    held_now = frozenset(what for what, group in groups.items() if np.any(free & group) and not np.any(chosen & group))
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
-                  result.noise, result.capped, play_why)
+                  result.noise, result.capped, play_why, held_now)
 
 
 def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any, free: np.ndarray,
-                groups: dict[str, np.ndarray], dropped: dict[str, str], play_why: str) -> tuple[Any, str]:
+                groups: dict[str, np.ndarray], dropped: dict[str, str], play_why: str,
+                held: frozenset[str] | None = None) -> tuple[Any, str, np.ndarray]:
     """The fit of the ``free`` parameters (``fitted``: chosen -> (params, covariance)) less
     the hysteresis groups (the fixtures' play, the joints' lost motions) the captures do not
     show: a negative play is held at 0, and under ``auto`` each group is F-tested against
     the fit without it, the play first (a fixture's lag left out is taken up by the lost
     motions of the joints whose moves it follows). Held lost motions are named in
-    ``dropped``; returns the fit and why the play was not fitted ("": it was)."""
+    ``dropped``; returns the fit, why the play was not fitted ("": it was) and the
+    parameters it kept free.
+
+    ``held`` (a cross-validation fold): the groups the whole calibration held are held and
+    the rest fitted, untested. A fold's own tests cost two more fits of the three, and its
+    model is then the one the calibration reports, whose predictions the folds judge."""
     played, lost = groups["play"], groups["lost motion"]
+    if held is not None:
+        for what, group in groups.items():
+            if what in held and np.any(free & group):
+                said = "held, as on the whole calibration's captures"
+                if what == "play":
+                    play_why = said
+                else:
+                    dropped.update({holders.names[i]: said for i in np.flatnonzero(free & group)})
+                free = free & ~group
     result = fitted(free)
     if np.any(free & played) and np.any(result.params[played] < 0):  # a fixture that leads its change: no play seen
         play_why = (f"fitted below zero ({', '.join(f'{w:.2g}' for w in result.params[played])} rad) and held at 0: "
@@ -459,7 +479,7 @@ def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any
         free = free & ~played
         result = fitted(free)
     for what, group, setting in (("play", played, c.fixture_play), ("lost motion", lost, c.lost_motion)):
-        if setting == "auto" and np.any(free & group):
+        if held is None and setting == "auto" and np.any(free & group):
             without = fitted(free & ~group)
             shown, said = hysteresis_shown(batch, a, without, result.params, int(np.sum(free & group)),
                                            int(free.sum()), what)
@@ -469,7 +489,7 @@ def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any
                 else:
                     dropped.update({holders.names[i]: said for i in np.flatnonzero(free & group)})
                 free, result = free & ~group, without
-    return result, play_why
+    return result, play_why, free
 
 
 def joint_columns(holders: Holders) -> np.ndarray:

@@ -211,6 +211,28 @@ def test_lost_motion_the_captures_do_not_show_is_not_fitted(holders):
     assert not np.any(fitted.params[[holders.names.index(name) for name in lost]])
 
 
+def test_a_fold_holds_what_the_whole_calibration_held_in_one_fit(holders, monkeypatch):
+    """Cross-validation folds take the whole calibration's verdicts on the hysteresis groups
+    (``Fitted.held``): the lost motions it held are held untested, in one fit instead of
+    three, and the result is the fit the fold's own tests would have chosen."""
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 8).subset(np.arange(96) < 48)
+    rng = np.random.default_rng(8)
+    params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
+    truth = ident.predict_batch(holders, params[None], ["minus_x"], False, m, UP)[0]
+    noise = rwhe.transform_from_vector(np.concatenate([rng.normal(0, 1e-4, (48, 3)), rng.normal(0, 1e-4, (48, 3))],
+                                                      axis=1))
+    tested = ident.fit(holders, SETTINGS, truth @ noise, m, OFFSETS, False, PAYLOAD)
+    assert tested.held == frozenset({"lost motion"})  # the captures show none (the test above)
+    fits = []
+    counted = arms.map_fit
+    monkeypatch.setattr(arms, "map_fit", lambda *args, **kwargs: fits.append(1) or counted(*args, **kwargs))
+    fold = ident.fit(holders, SETTINGS, truth @ noise, m, OFFSETS, False, PAYLOAD, held=tested.held)
+    assert len(fits) == 1
+    np.testing.assert_array_equal(fold.params, tested.params)
+    lost = [name for name in holders.names if name.endswith(".lost_motion")]
+    assert all("as on the whole calibration" in fold.dropped[name] for name in lost)
+
+
 def test_lost_motion_switched_off_is_named_and_left_to_the_rating(holders):
     """``calibrate.lost_motion = off``: the lost motions are held and named as such, so that
     fuse takes the gearboxes' rating for every unloaded joint instead of a fit of zero."""
