@@ -334,7 +334,7 @@ def facility_row(seed: int, ours: Workspace, papers: Workspace | str) -> tuple[d
         "(c) fuse: factor x/y/z (as measured), position from (its own factor)": (
             f"{'/'.join(f'{v:.2f}' for v in fusion.factor_t)} ({'/'.join(f'{v:.2f}' for v in fusion.measured_t)}), "
             + "/".join(source if source == "fused" else
-                       f"{source} {(fusion.kuka_t if source == 'kuka' else fusion.vicon_t)[axis]:.2f}"
+                       f"{source} {fusion.source_factor(source)[axis]:.2f}"
                        for axis, source in enumerate(fusion.axis_sources))),
         "(c) fuse: session offset x/y/z (mm), removed from": (
             f"{'/'.join(f'{v * 1000:+.2f}' for v in fusion.offset_m)}, {'/'.join(fusion.offset_from)}"),

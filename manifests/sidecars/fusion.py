@@ -54,9 +54,18 @@ class FusionRecord:
     rejected_bound: int | None = None
     #: per camera axis, the factor that scales each source's own sigma: ``factor_t`` on a
     #: fused axis, the source's expected share of the excess on an axis kept from one source
-    #: (stages/fuse/kept_axes.py); the kept source's is its labels'
-    kuka_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    vicon_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    #: (stages/fuse/kept_axes.py); the kept source's is its labels'. None: ``factor_t``
+    kuka_t: tuple[float, float, float] | None = None
+    vicon_t: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("kuka_t", "vicon_t"):  # no kept axis: each source's factor is the common one
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, tuple(self.factor_t))
+
+    def source_factor(self, source: str) -> tuple[float, float, float]:
+        """The factors (per camera axis) of ``source`` ("kuka" or "vicon")."""
+        return self.kuka_t if source == "kuka" else self.vicon_t
 
     def to_json(self) -> dict[str, Any]:
         return {"version": FUSION_VERSION,

@@ -50,6 +50,10 @@ class SourceFactors:
     def common(cls, t: np.ndarray) -> SourceFactors:
         return cls(np.asarray(t, float).copy(), np.asarray(t, float).copy())
 
+    def of(self, source: str) -> np.ndarray:
+        """The factors (3,) of ``source`` ("kuka" or "vicon")."""
+        return self.kuka_t if source == "kuka" else self.vicon_t
+
 
 def expected_factors(factor: float, samples: int, sigma_kuka: float, sigma_vicon: float, sigma_difference: float,
                      doubt: float) -> tuple[float, float]:

@@ -315,10 +315,18 @@ def session_fusion(config: Config, estimates: list[Estimates], kuka: Source, vic
     refused = rejections(estimates, vicon, rejection, factor, config.fuse.rejection_k, offset,
                          config.fuse.min_scale_samples)
     sources, sources_why = axis_sources(config, estimates, kuka, vicon, measured, refused)
-    by_source = SourceFactors.common(factor.t)
-    if vicon is not None and any(source != "fused" for source in sources):
-        difference = np.sqrt(np.mean([s.t_m**2 for s in difference_sigmas(two_source(estimates), vicon, rejection)],
-                                     axis=0))
-        by_source = source_factors(factor.t, factor.samples, sources, *predicted_errors(estimates, kuka, vicon),
-                                   difference, config.fuse.sigma_doubt)
+    by_source = kept_factors(config, estimates, kuka, vicon, rejection, factor, sources)
     return SessionFusion(measured, why, offset, factor, refused, sources, sources_why, by_source)
+
+
+def kept_factors(config: Config, estimates: list[Estimates], kuka: Source, vicon: Source | None,
+                 rejection: Sigma | None, factor: VarianceFactor, sources: tuple[str, str, str]) -> SourceFactors:
+    """Each source's own factor (``kept_axes``): ``factor``'s on every axis but those kept
+    from one source, where each takes its expected share of the excess, judged against the
+    sigmas the factor was measured against (``difference_sigmas``, RMS over the captures)."""
+    if vicon is None or rejection is None or all(source == "fused" for source in sources):
+        return SourceFactors.common(factor.t)
+    difference = np.sqrt(np.mean([s.t_m**2 for s in difference_sigmas(two_source(estimates), vicon, rejection)],
+                                 axis=0))
+    return source_factors(factor.t, factor.samples, sources, *predicted_errors(estimates, kuka, vicon), difference,
+                          config.fuse.sigma_doubt)

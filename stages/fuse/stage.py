@@ -288,8 +288,8 @@ def fuse_capture(e: Estimates, kuka: SourceModel, vicon: SourceModel | None, rej
         if source != "fused":  # motion capture alone where it passed the rejection test, else the robots
             mocap = source == "vicon" and reason is None
             pose, alone = (vicon_pose, calibrated_vicon) if mocap else (kuka_pose, calibrated_kuka)
-            own = by_source.vicon_t if mocap else by_source.kuka_t
-            fused[axis, 3], t_m[axis] = pose[axis, 3], own[axis] * alone.t_m[axis]
+            own = by_source.of("vicon" if mocap else "kuka")[axis]
+            fused[axis, 3], t_m[axis] = pose[axis, 3], own * alone.t_m[axis]
             vicon_weight[axis] = float(mocap)
     t_m = np.sqrt(t_m**2 + offset_variance(e, factor, offset, vicon_weight))
     vicon_sigma = by_source.vicon_t * e.vicon_sigma(vicon, e.vicon).t_m if vicon is not None and e.tracked else None
@@ -341,8 +341,7 @@ def run(config: Config, workspace: Workspace) -> pa.Table:
         offset_why=offset.why, marker_sigma_m=None if geometry is None else geometry.marker_sigma_m,
         sigma_why=f"motion capture's fit: {geometry_why}{short_why}"))
     # one short line; why each figure is what it is stays in W/fusion.json (why, axes.why, offset.why)
-    kept = [f" ({'robots' if source == 'kuka' else 'motion capture'} alone "
-            f"{(session.by_source.kuka_t if source == 'kuka' else session.by_source.vicon_t)[axis]:.2f})"
+    kept = [f" ({'robots' if source == 'kuka' else 'motion capture'} alone {session.by_source.of(source)[axis]:.2f})"
             if source != "fused" else "" for axis, source in enumerate(sources)]
     print(f"fuse: sigma factors x {factor.t[0]:.2f}{kept[0]} y {factor.t[1]:.2f}{kept[1]} "
           f"z {factor.t[2]:.2f}{kept[2]}, rotation {factor.r:.2f}"

@@ -13,8 +13,7 @@ from core.config import parse_override, with_overrides
 from pipeline.config import default_config
 from stages.common import geometry as g
 from stages.common.fusion import Sigma
-from stages.fuse.kept_axes import source_factors
-from stages.fuse.session import difference_sigmas, predicted_errors, two_source
+from stages.fuse.session import kept_factors
 from stages.fuse.stage import (
     ArmUncertainty,
     Estimates,
@@ -91,10 +90,7 @@ def fused_session(seed, kuka_true_mm, vicon_true_mm, policy="fall_back", vicon_o
         estimates = [dataclasses.replace(e, arm=dataclasses.replace(e.arm, jacobian_t=np.zeros_like(
             e.arm.jacobian_t))) for e in estimates]
     applied = applied_factor(estimates, vicon, rejection, factor, removed) if scale_by == "applied" else factor
-    difference = np.sqrt(np.mean([s.t_m**2 for s in difference_sigmas(two_source(estimates), vicon, rejection)],
-                                 axis=0))
-    by_source = source_factors(applied.t, applied.samples, sources, *predicted_errors(estimates, kuka, vicon),
-                               difference, config.fuse.sigma_doubt) if shares else None
+    by_source = kept_factors(config, estimates, kuka, vicon, rejection, applied, sources) if shares else None
     rows = [fuse_capture(e, kuka, vicon, rejection, applied, 1.96, sources, removed, by_source) for e in estimates]
     true_t = np.stack([t[:3, 3] for t in truths])
     fused = np.stack([r["cam_from_target_t"] for r in rows])

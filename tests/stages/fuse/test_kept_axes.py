@@ -1,16 +1,11 @@
 """Each source's own factor on an axis kept from one source (stages/fuse/kept_axes.py): the
 kept source's sigma carries its expected share of the session's excess, not the other's."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from stages.fuse.kept_axes import expected_factors
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_axis_sources import SEEDS, fused_session  # noqa: E402
+from tests.stages.fuse.test_axis_sources import SEEDS, fused_session
 
 
 def test_the_share_follows_the_factor_and_the_sources_roles():

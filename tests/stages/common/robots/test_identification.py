@@ -196,16 +196,23 @@ def test_a_lost_motion_no_capture_can_see_is_named_and_held(holders):
     assert not set(lost) & set(fitted.weak())
 
 
-def test_lost_motion_the_captures_do_not_show_is_not_fitted(holders):
-    """Under ``auto`` the joints' lost motions are fitted only where the captures show them
-    (an F test): arms without any keep their parameters' noise out of the dataset's poses."""
+def _without_lost_motion(holders: Holders) -> tuple[ident.Measured, np.ndarray]:
+    """48 drawn configurations and their PnP-like poses (4, 4) of arms at their nominal
+    kinematics, 0.1 mrad and 0.1 mm of noise: no lost motion for the captures to show."""
     m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 8).subset(np.arange(96) < 48)
     rng = np.random.default_rng(8)
     params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
     truth = ident.predict_batch(holders, params[None], ["minus_x"], False, m, UP)[0]
     noise = rwhe.transform_from_vector(np.concatenate([rng.normal(0, 1e-4, (48, 3)), rng.normal(0, 1e-4, (48, 3))],
                                                       axis=1))
-    fitted = ident.fit(holders, SETTINGS, truth @ noise, m, OFFSETS, False, PAYLOAD)
+    return m, truth @ noise
+
+
+def test_lost_motion_the_captures_do_not_show_is_not_fitted(holders):
+    """Under ``auto`` the joints' lost motions are fitted only where the captures show them
+    (an F test): arms without any keep their parameters' noise out of the dataset's poses."""
+    m, a = _without_lost_motion(holders)
+    fitted = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD)
     lost = [name for name in holders.names if name.endswith(".lost_motion")]
     assert all("F test" in fitted.dropped[name] for name in lost)
     assert not np.any(fitted.params[[holders.names.index(name) for name in lost]])
@@ -215,18 +222,13 @@ def test_a_fold_holds_what_the_whole_calibration_held_in_one_fit(holders, monkey
     """Cross-validation folds take the whole calibration's verdicts on the hysteresis groups
     (``Fitted.held``): the lost motions it held are held untested, in one fit instead of
     three, and the result is the fit the fold's own tests would have chosen."""
-    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, 8).subset(np.arange(96) < 48)
-    rng = np.random.default_rng(8)
-    params = np.concatenate([np.zeros(holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
-    truth = ident.predict_batch(holders, params[None], ["minus_x"], False, m, UP)[0]
-    noise = rwhe.transform_from_vector(np.concatenate([rng.normal(0, 1e-4, (48, 3)), rng.normal(0, 1e-4, (48, 3))],
-                                                      axis=1))
-    tested = ident.fit(holders, SETTINGS, truth @ noise, m, OFFSETS, False, PAYLOAD)
+    m, a = _without_lost_motion(holders)
+    tested = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD)
     assert tested.held == frozenset({"lost motion"})  # the captures show none (the test above)
     fits = []
     counted = arms.map_fit
     monkeypatch.setattr(arms, "map_fit", lambda *args, **kwargs: fits.append(1) or counted(*args, **kwargs))
-    fold = ident.fit(holders, SETTINGS, truth @ noise, m, OFFSETS, False, PAYLOAD, held=tested.held)
+    fold = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD, held=tested.held)
     assert len(fits) == 1
     np.testing.assert_array_equal(fold.params, tested.params)
     lost = [name for name in holders.names if name.endswith(".lost_motion")]
