@@ -69,11 +69,13 @@ class ArmsModel:
                                        self.settings.backlash_preload_nm)
 
     def fit(self, a: np.ndarray, r: Readings, fixtures: list[str], start: rwhe.Solution,
-            compliant: bool, pnp: np.ndarray | None = None, held: frozenset[str] | None = None) -> Fitted:
+            compliant: bool, pnp: np.ndarray | None = None,
+            verdicts: identification.Verdicts | None = None) -> Fitted:
         """The arms and offsets from PnP poses ``a`` (N, 4, 4) of covariances ``pnp``
-        (N, 6, 6; None: unknown, ``pose_noise.stacked_pnp``); ``held``: the hysteresis groups a
-        cross-validation fold holds untested (``identification.Fitted.held``)."""
-        fitted = identification.fit(self.holders, self.settings, a, r, start, compliant, self.payload, pnp, held)
+        (N, 6, 6; None: unknown, ``pose_noise.stacked_pnp``); ``verdicts``: the whole
+        calibration's, which a cross-validation fold takes (``identification.Verdicts``)."""
+        fitted = identification.fit(self.holders, self.settings, a, r, start, compliant, self.payload, pnp,
+                                    verdicts)
         return Fitted(fitted.offsets, self, fitted)
 
     def corrected_b(self, fit: identification.Fitted, r: Readings) -> tuple[np.ndarray, np.ndarray]:

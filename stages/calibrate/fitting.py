@@ -6,7 +6,7 @@ source's measured ``B``, mock-up scale, metres."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from stages.calibrate import observations as obs
 from stages.common import geometry as g
 from stages.common import rwhe
 from stages.common.pose_noise import stacked_pnp
+
+if TYPE_CHECKING:
+    from stages.common.robots.identification import Verdicts
 
 
 def metrics(predicted: np.ndarray, reference: np.ndarray, observations: list[obs.Observation],
@@ -167,11 +170,11 @@ def _undetermined(config: Config, b: np.ndarray, fixtures: list[str], train: np.
 def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[str],
                    used: list[obs.Observation], intrinsics: obs.EstimatedCamera,
                    up: np.ndarray | None = None, arms: tuple[Any, Any] | None = None,
-                   label: str = "calibrate", held: frozenset[str] | None = None) -> CrossValidation:
+                   label: str = "calibrate", verdicts: Verdicts | None = None) -> CrossValidation:
     """Each determined fold predicted by offsets (and arms, with ``arms``: the arms' model,
-    ``arm_models.ArmsModel``, and the samples' readings) fitted without it; ``held``: the
-    arms' hysteresis groups the whole calibration held (``identification.Fitted.held``),
-    which each fold holds too, untested (None: each fold tests them itself)."""
+    ``arm_models.ArmsModel``, and the samples' readings) fitted without it; ``verdicts``: the
+    whole calibration's on the arms' model (``identification.Verdicts``: what its rank and F
+    tests held), which each fold fits untested (None: each fold tests for itself)."""
     folds = folds_of(config, b)
     predicted = np.tile(np.eye(4), (len(a), 1, 1))
     determined = np.zeros(len(a), dtype=bool)
@@ -196,7 +199,7 @@ def cross_validate(config: Config, a: np.ndarray, b: np.ndarray, fixtures: list[
         if arms is not None:
             model, readings = arms
             fitted = model.fit(a[train], readings.subset(train), train_fixtures, solution, up is not None,
-                               pose_covariances(config, train_used), held)
+                               pose_covariances(config, train_used), verdicts)
             solution = fitted.offsets
             if fitted.fit.capped:
                 from stages.common.arms import MAX_ITERATIONS  # read now: the cap as the fit had it

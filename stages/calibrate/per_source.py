@@ -155,9 +155,9 @@ def fit(config: Config, source: str, samples: SourceSamples, intrinsics: obs.Est
                       + (f", less the outlier(s) {', '.join(outliers)}" if outliers else ""))
         fitted = s.arms.fit(s.a, s.readings, s.fixtures, solution, s.up is not None,
                             pose_covariances(config, s.used))
-        # the folds judge the model the calibration reports: its hysteresis groups as held here
+        # the folds judge the model the calibration reports: what its tests held is held there
         cross = cross_validate(config, s.a, s.b, s.fixtures, s.used, intrinsics, s.up, (s.arms, s.readings),
-                               f"calibrate {source}", fitted.fit.held)
+                               f"calibrate {source}", fitted.fit.verdicts())
         solution = fitted.offsets
         _note_residual_noise(source, fitted.fit.residual_noise())
         b, up_arms = fitted.corrected_b(s.readings)

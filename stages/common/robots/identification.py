@@ -273,6 +273,19 @@ def _absorbed_by(jacobian: np.ndarray, column: np.ndarray, kept: list[int], name
 
 
 @dataclass(frozen=True)
+class Verdicts:
+    """What a cross-validation fold takes from the whole calibration's fit instead of
+    deciding it again, so that the folds judge the model the calibration reports
+    (docs/architecture.md, section 6): the parameters the structural rank test held, for the
+    fixtures it saw (the test draws its own configurations: it reads no capture), and the
+    hysteresis groups the F tests held (a fold's own tests cost two more fits of three)."""
+
+    fixtures: tuple[str, ...]  # the offsets' fixtures of the rank test, sorted
+    unidentifiable: tuple[tuple[str, str], ...]  # (arm parameter, why it is held)
+    held: frozenset[str]  # of "play", "lost motion"
+
+
+@dataclass(frozen=True)
 class Fitted:
     """The facility's robots and hand-eye offsets fitted together."""
 
@@ -289,8 +302,14 @@ class Fitted:
     capped: bool  # the fit stopped at its iterations' cap (``arms.MapFit.capped``)
     play_why: str = ""  # why the fixtures' play was not fitted ("": fitted, or rigid fixtures)
     #: the hysteresis groups ("play", "lost motion") free before the tests and held after them
-    #: (``_hysteresis``): what a cross-validation fold then fits (``fit``'s ``held``)
+    #: (``_hysteresis``)
     held: frozenset[str] = frozenset()
+    #: the arm parameters the structural rank test held (``identifiable``: name, why)
+    unidentifiable: tuple[tuple[str, str], ...] = ()
+
+    def verdicts(self) -> Verdicts:
+        """What a cross-validation fold of this calibration fits (``fit``'s ``verdicts``)."""
+        return Verdicts(tuple(self.names), self.unidentifiable, self.held)
 
     def residual_noise(self) -> ResidualNoise:
         """``noise`` as its record: the PnP factor (None where the poses were weighed by
@@ -386,12 +405,13 @@ def bounded_compliance(holders: Holders, prior: np.ndarray, drawn: Measured, win
 
 
 def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Solution, compliant: bool,
-        payload: arms.Payload, pnp: np.ndarray | None = None, held: frozenset[str] | None = None) -> Fitted:
+        payload: arms.Payload, pnp: np.ndarray | None = None, verdicts: Verdicts | None = None) -> Fitted:
     """The robots (the parameters ``identifiable`` keeps), ``Z``, ``X_f`` (and ``k_f``,
     ``D_f``) from PnP poses ``a`` (N, 4, 4) of covariances ``pnp`` (N, 6, 6; None: unknown)
     and readings ``m``: ``arms.map_fit`` with the lab's tolerances as zero-mean priors
-    (``c``: the calibrate section). ``held``: the hysteresis groups to hold without testing
-    them (a cross-validation fold takes the whole calibration's verdicts, ``Fitted.held``)."""
+    (``c``: the calibrate section). ``verdicts``: the whole calibration's (``Fitted.verdicts``),
+    which a cross-validation fold takes instead of testing again; its rank test's only where
+    the fold holds the same fixtures."""
     names = sorted(start.x)
     world_up = np.asarray(c.world_up, float)
     size = holders.size
@@ -406,8 +426,12 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     play = rwhe.play_slice(names) if compliant else slice(0, 0)
     play = slice(size + play.start, size + play.stop)
     free = free_parameters(holders, c, names, compliant, len(params))
-    dropped = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
-                           preload_nm=c.backlash_preload_nm)
+    if verdicts is not None and verdicts.fixtures == tuple(names):
+        unidentifiable = dict(verdicts.unidentifiable)
+    else:
+        unidentifiable = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
+                                      preload_nm=c.backlash_preload_nm)
+    dropped = dict(unidentifiable)
     dropped.update({name: why for name, why in unknown_flanks(holders, m, free).items() if name not in dropped})
     if c.lost_motion == "auto":
         dropped.update({name: why for name, why in loaded_flanks(holders, m, free, c.backlash_preload_nm,
@@ -440,12 +464,13 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
         if not isinstance(holders.target, HolderModel)
         else "not fitted: no calibration capture has a capture before it (captures without capture_time_s)")
     groups = {"play": played, "lost motion": lost}
-    result, play_why, chosen = _hysteresis(holders, c, batch, a, fitted, free, groups, dropped, play_why, held)
+    result, play_why, chosen = _hysteresis(holders, c, batch, a, fitted, free, groups, dropped, play_why,
+                                           None if verdicts is None else verdicts.held)
     params, covariance = result.params, result.covariance
     offsets = rwhe.unpack(params[size:], names, compliant, compliant, compliant)
     held_now = frozenset(what for what, group in groups.items() if np.any(free & group) and not np.any(chosen & group))
     return Fitted(holders, offsets, params, covariance, names, compliant, dropped, prior, c.backlash_preload_nm,
-                  result.noise, result.capped, play_why, held_now)
+                  result.noise, result.capped, play_why, held_now, tuple(unidentifiable.items()))
 
 
 def _hysteresis(holders: Holders, c: Any, batch: Any, a: np.ndarray, fitted: Any, free: np.ndarray,

@@ -219,20 +219,36 @@ def test_lost_motion_the_captures_do_not_show_is_not_fitted(holders):
 
 
 def test_a_fold_holds_what_the_whole_calibration_held_in_one_fit(holders, monkeypatch):
-    """Cross-validation folds take the whole calibration's verdicts on the hysteresis groups
-    (``Fitted.held``): the lost motions it held are held untested, in one fit instead of
-    three, and the result is the fit the fold's own tests would have chosen."""
+    """Cross-validation folds take the whole calibration's verdicts (``Fitted.verdicts``): the
+    lost motions it held are held untested, in one fit instead of three, the structural rank
+    test is not run again, and the result is the fit the fold's own tests would have chosen."""
     m, a = _without_lost_motion(holders)
     tested = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD)
     assert tested.held == frozenset({"lost motion"})  # the captures show none (the test above)
-    fits = []
-    counted = arms.map_fit
+    assert tested.unidentifiable and set(dict(tested.unidentifiable)) <= set(tested.dropped)
+    fits, ranks = [], []
+    counted, ranked = arms.map_fit, ident.identifiable
     monkeypatch.setattr(arms, "map_fit", lambda *args, **kwargs: fits.append(1) or counted(*args, **kwargs))
-    fold = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD, held=tested.held)
-    assert len(fits) == 1
+    monkeypatch.setattr(ident, "identifiable", lambda *args, **kwargs: ranks.append(1) or ranked(*args, **kwargs))
+    fold = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD, verdicts=tested.verdicts())
+    assert len(fits) == 1 and not ranks
     np.testing.assert_array_equal(fold.params, tested.params)
+    assert fold.unidentifiable == tested.unidentifiable
     lost = [name for name in holders.names if name.endswith(".lost_motion")]
     assert all("as on the whole calibration" in fold.dropped[name] for name in lost)
+
+
+def test_a_fold_of_other_fixtures_runs_its_own_rank_test(holders, monkeypatch):
+    """The rank test's verdict depends on the fixtures whose offsets absorb the arms': a fold
+    that holds other fixtures than the whole calibration tests for itself."""
+    m, a = _without_lost_motion(holders)
+    tested = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD)
+    ranks = []
+    ranked = ident.identifiable
+    monkeypatch.setattr(ident, "identifiable", lambda *args, **kwargs: ranks.append(1) or ranked(*args, **kwargs))
+    other = ident.Verdicts(("plus_x",), (), tested.held)
+    fold = ident.fit(holders, SETTINGS, a, m, OFFSETS, False, PAYLOAD, verdicts=other)
+    assert len(ranks) == 1 and fold.unidentifiable == tested.unidentifiable
 
 
 def test_lost_motion_switched_off_is_named_and_left_to_the_rating(holders):
