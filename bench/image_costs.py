@@ -1,7 +1,8 @@
 """What one synthetic image costs at a profile's resolution, this tree against an earlier
 commit, in one run: twins (black space, the profile's ``render.spp``) and training images
 (the profile's own first jobs: their poses, lights and Earth backgrounds, ``render.train_spp``),
-each with its ground truth, one process with one thread (a worker of one CPU).
+each with its ground truth, one process with one thread (a worker of one CPU, set up as that
+code's workers are: ``core.engines.prepare_process``).
 
     python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2]
 
@@ -39,6 +40,9 @@ from stages.render.jobs import RenderJob, train_jobs
 from stages.render.worker import RenderWorker
 
 kind, profile, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
+import core.engines
+# set up as that code's workers set themselves up (prepare_process; before it, the BLAS limit)
+getattr(core.engines, "prepare_process", getattr(core.engines, "single_threaded_blas", lambda: None))()
 config = load_config(profile)
 target = planned_target(config)
 if kind == "training":
