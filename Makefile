@@ -12,7 +12,7 @@ WORKSPACE ?= data/$(PROFILE)
 
 # The package's bytecode, compiled ahead: where PYTHONDONTWRITEBYTECODE is set (as on the
 # machines this is built on) every process compiled its ~180 modules from source again,
-# 0.38 s of each `speedplus` command and of each worker a run spawns (docs/development.md).
+# 0.38 s of each `speedplus` command and of each local worker a run spawns (docs/development.md).
 # Python checks each .pyc against its source, so an edit after this is still what runs.
 COMPILE := $(BIN)/python -m compileall -q core pipeline stages manifests speedplus bench
 

@@ -116,31 +116,34 @@ def single_threaded_blas() -> None:
 
 _limits: Any = None  # kept: the limit holds while its object lives
 
-#: glibc's mallopt parameters (malloc.h) and the values ``keep_freed_memory`` sets
+#: glibc's mallopt parameters (malloc.h) and the values ``keep_freed_memory`` sets (C ints)
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-_MMAP_THRESHOLD_BYTES, _TRIM_THRESHOLD_BYTES = 1 << 30, 1 << 31
+_MMAP_THRESHOLD_BYTES, _TRIM_THRESHOLD_BYTES = 1 << 30, (1 << 31) - 1
 
 
 def keep_freed_memory() -> bool:
     """Let this process reuse the memory it frees instead of giving it back to the system
-    (glibc's ``mallopt``: arrays under 1 GiB come from the heap, and the heap is trimmed only
-    above 2 GiB free). A render or capture allocates frames of 9-100 MB an image; by default
-    each is a fresh ``mmap`` returned on free, and every page of the next one faults in again.
-    At 1920 x 1200, one process, alternating runs: a twin 1.28-1.50 -> 1.16-1.27 s (2,300-4,600
-    page faults an image -> 130-250), a capture 4.5-4.7 -> 4.1-4.2 CPU-s, a training image
-    0.94 -> 0.86 s; the smoke profile, whose frames are small, within its noise
-    (docs/development.md, Speed). The same values; the process keeps its peak size (a twin's
-    worker 690 -> 730 MB). False where the C library has no ``mallopt`` (nothing changed)."""
+    (glibc's ``mallopt``): arrays under 1 GiB come from the heap, and the heap is trimmed only
+    when 2 GiB lie free at its top. A render or capture allocates frames of 9-100 MB an image;
+    by default each is a fresh ``mmap`` returned on free, and every page of the next one
+    faults in again (2,300-4,600 page faults a twin at 1920 x 1200, 130-250 with this). At
+    1920 x 1200 a twin 1.62 -> 1.46 CPU-s, a training image 1.15 -> 1.02 (``bench
+    image_costs``), a capture 4.5-4.7 -> 4.1-4.2 (docs/development.md, Speed). The same
+    bytes (the default profile's run compared file by file); the process keeps its peak size
+    (a twin's worker 690 -> 730 MB). Frames a thread other than the main one allocates come
+    from that thread's arena, which glibc caps at 64 MiB, and stay mappings. False where the
+    C library has no ``mallopt`` or refuses a value: the process then runs as it did."""
     import ctypes
     import ctypes.util
 
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
     except (OSError, AttributeError):
         return False
-    return bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD,
-                                                                                  _TRIM_THRESHOLD_BYTES))
+    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    mmap_set = mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES)
+    trim_set = mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD_BYTES)
+    return bool(mmap_set) and bool(trim_set)
 
 
 def prepare_process() -> None:

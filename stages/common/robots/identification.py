@@ -277,10 +277,11 @@ class Verdicts:
     """What a cross-validation fold takes from the whole calibration's fit instead of
     deciding it again, so that the folds judge the model the calibration reports
     (docs/architecture.md, section 6): the parameters the structural rank test held, for the
-    fixtures it saw (the test draws its own configurations: it reads no capture), and the
-    hysteresis groups the F tests held (a fold's own tests cost two more fits of three)."""
+    offsets' fixtures it saw (the test asks what no data could separate, on configurations
+    it draws itself), and the hysteresis groups the F tests held (a fold's own tests cost two
+    more fits of three)."""
 
-    fixtures: tuple[str, ...]  # the offsets' fixtures of the rank test, sorted
+    names: tuple[str, ...]  # the offsets' fixtures of the rank test, sorted (``Fitted.names``)
     unidentifiable: tuple[tuple[str, str], ...]  # (arm parameter, why it is held)
     held: frozenset[str]  # of "play", "lost motion"
 
@@ -426,7 +427,7 @@ def fit(holders: Holders, c: Any, a: np.ndarray, m: Measured, start: rwhe.Soluti
     play = rwhe.play_slice(names) if compliant else slice(0, 0)
     play = slice(size + play.start, size + play.stop)
     free = free_parameters(holders, c, names, compliant, len(params))
-    if verdicts is not None and verdicts.fixtures == tuple(names):
+    if verdicts is not None and verdicts.names == tuple(names):
         unidentifiable = dict(verdicts.unidentifiable)
     else:
         unidentifiable = identifiable(holders, list(m.fixtures), compliant, params, free, payload, world_up,
