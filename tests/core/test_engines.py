@@ -88,7 +88,6 @@ def test_blas_runs_on_one_thread_in_every_worker_and_the_driver():
     assert set(BlasThreads().work(0)) == {1}
 
 
-
 class Refaults:
     """A worker's page faults on a frame allocated a second time, once freed."""
 
