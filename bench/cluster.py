@@ -125,9 +125,9 @@ def _render_on(cluster: LocalCluster, root: Path, images: int) -> float:
 
 
 def main(images: str = "24") -> None:
-    from core.engines import prepare_process
+    from core.engines import prepare_worker
 
-    prepare_process()  # measured as a worker runs: BLAS on one thread, freed frames reused
+    prepare_worker()  # measured as a worker runs: BLAS on one thread, freed frames reused
     costs = []
     for profile in PROFILES:
         config = load_config(profile)

@@ -2,7 +2,7 @@
 commit, in one run: twins (black space, the profile's ``render.spp``) and training images
 (the profile's own first jobs: their poses, lights and Earth backgrounds, ``render.train_spp``),
 each with its ground truth, one process with one thread (a worker of one CPU, set up as that
-code's workers are: ``core.engines.prepare_process``).
+code's workers are: ``core.engines.prepare_worker``).
 
     python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2]
 
@@ -41,8 +41,8 @@ from stages.render.worker import RenderWorker
 
 kind, profile, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
 import core.engines
-# set up as that code's workers set themselves up (prepare_process; before it, the BLAS limit)
-getattr(core.engines, "prepare_process", getattr(core.engines, "single_threaded_blas", lambda: None))()
+# set up as that code's workers set themselves up (prepare_worker; before it, the BLAS limit)
+getattr(core.engines, "prepare_worker", getattr(core.engines, "single_threaded_blas", lambda: None))()
 config = load_config(profile)
 target = planned_target(config)
 if kind == "training":

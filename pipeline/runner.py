@@ -24,7 +24,7 @@ from pyarrow import ArrowInvalid
 
 from core import progress
 from core.config import Config
-from core.engines import EngineError, prepare_process
+from core.engines import EngineError, single_threaded_blas
 from core.progress import console
 from manifests import (
     SCHEMA_VERSION,
@@ -379,7 +379,7 @@ def run_stage(stage: StageEntry, config: Config, workspace: Workspace, *, force:
             if forget and resolved.member_column is not None:
                 _forget_members(workspace, name, current, resolved.member_column, forget)
     run = stage.function()
-    prepare_process()
+    single_threaded_blas()
     workspace.root.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     progress.reset()

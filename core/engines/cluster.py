@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from core.engines import WORKER_CPUS_ENV, EngineError, environment, prepare_process, upload
+from core.engines import WORKER_CPUS_ENV, EngineError, environment, prepare_worker, upload
 from core.progress import console
 
 #: a sample is tried on at most this many workers before the stage gives up on it
@@ -97,7 +97,7 @@ def _actor_class(ray: Any) -> Any:
             self.factory, self.args, self.probe, self.remote = packed
             cpus = ray.get_runtime_context().get_assigned_resources().get("CPU", 1)
             os.environ[WORKER_CPUS_ENV] = str(max(1, int(round(cpus))))
-            prepare_process()
+            prepare_worker()
             self.context: Any = None
 
         def describe(self) -> dict[str, Any]:

@@ -29,9 +29,9 @@ def _exit_with_parent(parent: int) -> None:
 
 def _initialise(factory: Callable[..., Any], args: tuple[Any, ...], parent: int) -> None:
     global _context
-    from core.engines import prepare_process
+    from core.engines import prepare_worker
 
-    prepare_process()
+    prepare_worker()
     # Ctrl-C reaches the whole process group: the driver stops the pool and says what was
     # kept; a worker's KeyboardInterrupt traceback would only bury that line
     signal.signal(signal.SIGINT, signal.SIG_IGN)

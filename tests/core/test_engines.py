@@ -108,10 +108,10 @@ class Refaults:
 
 def test_a_worker_reuses_the_frames_it_frees():
     """Issue 60: a render's 9-100 MB frames were each a fresh mapping whose pages all faulted
-    in again (2,300-4,600 faults a twin at 1920 x 1200, a tenth of its time). A worker is set
-    up to reuse them (``prepare_process``: ``keep_freed_memory``), as the driver and Ray's
-    actors are: the second frame faults in no page. A fresh 64 MB mapping takes at least 32
-    faults, even in 2 MB huge pages."""
+    in again (2,300-4,600 faults a twin at 1920 x 1200, a tenth of its time). A local worker
+    is set up to reuse them (``prepare_worker``: ``keep_freed_memory``), as Ray's actors are:
+    the second frame faults in no page. A fresh 64 MB mapping takes at least 32 faults, even
+    in 2 MB huge pages."""
     from core.engines import keep_freed_memory
 
     assert keep_freed_memory()  # this machine's C library takes the values
