@@ -134,11 +134,10 @@ def keep_freed_memory() -> bool:
     from that thread's arena, which glibc caps at 64 MiB, and stay mappings. False where the
     C library has no ``mallopt`` or refuses a value: the process then runs as it did."""
     import ctypes
-    import ctypes.util
 
-    try:
-        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
-    except (OSError, AttributeError):
+    try:  # the C library already loaded into this process (find_library would run ldconfig)
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError, TypeError):
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     mmap_set = mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES)
