@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from stages.common import geometry as g
+from stages.common import p3p
 from stages.common.keypoint_pnp import (
     MIN_CONSENSUS,
     PnPSolution,
@@ -46,6 +47,8 @@ ITERATIONS = 500
 CHUNK = 50
 #: probability that some sample drew only peaks of the best pose (standard adaptive RANSAC)
 CONFIDENCE = 0.999
+#: images whose RANSAC samples are solved and scored together (bounds the arrays: (GROUP, ITERATIONS, K, C))
+GROUP = 16
 #: the span of a pose's keypoints, as a fraction of the target box the crop implies
 EXTENT_RANGE = (0.5, 1.5)
 
@@ -92,31 +95,36 @@ def pose_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoint
     peak, each at its nearest. Without such a pose (at least ``MIN_CONSENSUS`` keypoints
     explained): ``pose_from_keypoints`` on the highest peaks (whose RANSAC pose must span
     ``extent_px`` too). Deterministic for ``seed``, whatever was computed before."""
+    return poses_from_candidates(np.asarray(candidates_px)[None], np.asarray(values)[None], keypoints_m,
+                                 camera_matrix, dist, [reprojection_px], [extent_px], seed)[0]
+
+
+def poses_from_candidates(candidates_px: np.ndarray, values: np.ndarray, keypoints_m: np.ndarray,
+                          camera_matrix: np.ndarray, dist: np.ndarray, reprojection_px: list[float],
+                          extents_px: list[tuple[float, float] | None], seed: int = 0) -> list[PnPSolution | None]:
+    """``pose_from_candidates`` of N images' candidates (N, K, C, 2) [px] and values
+    (N, K, C), each with its threshold [px] and span bound, each RANSAC seeded with
+    ``seed``: the same poses, the RANSACs' samples solved and scored together
+    (``GROUP`` images at a time)."""
     candidates_px = np.asarray(candidates_px, np.float64)
     values = np.asarray(values, np.float64)
     keypoints_m = np.ascontiguousarray(keypoints_m, np.float64)
     usable = np.all(np.isfinite(candidates_px), axis=-1) & np.isfinite(values)
-    counts = usable.sum(axis=1)
-    present = np.flatnonzero(counts > 0)
-    best = None
-    if len(present) >= 4:
-        rng = np.random.default_rng(seed)
-        farthest = farthest_plausible_m(keypoints_m, camera_matrix)
-        rotvecs, translations, totals = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
-        drawn, needed = 0, ITERATIONS
-        while drawn < needed and drawn < ITERATIONS:
-            # samples by chunk; after each, as many as give CONFIDENCE of one sample of the best pose's peaks
-            object_points, image_points = _draw(rng, present, counts, keypoints_m, candidates_px)
-            drawn += CHUNK  # an unusable sample still counts: the schedule depends on the draws alone
-            chunk_r, chunk_t = _ap3p(object_points, image_points, camera_matrix, dist, farthest)
-            # each valid pose's support is scored once: the chunks only add poses
-            rotvecs, translations = np.concatenate([rotvecs, chunk_r]), np.concatenate([translations, chunk_t])
-            totals = np.concatenate([totals, _support(chunk_r, chunk_t, candidates_px, values, usable, keypoints_m,
-                                                      camera_matrix, dist, reprojection_px, extent_px)])
-            best = _best_supported(rotvecs, translations, totals)
-            if best is not None:
-                needed = _samples_needed(*best, candidates_px, values, usable, counts, keypoints_m, camera_matrix,
-                                         dist, reprojection_px)
+    sampled = [i for i in range(len(candidates_px)) if np.count_nonzero(usable[i].any(axis=1)) >= 4]
+    bests: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
+    for start in range(0, len(sampled), GROUP):
+        group = sampled[start:start + GROUP]
+        bests.update(zip(group, _ransacs(group, candidates_px, values, usable, keypoints_m, camera_matrix, dist,
+                                         reprojection_px, extents_px, seed), strict=True))
+    return [_finished(bests.get(i), candidates_px[i], values[i], usable[i], keypoints_m, camera_matrix, dist,
+                      reprojection_px[i], extents_px[i]) for i in range(len(candidates_px))]
+
+
+def _finished(best: tuple[np.ndarray, np.ndarray] | None, candidates_px: np.ndarray, values: np.ndarray,
+              usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
+              reprojection_px: float, extent_px: tuple[float, float] | None) -> PnPSolution | None:
+    """The solution from an image's RANSAC pose ``best`` (rvec, tvec) (3, 1), refined on the
+    candidates it explains; without one, ``pose_from_keypoints`` on the highest peaks."""
     if best is None:
         return pose_from_keypoints(candidates_px[:, 0], keypoints_m, camera_matrix, dist, reprojection_px, values[:, 0],
                                    extent_px)
@@ -193,54 +201,92 @@ def _draw(rng: np.random.Generator, present: np.ndarray, counts: np.ndarray, key
     return keypoints_m[chosen], np.ascontiguousarray(candidates_px[chosen, picks])
 
 
-def _ap3p(object_points: np.ndarray, image_points: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
-          farthest_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """AP3P's pose of each sample (S, 4, 3) [m] / (S, 4, 2) [px]: rotation vectors and
-    translations (P, 3) of the solved samples whose pose is plausible (``in_reach``)."""
-    rotvecs, translations = [], []
-    for body, image in zip(object_points, image_points, strict=True):
-        ok, rvec, tvec = cv2.solvePnP(body, image, camera_matrix, dist, flags=cv2.SOLVEPNP_AP3P)
-        if ok:
-            rotvecs.append(rvec[:, 0])
-            translations.append(tvec[:, 0])
-    if not rotvecs:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    rotvecs, translations = np.array(rotvecs), np.array(translations)
-    reach = in_reach(translations, farthest_m)
-    return rotvecs[reach], translations[reach]
+def _ransacs(cases: list[int], candidates_px: np.ndarray, values: np.ndarray, usable: np.ndarray,
+             keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray, reprojection_px: list[float],
+             extents_px: list[tuple[float, float] | None], seed: int) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    """Each case's (an image index's) (rvec, tvec) (3, 1) of its best supported sample pose
+    (the first on ties), if any. Samples are taken by chunks of ``CHUNK``, until as many as
+    give ``CONFIDENCE`` of a sample of the best pose's peaks have been (``_samples_needed``)
+    or ``ITERATIONS``; an unusable sample still counts, so the schedule depends on the draws
+    alone. Every chunk of every case is drawn, solved (``p3p.solve_p4p``) and scored first,
+    at once, and each schedule then read off them: the same poses as solving a chunk at a
+    time, for one NumPy pass instead of ten a case (most RANSACs of the default profile's
+    evaluate run all ``ITERATIONS``: 94%)."""
+    counts = usable[cases].sum(axis=-1)  # (M, K)
+    drawn_samples = []
+    for case, count in zip(cases, counts, strict=True):
+        rng, present = np.random.default_rng(seed), np.flatnonzero(count > 0)
+        drawn_samples += [_draw(rng, present, count, keypoints_m, candidates_px[case])
+                          for _ in range(ITERATIONS // CHUNK)]
+    body_m, image_px = (np.concatenate(parts) for parts in zip(*drawn_samples, strict=True))
+    rotations, translations, found = p3p.solve_p4p(body_m, image_px, camera_matrix, dist)
+    shape = (len(cases), ITERATIONS)
+    rotations, translations = rotations.reshape(shape + (3, 3)), translations.reshape(shape + (3,))
+    posed = found.reshape(shape) & in_reach(translations, farthest_plausible_m(keypoints_m, camera_matrix))
+    extents = np.array([extents_px[case] or (-np.inf, np.inf) for case in cases], float)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # unposed samples' poses, masked below
+        totals = _support(rotations, translations, candidates_px[cases], values[cases], usable[cases], keypoints_m,
+                          camera_matrix, dist, np.array([reprojection_px[case] for case in cases]), extents)
+    totals = np.where(posed, totals, -np.inf)
+    return [_scheduled(totals[m], rotations[m], translations[m], candidates_px[case], values[case], usable[case],
+                       counts[m], keypoints_m, camera_matrix, dist, reprojection_px[case])
+            for m, case in enumerate(cases)]
 
 
-def _support(rotvecs: np.ndarray, translations: np.ndarray, candidates_px: np.ndarray, values: np.ndarray,
+def _scheduled(totals: np.ndarray, rotations: np.ndarray, translations: np.ndarray, candidates_px: np.ndarray,
+               values: np.ndarray, usable: np.ndarray, counts: np.ndarray, keypoints_m: np.ndarray,
+               camera_matrix: np.ndarray, dist: np.ndarray,
+               reprojection_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The best pose (rvec, tvec) (3, 1) among the samples the adaptive schedule draws, from
+    every sample's support ``totals`` (ITERATIONS,) and pose (rotations (ITERATIONS, 3, 3),
+    translations (ITERATIONS, 3))."""
+    drawn, needed, best_index = 0, ITERATIONS, -1
+    while drawn < needed and drawn < ITERATIONS:
+        drawn += CHUNK
+        index = int(np.argmax(totals[:drawn]))
+        if np.isfinite(totals[index]) and index != best_index:
+            best_index = index
+            needed = _samples_needed(*_rvec_tvec(rotations[index], translations[index]), candidates_px, values,
+                                     usable, counts, keypoints_m, camera_matrix, dist, reprojection_px)
+    return _rvec_tvec(rotations[best_index], translations[best_index]) if best_index >= 0 else None
+
+
+def _rvec_tvec(rotation: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's rotation vector and translation (3, 1) of a pose (rotation (3, 3), translation (3,))."""
+    return cv2.Rodrigues(rotation)[0], translation.reshape(3, 1).copy()
+
+
+def _support(rotations: np.ndarray, translations: np.ndarray, candidates_px: np.ndarray, values: np.ndarray,
              usable: np.ndarray, keypoints_m: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray,
-             reprojection_px: float, extent_px: tuple[float, float] | None) -> np.ndarray:
-    """Each pose's worth (P,) (rotation vectors and translations (P, 3)): the heatmap value
-    of the candidates it explains, -inf for a pose of the wrong span or explaining fewer
-    than ``MIN_CONSENSUS`` keypoints."""
-    if not len(rotvecs):
-        return np.zeros(0)
-    # every pose at once (cv2.projectPoints takes one): (P, K, 2)
-    rotations = g.rotvec_to_matrix(rotvecs)
-    projected = g.project_points(keypoints_m @ rotations.transpose(0, 2, 1) + translations[:, None], camera_matrix,
-                                 dist)
-    distance = np.linalg.norm(candidates_px[None] - projected[:, :, None], axis=-1)  # (P, K, C)
-    near = usable[None] & (distance <= reprojection_px)
-    support = np.where(near, values[None], -np.inf).max(axis=-1)  # (P, K)
-    support = np.where(np.isfinite(support), support, 0.0)
-    total = np.where(near.any(axis=-1).sum(axis=-1) >= MIN_CONSENSUS, support.sum(axis=-1), -np.inf)
+             reprojection_px: float | np.ndarray, extent_px: tuple[float, float] | np.ndarray | None) -> np.ndarray:
+    """Each pose's worth (..., P) (rotations (..., P, 3, 3) and translations (..., P, 3), of
+    images whose candidates are (..., K, C, 2), values and usability (..., K, C), thresholds
+    (...) [px] and span bounds (..., 2) [px]): the heatmap value of the candidates it
+    explains, -inf for a pose of the wrong span or explaining fewer than ``MIN_CONSENSUS``
+    keypoints."""
+    if not rotations.size:
+        return np.zeros(rotations.shape[:-2])
+    # every pose at once (cv2.projectPoints takes one): (..., P, K, 2)
+    projected = g.project_points(keypoints_m @ np.swapaxes(rotations, -1, -2) + translations[..., None, :],
+                                 camera_matrix, dist)
+    # a candidate at a time, components by hand: NumPy reduces over a last axis of 2 or 3 slowly
+    threshold = np.asarray(reprojection_px)[..., None, None]
+    support = np.full(projected.shape[:-1], -np.inf)  # (..., P, K)
+    explained = np.zeros(projected.shape[:-1], bool)
+    for c in range(candidates_px.shape[-2]):
+        off_x = candidates_px[..., None, :, c, 0] - projected[..., 0]
+        off_y = candidates_px[..., None, :, c, 1] - projected[..., 1]
+        near = usable[..., None, :, c] & (np.sqrt(off_x * off_x + off_y * off_y) <= threshold)
+        support = np.where(near, np.maximum(support, values[..., None, :, c]), support)
+        explained |= near
+    total = np.where(explained.sum(axis=-1) >= MIN_CONSENSUS, np.where(explained, support, 0.0).sum(axis=-1),
+                     -np.inf)
     if extent_px is not None:
-        span = (projected.max(axis=1) - projected.min(axis=1)).max(axis=-1)
-        total = np.where((span >= extent_px[0]) & (span <= extent_px[1]), total, -np.inf)
+        extent = np.asarray(extent_px, float)
+        extents = projected.max(axis=-2) - projected.min(axis=-2)
+        span = np.maximum(extents[..., 0], extents[..., 1])
+        total = np.where((span >= extent[..., 0, None]) & (span <= extent[..., 1, None]), total, -np.inf)
     return total
-
-
-def _best_supported(rotvecs: np.ndarray, translations: np.ndarray, totals: np.ndarray,
-                    ) -> tuple[np.ndarray, np.ndarray] | None:
-    """(rvec, tvec) (3, 1) of the pose of the highest ``_support`` ``totals`` (the first on
-    ties), if any is acceptable."""
-    if not len(totals):
-        return None
-    index = int(np.argmax(totals))
-    return (rotvecs[index].reshape(3, 1), translations[index].reshape(3, 1)) if np.isfinite(totals[index]) else None
 
 
 def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray], contract: ModelContract,
@@ -251,14 +297,13 @@ def poses_from_heatmaps(heatmaps: np.ndarray, image_from_inputs: list[np.ndarray
     seeded with ``seed``); and the highest peaks (N, K, 2) in image pixels. The span bound
     applies to oracle-type crops."""
     candidates, values = decode_candidates(heatmaps, contract.width, contract.height)
-    solutions, highest = [], []
-    for points, value, affine, threshold in zip(candidates, values, image_from_inputs, reprojection_px, strict=True):
-        in_image = apply_affine(affine, points)
-        highest.append(in_image[:, 0])
-        extent = target_extent(affine, contract.width) if contract.crop == "oracle_box" else None
-        solutions.append(pose_from_candidates(in_image, value, contract.keypoints_m, camera_matrix, dist, threshold,
-                                              extent, seed))
-    return solutions, np.array(highest).reshape(len(candidates), -1, 2)
+    in_images = np.array([apply_affine(affine, points) for points, affine in zip(candidates, image_from_inputs,
+                                                                                  strict=True)])
+    extents = [target_extent(affine, contract.width) if contract.crop == "oracle_box" else None
+               for affine in image_from_inputs]
+    solutions = poses_from_candidates(in_images.reshape(candidates.shape), values, contract.keypoints_m,
+                                      camera_matrix, dist, list(reprojection_px), extents, seed)
+    return solutions, in_images.reshape(candidates.shape)[:, :, 0]
 
 
 def explained_value(solution: PnPSolution | None, heatmaps: np.ndarray, image_from_input: np.ndarray,

@@ -187,7 +187,8 @@ def test_support_projects_every_pose_as_opencv_does():
     spread = np.geomspace(1e-4, 1e-1, 40)[:, None]  # from the truth to far off it
     rotvecs = g.quat_to_rotvec(q_true) + rng.normal(0, 1, (40, 3)) * spread
     translations = np.array([0.2, -0.1, 7.0]) + rng.normal(0, 1, (40, 3)) * spread
-    totals = _support(rotvecs, translations, candidates, values, usable, tango.KEYPOINTS_M, K, DIST, 3.0, None)
+    totals = _support(g.rotvec_to_matrix(rotvecs), translations, candidates, values, usable, tango.KEYPOINTS_M, K,
+                      DIST, 3.0, None)
     for rotvec, translation, total in zip(rotvecs, translations, totals, strict=True):
         projected = cv2.projectPoints(tango.KEYPOINTS_M, rotvec, translation, K, DIST)[0][:, 0]
         near = usable & (np.linalg.norm(candidates - projected[:, None], axis=-1) <= 3.0)
