@@ -41,10 +41,11 @@ def sample_gallery(workspace: Workspace, out: Path, labels: list[dict[str, Any]]
         sample_id = label["sample_id"]
         capture_path = captures[sample_id]["image_path"]
         capture = to_uint8(read_image(workspace.fetch(capture_path), "bgr"))
-        drawn = figures.overlay(capture, label, camera.camera_matrix, camera.dist, wireframe)
+        brightened = figures.brighten(capture)
+        drawn = figures.overlay(capture, label, camera.camera_matrix, camera.dist, wireframe, brightened)
         full = _write(out / "overlays" / f"{sample_id}.png", drawn)
         cells = [_link(f"../{capture_path}", "thumbs/" + _write(out / "thumbs" / f"testbed_{sample_id}.png",
-                                                                 figures.thumbnail(figures.brighten(capture), 240)),
+                                                                 figures.thumbnail(brightened, 240)),
                        f"testbed image {sample_id}")]
         if sample_id in renders:
             twin_path = renders[sample_id]["image_path"]
