@@ -1,8 +1,9 @@
-"""What one synthetic image costs at a profile's resolution, this tree against an earlier
-commit, in one run: twins (black space, the profile's ``render.spp``) and training images
-(the profile's own first jobs: their poses, lights and Earth backgrounds, ``render.train_spp``),
-each with its ground truth, one process with one thread (a worker of one CPU, set up as that
-code's workers are: ``core.engines.prepare_worker``).
+"""What one image costs at a profile's resolution, this tree against an earlier commit, in
+one run: twins (black space, the profile's ``render.spp``), training images (the profile's
+own first jobs: their poses, lights and Earth backgrounds, ``render.train_spp``), each with
+its ground truth, and the virtual testbed's captures (the profile's first dataset captures,
+``virtual.spp``, with their ground truth), in one process with one thread (a worker of one
+CPU, set up as that code's workers are: ``core.engines.prepare_worker``).
 
     python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2]
 
@@ -10,9 +11,9 @@ The two codes run in turns (REF, this tree; then this tree, REF; ...), each a fr
 so that the machine's drift falls on both; every image after the first two of a process
 is timed (scene load and compilation excluded). A twin's pose is drawn 4-10 m away, full
 scale, anywhere in the image, from a fixed seed (``bench.cluster.twin_poses``, drawn here and
-handed to both codes): the same images for both. Mean and
-its standard error per kind (training images with and without the Earth apart), and the
-ratio of the means. Results: bench/results/image_costs.json.
+handed to both codes): the same images for both; the captures are the same plan rows for
+both. Mean and its standard error per kind (training images with and without the Earth
+apart), and the ratio of the means. Results: bench/results/image_costs.json.
 """
 
 from __future__ import annotations
@@ -45,20 +46,28 @@ import core.engines
 getattr(core.engines, "prepare_worker", getattr(core.engines, "single_threaded_blas", lambda: None))()
 config = load_config(profile)
 target = planned_target(config)
-if kind == "training":
+if kind == "capture":
+    import tempfile
+    from manifests import Workspace
+    from stages.acquire.virtual import VirtualTestbed
+    from stages.plan.stage import plan_sample, planned_samples
+    jobs = [plan_sample(config, *item) for item in planned_samples(config) if item[0] == "dataset"][:count + 2]
+    folder = tempfile.TemporaryDirectory()
+    render = VirtualTestbed(config, Workspace(folder.name), jobs).capture
+elif kind == "training":
     jobs = train_jobs(config, target)[:count + 2]
-    worker = RenderWorker(train_camera(config), target, config.render.train_spp, config.render.max_depth, 1)
+    render = RenderWorker(train_camera(config), target, config.render.train_spp, config.render.max_depth, 1).render
 else:
     jobs = [RenderJob(f"img{i:06d}", "twin", tuple(q), tuple(t), tuple(light), 3.0, False, i)
             for i, (q, t, light) in enumerate(json.loads(sys.argv[4]))]
-    worker = RenderWorker(lens_camera(config.camera), target, config.render.spp, config.render.max_depth, 1)
+    render = RenderWorker(lens_camera(config.camera), target, config.render.spp, config.render.max_depth, 1).render
 for job in jobs[:2]:
-    worker.render(job)
+    render(job)
 seconds = []
 for job in jobs[2:]:
     started = time.process_time()
-    worker.render(job)
-    seconds.append([time.process_time() - started, bool(job.earth)])
+    render(job)
+    seconds.append([time.process_time() - started, bool(getattr(job, "earth", False))])
 print(json.dumps(seconds))
 """
 
@@ -110,7 +119,7 @@ def main(*args: str) -> None:
             for round_ in range(rounds):
                 # the first code of a round may fill a kernel cache the second then finds: turns
                 for name, code in list(codes.items())[::1 if round_ % 2 == 0 else -1]:
-                    for kind in ("twin", "training"):
+                    for kind in ("twin", "training", "capture"):
                         measured.setdefault((name, kind), []).extend(_costs(code, kind, profile, images))
         finally:
             if ref is not None:
@@ -121,13 +130,16 @@ def main(*args: str) -> None:
         training = measured[name, "training"]
         with_earth = [s for s, earth in training if earth]
         black = [s for s, earth in training if not earth]
-        means[name] = (statistics.mean(twins), statistics.mean(s for s, _ in training))
+        captures = [s for s, _ in measured[name, "capture"]]
+        means[name] = (statistics.mean(twins), statistics.mean(s for s, _ in training), statistics.mean(captures))
         rows.append({"code": name, "CPU-s a twin": _summary(twins),
                      "CPU-s a training image": _summary([s for s, _ in training]),
-                     "with the Earth": _summary(with_earth), "black space": _summary(black)})
+                     "with the Earth": _summary(with_earth), "black space": _summary(black),
+                     "CPU-s a capture": _summary(captures)})
     if ref is not None:
         rows.append({"code": f"{ref} / this tree", "CPU-s a twin": f"{means[ref][0] / means['this tree'][0]:.2f}x",
                      "CPU-s a training image": f"{means[ref][1] / means['this tree'][1]:.2f}x",
-                     "with the Earth": "", "black space": ""})
+                     "with the Earth": "", "black space": "",
+                     "CPU-s a capture": f"{means[ref][2] / means['this tree'][2]:.2f}x"})
     report("image_costs", f"CPU-seconds an image at the {profile} profile's resolution (one worker of one CPU, "
            "ground truth included)", rows, {"profile": profile, "images": images, "rounds": rounds, "ref": ref})

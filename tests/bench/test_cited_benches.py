@@ -63,8 +63,8 @@ def test_bench_pipeline_times_a_commit_against_this_tree(results, tmp_path):
 
 
 def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
-    """Issue 60: twins and training images, the commit's code and this tree's in turns, with
-    the commit's worktree removed after."""
+    """Issue 60: twins, training images and captures, the commit's code and this tree's in
+    turns, with the commit's worktree removed after."""
     import subprocess
 
     from bench import image_costs
@@ -74,7 +74,9 @@ def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
     assert set(rows) == {"HEAD", "this tree", "HEAD / this tree"}
     for code in ("HEAD", "this tree"):
         assert rows[code]["CPU-s a twin"].endswith("(n=2)") and rows[code]["CPU-s a training image"].endswith("(n=2)")
+        assert rows[code]["CPU-s a capture"].endswith("(n=2)")
     assert float(rows["HEAD / this tree"]["CPU-s a twin"].rstrip("x")) > 0
+    assert float(rows["HEAD / this tree"]["CPU-s a capture"].rstrip("x")) > 0
     listed = subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True).stdout
     assert "speedplus-image-costs-" not in listed
     with pytest.raises(SystemExit, match="cannot check out 'no-such-commit'"):
