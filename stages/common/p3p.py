@@ -11,7 +11,9 @@ evaluate. Here every sample is solved in the same NumPy operations:
    Algebraic Solution to the Perspective-Three-Point Problem", CVPR 2017
    (arXiv:1701.08237), section 3: the quartic in cos(theta1') (their eq. 14), solved in
    closed form by Ferrari's method and polished by two Newton steps, as OpenCV's
-   ``ap3p.cpp``; a root whose magnitude exceeds 1 is no pose.
+   ``ap3p.cpp``; a complex pair of roots, or a root whose magnitude exceeds 1, is no pose,
+   and a pose whose cos and sin of theta3 are off the unit circle (a root off by a little)
+   is taken at its nearest rotation, as OpenCV's ``Rodrigues`` takes it.
 3. The fourth point chooses: the pose of least summed squared reprojection error [px^2]
    over all four points through the lens (``solveP3P``'s order), ties going to the least
    normalised error of the fourth point alone (``ap3p::computePoses``' order), then to
@@ -19,7 +21,10 @@ evaluate. Here every sample is solved in the same NumPy operations:
 
 OpenCV keeps a pose whose root is NaN (a degenerate sample: collinear body points or
 bearings); here such a pose is not a solution. Poses equal OpenCV's to 1e-9 relative on
-generic samples (``tests/stages/common/test_p3p.py``).
+generic samples (``tests/stages/common/test_p3p.py``). Near a double root (cos(theta1')
+near +-1, or a complex pair nearly real) OpenCV's solutions missed their own three points
+by 3-63 px where these meet them within 0.03 px, and the choice may differ there: one
+RANSAC seed in 15,840 of the paper profile (docs/development.md, Speed).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ POLISH_STEPS = 2
 def undistort_normalized(image_px: np.ndarray, camera_matrix: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Normalised image coordinates (..., 2) of distorted pixels (..., 2) under the
     5-coefficient model ``(k1, k2, p1, p2, k3)``, by ``cv2.undistortPoints``' iteration."""
-    k1, k2, p1, p2, k3 = np.asarray(dist, np.float64).ravel()[:5]
+    k1, k2, p1, p2, k3 = np.asarray(dist, np.float64).ravel()
     fx, fy, cx, cy = camera_matrix[0, 0], camera_matrix[1, 1], camera_matrix[0, 2], camera_matrix[1, 2]
     x0, y0 = (image_px[..., 0] - cx) / fx, (image_px[..., 1] - cy) / fy
     x, y, stopped = x0, y0, np.zeros(x0.shape, bool)
