@@ -11,9 +11,10 @@ The two codes run in turns (REF, this tree; then this tree, REF; ...), each a fr
 so that the machine's drift falls on both; every image after the first two of a process
 is timed (scene load and compilation excluded). A twin's pose is drawn 4-10 m away, full
 scale, anywhere in the image, from a fixed seed (``bench.cluster.twin_poses``, drawn here and
-handed to both codes): the same images for both; the captures are the same plan rows for
-both. Mean and its standard error per kind (training images with and without the Earth
-apart), and the ratio of the means. Results: bench/results/image_costs.json.
+handed to both codes): the same images for both; the captures are the profile's first
+dataset rows as each code plans them (the same sample ids). Mean and its standard error
+per kind (training images with and without the Earth apart), and the ratio of the means.
+Results: bench/results/image_costs.json.
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ if kind == "capture":
     from stages.acquire.virtual import VirtualTestbed
     from stages.plan.stage import plan_sample, planned_samples
     jobs = [plan_sample(config, *item) for item in planned_samples(config) if item[0] == "dataset"][:count + 2]
+    if len(jobs) < count + 2:
+        sys.exit(f"the {profile} profile plans {len(jobs)} dataset captures, fewer than {count + 2}")
     folder = tempfile.TemporaryDirectory()
     render = VirtualTestbed(config, Workspace(folder.name), jobs).capture
 elif kind == "training":

@@ -213,14 +213,14 @@ def _ransacs(cases: list[int], candidates_px: np.ndarray, values: np.ndarray, us
     time, for one NumPy pass instead of ten a case (most RANSACs of the default profile's
     evaluate run all ``ITERATIONS``: 94%)."""
     counts = usable[cases].sum(axis=-1)  # (M, K)
+    chunks = -(-ITERATIONS // CHUNK)  # the schedule never draws more
     drawn_samples = []
     for case, count in zip(cases, counts, strict=True):
         rng, present = np.random.default_rng(seed), np.flatnonzero(count > 0)
-        drawn_samples += [_draw(rng, present, count, keypoints_m, candidates_px[case])
-                          for _ in range(ITERATIONS // CHUNK)]
+        drawn_samples += [_draw(rng, present, count, keypoints_m, candidates_px[case]) for _ in range(chunks)]
     body_m, image_px = (np.concatenate(parts) for parts in zip(*drawn_samples, strict=True))
     rotations, translations, found = p3p.solve_p4p(body_m, image_px, camera_matrix, dist)
-    shape = (len(cases), ITERATIONS)
+    shape = (len(cases), chunks * CHUNK)
     rotations, translations = rotations.reshape(shape + (3, 3)), translations.reshape(shape + (3,))
     posed = found.reshape(shape) & in_reach(translations, farthest_plausible_m(keypoints_m, camera_matrix))
     extents = np.array([extents_px[case] or (-np.inf, np.inf) for case in cases], float)
@@ -238,8 +238,8 @@ def _scheduled(totals: np.ndarray, rotations: np.ndarray, translations: np.ndarr
                camera_matrix: np.ndarray, dist: np.ndarray,
                reprojection_px: float) -> tuple[np.ndarray, np.ndarray] | None:
     """The best pose (rvec, tvec) (3, 1) among the samples the adaptive schedule draws, from
-    every sample's support ``totals`` (ITERATIONS,) and pose (rotations (ITERATIONS, 3, 3),
-    translations (ITERATIONS, 3))."""
+    every sample's support ``totals`` (S,) and pose (rotations (S, 3, 3), translations
+    (S, 3)), S the ``ITERATIONS`` rounded up to whole chunks."""
     drawn, needed, best_index = 0, ITERATIONS, -1
     while drawn < needed and drawn < ITERATIONS:
         drawn += CHUNK
@@ -285,7 +285,9 @@ def _support(rotations: np.ndarray, translations: np.ndarray, candidates_px: np.
         extent = np.asarray(extent_px, float)
         extents = projected.max(axis=-2) - projected.min(axis=-2)
         span = np.maximum(extents[..., 0], extents[..., 1])
-        total = np.where((span >= extent[..., 0, None]) & (span <= extent[..., 1, None]), total, -np.inf)
+        unbounded = ~np.isfinite(extent).any(axis=-1)[..., None]  # (-inf, inf): no bound, whatever the span
+        within = (span >= extent[..., 0, None]) & (span <= extent[..., 1, None])
+        total = np.where(unbounded | within, total, -np.inf)
     return total
 
 

@@ -171,8 +171,9 @@ def solve_p4p(body_m: np.ndarray, image_px: np.ndarray, camera_matrix: np.ndarra
         fourth_error = fourth_off[..., 0] ** 2 + fourth_off[..., 1] ** 2
         off = g.project_points(in_camera, camera_matrix, dist) - image_px[:, None]  # (S, 4, 4, 2)
         error = (off[..., 0] ** 2 + off[..., 1] ** 2).sum(axis=-1)
-    error, fourth_error = np.where(solved, error, np.inf), np.where(solved, fourth_error, np.inf)
-    order = np.lexsort((np.broadcast_to(np.arange(4), error.shape), fourth_error, error), axis=-1)
+    # NaN errors (a NaN input point) sort last among the solved roots, never below an unsolved one
+    error, fourth_error = np.nan_to_num(error, nan=np.inf), np.nan_to_num(fourth_error, nan=np.inf)
+    order = np.lexsort((np.broadcast_to(np.arange(4), error.shape), fourth_error, error, ~solved), axis=-1)
     best = order[:, 0]
     rows = np.arange(len(best))
     found = solved[rows, best]

@@ -180,7 +180,8 @@ def brighten(image: np.ndarray, gain: float | None = None) -> np.ndarray:
         bright = percentile_8bit(image, 99.5) if image.dtype == np.uint8 else float(np.percentile(image, 99.5))
         gain = float(np.clip(230.0 / max(bright, 1.0), 1.0, 16.0))
     if image.dtype == np.uint8:
-        return cv2.LUT(image, np.clip(np.arange(256, dtype=np.float32) * gain, 0, 255).astype(np.uint8))
+        table = np.clip(np.arange(256, dtype=np.float32) * gain, 0, 255).astype(np.uint8)
+        return cv2.LUT(image, table).reshape(image.shape)  # OpenCV drops or adds a unit axis
     return np.clip(image.astype(np.float32) * gain, 0, 255).astype(np.uint8)
 
 
@@ -188,6 +189,8 @@ def percentile_8bit(image: np.ndarray, q: float) -> float:
     """``np.percentile(image, q)`` of a non-empty uint8 image, the same float, from its
     histogram instead of a partition of its pixels: the order statistics either side of
     the virtual index (n - 1) q / 100 and NumPy's linear interpolation between them."""
+    if not 0 <= q <= 100:
+        raise ValueError(f"percentile_8bit: q = {q} is not in [0, 100]")
     count = image.size
     virtual = (count - 1) * (q / 100)
     previous = int(np.floor(virtual))
@@ -208,7 +211,7 @@ def overlay(image: np.ndarray, label: dict[str, Any], camera_matrix: np.ndarray,
             brightened_already: np.ndarray | None = None) -> np.ndarray:
     """The label's wireframe (points (P, 3) full scale, body frame, and edges: the target's
     ``feature_edges``) drawn on a testbed image (BGR), brightened (``brightened_already``:
-    ``brighten(image)`` where the caller has it)."""
+    ``brighten(image)`` of a BGR (H, W, 3) image, where the caller has it)."""
     points, edges = wireframe
     cam_from_target = g.transform_from_qt(label["q_vbs2tango_true"], label["r_Vo2To_vbs_true"])
     pixels = g.project(cam_from_target, points, camera_matrix, dist)

@@ -90,3 +90,13 @@ def test_degenerate_samples_have_no_pose_and_raise_nothing():
     with np.errstate(all="raise"):
         rotations, translations, found = p3p.solve_p4p(body_m, image_px, K, DIST)
     assert not found.any() and np.all(np.isnan(rotations)) and np.all(np.isnan(translations))
+
+
+def test_a_nan_fourth_point_keeps_the_first_three_points_pose_as_opencv_does():
+    rng = np.random.default_rng(5)
+    body_m, rotations, translations, image_px = samples(rng, 20, 0.0)
+    image_px[:, 3] = np.nan
+    found_r, found_t, found = p3p.solve_p4p(body_m, image_px, K, DIST)
+    for body, image, ok in zip(body_m, image_px, found, strict=True):
+        assert ok == cv2.solvePnP(body, np.ascontiguousarray(image), K, DIST, flags=cv2.SOLVEPNP_AP3P)[0]
+    assert found.all() and np.all(np.isfinite(found_t))

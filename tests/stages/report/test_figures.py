@@ -1,6 +1,7 @@
 """The report's brightening: NumPy's percentile and float32 scaling, faster."""
 
 import numpy as np
+import pytest
 
 from stages.report.figures import brighten, percentile_8bit
 
@@ -26,3 +27,12 @@ def test_brightening_is_the_float32_scaling_of_every_pixel():
     dark = np.zeros((8, 8), np.uint8)
     np.testing.assert_array_equal(brighten(dark), dark)  # a black image gains 16x of nothing
     assert brighten(np.zeros((0, 3), np.uint8)).shape == (0, 3)
+
+
+def test_brightening_keeps_the_shape_and_a_quantile_outside_0_100_is_refused():
+    rng = np.random.default_rng(2)
+    for shape in ((50,), (20, 30), (20, 30, 1), (20, 30, 3)):
+        image = rng.integers(0, 40, shape).astype(np.uint8)
+        assert brighten(image).shape == shape
+    with pytest.raises(ValueError, match="not in"):
+        percentile_8bit(np.zeros(4, np.uint8), 100.5)
