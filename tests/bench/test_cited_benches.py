@@ -52,6 +52,34 @@ def test_bench_model_cards_writes_table_2_into_copies_of_the_cards(smoke_finishe
     assert {p.name: p.read_bytes() for p in (ROOT / "models").glob("*.json")} == shipped
 
 
+def test_bench_paper_table_sets_a_workspaces_table_2_beside_the_papers(smoke_finished, results):
+    """docs/models.md's Table 2 at the paper's scale comes from this bench: every model and
+    crop's cells per configuration and overall, each mean inside its own interval, and the
+    paper's orderings judged."""
+    import re
+
+    from bench import paper_table
+    from manifests import read_manifest
+
+    workspace = smoke_finished[0]
+    paper_table.main(str(workspace.root))
+    rows = _rows(results, "paper_table")
+    predictions = read_manifest(workspace, "predictions").to_pylist()
+    assert {(row["model"], row["crop"]) for row in rows} == {(p["model"], p["crop"]) for p in predictions}
+    twins = {p["sample_id"] for p in predictions if p["domain"] == "synthetic"}
+    for row in rows:
+        if row["view"] == "all":
+            assert row["images"] == len(twins)
+        for column in ("synthetic", "testbed", "gap"):
+            mean, low, high = map(float, re.match(r"([+-]?[\d.]+) \[([+-]?[\d.]+), ([+-]?[\d.]+)\]",
+                                                  row[column]).groups())
+            assert low <= mean <= high, row
+    orderings = _rows(results, "paper_table_orderings")
+    assert orderings and {row["paper's sign holds"] for row in orderings} <= {"yes", "not shown", "opposite"}
+    with pytest.raises(SystemExit, match="usage"):
+        paper_table.main()
+
+
 @pytest.mark.skipif(not (ROOT / ".git").exists(), reason="bench pipeline checks out a commit")
 def test_bench_pipeline_times_a_commit_against_this_tree(results, tmp_path):
     from bench import pipeline

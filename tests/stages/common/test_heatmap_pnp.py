@@ -4,6 +4,7 @@ import dataclasses
 
 import cv2
 import numpy as np
+import pytest
 
 from stages.common import geometry as g
 from stages.common import tango
@@ -202,7 +203,7 @@ def test_support_projects_every_pose_as_opencv_does():
     assert 5 < np.isfinite(totals).sum() < 35  # poses near the truth explain enough keypoints, far ones not
 
 
-def _chunk_at_a_time(candidates: np.ndarray, values: np.ndarray, reprojection_px: float,
+def _chunk_at_a_time(candidates: np.ndarray, values: np.ndarray, keypoints_m: np.ndarray, reprojection_px: float,
                      extent_px: tuple[float, float] | None, seed: int) -> tuple[np.ndarray, np.ndarray] | None:
     """The RANSAC as it was written first: a chunk drawn, each sample solved by
     ``cv2.solvePnP(AP3P)``, the best so far taken and the count of samples needed redone,
@@ -210,11 +211,11 @@ def _chunk_at_a_time(candidates: np.ndarray, values: np.ndarray, reprojection_px
     usable = np.all(np.isfinite(candidates), axis=-1) & np.isfinite(values)
     counts = usable.sum(axis=1)
     present = np.flatnonzero(counts > 0)
-    rng, farthest = np.random.default_rng(seed), farthest_plausible_m(tango.KEYPOINTS_M, K)
+    rng, farthest = np.random.default_rng(seed), farthest_plausible_m(keypoints_m, K)
     rotations, translations, best = [], [], None
     drawn, needed = 0, ITERATIONS
     while drawn < needed and drawn < ITERATIONS:
-        body, image = _draw(rng, present, counts, tango.KEYPOINTS_M, candidates)
+        body, image = _draw(rng, present, counts, keypoints_m, candidates)
         drawn += CHUNK
         for points_m, points_px in zip(body, image, strict=True):
             ok, rvec, tvec = cv2.solvePnP(points_m, points_px, K, DIST, flags=cv2.SOLVEPNP_AP3P)
@@ -223,38 +224,50 @@ def _chunk_at_a_time(candidates: np.ndarray, values: np.ndarray, reprojection_px
                 translations.append(tvec[:, 0])
         if rotations:
             totals = _support(np.array(rotations), np.array(translations), candidates, values, usable,
-                              tango.KEYPOINTS_M, K, DIST, reprojection_px, extent_px)
+                              keypoints_m, K, DIST, reprojection_px, extent_px)
             index = int(np.argmax(totals))
             if np.isfinite(totals[index]):
                 best = rotations[index], translations[index]
                 needed = _samples_needed(cv2.Rodrigues(best[0])[0], best[1].reshape(3, 1), candidates, values,
-                                         usable, counts, tango.KEYPOINTS_M, K, DIST, reprojection_px)
+                                         usable, counts, keypoints_m, K, DIST, reprojection_px)
     return best
 
 
-def _noisy_case(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Candidates (11, 3, 2) round a true pose's keypoints, a third of them off by far, and
+#: the keypoints of two targets: Tango's 11, and a 3U CubeSat's 8 corners (0.1 x 0.1 x 0.34 m)
+CUBESAT_CORNERS_M = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (-0.17, 0.17)])
+TARGETS = {"tango": (tango.KEYPOINTS_M, 8.0), "cubesat3u": (CUBESAT_CORNERS_M, 2.0)}
+
+
+def _noisy_case(rng: np.random.Generator, target: str = "tango") -> tuple[np.ndarray, np.ndarray]:
+    """Candidates (K, 3, 2) round a true pose's keypoints, a third of them off by far, and
     their values: a RANSAC that runs long."""
+    keypoints_m, distance_m = TARGETS[target]
+    count = len(keypoints_m)
     q_true = g.random_quats(rng, 1)[0]
-    truth = g.project(g.transform_from_qt(q_true, [0.1, 0.2, 8.0]), tango.KEYPOINTS_M, K, DIST)
-    offsets = (rng.uniform(size=(11, 3, 1)) < 0.35) * rng.uniform(-80, 80, (11, 3, 2))
-    candidates = truth[:, None] + rng.normal(0, 1.5, (11, 3, 2)) + offsets
-    return candidates, rng.uniform(0.2, 1.0, (11, 3))
+    truth = g.project(g.transform_from_qt(q_true, [0.1, 0.2, distance_m]), keypoints_m, K, DIST)
+    offsets = (rng.uniform(size=(count, 3, 1)) < 0.35) * rng.uniform(-80, 80, (count, 3, 2))
+    candidates = truth[:, None] + rng.normal(0, 1.5, (count, 3, 2)) + offsets
+    return candidates, rng.uniform(0.2, 1.0, (count, 3))
 
 
-def test_the_batched_ransac_picks_the_pose_a_chunk_at_a_time_over_opencv_picks():
+@pytest.mark.parametrize("target", sorted(TARGETS))
+def test_the_batched_ransac_picks_the_pose_a_chunk_at_a_time_over_opencv_picks(target):
     """The samples of every chunk solved at once and the schedule read off them afterwards
     pick the pose that solving each chunk by cv2.solvePnP and stopping when enough were
-    drawn picks: cases that stop after a chunk or two and cases that draw all."""
+    drawn picks: cases that stop after a chunk or two and cases that draw all, on Tango and
+    on a target of another shape."""
     rng = np.random.default_rng(11)
-    cases = [mirrored_case(rng)[1:] for _ in range(3)] + [_noisy_case(rng) for _ in range(4)]
+    keypoints_m = TARGETS[target][0]
+    mirrored = [mirrored_case(rng)[1:] for _ in range(3)] if target == "tango" else []
+    cases = mirrored + [_noisy_case(rng, target) for _ in range(7 - len(mirrored))]
     extents = [None, None, (40.0, 400.0), None, (60.0, 300.0), None, (40.0, 400.0)]
     for (candidates, values), extent in zip(cases, extents, strict=True):
-        candidates = np.concatenate([candidates, np.full((11, 3 - candidates.shape[1], 2), np.nan)], axis=1)
-        values = np.concatenate([values, np.zeros((11, 3 - values.shape[1]))], axis=1)
+        count = len(keypoints_m)
+        candidates = np.concatenate([candidates, np.full((count, 3 - candidates.shape[1], 2), np.nan)], axis=1)
+        values = np.concatenate([values, np.zeros((count, 3 - values.shape[1]))], axis=1)
         usable = np.all(np.isfinite(candidates), axis=-1)
-        expected = _chunk_at_a_time(candidates, values, 4.0, extent, seed=3)
-        found = _ransacs([0], candidates[None], values[None], usable[None], tango.KEYPOINTS_M, K, DIST, [4.0],
+        expected = _chunk_at_a_time(candidates, values, keypoints_m, 4.0, extent, seed=3)
+        found = _ransacs([0], candidates[None], values[None], usable[None], keypoints_m, K, DIST, [4.0],
                          [extent], 3)[0]
         assert (found is None) == (expected is None)
         if expected is not None:
@@ -269,8 +282,9 @@ def test_images_solved_together_give_the_bytes_each_gives_alone():
     cases = [_noisy_case(rng) for _ in range(GROUP + 4)]
     candidates, values = np.array([c for c, _ in cases]), np.array([v for _, v in cases])
     extents = [(40.0, 400.0) if i % 3 else None for i in range(len(cases))]
-    together = poses_from_candidates(candidates, values, tango.KEYPOINTS_M, K, DIST, [4.0] * len(cases), extents, 7)
+    keypoints_m = tango.KEYPOINTS_M
+    together = poses_from_candidates(candidates, values, keypoints_m, K, DIST, [4.0] * len(cases), extents, 7)
     for i, solution in enumerate(together):
-        alone = pose_from_candidates(candidates[i], values[i], tango.KEYPOINTS_M, K, DIST, 4.0, extents[i], 7)
+        alone = pose_from_candidates(candidates[i], values[i], keypoints_m, K, DIST, 4.0, extents[i], 7)
         assert solution.method == alone.method and solution.inliers == alone.inliers
         assert solution.q.tobytes() == alone.q.tobytes() and solution.t.tobytes() == alone.t.tobytes()

@@ -1,5 +1,7 @@
 """The batched AP3P: exact poses from exact points, OpenCV's choice on noisy ones."""
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 
@@ -18,13 +20,6 @@ def samples(rng: np.random.Generator, count: int, noise_px: float) -> tuple[np.n
     translations = np.stack([rng.uniform(-1, 1, count), rng.uniform(-0.6, 0.6, count), rng.uniform(4, 12, count)], -1)
     image_px = g.project_points(body_m @ rotations.transpose(0, 2, 1) + translations[:, None], K, DIST)
     return body_m, rotations, translations, image_px + rng.normal(0, noise_px, image_px.shape)
-
-
-def test_undistortion_is_opencvs():
-    rng = np.random.default_rng(0)
-    image_px = rng.uniform([0, 0], [1920, 1200], (500, 2))
-    expected = cv2.undistortPoints(image_px.reshape(-1, 1, 2), K, DIST)[:, 0]
-    np.testing.assert_allclose(p3p.undistort_normalized(image_px, K, DIST), expected, rtol=0, atol=1e-12)
 
 
 def test_quartic_roots_are_the_real_roots_and_a_complex_pair_is_none():
@@ -100,3 +95,38 @@ def test_a_nan_fourth_point_keeps_the_first_three_points_pose_as_opencv_does():
     for body, image, ok in zip(body_m, image_px, found, strict=True):
         assert ok == cv2.solvePnP(body, np.ascontiguousarray(image), K, DIST, flags=cv2.SOLVEPNP_AP3P)[0]
     assert found.all() and np.all(np.isfinite(found_t))
+
+
+def test_real_chessboard_corners_take_opencvs_pose():
+    """Data recorded by others: corners found in three of Ali et al.'s KUKA images (1928 x
+    1208, a 28 x 17 board of 20 mm squares), the lens calibrated on them; 1,000 draws of four
+    corners an image, coplanar and often with three in a row (degenerate: no pose). Where
+    OpenCV finds a pose so does this, and it is OpenCV's; where OpenCV finds none, neither."""
+    kuka = Path(__file__).resolve().parents[4] / "shared" / "external" / "ali2019_kuka_1"
+    board_m = np.zeros((28 * 17, 3))
+    board_m[:, :2] = np.mgrid[0:28, 0:17].T.reshape(-1, 2) * 0.020
+    corners = []
+    for number in (6, 14, 22):
+        gray = cv2.imread(str(kuka / f"{number:02d}.png"), cv2.IMREAD_GRAYSCALE)
+        found, points = cv2.findChessboardCornersSB(gray, (28, 17))
+        assert found
+        corners.append(points.reshape(-1, 2).astype(np.float64))
+    _, camera_matrix, dist, *_ = cv2.calibrateCamera([board_m.astype(np.float32)] * 3,
+                                                     [c.astype(np.float32) for c in corners], gray.shape[::-1],
+                                                     None, None)
+    dist = dist.ravel()[:5]
+    rng = np.random.default_rng(6)
+    unsolved = 0
+    for image_corners in corners:
+        drawn = np.argsort(rng.random((1000, len(board_m))), axis=1)[:, :4]
+        rotations, translations, found = p3p.solve_p4p(board_m[drawn], image_corners[drawn], camera_matrix, dist)
+        for body, image, rotation, translation, ok in zip(board_m[drawn], image_corners[drawn], rotations,
+                                                          translations, found, strict=True):
+            expected_ok, rvec, tvec = cv2.solvePnP(body, np.ascontiguousarray(image), camera_matrix, dist,
+                                                   flags=cv2.SOLVEPNP_AP3P)
+            assert ok == expected_ok
+            unsolved += not ok
+            if ok:
+                np.testing.assert_allclose(rotation, cv2.Rodrigues(rvec)[0], atol=1e-7)
+                np.testing.assert_allclose(translation, tvec[:, 0], rtol=1e-6)
+    assert 0 < unsolved < 300  # three corners in a row: a planar grid's degenerate draws
