@@ -5,7 +5,7 @@ its ground truth, and the virtual testbed's captures (the profile's first datase
 ``virtual.spp``, with their ground truth), in one process with one thread (a worker of one
 CPU, set up as that code's workers are: ``core.engines.prepare_worker``).
 
-    python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2]
+    python -m bench image_costs [REF] [--profile paper] [--images 24] [--rounds 2] [--kinds twin,training,capture]
 
 The two codes run in turns (REF, this tree; then this tree, REF; ...), each a fresh process per kind,
 so that the machine's drift falls on both; every image after the first two of a process
@@ -85,6 +85,10 @@ def _costs(code: Path, kind: str, profile: str, images: int) -> list[list]:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+#: what an image can be: a twin, a training image, a virtual testbed's capture
+KINDS = ("twin", "training", "capture")
+
+
 def _summary(seconds: list[float]) -> str:
     if not seconds:
         return "-"
@@ -98,7 +102,7 @@ def main(*args: str) -> None:
     if len(pairs) % 2:
         sys.exit(f"image_costs: option {pairs[-1]} wants a value\n{__doc__}")
     options = dict(zip(pairs[0::2], pairs[1::2], strict=True))
-    unknown = sorted(set(options) - {"--profile", "--images", "--rounds"})
+    unknown = sorted(set(options) - {"--profile", "--images", "--rounds", "--kinds"})
     if unknown:
         sys.exit(f"image_costs: unknown option {unknown[0]}\n{__doc__}")
     profile = options.get("--profile", "paper")
@@ -108,6 +112,9 @@ def main(*args: str) -> None:
         sys.exit(f"image_costs: --images and --rounds take whole numbers\n{__doc__}")
     if images < 2 or rounds < 1:
         sys.exit("image_costs: --images at least 2 (a spread needs two), --rounds at least 1")
+    kinds = tuple(options.get("--kinds", ",".join(KINDS)).split(","))
+    if not kinds or not set(kinds) <= set(KINDS):
+        sys.exit(f"image_costs: --kinds takes some of {', '.join(KINDS)}, comma-separated\n{__doc__}")
     codes: dict[str, Path] = {"this tree": REPO}
     with tempfile.TemporaryDirectory(prefix="speedplus-image-costs-") as scratch:
         if ref is not None:
@@ -122,27 +129,27 @@ def main(*args: str) -> None:
             for round_ in range(rounds):
                 # the first code of a round may fill a kernel cache the second then finds: turns
                 for name, code in list(codes.items())[::1 if round_ % 2 == 0 else -1]:
-                    for kind in ("twin", "training", "capture"):
+                    for kind in kinds:
                         measured.setdefault((name, kind), []).extend(_costs(code, kind, profile, images))
         finally:
             if ref is not None:
                 subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, check=False)
     rows, means = [], {}
     for name in codes:
-        twins = [s for s, _ in measured[name, "twin"]]
-        training = measured[name, "training"]
-        with_earth = [s for s, earth in training if earth]
-        black = [s for s, earth in training if not earth]
-        captures = [s for s, _ in measured[name, "capture"]]
-        means[name] = (statistics.mean(twins), statistics.mean(s for s, _ in training), statistics.mean(captures))
-        rows.append({"code": name, "CPU-s a twin": _summary(twins),
+        seconds = {kind: measured.get((name, kind), []) for kind in KINDS}
+        training = seconds["training"]
+        means[name] = {kind: statistics.mean(s for s, _ in values) for kind, values in seconds.items() if values}
+        rows.append({"code": name, "CPU-s a twin": _summary([s for s, _ in seconds["twin"]]),
                      "CPU-s a training image": _summary([s for s, _ in training]),
-                     "with the Earth": _summary(with_earth), "black space": _summary(black),
-                     "CPU-s a capture": _summary(captures)})
+                     "with the Earth": _summary([s for s, earth in training if earth]),
+                     "black space": _summary([s for s, earth in training if not earth]),
+                     "CPU-s a capture": _summary([s for s, _ in seconds["capture"]])})
     if ref is not None:
-        rows.append({"code": f"{ref} / this tree", "CPU-s a twin": f"{means[ref][0] / means['this tree'][0]:.2f}x",
-                     "CPU-s a training image": f"{means[ref][1] / means['this tree'][1]:.2f}x",
-                     "with the Earth": "", "black space": "",
-                     "CPU-s a capture": f"{means[ref][2] / means['this tree'][2]:.2f}x"})
+        ratio = {kind: f"{means[ref][kind] / means['this tree'][kind]:.2f}x" if kind in means[ref] else "-"
+                 for kind in KINDS}
+        rows.append({"code": f"{ref} / this tree", "CPU-s a twin": ratio["twin"],
+                     "CPU-s a training image": ratio["training"], "with the Earth": "", "black space": "",
+                     "CPU-s a capture": ratio["capture"]})
     report("image_costs", f"CPU-seconds an image at the {profile} profile's resolution (one worker of one CPU, "
-           "ground truth included)", rows, {"profile": profile, "images": images, "rounds": rounds, "ref": ref})
+           "ground truth included)", rows, {"profile": profile, "images": images, "rounds": rounds, "ref": ref,
+                                                "kinds": list(kinds)})

@@ -1,5 +1,6 @@
-"""Per-pixel ground truth as one multi-channel OpenEXR file per image (read and written
-through OpenImageIO); the format is defined here, once, and checked on read.
+"""Per-pixel ground truth as one multi-channel OpenEXR file per image (written by
+``stages.common.exr``, tiled and ZIP-compressed; read through OpenImageIO); the format is
+defined here, once, and checked on read.
 
 Channels (float32, one value per output pixel of the image it belongs to, in that image's
 distorted geometry; NaN where the model is not hit):
@@ -25,15 +26,15 @@ OpenCV's +z, and a second convention for the same pose would invite mistakes.
 from __future__ import annotations
 
 import json
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manifests.files import temporary_name
+from manifests.files import write_bytes_atomic
 from speedplus.errors import InputError
+from stages.common import exr
 from stages.common.lens import LensCamera
 from stages.common.surface import SurfaceMaps
 
@@ -82,66 +83,18 @@ def channels_of(maps: SurfaceMaps, radiance: np.ndarray | None, names: tuple[str
 
 def encode(channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
            part_ids: dict[str, int], length_scale: float = 1.0) -> bytes:
-    """The EXR file ``write`` makes, as bytes (for a worker whose driver writes its files)."""
-    import tempfile
-
-    with tempfile.TemporaryDirectory(prefix="speedplus-exr-") as folder:
-        path = Path(folder) / "ground_truth.exr"
-        write(path, channels, camera, cam_from_target, part_ids, length_scale)
-        return path.read_bytes()
-
-
-#: rows of a band ``_interleaved`` stacks at once: a few hundred kB, inside a core's cache
-_BAND_ROWS = 16
-#: the interleaved pixels of the last write, reused by the next of the same size: a fresh
-#: 100 MB buffer (11 planes at 1920 x 1200) costs 0.3 s of page faults here, every image
-_SCRATCH: dict[tuple[int, int, int], np.ndarray] = {}
-_SCRATCH_LOCK = threading.Lock()
-
-
-def _interleaved(planes: list[np.ndarray], out: np.ndarray | None = None) -> np.ndarray:
-    """(H, W, C) float32 of C planes (H, W), into ``out`` where given, stacked a band of rows
-    at a time: ``np.stack`` along the last axis of whole frames walks the output once per
-    plane (0.85 s for 11 planes at 1920 x 1200 here, 0.05 s in bands); the same values."""
-    height, width = planes[0].shape
-    pixels = np.empty((height, width, len(planes)), np.float32) if out is None else out
-    for row in range(0, height, _BAND_ROWS):
-        band = slice(row, row + _BAND_ROWS)
-        pixels[band] = np.stack([plane[band] for plane in planes], axis=-1)
-    return pixels
+    """The file's bytes: the channels {name: (H, W)} as float32, tiled and ZIP-compressed
+    (``stages.common.exr``), with the header."""
+    header = {"version": VERSION, "camera_matrix": np.asarray(camera.camera_matrix, float).tolist(),
+              "dist": [float(v) for v in camera.dist], "cam_from_target": np.asarray(cam_from_target, float).tolist(),
+              "length_scale": float(length_scale), "part_ids": dict(part_ids)}
+    return exr.encode(channels, {HEADER_KEY: json.dumps(header)})
 
 
 def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
           part_ids: dict[str, int], length_scale: float = 1.0) -> None:
-    """Write the channels (ZIP-compressed) and the header atomically."""
-    import OpenImageIO as oiio  # noqa: N813 - the library's own documented alias
-
-    names = tuple(channels)
-    height, width = next(iter(channels.values())).shape
-    spec = oiio.ImageSpec(width, height, len(names), "float")
-    spec.channelnames = names
-    spec.attribute("compression", "zip")
-    spec.attribute("DateTime", "")  # OpenImageIO would stamp the time: same inputs, same bytes
-    header = {"version": VERSION, "camera_matrix": np.asarray(camera.camera_matrix, float).tolist(),
-              "dist": [float(v) for v in camera.dist], "cam_from_target": np.asarray(cam_from_target, float).tolist(),
-              "length_scale": float(length_scale), "part_ids": dict(part_ids)}
-    spec.attribute(HEADER_KEY, json.dumps(header))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = temporary_name(path).with_suffix(".exr")  # OpenImageIO picks the format by suffix
-    output = oiio.ImageOutput.create(str(temporary))
-    if output is None or not output.open(str(temporary), spec):
-        raise OSError(f"{path}: cannot write an EXR ({oiio.geterror()})")
-    with _SCRATCH_LOCK:  # one buffer, kept for the next image of this size
-        shape = (height, width, len(names))
-        scratch = _SCRATCH.get(shape)
-        if scratch is None:
-            _SCRATCH.clear()
-            scratch = _SCRATCH[shape] = np.empty(shape, np.float32)
-        ok = output.write_image(_interleaved([channels[name] for name in names], scratch))
-        output.close()
-    if not ok:
-        raise OSError(f"{path}: cannot write an EXR ({output.geterror()})")
-    temporary.replace(path)
+    """Write ``encode``'s file atomically."""
+    write_bytes_atomic(path, encode(channels, camera, cam_from_target, part_ids, length_scale))
 
 
 def _header(path: Path, text: Any) -> dict[str, Any]:

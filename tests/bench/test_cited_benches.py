@@ -111,6 +111,8 @@ def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
         image_costs.main("no-such-commit", "--profile", "smoke", "--images", "2", "--rounds", "1")
     with pytest.raises(SystemExit, match="option --images wants a value"):
         image_costs.main("HEAD", "--images")
+    with pytest.raises(SystemExit, match="--kinds takes some of twin, training, capture"):
+        image_costs.main("HEAD", "--kinds", "twin,twins")
 
 
 def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_path):

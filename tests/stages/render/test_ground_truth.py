@@ -187,22 +187,9 @@ def _rewrite_header(path, text):
     assert source.write(str(path))
 
 
-@pytest.mark.parametrize("height", [1, 15, 16, 17, 40])
-def test_channels_are_interleaved_as_stacked(height):
-    from stages.common.ground_truth import _interleaved
-
-    rng = np.random.default_rng(height)
-    planes = [rng.normal(size=(height, 7)).astype(np.float32) for _ in range(5)]
-    planes[1][0, 0] = np.nan
-    expected = np.stack(planes, axis=-1)
-    assert np.array_equal(_interleaved(planes), expected, equal_nan=True)
-    reused = np.full_like(expected, 7.0)
-    assert _interleaved(planes, reused) is reused and np.array_equal(reused, expected, equal_nan=True)
-
-
 def test_files_written_one_after_another_each_hold_their_own_channels(tmp_path):
-    """The writer's one buffer a process: files of other sizes and channels in between, and
-    the next of the first size, each read back as written."""
+    """Files of other sizes and channels in between, and the next of the first size (the
+    writer's kept uniform tiles), each read back as written."""
     rng = np.random.default_rng(60)
     camera = train_camera(load_config("smoke"))
     sizes = [(camera.height, camera.width, ("Z", "part")), (camera.height, camera.width, ALL),
