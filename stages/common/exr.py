@@ -106,12 +106,20 @@ def _uniform_tiles(planes: list[np.ndarray], rows: int, columns: int) -> np.ndar
     """(rows, columns) bool: tiles in which every plane (H, W) holds one value (bit for bit:
     NaNs of one payload are one value); edge tiles judged on the pixels they hold."""
     uniform = np.ones((rows, columns), bool)
+    height, width = planes[0].shape
+    whole_rows, whole_columns = height // TILE, width // TILE
     for plane in planes:
+        if not uniform.any():
+            break
         bits = plane.view(np.uint32)
-        height, width = bits.shape
-        whole_rows, whole_columns = height // TILE, width // TILE
-        inner = bits[:whole_rows * TILE, :whole_columns * TILE].reshape(whole_rows, TILE, whole_columns, TILE)
-        uniform[:whole_rows, :whole_columns] &= (inner == inner[:, :1, :, :1]).all(axis=(1, 3))
+        if whole_rows and whole_columns:
+            inner = bits[:whole_rows * TILE, :whole_columns * TILE]
+            # each pixel against its tile's first, reduced along rows, then along each tile's
+            # columns: reductions over adjacent axes, a third faster than over both at once
+            first = np.repeat(inner[::TILE, ::TILE], TILE, axis=1)
+            same = np.logical_and.reduce(inner.reshape(whole_rows, TILE, -1) == first[:, None, :], axis=1)
+            uniform[:whole_rows, :whole_columns] &= np.logical_and.reduce(
+                same.reshape(whole_rows, whole_columns, TILE), axis=2)
         for row in range(rows):  # the partial tiles of the right and bottom edges
             for column in range(whole_columns if row < whole_rows else 0, columns):
                 block = bits[row * TILE:(row + 1) * TILE, column * TILE:(column + 1) * TILE]
@@ -145,19 +153,19 @@ def encode(channels: dict[str, np.ndarray], strings: dict[str, str] | None = Non
     height, width = planes[0].shape
     if any(plane.shape != (height, width) for plane in planes) or width < 1 or height < 1:
         raise ValueError(f"EXR channels of one non-empty shape expected, got {[p.shape for p in planes]}")
+    header = _header(names, width, height, dict(strings or {}))
     rows, columns = -(-height // TILE), -(-width // TILE)
     uniform = _uniform_tiles(planes, rows, columns)
+    corners = np.stack([plane[::TILE, ::TILE] for plane in planes], axis=-1)  # (rows, columns, C)
     chunks = []
     for row in range(rows):
         for column in range(columns):
             ys, xs = slice(row * TILE, (row + 1) * TILE), slice(column * TILE, (column + 1) * TILE)
             tile_height, tile_width = planes[0][ys, xs].shape
             if uniform[row, column]:
-                values = b"".join(plane[ys, xs][:1, :1].tobytes() for plane in planes)
-                data = _uniform_data(values, tile_width, tile_height, len(planes))
+                data = _uniform_data(corners[row, column].tobytes(), tile_width, tile_height, len(planes))
             else:
                 data = zip_data(np.stack([plane[ys, xs] for plane in planes], axis=1).tobytes())
             chunks.append(struct.pack("<5i", column, row, 0, 0, len(data)) + data)
-    header = _header(names, width, height, dict(strings or {}))
     offsets = np.cumsum([0, *map(len, chunks[:-1])], dtype=np.uint64) + np.uint64(len(header) + 8 * len(chunks))
     return header + offsets.astype("<u8").tobytes() + b"".join(chunks)
