@@ -8,8 +8,8 @@ value per channel (zero radiance and part, NaN geometry). OpenImageIO compressed
 byte of them (0.28 s a twin, and 0.05 s to interleave them for it); here a tile whose every
 channel holds one value is compressed once per value and size and its bytes reused, and
 the others go through ISA-L's deflate (``isal``: zlib's format, several times zlib's speed),
-so that a twin's file costs 0.06 s and one over the Earth, whose radiance is noise in every
-tile, 0.2 s. The pixels read back bit for bit, NaN payloads included
+so that a twin's file costs 0.03 s and one over the Earth, whose radiance is noise in every
+tile, 0.18 s. The pixels read back bit for bit, NaN payloads included
 (``tests/stages/common/test_exr.py``).
 
 The layout, from OpenEXR's "OpenEXR File Layout" (openexr.com, version 2 of the format),
