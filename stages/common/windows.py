@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from stages.common import geometry as g
@@ -96,3 +97,23 @@ def image_window(lens: Lens, film: Window | None) -> Window | None:
     if len(rows) == 0:
         return Window(0, 0, 0, 0)
     return Window(int(columns[0]), int(rows[0]), int(columns[-1] - columns[0] + 1), int(rows[-1] - rows[0] + 1))
+
+
+def distorted(lens: Lens, pinhole: np.ndarray, film: Window, image: Window) -> np.ndarray:
+    """``lens.distort(pinhole)`` (H, W, C) float32 of a pinhole render (H_film, W_film, C)
+    that is zero outside ``film``, whose image window is ``image`` (``image_window``): remapped
+    in ``image`` only and zero elsewhere, the same values, since a pixel outside ``image``
+    samples no pixel of ``film``. A film window on the film's edge, which the remap's
+    replicated border carries beyond it, is remapped whole."""
+    geometry = lens.geometry
+    if (film.x <= 0 or film.y <= 0 or film.x + film.width >= geometry.width
+            or film.y + film.height >= geometry.height):
+        return lens.distort(pinhole)
+    camera = lens.camera
+    image_pixels = np.zeros((camera.height, camera.width, *pinhole.shape[2:]), np.float32)
+    if not image.empty:
+        rows, columns = image.slices()
+        image_pixels[rows, columns] = cv2.remap(
+            np.ascontiguousarray(pinhole, dtype=np.float32), np.ascontiguousarray(lens.map_x[rows, columns]),
+            np.ascontiguousarray(lens.map_y[rows, columns]), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return image_pixels

@@ -31,7 +31,7 @@ from stages.common.mitsuba_adapter import (
 )
 from stages.common.surface import shape_id
 from stages.common.target import Target
-from stages.common.windows import Window, film_window, kernel_window
+from stages.common.windows import Window, distorted, film_window, image_window, kernel_window
 
 #: films of fewer pixels are rendered whole: one compiled kernel for every pose costs less than a
 #: window's own kernel (measured at 330 x 210, 64 spp: 0.12 s a twin whole, 0.27 s windowed, of
@@ -67,6 +67,7 @@ class TargetRenderer:
                                             bsdf(mi, synthetic_look(target.looks.get(name), part.colour)))
         self.loaded = LoadedScene(mi, objects)
         self.scene = self.loaded.scene
+        self._image_window: tuple[Window | None, Window | None] | None = None
 
     def film_window(self, cam_from_target: np.ndarray) -> Window | None:
         """The pinhole film's window that holds the target at this pose, at a size whose
@@ -76,6 +77,14 @@ class TargetRenderer:
         if geometry.width * geometry.height < WINDOWED_FILM_PX:
             return None
         return kernel_window(film_window(geometry, cam_from_target, self.points_m), geometry)
+
+    def image_window(self, cam_from_target: np.ndarray) -> Window | None:
+        """The window of the camera's image whose pixels sample ``film_window`` (where the
+        target can be in the image; None: all of it), kept for the last film window asked."""
+        film = self.film_window(cam_from_target)
+        if self._image_window is None or self._image_window[0] != film:
+            self._image_window = (film, image_window(self.lens, film))
+        return self._image_window[1]
 
     def render(self, cam_from_target: np.ndarray, light_dir_cam: np.ndarray, irradiance: float,
                seed: int) -> np.ndarray:
@@ -103,7 +112,7 @@ class TargetRenderer:
             camera = self.windows.aimed(window.x, window.y, window.width, window.height, target_from_cam)
             pinhole[window.slices()] = self.loaded.render_with(camera, self.spp, seed,
                                                                opaque=("sun.to_world", "sun.irradiance.value"))
-        return self.lens.distort(pinhole)
+        return distorted(self.lens, pinhole, window, self.image_window(cam_from_target))
 
 
 def ray_traced_mask(renderer: TargetRenderer, cam_from_target: np.ndarray) -> np.ndarray:

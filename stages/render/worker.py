@@ -30,7 +30,7 @@ from stages.common.lens import LensCamera
 from stages.common.surface import TargetSurfaces
 from stages.common.target import Target
 from stages.common.tone import Response
-from stages.common.windows import Window, image_window
+from stages.common.windows import Window
 from stages.render.jobs import RenderJob
 from stages.render.scene import TargetRenderer
 
@@ -92,7 +92,7 @@ class RenderWorker:
         started = time.perf_counter()
         radiance, earth = self.radiance(job)
         # the ray cast where the target can be, the window the render drew (stages.common.windows)
-        window = image_window(self.renderer.lens, self.renderer.film_window(job.cam_from_target()))
+        window = self.renderer.image_window(job.cam_from_target())
         maps = self.surfaces.through_lens(job.cam_from_target(), self.camera, window)
         mask = maps.mask
         if not mask.any():

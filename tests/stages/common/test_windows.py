@@ -175,3 +175,24 @@ def test_a_worker_keeps_the_sensors_of_its_latest_window_sizes_only(renderer):
     renderer.windows.aimed(0, 0, 16, 16, world_from_cam)  # evicted, loaded again
     kept = list(renderer.windows._loaded)
     assert len(kept) == WindowSensors.KEPT and kept[-1] == (16, 16) and (17, 16) not in kept
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_windowed_distortion_is_the_whole_films(seed):
+    """A film zero outside a window, remapped in its image window only, is the whole remap,
+    bit for bit; windows on the film's edge, and empty ones, among them."""
+    from stages.common.lens import Lens
+    from stages.common.windows import distorted
+
+    rng = np.random.default_rng(seed)
+    lens = Lens(lens_camera(load_config("smoke").camera))
+    geometry = lens.geometry
+    edges = [Window(0, 0, 40, 30), Window(geometry.width - 9, 5, 9, 60), Window(0, 0, geometry.width, geometry.height),
+             Window(12, geometry.height - 3, 100, 3), Window(30, 30, 0, 0)]
+    for index in range(30):
+        x, y = int(rng.integers(0, geometry.width)), int(rng.integers(0, geometry.height))
+        film = edges[index] if index < len(edges) else Window(
+            x, y, int(rng.integers(0, geometry.width - x + 1)), int(rng.integers(0, geometry.height - y + 1)))
+        pinhole = np.zeros((geometry.height, geometry.width, 4), np.float32)
+        pinhole[film.slices()] = rng.uniform(0.0, 2.0, (film.height, film.width, 4))
+        assert np.array_equal(distorted(lens, pinhole, film, image_window(lens, film)), lens.distort(pinhole)), film
