@@ -127,8 +127,8 @@ def set_one_thread() -> None:
 
 def set_threads(threads: int) -> None:
     """Dr.Jit's thread count for this process: ``threads``, or in a Ray worker the CPUs Ray
-    reserved for it. For the box-filtered twins the pixels do not depend on it (measured
-    bit-identical with 1 and 2)."""
+    reserved for it. A twin's pixels do not depend on it (``LoadedScene.render_window``
+    keeps each pixel's sum in one thread; tests/stages/common/test_windows.py)."""
     import drjit as dr
 
     from core.engines import reserved_cpus
@@ -255,48 +255,6 @@ def surface_hits(mi: Any, scene: Any, origins: np.ndarray, directions: np.ndarra
     return np.array(part, dtype=np.uint8), points, normals
 
 
-class WindowSensors:
-    """Sensors that each draw one window of the pinhole film a ``sensor`` spec describes, as
-    a crop of that film would, pixel for pixel and ray for ray.
-
-    A film crop's offset is compiled into Dr.Jit's kernel, so every new window compiled anew
-    (measured 0.45 s at 960 x 600, as long as the render). Here the window's place is the
-    sensor's principal-point offset and its pose is ``to_world``, both opaque: one kernel for
-    each window size (``stages.common.windows.kernel_window`` keeps the sizes few)."""
-
-    #: loaded sensors kept, the most recently used: each holds its film (5-8 MB at 512 x 384 to
-    #: 768 x 512), and a worker may meet a few hundred sizes over a dataset
-    KEPT = 24
-
-    def __init__(self, mi: Any, geometry: RenderGeometry, spec: dict[str, Any]) -> None:
-        self.mi, self.geometry, self.spec = mi, geometry, spec
-        self._loaded: dict[tuple[int, int], tuple[Any, Any]] = {}  # in order of last use
-
-    def aimed(self, x: int, y: int, width: int, height: int, world_from_cam: np.ndarray) -> Any:
-        """The loaded sensor of the window (``x``, ``y``, ``width``, ``height``) px of the
-        film, at ``world_from_cam`` (4, 4)."""
-        import drjit as dr
-
-        if (width, height) not in self._loaded:
-            film = {**self.spec["film"], "width": width, "height": height}
-            fov = float(np.degrees(2.0 * np.arctan(width / 2.0 / self.geometry.focal_px)))
-            loaded = self.mi.load_dict({**self.spec, "film": film, "fov": fov})
-            self._loaded[width, height] = (loaded, self.mi.traverse(loaded))
-            while len(self._loaded) > self.KEPT:
-                del self._loaded[next(iter(self._loaded))]
-        loaded, params = self._loaded.pop((width, height))
-        self._loaded[width, height] = (loaded, params)
-        # the window's centre from the film's, in window widths and heights (Mitsuba's
-        # principal point offset moves the image, so it is the negative of the optical axis's)
-        params["principal_point_offset_x"] = (x + (width - 1) / 2 - (self.geometry.width - 1) / 2) / width
-        params["principal_point_offset_y"] = (y + (height - 1) / 2 - (self.geometry.height - 1) / 2) / height
-        params["to_world"] = sensor_to_world(self.mi, world_from_cam)
-        for key in ("principal_point_offset_x", "principal_point_offset_y", "to_world"):
-            dr.make_opaque(params[key])
-        params.update()
-        return loaded
-
-
 class LoadedScene:
     """A scene loaded from its dictionary (``load_scene``) and the one way the project changes
     and renders it, as kubric's ``View`` keeps its renderer: the camera, transforms, colours,
@@ -336,14 +294,53 @@ class LoadedScene:
         """Apply what was set (before a ray cast; ``render`` does it itself)."""
         self._params.update()
 
-    def render_with(self, camera: Any, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
-        """``render`` through another sensor ``camera`` (a loaded one: ``WindowSensors``')."""
+    def render_window(self, x: int, y: int, width: int, height: int, spp: int, seed: int,
+                      opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
+        """The pixels (height, width, 4) of the window (``x``, ``y``, ``width``, ``height``) px of
+        the scene's sensor's film, RGB and alpha (the share of samples that hit), as the film
+        would hold them: each pixel the mean of ``spp`` samples drawn uniformly in it (its box
+        filter) through the sensor's own rays, traced by the scene's integrator.
+
+        Mitsuba's own ``render`` of a film crop compiles the crop's size and offset into
+        Dr.Jit's kernel (0.1-0.3 s at every new size); here the window is opaque, so every
+        window of every pose is one compiled kernel, which also renders no pixel outside
+        the window (docs/architecture.md section 7)."""
         import drjit as dr
 
+        mi = self.mi
         for key in opaque:
             dr.make_opaque(self._params[key])
         self._params.update()
-        return _interruptible(lambda: self.mi.render(self.scene, sensor=camera, spp=spp, seed=seed))
+        sensor = self.scene.sensors()[0]
+        film_width, film_height = (int(v) for v in sensor.film().size())
+        left, top, columns, seed_value = mi.UInt32(x), mi.UInt32(y), mi.UInt32(width), mi.UInt32(seed)
+        dr.make_opaque(left, top, columns, seed_value)
+        pixels = width * height
+        # a pixel's samples are neighbouring lanes, in a slot of a power of two (the rest idle):
+        # Dr.Jit's threads take blocks of a power of two lanes, so no pixel's sum is split
+        # between threads, and the pixels are the same bits whatever the thread count
+        slot = 1 << max(0, spp - 1).bit_length()
+        lane = dr.arange(mi.UInt32, pixels * slot)
+        pixel, active = lane // slot, (lane % slot) < spp
+        sampler = sensor.sampler().clone()
+        sampler.seed(seed_value, pixels * slot)
+        row = pixel // columns
+        position = (mi.Vector2f(mi.Float(left + pixel - row * columns), mi.Float(top + row))
+                    + sampler.next_2d(active))
+        ray, weight = sensor.sample_ray(0.0, 0.0, position / mi.ScalarVector2f(film_width, film_height),
+                                        mi.Point2f(0.5, 0.5), active)
+        spectrum, valid, _ = self.scene.integrator().sample(self.scene, sampler, ray, active=active)
+        spectrum *= weight
+        sums = [dr.zeros(mi.Float, pixels) for _ in range(4)]
+        for total, value in zip(sums, (spectrum[0], spectrum[1], spectrum[2], dr.select(valid, 1.0, 0.0)),
+                                strict=True):
+            dr.scatter_reduce(dr.ReduceOp.Add, total, value, pixel, active)
+
+        def develop() -> np.ndarray:
+            dr.eval(*sums)
+            return np.stack([np.asarray(total, np.float32) for total in sums], axis=-1)
+
+        return (_interruptible(develop) * np.float32(1.0 / spp)).reshape(height, width, 4)
 
     def render(self, spp: int, seed: int, opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
         """The film (H, W, C) as numpy, after making ``opaque`` keys opaque and applying what

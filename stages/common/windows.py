@@ -64,26 +64,6 @@ def film_window(geometry: RenderGeometry, cam_from_target: np.ndarray, points_m:
     return Window(int(low[0]), int(low[1]), int(high[0] - low[0]), int(high[1] - low[1]))
 
 
-def kernel_window(window: Window | None, geometry: RenderGeometry) -> Window | None:
-    """``window`` grown to a size from a short ladder, inside the film of ``geometry``: its
-    width and height rounded up to a quarter of their power of two (265 -> 320, 90 -> 96), at
-    most 25% more each, the extra shared either side where the film allows.
-
-    Dr.Jit compiles a render's kernel for its film's size: a window of a new size costs a
-    compilation (measured 0.45 s at 960 x 600, as much as the render), a size met before in
-    the same process costs nothing (a new process finds none of these kernels on disk)."""
-    if window is None or window.empty:
-        return window
-    limits = (geometry.width, geometry.height)
-    start, size = [window.x, window.y], [window.width, window.height]
-    for axis in (0, 1):
-        step = 1 << max(0, size[axis].bit_length() - 3)
-        grown = min(-(-size[axis] // step) * step, limits[axis])
-        start[axis] = min(max(0, start[axis] - (grown - size[axis]) // 2), limits[axis] - grown)
-        size[axis] = grown
-    return Window(start[0], start[1], size[0], size[1])
-
-
 def image_window(lens: Lens, film: Window | None) -> Window | None:
     """The window of the camera's image whose pixels sample ``film`` through the lens's remap
     (bilinear: a pixel reads the film pixels round its sample point); None: the whole image."""

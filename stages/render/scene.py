@@ -20,7 +20,6 @@ from stages.common.lens import Lens, LensCamera, pixel_rays
 from stages.common.looks import synthetic_look
 from stages.common.mitsuba_adapter import (
     LoadedScene,
-    WindowSensors,
     bsdf,
     first_hit_on,
     load_mitsuba,
@@ -31,12 +30,7 @@ from stages.common.mitsuba_adapter import (
 )
 from stages.common.surface import shape_id
 from stages.common.target import Target
-from stages.common.windows import Window, distorted, film_window, image_window, kernel_window
-
-#: films of fewer pixels are rendered whole: one compiled kernel for every pose costs less than a
-#: window's own kernel (measured at 330 x 210, 64 spp: 0.12 s a twin whole, 0.27 s windowed, of
-#: which 0.22 s compiling; at 991 x 623, 64 spp, the window pays: 0.61 s against 0.88 s)
-WINDOWED_FILM_PX = 250_000
+from stages.common.windows import Window, distorted, film_window, image_window
 
 
 class TargetRenderer:
@@ -52,7 +46,6 @@ class TargetRenderer:
         geometry = self.lens.geometry
         # box filter: alpha is exact coverage
         self.sensor_spec = sensor(mi, geometry, far_clip_m=1000.0, pixel_format="rgba")
-        self.windows = WindowSensors(mi, geometry, self.sensor_spec)
         #: every vertex (N, 3, body frame, m): where the target can be in an image
         self.points_m = target.vertices_m
         objects: dict[str, Any] = {
@@ -70,13 +63,9 @@ class TargetRenderer:
         self._image_window: tuple[Window | None, Window | None] | None = None
 
     def film_window(self, cam_from_target: np.ndarray) -> Window | None:
-        """The pinhole film's window that holds the target at this pose, at a size whose
-        compiled kernel is reused (``windows.kernel_window``); None: all of the film, as for a
-        film under ``WINDOWED_FILM_PX``."""
-        geometry = self.lens.geometry
-        if geometry.width * geometry.height < WINDOWED_FILM_PX:
-            return None
-        return kernel_window(film_window(geometry, cam_from_target, self.points_m), geometry)
+        """The pinhole film's window that holds the target at this pose
+        (``windows.film_window``); None: all of the film (a vertex at or behind the camera)."""
+        return film_window(self.lens.geometry, cam_from_target, self.points_m)
 
     def image_window(self, cam_from_target: np.ndarray) -> Window | None:
         """The window of the camera's image whose pixels sample ``film_window`` (where the
@@ -90,8 +79,9 @@ class TargetRenderer:
                seed: int) -> np.ndarray:
         """cam_from_target (4, 4) full scale; light_dir_cam (3,) unit, from the target towards
         the light; irradiance W/m^2; returns (H, W, 4) float32 through the lens. Only the film
-        window that holds the target is rendered (``film_window``: all of a film under
-        ``WINDOWED_FILM_PX``); the rest of the film is black space, as a full render's."""
+        window that holds the target is rendered (``film_window``, one compiled kernel for
+        every window: ``LoadedScene.render_window``); the rest of the film is black space, as
+        a full render's. Where no window can be drawn, Mitsuba renders the whole film."""
         target_from_cam = g.invert(cam_from_target)
         travel = -(target_from_cam[:3, :3] @ np.asarray(light_dir_cam, float))
         # the directional emitter sends its light along its local +z axis
@@ -100,18 +90,16 @@ class TargetRenderer:
         self.loaded.set_camera(target_from_cam)
         self.loaded.set_transform("sun.to_world", g.make_transform(sun_rotation, np.zeros(3)))
         self.loaded.set_grey("sun.irradiance.value", irradiance)
+        # opaque: one compiled kernel for every pose and light, whatever rendered before
+        opaque = ("sensor.to_world", "sun.to_world", "sun.irradiance.value")
         window = self.film_window(cam_from_target)
         if window is None:
-            # opaque: one compiled kernel for every pose and light, whatever rendered before
-            pinhole = self.loaded.render(self.spp, seed, opaque=("sensor.to_world", "sun.to_world",
-                                                                 "sun.irradiance.value"))
-            return self.lens.distort(np.asarray(pinhole, dtype=np.float32))
+            return self.lens.distort(np.asarray(self.loaded.render(self.spp, seed, opaque=opaque), dtype=np.float32))
         geometry = self.lens.geometry
         pinhole = np.zeros((geometry.height, geometry.width, 4), np.float32)
         if not window.empty:
-            camera = self.windows.aimed(window.x, window.y, window.width, window.height, target_from_cam)
-            pinhole[window.slices()] = self.loaded.render_with(camera, self.spp, seed,
-                                                               opaque=("sun.to_world", "sun.irradiance.value"))
+            pinhole[window.slices()] = self.loaded.render_window(window.x, window.y, window.width, window.height,
+                                                                 self.spp, seed, opaque=opaque)
         return distorted(self.lens, pinhole, window, self.image_window(cam_from_target))
 
 

@@ -6,8 +6,7 @@ files go back to the driver with the row (``core.engines.Produced``).
 The mask and the ground truth are ray-cast at the output pixel centres through the lens
 (``stages.common.surface``) in the render's own scene: exact per pixel, where remapping a
 rendered AOV image would blend ids and coordinates across edges; only in the window where
-the target can be (``stages.common.windows``), where the render draws (all of a film under
-``scene.WINDOWED_FILM_PX``).
+the target can be (``stages.common.windows``), where the render draws.
 
 The image is what the camera would make of the radiance (``stages.common.tone``): grey for a
 mono camera (SPEED+'s), colour for a colour one, through the camera's gamma; the exposure
