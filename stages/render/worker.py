@@ -71,7 +71,14 @@ class RenderWorker:
         else:
             background, seen = earth_background(self.camera, light, job.irradiance,
                                                 np.random.default_rng(job.seed)), True
-        return rgb + (1.0 - alpha) * background, seen  # the render's rgb is premultiplied by coverage
+        # the render's rgb is premultiplied by coverage; outside the window it and the coverage
+        # are zero, and the image is the Earth's (a fresh frame: composited in place)
+        window = self.renderer.image_window(job.cam_from_target())
+        if window is None:
+            return rgb + (1.0 - alpha) * background, seen
+        rows, columns = window.slices()
+        background[rows, columns] = rgb[rows, columns] + (1.0 - alpha[rows, columns]) * background[rows, columns]
+        return background, seen
 
     def tone(self, radiance: np.ndarray, window: Window | None) -> np.ndarray:
         """The 8-bit image of the radiance (H, W, 3), toned in ``window`` only where it is

@@ -221,3 +221,24 @@ def test_a_black_space_image_toned_in_its_window_is_the_whole_frames_tone(sensor
     assert np.array_equal(RenderWorker.tone(worker, radiance, None), whole)
     empty = RenderWorker.tone(worker, np.zeros_like(radiance), Window(0, 0, 0, 0))
     assert empty.shape == whole.shape and not empty.any()
+
+
+def test_the_earth_composited_in_the_window_is_the_whole_frames_composite():
+    """Outside the window the render and its coverage are zero: compositing the Earth there
+    only is the whole frame's ``rgb + (1 - alpha) * earth``, bit for bit."""
+    from stages.common.earth import earth_background
+
+    config = load_config("smoke", None, ["render.train_spp=4"])
+    camera = train_camera(config)
+    worker = RenderWorker(camera, planned_target(config), 4, config.render.max_depth, 1)
+    jobs = [job for job in train_jobs(config) if job.earth][:3]
+    assert jobs
+    for job in jobs:
+        radiance, _ = worker.radiance(job)
+        rgba = worker.renderer.render(job.cam_from_target(), np.asarray(job.light_dir_cam), job.irradiance, job.seed)
+        earth = earth_background(camera, np.asarray(job.light_dir_cam), job.irradiance,
+                                 np.random.default_rng(job.seed))
+        alpha = np.clip(rgba[..., 3:], 0.0, 1.0)
+        window = worker.renderer.image_window(job.cam_from_target())
+        assert window is not None and window.width * window.height < 0.5 * camera.width * camera.height
+        assert np.array_equal(radiance, rgba[..., :3] + (1.0 - alpha) * earth), job.sample_id
