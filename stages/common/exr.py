@@ -88,18 +88,22 @@ def _header(names: list[str], width: int, height: int, strings: dict[str, str]) 
             + b"".join(_attribute(key, *attributes[key]) for key in sorted(attributes)) + b"\0")
 
 
-def zip_data(raw: bytes) -> bytes:
-    """A chunk's pixel bytes as OpenEXR's ZIP stores them (module docstring)."""
-    data = np.frombuffer(raw, np.uint8)
+def zip_data(raw: bytes | np.ndarray) -> bytes:
+    """A chunk's pixel bytes (or a contiguous array of them, read as its bytes) as OpenEXR's
+    ZIP stores them (module docstring)."""
+    data = np.frombuffer(raw, np.uint8) if isinstance(raw, bytes) else raw.reshape(-1).view(np.uint8)
     half = (len(data) + 1) // 2
     split = np.empty_like(data)
-    split[:half], split[half:] = data[0::2], data[1::2]
+    if len(data) % 2 == 0:  # one pass: the byte pairs' columns become the two halves
+        split.reshape(2, half)[...] = data.reshape(half, 2).T
+    else:
+        split[:half], split[half:] = data[0::2], data[1::2]
     predicted = np.empty_like(split)
     predicted[:1] = split[:1]
     np.subtract(split[1:], split[:-1], out=predicted[1:])
     predicted[1:] += np.uint8(128)
     packed = isal_zlib.compress(predicted, LEVEL)
-    return packed if len(packed) < len(raw) else raw
+    return packed if len(packed) < len(data) else data.tobytes()
 
 
 def _uniform_tiles(planes: list[np.ndarray], rows: int, columns: int) -> np.ndarray:
@@ -165,7 +169,9 @@ def encode(channels: dict[str, np.ndarray], strings: dict[str, str] | None = Non
             if uniform[row, column]:
                 data = _uniform_data(corners[row, column].tobytes(), tile_width, tile_height, len(planes))
             else:
-                data = zip_data(np.stack([plane[ys, xs] for plane in planes], axis=1).tobytes())
-            chunks.append(struct.pack("<5i", column, row, 0, 0, len(data)) + data)
-    offsets = np.cumsum([0, *map(len, chunks[:-1])], dtype=np.uint64) + np.uint64(len(header) + 8 * len(chunks))
-    return header + offsets.astype("<u8").tobytes() + b"".join(chunks)
+                data = zip_data(np.stack([plane[ys, xs] for plane in planes], axis=1))
+            chunks.append((struct.pack("<5i", column, row, 0, 0, len(data)), data))
+    # each chunk: 20 bytes of coordinates and size, then its data; the file joined once
+    sizes = [20 + len(data) for _, data in chunks]
+    offsets = np.cumsum([0, *sizes[:-1]], dtype=np.uint64) + np.uint64(len(header) + 8 * len(chunks))
+    return b"".join([header, offsets.astype("<u8").tobytes(), *(part for chunk in chunks for part in chunk)])
