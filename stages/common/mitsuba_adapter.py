@@ -33,6 +33,8 @@ _CACHE_LOCKS: list[int] = []
 CACHE_SLOTS = 256
 #: the variant every renderer should use; a Ray worker that would use another is refused
 PREFERRED_VARIANT = "llvm_ad_rgb"
+#: lanes of one ``LoadedScene.render_window`` launch: Dr.Jit's lane indices are 32-bit
+MAX_LANES = 1 << 31
 
 
 def _interruptible(render: Any) -> np.ndarray:
@@ -304,22 +306,37 @@ class LoadedScene:
         Mitsuba's own ``render`` of a film crop compiles the crop's size and offset into
         Dr.Jit's kernel (0.1-0.3 s at every new size); here the window is opaque, so every
         window of every pose is one compiled kernel, which also renders no pixel outside
-        the window (docs/architecture.md section 7)."""
+        the window (docs/architecture.md section 7). A window of more samples than a launch's
+        32-bit lane indices hold is drawn in bands of rows, as Mitsuba splits its passes."""
         import drjit as dr
 
-        mi = self.mi
         for key in opaque:
             dr.make_opaque(self._params[key])
         self._params.update()
+        # a pixel's samples are neighbouring lanes, in a slot of a power of two (the rest idle):
+        # Dr.Jit's threads take blocks of a power of two lanes, so no pixel's sum is split
+        # between threads, and the pixels are the same bits whatever the thread count
+        slot = 1 << max(0, spp - 1).bit_length()
+        rows = MAX_LANES // (width * slot) if width else height
+        if rows < 1:
+            raise ValueError(f"{spp} samples a pixel over a row of {width} pixels exceed one launch's lanes")
+        bands = []
+        for band, top in enumerate(range(0, height, rows)):
+            # a band's own sample stream: the first band's is the seed's, so a window of one
+            # band is the same bits however large a launch may be
+            band_seed = (seed + band * 0x9E3779B9) % (1 << 32)
+            bands.append(self._render_rows(x, y + top, width, min(rows, height - top), spp, slot, band_seed))
+        return np.concatenate(bands, axis=0) if bands else np.zeros((0, width, 4), np.float32)
+
+    def _render_rows(self, x: int, y: int, width: int, height: int, spp: int, slot: int, seed: int) -> np.ndarray:
+        import drjit as dr
+
+        mi = self.mi
         sensor = self.scene.sensors()[0]
         film_width, film_height = (int(v) for v in sensor.film().size())
         left, top, columns, seed_value = mi.UInt32(x), mi.UInt32(y), mi.UInt32(width), mi.UInt32(seed)
         dr.make_opaque(left, top, columns, seed_value)
         pixels = width * height
-        # a pixel's samples are neighbouring lanes, in a slot of a power of two (the rest idle):
-        # Dr.Jit's threads take blocks of a power of two lanes, so no pixel's sum is split
-        # between threads, and the pixels are the same bits whatever the thread count
-        slot = 1 << max(0, spp - 1).bit_length()
         lane = dr.arange(mi.UInt32, pixels * slot)
         pixel, active = lane // slot, (lane % slot) < spp
         sampler = sensor.sampler().clone()

@@ -176,3 +176,27 @@ def test_a_windows_pixels_are_the_same_bits_whatever_the_thread_count(spp):
             assert np.array_equal(one, renderer.render(cam_from_target, LIGHT, 3.0, index)), index
     finally:
         dr.set_thread_count(1)
+
+
+def test_a_window_of_more_samples_than_a_launch_holds_is_drawn_in_bands(monkeypatch):
+    """Bands of rows, each its own sample stream: the first band is the unbanded window's
+    rows bit for bit, and the whole window has the same light to its noise."""
+    from stages.common import mitsuba_adapter
+
+    config = load_config("smoke")
+    renderer = TargetRenderer(lens_camera(config.camera), planned_target(config), spp=48, max_depth=3, threads=1)
+    cam_from_target = g.transform_from_qt([0.8, 0.2, -0.5, 0.26] / np.linalg.norm([0.8, 0.2, -0.5, 0.26]),
+                                          [0.1, 0.05, 4.0])
+    window = renderer.film_window(cam_from_target)
+    renderer.render(cam_from_target, LIGHT, 3.0, 5)  # the scene's parameters set for this pose
+    whole = renderer.loaded.render_window(window.x, window.y, window.width, window.height, 48, 5)
+    rows = 7
+    monkeypatch.setattr(mitsuba_adapter, "MAX_LANES", window.width * 64 * rows)
+    banded = renderer.loaded.render_window(window.x, window.y, window.width, window.height, 48, 5)
+    assert banded.shape == whole.shape == (window.height, window.width, 4)
+    assert np.array_equal(banded[:rows], whole[:rows]) and not np.array_equal(banded[rows:], whole[rows:])
+    lit = whole[..., 3] > 0
+    assert abs(banded[lit].sum() / whole[lit].sum() - 1) < 0.01
+    monkeypatch.setattr(mitsuba_adapter, "MAX_LANES", window.width * 64 - 1)
+    with pytest.raises(ValueError, match="exceed one launch's lanes"):
+        renderer.loaded.render_window(window.x, window.y, window.width, window.height, 48, 5)
