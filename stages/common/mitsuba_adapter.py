@@ -33,8 +33,6 @@ _CACHE_LOCKS: list[int] = []
 CACHE_SLOTS = 256
 #: the variant every renderer should use; a Ray worker that would use another is refused
 PREFERRED_VARIANT = "llvm_ad_rgb"
-#: lanes of one ``LoadedScene.render_window`` launch: Dr.Jit's lane indices are 32-bit
-MAX_LANES = 1 << 31
 
 
 def _interruptible(render: Any) -> np.ndarray:
@@ -130,7 +128,7 @@ def set_one_thread() -> None:
 def set_threads(threads: int) -> None:
     """Dr.Jit's thread count for this process: ``threads``, or in a Ray worker the CPUs Ray
     reserved for it. A twin's pixels do not depend on it (``LoadedScene.render_window``
-    keeps each pixel's sum in one thread; tests/stages/common/test_windows.py)."""
+    sums each pixel in one lane; tests/stages/common/test_windows.py)."""
     import drjit as dr
 
     from core.engines import reserved_cpus
@@ -299,63 +297,47 @@ class LoadedScene:
     def render_window(self, x: int, y: int, width: int, height: int, spp: int, seed: int,
                       opaque: tuple[str, ...] | list[str] = ()) -> np.ndarray:
         """The pixels (height, width, 4) of the window (``x``, ``y``, ``width``, ``height``) px of
-        the scene's sensor's film, RGB and alpha (the share of samples that hit), as the film
-        would hold them: each pixel the mean of ``spp`` samples drawn uniformly in it (its box
-        filter) through the sensor's own rays, traced by the scene's integrator.
+        the scene's sensor's film, RGB and alpha (the share of samples that hit), as its box
+        filter would hold them: each pixel the mean of ``spp`` samples drawn uniformly in it,
+        through the sensor's own rays, traced by the scene's integrator. For the target's
+        sensor (``sensor``: independent sampler, box filter, no crop, a pinhole).
 
         Mitsuba's own ``render`` of a film crop compiles the crop's size and offset into
-        Dr.Jit's kernel (0.1-0.3 s at every new size); here the window is opaque, so every
-        window of every pose is one compiled kernel, which also renders no pixel outside
-        the window (docs/architecture.md section 7). A window of more samples than a launch's
-        32-bit lane indices hold is drawn in bands of rows, as Mitsuba splits its passes."""
-        import drjit as dr
-
-        for key in opaque:
-            dr.make_opaque(self._params[key])
-        self._params.update()
-        # a pixel's samples are neighbouring lanes, in a slot of a power of two (the rest idle):
-        # Dr.Jit's threads take blocks of a power of two lanes, so no pixel's sum is split
-        # between threads, and the pixels are the same bits whatever the thread count
-        slot = 1 << max(0, spp - 1).bit_length()
-        rows = MAX_LANES // (width * slot) if width else height
-        if rows < 1:
-            raise ValueError(f"{spp} samples a pixel over a row of {width} pixels exceed one launch's lanes")
-        bands = []
-        for band, top in enumerate(range(0, height, rows)):
-            # a band's own sample stream: the first band's is the seed's, so a window of one
-            # band is the same bits however large a launch may be
-            band_seed = (seed + band * 0x9E3779B9) % (1 << 32)
-            bands.append(self._render_rows(x, y + top, width, min(rows, height - top), spp, slot, band_seed))
-        return np.concatenate(bands, axis=0) if bands else np.zeros((0, width, 4), np.float32)
-
-    def _render_rows(self, x: int, y: int, width: int, height: int, spp: int, slot: int, seed: int) -> np.ndarray:
+        Dr.Jit's kernel (0.1-0.3 s at every new size); here the window and ``spp`` are
+        opaque, so every window of every pose is one compiled kernel, which renders no pixel
+        outside the window (docs/architecture.md section 7). One lane a pixel adds its samples
+        in their order: the pixels are the same bits whatever the thread count (lanes of one
+        pixel's samples, summed by atomic adds, differed with 2 threads where a small
+        window's launch split a pixel between threads)."""
         import drjit as dr
 
         mi = self.mi
-        sensor = self.scene.sensors()[0]
-        film_width, film_height = (int(v) for v in sensor.film().size())
-        left, top, columns, seed_value = mi.UInt32(x), mi.UInt32(y), mi.UInt32(width), mi.UInt32(seed)
-        dr.make_opaque(left, top, columns, seed_value)
-        pixels = width * height
-        lane = dr.arange(mi.UInt32, pixels * slot)
-        pixel, active = lane // slot, (lane % slot) < spp
-        sampler = sensor.sampler().clone()
-        sampler.seed(seed_value, pixels * slot)
+        for key in opaque:
+            dr.make_opaque(self._params[key])
+        self._params.update()
+        sensor, integrator = self.scene.sensors()[0], self.scene.integrator()
+        film_size = mi.ScalarVector2f(*(float(v) for v in sensor.film().size()))
+        left, top, columns, samples, seed_value = (mi.UInt32(v) for v in (x, y, width, spp, seed))
+        dr.make_opaque(left, top, columns, samples, seed_value)
+        pixel = dr.arange(mi.UInt32, width * height)
         row = pixel // columns
-        position = (mi.Vector2f(mi.Float(left + pixel - row * columns), mi.Float(top + row))
-                    + sampler.next_2d(active))
-        ray, weight = sensor.sample_ray(0.0, 0.0, position / mi.ScalarVector2f(film_width, film_height),
-                                        mi.Point2f(0.5, 0.5), active)
-        spectrum, valid, _ = self.scene.integrator().sample(self.scene, sampler, ray, active=active)
-        spectrum *= weight
-        sums = [dr.zeros(mi.Float, pixels) for _ in range(4)]
-        for total, value in zip(sums, (spectrum[0], spectrum[1], spectrum[2], dr.select(valid, 1.0, 0.0)),
-                                strict=True):
-            dr.scatter_reduce(dr.ReduceOp.Add, total, value, pixel, active)
+        corner = mi.Vector2f(mi.Float(left + pixel - row * columns), mi.Float(top + row))
+        sampler = sensor.sampler().clone()
+        sampler.seed(seed_value, width * height)
+
+        def one_sample(index: Any, rgb: Any, hits: Any, sampler: Any) -> tuple[Any, Any, Any, Any]:
+            position = corner + sampler.next_2d()  # uniform in the pixel: the box filter
+            ray, weight = sensor.sample_ray(0.0, 0.0, position / film_size, mi.Point2f(0.5, 0.5))
+            spectrum, valid, _ = integrator.sample(self.scene, sampler, ray)
+            return index + 1, rgb + spectrum * weight, hits + dr.select(valid, 1.0, 0.0), sampler
+
+        _, rgb, hits, _ = dr.while_loop(state=(mi.UInt32(0), mi.Color3f(0.0), mi.Float(0.0), sampler),
+                                        cond=lambda index, *_: index < samples, body=one_sample)
 
         def develop() -> np.ndarray:
-            dr.eval(*sums)
-            return np.stack([np.asarray(total, np.float32) for total in sums], axis=-1)
+            dr.eval(rgb, hits)
+            return np.stack([np.asarray(rgb[0]), np.asarray(rgb[1]), np.asarray(rgb[2]), np.asarray(hits)],
+                            axis=-1).astype(np.float32)
 
         return (_interruptible(develop) * np.float32(1.0 / spp)).reshape(height, width, 4)
 

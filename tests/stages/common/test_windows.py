@@ -99,8 +99,8 @@ def test_a_target_behind_the_camera_or_out_of_the_frame_gets_no_window_or_an_emp
 
 
 def test_a_window_holds_the_films_own_pixels_but_for_their_noise():
-    """Pixel for pixel, the window's render and Mitsuba's own film differ as two of the
-    film's renders do (RGB and alpha): the same rays, the same box filter, other samples."""
+    """The window's render and Mitsuba's own film: the same light over the target, and each
+    pixel as noisy (RGB and alpha): the same rays, the same box filter, other samples."""
     config = load_config("smoke")
     renderer = TargetRenderer(lens_camera(config.camera), planned_target(config), spp=64, max_depth=3, threads=1)
     cam_from_target = g.transform_from_qt([0.8, 0.2, -0.5, 0.26] / np.linalg.norm([0.8, 0.2, -0.5, 0.26]),
@@ -115,9 +115,10 @@ def test_a_window_holds_the_films_own_pixels_but_for_their_noise():
         means = windowed[:, lit, channel].mean(axis=1), full[:, lit, channel].mean(axis=1)
         spread = np.sqrt(means[0].var(ddof=1) / 4 + means[1].var(ddof=1) / 4)
         assert abs(means[0].mean() - means[1].mean()) < 5 * spread, channel
-        # pixel by pixel: window against film as noisy as film against film
-        between = (windowed[0] - full[0])[lit][:, channel].std()
-        assert 0.9 < between / (full[1] - full[0])[lit][:, channel].std() < 1.1, channel
+        # pixel by pixel: each pixel's spread over the seeds, the window's as the film's (the
+        # estimate's own spread, film against film over other seeds, reached 6% at 16 seeds)
+        spreads = windowed[:, lit, channel].var(axis=0, ddof=1).mean(), full[:, lit, channel].var(axis=0, ddof=1).mean()
+        assert 0.8 < spreads[0] / spreads[1] < 1.25, (channel, spreads)
     assert np.array_equal(windowed[0], renderer.render(cam_from_target, LIGHT, 3.0, 1))  # its seed, its bytes
     assert not np.array_equal(windowed[0], windowed[1])
 
@@ -164,39 +165,22 @@ def test_the_windowed_distortion_is_the_whole_films(seed):
 
 @pytest.mark.parametrize("spp", [48, 64])
 def test_a_windows_pixels_are_the_same_bits_whatever_the_thread_count(spp):
-    """Each pixel's samples stay in one of Dr.Jit's thread blocks, a power of two lanes wide:
-    48 samples, which would straddle them, as 64."""
+    """Whole targets' windows, and small windows whose launch Dr.Jit splits between its
+    threads at a few packets (31 x 31 pixels at 64 samples differed there when a pixel's
+    samples were lanes summed by atomic adds)."""
     config = load_config("smoke")
     renderer = TargetRenderer(lens_camera(config.camera), planned_target(config), spp=spp, max_depth=3, threads=1)
     try:
         for index, cam_from_target in enumerate(poses(62, 3)):
+            window = renderer.film_window(cam_from_target)
             dr.set_thread_count(1)
             one = renderer.render(cam_from_target, LIGHT, 3.0, index)
+            small = [renderer.loaded.render_window(window.x + 2, window.y + 2, size, size, spp, index)
+                     for size in (9, 31, 45)]
             dr.set_thread_count(2)
             assert np.array_equal(one, renderer.render(cam_from_target, LIGHT, 3.0, index)), index
+            for size, pixels in zip((9, 31, 45), small, strict=True):
+                again = renderer.loaded.render_window(window.x + 2, window.y + 2, size, size, spp, index)
+                assert np.array_equal(pixels, again), (index, size)
     finally:
         dr.set_thread_count(1)
-
-
-def test_a_window_of_more_samples_than_a_launch_holds_is_drawn_in_bands(monkeypatch):
-    """Bands of rows, each its own sample stream: the first band is the unbanded window's
-    rows bit for bit, and the whole window has the same light to its noise."""
-    from stages.common import mitsuba_adapter
-
-    config = load_config("smoke")
-    renderer = TargetRenderer(lens_camera(config.camera), planned_target(config), spp=48, max_depth=3, threads=1)
-    cam_from_target = g.transform_from_qt([0.8, 0.2, -0.5, 0.26] / np.linalg.norm([0.8, 0.2, -0.5, 0.26]),
-                                          [0.1, 0.05, 4.0])
-    window = renderer.film_window(cam_from_target)
-    renderer.render(cam_from_target, LIGHT, 3.0, 5)  # the scene's parameters set for this pose
-    whole = renderer.loaded.render_window(window.x, window.y, window.width, window.height, 48, 5)
-    rows = 7
-    monkeypatch.setattr(mitsuba_adapter, "MAX_LANES", window.width * 64 * rows)
-    banded = renderer.loaded.render_window(window.x, window.y, window.width, window.height, 48, 5)
-    assert banded.shape == whole.shape == (window.height, window.width, 4)
-    assert np.array_equal(banded[:rows], whole[:rows]) and not np.array_equal(banded[rows:], whole[rows:])
-    lit = whole[..., 3] > 0
-    assert abs(banded[lit].sum() / whole[lit].sum() - 1) < 0.01
-    monkeypatch.setattr(mitsuba_adapter, "MAX_LANES", window.width * 64 - 1)
-    with pytest.raises(ValueError, match="exceed one launch's lanes"):
-        renderer.loaded.render_window(window.x, window.y, window.width, window.height, 48, 5)
