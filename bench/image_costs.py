@@ -112,7 +112,7 @@ def main(*args: str) -> None:
         sys.exit(f"image_costs: --images and --rounds take whole numbers\n{__doc__}")
     if images < 2 or rounds < 1:
         sys.exit("image_costs: --images at least 2 (a spread needs two), --rounds at least 1")
-    kinds = tuple(options.get("--kinds", ",".join(KINDS)).split(","))
+    kinds = tuple(dict.fromkeys(options.get("--kinds", ",".join(KINDS)).split(",")))
     if not kinds or not set(kinds) <= set(KINDS):
         sys.exit(f"image_costs: --kinds takes some of {', '.join(KINDS)}, comma-separated\n{__doc__}")
     codes: dict[str, Path] = {"this tree": REPO}

@@ -316,7 +316,12 @@ class LoadedScene:
             dr.make_opaque(self._params[key])
         self._params.update()
         sensor, integrator = self.scene.sensors()[0], self.scene.integrator()
-        film_size = mi.ScalarVector2f(*(float(v) for v in sensor.film().size()))
+        film = sensor.film()
+        sampler_name, crop = sensor.sampler().class_name(), [int(v) for v in film.crop_size()]
+        if sampler_name != "IndependentSampler" or crop != [int(v) for v in film.size()]:
+            raise ValueError("render_window draws a whole film's pixels with independent samples; this sensor "
+                             f"has a {sampler_name} and a crop of {crop}")
+        film_size = mi.ScalarVector2f(*(float(v) for v in film.size()))
         left, top, columns, samples, seed_value = (mi.UInt32(v) for v in (x, y, width, spp, seed))
         dr.make_opaque(left, top, columns, samples, seed_value)
         pixel = dr.arange(mi.UInt32, width * height)

@@ -30,7 +30,7 @@ from stages.common.mitsuba_adapter import (
 )
 from stages.common.surface import shape_id
 from stages.common.target import Target
-from stages.common.windows import Window, distorted, film_window, image_window
+from stages.common.windows import Window, distorted, film_window, image_window, on_film_edge
 
 
 class TargetRenderer:
@@ -69,10 +69,13 @@ class TargetRenderer:
 
     def image_window(self, cam_from_target: np.ndarray) -> Window | None:
         """The window of the camera's image whose pixels sample ``film_window`` (where the
-        target can be in the image; None: all of it), kept for the last film window asked."""
+        target can be in the image), kept for the last film window asked; None: all of the
+        image, also for a film window on the film's edge, whose remap (``windows.distorted``)
+        is the whole image's."""
         film = self.film_window(cam_from_target)
         if self._image_window is None or self._image_window[0] != film:
-            self._image_window = (film, image_window(self.lens, film))
+            whole = film is None or (not film.empty and on_film_edge(self.lens.geometry, film))
+            self._image_window = (film, None if whole else image_window(self.lens, film))
         return self._image_window[1]
 
     def render(self, cam_from_target: np.ndarray, light_dir_cam: np.ndarray, irradiance: float,
@@ -100,7 +103,8 @@ class TargetRenderer:
         if not window.empty:
             pinhole[window.slices()] = self.loaded.render_window(window.x, window.y, window.width, window.height,
                                                                  self.spp, seed, opaque=opaque)
-        return distorted(self.lens, pinhole, window, self.image_window(cam_from_target))
+        image = self.image_window(cam_from_target)
+        return self.lens.distort(pinhole) if image is None else distorted(self.lens, pinhole, window, image)
 
 
 def ray_traced_mask(renderer: TargetRenderer, cam_from_target: np.ndarray) -> np.ndarray:

@@ -113,6 +113,10 @@ def test_incompressible_tiles_are_stored_as_they_are(tmp_path):
     ({"Z": np.zeros((4, 4)), "part": np.zeros((4, 5))}, {}, "one non-empty shape"),
     ({"Z": np.zeros((0, 4))}, {}, "one non-empty shape"),
     ({"Z": np.zeros((4, 4))}, {"tiles": "mine"}, "format's own"),
+    ({"Z": np.zeros((4, 4))}, {"type": "scanlineimage"}, "format's own"),
+    ({"Z": np.zeros((4, 4))}, {"": "x"}, "1-255 bytes"),
+    ({"Z": np.zeros((4, 4))}, {"a\0b": "x"}, "1-255 bytes"),
+    ({"": np.zeros((4, 4))}, {}, "channel names"),
 ])
 def test_what_it_cannot_write_is_refused(channels, strings, message):
     with pytest.raises(ValueError, match=message):
@@ -127,3 +131,20 @@ def test_planes_that_are_views_of_a_wider_array_read_back_as_they_are(tmp_path):
     path.write_bytes(exr.encode(channels))
     read = _read(path)[0]
     assert all(np.array_equal(read[f"N.{axis}"], normals[..., i]) for i, axis in enumerate("XYZ"))
+
+
+def test_uniform_tiles_of_other_values_each_channel_read_back_as_they_are(tmp_path):
+    """Large regions of one value per channel, other in each (0, 1.5, NaN of two payloads,
+    -0): the tiles compressed once and kept, written twice (the second from what was kept)."""
+    height, width = 3 * exr.TILE + 10, 2 * exr.TILE + 30
+    channels = {"A": np.zeros((height, width), np.float32), "B": np.full((height, width), 1.5, np.float32),
+                "C": np.full((height, width), np.nan, np.float32), "D": np.full((height, width), -0.0, np.float32)}
+    channels["C"].view(np.uint32)[:exr.TILE, :] = 0x7FC00001
+    channels["B"][exr.TILE:2 * exr.TILE, exr.TILE:] = 2.5
+    channels["A"][5, 7] = 3.0  # one tile that is not uniform
+    for index in range(2):
+        path = tmp_path / f"uniform{index}.exr"
+        path.write_bytes(exr.encode(channels))
+        read = _read(path)[0]
+        for name, plane in channels.items():
+            assert np.array_equal(read[name].view(np.uint32), plane.view(np.uint32)), (index, name)

@@ -184,3 +184,15 @@ def test_a_windows_pixels_are_the_same_bits_whatever_the_thread_count(spp):
                 assert np.array_equal(pixels, again), (index, size)
     finally:
         dr.set_thread_count(1)
+
+
+def test_a_window_is_refused_for_a_sensor_whose_film_it_would_not_reproduce():
+    """A stratified sampler (the virtual testbed's) would lose its strata in a window."""
+    from stages.common.lens import RenderGeometry
+    from stages.common.mitsuba_adapter import LoadedScene, load_mitsuba, sensor
+
+    mi = load_mitsuba()
+    stratified = sensor(mi, RenderGeometry(64, 48, 60.0), far_clip_m=10.0, pixel_format="rgba", sampler="multijitter")
+    scene = LoadedScene(mi, {"type": "scene", "integrator": {"type": "path"}, "sensor": stratified})
+    with pytest.raises(ValueError, match="independent samples"):
+        scene.render_window(0, 0, 8, 8, 4, 1)
