@@ -112,6 +112,11 @@ class Lens:
         self.camera = camera
         self.geometry = geometry or render_geometry(camera, margin_px)
         self.map_x, self.map_y = distortion_maps(camera, self.geometry)
+        #: whether a pixel's bilinear sample reaches the film's border row or column, or past it,
+        #: where the remap replicates the border (never for ``render_geometry``'s margin)
+        self.reaches_border = bool(self.map_x.min() < 1 or self.map_y.min() < 1
+                                   or self.map_x.max() > self.geometry.width - 2
+                                   or self.map_y.max() > self.geometry.height - 2)
 
     def distort(self, pinhole: np.ndarray) -> np.ndarray:
         """Bilinear sampling of the pinhole render at every output pixel (float32)."""

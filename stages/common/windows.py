@@ -79,20 +79,23 @@ def image_window(lens: Lens, film: Window | None) -> Window | None:
     return Window(int(columns[0]), int(rows[0]), int(columns[-1] - columns[0] + 1), int(rows[-1] - rows[0] + 1))
 
 
-def on_film_edge(geometry: RenderGeometry, film: Window) -> bool:
-    """Whether ``film`` reaches an edge of the film of ``geometry``, where the lens's remap
-    replicates the border's pixels beyond it."""
-    return (film.x <= 0 or film.y <= 0 or film.x + film.width >= geometry.width
-            or film.y + film.height >= geometry.height)
+def replicates_border(lens: Lens, film: Window) -> bool:
+    """Whether the lens's remap of a render drawn in ``film`` carries the film's border
+    beyond ``image_window``: ``film`` reaches an edge of the film, and some pixel samples
+    that edge or past it, where the remap replicates the border."""
+    geometry = lens.geometry
+    return lens.reaches_border and not film.empty and (
+        film.x <= 0 or film.y <= 0 or film.x + film.width >= geometry.width
+        or film.y + film.height >= geometry.height)
 
 
 def distorted(lens: Lens, pinhole: np.ndarray, film: Window, image: Window) -> np.ndarray:
     """``lens.distort(pinhole)`` (H, W, C) float32 of a pinhole render (H_film, W_film, C)
     that is zero outside ``film``, whose image window is ``image`` (``image_window``): remapped
     in ``image`` only and zero elsewhere, the same values, since a pixel outside ``image``
-    samples no pixel of ``film``. A film window on the film's edge, which the remap's
-    replicated border carries beyond it, is remapped whole."""
-    if on_film_edge(lens.geometry, film):
+    samples no pixel of ``film``. Where the remap's replicated border carries ``film``
+    beyond that (``replicates_border``), the whole image is remapped."""
+    if replicates_border(lens, film):
         return lens.distort(pinhole)
     camera = lens.camera
     image_pixels = np.zeros((camera.height, camera.width, *pinhole.shape[2:]), np.float32)

@@ -30,7 +30,7 @@ from stages.common.mitsuba_adapter import (
 )
 from stages.common.surface import shape_id
 from stages.common.target import Target
-from stages.common.windows import Window, distorted, film_window, image_window, on_film_edge
+from stages.common.windows import Window, distorted, film_window, image_window, replicates_border
 
 
 class TargetRenderer:
@@ -70,11 +70,11 @@ class TargetRenderer:
     def image_window(self, cam_from_target: np.ndarray) -> Window | None:
         """The window of the camera's image whose pixels sample ``film_window`` (where the
         target can be in the image), kept for the last film window asked; None: all of the
-        image, also for a film window on the film's edge, whose remap (``windows.distorted``)
-        is the whole image's."""
+        image, also where the remap's replicated border carries the film window beyond it
+        (``windows.replicates_border``)."""
         film = self.film_window(cam_from_target)
         if self._image_window is None or self._image_window[0] != film:
-            whole = film is None or (not film.empty and on_film_edge(self.lens.geometry, film))
+            whole = film is None or replicates_border(self.lens, film)
             self._image_window = (film, None if whole else image_window(self.lens, film))
         return self._image_window[1]
 

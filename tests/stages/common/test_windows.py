@@ -142,15 +142,17 @@ def test_a_window_of_any_size_compiles_no_kernel(renderer):
     assert compiled == []
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_the_windowed_distortion_is_the_whole_films(seed):
+@pytest.mark.parametrize(("seed", "margin_px"), [(0, 4), (1, 4), (2, 0), (3, 0)])
+def test_the_windowed_distortion_is_the_whole_films(seed, margin_px):
     """A film zero outside a window, remapped in its image window only, is the whole remap,
-    bit for bit; windows on the film's edge, and empty ones, among them."""
+    bit for bit; windows on the film's edge, and empty ones, among them; with the renders'
+    margin round the lens's samples, and with none, where the remap replicates the border."""
     from stages.common.lens import Lens
-    from stages.common.windows import distorted
+    from stages.common.windows import distorted, replicates_border
 
     rng = np.random.default_rng(seed)
-    lens = Lens(lens_camera(load_config("smoke").camera))
+    lens = Lens(lens_camera(load_config("smoke").camera), margin_px=margin_px)
+    assert lens.reaches_border == (margin_px == 0)
     geometry = lens.geometry
     edges = [Window(0, 0, 40, 30), Window(geometry.width - 9, 5, 9, 60), Window(0, 0, geometry.width, geometry.height),
              Window(12, geometry.height - 3, 100, 3), Window(30, 30, 0, 0)]
@@ -161,6 +163,8 @@ def test_the_windowed_distortion_is_the_whole_films(seed):
         pinhole = np.zeros((geometry.height, geometry.width, 4), np.float32)
         pinhole[film.slices()] = rng.uniform(0.0, 2.0, (film.height, film.width, 4))
         assert np.array_equal(distorted(lens, pinhole, film, image_window(lens, film)), lens.distort(pinhole)), film
+        if index < 4:  # the windows on the film's edge
+            assert replicates_border(lens, film) == lens.reaches_border, film
 
 
 @pytest.mark.parametrize("spp", [48, 64])
