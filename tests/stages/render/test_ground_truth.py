@@ -188,8 +188,8 @@ def _rewrite_header(path, text):
 
 
 def test_files_written_one_after_another_each_hold_their_own_channels(tmp_path):
-    """Files of other sizes and channels in between, and the next of the first size (the
-    writer's kept uniform tiles), each read back as written."""
+    """Files of other sizes and channels in between, and the next of the first size, each
+    read back as written (noise: uniform tiles are read back in tests/stages/common/test_exr.py)."""
     rng = np.random.default_rng(60)
     camera = train_camera(load_config("smoke"))
     sizes = [(camera.height, camera.width, ("Z", "part")), (camera.height, camera.width, ALL),
