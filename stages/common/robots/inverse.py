@@ -53,8 +53,11 @@ def jacobians(chain: SerialChain, frames: np.ndarray) -> np.ndarray:
     axes = np.einsum("sjab,jb->sja", frames[:, :-1, :3, :3], chain.axes)  # (S, J, 3) in the base frame
     lever = frames[:, -1:, :3, 3] - frames[:, :-1, :3, 3]  # (S, J, 3) from each joint to the flange
     linear = axes[..., [1, 2, 0]] * lever[..., [2, 0, 1]] - axes[..., [2, 0, 1]] * lever[..., [1, 2, 0]]
-    prismatic = np.array([kind == "prismatic" for kind in chain.kinds])[None, :, None]
-    columns = np.concatenate([np.where(prismatic, axes, linear), np.where(prismatic, 0.0, axes)], axis=-1)
+    prismatic = chain.prismatic[None, :, None]
+    if prismatic.any():
+        columns = np.concatenate([np.where(prismatic, axes, linear), np.where(prismatic, 0.0, axes)], axis=-1)
+    else:
+        columns = np.concatenate([linear, axes], axis=-1)
     return np.swapaxes(columns, -1, -2)
 
 
@@ -72,12 +75,14 @@ def solve_numeric(chain: SerialChain, base_from_flange: np.ndarray, rng: np.rand
     frames = chain.frames(joints)
     error = pose_error(frames[:, -1], wanted)
     cost = np.einsum("si,si->s", error, error)
+    identity = np.eye(chain.dof)
     for _ in range(iterations):
         if np.all(cost < 1e-20):
             break
         jac = jacobians(chain, frames)
-        normal = np.swapaxes(jac, -1, -2) @ jac + damping[:, None, None] * np.eye(chain.dof)
-        step = np.linalg.solve(normal, (np.swapaxes(jac, -1, -2) @ error[..., None]))[..., 0]
+        transposed = np.swapaxes(jac, -1, -2)
+        normal = transposed @ jac + damping[:, None, None] * identity
+        step = np.linalg.solve(normal, (transposed @ error[..., None]))[..., 0]
         trial = np.clip(joints + step, lower, upper)
         trial_frames = chain.frames(trial)
         trial_error = pose_error(trial_frames[:, -1], wanted)

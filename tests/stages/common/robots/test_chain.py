@@ -120,3 +120,36 @@ def test_a_links_mass_hangs_on_the_joint_that_moves_it(tmp_path):
     assert [(m.joint, m.mass_kg) for m in chain.masses] == [(0, 2.0), (0, 1.0)]
     torque = chain.gravity_torques(np.zeros((1, 1)), np.array([[0.0, -9.81, 0.0]]))
     np.testing.assert_allclose(torque, [[-9.81 * (2 * 0.5 + 1 * 0.75)]])
+
+
+def test_a_prismatic_joint_among_revolute_ones_moves_as_yourdfpy_says(tmp_path):
+    """A chain of revolute, prismatic (a rail or a linear wrist) and continuous joints: each
+    joint's motion (``SerialChain.motions``, every joint in one pass) and the chain's frames
+    agree with an independent reading of the URDF, and the inverse kinematics' Jacobians
+    with the chain's own."""
+    import yourdfpy
+
+    from stages.common.robots.inverse import jacobians
+
+    body = '<link name="base_link"/><link name="a"/><link name="b"/><link name="c"/><link name="tool0"/>'
+    for name, kind, parent, child, axis, origin in [
+            ("j1", "revolute", "base_link", "a", "0 0 1", "0 0 0.3"),
+            ("j2", "prismatic", "a", "b", "0.6 0 0.8", "0.2 0 0"),
+            ("j3", "continuous", "b", "c", "0 1 0", "0 0.1 0.4")]:
+        limit = LIMIT if kind != "continuous" else '<limit effort="1" velocity="1"/>'
+        body += (f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+                 f'<origin xyz="{origin}" rpy="0.1 -0.2 0.3"/><axis xyz="{axis}"/>{limit}</joint>')
+    body += ('<joint name="j4" type="fixed"><parent link="c"/><child link="tool0"/>'
+             '<origin xyz="0 0 0.15"/></joint>')
+    path = _urdf(tmp_path, body)
+    chain = load_chain(path, "base_link", "tool0")
+    assert chain.kinds == ("revolute", "prismatic", "continuous") and list(chain.prismatic) == [False, True, False]
+    independent = yourdfpy.URDF.load(str(path), load_meshes=False, build_collision_scene_graph=False)
+    joints = np.random.default_rng(5).uniform(np.maximum(chain.lower, -3), np.minimum(chain.upper, 3), (20, 3))
+    for value in joints:
+        independent.update_cfg(dict(zip(chain.joint_names, value, strict=True)))
+        assert np.abs(chain.forward(value) - independent.get_transform("tool0", "base_link")).max() < 1e-12
+        for index in range(3):  # one joint's motion alone is that joint's column of motions
+            assert np.array_equal(chain.motion(index, value[index]), chain.motions(value)[index])
+    frames = chain.frames(joints)
+    assert np.allclose(jacobians(chain, frames), np.stack([chain.jacobian(value) for value in joints]), atol=1e-12)
