@@ -13,7 +13,10 @@ the last):
   rows it finished when its engine fails (issue 58);
 - ``SPEEDPLUS_FAULT_SLOW_RENDER_WHILE=PATH``: while PATH exists, each twin this process
   renders takes a second longer: a node set up with it stays busy long enough to be lost
-  mid-stage (``tests/core/test_cluster.py``), however fast the twins are.
+  mid-stage (``tests/core/test_cluster.py``), however fast the twins are;
+- ``SPEEDPLUS_FAULT_SLOW_CAPTURE_WHILE=PATH``: while PATH exists, each virtual capture this
+  process makes takes half a second longer: a Ctrl-C falls between the first captures and
+  the last (``tests/pipeline/test_workspace_changes.py``), however fast the captures are.
 
 The production paths hold no hook of their own."""
 
@@ -90,3 +93,19 @@ if _SLOW:
         return _render(self, job)
 
     _worker.RenderWorker.render = _render_slowly
+
+_SLOW_CAPTURE = os.environ.get("SPEEDPLUS_FAULT_SLOW_CAPTURE_WHILE")
+
+if _SLOW_CAPTURE:
+    import time
+
+    import stages.acquire.virtual as _virtual
+
+    _capture = _virtual.VirtualTestbed.capture
+
+    def _capture_slowly(self, sample):  # noqa: ANN001, ANN202 - the wrapped method's own signature
+        if os.path.exists(_SLOW_CAPTURE):
+            time.sleep(0.5)
+        return _capture(self, sample)
+
+    _virtual.VirtualTestbed.capture = _capture_slowly

@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -180,13 +181,17 @@ def test_a_model_is_added_beside_the_others_and_redone_alone(finished, tmp_path)
     assert strip([r for r in again if r["model"] != "mine"]) == strip(before)
 
 
-def interrupt_when(ready, *args, timeout=300):
-    """Run the CLI in its own process group and press Ctrl-C once ``ready()`` holds."""
+def interrupt_when(ready, *args, timeout=300, env=None):
+    """Run the CLI in its own process group and press Ctrl-C once ``ready()`` holds; ``env``:
+    more variables (a fault of tests/faults/sitecustomize.py)."""
     import time
 
+    env = {**os.environ, "COLUMNS": "200", **(env or {})}
+    if any(name.startswith("SPEEDPLUS_FAULT_") for name in env):
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(Path(__file__).resolve().parents[1] / "faults"),
+                                                        env.get("PYTHONPATH", "")) if p)
     process = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, start_new_session=True,
-                               env={**os.environ, "COLUMNS": "200"},
+                               stderr=subprocess.PIPE, text=True, start_new_session=True, env=env,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + timeout
     while process.poll() is None and not ready() and time.monotonic() < deadline:
@@ -199,12 +204,15 @@ def interrupt_when(ready, *args, timeout=300):
 
 def test_ctrl_c_says_what_it_kept_in_one_line_and_the_same_command_resumes(tmp_path):
     ws = tmp_path / "w"
-    # slower captures (36 spp) so that the press falls between the first captures and the last
-    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws), "--set", "virtual.spp=36").returncode == 0
+    assert speedplus("plan", "--profile", "smoke", "--workspace", str(ws)).returncode == 0
     # with two spawned workers, which ignore the Ctrl-C and are stopped by the driver (the smoke
-    # profile's own one process is interrupted in test_object_storage.py)
+    # profile's own one process is interrupted in test_object_storage.py); each capture half a
+    # second slower while the file is there, so that the press falls between the first and the last
+    slow = tmp_path / "slow"
+    slow.touch()
     code, _, err = interrupt_when(lambda: len(list((ws / "images").rglob("*.png"))) >= 2, "acquire", "--workspace",
-                                  str(ws), "--workers", "2")
+                                  str(ws), "--workers", "2", env={"SPEEDPLUS_FAULT_SLOW_CAPTURE_WHILE": str(slow)})
+    slow.unlink()
     assert code == 130, err
     lines = [line for line in err.splitlines() if line.startswith("interrupted")]
     assert len(lines) == 1 and lines[0].endswith("of 24 rows kept (acquire); run the same command to resume")
