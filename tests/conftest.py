@@ -1,6 +1,7 @@
 """Shared, expensive fixtures: built once per test run, whatever the number of pytest-xdist
 workers (``once``), and read only: copy one to change it."""
 
+import atexit
 import os
 import shutil
 import subprocess
@@ -12,6 +13,7 @@ import pytest
 from filelock import FileLock
 
 from manifests import Workspace
+from tests.cli_processes import Forker
 
 #: the modules whose end-to-end runs take a minute or more of the suite (their durations:
 #: ``pytest --durations=30``): marked ``slow`` (``-m "not slow"`` leaves them out of a quick
@@ -19,7 +21,8 @@ from manifests import Workspace
 #: their test counts: tried in this order instead, with ``--no-loadscope-reorder``, the two
 #: heaviest started together on 2 cores and the suite took 15 min 47 s against 14 min 39 s)
 SLOW_MODULES = frozenset({
-    "tests/test_docs_run.py", "tests/bench/test_cited_benches.py", "tests/pipeline/test_workspace_changes.py",
+    "tests/test_docs_run.py", "tests/test_docs_walk_apart.py", "tests/bench/test_cited_benches.py",
+    "tests/pipeline/test_workspace_changes.py",
     "tests/stages/test_plan_facility.py", "tests/test_any_target.py", "tests/stages/acquire/test_acquire_default.py",
     "tests/stages/test_accuracy_default.py", "tests/stages/render/test_twins_default.py",
     "tests/pipeline/test_object_storage.py", "tests/core/test_cluster.py",
@@ -100,16 +103,26 @@ def smoke_finished(smoke_labelled, tmp_path_factory):
     return Workspace(folder / "w"), (folder / "stdout.txt").read_text()
 
 
+_FORKER: list[Forker] = []
+
+
 def speedplus(*args, env=None, timeout=1800, cwd=None):
-    """Run the CLI in a fresh process (as users do). An ``env`` that sets
-    ``SPEEDPLUS_FAULT_KILL_AT_PART``, ``_FAIL_STAGE`` or ``_ENGINE_LOST_AFTER`` gets the
-    fault injection of tests/faults/sitecustomize.py."""
+    """Run the CLI in a process of its own (as users do), forked from a warm interpreter
+    (tests/cli_processes.py). An ``env`` that sets ``SPEEDPLUS_FAULT_KILL_AT_PART``,
+    ``_FAIL_STAGE`` or ``_ENGINE_LOST_AFTER`` gets the fault injection of
+    tests/faults/sitecustomize.py, in a fresh interpreter (which reads it at its start)."""
     env = {**os.environ, "COLUMNS": "200", **(env or {})}
-    if any(env.get(f"SPEEDPLUS_FAULT_{name}") for name in ("KILL_AT_PART", "FAIL_STAGE", "ENGINE_LOST_AFTER")):
-        faults = str(Path(__file__).resolve().parent / "faults")
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (faults, env.get("PYTHONPATH", "")) if p)
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
-                          env=env, timeout=timeout, cwd=cwd)
+    faults = any(env.get(f"SPEEDPLUS_FAULT_{name}") for name in ("KILL_AT_PART", "FAIL_STAGE", "ENGINE_LOST_AFTER"))
+    if faults:
+        folder = str(Path(__file__).resolve().parent / "faults")
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (folder, env.get("PYTHONPATH", "")) if p)
+    if faults or os.environ.get("SPEEDPLUS_TESTS_FRESH_PROCESSES") == "1":
+        return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
+                              env=env, timeout=timeout, cwd=cwd)
+    if not _FORKER:
+        _FORKER.append(Forker())
+        atexit.register(_FORKER[0].close)
+    return _FORKER[0].run([str(a) for a in args], env, None if cwd is None else str(cwd), timeout)
 
 
 @pytest.fixture(scope="session")

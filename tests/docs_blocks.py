@@ -75,3 +75,30 @@ def blocks(path: Path) -> list[Block]:
 
 def all_blocks() -> list[Block]:
     return [block for name in DOCUMENTS for block in blocks(ROOT / name)]
+
+
+#: a folder of the walk's own that a command names: a workspace or an export
+OWN_FOLDER = re.compile(r"(?<![\w/])(?:data|exports)/[\w.-]+")
+
+
+def run_blocks() -> list[Block]:
+    """The ``run`` blocks, document by document in reading order."""
+    return [b for name in DOCUMENTS for b in all_blocks() if b.where.startswith(f"{name}:") and b.kind == "run"]
+
+
+def walks() -> tuple[list[Block], list[Block]]:
+    """The run blocks in two walks that share no folder, each in reading order: the first
+    holds every block that reaches ``data/default`` (the guide's workspace, which the Python
+    blocks read), through the folders its blocks name; the second, the others (chapters on a
+    workspace of their own). Two sandboxes, run side by side by pytest-xdist."""
+    found = run_blocks()
+    folders = {b.where: set(OWN_FOLDER.findall(" ".join(b.commands()))) for b in found}
+    reached, grown = {"data/default"}, True
+    while grown:
+        grown = False
+        for block in found:
+            if folders[block.where] & reached and not folders[block.where] <= reached:
+                reached |= folders[block.where]
+                grown = True
+    first = [b for b in found if folders[b.where] & reached]
+    return first, [b for b in found if not folders[b.where] & reached]

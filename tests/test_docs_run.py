@@ -16,7 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from tests.docs_blocks import DOCUMENTS, KINDS, ROOT, Block, all_blocks
+from tests.docs_blocks import KINDS, OWN_FOLDER, ROOT, Block, all_blocks, run_blocks, walks
 
 #: what the walk changes in a documented command, and only this: every profile is the smoke
 #: profile (seconds per stage; a command that names none gets it), and a placeholder stands
@@ -95,14 +95,11 @@ def _shell(block: Block, command: str, cwd: Path) -> None:
 
 @pytest.mark.skipif(not (ROOT.parent / "shared" / "external").is_dir(), reason="the docs cite ../shared/external")
 def test_the_docs_run_as_written(tmp_path):
-    """Every run block, document by document in reading order; then every Python block on
-    the workspaces and exports they made."""
+    """Every run block that reaches the guide's workspace (``docs_blocks.walks``), in reading
+    order; then every Python block on the workspaces and exports they made. The other blocks
+    walk in tests/test_docs_walk_apart.py."""
     cwd = _sandbox(tmp_path)
-    ran = []
-    for block in (b for name in DOCUMENTS for b in all_blocks() if b.where.startswith(f"{name}:") and b.kind == "run"):
-        for command in block.commands():
-            _shell(block, command, cwd)
-            ran.append(command)
+    ran = walk(walks()[0], cwd)
     assert len(ran) >= 15
     for block in (b for b in all_blocks() if b.kind == "python"):
         script = tmp_path / "block.py"
@@ -110,6 +107,27 @@ def test_the_docs_run_as_written(tmp_path):
         result = subprocess.run([sys.executable, str(script)], cwd=cwd, capture_output=True, text=True, timeout=600,
                                 env={**os.environ, "PYTHONPATH": str(ROOT)})
         assert result.returncode == 0, f"{block.where}:\n{result.stderr[-3000:]}"
+
+
+def walk(found: list[Block], cwd: Path) -> list[str]:
+    """Run the blocks' commands in order in the sandbox ``cwd``; the commands run."""
+    ran = []
+    for block in found:
+        for command in block.commands():
+            _shell(block, command, cwd)
+            ran.append(command)
+    return ran
+
+
+def test_the_two_walks_hold_every_run_block_once_and_share_no_folder():
+    first, second = walks()
+    assert sorted(b.where for b in first + second) == sorted(b.where for b in run_blocks())
+    assert first and second and not {b.where for b in first} & {b.where for b in second}
+
+    def folders(found: list[Block]) -> set[str]:
+        return {f for b in found for f in OWN_FOLDER.findall(" ".join(b.commands()))}
+
+    assert "data/default" in folders(first) and not folders(first) & folders(second)
 
 
 def test_the_shipped_example_target_is_the_one_its_code_writes(tmp_path):

@@ -150,10 +150,12 @@ def test_the_rehearsal_bench_the_docs_cite_runs(rehearsed, tmp_path, monkeypatch
         pytest.skip("one facility is enough to run the bench")
     copy = tmp_path / folder
     shutil.copytree(FACILITIES / folder, copy)
+    (copy / "rehearsal.json").unlink(missing_ok=True)  # the card read back is the one this run writes
     shutil.copytree(workspace, tmp_path / "root" / "seed71")
     monkeypatch.setattr(bench.common, "RESULTS", tmp_path / "results")
     honesty.main("--facility", str(copy), "71", str(tmp_path / "root"), "--profile", "smoke")
     rows = json.loads((tmp_path / "results" / "rehearsal_abb-rail.json").read_text())["rows"]
     assert [row["seed"] for row in rows] == [71, "pooled"] and rows[0]["labels"] == 8
     assert 0 < rows[0]["(b) mean E_T label (mm)"] < 50
-    assert read_rehearsal(copy).labels == 8
+    record = read_rehearsal(copy)
+    assert record.labels == 8 and record.profile == "smoke" and 0 <= record.under_speedplus <= 8
