@@ -17,9 +17,7 @@ from tests.cli_processes import Forker
 
 #: the modules whose end-to-end runs take a minute or more of the suite (their durations:
 #: ``pytest --durations=30``): marked ``slow`` (``-m "not slow"`` leaves them out of a quick
-#: local run) and collected first (pytest-xdist's ``loadfile`` then orders the modules by
-#: their test counts: tried in this order instead, with ``--no-loadscope-reorder``, the two
-#: heaviest started together on 2 cores and the suite took 15 min 47 s against 14 min 39 s)
+#: local run)
 SLOW_MODULES = frozenset({
     "tests/test_docs_run.py", "tests/test_docs_walk_apart.py", "tests/bench/test_cited_benches.py",
     "tests/pipeline/test_workspace_changes.py",
@@ -28,17 +26,41 @@ SLOW_MODULES = frozenset({
     "tests/pipeline/test_object_storage.py", "tests/core/test_cluster.py",
     "tests/stages/acquire/test_facility_rehearsal.py", "tests/stages/calibrate/test_real_kuka.py",
 })
+#: the modules the workers take first, one each: the docs walk's two halves, a minute and a
+#: half each in one process apiece, which pytest-xdist's own order (the most tests first)
+#: handed out last, the other worker long out of work by the time they ended
+FIRST_MODULES = ("tests/test_docs_walk_apart.py", "tests/test_docs_run.py")
+
+
+def pytest_configure(config) -> None:
+    """The workers take the modules in collection order (``pytest_collection_modifyitems``)."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    """Mark the slow modules' tests and collect them first. ``make test`` runs ``--dist
-    loadfile``: a module's tests on one worker, so each module-scoped fixture is built once.
-    (``--dist loadgroup`` cannot group here: xdist 3.8 renames a grouped test's ``_nodeid``,
-    which pytest 9 no longer reads.)"""
-    for item in items:
-        if item.nodeid.split("::")[0] in SLOW_MODULES:
+    """Mark the slow modules' tests; collect ``FIRST_MODULES`` first, then the others as
+    pytest-xdist orders them (the most tests first: the heavy end-to-end modules, of few
+    tests, between light ones; tried longest first, the two heaviest ran together, each
+    spawning workers, and the suite took longer). ``make test`` runs ``--dist loadfile``: a
+    module's tests on one worker, so each module-scoped fixture is built once. (``--dist
+    loadgroup`` cannot group here: xdist 3.8 renames a grouped test's ``_nodeid``, which
+    pytest 9 no longer reads.)"""
+    counts: dict[str, int] = {}
+    first: dict[str, int] = {}  # a module's first place in the collection: its tests stay together, in order
+    for index, item in enumerate(items):
+        module = item.nodeid.split("::")[0]
+        counts[module] = counts.get(module, 0) + 1
+        first.setdefault(module, index)
+        if module in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    rank = {module: index for index, module in enumerate(FIRST_MODULES)}
+
+    def place(item) -> tuple[int, int, int]:
+        module = item.nodeid.split("::")[0]
+        return rank.get(module, len(rank)), -counts[module], first[module]
+
+    items.sort(key=place)
 
 
 def once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
