@@ -25,10 +25,12 @@ import contextlib
 import json
 import os
 import select
+import shutil
 import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 #: the third-party libraries every command imports at its start, and those the stages that run
@@ -59,16 +61,18 @@ def _run(request: dict) -> None:
     code = 1
     try:
         signal.signal(signal.SIGINT, signal.default_int_handler)
-        os.chdir(request["cwd"])
-        os.environ.clear()
-        os.environ.update(request["env"])
         null = os.open(os.devnull, os.O_RDONLY)
         os.dup2(null, 0)
         for fd, path in ((1, request["stdout"]), (2, request["stderr"])):
-            os.dup2(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), fd)
+            os.dup2(os.open(path, os.O_WRONLY | os.O_APPEND), fd)
+        # as an interpreter's own streams on a pipe: stdout buffered, stderr by line and never
+        # failing on what it cannot encode
         sys.stdin = open(0, closefd=False)  # noqa: SIM115 - the process's own stream, kept open until it exits
         sys.stdout = open(1, "w", closefd=False)  # noqa: SIM115
-        sys.stderr = open(2, "w", closefd=False)  # noqa: SIM115
+        sys.stderr = open(2, "w", buffering=1, errors="backslashreplace", closefd=False)  # noqa: SIM115
+        os.chdir(request["cwd"])
+        os.environ.clear()
+        os.environ.update(request["env"])
         sys.path[0] = os.getcwd()  # as `python -m` puts it
         sys.argv = ["speedplus", *request["args"]]
         import runpy
@@ -79,61 +83,114 @@ def _run(request: dict) -> None:
         code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
         if exit_.code is not None and not isinstance(exit_.code, int):
             print(exit_.code, file=sys.stderr)
+    except KeyboardInterrupt:  # as an interpreter ends on one: by the signal itself
+        import traceback
+
+        traceback.print_exc()
+        code = -signal.SIGINT
     except BaseException:  # noqa: BLE001 - what an interpreter prints of an uncaught error
         import traceback
 
         traceback.print_exc()
     finally:
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(OSError, ValueError):
-                stream.flush()
-        os._exit(code)
+        _finalise(code)
+
+
+def _finalise(code: int) -> None:
+    """What an interpreter does as it ends (``Py_FinalizeEx``): wait for its non-daemon
+    threads, run its ``atexit`` functions (Ray's shutdown, multiprocessing's), flush its
+    streams; then the exit status."""
+    import atexit
+    import threading
+
+    with contextlib.suppress(BaseException):
+        threading._shutdown()  # noqa: SLF001 - the interpreter's own step, which os._exit skips
+    with contextlib.suppress(BaseException):
+        atexit._run_exitfuncs()  # noqa: SLF001
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    if code < 0:
+        signal.signal(-code, signal.SIG_DFL)
+        os.kill(os.getpid(), -code)
+    os._exit(code)
 
 
 class Forker:
-    """The client side: one warm interpreter, started on the first run."""
+    """The client side: warm interpreters, started on the first run. Two, each with its own
+    hash seed, taken in turn: two runs after each other hash strings differently, as two
+    fresh interpreters do, so that a test comparing their bytes still sees an order that
+    hangs on hashing."""
 
     def __init__(self) -> None:
-        self.process: subprocess.Popen | None = None
+        self.processes: list[subprocess.Popen | None] = [None, None]
+        self.buffers = [b"", b""]
+        self.turn = 0
         self.folder = Path(tempfile.mkdtemp(prefix="speedplus-cli-"))
 
-    def _start(self) -> subprocess.Popen:
-        if self.process is None or self.process.poll() is not None:
-            self.process = subprocess.Popen([sys.executable, __file__], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                            text=True, bufsize=1)
-        return self.process
+    def _start(self, index: int) -> subprocess.Popen:
+        process = self.processes[index]
+        if process is None or process.poll() is not None:
+            seed = str(int.from_bytes(os.urandom(4), "little"))
+            process = subprocess.Popen([sys.executable, __file__], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                       bufsize=0, env={**os.environ, "PYTHONHASHSEED": seed})
+            self.processes[index], self.buffers[index] = process, b""
+        return process
 
-    def _reply(self, process: subprocess.Popen, timeout: float | None) -> dict:
-        if timeout is not None and not select.select([process.stdout], [], [], max(timeout, 0.0))[0]:
-            raise TimeoutError
-        line = process.stdout.readline()
-        if not line:
-            raise RuntimeError("the tests' warm interpreter (tests/cli_processes.py) ended")
+    def _reply(self, index: int, timeout: float) -> dict:
+        """The warm interpreter's next line; the pipe read as bytes into a buffer of our own,
+        so that a line already read is never waited for."""
+        process, deadline = self.processes[index], time.monotonic() + timeout
+        while b"\n" not in self.buffers[index]:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([process.stdout], [], [], left)[0]:
+                raise TimeoutError
+            chunk = os.read(process.stdout.fileno(), 65536)
+            if not chunk:
+                raise RuntimeError("the tests' warm interpreter (tests/cli_processes.py) ended")
+            self.buffers[index] += chunk
+        line, self.buffers[index] = self.buffers[index].split(b"\n", 1)
         return json.loads(line)
 
     def run(self, args: list[str], env: dict[str, str], cwd: str | None,
             timeout: float) -> subprocess.CompletedProcess:
-        """``subprocess.run([python, -m, pipeline.cli, *args], capture_output=True, text=True)``'s result."""
-        process = self._start()
-        stdout, stderr = self.folder / "stdout", self.folder / "stderr"
-        request = {"args": list(args), "env": env, "cwd": str(cwd or os.getcwd()), "stdout": str(stdout),
-                   "stderr": str(stderr)}
-        process.stdin.write(json.dumps(request) + "\n")
-        process.stdin.flush()
-        pid = self._reply(process, 60)["pid"]
+        """``subprocess.run([python, -m, pipeline.cli, *args], capture_output=True, text=True,
+        env=env, cwd=cwd, timeout=timeout)``'s result."""
+        cwd = os.path.abspath(cwd or os.getcwd())
+        if not os.path.isdir(cwd):
+            raise FileNotFoundError(f"no such directory: {cwd!r}")
+        index, self.turn = self.turn, 1 - self.turn
+        process = self._start(index)
+        # files of this run's own: a process it left behind writes into its own, never the next run's
+        handles = [tempfile.mkstemp(dir=self.folder, suffix=f".{name}") for name in ("stdout", "stderr")]
+        for fd, _ in handles:
+            os.close(fd)
+        stdout, stderr = (Path(path) for _, path in handles)
+        request = {"args": list(args), "env": env, "cwd": cwd, "stdout": str(stdout), "stderr": str(stderr)}
         try:
-            status = self._reply(process, timeout)["status"]
-        except TimeoutError:
-            os.kill(pid, signal.SIGKILL)
-            self._reply(process, 60)
-            raise subprocess.TimeoutExpired(["speedplus", *args], timeout) from None
-        return subprocess.CompletedProcess([sys.executable, "-m", "pipeline.cli", *args], status,
-                                           stdout.read_text(errors="replace"), stderr.read_text(errors="replace"))
+            message = memoryview((json.dumps(request) + "\n").encode())
+            while message:  # a raw pipe may take a long request in parts
+                message = message[os.write(process.stdin.fileno(), message):]
+            pid = self._reply(index, 60)["pid"]
+            try:
+                status = self._reply(index, timeout)["status"]
+            except TimeoutError:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+                self._reply(index, 60)
+                raise subprocess.TimeoutExpired([sys.executable, "-m", "pipeline.cli", *args], timeout) from None
+            return subprocess.CompletedProcess([sys.executable, "-m", "pipeline.cli", *args], status,
+                                               stdout.read_text(), stderr.read_text())
+        finally:
+            stdout.unlink()
+            stderr.unlink()
 
     def close(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.stdin.close()
-            self.process.wait(timeout=60)
+        for process in self.processes:
+            if process is not None and process.poll() is None:
+                process.stdin.close()
+                process.wait(timeout=60)
+        shutil.rmtree(self.folder, ignore_errors=True)
 
 
 if __name__ == "__main__":

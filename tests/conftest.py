@@ -3,6 +3,7 @@ workers (``once``), and read only: copy one to change it."""
 
 import atexit
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -126,19 +127,23 @@ def smoke_finished(smoke_labelled, tmp_path_factory):
 
 
 _FORKER: list[Forker] = []
+#: variables an interpreter or the libraries it has loaded read as it starts: a run that sets
+#: one gets a fresh interpreter (tests/cli_processes.py)
+_READ_AT_START = re.compile(r"PYTHON|LC_|LANG$|.*_NUM_THREADS$|TYPER_|OMP_|MKL_|OPENBLAS")
 
 
 def speedplus(*args, env=None, timeout=1800, cwd=None):
     """Run the CLI in a process of its own (as users do), forked from a warm interpreter
-    (tests/cli_processes.py). An ``env`` that sets ``SPEEDPLUS_FAULT_KILL_AT_PART``,
-    ``_FAIL_STAGE`` or ``_ENGINE_LOST_AFTER`` gets the fault injection of
-    tests/faults/sitecustomize.py, in a fresh interpreter (which reads it at its start)."""
-    env = {**os.environ, "COLUMNS": "200", **(env or {})}
-    faults = any(env.get(f"SPEEDPLUS_FAULT_{name}") for name in ("KILL_AT_PART", "FAIL_STAGE", "ENGINE_LOST_AFTER"))
+    (tests/cli_processes.py). An ``env`` that sets a ``SPEEDPLUS_FAULT_*`` gets the fault
+    injection of tests/faults/sitecustomize.py, in a fresh interpreter (which reads it at its
+    start), as does one that sets what an interpreter reads as it starts (``_READ_AT_START``)."""
+    asked = dict(env or {})
+    env = {**os.environ, "COLUMNS": "200", **asked}
+    faults = any(name.startswith("SPEEDPLUS_FAULT_") and value for name, value in env.items())
     if faults:
         folder = str(Path(__file__).resolve().parent / "faults")
         env["PYTHONPATH"] = os.pathsep.join(p for p in (folder, env.get("PYTHONPATH", "")) if p)
-    if faults or os.environ.get("SPEEDPLUS_TESTS_FRESH_PROCESSES") == "1":
+    if faults or any(map(_READ_AT_START.match, asked)) or os.environ.get("SPEEDPLUS_TESTS_FRESH_PROCESSES") == "1":
         return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
                               env=env, timeout=timeout, cwd=cwd)
     if not _FORKER:

@@ -78,7 +78,22 @@ def all_blocks() -> list[Block]:
 
 
 #: a folder of the walk's own that a command names: a workspace or an export
-OWN_FOLDER = re.compile(r"(?<![\w/])(?:data|exports)/[\w.-]+")
+OWN_FOLDER = re.compile(r"(?<![\w/.])(?:\./)?((?:data|exports)/[\w.-]+)")
+
+
+def filled(block: Block) -> list[str]:
+    """The block's commands with its placeholders (``DIR=path``) filled in, as the walk runs them."""
+    out = []
+    for command in block.commands():
+        for name, value in block.placeholders.items():
+            command = re.sub(rf"(?<![\w/]){name}(?![\w/])", value, command)
+        out.append(command)
+    return out
+
+
+def own_folders(block: Block) -> set[str]:
+    """The walk's folders (``data/...``, ``exports/...``) that the block's commands name."""
+    return set(OWN_FOLDER.findall(" ".join(filled(block))))
 
 
 def run_blocks() -> list[Block]:
@@ -92,7 +107,7 @@ def walks() -> tuple[list[Block], list[Block]]:
     blocks read), through the folders its blocks name; the second, the others (chapters on a
     workspace of their own). Two sandboxes, run side by side by pytest-xdist."""
     found = run_blocks()
-    folders = {b.where: set(OWN_FOLDER.findall(" ".join(b.commands()))) for b in found}
+    folders = {b.where: own_folders(b) for b in found}
     reached, grown = {"data/default"}, True
     while grown:
         grown = False

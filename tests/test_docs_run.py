@@ -16,7 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from tests.docs_blocks import KINDS, OWN_FOLDER, ROOT, Block, all_blocks, run_blocks, walks
+from tests.docs_blocks import KINDS, OWN_FOLDER, ROOT, Block, all_blocks, filled, own_folders, run_blocks, walks
 
 #: what the walk changes in a documented command, and only this: every profile is the smoke
 #: profile (seconds per stage; a command that names none gets it), and a placeholder stands
@@ -125,9 +125,15 @@ def test_the_two_walks_hold_every_run_block_once_and_share_no_folder():
     assert first and second and not {b.where for b in first} & {b.where for b in second}
 
     def folders(found: list[Block]) -> set[str]:
-        return {f for b in found for f in OWN_FOLDER.findall(" ".join(b.commands()))}
+        return {f for b in found for f in own_folders(b)}
 
     assert "data/default" in folders(first) and not folders(first) & folders(second)
+    # a command on a workspace names it: none takes one by default, unseen by the split
+    for block in first + second:
+        for command in filled(block):
+            words = shlex.split(command)
+            if len(words) > 1 and "--workspace" in _help(words[1]):
+                assert OWN_FOLDER.search(command), f"{block.where}: `{command}` names no folder of the walk's"
 
 
 def test_the_shipped_example_target_is_the_one_its_code_writes(tmp_path):

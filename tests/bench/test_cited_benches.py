@@ -115,15 +115,21 @@ def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
         image_costs.main("HEAD", "--kinds", "twin,twins")
 
 
-def test_bench_honesty_gives_a_target_folders_accuracy(results, tmp_path):
-    """The accuracy figures of a target folder (``--target DIR``) on the smoke profile, its
-    workspace made from nothing. The guide's rehearsal of a facility folder (``--facility DIR``,
-    writing DIR/rehearsal.json) runs in tests/stages/acquire/test_facility_rehearsal.py, on the
-    smoke acquisition of the folder that module keeps."""
+def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_path):
+    """The guide's rehearsal (``--facility DIR``, writing DIR/rehearsal.json) and the accuracy
+    figures of a target folder (``--target DIR``), one smoke facility each."""
     from bench import honesty
+    from manifests.rehearsal import read_rehearsal
 
+    facility = tmp_path / "abb_rail"
+    shutil.copytree(ROOT / "tests" / "facilities" / "abb_rail", facility)
+    (facility / "rehearsal.json").unlink(missing_ok=True)
+    honesty.main("--facility", str(facility), "5", str(tmp_path / "rehearsed"), "--profile", "smoke")
+    record = read_rehearsal(facility)
+    assert record.labels == 8 and record.profile == "smoke" and 0 <= record.under_speedplus <= 8
     honesty.main("5", str(tmp_path / "targets"), "--target", str(ROOT / "examples" / "targets" / "cubesat3u"),
                  "--profile", "smoke")
+    assert _rows(results, "rehearsal_abb-rail")
     rows = _rows(results, "honesty_targets")
     assert any(row.get("target") == "cubesat3u" and row.get("seed") == 5 for row in rows), rows
 

@@ -88,11 +88,20 @@ class SerialChain:
         return self.frames(joints)[..., -1, :, :]
 
     def motion(self, index: int, value: np.ndarray) -> np.ndarray:
-        """(..., 4, 4) joint ``index``'s motion by ``value`` (...) rad or m (``motions``)."""
+        """(..., 4, 4) joint ``index``'s motion by ``value`` (...) rad or m, alone: what
+        ``motions`` gives for that joint (the arms' fit calls it a joint at a time, with
+        another value per parameter row)."""
         value = np.asarray(value, dtype=np.float64)
-        joints = np.zeros(value.shape + (self.dof,))
-        joints[..., index] = value
-        return self.motions(joints)[..., index, :, :]
+        out = np.zeros(value.shape + (4, 4))
+        out[..., 3, 3] = 1.0
+        if self.kinds[index] == "prismatic":
+            out[..., :3, :3] = np.eye(3)
+            out[..., :3, 3] = value[..., None] * self.axes[index]
+            return out
+        cross, squared, _ = self._rodrigues
+        out[..., :3, :3] = (np.eye(3) + np.sin(value)[..., None, None] * cross[index]
+                            + (1.0 - np.cos(value))[..., None, None] * squared[index])
+        return out
 
     def motions(self, joints: np.ndarray) -> np.ndarray:
         """(..., J, 4, 4) every joint's motion by ``joints`` (..., J) rad or m: a translation

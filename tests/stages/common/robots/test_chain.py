@@ -149,7 +149,15 @@ def test_a_prismatic_joint_among_revolute_ones_moves_as_yourdfpy_says(tmp_path):
     for value in joints:
         independent.update_cfg(dict(zip(chain.joint_names, value, strict=True)))
         assert np.abs(chain.forward(value) - independent.get_transform("tool0", "base_link")).max() < 1e-12
-        for index in range(3):  # one joint's motion alone is that joint's column of motions
-            assert np.array_equal(chain.motion(index, value[index]), chain.motions(value)[index])
+    # every joint at once (motions) is each joint alone (motion), to the bit, whatever the batch's shape
+    for shape in [(3,), (1, 3), (20, 3), (4, 5, 3)]:
+        batch = joints.reshape(-1)[:int(np.prod(shape))].reshape(shape)
+        for index in range(3):
+            assert np.array_equal(chain.motion(index, batch[..., index]), chain.motions(batch)[..., index, :, :])
     frames = chain.frames(joints)
+    current = np.broadcast_to(np.eye(4), (len(joints), 4, 4))
+    for index in range(3):  # the chain's product, a joint at a time
+        current = current @ chain.origins[index] @ chain.motion(index, joints[:, index])
+        assert np.array_equal(frames[:, index], current)
+    assert np.array_equal(frames[:, -1], current @ chain.origins[-1])
     assert np.allclose(jacobians(chain, frames), np.stack([chain.jacobian(value) for value in joints]), atol=1e-12)
