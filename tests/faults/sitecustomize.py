@@ -78,34 +78,27 @@ if _LOST:
 
     _engines.map_engine = _map_then_lose
 
-_SLOW = os.environ.get("SPEEDPLUS_FAULT_SLOW_RENDER_WHILE")
 
-if _SLOW:
+def _slow_while(path: str, owner: type, method: str, seconds: float) -> None:
+    """``owner.method`` takes ``seconds`` longer while ``path`` exists."""
     import time
 
+    wrapped = getattr(owner, method)
+
+    def slowly(self, *args):  # noqa: ANN001, ANN002, ANN202 - the wrapped method's own signature
+        if os.path.exists(path):
+            time.sleep(seconds)
+        return wrapped(self, *args)
+
+    setattr(owner, method, slowly)
+
+
+if os.environ.get("SPEEDPLUS_FAULT_SLOW_RENDER_WHILE"):
     import stages.render.worker as _worker
 
-    _render = _worker.RenderWorker.render
+    _slow_while(os.environ["SPEEDPLUS_FAULT_SLOW_RENDER_WHILE"], _worker.RenderWorker, "render", 1.0)
 
-    def _render_slowly(self, job):  # noqa: ANN001, ANN202 - the wrapped method's own signature
-        if os.path.exists(_SLOW):
-            time.sleep(1.0)
-        return _render(self, job)
-
-    _worker.RenderWorker.render = _render_slowly
-
-_SLOW_CAPTURE = os.environ.get("SPEEDPLUS_FAULT_SLOW_CAPTURE_WHILE")
-
-if _SLOW_CAPTURE:
-    import time
-
+if os.environ.get("SPEEDPLUS_FAULT_SLOW_CAPTURE_WHILE"):
     import stages.acquire.virtual as _virtual
 
-    _capture = _virtual.VirtualTestbed.capture
-
-    def _capture_slowly(self, sample):  # noqa: ANN001, ANN202 - the wrapped method's own signature
-        if os.path.exists(_SLOW_CAPTURE):
-            time.sleep(0.5)
-        return _capture(self, sample)
-
-    _virtual.VirtualTestbed.capture = _capture_slowly
+    _slow_while(os.environ["SPEEDPLUS_FAULT_SLOW_CAPTURE_WHILE"], _virtual.VirtualTestbed, "capture", 0.5)
