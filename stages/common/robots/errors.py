@@ -35,6 +35,7 @@ A static mount has no parameters: its placement error is the hand-eye offset's.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -81,7 +82,7 @@ class HolderModel:
     def joints(self) -> int:
         return self.chain.dof
 
-    @property
+    @cached_property  # the fit asks for it (and ``size``) at every evaluation: made once
     def names(self) -> tuple[str, ...]:
         """Every parameter's name, in the packed order: zero offsets, frame errors (each
         joint's origin, then the flange's), the rail's scale, the compliances, the lost motions."""
@@ -93,7 +94,7 @@ class HolderModel:
                 *(f"{self.robot}.{j}.compliance" for j in joints),
                 *(f"{self.robot}.{j}.lost_motion" for j in joints))
 
-    @property
+    @cached_property
     def size(self) -> int:
         return len(self.names)
 
@@ -169,11 +170,11 @@ class Holders:
     def robots(self) -> tuple[HolderModel, ...]:
         return tuple(h for h in (self.camera, self.target) if isinstance(h, HolderModel))
 
-    @property
+    @cached_property
     def names(self) -> tuple[str, ...]:
         return tuple(name for robot in self.robots for name in robot.names)
 
-    @property
+    @cached_property
     def size(self) -> int:
         return sum(robot.size for robot in self.robots)
 

@@ -129,6 +129,22 @@ def measured(holders: Holders, rows: list[dict[str, Any]], payload: arms.Payload
     return measure(holders, (camera, target), rail, fixtures, payload, world_up, directions, preload_nm, before)
 
 
+def distinct_rows(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``p`` (K, P) to evaluate (the first, and every other row that differs from it
+    bit for bit), and which of them each row is (K,): ``f(p[rows])[which]`` is ``f(p)`` for
+    any ``f`` that maps rows on their own. A finite-difference Jacobian's batch steps one
+    parameter a row, so one robot's slice of it is the first row's in every row that steps
+    another robot's, or a fixture's, parameter: each robot's chain is evaluated once per
+    row that moves it."""
+    if len(p) < 2 or p.shape[1] == 0:
+        return np.zeros(min(len(p), 1), int), np.zeros(len(p), int)
+    bits = np.ascontiguousarray(p, dtype=np.float64).view(np.uint64)  # -0.0 and NaN payloads kept apart
+    other = np.flatnonzero((bits[1:] != bits[0]).any(axis=1)) + 1
+    which = np.zeros(len(p), int)
+    which[other] = np.arange(1, len(other) + 1)
+    return np.concatenate([[0], other]), which
+
+
 def flanges(holders: Holders, p: np.ndarray, m: Measured) -> tuple[np.ndarray, np.ndarray]:
     """``world_from_camee`` and ``world_from_targetee`` (K, N, 4, 4) of the arms' packed
     parameters (K, size)."""
@@ -137,7 +153,9 @@ def flanges(holders: Holders, p: np.ndarray, m: Measured) -> tuple[np.ndarray, n
             ("camera", holders.camera, m.camera_joints, m.camera_torque, m.camera_flank),
             ("target", holders.target, m.target_joints, m.target_torque, m.target_flank)):
         if isinstance(holder, HolderModel):
-            out.append(holder.flanges(p[:, slices[role]], joints, m.rail_m, torque, flank_))
+            own = p[:, slices[role]]
+            rows, which = distinct_rows(own)
+            out.append(holder.flanges(own[rows], joints, m.rail_m, torque, flank_)[which])
         else:
             out.append(np.broadcast_to(holder, (len(p), len(m.rail_m), 4, 4)))
     return out[0], out[1]
@@ -148,9 +166,10 @@ def predict_batch(holders: Holders, params: np.ndarray, names: list[str], compli
     """``cam_from_target`` (K, N, 4, 4) of packed parameters (K, P): the arms', then
     ``rwhe.pack`` of the offsets of fixtures ``names`` (compliant fixtures: anisotropic, with
     their play)."""
-    world_from_camee, world_from_targetee = flanges(holders, params[:, :holders.size], m)
-    up = np.einsum("knji,j->kni", world_from_targetee[..., :3, :3], np.asarray(world_up, float))
-    b = g.invert(world_from_camee) @ world_from_targetee
+    rows, which = distinct_rows(params[:, :holders.size])
+    world_from_camee, world_from_targetee = flanges(holders, params[rows, :holders.size], m)
+    up = np.einsum("knji,j->kni", world_from_targetee[..., :3, :3], np.asarray(world_up, float))[which]
+    b = (g.invert(world_from_camee) @ world_from_targetee)[which]
     # at the first parameters for every row: the lag follows the tilt's change of direction,
     # which the arms' corrections move by microradians, and a second pass of the chain per
     # parameter step would double the fit's cost

@@ -327,3 +327,25 @@ def test_a_lost_motion_whose_flank_the_load_decides_is_held_and_named():
     blind = ident.measure(kr16, (m.camera_joints, m.target_joints), m.rail_m, m.fixtures, PAYLOAD, UP, None, 1e9)
     unordered = lost_motion.loaded_flanks(kr16, blind, free, 1e9, 0.25, UP)  # unloaded, but no move's order known
     assert all("order of the moves" in why for why in unordered.values()) and len(unordered) == 12
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_batch_of_one_parameter_steps_predicts_each_row_as_it_would_alone(holders, seed):
+    """predict_batch evaluates each robot's chain only for the rows that move it
+    (``distinct_rows``): a finite-difference batch (steps of either robot's parameters, of
+    the offsets, rows repeated, a row of -0.0 where the first has 0.0) gives every row the
+    bits that row gives alone."""
+    rng = np.random.default_rng(seed)
+    m = ident._draw_configurations(holders, ["minus_x"], PAYLOAD, UP, seed)
+    params = np.concatenate([rng.normal(0.0, 1e-4, holders.size), rwhe.pack(OFFSETS, ["minus_x"], False)])
+    params[0] = 0.0
+    steps = rng.choice(len(params), 12, replace=False)
+    batch = np.repeat(params[None], 16, axis=0)
+    batch[1 + np.arange(12), steps] += 1e-7
+    batch[13, 0] = -0.0  # the same number, other bits: evaluated on its own
+    together = ident.predict_batch(holders, batch, ["minus_x"], False, m, UP)
+    alone = np.stack([ident.predict_batch(holders, row[None], ["minus_x"], False, m, UP)[0] for row in batch])
+    assert together.tobytes() == alone.tobytes()
+    arm = batch[:, :holders.size]
+    rows, which = ident.distinct_rows(arm)
+    assert arm[rows][which].tobytes() == arm.tobytes() and len(rows) == 1 + np.sum(steps < holders.size) + 1
