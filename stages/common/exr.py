@@ -11,8 +11,10 @@ the others go through libdeflate (``deflate``: zlib's format at twice zlib's spe
 same bytes for the same pixels in every process: ISA-L's deflate, used before, twice as fast
 again, once gave a twin's tile other bytes in a Ray worker than in a local run, its pixels
 the same), so that a twin's file costs 0.07 s and one over the Earth, whose radiance is
-noise in every tile, 0.37 s. The pixels read back bit for bit, NaN payloads included
-(``tests/stages/common/test_exr.py``).
+noise in every tile, 0.37 s. A plane may come as its window and a fill (``Windowed``: a ray
+cast or a render made only where the target can be), whose tiles outside the window are
+never made or scanned: the file is the whole plane's. The pixels read back bit for bit, NaN
+payloads included (``tests/stages/common/test_exr.py``).
 
 The layout, from OpenEXR's "OpenEXR File Layout" (openexr.com, version 2 of the format),
 all little-endian:
@@ -38,9 +40,11 @@ all little-endian:
 
 from __future__ import annotations
 
+import functools
 import struct
 import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import deflate
 import numpy as np
@@ -112,28 +116,109 @@ def zip_data(raw: bytes | np.ndarray) -> bytes:
     return packed if len(packed) < len(data) else data.tobytes()
 
 
-def _uniform_tiles(planes: list[np.ndarray], rows: int, columns: int) -> np.ndarray:
-    """(rows, columns) bool: tiles in which every plane (H, W) holds one value (bit for bit:
+@dataclass(frozen=True)
+class Windowed:
+    """A plane of ``shape`` (H, W) that holds ``values`` (h, w) from row ``top``, column
+    ``left`` on and ``fill`` everywhere else: what a render or a ray cast that works only
+    where the target can be (``stages.common.windows``) gives, written without a frame of
+    fill ever being made or scanned (the same file as the whole plane's)."""
+
+    values: np.ndarray
+    top: int
+    left: int
+    shape: tuple[int, int]
+    fill: float
+
+
+@dataclass(frozen=True)
+class _Plane:
+    """A plane as the writer reads it: ``region`` (float32) from tile row ``row`` and tile
+    column ``column`` on, covering whole tiles (or up to the image's edge), and ``fill``
+    (float32) in every tile outside it; a whole plane is its own region."""
+
+    region: np.ndarray
+    row: int
+    column: int
+    fill: np.float32
+
+    @classmethod
+    def of(cls, plane: np.ndarray | Windowed) -> _Plane:
+        if not isinstance(plane, Windowed):
+            # views kept as they are (a normal's axis of an (H, W, 3) array): a copy is 9 MB of page faults
+            return cls(np.asarray(plane, dtype="<f4"), 0, 0, np.float32(0.0))
+        values, (height, width) = np.asarray(plane.values, dtype="<f4"), plane.shape
+        (h, w), top, left = values.shape, plane.top, plane.left
+        if min(top, left) < 0 or top + h > height or left + w > width:
+            raise ValueError(f"a window of {h} x {w} at ({top}, {left}) outside the {height} x {width} plane")
+        fill = np.float32(plane.fill)
+        if h == 0 or w == 0:
+            return cls(np.empty((0, 0), "<f4"), 0, 0, fill)
+        row, column = top // TILE, left // TILE
+        bottom, right = min(-(-(top + h) // TILE) * TILE, height), min(-(-(left + w) // TILE) * TILE, width)
+        region = np.full((bottom - row * TILE, right - column * TILE), fill, "<f4")
+        y, x = top - row * TILE, left - column * TILE
+        region[y:y + h, x:x + w] = values
+        return cls(region, row, column, fill)
+
+    def tiles(self) -> tuple[slice, slice]:
+        """The tile rows and columns the region covers."""
+        return (slice(self.row, self.row - (-self.region.shape[0] // TILE)),
+                slice(self.column, self.column - (-self.region.shape[1] // TILE)))
+
+    def tile(self, row: int, column: int, height: int, width: int) -> np.ndarray:
+        """Tile (``row``, ``column``) of ``height`` x ``width`` pixels."""
+        rows, columns = self.tiles()
+        if rows.start <= row < rows.stop and columns.start <= column < columns.stop:
+            y, x = (row - self.row) * TILE, (column - self.column) * TILE
+            return self.region[y:y + height, x:x + width]
+        return _fill_tile(self.fill.tobytes())[:height, :width]
+
+
+@functools.lru_cache(maxsize=8)
+def _fill_tile(value: bytes) -> np.ndarray:
+    """A read-only tile (TILE, TILE) of one float32 value (its bytes): the tiles outside a
+    windowed plane's region, sliced from one array (an Earth image stacks 4,000 of them)."""
+    tile = np.full((TILE, TILE), np.frombuffer(value, "<f4")[0], "<f4")
+    tile.flags.writeable = False
+    return tile
+
+
+def _shape(plane: np.ndarray | Windowed) -> tuple[int, int]:
+    return tuple(plane.shape) if isinstance(plane, Windowed) else np.shape(plane)
+
+
+def _uniform_of(plane: np.ndarray) -> np.ndarray:
+    """(rows, columns) bool: the tiles of ``plane`` (H, W) that hold one value (bit for bit:
     NaNs of one payload are one value); edge tiles judged on the pixels they hold."""
+    height, width = plane.shape
+    rows, columns = -(-height // TILE), -(-width // TILE)
     uniform = np.ones((rows, columns), bool)
-    height, width = planes[0].shape
     whole_rows, whole_columns = height // TILE, width // TILE
+    bits = plane.view(np.uint32)
+    if whole_rows and whole_columns:
+        inner = bits[:whole_rows * TILE, :whole_columns * TILE]
+        # each pixel against its tile's first, reduced along rows, then along each tile's
+        # columns: reductions over adjacent axes, a third faster than over both at once
+        first = np.repeat(inner[::TILE, ::TILE], TILE, axis=1)
+        same = np.logical_and.reduce(inner.reshape(whole_rows, TILE, -1) == first[:, None, :], axis=1)
+        uniform[:whole_rows, :whole_columns] = np.logical_and.reduce(
+            same.reshape(whole_rows, whole_columns, TILE), axis=2)
+    for row in range(rows):  # the partial tiles of the right and bottom edges
+        for column in range(whole_columns if row < whole_rows else 0, columns):
+            block = bits[row * TILE:(row + 1) * TILE, column * TILE:(column + 1) * TILE]
+            uniform[row, column] = bool((block == block.flat[0]).all())
+    return uniform
+
+
+def _uniform_tiles(planes: list[_Plane], rows: int, columns: int) -> np.ndarray:
+    """(rows, columns) bool: tiles in which every plane holds one value; a plane's tiles
+    outside its region hold its fill."""
+    uniform = np.ones((rows, columns), bool)
     for plane in planes:
         if not uniform.any():
             break
-        bits = plane.view(np.uint32)
-        if whole_rows and whole_columns:
-            inner = bits[:whole_rows * TILE, :whole_columns * TILE]
-            # each pixel against its tile's first, reduced along rows, then along each tile's
-            # columns: reductions over adjacent axes, a third faster than over both at once
-            first = np.repeat(inner[::TILE, ::TILE], TILE, axis=1)
-            same = np.logical_and.reduce(inner.reshape(whole_rows, TILE, -1) == first[:, None, :], axis=1)
-            uniform[:whole_rows, :whole_columns] &= np.logical_and.reduce(
-                same.reshape(whole_rows, whole_columns, TILE), axis=2)
-        for row in range(rows):  # the partial tiles of the right and bottom edges
-            for column in range(whole_columns if row < whole_rows else 0, columns):
-                block = bits[row * TILE:(row + 1) * TILE, column * TILE:(column + 1) * TILE]
-                uniform[row, column] &= bool((block == block.flat[0]).all())
+        if plane.region.size:
+            uniform[plane.tiles()] &= _uniform_of(plane.region)
     return uniform
 
 
@@ -152,32 +237,36 @@ def _uniform_data(values: bytes, width: int, height: int, channels: int) -> byte
     return data
 
 
-def encode(channels: dict[str, np.ndarray], strings: dict[str, str] | None = None) -> bytes:
-    """The file of ``channels`` {name: (H, W) float32-able}, every plane of one shape, with
-    ``strings`` {attribute name: text} in its header."""
+def encode(channels: dict[str, np.ndarray | Windowed], strings: dict[str, str] | None = None) -> bytes:
+    """The file of ``channels`` {name: (H, W) float32-able, or ``Windowed``}, every plane of
+    one shape, with ``strings`` {attribute name: text} in its header."""
     names = sorted(channels)
     if not names:
         raise ValueError("an EXR needs at least one channel")
     if any(not 0 < len(name.encode()) <= 255 or "\0" in name for name in names):
         raise ValueError(f"EXR channel names of 1-255 bytes without NUL expected, got {names}")
-    # views kept as they are (a normal's axis of an (H, W, 3) array): a copy is 9 MB of page faults a plane
-    planes = [np.asarray(channels[name], dtype="<f4") for name in names]
-    height, width = planes[0].shape
-    if any(plane.shape != (height, width) for plane in planes) or width < 1 or height < 1:
-        raise ValueError(f"EXR channels of one non-empty shape expected, got {[p.shape for p in planes]}")
+    shapes = [_shape(channels[name]) for name in names]
+    height, width = shapes[0]
+    if any(shape != (height, width) for shape in shapes) or width < 1 or height < 1:
+        raise ValueError(f"EXR channels of one non-empty shape expected, got {shapes}")
+    planes = [_Plane.of(channels[name]) for name in names]
     header = _header(names, width, height, dict(strings or {}))
     rows, columns = -(-height // TILE), -(-width // TILE)
     uniform = _uniform_tiles(planes, rows, columns)
-    corners = np.stack([plane[::TILE, ::TILE] for plane in planes], axis=-1)  # (rows, columns, C)
+    corners = np.empty((rows, columns, len(planes)), "<f4")  # each tile's first pixel
+    for index, plane in enumerate(planes):
+        corners[..., index] = plane.fill
+        corners[(*plane.tiles(), index)] = plane.region[::TILE, ::TILE]
     chunks = []
     for row in range(rows):
+        tile_height = min(TILE, height - row * TILE)
         for column in range(columns):
-            ys, xs = slice(row * TILE, (row + 1) * TILE), slice(column * TILE, (column + 1) * TILE)
-            tile_height, tile_width = planes[0][ys, xs].shape
+            tile_width = min(TILE, width - column * TILE)
             if uniform[row, column]:
                 data = _uniform_data(corners[row, column].tobytes(), tile_width, tile_height, len(planes))
             else:
-                data = zip_data(np.stack([plane[ys, xs] for plane in planes], axis=1))
+                data = zip_data(np.stack([plane.tile(row, column, tile_height, tile_width) for plane in planes],
+                                         axis=1))
             chunks.append((struct.pack("<5i", column, row, 0, 0, len(data)), data))
     # each chunk: 20 bytes of coordinates and size, then its data; the file joined once
     sizes = [20 + len(data) for _, data in chunks]

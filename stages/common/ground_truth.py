@@ -36,7 +36,7 @@ from manifests.files import write_bytes_atomic
 from speedplus.errors import InputError
 from stages.common import exr
 from stages.common.lens import LensCamera
-from stages.common.surface import SurfaceMaps
+from stages.common.surface import SurfaceMaps, WindowedMaps
 
 VERSION = 1
 HEADER_KEY = "speedplus:ground_truth"
@@ -64,24 +64,39 @@ class GroundTruth:
         return np.stack([self.channels[name] for name in names], axis=-1)
 
 
-def channels_of(maps: SurfaceMaps, radiance: np.ndarray | None, names: tuple[str, ...],
-                length_scale: float = 1.0) -> dict[str, np.ndarray]:
-    """The named channels from ray-cast maps (full scale) and an optional (H, W, 3) linear
-    radiance; ``length_scale`` turns the full-scale model's lengths into the scene's
-    (the testbed's half-scale mock-up)."""
+def channels_of(maps: SurfaceMaps | WindowedMaps, radiance: np.ndarray | None, names: tuple[str, ...],
+                length_scale: float = 1.0, black_outside: bool = False) -> dict[str, np.ndarray | exr.Windowed]:
+    """The named channels from ray-cast maps (full scale; of the whole image, or of the
+    window the target can be in) and an optional (H, W, 3) linear radiance; ``length_scale``
+    turns the full-scale model's lengths into the scene's (the testbed's half-scale mock-up).
+    Maps of a window give its planes with their fill outside (``exr.Windowed``), and so does
+    the radiance where ``black_outside`` (a render of black space: exactly zero there)."""
     # a scale of 1 (the synthetic images) copies nothing: every fresh frame is page faults
     scaled = (lambda values: values) if length_scale == 1.0 else (lambda values: values * length_scale)
-    source = {"Z": scaled(maps.depth_m), "part": maps.part.astype(np.float32)}
+    inside = maps.inside if isinstance(maps, WindowedMaps) else maps
+    if inside is None:  # an empty window: nothing of the target in the image
+        inside = SurfaceMaps(np.zeros((0, 0), np.float32), np.zeros((0, 0, 3), np.float32),
+                             np.zeros((0, 0, 3), np.float32), np.zeros((0, 0), np.uint8), maps.ids)
+    source = {"Z": scaled(inside.depth_m), "part": inside.part.astype(np.float32)}
     for axis, name in enumerate("XYZ"):
-        source[f"N.{name}"] = maps.normal_cam[..., axis]
-        source[f"P.{name}"] = scaled(maps.body_m[..., axis])
+        source[f"N.{name}"] = inside.normal_cam[..., axis]
+        source[f"P.{name}"] = scaled(inside.body_m[..., axis])
+    windowed = isinstance(maps, WindowedMaps)
     if radiance is not None:
+        rows, columns = maps.window.slices() if windowed and black_outside else (slice(None), slice(None))
         for axis, name in enumerate(RADIANCE):
-            source[name] = radiance[..., axis]
-    return {name: np.asarray(source[name], np.float32) for name in names}
+            source[name] = radiance[rows, columns, axis]
+    out: dict[str, np.ndarray | exr.Windowed] = {}
+    for name in names:
+        values = np.asarray(source[name], np.float32)
+        if windowed and (name not in RADIANCE or black_outside):
+            fill = 0.0 if name in ("part", *RADIANCE) else np.nan
+            values = exr.Windowed(values, maps.window.y, maps.window.x, (maps.height, maps.width), fill)
+        out[name] = values
+    return out
 
 
-def encode(channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
+def encode(channels: dict[str, np.ndarray | exr.Windowed], camera: LensCamera, cam_from_target: np.ndarray,
            part_ids: dict[str, int], length_scale: float = 1.0) -> bytes:
     """The file's bytes: the channels {name: (H, W)} as float32, tiled and ZIP-compressed
     (``stages.common.exr``), with the header."""
@@ -91,7 +106,7 @@ def encode(channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target:
     return exr.encode(channels, {HEADER_KEY: json.dumps(header)})
 
 
-def write(path: Path, channels: dict[str, np.ndarray], camera: LensCamera, cam_from_target: np.ndarray,
+def write(path: Path, channels: dict[str, np.ndarray | exr.Windowed], camera: LensCamera, cam_from_target: np.ndarray,
           part_ids: dict[str, int], length_scale: float = 1.0) -> None:
     """Write ``encode``'s file atomically."""
     write_bytes_atomic(path, encode(channels, camera, cam_from_target, part_ids, length_scale))

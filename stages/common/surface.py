@@ -60,6 +60,39 @@ class SurfaceMaps:
         return self.part > 0
 
 
+@dataclass(frozen=True)
+class WindowedMaps:
+    """The maps of an image of ``height`` x ``width`` cast in ``window`` only: ``inside``
+    (the window's ``SurfaceMaps``; None for an empty window); outside it the target covers
+    nothing (NaN, part 0). What the writers of ground truth take (``stages.common.exr``'s
+    ``Windowed`` planes), so that no frame-sized array of NaN is made or scanned."""
+
+    inside: SurfaceMaps | None
+    window: Window
+    height: int
+    width: int
+    ids: dict[str, int]
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: where the target covers a pixel centre."""
+        out = np.zeros((self.height, self.width), bool)
+        if self.inside is not None:
+            out[self.window.slices()] = self.inside.mask
+        return out
+
+    def whole(self) -> SurfaceMaps:
+        """The maps of the whole image (H, W[, 3])."""
+        shape = (self.height, self.width)
+        full = SurfaceMaps(np.full(shape, np.nan, np.float32), np.full((*shape, 3), np.nan, np.float32),
+                           np.full((*shape, 3), np.nan, np.float32), np.zeros(shape, np.uint8), self.ids)
+        if self.inside is not None:
+            rows, columns = self.window.slices()
+            for name in ("depth_m", "normal_cam", "body_m", "part"):
+                getattr(full, name)[rows, columns] = getattr(self.inside, name)
+        return full
+
+
 def pinhole_rays(camera_matrix: np.ndarray, width: int, height: int) -> np.ndarray:
     """Unit directions (H * W, 3), camera frame, through every pixel centre of an
     undistorted image with intrinsics ``camera_matrix`` (3, 3), row-major."""
@@ -113,14 +146,13 @@ class TargetSurfaces:
         nothing), or at every pixel."""
         if window is None:
             return self.cast(cam_from_target, pixel_rays(camera), (camera.height, camera.width))
-        rows, columns = window.slices()
-        rays = pixel_rays(camera).reshape(camera.height, camera.width, 3)[rows, columns].reshape(-1, 3)
-        inside = self.cast(cam_from_target, rays, (window.height, window.width)) if not window.empty else None
-        full = SurfaceMaps(np.full((camera.height, camera.width), np.nan, np.float32),
-                           np.full((camera.height, camera.width, 3), np.nan, np.float32),
-                           np.full((camera.height, camera.width, 3), np.nan, np.float32),
-                           np.zeros((camera.height, camera.width), np.uint8), self.ids)
-        if inside is not None:
-            for name in ("depth_m", "normal_cam", "body_m", "part"):
-                getattr(full, name)[rows, columns] = getattr(inside, name)
-        return full
+        return self.in_window(cam_from_target, camera, window).whole()
+
+    def in_window(self, cam_from_target: np.ndarray, camera: LensCamera, window: Window) -> WindowedMaps:
+        """``through_lens`` cast in ``window`` and kept as that window's maps."""
+        inside = None
+        if not window.empty:
+            rows, columns = window.slices()
+            rays = pixel_rays(camera).reshape(camera.height, camera.width, 3)[rows, columns].reshape(-1, 3)
+            inside = self.cast(cam_from_target, rays, (window.height, window.width))
+        return WindowedMaps(inside, window, camera.height, camera.width, self.ids)

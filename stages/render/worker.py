@@ -99,9 +99,15 @@ class RenderWorker:
         radiance, earth = self.radiance(job)
         # the ray cast where the target can be, the window the render drew (stages.common.windows)
         window = self.renderer.image_window(job.cam_from_target())
-        maps = self.surfaces.through_lens(job.cam_from_target(), self.camera, window)
-        mask = maps.mask
-        if not mask.any():
+        if window is None:
+            maps = self.surfaces.through_lens(job.cam_from_target(), self.camera)
+            mask, bbox = maps.mask, mask_bbox(maps.mask)
+        else:  # kept as the window's maps: the ground truth is written from them
+            maps = self.surfaces.in_window(job.cam_from_target(), self.camera, window)
+            mask = maps.mask
+            bbox = (np.full(4, np.nan) if maps.inside is None
+                    else mask_bbox(maps.inside.mask) + np.array([maps.window.x, maps.window.y] * 2, float))
+        if np.isnan(bbox[0]):
             return Produced({"sample_id": job.sample_id, "rejected": "the target covers no pixel of the image"})
         pixels = self.tone(radiance, None if earth else window)
         files = {job.image_path: encode_png(np.ascontiguousarray(pixels if pixels.ndim == 2 else pixels[..., ::-1])),
@@ -109,7 +115,8 @@ class RenderWorker:
         ground_truth_path = None
         if self.with_ground_truth:
             ground_truth_path = job.ground_truth_path
-            channels = ground_truth.channels_of(maps, radiance, ground_truth.RADIANCE + ground_truth.GEOMETRY)
+            channels = ground_truth.channels_of(maps, radiance, ground_truth.RADIANCE + ground_truth.GEOMETRY,
+                                                black_outside=not earth)
             files[ground_truth_path] = ground_truth.encode(channels, self.camera, job.cam_from_target(), maps.ids)
         keypoints = g.project(job.cam_from_target(), self.keypoints_m, self.camera.camera_matrix, self.camera.dist)
         return Produced({
@@ -117,7 +124,7 @@ class RenderWorker:
             "ground_truth_path": ground_truth_path,
             "q_vbs2tango_true": list(job.q_vbs2tango_true), "r_Vo2To_vbs_true": list(job.r_Vo2To_vbs_true),
             "light_dir_cam": list(job.light_dir_cam), "irradiance": job.irradiance, "earth": earth,
-            "keypoints_px": keypoints, "bbox_px": mask_bbox(mask),
+            "keypoints_px": keypoints, "bbox_px": bbox,
             "width": self.camera.width, "height": self.camera.height,
             "seed": job.seed, "spp": self.spp, "seconds": time.perf_counter() - started,
         }, files)

@@ -187,7 +187,8 @@ class VirtualTestbed:
         lens = self.sensors[session].lens
         # cast only where the mock-up can be (stages.common.windows), as the twins' truth is
         window = image_window(lens, film_window(lens.geometry, full_scale, self._points_m))
-        maps = self._surfaces.through_lens(full_scale, camera, window)
+        maps = (self._surfaces.through_lens(full_scale, camera) if window is None
+                else self._surfaces.in_window(full_scale, camera, window))
         return ground_truth.encode(ground_truth.channels_of(maps, None, ground_truth.TRUTH, scale), camera,
                                    cam_from_target, maps.ids, scale)
 

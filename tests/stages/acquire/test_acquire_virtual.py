@@ -149,22 +149,22 @@ def test_a_captures_truth_maps_cast_in_its_window_are_the_full_casts_bytes(smoke
     testbed = VirtualTestbed(load_config(None, ws.config_path), ws)
     rows = [r for r in read_manifest(ws, "truth").to_pylist() if r["maps_path"]]
     assert rows
-    cast, windows = surface.TargetSurfaces.through_lens, []
+    in_window, full_cast, windows = surface.TargetSurfaces.in_window, surface.TargetSurfaces.through_lens, []
 
-    def windowed_cast(self, pose, camera, window=None):
+    def windowed_cast(self, pose, camera, window):
         windows.append((window, camera.width * camera.height))
-        return cast(self, pose, camera, window)
+        return in_window(self, pose, camera, window)
 
-    def full_cast(self, pose, camera, window=None):
-        return cast(self, pose, camera)
+    def every_pixel(self, pose, camera, window):  # the whole image's maps, written as they are
+        return full_cast(self, pose, camera)
 
     for row in rows:
         cam_from_target = g.transform_from_qt(row["cam_from_target_q"], row["cam_from_target_t"])
-        monkeypatch.setattr(surface.TargetSurfaces, "through_lens", windowed_cast)
+        monkeypatch.setattr(surface.TargetSurfaces, "in_window", windowed_cast)
         windowed = testbed.truth_maps("dataset", cam_from_target)
-        monkeypatch.setattr(surface.TargetSurfaces, "through_lens", full_cast)
+        monkeypatch.setattr(surface.TargetSurfaces, "in_window", every_pixel)
         assert testbed.truth_maps("dataset", cam_from_target) == windowed
-    assert all(window is not None for window, _ in windows)
+    assert len(windows) == len(rows)
     assert all(window.width * window.height < pixels for window, pixels in windows)  # less than the image
 
 

@@ -84,8 +84,37 @@ def test_uniform_tiles_are_told_from_others_exactly():
     expected = np.array([[all(len(np.unique(p[r * exr.TILE:(r + 1) * exr.TILE, c * exr.TILE:(c + 1) * exr.TILE]
                                              .view(np.uint32))) == 1 for p in planes)
                           for c in range(columns)] for r in range(rows)])
-    assert np.array_equal(exr._uniform_tiles(planes, rows, columns), expected)
+    assert np.array_equal(exr._uniform_tiles([exr._Plane.of(p) for p in planes], rows, columns), expected)
     assert 0 < expected.sum() < expected.size
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_windowed_plane_is_written_as_the_whole_plane_it_stands_for(seed):
+    """A plane given as its window and a fill (what a render or a ray cast made only where the
+    target can be) gives the file of the whole plane, byte for byte: windows on and off the
+    tile grid, at the image's edges, empty or the whole image, beside whole planes of noise
+    (the Earth's radiance) or alone."""
+    rng = np.random.default_rng(seed)
+    height, width = int(rng.integers(1, 4 * exr.TILE)), int(rng.integers(1, 5 * exr.TILE))
+    top, left = int(rng.integers(0, height)), int(rng.integers(0, width))
+    h, w = int(rng.integers(0, height - top + 1)), int(rng.integers(0, width - left + 1))
+    if seed == 0:
+        top, left, h, w = 0, 0, height, width
+    channels, whole = {}, {}
+    for name, fill in (("Z", np.nan), ("part", 0.0), ("N.X", 1.0)):
+        plane = np.full((height, width), fill, np.float32)
+        values = rng.normal(size=(h, w)).astype(np.float32)
+        values[rng.random((h, w)) < 0.7] = fill  # much of a window is background too
+        plane[top:top + h, left:left + w] = values
+        channels[name], whole[name] = exr.Windowed(values, top, left, (height, width), fill), plane
+    if seed % 2:
+        whole["R"] = channels["R"] = rng.normal(size=(height, width)).astype(np.float32)
+    assert exr.encode(channels) == exr.encode(whole)
+
+
+def test_a_window_outside_its_plane_is_refused():
+    with pytest.raises(ValueError, match="outside"):
+        exr.encode({"Z": exr.Windowed(np.zeros((4, 4), np.float32), 10, 0, (12, 12), 0.0)})
 
 
 def test_same_planes_same_bytes_whatever_was_written_before():

@@ -18,6 +18,7 @@ from stages.common.ground_truth import GroundTruthError
 from stages.common.tango import KEYPOINTS_M
 from stages.common.tango_mesh import tango_parts
 from stages.common.tone import Response, luminance
+from stages.common.windows import Window
 from stages.common.workspace_target import planned_target
 from stages.render.jobs import train_jobs
 from stages.render.worker import EXPOSURE, RenderWorker
@@ -242,3 +243,32 @@ def test_the_earth_composited_in_the_window_is_the_whole_frames_composite():
         window = worker.renderer.image_window(job.cam_from_target())
         assert window is not None and window.width * window.height < 0.5 * camera.width * camera.height
         assert np.array_equal(radiance, rgba[..., :3] + (1.0 - alpha) * earth), job.sample_id
+
+
+def test_the_ground_truth_of_the_window_is_the_whole_frames_file(monkeypatch):
+    """The worker writes an image's ground truth from the window's maps and, over black
+    space, the window's radiance (``exr.Windowed``): its files are byte for byte those of
+    maps cast at every pixel and written whole, over black space and over the Earth."""
+    from stages.common import surface
+
+    config = load_config("smoke", None, ["render.train_spp=4"])
+    worker = RenderWorker(train_camera(config), planned_target(config), 4, config.render.max_depth, 1)
+    jobs = train_jobs(config)
+    jobs = [job for job in jobs if job.earth][:2] + [job for job in jobs if not job.earth][:2]
+    whole = surface.TargetSurfaces.through_lens
+
+    def every_pixel_cast(self, pose, camera, window):  # the whole image as the window
+        maps = whole(self, pose, camera)
+        return surface.WindowedMaps(maps, Window(0, 0, camera.width, camera.height), camera.height, camera.width,
+                                    maps.ids)
+
+    for job in jobs:
+        assert worker.renderer.image_window(job.cam_from_target()) is not None  # the windowed path
+        windowed = worker.render(job)
+        with monkeypatch.context() as patch:
+            patch.setattr(surface.TargetSurfaces, "in_window", every_pixel_cast)
+            every_pixel = worker.render(job)
+        assert windowed.files.keys() == every_pixel.files.keys() and len(windowed.files) == 3
+        for name, data in windowed.files.items():
+            assert data == every_pixel.files[name], (job.sample_id, name)
+        assert np.array_equal(windowed.value["bbox_px"], every_pixel.value["bbox_px"])
