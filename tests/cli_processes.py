@@ -36,7 +36,7 @@ from pathlib import Path
 #: the third-party libraries every command imports at its start, and those the stages that run
 #: in the command's own process import (calibrate, fuse, label: SciPy); pandas, which pyarrow
 #: imports at its first conversion of Python values (every manifest written), and yourdfpy with
-#: trimesh and networkx (a facility's URDFs): 0.3 s each of a command; no renderer, no torch
+#: trimesh and networkx (a facility's URDFs): 0.28 s of a command, the two; no renderer, no torch
 WARM = ("numpy", "pyarrow", "pyarrow.parquet", "pyarrow.compute", "pyarrow.dataset", "pandas", "pyarrow.pandas_compat",
         "pydantic", "pydantic.types", "annotated_types", "importlib.metadata", "typer", "rich.console", "rich.table",
         "rich.markup", "cv2", "scipy.optimize", "scipy.stats", "scipy.spatial.transform", "scipy.linalg", "yourdfpy")
