@@ -91,34 +91,16 @@ class SerialChain:
         """(..., 4, 4) joint ``index``'s motion by ``value`` (...) rad or m, alone: what
         ``motions`` gives for that joint (the arms' fit calls it a joint at a time, with
         another value per parameter row)."""
-        value = np.asarray(value, dtype=np.float64)
-        out = np.zeros(value.shape + (4, 4))
-        out[..., 3, 3] = 1.0
-        if self.kinds[index] == "prismatic":
-            out[..., :3, :3] = np.eye(3)
-            out[..., :3, 3] = value[..., None] * self.axes[index]
-            return out
-        cross, squared, _ = self._rodrigues
-        out[..., :3, :3] = (np.eye(3) + np.sin(value)[..., None, None] * cross[index]
-                            + (1.0 - np.cos(value))[..., None, None] * squared[index])
-        return out
+        cross, squared, prismatic = self._rodrigues
+        return _screw_motions(np.asarray(value, dtype=np.float64), cross[index], squared[index], self.axes[index],
+                              prismatic[index])
 
     def motions(self, joints: np.ndarray) -> np.ndarray:
-        """(..., J, 4, 4) every joint's motion by ``joints`` (..., J) rad or m: a translation
-        along its axis, or Rodrigues' rotation about it, ``I + sin K + (1 - cos) K^2`` with
-        ``K`` the axis's cross-product matrix; all joints in one pass (the inverse
-        kinematics calls it for every start at every step: a joint at a time cost it a
-        third of its time in NumPy's calls)."""
-        joints = np.asarray(joints, dtype=np.float64)
+        """(..., J, 4, 4) every joint's motion by ``joints`` (..., J) rad or m, in one pass
+        (the inverse kinematics calls it for every start at every step: a joint at a time
+        cost it a third of its time in NumPy's calls)."""
         cross, squared, prismatic = self._rodrigues
-        out = np.zeros(joints.shape + (4, 4))
-        out[..., 3, 3] = 1.0
-        out[..., :3, :3] = (np.eye(3) + np.sin(joints)[..., None, None] * cross
-                            + (1.0 - np.cos(joints))[..., None, None] * squared)
-        for index in np.flatnonzero(prismatic):
-            out[..., index, :3, :3] = np.eye(3)
-            out[..., index, :3, 3] = joints[..., index, None] * self.axes[index]
-        return out
+        return _screw_motions(np.asarray(joints, dtype=np.float64), cross, squared, self.axes, prismatic)
 
     @property
     def prismatic(self) -> np.ndarray:
@@ -351,3 +333,20 @@ def _segment_capsules(chain: SerialChain, covered: set[int]) -> tuple[Capsule, .
 
 def _point(values: np.ndarray) -> tuple[float, float, float]:
     return float(values[0]), float(values[1]), float(values[2])
+
+
+def _screw_motions(values: np.ndarray, cross: np.ndarray, squared: np.ndarray, axes: np.ndarray,
+                   prismatic: np.ndarray | bool) -> np.ndarray:
+    """(..., 4, 4) the motions by ``values`` (...) rad or m of joints whose axes' cross-product
+    matrices ``K`` and ``K^2`` (..., 3, 3), unit axes (..., 3) and kinds (``prismatic``, ...)
+    broadcast with them: Rodrigues' rotation ``I + sin K + (1 - cos) K^2`` about the axis,
+    or a translation along it."""
+    out = np.zeros(values.shape + (4, 4))
+    out[..., 3, 3] = 1.0
+    out[..., :3, :3] = (np.eye(3) + np.sin(values)[..., None, None] * cross
+                        + (1.0 - np.cos(values))[..., None, None] * squared)
+    if np.any(prismatic):
+        sliding = np.broadcast_to(prismatic, values.shape)
+        out[sliding, :3, :3] = np.eye(3)
+        out[..., :3, 3] = np.where(sliding[..., None], values[..., None] * axes, 0.0)
+    return out
