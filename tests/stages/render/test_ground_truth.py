@@ -245,15 +245,20 @@ def test_the_earth_composited_in_the_window_is_the_whole_frames_composite():
         assert np.array_equal(radiance, rgba[..., :3] + (1.0 - alpha) * earth), job.sample_id
 
 
-def test_the_ground_truth_of_the_window_is_the_whole_frames_file(monkeypatch):
+@pytest.mark.parametrize("shape", ["tango", "cubesat"])
+def test_the_ground_truth_of_the_window_is_the_whole_frames_file(monkeypatch, tmp_path, shape):
     """The worker writes an image's ground truth from the window's maps and, over black
     space, the window's radiance (``exr.Windowed``): its files are byte for byte those of
-    maps cast at every pixel and written whole, over black space and over the Earth."""
+    maps cast at every pixel and written whole, over black space and over the Earth, for
+    Tango and for a target of another shape (a 3U CubeSat)."""
+    from bench.targets import cubesat3u
     from stages.common import surface
+    from stages.common.target import load_target
 
     config = load_config("smoke", None, ["render.train_spp=4"])
-    worker = RenderWorker(train_camera(config), planned_target(config), 4, config.render.max_depth, 1)
-    jobs = train_jobs(config)
+    target = planned_target(config) if shape == "tango" else load_target(cubesat3u(tmp_path / "t"))
+    worker = RenderWorker(train_camera(config), target, 4, config.render.max_depth, 1)
+    jobs = train_jobs(config, target)
     jobs = [job for job in jobs if job.earth][:2] + [job for job in jobs if not job.earth][:2]
     whole = surface.TargetSurfaces.through_lens
 
