@@ -1,6 +1,6 @@
-"""A writer of OpenEXR files of float32 channels: single-part, tiled (``TILE`` x ``TILE``
-pixels, one level), ZIP-compressed; what any OpenEXR reader reads whole (OpenImageIO's
-``read_image`` among them; docs/formats.md). Reading stays with OpenImageIO.
+"""A writer of OpenEXR files of float32 and half (float16) channels: single-part, tiled
+(``TILE`` x ``TILE`` pixels, one level), ZIP-compressed; what any OpenEXR reader reads whole
+(OpenImageIO's ``read_image`` among them; docs/formats.md). Reading stays with OpenImageIO.
 
 Why our own writer (issue 60; docs/architecture.md section 7): a twin's eleven planes of
 ground truth are 101 MB at 1920 x 1200 and, outside the few tiles the target covers, one
@@ -11,10 +11,11 @@ the others go through libdeflate (``deflate``: zlib's format at twice zlib's spe
 same bytes for the same pixels in every process: ISA-L's deflate, used before, twice as fast
 again, once gave a twin's tile other bytes in a Ray worker than in a local run, its pixels
 the same), so that a twin's file costs 0.07 s and one over the Earth, whose radiance is
-noise in every tile, 0.37 s. A plane may come as its window and a fill (``Windowed``: a ray
-cast or a render made only where the target can be), whose tiles outside the window are
-never made or scanned: the file is the whole plane's. The pixels read back bit for bit, NaN
-payloads included (``tests/stages/common/test_exr.py``).
+noise in every tile, 0.37 s (0.15 s with its radiance in half floats: half the bytes, and
+no noise in the mantissa bits a half does not keep). A plane may come as its window and a
+fill (``Windowed``: a ray cast or a render made only where the target can be), whose tiles
+outside the window are never made or scanned: the file is the whole plane's. The pixels
+read back bit for bit, NaN payloads included (``tests/stages/common/test_exr.py``).
 
 The layout, from OpenEXR's "OpenEXR File Layout" (openexr.com, version 2 of the format),
 all little-endian:
@@ -22,8 +23,9 @@ all little-endian:
 - magic ``20000630`` (int32), then version 2 with the ``tiled`` flag (``0x200``; ``0x400``
   where a name is longer than 31 bytes);
 - the header: attributes ``name\\0 type\\0 size(int32) value``, sorted by name, ended by
-  ``\\0``: ``channels`` (chlist: per channel, sorted by name, ``name\\0``, pixel type 2 =
-  FLOAT, pLinear 0, three reserved bytes, x and y sampling 1; then ``\\0``), ``compression``
+  ``\\0``: ``channels`` (chlist: per channel, sorted by name, ``name\\0``, pixel type 1 =
+  HALF or 2 = FLOAT (a plane of float16 is HALF, any other FLOAT), pLinear 0, three reserved
+  bytes, x and y sampling 1; then ``\\0``), ``compression``
   (3 = ZIP), ``dataWindow`` and ``displayWindow`` (box2i: 0, 0, width - 1, height - 1),
   ``lineOrder`` (0 = increasing y), ``pixelAspectRatio`` 1, ``screenWindowCenter`` (0, 0),
   ``screenWindowWidth`` 1, ``tiles`` (tiledesc: x size, y size, mode 0 = one level, round
@@ -53,7 +55,10 @@ MAGIC = 20000630
 FORMAT_VERSION = 2
 TILED_FLAG = 0x200
 LONG_NAMES_FLAG = 0x400
+HALF = 1
 FLOAT = 2
+#: OpenEXR's pixel type of each plane dtype the writer keeps
+PIXEL_TYPES = {np.dtype("<f2"): HALF, np.dtype("<f4"): FLOAT}
 ZIP_COMPRESSION = 3
 #: tile side, px: 570 tiles at 1920 x 1200, of which a twin's target covers a few dozen
 TILE = 64
@@ -63,7 +68,7 @@ LEVEL = 1
 RESERVED = frozenset({"name", "type", "version", "chunkCount", "maxSamplesPerPixel"})
 
 #: compressed data of uniform tiles by (width, height, the channels' values as bytes)
-_UNIFORM: OrderedDict[tuple[int, int, bytes], bytes] = OrderedDict()
+_UNIFORM: OrderedDict[tuple[int, int, bytes, tuple[int, ...]], bytes] = OrderedDict()
 _UNIFORM_KEPT = 64
 _UNIFORM_LOCK = threading.Lock()
 
@@ -72,8 +77,9 @@ def _attribute(name: str, kind: str, value: bytes) -> bytes:
     return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
 
 
-def _header(names: list[str], width: int, height: int, strings: dict[str, str]) -> bytes:
-    channels = b"".join(name.encode() + b"\0" + struct.pack("<iB3xii", FLOAT, 0, 1, 1) for name in names) + b"\0"
+def _header(names: list[str], types: list[int], width: int, height: int, strings: dict[str, str]) -> bytes:
+    channels = b"".join(name.encode() + b"\0" + struct.pack("<iB3xii", kind, 0, 1, 1)
+                        for name, kind in zip(names, types, strict=True)) + b"\0"
     window = struct.pack("<4i", 0, 0, width - 1, height - 1)
     attributes = {
         "channels": ("chlist", channels),
@@ -132,30 +138,32 @@ class Windowed:
 
 @dataclass(frozen=True)
 class _Plane:
-    """A plane as the writer reads it: ``region`` (float32) from tile row ``row`` and tile
-    column ``column`` on, covering whole tiles (or up to the image's edge), and ``fill``
-    (float32) in every tile outside it; a whole plane is its own region."""
+    """A plane as the writer reads it: ``region`` (float32 or float16) from tile row ``row``
+    and tile column ``column`` on, covering whole tiles (or up to the image's edge), and
+    ``fill`` (of the region's dtype) in every tile outside it; a whole plane is its own region."""
 
     region: np.ndarray
     row: int
     column: int
-    fill: np.float32
+    fill: np.floating
 
     @classmethod
     def of(cls, plane: np.ndarray | Windowed) -> _Plane:
+        values = plane.values if isinstance(plane, Windowed) else plane
+        dtype = "<f2" if np.asarray(values).dtype == np.float16 else "<f4"
         if not isinstance(plane, Windowed):
             # views kept as they are (a normal's axis of an (H, W, 3) array): a copy is 9 MB of page faults
-            return cls(np.asarray(plane, dtype="<f4"), 0, 0, np.float32(0.0))
-        values, (height, width) = np.asarray(plane.values, dtype="<f4"), plane.shape
+            return cls(np.asarray(plane, dtype=dtype), 0, 0, np.zeros((), dtype)[()])
+        values, (height, width) = np.asarray(values, dtype=dtype), plane.shape
         (h, w), top, left = values.shape, plane.top, plane.left
         if min(top, left) < 0 or top + h > height or left + w > width:
             raise ValueError(f"a window of {h} x {w} at ({top}, {left}) outside the {height} x {width} plane")
-        fill = np.float32(plane.fill)
+        fill = np.asarray(plane.fill, dtype)[()]
         if h == 0 or w == 0:
-            return cls(np.empty((0, 0), "<f4"), 0, 0, fill)
+            return cls(np.empty((0, 0), dtype), 0, 0, fill)
         row, column = top // TILE, left // TILE
         bottom, right = min(-(-(top + h) // TILE) * TILE, height), min(-(-(left + w) // TILE) * TILE, width)
-        region = np.full((bottom - row * TILE, right - column * TILE), fill, "<f4")
+        region = np.full((bottom - row * TILE, right - column * TILE), fill, dtype)
         y, x = top - row * TILE, left - column * TILE
         region[y:y + h, x:x + w] = values
         return cls(region, row, column, fill)
@@ -171,16 +179,22 @@ class _Plane:
         if rows.start <= row < rows.stop and columns.start <= column < columns.stop:
             y, x = (row - self.row) * TILE, (column - self.column) * TILE
             return self.region[y:y + height, x:x + width]
-        return _fill_tile(self.fill.tobytes())[:height, :width]
+        return _fill_tile(self.fill.tobytes(), self.fill.dtype.str)[:height, :width]
 
 
 @functools.lru_cache(maxsize=8)
-def _fill_tile(value: bytes) -> np.ndarray:
-    """A read-only tile (TILE, TILE) of one float32 value (its bytes): the tiles outside a
+def _fill_tile(value: bytes, dtype: str) -> np.ndarray:
+    """A read-only tile (TILE, TILE) of one value (its bytes, of ``dtype``): the tiles outside a
     windowed plane's region, sliced from one array (an Earth image stacks 4,000 of them)."""
-    tile = np.full((TILE, TILE), np.frombuffer(value, "<f4")[0], "<f4")
+    tile = np.full((TILE, TILE), np.frombuffer(value, dtype)[0], dtype)
     tile.flags.writeable = False
     return tile
+
+
+def _bytes(tile: np.ndarray) -> np.ndarray:
+    """(h, w * itemsize) uint8: a tile's rows as bytes (a strided view, such as one axis of
+    an (H, W, 3) array, copied first)."""
+    return (tile if tile.strides[-1] == tile.itemsize else np.ascontiguousarray(tile)).view(np.uint8)
 
 
 def _shape(plane: np.ndarray | Windowed) -> tuple[int, int]:
@@ -194,7 +208,7 @@ def _uniform_of(plane: np.ndarray) -> np.ndarray:
     rows, columns = -(-height // TILE), -(-width // TILE)
     uniform = np.ones((rows, columns), bool)
     whole_rows, whole_columns = height // TILE, width // TILE
-    bits = plane.view(np.uint32)
+    bits = plane.view(np.uint16 if plane.itemsize == 2 else np.uint32)
     if whole_rows and whole_columns:
         inner = bits[:whole_rows * TILE, :whole_columns * TILE]
         # each pixel against its tile's first, reduced along rows, then along each tile's
@@ -222,13 +236,15 @@ def _uniform_tiles(planes: list[_Plane], rows: int, columns: int) -> np.ndarray:
     return uniform
 
 
-def _uniform_data(values: bytes, width: int, height: int, channels: int) -> bytes:
-    key = (width, height, values)
+def _uniform_data(values: bytes, width: int, height: int, sizes: tuple[int, ...]) -> bytes:
+    """A uniform tile's data: ``values`` the channels' one value each, ``sizes`` their bytes."""
+    key = (width, height, values, sizes)
     with _UNIFORM_LOCK:
         if key in _UNIFORM:
             _UNIFORM.move_to_end(key)
             return _UNIFORM[key]
-    row = b"".join(values[4 * c:4 * c + 4] * width for c in range(channels))
+    starts = np.cumsum((0, *sizes[:-1]))
+    row = b"".join(values[start:start + size] * width for start, size in zip(starts, sizes, strict=True))
     data = zip_data(row * height)
     with _UNIFORM_LOCK:
         _UNIFORM[key] = data
@@ -239,7 +255,8 @@ def _uniform_data(values: bytes, width: int, height: int, channels: int) -> byte
 
 def encode(channels: dict[str, np.ndarray | Windowed], strings: dict[str, str] | None = None) -> bytes:
     """The file of ``channels`` {name: (H, W) float32-able, or ``Windowed``}, every plane of
-    one shape, with ``strings`` {attribute name: text} in its header."""
+    one shape, with ``strings`` {attribute name: text} in its header; a plane of float16
+    values is written as HALF, any other as FLOAT."""
     names = sorted(channels)
     if not names:
         raise ValueError("an EXR needs at least one channel")
@@ -250,23 +267,26 @@ def encode(channels: dict[str, np.ndarray | Windowed], strings: dict[str, str] |
     if any(shape != (height, width) for shape in shapes) or width < 1 or height < 1:
         raise ValueError(f"EXR channels of one non-empty shape expected, got {shapes}")
     planes = [_Plane.of(channels[name]) for name in names]
-    header = _header(names, width, height, dict(strings or {}))
+    header = _header(names, [PIXEL_TYPES[plane.region.dtype] for plane in planes], width, height,
+                     dict(strings or {}))
     rows, columns = -(-height // TILE), -(-width // TILE)
     uniform = _uniform_tiles(planes, rows, columns)
-    corners = np.empty((rows, columns, len(planes)), "<f4")  # each tile's first pixel
-    for index, plane in enumerate(planes):
-        corners[..., index] = plane.fill
-        corners[(*plane.tiles(), index)] = plane.region[::TILE, ::TILE]
+    sizes = tuple(plane.region.itemsize for plane in planes)
+    corners = np.empty((rows, columns, sum(sizes)), np.uint8)  # each tile's first pixel, its bytes
+    for plane, start in zip(planes, np.cumsum((0, *sizes[:-1])), strict=True):
+        span = corners[..., start:start + plane.region.itemsize]
+        span[...] = np.frombuffer(plane.fill.tobytes(), np.uint8)
+        span[plane.tiles()] = plane.region[::TILE, ::TILE, None].view(np.uint8)
     chunks = []
     for row in range(rows):
         tile_height = min(TILE, height - row * TILE)
         for column in range(columns):
             tile_width = min(TILE, width - column * TILE)
             if uniform[row, column]:
-                data = _uniform_data(corners[row, column].tobytes(), tile_width, tile_height, len(planes))
-            else:
-                data = zip_data(np.stack([plane.tile(row, column, tile_height, tile_width) for plane in planes],
-                                         axis=1))
+                data = _uniform_data(corners[row, column].tobytes(), tile_width, tile_height, sizes)
+            else:  # each row of the tile: every channel's run, as bytes
+                data = zip_data(np.concatenate(
+                    [_bytes(plane.tile(row, column, tile_height, tile_width)) for plane in planes], axis=1))
             chunks.append((struct.pack("<5i", column, row, 0, 0, len(data)), data))
     # each chunk: 20 bytes of coordinates and size, then its data; the file joined once
     sizes = [20 + len(data) for _, data in chunks]

@@ -2,12 +2,15 @@
 ``stages.common.exr``, tiled and ZIP-compressed; read through OpenImageIO); the format is
 defined here, once, and checked on read.
 
-Channels (float32, one value per output pixel of the image it belongs to, in that image's
-distorted geometry; NaN where the model is not hit):
+Channels (one value per output pixel of the image it belongs to, in that image's distorted
+geometry; NaN where the model is not hit; float32, but the radiance in half floats):
 
 =========================  ============================================================
 ``R``, ``G``, ``B``        linear HDR radiance of the render (the 8-bit PNG is its tone
-                           map); synthetic images only
+                           map, toned before rounding: toning these values gives it
+                           within one level); synthetic images only. Half (float16, 11
+                           significant bits) where all of it fits half's range, float32
+                           where not (``radiance_planes``); version 1 files hold float32
 ``Z``                      depth: z of the surface in the OpenCV camera frame, metres
 ``N.X``, ``N.Y``, ``N.Z``  unit surface normal in the camera frame, towards the camera
 ``P.X``, ``P.Y``, ``P.Z``  the surface point in the target's body coordinates, metres
@@ -17,10 +20,11 @@ distorted geometry; NaN where the model is not hit):
 =========================  ============================================================
 
 The testbed's truth maps (virtual backend, for evaluation only) hold ``Z`` and ``part``
-at the mock-up's true pose and scale. Header: ``speedplus:ground_truth`` (JSON: version,
-camera_matrix (3, 3) px, dist (5,) OpenCV, cam_from_target (4, 4) m, length_scale,
-part_ids: part name -> index). OpenEXR's own ``worldToCamera`` is not written: its camera looks along -z, not
-OpenCV's +z, and a second convention for the same pose would invite mistakes.
+at the mock-up's true pose and scale. Header: ``speedplus:ground_truth`` (JSON: version 2,
+or 1 as read; camera_matrix (3, 3) px, dist (5,) OpenCV, cam_from_target (4, 4) m,
+length_scale, part_ids: part name -> index). OpenEXR's own ``worldToCamera`` is not
+written: its camera looks along -z, not OpenCV's +z, and a second convention for the same
+pose would invite mistakes.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from manifests.files import write_bytes_atomic
@@ -38,9 +43,13 @@ from stages.common import exr
 from stages.common.lens import LensCamera
 from stages.common.surface import SurfaceMaps, WindowedMaps
 
-VERSION = 1
+VERSION = 2
+#: versions read: 1 differs only in its radiance, float32 (an OpenEXR reader widens either)
+READABLE = (1, 2)
 HEADER_KEY = "speedplus:ground_truth"
 RADIANCE = ("R", "G", "B")
+#: the largest finite half float
+HALF_MAX = 65504.0
 GEOMETRY = ("Z", "N.X", "N.Y", "N.Z", "P.X", "P.Y", "P.Z", "part")
 TRUTH = ("Z", "part")
 
@@ -84,11 +93,10 @@ def channels_of(maps: SurfaceMaps | WindowedMaps, radiance: np.ndarray | None, n
     windowed = isinstance(maps, WindowedMaps)
     if radiance is not None:
         rows, columns = maps.window.slices() if windowed and black_outside else (slice(None), slice(None))
-        for axis, name in enumerate(RADIANCE):
-            source[name] = radiance[rows, columns, axis]
+        source.update(zip(RADIANCE, radiance_planes(radiance[rows, columns]), strict=True))
     out: dict[str, np.ndarray | exr.Windowed] = {}
     for name in names:
-        values = np.asarray(source[name], np.float32)
+        values = source[name] if name in RADIANCE else np.asarray(source[name], np.float32)
         if windowed and (name not in RADIANCE or black_outside):
             fill = 0.0 if name in ("part", *RADIANCE) else np.nan
             values = exr.Windowed(values, maps.window.y, maps.window.x, (maps.height, maps.width), fill)
@@ -96,10 +104,25 @@ def channels_of(maps: SurfaceMaps | WindowedMaps, radiance: np.ndarray | None, n
     return out
 
 
+def radiance_planes(radiance: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The (H, W, 3) linear radiance as its three (H, W) planes to write: half floats
+    (float16, rounded to nearest even) where every value is within half's range (|L| <=
+    65504), as every render of this project's scenes is, else float32. A half keeps 11
+    significant bits, a relative step of 2^-11 = 4.9e-4: below a render's Monte-Carlo noise
+    and below the 8-bit PNG's step at any tone, and it halves the bytes and the deflate of an
+    image whose radiance fills the frame (an Earth behind the target; docs/architecture.md
+    section 7). OpenCV's conversion (the CPU's F16C) gives NumPy's bits at a tenth of its time."""
+    values = np.ascontiguousarray(radiance, np.float32)
+    if values.size == 0 or not (values.min() >= -HALF_MAX and values.max() <= HALF_MAX):  # NaN fails both
+        return tuple(values[..., axis] for axis in range(3))
+    half = cv2.convertFp16(values.reshape(values.shape[0], -1)).view(np.float16).reshape(values.shape)
+    return tuple(np.ascontiguousarray(half.transpose(2, 0, 1)))
+
+
 def encode(channels: dict[str, np.ndarray | exr.Windowed], camera: LensCamera, cam_from_target: np.ndarray,
            part_ids: dict[str, int], length_scale: float = 1.0) -> bytes:
-    """The file's bytes: the channels {name: (H, W)} as float32, tiled and ZIP-compressed
-    (``stages.common.exr``), with the header."""
+    """The file's bytes: the channels {name: (H, W)}, float16 planes as half and any other
+    as float32, tiled and ZIP-compressed (``stages.common.exr``), with the header."""
     header = {"version": VERSION, "camera_matrix": np.asarray(camera.camera_matrix, float).tolist(),
               "dist": [float(v) for v in camera.dist], "cam_from_target": np.asarray(cam_from_target, float).tolist(),
               "length_scale": float(length_scale), "part_ids": dict(part_ids)}
@@ -122,8 +145,8 @@ def _header(path: Path, text: Any) -> dict[str, Any]:
         header = None
     if not isinstance(header, dict):
         raise fail("(top level)", "a JSON object; not a SPEED+ builder ground-truth file")
-    if header.get("version") != VERSION:
-        raise fail("version", f"{VERSION} (this program's); rerun the stage that wrote it with --force")
+    if header.get("version") not in READABLE:
+        raise fail("version", f"one of {READABLE} (this program's); rerun the stage that wrote it with --force")
     for key, shape in (("camera_matrix", (3, 3)), ("dist", (5,)), ("cam_from_target", (4, 4))):
         value = np.asarray(header.get(key, []), dtype=object)
         if value.shape != shape or not all(isinstance(v, (int, float)) for v in value.ravel()):
