@@ -114,20 +114,36 @@ def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: n
     and at 1920 x 1200 it takes 0.14 CPU-s instead of 0.4-1.0 (here every fresh frame-sized
     temporary is paid in page faults)."""
     rays = pixel_rays(camera)  # cached per camera
+    directions = _directions(rays)
     image = np.zeros((camera.height, camera.width, 3), np.float32)
     seen = False
     for row in range(0, camera.height, _BAND_ROWS):
         rows = min(_BAND_ROWS, camera.height - row)
         band = slice(row * camera.width, (row + rows) * camera.width)
-        seen |= _earth_band(rays[band], image[row:row + rows], centre_cam_m, cam_from_planet, light_dir_cam,
-                            irradiance)
+        seen |= _earth_band(rays[band], directions[:, band], image[row:row + rows], centre_cam_m, cam_from_planet,
+                            light_dir_cam, irradiance)
     return image, seen
 
 
-def _earth_band(rays: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray, cam_from_planet: np.ndarray,
-                light_dir_cam: np.ndarray, irradiance: float) -> bool:
-    """The Earth's radiance through the rows of ``rays`` (R * W, 3), into ``out`` (R, W, 3);
-    whether any of them sees it."""
+#: the last camera's rays and their float32 axes: (rays, directions)
+_DIRECTIONS: list[tuple[np.ndarray, np.ndarray]] = []
+
+
+def _directions(rays: np.ndarray) -> np.ndarray:
+    """(3, N) float32, one contiguous row per axis, of the cached (N, 3) ``rays``, kept
+    beside them (the same object while ``pixel_rays`` keeps them)."""
+    if not _DIRECTIONS or _DIRECTIONS[0][0] is not rays:
+        directions = np.ascontiguousarray(rays.T, np.float32)
+        directions.setflags(write=False)
+        _DIRECTIONS[:] = [(rays, directions)]
+    return _DIRECTIONS[0][1]
+
+
+def _earth_band(rays: np.ndarray, directions: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray,
+                cam_from_planet: np.ndarray, light_dir_cam: np.ndarray, irradiance: float) -> bool:
+    """The Earth's radiance through the rows of ``rays`` (R * W, 3), float64, and the same
+    ``directions`` (3, R * W) float32, into ``out`` (R, W, 3); whether any of them sees it."""
+    import cv2
     centre = np.asarray(centre_cam_m, float)
     along = rays @ centre
     miss_sq = along**2 - (centre @ centre - EARTH_RADIUS_M**2)
@@ -137,7 +153,6 @@ def _earth_band(rays: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray, cam
     # every pixel at once, the misses zeroed at the end; single precision after the hit test
     # (which needs double): a normal's direction to 1e-7, half the memory traffic
     distance = np.where(hit, along - np.sqrt(np.maximum(miss_sq, 0.0)), 0.0).astype(np.float32)
-    directions = np.ascontiguousarray(rays.T, np.float32)  # (3, N): one contiguous row per axis
     normals = directions * distance
     normals -= centre.astype(np.float32)[:, None]
     normals *= np.float32(1.0 / EARTH_RADIUS_M)
@@ -158,9 +173,15 @@ def _earth_band(rays: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray, cam
     scale = np.float32(irradiance / np.pi)
     sun *= scale * hit
     glow *= scale * np.float32(0.5) * hit
-    albedo *= sun.reshape(*shape, 1)
-    albedo += glow.reshape(*shape, 1) * np.array([0.3, 0.5, 1.0], np.float32)
-    out[...] = np.where(hit.reshape(*shape, 1), albedo, np.float32(0.0))  # a miss is black, whatever its arithmetic
+    sun, glow, hit = sun.reshape(shape), glow.reshape(shape), hit.reshape(shape)
+    # a colour plane at a time: the same float32 operations as over (R, W, 3) with the light
+    # broadcast along the colours, at a third of the time (no inner loop of three)
+    planes = []
+    for plane, tint in zip(cv2.split(albedo), (0.3, 0.5, 1.0), strict=True):
+        plane *= sun
+        plane += glow * np.float32(tint)
+        planes.append(np.where(hit, plane, np.float32(0.0)))  # a miss is black, whatever its arithmetic
+    out[...] = cv2.merge(planes)
     return True
 
 
