@@ -13,7 +13,10 @@ is timed (scene load and compilation excluded). A twin's pose is drawn 4-10 m aw
 scale, anywhere in the image, from a fixed seed (``bench.cluster.twin_poses``, drawn here and
 handed to both codes): the same images for both; the captures are the profile's first
 dataset rows as each code plans them (the same sample ids). Mean and its standard error
-per kind (training images with and without the Earth apart), and the ratio of the means.
+per kind, and the ratio of the means. A training image's is weighed at the profile's share
+of Earth backgrounds (``render.train_earth_fraction``), not at the sample's: an image over
+the Earth costs two to three of one over black space, and 24 images hold what share they
+draw; the two kinds' own means and ratios beside it.
 Results: bench/results/image_costs.json.
 """
 
@@ -96,6 +99,21 @@ def _summary(seconds: list[float]) -> str:
     return f"{statistics.mean(seconds):.3f} +- {error:.3f} (n={len(seconds)})"
 
 
+def _at_share(training: list[list], fraction: float) -> tuple[float, float] | None:
+    """Mean CPU-s of a training image and its standard error, the Earth's and black space's
+    means weighed ``fraction`` : 1 - ``fraction``; None where a weighed kind has no image."""
+    parts = []
+    for weight, earth in ((fraction, True), (1.0 - fraction, False)):
+        seconds = [s for s, over_earth in training if over_earth == earth]
+        if weight == 0.0:
+            continue
+        if len(seconds) < 2:
+            return None
+        parts.append((weight * statistics.mean(seconds),
+                      (weight * statistics.stdev(seconds)) ** 2 / len(seconds)))
+    return sum(mean for mean, _ in parts), sum(variance for _, variance in parts) ** 0.5
+
+
 def main(*args: str) -> None:
     ref = args[0] if args and not args[0].startswith("--") else None
     pairs = args[1:] if ref else args
@@ -134,22 +152,34 @@ def main(*args: str) -> None:
         finally:
             if ref is not None:
                 subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=REPO, check=False)
+    from pipeline.config import load_config
+
+    fraction = load_config(profile).render.train_earth_fraction
     rows, means = [], {}
     for name in codes:
         seconds = {kind: measured.get((name, kind), []) for kind in KINDS}
         training = seconds["training"]
         means[name] = {kind: statistics.mean(s for s, _ in values) for kind, values in seconds.items() if values}
+        for label, earth in (("with the Earth", True), ("black space", False)):
+            kept = [s for s, over_earth in training if over_earth == earth]
+            if kept:
+                means[name][label] = statistics.mean(kept)
+        weighed = _at_share(training, fraction)
+        if weighed is not None:
+            means[name]["training"] = weighed[0]
         rows.append({"code": name, "CPU-s a twin": _summary([s for s, _ in seconds["twin"]]),
-                     "CPU-s a training image": _summary([s for s, _ in training]),
+                     "CPU-s a training image": (f"{weighed[0]:.3f} +- {weighed[1]:.3f} (at {fraction:.0%} Earth)"
+                                                if weighed else _summary([s for s, _ in training])),
                      "with the Earth": _summary([s for s, earth in training if earth]),
                      "black space": _summary([s for s, earth in training if not earth]),
                      "CPU-s a capture": _summary([s for s, _ in seconds["capture"]])})
     if ref is not None:
-        ratio = {kind: f"{means[ref][kind] / means['this tree'][kind]:.2f}x" if kind in means[ref] else "-"
-                 for kind in KINDS}
+        labels = (*KINDS, "with the Earth", "black space")
+        ratio = {kind: f"{means[ref][kind] / means['this tree'][kind]:.2f}x"
+                 if kind in means[ref] and kind in means["this tree"] else "-" for kind in labels}
         rows.append({"code": f"{ref} / this tree", "CPU-s a twin": ratio["twin"],
-                     "CPU-s a training image": ratio["training"], "with the Earth": "", "black space": "",
-                     "CPU-s a capture": ratio["capture"]})
+                     "CPU-s a training image": ratio["training"], "with the Earth": ratio["with the Earth"],
+                     "black space": ratio["black space"], "CPU-s a capture": ratio["capture"]})
     report("image_costs", f"CPU-seconds an image at the {profile} profile's resolution (one worker of one CPU, "
            "ground truth included)", rows, {"profile": profile, "images": images, "rounds": rounds, "ref": ref,
-                                                "kinds": list(kinds)})
+                                                "kinds": list(kinds), "train_earth_fraction": fraction})

@@ -115,6 +115,18 @@ def test_bench_image_costs_times_a_commits_images_against_this_trees(results):
         image_costs.main("HEAD", "--kinds", "twin,twins")
 
 
+def test_a_training_images_cost_is_weighed_at_the_profiles_share_of_earth_backgrounds():
+    """Not at the sample's share: six images, two over the Earth (4.0 +- 1.0 CPU-s), four over
+    black space (1.5 +- 0.5), weigh 2.75 at half and half, the sample's mean being 2.33."""
+    from bench.image_costs import _at_share
+
+    training = [[3.0, True], [5.0, True], [1.0, False], [1.0, False], [1.0, False], [3.0, False]]
+    mean, error = _at_share(training, 0.5)
+    assert mean == pytest.approx(2.75) and error == pytest.approx((0.25 * 2 / 2 + 0.25 * 1 / 4) ** 0.5)
+    assert _at_share(training, 0.0) == pytest.approx((1.5, 0.5))
+    assert _at_share(training[1:], 0.5) is None  # one image over the Earth has no spread
+
+
 def test_bench_honesty_rehearses_a_facility_folder_and_a_target(results, tmp_path):
     """The guide's rehearsal (``--facility DIR``, writing DIR/rehearsal.json) and the accuracy
     figures of a target folder (``--target DIR``), one smoke facility each."""
