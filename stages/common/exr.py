@@ -110,8 +110,10 @@ def zip_data(raw: bytes | np.ndarray) -> bytes:
     data = np.frombuffer(raw, np.uint8) if isinstance(raw, bytes) else raw.reshape(-1).view(np.uint8)
     half = (len(data) + 1) // 2
     split = np.empty_like(data)
-    if len(data) % 2 == 0:  # one pass: the byte pairs' columns become the two halves
-        split.reshape(2, half)[...] = data.reshape(half, 2).T
+    if len(data) % 2 == 0:  # the byte pairs read as little-endian uint16: their low and high bytes
+        pairs = data.view("<u2")
+        np.copyto(split[:half], pairs, casting="unsafe")  # the low byte (a truncation, not a clip)
+        np.right_shift(pairs, 8, out=split[half:], casting="unsafe")
     else:
         split[:half], split[half:] = data[0::2], data[1::2]
     predicted = np.empty_like(split)
