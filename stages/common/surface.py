@@ -125,15 +125,18 @@ class TargetSurfaces:
         directions = directions_cam @ target_from_cam[:3, :3].T
         part, body, normal = surface_hits(self.mi, self.scene, target_from_cam[:3, 3], directions, self._index)
         valid = part > 0  # another shape of the scene (none in the renderers') is not the model
-        camera_points = g.apply(cam_from_target, body)
-        normal_cam = normal @ np.asarray(cam_from_target, float)[:3, :3].T
-        normal_cam *= np.where(np.sum(normal_cam * directions_cam, axis=1, keepdims=True) > 0, -1.0, 1.0)
-        depth = camera_points[:, 2]
-        body[~valid], normal_cam[~valid], depth[~valid] = np.nan, np.nan, np.nan
+        # the frames' arithmetic on the rays that hit only (a window is mostly black space)
+        hit_body, hit_normal = body[valid], normal[valid]
+        camera_points = g.apply(cam_from_target, hit_body)
+        normal_cam = hit_normal @ np.asarray(cam_from_target, float)[:3, :3].T
+        normal_cam *= np.where(np.sum(normal_cam * directions_cam[valid], axis=1, keepdims=True) > 0, -1.0, 1.0)
         height, width = shape
-        return SurfaceMaps(depth.reshape(height, width).astype(np.float32),
-                           normal_cam.reshape(height, width, 3).astype(np.float32),
-                           body.reshape(height, width, 3).astype(np.float32), part.reshape(height, width), self.ids)
+        depth = np.full(height * width, np.nan, np.float32)
+        normals, points = np.full((height * width, 3), np.nan, np.float32), np.full((height * width, 3), np.nan,
+                                                                                    np.float32)
+        depth[valid], normals[valid], points[valid] = camera_points[:, 2], normal_cam, hit_body
+        return SurfaceMaps(depth.reshape(height, width), normals.reshape(height, width, 3),
+                           points.reshape(height, width, 3), part.reshape(height, width), self.ids)
 
     def pinhole(self, cam_from_target: np.ndarray, camera_matrix: np.ndarray, width: int, height: int) -> SurfaceMaps:
         """Maps of an undistorted ``width x height`` image with intrinsics ``camera_matrix``."""
