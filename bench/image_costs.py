@@ -155,6 +155,9 @@ def main(*args: str) -> None:
     from pipeline.config import load_config
 
     fraction = load_config(profile).render.train_earth_fraction
+    # the training images weighed at the profile's share only where every code's can be: a
+    # ratio of a weighed mean to a sample's would mean nothing
+    weighable = all(_at_share(measured.get((name, "training"), []), fraction) is not None for name in codes)
     rows, means = [], {}
     for name in codes:
         seconds = {kind: measured.get((name, kind), []) for kind in KINDS}
@@ -164,12 +167,13 @@ def main(*args: str) -> None:
             kept = [s for s, over_earth in training if over_earth == earth]
             if kept:
                 means[name][label] = statistics.mean(kept)
-        weighed = _at_share(training, fraction)
+        weighed = _at_share(training, fraction) if weighable else None
         if weighed is not None:
             means[name]["training"] = weighed[0]
+        unweighed = _summary([s for s, _ in training]) + (" (the sample's share)" if training else "")
         rows.append({"code": name, "CPU-s a twin": _summary([s for s, _ in seconds["twin"]]),
                      "CPU-s a training image": (f"{weighed[0]:.3f} +- {weighed[1]:.3f} (at {fraction:.0%} Earth)"
-                                                if weighed else _summary([s for s, _ in training])),
+                                                if weighed else unweighed),
                      "with the Earth": _summary([s for s, earth in training if earth]),
                      "black space": _summary([s for s, earth in training if not earth]),
                      "CPU-s a capture": _summary([s for s, _ in seconds["capture"]])})

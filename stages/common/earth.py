@@ -132,11 +132,12 @@ _DIRECTIONS: list[tuple[np.ndarray, np.ndarray]] = []
 def _directions(rays: np.ndarray) -> np.ndarray:
     """(3, N) float32, one contiguous row per axis, of the cached (N, 3) ``rays``, kept
     beside them (the same object while ``pixel_rays`` keeps them)."""
-    if not _DIRECTIONS or _DIRECTIONS[0][0] is not rays:
-        directions = np.ascontiguousarray(rays.T, np.float32)
-        directions.setflags(write=False)
-        _DIRECTIONS[:] = [(rays, directions)]
-    return _DIRECTIONS[0][1]
+    kept = _DIRECTIONS[0] if _DIRECTIONS else None
+    if kept is None or kept[0] is not rays:
+        kept = (rays, np.ascontiguousarray(rays.T, np.float32))
+        kept[1].setflags(write=False)
+        _DIRECTIONS[:] = [kept]  # another thread's camera may replace it: this call keeps its own
+    return kept[1]
 
 
 def _earth_band(rays: np.ndarray, directions: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray,

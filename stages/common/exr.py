@@ -142,12 +142,13 @@ class Windowed:
 class _Plane:
     """A plane as the writer reads it: ``region`` (float32 or float16) from tile row ``row``
     and tile column ``column`` on, covering whole tiles (or up to the image's edge), and
-    ``fill`` (of the region's dtype) in every tile outside it; a whole plane is its own region."""
+    ``fill`` (a 0-d array of the region's little-endian dtype, so that its bytes are the
+    file's on any host) in every tile outside it; a whole plane is its own region."""
 
     region: np.ndarray
     row: int
     column: int
-    fill: np.floating
+    fill: np.ndarray
 
     @classmethod
     def of(cls, plane: np.ndarray | Windowed) -> _Plane:
@@ -155,12 +156,12 @@ class _Plane:
         dtype = "<f2" if np.asarray(values).dtype == np.float16 else "<f4"
         if not isinstance(plane, Windowed):
             # views kept as they are (a normal's axis of an (H, W, 3) array): a copy is 9 MB of page faults
-            return cls(np.asarray(plane, dtype=dtype), 0, 0, np.zeros((), dtype)[()])
+            return cls(np.asarray(plane, dtype=dtype), 0, 0, np.zeros((), dtype))
         values, (height, width) = np.asarray(values, dtype=dtype), plane.shape
         (h, w), top, left = values.shape, plane.top, plane.left
         if min(top, left) < 0 or top + h > height or left + w > width:
             raise ValueError(f"a window of {h} x {w} at ({top}, {left}) outside the {height} x {width} plane")
-        fill = np.asarray(plane.fill, dtype)[()]
+        fill = np.asarray(plane.fill, dtype)
         if h == 0 or w == 0:
             return cls(np.empty((0, 0), dtype), 0, 0, fill)
         row, column = top // TILE, left // TILE

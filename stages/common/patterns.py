@@ -9,6 +9,7 @@ the first dimension, y along the second, z into the board.
 from __future__ import annotations
 
 import hashlib
+import json
 import threading
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
@@ -150,7 +151,7 @@ def board_image(spec: PatternSpec, px_per_m: float, margin_m: float) -> np.ndarr
 #: detections by (the 8-bit image's digest, its shape, the pattern): a process that detects
 #: the same pixels again (a bench or a test calibrating one folder several ways, or in other
 #: formats) finds them here; the detectors are deterministic, so this is their answer
-_DETECTED: OrderedDict[tuple[bytes, tuple[int, ...], PatternSpec], tuple[np.ndarray, np.ndarray]] = OrderedDict()
+_DETECTED: OrderedDict[tuple[bytes, tuple[int, ...], str], tuple[np.ndarray, np.ndarray]] = OrderedDict()
 _DETECTED_KEPT = 4096
 _DETECTED_LOCK = threading.Lock()
 
@@ -166,7 +167,8 @@ def detect(image: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray
     (12 dark 12-bit views of Ali et al.'s board: calibrateCamera RMS 0.120 px refined,
     0.067 px as detected)."""
     detection = np.ascontiguousarray(to_uint8(image))
-    key = (hashlib.blake2b(detection.data, digest_size=32).digest(), detection.shape, spec)
+    # the pattern by its fields' text: a spec made with lists (unhashable) is the same pattern
+    key = (hashlib.blake2b(detection.data, digest_size=32).digest(), detection.shape, json.dumps(spec.to_json()))
     with _DETECTED_LOCK:
         kept = _DETECTED.get(key)
         if kept is not None:

@@ -53,3 +53,5 @@ def test_the_same_pixels_are_detected_once_and_each_caller_gets_its_own_arrays(m
     assert len(calls) == 2 and np.allclose(moved, again + [3.0, 0.0], atol=0.2)
     patterns.detect(image, PatternSpec("chessboard", (7, 5), 0.02))
     assert len(calls) == 3
+    patterns.detect(image, PatternSpec("chessboard", [7, 5], 0.02))  # a size as a list: the same pattern
+    assert len(calls) == 3
