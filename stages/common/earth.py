@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.common.lens import LensCamera, pixel_rays
+from stages.common.lens import LensCamera, pixel_directions, pixel_rays
 
 EARTH_RADIUS_M = 6_371_000.0
 OCEAN = np.array([0.02, 0.06, 0.16])
@@ -113,8 +113,7 @@ def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: n
     at a time: each pixel is on its own, so the values are those of the whole frame at once,
     and at 1920 x 1200 it takes 0.09 CPU-s instead of 0.4-1.0 (here every fresh frame-sized
     temporary is paid in page faults)."""
-    rays = pixel_rays(camera)  # cached per camera
-    directions = _directions(rays)
+    rays, directions = pixel_rays(camera), pixel_directions(camera)  # cached per camera
     image = np.zeros((camera.height, camera.width, 3), np.float32)
     seen = False
     for row in range(0, camera.height, _BAND_ROWS):
@@ -123,21 +122,6 @@ def earth_image(camera: LensCamera, centre_cam_m: np.ndarray, cam_from_planet: n
         seen |= _earth_band(rays[band], directions[:, band], image[row:row + rows], centre_cam_m, cam_from_planet,
                             light_dir_cam, irradiance)
     return image, seen
-
-
-#: the last camera's rays and their float32 axes: (rays, directions)
-_DIRECTIONS: list[tuple[np.ndarray, np.ndarray]] = []
-
-
-def _directions(rays: np.ndarray) -> np.ndarray:
-    """(3, N) float32, one contiguous row per axis, of the cached (N, 3) ``rays``, kept
-    beside them (the same object while ``pixel_rays`` keeps them)."""
-    kept = _DIRECTIONS[0] if _DIRECTIONS else None
-    if kept is None or kept[0] is not rays:
-        kept = (rays, np.ascontiguousarray(rays.T, np.float32))
-        kept[1].setflags(write=False)
-        _DIRECTIONS[:] = [kept]  # another thread's camera may replace it: this call keeps its own
-    return kept[1]
 
 
 def _earth_band(rays: np.ndarray, directions: np.ndarray, out: np.ndarray, centre_cam_m: np.ndarray,

@@ -44,12 +44,12 @@ from __future__ import annotations
 
 import functools
 import struct
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import deflate
 import numpy as np
+
+from stages.common.kept import Kept
 
 MAGIC = 20000630
 FORMAT_VERSION = 2
@@ -68,9 +68,7 @@ LEVEL = 1
 RESERVED = frozenset({"name", "type", "version", "chunkCount", "maxSamplesPerPixel"})
 
 #: compressed data of uniform tiles by (width, height, the channels' values as bytes)
-_UNIFORM: OrderedDict[tuple[int, int, bytes, tuple[int, ...]], bytes] = OrderedDict()
-_UNIFORM_KEPT = 64
-_UNIFORM_LOCK = threading.Lock()
+_UNIFORM: Kept[bytes] = Kept(64)
 
 
 def _attribute(name: str, kind: str, value: bytes) -> bytes:
@@ -241,19 +239,12 @@ def _uniform_tiles(planes: list[_Plane], rows: int, columns: int) -> np.ndarray:
 
 def _uniform_data(values: bytes, width: int, height: int, sizes: tuple[int, ...]) -> bytes:
     """A uniform tile's data: ``values`` the channels' one value each, ``sizes`` their bytes."""
-    key = (width, height, values, sizes)
-    with _UNIFORM_LOCK:
-        if key in _UNIFORM:
-            _UNIFORM.move_to_end(key)
-            return _UNIFORM[key]
-    starts = np.cumsum((0, *sizes[:-1]))
-    row = b"".join(values[start:start + size] * width for start, size in zip(starts, sizes, strict=True))
-    data = zip_data(row * height)
-    with _UNIFORM_LOCK:
-        _UNIFORM[key] = data
-        while len(_UNIFORM) > _UNIFORM_KEPT:
-            _UNIFORM.popitem(last=False)
-    return data
+    def compute() -> bytes:
+        starts = np.cumsum((0, *sizes[:-1]))
+        row = b"".join(values[start:start + size] * width for start, size in zip(starts, sizes, strict=True))
+        return zip_data(row * height)
+
+    return _UNIFORM.get((width, height, values, sizes), compute)
 
 
 def encode(channels: dict[str, np.ndarray | Windowed], strings: dict[str, str] | None = None) -> bytes:

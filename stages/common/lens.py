@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stages.common.kept import Kept
+
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
 
 
@@ -80,27 +82,41 @@ def distortion_maps(camera: LensCamera, geometry: RenderGeometry) -> tuple[np.nd
 
 #: the last few cameras' pixel rays: a session keeps one camera, and tracing 576k pixels
 #: back through the distortion costs 0.6 s a call (every truth map and twin asked anew)
-_PIXEL_RAYS: dict[tuple, np.ndarray] = {}
-_PIXEL_RAYS_KEPT = 4
+_PIXEL_RAYS: Kept[np.ndarray] = Kept(4)
+#: their float32 axes (3, H * W), one contiguous row each, for the Earth's single-precision
+#: arithmetic (``stages.common.earth``), kept beside them
+_PIXEL_DIRECTIONS: Kept[np.ndarray] = Kept(4)
+
+
+def _camera_key(camera: LensCamera) -> tuple:
+    return (camera.width, camera.height, np.asarray(camera.camera_matrix, float).tobytes(),
+            np.asarray(camera.dist, float).tobytes())
 
 
 def pixel_rays(camera: LensCamera) -> np.ndarray:
     """Unit directions (H * W, 3), camera frame, of the rays through every pixel centre
     (row-major), traced back through the distortion model. Cached per camera (K, dist and
     size, bit for bit) and read-only: the same bytes as computing them again."""
-    key = (camera.width, camera.height, np.asarray(camera.camera_matrix, float).tobytes(),
-           np.asarray(camera.dist, float).tobytes())
-    rays = _PIXEL_RAYS.get(key)
-    if rays is None:
+    def compute() -> np.ndarray:
         us, vs = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
         normalised = undistort_pixels(np.stack([us.ravel(), vs.ravel()], 1), camera)
         rays = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
         rays.setflags(write=False)
-        if len(_PIXEL_RAYS) >= _PIXEL_RAYS_KEPT:
-            _PIXEL_RAYS.pop(next(iter(_PIXEL_RAYS)))
-        _PIXEL_RAYS[key] = rays
-    return rays
+        return rays
+
+    return _PIXEL_RAYS.get(_camera_key(camera), compute)
+
+
+def pixel_directions(camera: LensCamera) -> np.ndarray:
+    """``pixel_rays`` as float32 axes (3, H * W), one contiguous row each; cached per
+    camera and read-only as they are."""
+    def compute() -> np.ndarray:
+        directions = np.ascontiguousarray(pixel_rays(camera).T, np.float32)
+        directions.setflags(write=False)
+        return directions
+
+    return _PIXEL_DIRECTIONS.get(_camera_key(camera), compute)
 
 
 class Lens:

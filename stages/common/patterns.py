@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import threading
-from collections import OrderedDict
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -22,6 +20,7 @@ from core.config import TestbedConfig
 from speedplus.errors import unknown_keys
 from stages.common import layout
 from stages.common.image_io import to_uint8
+from stages.common.kept import Kept
 from stages.common.target import Target
 
 
@@ -151,9 +150,7 @@ def board_image(spec: PatternSpec, px_per_m: float, margin_m: float) -> np.ndarr
 #: detections by (the 8-bit image's digest, its shape, the pattern): a process that detects
 #: the same pixels again (a bench or a test calibrating one folder several ways, or in other
 #: formats) finds them here; the detectors are deterministic, so this is their answer
-_DETECTED: OrderedDict[tuple[bytes, tuple[int, ...], str], tuple[np.ndarray, np.ndarray]] = OrderedDict()
-_DETECTED_KEPT = 4096
-_DETECTED_LOCK = threading.Lock()
+_DETECTED: Kept[tuple[np.ndarray, np.ndarray]] = Kept(4096)
 
 
 def detect(image: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -169,17 +166,8 @@ def detect(image: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray
     detection = np.ascontiguousarray(to_uint8(image))
     # the pattern by its fields' text: a spec made with lists (unhashable) is the same pattern
     key = (hashlib.blake2b(detection.data, digest_size=32).digest(), detection.shape, json.dumps(spec.to_json()))
-    with _DETECTED_LOCK:
-        kept = _DETECTED.get(key)
-        if kept is not None:
-            _DETECTED.move_to_end(key)
-    if kept is None:
-        kept = _detect(detection, spec)
-        with _DETECTED_LOCK:
-            _DETECTED[key] = kept
-            while len(_DETECTED) > _DETECTED_KEPT:
-                _DETECTED.popitem(last=False)
-    return kept[0].copy(), kept[1].copy()
+    pixels, ids = _DETECTED.get(key, lambda: _detect(detection, spec))
+    return pixels.copy(), ids.copy()
 
 
 def _detect(detection: np.ndarray, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:

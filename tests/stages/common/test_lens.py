@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from stages.common import lens
+from stages.common.kept import Kept
 from stages.common.lens import LensCamera, pixel_rays
 
 K = np.array([[900.0, 0, 159.5], [0, 900.0, 99.5], [0, 0, 1]])
@@ -24,7 +25,7 @@ def test_pixel_rays_project_back_onto_their_pixels():
 def test_pixel_rays_are_cached_per_camera_bit_for_bit_and_read_only(monkeypatch):
     camera = LensCamera(K, DIST, 320, 200)
     first = pixel_rays(camera)
-    monkeypatch.setattr(lens, "_PIXEL_RAYS", {})
+    monkeypatch.setattr(lens, "_PIXEL_RAYS", Kept(4))
     fresh = pixel_rays(LensCamera(K.copy(), DIST.copy(), 320, 200))
     assert fresh.tobytes() == first.tobytes()  # a cached answer is the computed one
     assert pixel_rays(LensCamera(K.copy(), DIST.copy(), 320, 200)) is fresh
@@ -32,3 +33,13 @@ def test_pixel_rays_are_cached_per_camera_bit_for_bit_and_read_only(monkeypatch)
     assert other is not fresh and not np.array_equal(other, fresh)
     with pytest.raises(ValueError):
         fresh[0, 0] = 1.0
+
+
+def test_pixel_directions_are_the_rays_axes_in_single_precision_cached_per_camera():
+    camera = LensCamera(K, DIST, 320, 200)
+    directions = lens.pixel_directions(camera)
+    assert directions.shape == (3, 320 * 200) and directions.dtype == np.float32 and directions.flags.c_contiguous
+    assert np.array_equal(directions, pixel_rays(camera).T.astype(np.float32))
+    assert lens.pixel_directions(LensCamera(K.copy(), DIST.copy(), 320, 200)) is directions
+    with pytest.raises(ValueError):
+        directions[0, 0] = 1.0

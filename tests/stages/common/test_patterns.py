@@ -4,6 +4,7 @@ import numpy as np
 
 from pipeline.config import load_config
 from stages.common import layout
+from stages.common.kept import Kept
 from stages.common.patterns import PatternSpec, board_pattern
 from stages.common.workspace_target import planned_target
 
@@ -42,7 +43,7 @@ def test_the_same_pixels_are_detected_once_and_each_caller_gets_its_own_arrays(m
     calls = []
     original = patterns._detect
     monkeypatch.setattr(patterns, "_detect", lambda *args: calls.append(1) or original(*args))
-    monkeypatch.setattr(patterns, "_DETECTED", type(patterns._DETECTED)())
+    monkeypatch.setattr(patterns, "_DETECTED", Kept(16))
     pixels, ids = patterns.detect(image, spec)
     assert len(ids) == 35 and len(calls) == 1
     pixels[:] = -1.0  # the caller's own copy
