@@ -87,18 +87,33 @@ def _move(previous: Reconfiguration, camera_joints: np.ndarray, target_joints: n
     return np.maximum(camera, target) + np.abs(rail - previous.rail_m)
 
 
-def _camera_arm(arm: ArmModel, world_from_camee: np.ndarray, plan: PlanConfig, testbed: TestbedConfig
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _camera_arm(arm: ArmModel, world_from_camee: np.ndarray, plan: PlanConfig, testbed: TestbedConfig,
+                placed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The camera arm's joints (..., O, 6) and whether they reach (..., O) flange poses
     ``world_from_camee`` (..., 4, 4) from each of the plan's rail offsets (O,), on the rail,
-    and those rail positions (..., O) in m."""
+    and those rail positions (..., O) in m; only candidates where ``placed`` (...) holds are
+    solved (the others: NaN joints, not reached)."""
     offsets = np.asarray(plan.rail_offsets_m)  # (O,)
     rail = world_from_camee[..., None, 0, 3] + offsets - testbed.rail_origin_m[0]
     on_rail = (rail >= 0.0) & (rail <= testbed.rail_length_m)
     base_camera = layout.world_from_camera_base(testbed, np.clip(rail, 0.0, testbed.rail_length_m))
-    camera_joints, camera_ok = solve(arm, g.invert(base_camera) @ world_from_camee[..., None, :, :],
-                                     plan.joint_limit_margin_rad)
-    return camera_joints, camera_ok & on_rail, rail
+    camera_joints, camera_ok = _solve_where(arm, g.invert(base_camera) @ world_from_camee[..., None, :, :],
+                                            on_rail & placed[..., None], plan.joint_limit_margin_rad)
+    return camera_joints, camera_ok, rail
+
+
+def _solve_where(arm: ArmModel, base_from_flange: np.ndarray, where: np.ndarray, margin: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``kinematics.solve`` of the flange poses (..., 4, 4) where ``where`` (...) holds: joints
+    (..., 6), NaN elsewhere, and reachability (...), False elsewhere. A candidate that a
+    cheaper rule (the room, the rail, the far side) already refused is never solved: two in
+    three of the camera arm's candidates on the default profile. The closed form works pose
+    by pose, so a solved candidate's joints are those of solving them all."""
+    joints = np.full(where.shape + (6,), np.nan)
+    reachable = np.zeros(where.shape, bool)
+    if where.any():
+        joints[where], reachable[where] = solve(arm, base_from_flange[where], margin)
+    return joints, reachable
 
 
 def _in_room(world_from_frame: np.ndarray, plan: PlanConfig, testbed: TestbedConfig) -> np.ndarray:
@@ -128,19 +143,18 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
     world_from_camee = world_from_cam @ g.invert(layout.camee_from_cam(testbed))
 
     base_target = layout.world_from_target_base(testbed)
-    target_joints, target_ok = solve(arm, g.invert(base_target) @ world_from_targetee, plan.joint_limit_margin_rad)
-
-    camera_joints, camera_ok, rail = _camera_arm(arm, world_from_camee, plan, testbed)
-
-    in_room_ok = (_in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed)
-                  & _in_room(world_from_targetee, plan, testbed))
-    ok = camera_ok & (target_ok & in_room_ok)[..., None]
+    # the rules that need no joints first: the arms solve only what they leave (P, S, R)
+    placed = (_in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed)
+              & _in_room(world_from_targetee, plan, testbed))
     if require_far_side:
         sight = sights[None, :, None, :]
         centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[..., 0, :]
         base_behind = np.einsum("...i,...i->...", base_target[:3, 3] - centre, sight) > 0
         fixture_behind = np.einsum("...i,...i->...", world_from_targetee[..., :3, 3] - centre, sight) > 0
-        ok &= (base_behind & fixture_behind)[..., None]
+        placed &= base_behind & fixture_behind
+    target_joints, target_ok = _solve_where(arm, g.invert(base_target) @ world_from_targetee, placed,
+                                            plan.joint_limit_margin_rad)
+    camera_joints, ok, rail = _camera_arm(arm, world_from_camee, plan, testbed, target_ok)
     if not ok.any():
         return None
     margin = np.minimum(limit_margin(arm, np.nan_to_num(camera_joints)),
@@ -172,12 +186,11 @@ def reconfigure_camera(cam_from_target: np.ndarray, held: Reconfiguration, mount
     world_from_target = held.world_from_targetee @ g.invert(layout.target_from_targetee(target, mount))
     world_from_cam = world_from_target @ g.invert(cam_from_target)  # (N, 4, 4)
     world_from_camee = world_from_cam @ g.invert(layout.camee_from_cam(testbed))
-    camera_joints, camera_ok, rail = _camera_arm(arm, world_from_camee, plan, testbed)  # (N, O, ...)
     centre = g.apply(world_from_target, (target.centre_m * target.mockup_scale)[None])[0]
     sight = centre - world_from_cam[:, :3, 3]
     base_behind = (layout.world_from_target_base(testbed)[:3, 3] - centre) @ sight.T > 0  # (N,)
-    ok = camera_ok & (_in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed)
-                      & base_behind)[:, None]
+    placed = _in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed) & base_behind
+    camera_joints, ok, rail = _camera_arm(arm, world_from_camee, plan, testbed, placed)  # (N, O, ...)
     if not ok.any():
         return None
     first = int(np.argmax(ok.any(axis=1)))

@@ -317,3 +317,68 @@ def test_a_dataset_pose_that_cannot_be_planned_gives_way_to_the_next_lender(defa
     assert len(asked) > 3 and mount == "plus_x"
     assert list(commands.target_joints_rad) == lend(asked[-1])["target_joints_rad"]
     assert covering.cover(default_config, 4, target, np.random.default_rng(0), lend) == (None, 0)
+
+
+def test_solving_only_the_placed_candidates_is_solving_them_all(seed=7):
+    """The closed form is solved only where the room, the rail and the far side leave a
+    candidate (``reconfigure._solve_where``): there its joints are those of solving every
+    pose, NaN and unreached elsewhere, for reachable and unreachable poses alike."""
+    from stages.common.kinematics import solve
+    from stages.plan import reconfigure as rc
+
+    rng = np.random.default_rng(seed)
+    joints = rng.uniform(KR16_2.lower, KR16_2.upper, size=(40, 6))
+    poses = forward(KR16_2, joints)
+    poses[::3, :3, 3] *= rng.uniform(1.5, 3.0, size=(len(poses[::3]), 1))  # some out of reach
+    poses = poses.reshape(5, 8, 4, 4)
+    where = rng.random((5, 8)) < 0.6
+    solved, reached = rc._solve_where(KR16_2, poses, where, 0.05)
+    every, every_reached = solve(KR16_2, poses, 0.05)
+    np.testing.assert_array_equal(solved[where], every[where])
+    np.testing.assert_array_equal(reached, every_reached & where)
+    assert np.isnan(solved[~where]).all() and 0 < reached.sum() < where.sum()
+
+
+@pytest.mark.parametrize("with_previous", [False, True])
+def test_a_reconfiguration_is_the_one_chosen_from_every_candidate_solved(default_config, default_plan,
+                                                                         monkeypatch, with_previous):
+    """What ``reconfigure`` and ``reconfigure_camera`` choose when only the candidates that the
+    joint-free rules leave are solved equals what they choose when every candidate is solved
+    and the rules applied after, as the plan did before it skipped them (its bytes the same)."""
+    from stages.common.kinematics import solve
+    from stages.plan import reconfigure as rc
+
+    plan, testbed, target = default_config.plan, default_config.testbed, planned_target(default_config)
+    rows = dataset(default_plan)[:6]
+
+    def choices() -> list:
+        out = []
+        previous = None
+        for row in rows:
+            found = rc.reconfigure(pose(row, "cam_from_target"), row["mount"], plan, testbed, target, True, previous)
+            out.append(found)
+            previous = found if with_previous else None
+        held = out[0]
+        out.append(rc.reconfigure_camera(np.stack([pose(r, "cam_from_target") for r in rows]), held, rows[0]["mount"],
+                                         plan, testbed, target))
+        return out
+
+    skipping = choices()
+
+    def every(arm, base_from_flange, where, margin):
+        joints, reached = solve(arm, base_from_flange, margin)
+        return joints, reached & where
+
+    monkeypatch.setattr(rc, "_solve_where", every)
+    assert sum(c is not None for c in skipping) >= 4
+    for mine, theirs in zip(skipping, choices(), strict=True):
+        assert _fields(mine) == _fields(theirs)
+
+
+def _fields(found) -> list:
+    """A reconfiguration (or a camera's (index, reconfiguration)) as exact values: bytes of its arrays."""
+    if isinstance(found, tuple):
+        return [found[0], *_fields(found[1])]
+    if found is None:
+        return [None]
+    return [np.asarray(value).tobytes() for value in vars(found).values()]
