@@ -4,8 +4,9 @@ a relative pose ``cam_from_target``, reachable by both arms.
 Free choices (the relative pose fixes only 6 of the 13 degrees of freedom): where the
 target robot presents the model, the direction of the line of sight in the room, the
 camera's roll about that line, and where the rail puts the camera robot. A grid of these
-is evaluated at once with closed-form inverse kinematics; the candidate whose joints stay
-farthest from their limits wins. Rules that every returned candidate obeys:
+is evaluated at once: the rules that need no joints first, then closed-form inverse
+kinematics for the candidates they leave; the candidate whose joints stay farthest from
+their limits wins. Rules that every returned candidate obeys:
 
 - both arms reach their flange poses within joint limits (with a margin);
 - the rail position lies on the rail;
@@ -88,27 +89,27 @@ def _move(previous: Reconfiguration, camera_joints: np.ndarray, target_joints: n
 
 
 def _camera_arm(arm: ArmModel, world_from_camee: np.ndarray, plan: PlanConfig, testbed: TestbedConfig,
-                placed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The camera arm's joints (..., O, 6) and whether they reach (..., O) flange poses
     ``world_from_camee`` (..., 4, 4) from each of the plan's rail offsets (O,), on the rail,
-    and those rail positions (..., O) in m; only candidates where ``placed`` (...) holds are
-    solved (the others: NaN joints, not reached)."""
+    and those rail positions (..., O) in m. Only the candidates where ``wanted`` (...) holds
+    are solved (the others: NaN joints, not reached): a caller's rules rule out the rest."""
     offsets = np.asarray(plan.rail_offsets_m)  # (O,)
     rail = world_from_camee[..., None, 0, 3] + offsets - testbed.rail_origin_m[0]
     on_rail = (rail >= 0.0) & (rail <= testbed.rail_length_m)
     base_camera = layout.world_from_camera_base(testbed, np.clip(rail, 0.0, testbed.rail_length_m))
     camera_joints, camera_ok = _solve_where(arm, g.invert(base_camera) @ world_from_camee[..., None, :, :],
-                                            on_rail & placed[..., None], plan.joint_limit_margin_rad)
-    return camera_joints, camera_ok, rail
+                                            on_rail & wanted[..., None], plan.joint_limit_margin_rad)
+    return camera_joints, camera_ok & on_rail, rail
 
 
 def _solve_where(arm: ArmModel, base_from_flange: np.ndarray, where: np.ndarray, margin: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """``kinematics.solve`` of the flange poses (..., 4, 4) where ``where`` (...) holds: joints
     (..., 6), NaN elsewhere, and reachability (...), False elsewhere. A candidate that a
-    cheaper rule (the room, the rail, the far side) already refused is never solved: two in
-    three of the camera arm's candidates on the default profile. The closed form works pose
-    by pose, so a solved candidate's joints are those of solving them all."""
+    cheaper rule (the room, the rail, the far side, the other arm) already refused is never
+    solved; the callers still apply every rule to what comes back. The closed form works
+    pose by pose, so a solved candidate's joints are those of solving them all."""
     joints = np.full(where.shape + (6,), np.nan)
     reachable = np.zeros(where.shape, bool)
     if where.any():
@@ -154,7 +155,8 @@ def reconfigure(cam_from_target: np.ndarray, mount: str, plan: PlanConfig, testb
         placed &= base_behind & fixture_behind
     target_joints, target_ok = _solve_where(arm, g.invert(base_target) @ world_from_targetee, placed,
                                             plan.joint_limit_margin_rad)
-    camera_joints, ok, rail = _camera_arm(arm, world_from_camee, plan, testbed, target_ok)
+    camera_joints, camera_ok, rail = _camera_arm(arm, world_from_camee, plan, testbed, target_ok)
+    ok = camera_ok & (target_ok & placed)[..., None]
     if not ok.any():
         return None
     margin = np.minimum(limit_margin(arm, np.nan_to_num(camera_joints)),
@@ -190,7 +192,8 @@ def reconfigure_camera(cam_from_target: np.ndarray, held: Reconfiguration, mount
     sight = centre - world_from_cam[:, :3, 3]
     base_behind = (layout.world_from_target_base(testbed)[:3, 3] - centre) @ sight.T > 0  # (N,)
     placed = _in_room(world_from_cam, plan, testbed) & _in_room(world_from_camee, plan, testbed) & base_behind
-    camera_joints, ok, rail = _camera_arm(arm, world_from_camee, plan, testbed, placed)  # (N, O, ...)
+    camera_joints, camera_ok, rail = _camera_arm(arm, world_from_camee, plan, testbed, placed)  # (N, O, ...)
+    ok = camera_ok & placed[:, None]
     if not ok.any():
         return None
     first = int(np.argmax(ok.any(axis=1)))
