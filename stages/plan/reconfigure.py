@@ -110,7 +110,7 @@ def _solve_where(arm: ArmModel, base_from_flange: np.ndarray, where: np.ndarray,
     cheaper rule (the room, the rail, the far side, the other arm) already refused is never
     solved; the callers still apply every rule to what comes back. The closed form works
     pose by pose, so a solved candidate's joints are those of solving them all."""
-    joints = np.full(where.shape + (6,), np.nan)
+    joints = np.full(where.shape + (len(arm.lower),), np.nan)
     reachable = np.zeros(where.shape, bool)
     if where.any():
         joints[where], reachable[where] = solve(arm, base_from_flange[where], margin)
