@@ -2,7 +2,7 @@
 
 The suite starts some 300 `speedplus` processes, and a fresh interpreter spends 0.4-1.0 s of
 each importing the same third-party libraries (numpy, pyarrow, pandas, pydantic, typer, rich,
-yourdfpy) before and as the command starts. Here one interpreter per pytest worker imports them once, and each run
+OpenCV) before and as the command starts. Here one interpreter per pytest worker imports them once, and each run
 is a process forked from it: a process of its own, with the run's arguments, environment,
 working directory, standard streams and exit status, that imports the project's own modules
 afresh (so that their import-time state follows the run's environment) and runs the console
@@ -35,11 +35,11 @@ from pathlib import Path
 
 #: the third-party libraries every command imports at its start, and those the stages that run
 #: in the command's own process import (calibrate, fuse, label: SciPy); pandas, which pyarrow
-#: imports at its first conversion of Python values (every manifest written), and yourdfpy with
-#: trimesh and networkx (a facility's URDFs): 0.28 s of a command, the two; no renderer, no torch
+#: imports at its first conversion of Python values (every manifest written): 0.28 s of a command,
+#: with OpenCV; no renderer, no torch
 WARM = ("numpy", "pyarrow", "pyarrow.parquet", "pyarrow.compute", "pyarrow.dataset", "pandas", "pyarrow.pandas_compat",
         "pydantic", "pydantic.types", "annotated_types", "importlib.metadata", "typer", "rich.console", "rich.table",
-        "rich.markup", "cv2", "scipy.optimize", "scipy.stats", "scipy.spatial.transform", "scipy.linalg", "yourdfpy")
+        "rich.markup", "cv2", "scipy.optimize", "scipy.stats", "scipy.spatial.transform", "scipy.linalg")
 
 
 def _serve() -> None:

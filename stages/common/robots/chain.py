@@ -2,9 +2,9 @@
 kinematics and Jacobian, its joint limits and a capsule per link for collision checks
 (docs/architecture.md section 11).
 
-The URDF is read with yourdfpy (it keeps every element typed: joint origins, axes, limits,
-collision geometry; pytransform3d's ``UrdfTransformManager`` gives a transform graph, one
-pose per query, where a planner needs batches). The kinematics are evaluated here, in
+The URDF is read by ``stages.common.robots.urdf`` (joint origins, axes, limits, masses and
+collision shapes, typed; pytransform3d's ``UrdfTransformManager`` gives a transform graph,
+one pose per query, where a planner needs batches). The kinematics are evaluated here, in
 numpy, over batches of joint vectors.
 
 Frames: ``base_from_flange`` (..., 4, 4) maps flange coordinates into the base link's
@@ -14,13 +14,13 @@ URDF written to match its controller (ROS-Industrial's convention) are the contr
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from speedplus.errors import FileError
+from stages.common.robots.urdf import Robot, read_urdf
 
 #: joint types a serial arm may have between base and flange (URDF names)
 MOVING = ("revolute", "continuous", "prismatic")
@@ -191,27 +191,14 @@ class SerialChain:
 
 
 def load_chain(urdf_path: Path, base_link: str, flange_link: str) -> SerialChain:
-    """The serial chain from ``base_link`` to ``flange_link`` of a URDF file; errors name the
-    file and the element (or the line and column of an XML error)."""
-    import yourdfpy
-
+    """The serial chain from ``base_link`` to ``flange_link`` of a URDF file
+    (``stages.common.robots.urdf``); errors name the file and the element (or the line and
+    column of an XML error)."""
     path = Path(urdf_path)
-    try:
-        ElementTree.parse(path)  # strict: yourdfpy's parser would recover from broken XML
-    except ElementTree.ParseError as error:
-        line, column = error.position
-        raise FileError(path, f"line {line}, column {column + 1}: not valid XML ({error})") from None
-    except OSError as error:
-        raise FileError(path, f"cannot be read ({error.strerror or error})") from None
-    try:
-        urdf = yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=False,
-                                  build_collision_scene_graph=False, load_collision_meshes=False)
-    except Exception as error:  # yourdfpy raises what its XML walk meets
-        raise FileError(path, f"not a URDF that yourdfpy reads ({type(error).__name__}: {error})") from None
-    return _chain(path, urdf.robot, base_link, flange_link)
+    return _chain(path, read_urdf(path), base_link, flange_link)
 
 
-def _chain(path: Path, robot: object, base_link: str, flange_link: str) -> SerialChain:
+def _chain(path: Path, robot: Robot, base_link: str, flange_link: str) -> SerialChain:
     links = {link.name: link for link in robot.links}
     for role, name in (("base_link", base_link), ("flange_link", flange_link)):
         if name not in links:
@@ -301,13 +288,13 @@ def _link_capsules(link: object, joint: int, link_in_joint: np.ndarray) -> list[
         pose = link_in_joint @ (np.eye(4) if collision.origin is None else np.asarray(collision.origin, float))
         shape = collision.geometry
         if shape.cylinder is not None:
-            half, radius = shape.cylinder.length / 2, shape.cylinder.radius
+            radius, half = shape.cylinder[0], shape.cylinder[1] / 2
             a, b = np.array([0, 0, -half]), np.array([0, 0, half])
         elif shape.sphere is not None:
             a = b = np.zeros(3)
-            radius = shape.sphere.radius
+            radius = shape.sphere
         elif shape.box is not None:
-            size = np.asarray(shape.box.size, float)
+            size = np.asarray(shape.box, float)
             long = int(np.argmax(size))
             a, b = np.zeros(3), np.zeros(3)
             a[long], b[long] = -size[long] / 2, size[long] / 2

@@ -100,12 +100,63 @@ LIMIT = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
      "not valid XML"),
     (LINKS.replace('<link name="a"/>', '<link name="a"><inertial><mass value="-3"/></inertial></link>')
      + JOINT.format(kind="revolute", limit=LIMIT), "tool0", '<link name="a">: <mass value> -3.0 is not a mass'),
+    # what stages/common/robots/urdf.py refuses where a lenient reader would guess
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace('xyz="0.5 0 0"', 'xyz="0.5 0"'), "tool0",
+     '<joint name="j2">: <origin xyz="0.5 0"> is not 3 finite number(s)'),
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT.replace('upper="1"', 'upper="one"')), "tool0",
+     '<joint name="j1">: <limit upper="one"> is not 1 finite number(s)'),
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace('<parent link="base_link"/>', ""), "tool0",
+     '<joint name="j1">: has no <parent link>'),
+    (LINKS.replace('<link name="a"/>', '<link name="a"><collision><geometry><box size="1 nan 1"/></geometry>'
+                   '</collision></link>') + JOINT.format(kind="revolute", limit=LIMIT), "tool0",
+     '<link name="a">: <box size="1 nan 1"> is not 3 finite number(s)'),
 ])
 def test_a_bad_urdf_is_refused_naming_the_element(tmp_path, body, flange, message):
     path = _urdf(tmp_path, body)
     with pytest.raises(FileError) as raised:
         load_chain(path, "base_link", flange)
     assert str(raised.value).startswith(str(path)) and message in str(raised.value), raised.value
+
+
+def test_a_file_whose_root_is_not_a_robot_is_refused(tmp_path):
+    path = tmp_path / "arm.urdf"
+    path.write_text("<sdf/>")
+    with pytest.raises(FileError, match="the root element is <sdf>, not <robot>"):
+        load_chain(path, "base_link", "tool0")
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_origins_axes_and_shapes_are_read_as_yourdfpy_reads_them(tmp_path, seed):
+    """A seeded chain of three revolute joints with arbitrary origins (xyz, roll-pitch-yaw),
+    unnormalised axes and a collision box each: our reader (``robots/urdf.py``) and
+    yourdfpy's give the same forward kinematics, and the boxes' sizes and origins."""
+    import yourdfpy
+
+    rng = np.random.default_rng(seed)
+
+    def origin() -> str:
+        xyz, rpy = rng.uniform(-0.5, 0.5, 3), rng.uniform(-np.pi, np.pi, 3)
+        return f'<origin xyz="{" ".join(str(float(v)) for v in xyz)}" rpy="{" ".join(str(float(v)) for v in rpy)}"/>'
+
+    links = ['<link name="base_link"/>'] + [
+        f'<link name="l{i}"><collision>{origin()}<geometry><box size="0.1 0.2 {0.3 + i}"/></geometry></collision>'
+        '</link>' for i in range(3)]
+    joints = [f'<joint name="j{i}" type="revolute"><parent link="{"base_link" if i == 0 else f"l{i - 1}"}"/>'
+              f'<child link="l{i}"/>{origin()}<axis xyz="{" ".join(str(float(v)) for v in rng.normal(size=3))}"/>'
+              '<limit lower="-3" upper="3" effort="1" velocity="1"/></joint>' for i in range(3)]
+    path = _urdf(tmp_path, "".join(links + joints))
+    chain = load_chain(path, "base_link", "l2")
+    independent = yourdfpy.URDF.load(str(path), load_meshes=False, build_collision_scene_graph=False)
+    for joints_rad in rng.uniform(-3, 3, size=(10, 3)):
+        independent.update_cfg(dict(zip(chain.joint_names, joints_rad, strict=True)))
+        assert np.abs(chain.forward(joints_rad) - independent.get_transform("l2", "base_link")).max() < 1e-12
+    from stages.common.robots.urdf import read_urdf
+
+    ours = {link.name: link for link in read_urdf(path).links}
+    for link in independent.robot.links:
+        for mine, theirs in zip(ours[link.name].collisions, link.collisions, strict=True):
+            np.testing.assert_allclose(mine.origin, theirs.origin, atol=1e-15)
+            np.testing.assert_array_equal(mine.geometry.box, theirs.geometry.box.size)
 
 
 def test_a_links_mass_hangs_on_the_joint_that_moves_it(tmp_path):
