@@ -209,6 +209,10 @@ def _chain(path: Path, robot: Robot, base_link: str, flange_link: str) -> Serial
     link = flange_link
     while link != base_link:
         joint = by_child.get(link)
+        if joint is not None and (joint.parent not in links or any(j is joint for j in path_joints)):
+            why = (f"names <parent link=\"{joint.parent}\">, which the file does not hold" if joint.parent not in links
+                   else "closes a loop of joints: a serial chain has none")
+            raise FileError(path, f"<joint name=\"{joint.name}\"> {why}")
         if joint is None:
             raise FileError(path, f"<link name=\"{flange_link}\"> does not hang below <link name=\"{base_link}\">: "
                                   "no serial chain joins them")

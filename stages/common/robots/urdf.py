@@ -2,12 +2,15 @@
 that a serial chain needs: links with their ``<inertial>`` mass and ``<collision>`` shapes,
 and joints with their type, parent, child, ``<origin>``, ``<axis>`` and ``<limit>``.
 
-Read with the standard library's ElementTree, strictly: a number that does not parse is an
-error naming the file, the element and the attribute, where a lenient reader would guess.
+Read with the standard library's ElementTree, strictly in what it reads (``<visual>``,
+``<inertia>``, ``<dynamics>`` and ``<mimic>`` are not): a number that does not parse, or a
+shape without its size, is an error naming the file, the element and the attribute, where
+a lenient reader would guess.
 Why not yourdfpy (docs/architecture.md section 11): importing it imports trimesh and
-networkx, 0.65 CPU-s of every command that loads a facility in a fresh process, for what is
-a walk over a few dozen elements. The tests keep yourdfpy as the independent reader whose
-forward kinematics the chain must reproduce (tests/stages/common/robots/test_facility.py).
+networkx (0.65 s), for what is a walk over a few dozen elements; a fresh `speedplus
+calibrate` of the smoke profile took 5.4 instead of 5.7 user CPU-s without it. The tests
+keep yourdfpy as the independent reader whose forward kinematics and shapes the chain must
+reproduce (tests/stages/common/robots/test_chain.py, test_facility.py).
 
 Conventions, from the URDF specification: ``<origin xyz rpy>`` is the child frame in the
 parent's, its rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` (fixed axes x, y, z), both defaulting
@@ -93,7 +96,7 @@ def read_urdf(path: Path) -> Robot:
     if root.tag != "robot":
         raise FileError(path, f"the root element is <{root.tag}>, not <robot>")
     reader = _Reader(path)
-    return Robot(root.get("name", ""), [reader.link(e) for e in root.findall("link")],
+    return Robot(root.get("name") or path.stem, [reader.link(e) for e in root.findall("link")],
                  [reader.joint(e) for e in root.findall("joint")])
 
 
@@ -148,19 +151,24 @@ class _Reader:
         return Link(name, inertial, collisions)
 
     def _shape(self, geometry: ElementTree.Element | None, where: str) -> Shape:
-        if geometry is None:
+        """The ``<geometry>``'s one shape (its first child, as URDF has one); sizes required
+        and positive. A mesh has no size without loading it: an empty shape."""
+        if geometry is None or len(geometry) == 0:
+            raise self._fail(where, "a <collision> has no <geometry> shape")
+        shape = geometry[0]
+        sizes = {"box": ("size", 3), "cylinder": ("radius", 1), "sphere": ("radius", 1)}
+        if shape.tag not in sizes:
             return Shape()
-        box, cylinder, sphere = geometry.find("box"), geometry.find("cylinder"), geometry.find("sphere")
-        if box is not None:
-            return Shape(box=self._numbers(box, "size", 3, where, (0.0, 0.0, 0.0)))
-        if cylinder is not None:
-            radius, = self._numbers(cylinder, "radius", 1, where, (0.0,))
-            length, = self._numbers(cylinder, "length", 1, where, (0.0,))
-            return Shape(cylinder=(float(radius), float(length)))
-        if sphere is not None:
-            radius, = self._numbers(sphere, "radius", 1, where, (0.0,))
-            return Shape(sphere=float(radius))
-        return Shape()  # a mesh: no size without loading it
+        values = {attribute: self._numbers(shape, attribute, count, where)
+                  for attribute, count in [sizes[shape.tag]] + ([("length", 1)] if shape.tag == "cylinder" else [])}
+        for attribute, value in values.items():
+            if value is None or np.any(value <= 0):
+                raise self._fail(where, f"<{shape.tag} {attribute}> must be given, positive (m)")
+        if shape.tag == "box":
+            return Shape(box=values["size"])
+        if shape.tag == "cylinder":
+            return Shape(cylinder=(float(values["radius"][0]), float(values["length"][0])))
+        return Shape(sphere=float(values["radius"][0]))
 
     def joint(self, element: ElementTree.Element) -> Joint:
         name = self._name(element)

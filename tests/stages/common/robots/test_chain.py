@@ -101,6 +101,14 @@ LIMIT = '<limit lower="-1" upper="1" effort="1" velocity="1"/>'
     (LINKS.replace('<link name="a"/>', '<link name="a"><inertial><mass value="-3"/></inertial></link>')
      + JOINT.format(kind="revolute", limit=LIMIT), "tool0", '<link name="a">: <mass value> -3.0 is not a mass'),
     # what stages/common/robots/urdf.py refuses where a lenient reader would guess
+    (LINKS.replace('<link name="a"/>', '<link name="a"><collision><geometry><box/></geometry></collision></link>')
+     + JOINT.format(kind="revolute", limit=LIMIT), "tool0", '<link name="a">: <box size> must be given, positive'),
+    (LINKS.replace('<link name="a"/>', '<link name="a"><collision/></link>')
+     + JOINT.format(kind="revolute", limit=LIMIT), "tool0", '<link name="a">: a <collision> has no <geometry> shape'),
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace('<parent link="base_link"/>', '<parent link="nope"/>'),
+     "tool0", '<joint name="j1"> names <parent link="nope">, which the file does not hold'),
+    (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace('<parent link="base_link"/>', '<parent link="tool0"/>'),
+     "tool0", "closes a loop of joints"),
     (LINKS + JOINT.format(kind="revolute", limit=LIMIT).replace('xyz="0.5 0 0"', 'xyz="0.5 0"'), "tool0",
      '<joint name="j2">: <origin xyz="0.5 0"> is not 3 finite number(s)'),
     (LINKS + JOINT.format(kind="revolute", limit=LIMIT.replace('upper="1"', 'upper="one"')), "tool0",
